@@ -1,0 +1,134 @@
+"""One b-CAP request/reply exchange over a transport (``../shared/notes/bcap.md`` §2, §10, §16).
+
+:class:`BcapLink` numbers requests (1..65535, wrapping to 1), writes each packet in one write, and waits
+for the reply with the same serial: replies with other serials are discarded, and each S_EXECUTING
+keep-alive is skipped and restarts the receive timeout. TCP never re-sends. On a serial line (or UDP)
+a call may be attempted ``retries`` times (1..7): every attempt gets a new serial and carries the first
+attempt's serial in the reserved field, so the controller answers a duplicate from its cache instead of
+executing twice.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from collections.abc import Sequence
+from typing import Any
+
+from drivers.denso.bcap import (
+    SERIAL_MAX_PACKET,
+    TCP_MAX_PACKET,
+    Packet,
+    PacketDecoder,
+    encode_packet,
+    function_name,
+    next_serial,
+)
+from drivers.denso.hresult import (
+    BcapConnectionError,
+    BcapError,
+    BcapTimeoutError,
+    is_failure,
+)
+from drivers.denso.variant import Variant
+from drivers.transport import Transport, TransportClosed, TransportError, TransportTimeout
+
+log = logging.getLogger(__name__)
+
+MAX_ATTEMPTS = 7
+
+
+class BcapLink:
+    """Request/reply engine. Thread-safe: one call at a time.
+
+    Args:
+        transport: an open :class:`drivers.transport.Transport`.
+        serial_line: True on RS-232C (CRC framing, 503-byte cap, retries allowed).
+        retries: attempts per call on a serial line, 1..7 (TCP always makes exactly one).
+        timeout_s: receive timeout per attempt, restarted by each keep-alive; must exceed the WDT.
+        invoke_timeout_s: cap on one call's total duration even while keep-alives arrive.
+    """
+
+    def __init__(self, transport: Transport, *, serial_line: bool = False, retries: int = 3,
+                 timeout_s: float = 3.0, invoke_timeout_s: float = 180.0) -> None:
+        if not 1 <= retries <= MAX_ATTEMPTS:
+            raise ValueError(f"retries={retries}: must be 1..{MAX_ATTEMPTS} attempts")
+        if not timeout_s > 0:
+            raise ValueError(f"timeout_s={timeout_s}: must be > 0 seconds")
+        if not invoke_timeout_s >= timeout_s:
+            raise ValueError(f"invoke_timeout_s={invoke_timeout_s}: must be >= timeout_s={timeout_s}")
+        self.transport = transport
+        self.serial_line = serial_line
+        self.attempts = retries if serial_line else 1
+        self.timeout_s = float(timeout_s)
+        self.invoke_timeout_s = float(invoke_timeout_s)
+        self.max_length = SERIAL_MAX_PACKET if serial_line else TCP_MAX_PACKET
+        self._decoder = PacketDecoder(serial_line=serial_line)
+        self._serial = 0
+        self._lock = threading.Lock()
+        self.keepalives_seen = 0
+        self.discarded_replies = 0
+
+    @property
+    def last_serial(self) -> int:
+        return self._serial
+
+    def call(self, function_id: int, args: Sequence[Any] = (), *,
+             timeout_s: float | None = None) -> list[Variant]:
+        """Send one request and return the reply's arguments; a failure HRESULT raises :class:`BcapError`."""
+        name = function_name(function_id)
+        timeout = self.timeout_s if timeout_s is None else float(timeout_s)
+        with self._lock:
+            sent: set[int] = set()
+            first = 0
+            for attempt in range(self.attempts):
+                self._serial = next_serial(self._serial)
+                serial = self._serial
+                first = first or serial
+                reserved = first if self.serial_line else 0
+                packet = encode_packet(serial, reserved, function_id, args, serial_line=self.serial_line,
+                                       max_length=self.max_length)
+                sent.add(serial)
+                try:
+                    self.transport.write(packet)
+                    reply = self._await(sent, timeout, name)
+                except TransportTimeout:
+                    log.warning("%s: no reply to serial %d (attempt %d of %d)", name, serial, attempt + 1,
+                                self.attempts)
+                    self._decoder.drop_stalled_frame()
+                    continue
+                except TransportError as exc:
+                    kind = "closed" if isinstance(exc, TransportClosed) else "failed"
+                    raise BcapConnectionError(f"link {kind} during the call: {exc}", function=name) from exc
+                if is_failure(reply.code):
+                    raise BcapError(reply.code, function=name)
+                return list(reply.args)
+            raise BcapTimeoutError(
+                f"no reply within {timeout:g} s after {self.attempts} attempt(s)", function=name)
+
+    def _await(self, serials: set[int], timeout_s: float, name: str) -> Packet:
+        """Read packets until the reply to one of ``serials``; keep-alives restart the timeout."""
+        call_deadline = time.monotonic() + self.invoke_timeout_s
+        deadline = time.monotonic() + timeout_s
+        while True:
+            packet = self._decoder.next_packet()
+            if packet is None:
+                remaining = min(deadline, call_deadline) - time.monotonic()
+                if remaining <= 0:
+                    if time.monotonic() >= call_deadline:
+                        raise BcapTimeoutError(f"call still executing after {self.invoke_timeout_s:g} s",
+                                               function=name)
+                    raise TransportTimeout(f"{self.transport.url}: no reply within {timeout_s:g} s")
+                self._decoder.feed(self.transport.read_exact(1, remaining))
+                self._decoder.feed(self.transport.read_available())
+                continue
+            if packet.serial not in serials:
+                self.discarded_replies += 1
+                log.debug("%s: discarded a reply with serial %d", name, packet.serial)
+                continue
+            if packet.is_keepalive:
+                self.keepalives_seen += 1
+                deadline = time.monotonic() + timeout_s
+                continue
+            return packet
