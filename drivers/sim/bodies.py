@@ -1,0 +1,391 @@
+"""Bodies of the simulated rig whose pose is an exact function of time, kept for all past times.
+
+* :class:`RobotBody` — the Denso flange: rests, or moves between P poses (x, y, z mm; rx, ry, rz deg,
+  Denso convention R = Rz(rz)·Ry(ry)·Rx(rx), rotations about the fixed base axes) with a trapezoidal
+  velocity profile in Cartesian space; orientation follows the same normalised profile (slerp).
+* :class:`OscillatorBody` — a body driven at frequency f(t) with phase φ(t) = φ0 + ∫ 2π f dt computed in
+  closed form for constant, linear-ramp and linear/log-sweep segments (phase-continuous across commands);
+  displacement = A(t)·sin φ(t) for the exciter and the shaker, angle = φ(t) for the rotor.
+
+Thread safety and the command rule: mock servers drive the bodies from their own threads. Every command
+takes a time ``t_s`` that must be ≥ the time of the previous command on that body (else
+:class:`SimCommandError`); a command only replaces the planned future (segments at t ≥ t_s) and never the
+past, so frames of a camera can be rendered for any past instant after the fact. Writers hold a lock;
+readers take an immutable snapshot (a tuple) and need no lock. All query methods accept a float or an
+array of times and return the matching shape.
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+from dataclasses import dataclass
+from typing import Literal
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+__all__ = ["OscillatorBody", "RobotBody", "SimCommandError", "euler_deg_to_matrix", "trapezoid_duration_s"]
+
+
+class SimCommandError(ValueError):
+    """A command to a simulated body is invalid (bad value, time going backwards, robot busy)."""
+
+
+def _finite(value: float, name: str, *, positive: bool = False, nonneg: bool = False) -> float:
+    v = float(value)
+    if not math.isfinite(v) or (positive and v <= 0.0) or (nonneg and v < 0.0):
+        need = "> 0" if positive else "≥ 0" if nonneg else "finite"
+        raise SimCommandError(f"{name} must be a finite number {need}, got {value!r}")
+    return v
+
+
+def euler_deg_to_matrix(rxyz_deg: np.ndarray) -> np.ndarray:
+    """Rotation matrix (…, 3, 3) of Denso angles rx, ry, rz in degrees: R = Rz·Ry·Rx (fixed axes)."""
+    return Rotation.from_euler("xyz", np.asarray(rxyz_deg, float), degrees=True).as_matrix()
+
+
+def trapezoid_duration_s(distance: float, speed: float, accel: float) -> tuple[float, float, float]:
+    """(t_accel_s, t_cruise_s, v_peak) of a rest-to-rest trapezoidal profile over ``distance`` (≥ 0)."""
+    if distance <= 0.0:
+        return 0.0, 0.0, 0.0
+    if distance >= speed * speed / accel:
+        return speed / accel, (distance - speed * speed / accel) / speed, speed
+    v_peak = math.sqrt(distance * accel)
+    return v_peak / accel, 0.0, v_peak
+
+
+@dataclass(frozen=True)
+class _Move:
+    """One move of the flange; the path parameter s ∈ [0, 1] runs through constant-acceleration phases."""
+
+    t_start_s: float
+    t_end_s: float
+    p0_mm: np.ndarray
+    dp_mm: np.ndarray
+    r0: Rotation
+    rotvec: np.ndarray  # rotation from start to target orientation, base frame, as r0⁻¹·r1 rotation vector
+    phases: tuple[tuple[float, float, float, float], ...]  # (t0, s0, v0 per s, a per s²)
+    s_end: float
+    decel_norm: float  # per s² (for halt)
+    rest_pose: np.ndarray  # (6,) pose at rest after the move
+    linear: bool
+
+    def s_at(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Path parameter s and its rate ds/dt at times t (clamped to the move's interval)."""
+        tc = np.clip(t, self.t_start_s, self.t_end_s)
+        starts = np.array([p[0] for p in self.phases])
+        k = np.clip(np.searchsorted(starts, tc, side="right") - 1, 0, len(starts) - 1)
+        ph = np.array(self.phases)[k]
+        tau = tc - ph[..., 0]
+        s = ph[..., 1] + ph[..., 2] * tau + 0.5 * ph[..., 3] * tau * tau
+        v = ph[..., 2] + ph[..., 3] * tau
+        done = t >= self.t_end_s
+        return np.where(done, self.s_end, np.minimum(s, self.s_end)), np.where(done, 0.0, v)
+
+
+class RobotBody:
+    """The robot flange. ``home_pose`` is its pose before the first move (x, y, z mm; rx, ry, rz deg).
+
+    ``rot_speed_deg_s`` / ``rot_accel_deg_s2`` bound the orientation change; a move lasts as long as the
+    slower of translation and rotation needs, and both follow that one normalised trapezoid. The twin has
+    no joint model: a PTP move (``linear=False``) follows the same straight Cartesian path as a linear one
+    (end pose and duration are right; the path between differs on a real arm).
+    """
+
+    def __init__(self, home_pose: np.ndarray | tuple[float, ...] = (350.0, 0.0, 300.0, 90.0, 0.0, 90.0),
+                 *, rot_speed_deg_s: float = 120.0, rot_accel_deg_s2: float = 480.0) -> None:
+        self._home = self._check_pose(home_pose, "home_pose")
+        self.rot_speed_deg_s = _finite(rot_speed_deg_s, "rot_speed_deg_s", positive=True)
+        self.rot_accel_deg_s2 = _finite(rot_accel_deg_s2, "rot_accel_deg_s2", positive=True)
+        self._moves: tuple[_Move, ...] = ()
+        self._last_command_s = -math.inf
+        self._lock = threading.Lock()
+
+    @staticmethod
+    def _check_pose(pose: np.ndarray | tuple[float, ...], name: str) -> np.ndarray:
+        p = np.asarray(pose, dtype=float)
+        if p.shape != (6,) or not np.all(np.isfinite(p)):
+            raise SimCommandError(f"{name} must be 6 finite numbers (x, y, z mm, rx, ry, rz deg), "
+                                  f"got {pose!r}")
+        return p.copy()
+
+    def _check_time(self, t_s: float) -> float:
+        t = _finite(t_s, "t_s")
+        if t < self._last_command_s:
+            raise SimCommandError(f"t_s={t!r} is before the previous command at {self._last_command_s!r}; "
+                                  "commands must not go back in time")
+        return t
+
+    @property
+    def last_command_s(self) -> float:
+        return self._last_command_s
+
+    def move(self, t_start_s: float, target_pose: np.ndarray | tuple[float, ...], speed_mm_s: float,
+             accel_mm_s2: float, linear: bool = True) -> float:
+        """Start a move at ``t_start_s`` to ``target_pose``; return the time it ends (at rest).
+
+        Raises :class:`SimCommandError` if the robot is still moving at ``t_start_s`` (halt first).
+        """
+        target = self._check_pose(target_pose, "target_pose")
+        speed = _finite(speed_mm_s, "speed_mm_s", positive=True)
+        accel = _finite(accel_mm_s2, "accel_mm_s2", positive=True)
+        with self._lock:
+            t0 = self._check_time(t_start_s)
+            if self._moves and t0 < self._moves[-1].t_end_s:
+                raise SimCommandError(f"robot is moving until t={self._moves[-1].t_end_s:.6f} s; cannot "
+                                      f"start a move at t_start_s={t0:.6f} (halt first or start later)")
+            self._last_command_s = t0
+            start = self._moves[-1].rest_pose if self._moves else self._home
+            r0 = Rotation.from_euler("xyz", start[3:], degrees=True)
+            r1 = Rotation.from_euler("xyz", target[3:], degrees=True)
+            rotvec = (r0.inv() * r1).as_rotvec()
+            dist_mm = float(np.linalg.norm(target[:3] - start[:3]))
+            angle_deg = math.degrees(float(np.linalg.norm(rotvec)))
+            ta, tc, vp = trapezoid_duration_s(dist_mm, speed, accel)
+            ra, rc, rvp = trapezoid_duration_s(angle_deg, self.rot_speed_deg_s, self.rot_accel_deg_s2)
+            if 2 * ta + tc >= 2 * ra + rc:
+                t_acc, t_cruise = ta, tc
+                v_n, a_n = vp / dist_mm, accel / dist_mm
+            else:
+                t_acc, t_cruise, v_n, a_n = ra, rc, rvp / angle_deg, self.rot_accel_deg_s2 / angle_deg
+            duration = 2 * t_acc + t_cruise
+            if duration <= 0.0:
+                return t0
+            s1 = 0.5 * a_n * t_acc * t_acc
+            phases = [(t0, 0.0, 0.0, a_n)]
+            if t_cruise > 0.0:
+                phases.append((t0 + t_acc, s1, v_n, 0.0))
+            phases.append((t0 + t_acc + t_cruise, s1 + v_n * t_cruise, v_n, -a_n))
+            mv = _Move(t0, t0 + duration, start[:3].copy(), target[:3] - start[:3], r0, rotvec, tuple(phases),
+                       1.0, a_n, target.copy(), bool(linear))
+            self._moves = (*self._moves, mv)
+            return mv.t_end_s
+
+    def halt(self, t_s: float) -> None:
+        """Decelerate to rest from ``t_s`` at the move's acceleration; the rest of the planned move is cut."""
+        with self._lock:
+            t = self._check_time(t_s)
+            self._last_command_s = t
+            if not self._moves or not (self._moves[-1].t_start_s <= t < self._moves[-1].t_end_s):
+                return
+            mv = self._moves[-1]
+            s_h, v_h = (float(x) for x in mv.s_at(np.array(t)))
+            t_stop = t + v_h / mv.decel_norm
+            s_end = min(1.0, s_h + v_h * v_h / (2.0 * mv.decel_norm))
+            phases = (*(p for p in mv.phases if p[0] < t), (t, s_h, v_h, -mv.decel_norm))
+            rest = self._interp_pose(mv, np.array([s_end]))[0]
+            cut = _Move(mv.t_start_s, t_stop, mv.p0_mm, mv.dp_mm, mv.r0, mv.rotvec, phases, s_end,
+                        mv.decel_norm, rest, mv.linear)
+            self._moves = (*self._moves[:-1], cut)
+
+    @staticmethod
+    def _interp_pose(mv: _Move, s: np.ndarray) -> np.ndarray:
+        pos = mv.p0_mm + s[:, None] * mv.dp_mm
+        rot = mv.r0 * Rotation.from_rotvec(s[:, None] * mv.rotvec)
+        return np.concatenate([pos, rot.as_euler("xyz", degrees=True)], axis=1)
+
+    def is_moving(self, t_s: float) -> bool:
+        """True while a move (or the deceleration of a halt) is under way at ``t_s``."""
+        return any(m.t_start_s <= t_s < m.t_end_s for m in reversed(self._moves))
+
+    def t_end_s(self) -> float:
+        """Time at which the last commanded move ends (−inf if none)."""
+        moves = self._moves
+        return moves[-1].t_end_s if moves else -math.inf
+
+    def _segments(self, t: np.ndarray) -> tuple[tuple[_Move, ...], np.ndarray]:
+        moves = self._moves
+        starts = np.array([m.t_start_s for m in moves])
+        idx = np.searchsorted(starts, t, side="right") - 1 if moves else np.full(t.shape, -1)
+        return moves, idx
+
+    def pose_at(self, t_s: float | np.ndarray) -> np.ndarray:
+        """Pose (6,) — or (N, 6) for N times — in the Denso convention; at rest, the commanded pose."""
+        t = np.asarray(t_s, dtype=float)
+        flat = np.atleast_1d(t).ravel()
+        out = np.tile(self._home, (flat.size, 1))
+        moves, idx = self._segments(flat)
+        for k in np.unique(idx[idx >= 0]):
+            mv = moves[k]
+            sel = idx == k
+            s, _ = mv.s_at(flat[sel])
+            moving = flat[sel] < mv.t_end_s
+            vals = np.tile(mv.rest_pose, (int(sel.sum()), 1))
+            if moving.any():
+                vals[moving] = self._interp_pose(mv, s[moving])
+            out[sel] = vals
+        return out[0] if t.ndim == 0 else out.reshape((*t.shape, 6))
+
+    def transform_at(self, t_s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Flange position (N, 3) mm and rotation matrices (N, 3, 3) (tool → base) at times t_s (N,)."""
+        flat = np.atleast_1d(np.asarray(t_s, dtype=float)).ravel()
+        pos = np.tile(self._home[:3], (flat.size, 1))
+        rot = np.tile(euler_deg_to_matrix(self._home[3:]), (flat.size, 1, 1))
+        moves, idx = self._segments(flat)
+        for k in np.unique(idx[idx >= 0]):
+            mv = moves[k]
+            sel = idx == k
+            s, _ = mv.s_at(flat[sel])
+            moving = flat[sel] < mv.t_end_s
+            p = np.tile(mv.rest_pose[:3], (s.size, 1))
+            r = np.tile(euler_deg_to_matrix(mv.rest_pose[3:]), (s.size, 1, 1))
+            if moving.any():
+                sm = s[moving]
+                p[moving] = mv.p0_mm + sm[:, None] * mv.dp_mm
+                r[moving] = (mv.r0 * Rotation.from_rotvec(sm[:, None] * mv.rotvec)).as_matrix()
+            pos[sel], rot[sel] = p, r
+        return pos, rot
+
+
+# --------------------------------------------------------------------------- oscillators
+
+_CONST, _LINEAR, _LOG = 0, 1, 2
+_Seg = tuple[float, float, int, float, float]
+
+
+class OscillatorBody:
+    """Frequency f(t) ≥ 0 Hz, phase φ(t) rad (exact integral of 2π f) and amplitude A(t) mm of a driven body.
+
+    Segments are (t0, φ0, kind, f0, c): constant f0; linear f0 + c·τ; log f0·exp(c·τ) (τ = t − t0).
+    ``initial_hz`` and ``amplitude_mm`` hold from ``t_origin_s`` (earlier times extrapolate the constant).
+    """
+
+    def __init__(self, name: str = "oscillator", *, amplitude_mm: float = 0.0, initial_hz: float = 0.0,
+                 t_origin_s: float = 0.0) -> None:
+        self.name = name
+        f = _finite(initial_hz, "initial_hz", nonneg=True)
+        self._segs: tuple[_Seg, ...] = ((float(t_origin_s), 0.0, _CONST, f, 0.0),)
+        self._amps: tuple[tuple[float, float], ...] = (
+            (-math.inf, _finite(amplitude_mm, "amplitude_mm", nonneg=True)),)
+        self._last_command_s = -math.inf
+        self._lock = threading.Lock()
+
+    # -- evaluation
+    @staticmethod
+    def _eval(segs: tuple[_Seg, ...], t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        arr = np.array(segs)
+        k = np.clip(np.searchsorted(arr[:, 0], t, side="right") - 1, 0, len(segs) - 1)
+        t0, phi0, kind, f0, c = (arr[k, j] for j in range(5))
+        tau = t - t0
+        f = np.where(kind == _LINEAR, f0 + c * tau, f0)
+        integral = np.where(kind == _LINEAR, f0 * tau + 0.5 * c * tau * tau, f0 * tau)
+        log = kind == _LOG
+        if np.any(log):
+            cl = np.where(log, c, 1.0)
+            growth = np.exp(np.where(log, cl * tau, 0.0))
+            f = np.where(log, f0 * growth, f)
+            integral = np.where(log, f0 * np.expm1(cl * tau) / cl, integral)
+        return f, phi0 + 2.0 * np.pi * integral
+
+    def frequency_hz(self, t_s: float | np.ndarray) -> float | np.ndarray:
+        t = np.asarray(t_s, dtype=float)
+        f = self._eval(self._segs, t)[0]
+        return float(f) if t.ndim == 0 else f
+
+    def phase_rad(self, t_s: float | np.ndarray) -> float | np.ndarray:
+        t = np.asarray(t_s, dtype=float)
+        p = self._eval(self._segs, t)[1]
+        return float(p) if t.ndim == 0 else p
+
+    def amplitude_at_mm(self, t_s: float | np.ndarray) -> float | np.ndarray:
+        t = np.asarray(t_s, dtype=float)
+        amps = self._amps
+        starts = np.array([a[0] for a in amps])
+        vals = np.array([a[1] for a in amps])
+        out = vals[np.searchsorted(starts, t, side="right") - 1]
+        return float(out) if t.ndim == 0 else out
+
+    def displacement_mm(self, t_s: float | np.ndarray) -> float | np.ndarray:
+        """A(t)·sin φ(t) in mm."""
+        t = np.asarray(t_s, dtype=float)
+        out = np.asarray(self.amplitude_at_mm(t)) * np.sin(self._eval(self._segs, t)[1])
+        return float(out) if t.ndim == 0 else out
+
+    def angle_deg(self, t_s: float | np.ndarray) -> float | np.ndarray:
+        """φ(t) in degrees (unwrapped; for the rotor)."""
+        t = np.asarray(t_s, dtype=float)
+        out = np.degrees(self._eval(self._segs, t)[1])
+        return float(out) if t.ndim == 0 else out
+
+    def profile_breakpoints(self) -> list[tuple[float, float]]:
+        """(t_s, f_hz) at the start of every segment, for reports and tests."""
+        return [(s[0], s[3]) for s in self._segs]
+
+    # -- commands
+    def _begin(self, t_s: float) -> tuple[float, float, float]:
+        t = _finite(t_s, "t_s")
+        if t < self._last_command_s:
+            raise SimCommandError(f"{self.name}: t_s={t!r} is before the previous command at "
+                                  f"{self._last_command_s!r}; commands must not go back in time")
+        f, phi = self._eval(self._segs, np.array(t))
+        return t, float(f), float(phi)
+
+    def _replace_future(self, t: float, new: list[_Seg]) -> None:
+        kept = tuple(s for s in self._segs if s[0] < t) or self._segs[:1]
+        self._segs = kept + tuple(new)
+        self._last_command_s = t
+
+    def _phase_after(self, seg: _Seg, t: float) -> float:
+        return float(self._eval((seg,), np.array(t))[1])
+
+    def set_frequency(self, t_s: float, hz: float) -> None:
+        """Step the frequency to ``hz`` (≥ 0) at ``t_s`` (phase stays continuous)."""
+        f_new = _finite(hz, "hz", nonneg=True)
+        with self._lock:
+            t, _, phi = self._begin(t_s)
+            self._replace_future(t, [(t, phi, _CONST, f_new, 0.0)])
+
+    def ramp_to(self, t_s: float, target_hz: float, rate_hz_per_s: float) -> float:
+        """Ramp linearly from f(t_s) to ``target_hz`` at ``rate_hz_per_s`` (> 0), then hold.
+
+        Returns the time of arrival at ``target_hz``."""
+        target = _finite(target_hz, "target_hz", nonneg=True)
+        rate = _finite(rate_hz_per_s, "rate_hz_per_s", positive=True)
+        with self._lock:
+            t, f, phi = self._begin(t_s)
+            if target == f:
+                self._replace_future(t, [(t, phi, _CONST, f, 0.0)])
+                return t
+            slope = rate if target > f else -rate
+            duration = (target - f) / slope
+            ramp = (t, phi, _LINEAR, f, slope)
+            t_end = t + duration
+            self._replace_future(t, [ramp, (t_end, self._phase_after(ramp, t_end), _CONST, target, 0.0)])
+            return t_end
+
+    def sweep(self, t_s: float, start_hz: float, stop_hz: float, duration_s: float,
+              spacing: Literal["linear", "log"] = "linear") -> float:
+        """Generator sweep: jump to ``start_hz`` at ``t_s``, sweep to ``stop_hz`` over ``duration_s``, then
+        hold ``stop_hz`` (one sweep; a repeating generator is a new ``sweep`` call). Returns the end time."""
+        f0 = _finite(start_hz, "start_hz", nonneg=True)
+        f1 = _finite(stop_hz, "stop_hz", nonneg=True)
+        dur = _finite(duration_s, "duration_s", positive=True)
+        if spacing not in ("linear", "log"):
+            raise SimCommandError(f"spacing must be 'linear' or 'log', got {spacing!r}")
+        if spacing == "log" and (f0 <= 0.0 or f1 <= 0.0):
+            raise SimCommandError(f"a log sweep needs start_hz > 0 and stop_hz > 0, got {f0!r}, {f1!r}")
+        with self._lock:
+            t, _, phi = self._begin(t_s)
+            seg = ((t, phi, _LINEAR, f0, (f1 - f0) / dur) if spacing == "linear"
+                   else (t, phi, _LOG, f0, math.log(f1 / f0) / dur))
+            if f0 == f1:
+                seg = (t, phi, _CONST, f0, 0.0)
+            t_end = t + dur
+            self._replace_future(t, [seg, (t_end, self._phase_after(seg, t_end), _CONST, f1, 0.0)])
+            return t_end
+
+    def set_amplitude(self, t_s: float, amplitude_mm: float) -> None:
+        """Displacement amplitude (≥ 0 mm) from ``t_s`` on (piecewise constant)."""
+        amp = _finite(amplitude_mm, "amplitude_mm", nonneg=True)
+        with self._lock:
+            t, _, _ = self._begin(t_s)
+            self._amps = (*(a for a in self._amps if a[0] < t), (t, amp))
+            self._last_command_s = t
+
+    def halt(self, t_s: float, rate_hz_per_s: float | None = None) -> float:
+        """Stop: ramp to 0 Hz at ``rate_hz_per_s``, or at once (frequency step to 0) if None."""
+        if rate_hz_per_s is None:
+            self.set_frequency(t_s, 0.0)
+            return float(t_s)
+        return self.ramp_to(t_s, 0.0, rate_hz_per_s)
