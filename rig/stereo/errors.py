@@ -25,3 +25,15 @@ class DegenerateGeometryError(StereoError):
 
 class TimingError(StereoError):
     """Time stamps or motion do not allow a synchronization or spectral estimate."""
+
+
+class CalibrationFormatError(StereoError):
+    """A stored calibration (``calibration.json`` entry, DLT coefficient file) is malformed."""
+
+
+class DistortionError(StereoError):
+    """Distorted image points cannot be undistorted (outside the field where the lens model is invertible)."""
+
+
+class DegenerateReferenceError(DegenerateGeometryError):
+    """Reference markers cannot fix a rigid transform (fewer than 3 visible, or collinear)."""

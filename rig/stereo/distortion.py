@@ -1,0 +1,72 @@
+"""Brown–Conrady lens distortion (k1, k2, p1, p2) in normalized camera coordinates, as OpenCV defines it.
+
+Normalized coordinates are ``x = K⁻¹·[u, v, 1]`` of the ideal pinhole projection (dimensionless, x/z
+and y/z in the camera frame). With ``r² = x² + y²``::
+
+    x_d = x·(1 + k1·r² + k2·r⁴) + 2·p1·x·y + p2·(r² + 2·x²)
+    y_d = y·(1 + k1·r² + k2·r⁴) + p1·(r² + 2·y²) + 2·p2·x·y
+
+All functions are vectorized over points: ``xy`` is ``(N, 2)``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from rig.stereo.errors import DistortionError
+
+
+def distort(xy: np.ndarray, coeffs: np.ndarray) -> np.ndarray:
+    """Apply the distortion to normalized points ``xy`` (N, 2); returns distorted normalized points."""
+    k1, k2, p1, p2 = coeffs
+    x, y = xy[:, 0], xy[:, 1]
+    r2 = x * x + y * y
+    radial = 1.0 + r2 * (k1 + k2 * r2)
+    xd = x * radial + 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x)
+    yd = y * radial + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y
+    return np.stack([xd, yd], axis=1)
+
+
+def distort_jacobian(xy: np.ndarray, coeffs: np.ndarray) -> np.ndarray:
+    """∂(x_d, y_d)/∂(x, y) at normalized points ``xy`` (N, 2); returns (N, 2, 2)."""
+    k1, k2, p1, p2 = coeffs
+    x, y = xy[:, 0], xy[:, 1]
+    r2 = x * x + y * y
+    radial = 1.0 + r2 * (k1 + k2 * r2)
+    dradial = 2.0 * (k1 + 2.0 * k2 * r2)  # ∂radial/∂x = x·dradial, ∂radial/∂y = y·dradial
+    J = np.empty((xy.shape[0], 2, 2))
+    J[:, 0, 0] = radial + x * x * dradial + 2.0 * p1 * y + 6.0 * p2 * x
+    J[:, 0, 1] = x * y * dradial + 2.0 * p1 * x + 2.0 * p2 * y
+    J[:, 1, 0] = x * y * dradial + 2.0 * p1 * x + 2.0 * p2 * y
+    J[:, 1, 1] = radial + y * y * dradial + 6.0 * p1 * y + 2.0 * p2 * x
+    return J
+
+
+def undistort(xy_d: np.ndarray, coeffs: np.ndarray, *, tol: float = 1e-12, max_iter: int = 50) -> np.ndarray:
+    """Invert :func:`distort` by Newton's method, vectorized; NaN rows stay NaN.
+
+    Raises :class:`DistortionError` if some finite point does not converge (the point lies where the
+    model folds over, far outside the calibrated field).
+    """
+    xy = xy_d.copy()
+    active = np.isfinite(xy_d).all(axis=1)
+    for _ in range(max_iter):
+        if not active.any():
+            break
+        pts = xy[active]
+        resid = distort(pts, coeffs) - xy_d[active]
+        step = np.linalg.solve(distort_jacobian(pts, coeffs), resid[:, :, None])[:, :, 0]
+        xy[active] = pts - step
+        done = np.abs(step).max(axis=1) < tol
+        idx = np.nonzero(active)[0]
+        active[idx[done]] = False
+    if active.any():
+        # Points still moving after max_iter: accept if the forward model reproduces them.
+        check = np.abs(distort(xy[active], coeffs) - xy_d[active]).max(axis=1) < 1e-9
+        if not check.all():
+            raise DistortionError(
+                f"{int((~check).sum())} points cannot be undistorted with coefficients {list(coeffs)}: "
+                "they lie outside the field where the distortion model is invertible; "
+                "drop them or recalibrate with points covering that part of the image"
+            )
+    return xy

@@ -1,0 +1,385 @@
+"""DLT camera calibration (the paper's equation 1, A·b = 0) with optional nonlinear refinement.
+
+World coordinates are in mm, image coordinates in pixels (origin at the centre of the top-left pixel).
+The linear solution is the paper's homogeneous form ("Convention B", 12 unknowns, ‖b‖ = 1, right
+singular vector of the smallest singular value) computed on Hartley-normalized coordinates. Stored
+coefficient files of other tools (vaila, Argus, DLTdv) use the 11-parameter form with L12 = 1
+("Convention A"): :func:`solve_dlt11`, :func:`dlt11_from_P` and :func:`P_from_dlt11` handle it.
+
+The refinement (``refine=True``) minimises the reprojection error in pixels over P, and with
+``distortion=True`` also over (k1, k2, p1, p2) of :mod:`rig.stereo.distortion`, applied in the
+normalized camera coordinates of K from the RQ decomposition of P — the same model as OpenCV.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import scipy.linalg
+import scipy.optimize
+
+from rig.stereo.distortion import distort, distort_jacobian, undistort
+from rig.stereo.errors import CalibrationFormatError, DegenerateCalibrationError, InputArrayError
+from rig.stereo.normalize import (
+    as_points,
+    as_projection,
+    homogeneous,
+    principal_spread,
+    similarity_2d,
+    similarity_3d,
+)
+
+MIN_POINTS = 6
+#: Smallest allowed ratio of the 3rd (2nd) to the 1st singular value of the centred control points.
+#: Below it the points are treated as coplanar (collinear): the DLT is then undetermined or unstable.
+MIN_SPREAD_RATIO = 0.01
+CONVENTIONS = ("homogeneous-svd", "l12-lstsq", "refined", "external")
+
+
+def _normalized_p(P: np.ndarray) -> np.ndarray:
+    """Scale P so that ‖m3‖ = 1 and det(M) > 0: then P[2]·[X,1] is the depth in mm in front of the camera."""
+    P = P / np.linalg.norm(P[2, :3])
+    return -P if np.linalg.det(P[:, :3]) < 0 else P
+
+
+@dataclass(frozen=True, eq=False)
+class DLTCamera:
+    """A calibrated camera: 3×4 projection matrix P (mm → px) and optional lens distortion.
+
+    ``residuals_px`` (N, 2) are *projected − observed* on the calibration points; ``convention`` says
+    how P was obtained (one of :data:`CONVENTIONS`).
+    """
+
+    P: np.ndarray
+    image_size: tuple[int, int] = (1920, 1080)
+    distortion: tuple[float, float, float, float] | None = None
+    residuals_px: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
+    convention: str = "homogeneous-svd"
+    refined: bool = False
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "P", _normalized_p(as_projection(self.P)))
+        size = tuple(self.image_size)
+        if len(size) != 2 or not all(isinstance(v, int | np.integer) and v > 0 for v in size):
+            raise InputArrayError(
+                f"image_size={self.image_size!r}: pass two positive integers (width_px, height_px)"
+            )
+        object.__setattr__(self, "image_size", (int(size[0]), int(size[1])))
+        if self.distortion is not None:
+            d = tuple(float(v) for v in self.distortion)
+            if len(d) != 4 or not all(math.isfinite(v) for v in d):
+                raise InputArrayError(
+                    f"distortion={self.distortion!r}: pass four finite numbers (k1, k2, p1, p2)"
+                )
+            object.__setattr__(self, "distortion", None if not any(d) else d)
+        res = as_points(self.residuals_px, "residuals_px", 2, allow_empty=True)
+        object.__setattr__(self, "residuals_px", res)
+        if self.convention not in CONVENTIONS:
+            raise InputArrayError(f"convention={self.convention!r}: allowed are {CONVENTIONS}")
+
+    # ----------------------------------------------------------------- figures
+    @property
+    def n_points(self) -> int:
+        return int(self.residuals_px.shape[0])
+
+    @property
+    def rms_px(self) -> float:
+        """RMS reprojection error per point (Euclidean) on the calibration points, px; NaN if none."""
+        if self.n_points == 0:
+            return math.nan
+        return float(np.sqrt(np.mean(np.sum(self.residuals_px**2, axis=1))))
+
+    @property
+    def max_px(self) -> float:
+        """Largest reprojection error of a calibration point, px; NaN if none."""
+        if self.n_points == 0:
+            return math.nan
+        return float(np.sqrt(np.sum(self.residuals_px**2, axis=1)).max())
+
+    # ----------------------------------------------------------------- geometry
+    def decompose(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """RQ-decompose P = λ·K·[R | −R·C]: K upper-triangular with positive diagonal and K[2,2] = 1,
+        R a proper rotation (world → camera), C the camera centre in mm."""
+        M = self.P[:, :3]
+        K, R = scipy.linalg.rq(M)
+        D = np.diag(np.sign(np.diag(K)))
+        K, R = K @ D, D @ R
+        if np.linalg.det(R) < 0:  # cannot happen with det(M) > 0, kept as a guard
+            K, R = -K, -R
+        centre = -np.linalg.solve(M, self.P[:, 3])
+        return K / K[2, 2], R, centre
+
+    @property
+    def centre_mm(self) -> np.ndarray:
+        return -np.linalg.solve(self.P[:, :3], self.P[:, 3])
+
+    def _k(self) -> np.ndarray:
+        return self.decompose()[0]
+
+    def project(self, xyz_mm: object) -> np.ndarray:
+        """Project world points (N, 3) mm to pixels (N, 2), with distortion if any; NaN rows stay NaN."""
+        return self.project_with_jacobian(xyz_mm, jacobian=False)[0]
+
+    def project_with_jacobian(
+        self, xyz_mm: object, *, jacobian: bool = True
+    ) -> tuple[np.ndarray, np.ndarray | None]:
+        """Pixels (N, 2) and, if asked, ∂(u, v)/∂(x, y, z) (N, 2, 3) in px/mm."""
+        xyz = as_points(xyz_mm, "xyz_mm", 3, allow_nan=True, allow_empty=True)
+        x = homogeneous(xyz) @ self.P.T
+        uv = x[:, :2] / x[:, 2:3]
+        J = None
+        if jacobian:
+            J = (self.P[None, :2, :3] - uv[:, :, None] * self.P[None, 2:3, :3]) / x[:, 2, None, None]
+        if self.distortion is None:
+            return uv, J
+        K = self._k()
+        A, Ainv = K[:2, :2], np.linalg.inv(K[:2, :2])
+        xy = (uv - K[:2, 2]) @ Ainv.T
+        coeffs = np.asarray(self.distortion)
+        uv_d = distort(xy, coeffs) @ A.T + K[:2, 2]
+        if jacobian:
+            J = A @ distort_jacobian(xy, coeffs) @ Ainv @ J
+        return uv_d, J
+
+    def undistort_px(self, uv_px: object) -> np.ndarray:
+        """Observed pixels (N, 2) → ideal pinhole pixels of P (identity without distortion); NaN kept."""
+        uv = as_points(uv_px, "uv_px", 2, allow_nan=True, allow_empty=True)
+        if self.distortion is None:
+            return uv
+        K = self._k()
+        A = K[:2, :2]
+        xy_d = (uv - K[:2, 2]) @ np.linalg.inv(A).T
+        return undistort(xy_d, np.asarray(self.distortion)) @ A.T + K[:2, 2]
+
+    # ----------------------------------------------------------------- conventions and storage
+    def dlt11(self, *, length_unit_mm: float = 1.0) -> np.ndarray:
+        """The 11 coefficients L1…L11 (Convention A, L12 = 1) for world units of ``length_unit_mm``."""
+        return dlt11_from_P(self.P, length_unit_mm=length_unit_mm)
+
+    @classmethod
+    def from_dlt11(
+        cls, coefficients: object, *, length_unit_mm: float = 1.0, image_size: tuple[int, int] = (1920, 1080)
+    ) -> DLTCamera:
+        """A camera from stored L1…L11 whose world unit is ``length_unit_mm`` (1000 for metres)."""
+        return cls(
+            P_from_dlt11(coefficients, length_unit_mm=length_unit_mm), image_size, convention="external"
+        )
+
+    def to_dict(self) -> dict[str, Any]:
+        """The ``calibration.json`` entry (plain JSON types; :meth:`from_dict` inverts it exactly)."""
+        return {
+            "P": self.P.tolist(),
+            "image_size": list(self.image_size),
+            "distortion": None if self.distortion is None else list(self.distortion),
+            "distortion_model": "opencv-k1k2p1p2-normalized",
+            "residuals_rms_px": None if self.n_points == 0 else self.rms_px,
+            "residuals_max_px": None if self.n_points == 0 else self.max_px,
+            "residuals_px": self.residuals_px.tolist(),
+            "n_points": self.n_points,
+            "convention": self.convention,
+            "refined": self.refined,
+            "units": {"world": "mm", "image": "px"},
+        }
+
+    @classmethod
+    def from_dict(cls, d: object) -> DLTCamera:
+        """Rebuild a camera from :meth:`to_dict` output; :class:`CalibrationFormatError` if malformed."""
+        if not isinstance(d, dict):
+            raise CalibrationFormatError(f"a camera entry must be a JSON object, got {type(d).__name__}")
+        missing = [k for k in ("P", "image_size") if k not in d]
+        if missing:
+            raise CalibrationFormatError(
+                f"camera entry lacks {missing}; it needs at least 'P' (3×4) and 'image_size'"
+            )
+        try:
+            res = np.asarray(d.get("residuals_px") or np.zeros((0, 2)), dtype=np.float64).reshape(-1, 2)
+            cam = cls(
+                P=np.asarray(d["P"], dtype=np.float64),
+                image_size=tuple(d["image_size"]),
+                distortion=d.get("distortion"),
+                residuals_px=res,
+                convention=d.get("convention", "external"),
+                refined=bool(d.get("refined", False)),
+            )
+        except (InputArrayError, TypeError, ValueError) as exc:
+            raise CalibrationFormatError(f"camera entry is malformed: {exc}") from exc
+        if "n_points" in d and d["n_points"] != cam.n_points:
+            raise CalibrationFormatError(
+                f"n_points={d['n_points']} but residuals_px has {cam.n_points} rows; the entry was edited"
+            )
+        return cam
+
+
+# --------------------------------------------------------------------- Convention A (L12 = 1)
+def dlt11_from_P(P: object, *, length_unit_mm: float = 1.0) -> np.ndarray:  # noqa: N802
+    """L1…L11 = P(row-major)[:11] / P[2,3] for world units of ``length_unit_mm`` (1000 for metres)."""
+    P = as_projection(P).copy()
+    P[:, :3] *= length_unit_mm
+    if abs(P[2, 3]) < 1e-12 * np.abs(P).max():
+        raise DegenerateCalibrationError(
+            "P[2,3] ≈ 0: the world origin lies in the camera's principal plane, so the L12 = 1 form does not "
+            "exist; move the world origin (e.g. to the centroid of the control points) or keep P"
+        )
+    return (P / P[2, 3]).ravel()[:11]
+
+
+def P_from_dlt11(coefficients: object, *, length_unit_mm: float = 1.0) -> np.ndarray:  # noqa: N802
+    """The 3×4 P in mm → px from L1…L11 whose world unit is ``length_unit_mm``."""
+    L = np.asarray(coefficients, dtype=np.float64).ravel()
+    if L.shape != (11,) or not np.isfinite(L).all():
+        raise InputArrayError(
+            f"DLT coefficients: expected 11 finite numbers L1…L11, got shape {np.shape(coefficients)}"
+        )
+    P = np.append(L, 1.0).reshape(3, 4)
+    P[:, :3] /= length_unit_mm
+    return P
+
+
+def _design_rows(xyz: np.ndarray, uv: np.ndarray) -> np.ndarray:
+    """The paper's A (2N × 12): rows [X Y Z 1 0 0 0 0 −uX −uY −uZ −u] and the v counterpart."""
+    Xh = homogeneous(xyz)
+    A = np.zeros((2 * len(xyz), 12))
+    A[0::2, 0:4] = Xh
+    A[1::2, 4:8] = Xh
+    A[0::2, 8:12] = -uv[:, :1] * Xh
+    A[1::2, 8:12] = -uv[:, 1:2] * Xh
+    return A
+
+
+def solve_dlt11(xyz: object, uv_px: object) -> np.ndarray:
+    """Convention A: L1…L11 by ordinary least squares with L12 = 1 (as vaila, Argus and DLTdv do).
+
+    Units of the coefficients follow those of ``xyz``; no normalization is applied because it would
+    change this convention's solution (column scaling only, for conditioning).
+    """
+    xyz_a, uv = _check_calibration_input(xyz, uv_px)
+    A = _design_rows(xyz_a, uv)
+    rhs = -A[:, 11]
+    M = A[:, :11]
+    scale = np.linalg.norm(M, axis=0)
+    scale[scale == 0] = 1.0
+    sol = np.linalg.lstsq(M / scale, rhs, rcond=None)[0]
+    return sol / scale
+
+
+# --------------------------------------------------------------------- Convention B (the paper)
+def _check_calibration_input(xyz_mm: object, uv_px: object) -> tuple[np.ndarray, np.ndarray]:
+    xyz = as_points(xyz_mm, "xyz_mm", 3)
+    uv = as_points(uv_px, "uv_px", 2)
+    if xyz.shape[0] != uv.shape[0]:
+        raise InputArrayError(
+            f"xyz_mm has {xyz.shape[0]} points but uv_px has {uv.shape[0]}; pass one pixel per point"
+        )
+    n_distinct = np.unique(xyz, axis=0).shape[0]
+    if n_distinct < MIN_POINTS:
+        raise DegenerateCalibrationError(
+            f"{n_distinct} distinct control points; the DLT needs at least {MIN_POINTS} non-coplanar ones "
+            "(11 unknowns, 2 equations per point). Duplicated points do not help: add points at new positions"
+        )
+    spread = principal_spread(xyz)
+    if spread[1] < MIN_SPREAD_RATIO:
+        raise DegenerateCalibrationError(
+            f"the control points are (nearly) collinear (spread ratio {spread[1]:.2g} < {MIN_SPREAD_RATIO}); "
+            "add points off their line and off a common plane"
+        )
+    if spread[2] < MIN_SPREAD_RATIO:
+        raise DegenerateCalibrationError(
+            f"the control points are (nearly) coplanar: their thickness is {spread[2]:.2g} of their width "
+            f"(< {MIN_SPREAD_RATIO}); slide the plate along its normal to more positions covering the "
+            "measurement depth, or add points out of its plane"
+        )
+    return xyz, uv
+
+
+def _linear_p(xyz: np.ndarray, uv: np.ndarray, normalize: bool = True) -> np.ndarray:
+    Tw, Ti = (similarity_3d(xyz), similarity_2d(uv)) if normalize else (np.eye(4), np.eye(3))
+    xyz_n = (homogeneous(xyz) @ Tw.T)[:, :3]
+    uv_n = (homogeneous(uv) @ Ti.T)[:, :2]
+    _, s, Vt = np.linalg.svd(_design_rows(xyz_n, uv_n), full_matrices=False)
+    if s[-2] <= 1e-9 * s[0]:
+        raise DegenerateCalibrationError(
+            "the calibration equations have no unique solution (several cameras fit the points): "
+            "the control points are in a critical configuration; add points at other positions"
+        )
+    return np.linalg.solve(Ti, Vt[-1].reshape(3, 4)) @ Tw
+
+
+def _camera(
+    P: np.ndarray, xyz: np.ndarray, uv: np.ndarray, image_size: tuple[int, int], **kw: Any
+) -> DLTCamera:
+    cam = DLTCamera(
+        P, image_size, distortion=kw.get("distortion"), convention=kw["convention"], refined=kw["refined"]
+    )
+    return DLTCamera(
+        cam.P,
+        cam.image_size,
+        cam.distortion,
+        cam.project(xyz) - uv,
+        convention=cam.convention,
+        refined=cam.refined,
+    )
+
+
+def calibrate_dlt(
+    xyz_mm: object,
+    uv_px: object,
+    *,
+    refine: bool = False,
+    distortion: bool = False,
+    image_size: tuple[int, int] = (1920, 1080),
+    normalize: bool = True,
+) -> DLTCamera:
+    """Calibrate one camera from ≥ 6 non-coplanar control points.
+
+    ``xyz_mm`` (N, 3) are known world positions in mm, ``uv_px`` (N, 2) their measured image positions.
+    The linear step is the paper's A·b = 0 by SVD on Hartley-normalized coordinates. ``refine=True``
+    then minimises the pixel reprojection error over P; ``distortion=True`` (implies refinement) also
+    fits k1, k2, p1, p2. Raises :class:`DegenerateCalibrationError` for too few, collinear or coplanar
+    points, :class:`InputArrayError` for empty, NaN or mis-shaped input. ``normalize=False`` skips the
+    Hartley normalization (the paper's raw solve; worse conditioned, kept for comparison only).
+    """
+    xyz, uv = _check_calibration_input(xyz_mm, uv_px)
+    P = _linear_p(xyz, uv, normalize)
+    linear = _camera(P, xyz, uv, image_size, convention="homogeneous-svd", refined=False)
+    if not (refine or distortion):
+        return linear
+    if distortion and xyz.shape[0] < 8:
+        raise DegenerateCalibrationError(
+            f"{xyz.shape[0]} control points cannot fit P and 4 distortion coefficients (15 unknowns); "
+            "use at least 8 points, better ≥ 30 spread over the image"
+        )
+    refined = _refine(linear.P, xyz, uv, image_size, distortion)
+    # least_squares never returns a worse cost than its start; keep the guard for pathological starts.
+    return refined if refined.rms_px <= linear.rms_px else linear
+
+
+def _refine(
+    P0: np.ndarray, xyz: np.ndarray, uv: np.ndarray, size: tuple[int, int], with_dist: bool
+) -> DLTCamera:
+    """Levenberg–Marquardt on the pixel residuals; P in normalized coordinates with P_n[2,3] = 1 as gauge."""
+    Tw, Ti = similarity_3d(xyz), similarity_2d(uv)
+    Pn = Ti @ P0 @ np.linalg.inv(Tw)
+    Pn = Pn / Pn[2, 3]  # the centroid of the points is in front of the camera, so P_n[2,3] ≠ 0
+    Ti_inv = np.linalg.inv(Ti)
+
+    def unpack(p: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
+        P = Ti_inv @ np.append(p[:11], 1.0).reshape(3, 4) @ Tw
+        return P, (p[11:15] if with_dist else None)
+
+    def residuals(p: np.ndarray) -> np.ndarray:
+        P, d = unpack(p)
+        try:
+            cam = DLTCamera(P, size, distortion=None if d is None else tuple(d))
+        except InputArrayError:
+            return np.full(uv.size, 1e6)
+        return (cam.project(xyz) - uv).ravel()
+
+    p0 = np.concatenate([Pn.ravel()[:11], np.zeros(4) if with_dist else []])
+    sol = scipy.optimize.least_squares(residuals, p0, method="lm", x_scale="jac", xtol=1e-12, ftol=1e-12)
+    P, d = unpack(sol.x)
+    return _camera(
+        P, xyz, uv, size, distortion=None if d is None else tuple(d), convention="refined", refined=True
+    )

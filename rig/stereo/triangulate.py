@@ -1,0 +1,210 @@
+"""N-view triangulation: linear (normalized homogeneous SVD, vectorized over points) with optional
+Levenberg–Marquardt refinement of the pixel reprojection error and a covariance from the pixel noise.
+
+Units: xyz in mm, image coordinates in pixels. A NaN row in a camera's ``uv`` means "not seen by that
+camera"; a point seen by fewer than two cameras gets NaN coordinates (``n_views`` says why).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from rig.stereo.dlt import DLTCamera
+from rig.stereo.errors import DegenerateGeometryError, InputArrayError
+from rig.stereo.normalize import as_points, similarity_2d
+
+#: Two camera centres closer than this fraction of their distance from the origin (or 1 mm) coincide.
+SAME_CENTRE_REL = 1e-9
+
+
+@dataclass(frozen=True)
+class Triangulation:
+    """Result of :func:`triangulate` for N points and n cameras.
+
+    ``xyz_mm`` (N, 3); ``residuals_px`` (N, n, 2) projected − observed, NaN where a camera did not see
+    the point; ``covariance_mm2`` (N, 3, 3) = σ²(JᵀJ)⁻¹ when a pixel σ was given, else None;
+    ``n_views`` (N,) cameras used per point.
+    """
+
+    xyz_mm: np.ndarray
+    residuals_px: np.ndarray
+    covariance_mm2: np.ndarray | None
+    n_views: np.ndarray
+
+    @property
+    def rms_px(self) -> np.ndarray:
+        """Per-point RMS reprojection error over the cameras that saw it (Euclidean per camera), px."""
+        sq = np.sum(self.residuals_px**2, axis=2)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            return np.sqrt(np.nansum(sq, axis=1) / np.sum(np.isfinite(sq), axis=1))
+
+
+def as_camera(camera: object, index: int) -> DLTCamera:
+    """A :class:`DLTCamera`, or a (3, 4) projection matrix wrapped as a distortion-free camera."""
+    if isinstance(camera, DLTCamera):
+        return camera
+    try:
+        return DLTCamera(np.asarray(camera), convention="external")
+    except InputArrayError as exc:
+        raise InputArrayError(
+            f"cameras[{index}]: pass a DLTCamera or a (3, 4) projection matrix ({exc})"
+        ) from exc
+
+
+def _centre_groups(cams: Sequence[DLTCamera]) -> np.ndarray:
+    """Label cameras so that cameras with the same centre share a label."""
+    centres = np.array([c.centre_mm for c in cams])
+    labels = np.arange(len(cams))
+    for i in range(len(cams)):
+        for j in range(i):
+            tol = SAME_CENTRE_REL * max(np.linalg.norm(centres[i]), np.linalg.norm(centres[j]), 1.0)
+            if np.linalg.norm(centres[i] - centres[j]) <= tol:
+                labels[i] = labels[j]
+                break
+    return labels
+
+
+def _check_inputs(
+    cameras: Sequence[object], uv_per_camera: Sequence[object]
+) -> tuple[list[DLTCamera], np.ndarray]:
+    if isinstance(cameras, np.ndarray) and cameras.ndim == 2:
+        raise InputArrayError("cameras: pass a sequence of cameras (one per view), not a single matrix")
+    cams = [as_camera(c, i) for i, c in enumerate(cameras)]
+    if len(cams) < 2:
+        raise InputArrayError(f"cameras: {len(cams)} given; triangulation needs at least 2")
+    if len(uv_per_camera) != len(cams):
+        raise InputArrayError(
+            f"uv_per_camera has {len(uv_per_camera)} arrays for {len(cams)} cameras; pass one (N, 2) each"
+        )
+    uvs = [as_points(uv, f"uv_per_camera[{i}]", 2, allow_nan=True) for i, uv in enumerate(uv_per_camera)]
+    sizes = {uv.shape[0] for uv in uvs}
+    if len(sizes) != 1:
+        raise InputArrayError(
+            f"uv_per_camera arrays have different lengths {[uv.shape[0] for uv in uvs]}; row k of each "
+            "array must be the same point (use NaN rows for 'not seen')"
+        )
+    uv = np.stack(uvs, axis=1)  # (N, n, 2)
+    uv[~np.isfinite(uv).all(axis=2)] = np.nan
+    return cams, uv
+
+
+def linear_triangulation(P_list: Sequence[np.ndarray], uv_ideal: np.ndarray) -> np.ndarray:
+    """Homogeneous least squares per point (rows u·p3 − p1, v·p3 − p2), vectorized over points.
+
+    ``uv_ideal`` (N, n, 2) are undistorted pixels (NaN = not seen). Image coordinates are Hartley-
+    normalized per camera and the world per call (camera centres), so the SVD is well conditioned.
+    Returns (N, 3) mm; NaN where fewer than 2 views or the point is at infinity.
+    """
+    n_pts, n_cam = uv_ideal.shape[:2]
+    centres = np.array([-np.linalg.solve(P[:, :3], P[:, 3]) for P in P_list])
+    c0 = centres.mean(axis=0)
+    spread = float(np.mean(np.linalg.norm(centres - c0, axis=1))) or 1.0
+    Hw_inv = np.diag([spread, spread, spread, 1.0])
+    Hw_inv[:3, 3] = c0
+    A = np.zeros((n_pts, 2 * n_cam, 4))
+    seen = np.isfinite(uv_ideal).all(axis=2)
+    for c, P in enumerate(P_list):
+        Ti = similarity_2d(uv_ideal[seen[:, c], c]) if seen[:, c].any() else np.eye(3)
+        Pn = Ti @ P @ Hw_inv
+        Pn /= np.linalg.norm(Pn)
+        uvn = uv_ideal[:, c] * Ti[0, 0] + Ti[:2, 2]
+        rows_u = uvn[:, :1] * Pn[2] - Pn[0]
+        rows_v = uvn[:, 1:2] * Pn[2] - Pn[1]
+        rows_u[~seen[:, c]] = 0.0
+        rows_v[~seen[:, c]] = 0.0
+        A[:, 2 * c], A[:, 2 * c + 1] = rows_u, rows_v
+    Xh = np.linalg.svd(A)[2][:, -1, :] @ Hw_inv.T
+    with np.errstate(invalid="ignore", divide="ignore"):
+        xyz = Xh[:, :3] / Xh[:, 3:4]
+    at_infinity = np.abs(Xh[:, 3]) <= 1e-12 * np.linalg.norm(Xh[:, :3], axis=1)
+    xyz[(seen.sum(axis=1) < 2) | at_infinity] = np.nan
+    return xyz
+
+
+def _project_all(cams: Sequence[DLTCamera], xyz: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    pred, jac = zip(*(c.project_with_jacobian(xyz) for c in cams), strict=True)
+    return np.stack(pred, axis=1), np.stack(jac, axis=1)  # (N, n, 2), (N, n, 2, 3)
+
+
+def _normal_equations(cams: Sequence[DLTCamera], xyz: np.ndarray, uv: np.ndarray):
+    pred, J = _project_all(cams, xyz)
+    r = pred - uv
+    seen = np.isfinite(r).all(axis=2)
+    r = np.where(seen[..., None], r, 0.0)
+    J = np.where(seen[..., None, None], J, 0.0)
+    H = np.einsum("ncki,nckj->nij", J, J)
+    g = np.einsum("ncki,nck->ni", J, r)
+    return np.sum(r**2, axis=(1, 2)), H, g, pred - uv
+
+
+def _refine(cams: Sequence[DLTCamera], xyz0: np.ndarray, uv: np.ndarray, max_iter: int) -> np.ndarray:
+    """Per-point Levenberg–Marquardt (3 unknowns each), all points advanced together."""
+    xyz = xyz0.copy()
+    ok = np.isfinite(xyz).all(axis=1)
+    lam = np.full(xyz.shape[0], 1e-3)
+    eye = np.eye(3)
+    for _ in range(max_iter):
+        if not ok.any():
+            break
+        idx = np.nonzero(ok)[0]
+        cost, H, g, _ = _normal_equations(cams, xyz[idx], uv[idx])
+        damped = H + lam[idx, None, None] * (np.diagonal(H, axis1=1, axis2=2)[:, :, None] * eye + 1e-12 * eye)
+        step = np.linalg.solve(damped, g[:, :, None])[:, :, 0]
+        trial = xyz[idx] - step
+        new_cost = _normal_equations(cams, trial, uv[idx])[0]
+        better = new_cost <= cost
+        xyz[idx[better]] = trial[better]
+        lam[idx] = np.where(better, lam[idx] * 0.1, lam[idx] * 10.0)
+        small = np.linalg.norm(step, axis=1) <= 1e-9 * (1.0 + np.linalg.norm(xyz[idx], axis=1))
+        ok[idx[(better & small) | (lam[idx] > 1e8)]] = False
+    return xyz
+
+
+def triangulate(
+    cameras: Sequence[object],
+    uv_per_camera: Sequence[object],
+    *,
+    refine: bool = False,
+    pixel_sigma_px: float | None = None,
+    max_iter: int = 20,
+) -> Triangulation:
+    """Triangulate N points seen by n ≥ 2 cameras.
+
+    ``cameras``: :class:`DLTCamera` objects (or (3, 4) matrices); ``uv_per_camera``: one (N, 2) array of
+    observed pixels per camera, row k being the same point in all of them, NaN where not seen. Observed
+    pixels are undistorted with each camera's lens model for the linear step; ``refine=True`` then
+    minimises the reprojection error in observed pixels. ``pixel_sigma_px`` (> 0): isotropic pixel noise
+    of the observations, giving ``covariance_mm2`` = σ²(JᵀJ)⁻¹. Raises
+    :class:`DegenerateGeometryError` when the cameras seeing a point all share one centre.
+    """
+    cams, uv = _check_inputs(cameras, uv_per_camera)
+    if pixel_sigma_px is not None and not (np.isfinite(pixel_sigma_px) and pixel_sigma_px > 0):
+        raise InputArrayError(f"pixel_sigma_px={pixel_sigma_px!r}: pass a positive number of pixels, or None")
+    seen = np.isfinite(uv).all(axis=2)
+    labels = _centre_groups(cams)
+    if len(set(labels.tolist())) < len(cams):
+        distinct = np.zeros(uv.shape[0], dtype=int)
+        for lab in set(labels.tolist()):
+            distinct += seen[:, labels == lab].any(axis=1)
+        bad = (seen.sum(axis=1) >= 2) & (distinct < 2)
+        if bad.any():
+            pairs = [(i, j) for i in range(len(cams)) for j in range(i) if labels[i] == labels[j]]
+            raise DegenerateGeometryError(
+                f"cameras {pairs} share a centre (no baseline), and {int(bad.sum())} points are seen only by "
+                "them: no baseline, no triangulation; move one camera or check the calibration"
+            )
+    uv_ideal = np.stack([c.undistort_px(uv[:, i]) for i, c in enumerate(cams)], axis=1)
+    xyz = linear_triangulation([c.P for c in cams], uv_ideal)
+    if refine:
+        xyz = _refine(cams, xyz, uv, max_iter)
+    _, H, _, residuals = _normal_equations(cams, xyz, uv)
+    residuals[~seen] = np.nan
+    cov = None
+    if pixel_sigma_px is not None:
+        cov = np.full_like(H, np.nan)
+        good = np.isfinite(xyz).all(axis=1) & (np.linalg.matrix_rank(H) == 3)
+        cov[good] = pixel_sigma_px**2 * np.linalg.inv(H[good])
+    return Triangulation(xyz_mm=xyz, residuals_px=residuals, covariance_mm2=cov, n_views=seen.sum(axis=1))
