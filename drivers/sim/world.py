@@ -1,0 +1,218 @@
+"""The simulated rig world: bodies moving in virtual time and the markers they carry.
+
+Every marker position is an exact function of time for all past and planned times (the bodies keep their
+segments), so cameras can render any instant after the fact. Which target is mounted is itself a timeline
+(:meth:`World.set_scene`), so a frame rendered late still shows what was mounted when it was exposed.
+Positions in mm in the robot base frame (see :mod:`drivers.sim.targets` for frames and marker ids).
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from drivers.sim.bodies import OscillatorBody, RobotBody, SimCommandError
+from drivers.sim.clock import VirtualClock
+from drivers.sim.targets import TargetSet, unit
+
+__all__ = ["SCENES", "World", "WorldLayout"]
+
+SCENES = ("calibration_plate", "single_marker", "marker_frame", "plate", "rotor", "sweep_column", "none")
+_ARM_SCENES = {"calibration_plate", "single_marker", "marker_frame"}
+
+
+@dataclass(frozen=True)
+class WorldLayout:
+    """Everything physical about the rig that is not a camera: robot home pose, targets, exciter data."""
+
+    robot_home_pose: tuple[float, ...] = (350.0, 0.0, 300.0, 90.0, 0.0, 90.0)
+    robot_rot_speed_deg_s: float = 120.0
+    robot_rot_accel_deg_s2: float = 480.0
+    crank_radius_mm: float = 4.0  # the crank exciter's fixed displacement amplitude
+    shaker_amplitude_mm: float = 0.0  # set by the generator amplitude at run time
+    targets: TargetSet = field(default_factory=TargetSet)
+    initial_scene: str = "calibration_plate"
+
+
+@dataclass(frozen=True)
+class _Marker:
+    kind: str  # "fixed" | "flange" | "osc" | "rotor"
+    diameter_mm: float
+    point: np.ndarray  # fixed: position; flange: tool offset; osc: rest position; rotor: centre
+    normal: np.ndarray  # base frame, or tool frame for "flange"
+    body: str = ""
+    axis: np.ndarray | None = None  # osc: displacement direction; rotor: e0
+    weight: float = 1.0  # osc: shape factor; rotor: radius
+    e1: np.ndarray | None = None  # rotor
+
+
+class World:
+    """The rig in software. ``clock`` defaults to an instant :class:`VirtualClock`; ``seed`` is kept for the
+    cameras built on this world (the world itself is deterministic: truth has no noise)."""
+
+    def __init__(self, clock: VirtualClock | None = None, seed: int = 0,
+                 layout: WorldLayout | None = None) -> None:
+        self.clock = clock if clock is not None else VirtualClock()
+        self.seed = int(seed)
+        self.layout = layout if layout is not None else WorldLayout()
+        lay = self.layout
+        self.robot = RobotBody(lay.robot_home_pose, rot_speed_deg_s=lay.robot_rot_speed_deg_s,
+                               rot_accel_deg_s2=lay.robot_rot_accel_deg_s2)
+        self.exciter = OscillatorBody("exciter", amplitude_mm=lay.crank_radius_mm)
+        self.rotor = OscillatorBody("rotor")
+        self.shaker = OscillatorBody("shaker", amplitude_mm=lay.shaker_amplitude_mm)
+        self._bodies = {"exciter": self.exciter, "rotor": self.rotor, "shaker": self.shaker}
+        self._markers, self._scene_ids = self._build(lay.targets)
+        if lay.initial_scene not in SCENES:
+            raise ValueError(f"initial_scene must be one of {SCENES}, got {lay.initial_scene!r}")
+        self._scenes: tuple[tuple[float, str], ...] = ((-math.inf, lay.initial_scene),)
+        self._lock = threading.Lock()
+
+    def _build(self, tg: TargetSet) -> tuple[dict[str, _Marker], dict[str, list[str]]]:
+        markers: dict[str, _Marker] = {}
+        scenes: dict[str, list[str]] = {name: [] for name in SCENES}
+        z_tool = np.array([0.0, 0.0, 1.0])
+        arm_targets = (("calibration_plate", tg.calibration_plate), ("single_marker", tg.single_marker),
+                       ("marker_frame", tg.marker_frame))
+        for scene, target in arm_targets:
+            for mid, off in target.offsets_tool_mm().items():
+                markers[mid] = _Marker("flange", target.marker_diameter_mm, off, z_tool)
+                scenes[scene].append(mid)
+        col = tg.sweep_column
+        self._check_body(col.body, "sweep_column.body")
+        for mid, pos in col.rest_positions_mm().items():
+            markers[mid] = _Marker("osc", col.marker_diameter_mm, pos, unit(col.normal, "normal"), col.body,
+                                   unit(col.axis, "axis"), 1.0)
+            scenes["sweep_column"].append(mid)
+        pl = tg.plate
+        self._check_body(pl.body, "plate.body")
+        for mid, (pos, w) in pl.rest_positions_mm().items():
+            markers[mid] = _Marker("osc", pl.marker_diameter_mm, pos, unit(pl.normal, "normal"), pl.body,
+                                   pl.displacement_axis(), w)
+            scenes["plate"].append(mid)
+        ro = tg.rotor
+        e0, e1, ax = ro.basis()
+        markers["rotor"] = _Marker("rotor", ro.marker_diameter_mm, np.asarray(ro.centre_mm, float), ax,
+                                   "rotor", e0, float(ro.radius_mm), e1)
+        scenes["rotor"].append("rotor")
+        refs = tg.references
+        for mid, pos in refs.positions().items():
+            markers[mid] = _Marker("fixed", refs.marker_diameter_mm, pos, unit(refs.normal, "normal"))
+        ref_ids = list(refs.positions())
+        return markers, {k: v + ref_ids for k, v in scenes.items()}
+
+    def _check_body(self, name: str, field_name: str) -> None:
+        if name not in self._bodies:
+            raise ValueError(f"{field_name} must be one of {sorted(self._bodies)}, got {name!r}")
+
+    # ------------------------------------------------------------------ scenes
+    def set_scene(self, name: str, t_s: float | None = None) -> None:
+        """Mount target ``name`` (one of :data:`SCENES`) from ``t_s`` (default: now) on."""
+        if name not in SCENES:
+            raise ValueError(f"scene must be one of {SCENES}, got {name!r}")
+        t = self.clock.now_s() if t_s is None else float(t_s)
+        with self._lock:
+            if t < self._scenes[-1][0]:
+                raise SimCommandError(f"scene change at t_s={t} is before the previous one at "
+                                      f"{self._scenes[-1][0]}")
+            self._scenes = (*(s for s in self._scenes if s[0] < t), (t, name))
+
+    def scene_at(self, t_s: float) -> str:
+        scenes = self._scenes
+        k = int(np.searchsorted([s[0] for s in scenes], t_s, side="right")) - 1
+        return scenes[max(k, 0)][1]
+
+    @property
+    def scene(self) -> str:
+        return self.scene_at(self.clock.now_s())
+
+    def scene_marker_ids(self, scene: str) -> list[str]:
+        if scene not in SCENES:
+            raise ValueError(f"scene must be one of {SCENES}, got {scene!r}")
+        return list(self._scene_ids[scene])
+
+    def marker_ids_at(self, t_s: float) -> list[str]:
+        return list(self._scene_ids[self.scene_at(t_s)])
+
+    @property
+    def marker_ids(self) -> list[str]:
+        """Markers present now (mounted target + references)."""
+        return self.marker_ids_at(self.clock.now_s())
+
+    @property
+    def all_marker_ids(self) -> list[str]:
+        return list(self._markers)
+
+    def _spec(self, marker_id: str) -> _Marker:
+        try:
+            return self._markers[marker_id]
+        except KeyError:
+            raise KeyError(f"unknown marker_id {marker_id!r}; known: {sorted(self._markers)}") from None
+
+    def marker_diameter_mm(self, marker_id: str) -> float:
+        return self._spec(marker_id).diameter_mm
+
+    def is_static(self, marker_id: str) -> bool:
+        return self._spec(marker_id).kind == "fixed"
+
+    # ------------------------------------------------------------------ truth
+    def positions(self, marker_ids: list[str], t_s: np.ndarray | float) -> np.ndarray:
+        """Centres (M, N, 3) mm of M markers at times ``t_s``: (N,) shared by all, or (M, N) each its own."""
+        specs = [self._spec(m) for m in marker_ids]
+        t = np.asarray(t_s, dtype=float)
+        tt = np.broadcast_to(t, (len(specs), *t.shape[-1:])) if t.ndim <= 1 else t
+        if tt.ndim == 1:
+            tt = tt[:, None]
+        out = np.empty((len(specs), tt.shape[1], 3))
+        groups: dict[tuple[str, str], list[int]] = {}
+        for i, sp in enumerate(specs):
+            groups.setdefault((sp.kind, sp.body), []).append(i)
+        for (kind, body), idx in groups.items():
+            ts = tt[idx]
+            if kind == "fixed":
+                out[idx] = np.stack([specs[i].point for i in idx])[:, None, :]
+            elif kind == "flange":
+                pos, rot = self.robot.transform_at(ts.ravel())
+                pos = pos.reshape((*ts.shape, 3))
+                rot = rot.reshape((*ts.shape, 3, 3))
+                offs = np.stack([specs[i].point for i in idx])
+                out[idx] = pos + np.einsum("mnij,mj->mni", rot, offs)
+            elif kind == "osc":
+                disp = np.asarray(self._bodies[body].displacement_mm(ts))
+                rest = np.stack([specs[i].point for i in idx])[:, None, :]
+                ax = np.stack([specs[i].axis * specs[i].weight for i in idx])[:, None, :]
+                out[idx] = rest + disp[..., None] * ax
+            else:  # rotor
+                phi = np.asarray(self._bodies[body].phase_rad(ts))[..., None]
+                for j, i in enumerate(idx):
+                    sp = specs[i]
+                    out[i] = sp.point + sp.weight * (np.cos(phi[j]) * sp.axis + np.sin(phi[j]) * sp.e1)
+        return out
+
+    def normals(self, marker_ids: list[str], t_s: np.ndarray | float) -> np.ndarray:
+        """Unit normals (M, 3) of the marker discs at one time each (scalar or (M,) times)."""
+        t = np.broadcast_to(np.asarray(t_s, dtype=float), (len(marker_ids),))
+        out = np.empty((len(marker_ids), 3))
+        for i, mid in enumerate(marker_ids):
+            sp = self._spec(mid)
+            if sp.kind == "flange":
+                _, rot = self.robot.transform_at(t[i : i + 1])
+                out[i] = rot[0] @ sp.normal
+            else:
+                out[i] = sp.normal
+        return out
+
+    def marker_normal(self, marker_id: str, t_s: float) -> np.ndarray:
+        return self.normals([marker_id], t_s)[0]
+
+    def markers(self, t_s: float | np.ndarray, marker_ids: list[str] | None = None) -> dict[str, np.ndarray]:
+        """Every marker's centre in the base frame (mm): (3,) for a scalar time, (N, 3) for N times.
+
+        Without ``marker_ids``: the markers present at ``t_s`` (at the earliest of several times)."""
+        t = np.asarray(t_s, dtype=float)
+        ids = marker_ids if marker_ids is not None else self.marker_ids_at(float(np.min(t)))
+        pos = self.positions(ids, np.atleast_1d(t).ravel())
+        return {m: (pos[i, 0] if t.ndim == 0 else pos[i].reshape((*t.shape, 3))) for i, m in enumerate(ids)}
