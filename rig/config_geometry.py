@@ -42,90 +42,118 @@ class _Directions:
             object.__setattr__(self, name, _normalised(getattr(self, name)))
 
 
+_BODIES = spec(choices=("exciter", "rotor", "shaker"))
+
+
 @dataclass(frozen=True)
 class CalibrationPlateTarget(_Directions):
-    """Plate of ``rows × cols`` markers at ``pitch_mm``, carried by the arm and slid along ``normal``.
+    """Grid of ``rows × cols`` markers at ``pitch_mm`` on a plate held by the flange, ``standoff_mm`` in
+    front of it along tool z, and slid along its normal (tool z). Markers lie in the tool x–y plane,
+    centred on the tool z axis, row 0 on top (+tool y).
 
-    ``start_pose`` is the arm pose (x, y, z mm; rx, ry, rz deg) of the first position; position ``i`` is
-    ``start_pose`` moved by ``slide_positions_mm[i]`` along ``normal`` (base frame). ``offset_mm`` is the
-    plate centre in the flange frame; the markers lie in the flange x–y plane around it, row-major from
-    (-x, +y).
+    Procedure data: ``start_pose`` is the arm pose (x, y, z mm; rx, ry, rz deg) of the middle position;
+    position ``i`` is ``start_pose`` moved by ``slide_positions_mm[i]`` along tool z (≥ 2 positions, so the
+    control points are not coplanar).
     """
 
-    rows: int = field(metadata=_COUNT)
-    cols: int = field(metadata=_COUNT)
+    cols: int = field(metadata=spec(lo=2, hi=1000))
+    rows: int = field(metadata=spec(lo=2, hi=1000))
     pitch_mm: float = field(metadata=_POS)
     marker_diameter_mm: float = field(metadata=_POS)
     start_pose: tuple[float, ...] = field(metadata=spec(length=6))
     slide_positions_mm: tuple[float, ...] = field(metadata=spec(length=(2, 100), lo=-2000.0, hi=2000.0))
-    normal: tuple[float, ...] = _dir_field((0.0, -1.0, 0.0))
-    offset_mm: tuple[float, ...] = field(default=(0.0, 0.0, 0.0), metadata=_VEC3)
-    _DIRECTIONS = ("normal",)
+    standoff_mm: float = field(default=30.0, metadata=spec(lo=-1e4, hi=1e4))
+
+    def __post_init__(self) -> None:
+        if self.marker_diameter_mm >= self.pitch_mm:
+            raise ConfigError("targets.calibration_plate.marker_diameter_mm",
+                              f"{self.marker_diameter_mm:g} must be < pitch_mm = {self.pitch_mm:g}")
+        if len(set(self.slide_positions_mm)) < 2:
+            raise ConfigError("targets.calibration_plate.slide_positions_mm",
+                              f"{list(self.slide_positions_mm)}: allowed: at least 2 distinct positions")
 
 
 @dataclass(frozen=True)
 class SingleMarkerTarget:
-    """One marker carried by the arm; ``offset_mm`` is its centre in the flange frame."""
+    """One marker carried by the arm; ``offset_tool_mm`` is its centre in the tool (flange) frame."""
 
     marker_diameter_mm: float = field(metadata=_POS)
-    offset_mm: tuple[float, ...] = field(default=(0.0, 0.0, 0.0), metadata=_VEC3)
+    offset_tool_mm: tuple[float, ...] = field(default=(0.0, 0.0, 30.0), metadata=_VEC3)
 
 
 @dataclass(frozen=True)
 class MarkerFrameTarget:
-    """A rigid frame of markers carried by the arm; ``markers_mm`` in the flange frame (≥ 3 markers)."""
+    """A rigid frame of markers carried by the arm; ``offsets_mm`` in the tool frame (≥ 4, non-coplanar)."""
 
     marker_diameter_mm: float = field(metadata=_POS)
-    markers_mm: tuple[tuple[float, ...], ...] = field(metadata=spec(length=(3, 200), lo=-1e4, hi=1e4))
+    offsets_mm: tuple[tuple[float, ...], ...] = field(metadata=spec(length=(4, 200), lo=-1e4, hi=1e4))
 
 
 @dataclass(frozen=True)
 class SweepColumnTarget(_Directions):
-    """A column of ``n_markers`` on the exciter's arm: first marker at ``base_mm`` (at rest), the others
-    at ``pitch_mm`` along ``direction``; the column vibrates along ``axis`` (amplitude: crank radius)."""
+    """A column of ``count`` markers at ``pitch_mm`` along ``column_direction``, centred at ``centre_mm`` (at
+    rest, base frame), moved by ``body`` along ``axis``; ``normal`` is the marker plate's normal."""
 
-    n_markers: int = field(metadata=_COUNT)
+    centre_mm: tuple[float, ...] = field(metadata=_VEC3)
+    count: int = field(metadata=_COUNT)
     pitch_mm: float = field(metadata=_POS)
     marker_diameter_mm: float = field(metadata=_POS)
-    base_mm: tuple[float, ...] = field(metadata=_VEC3)
-    direction: tuple[float, ...] = _dir_field((0.0, 0.0, 1.0))
-    axis: tuple[float, ...] = _dir_field((1.0, 0.0, 0.0))
-    _DIRECTIONS = ("direction", "axis")
+    body: str = field(default="exciter", metadata=_BODIES)
+    column_direction: tuple[float, ...] = _dir_field((0.0, 0.0, 1.0))
+    axis: tuple[float, ...] = _dir_field((0.0, 0.0, 1.0))
+    normal: tuple[float, ...] = _dir_field((1.0, 0.0, 0.0))
+    _DIRECTIONS = ("column_direction", "axis", "normal")
 
 
 @dataclass(frozen=True)
 class PlateTarget(_Directions):
-    """The oscillating plate: ``rows × cols`` markers at ``pitch_mm``, centred at ``centre_mm`` (at rest) in
-    the plane spanned by ``row_direction`` and ``col_direction``; it oscillates along ``axis``."""
+    """A plate clamped along its edge at ``root_mm`` (base frame), ``length_mm`` long along
+    ``length_direction``, its free end driven by ``body`` along ``axis`` (absent: along ``normal``).
+    ``rows × cols`` markers: column c at (c + 1)·``pitch_mm`` from the clamp, rows ``row_pitch_mm`` apart
+    along ``width_direction``; a marker moves by the tip displacement × (3ξ² − ξ³)/2, ξ = s / length."""
 
-    rows: int = field(metadata=_COUNT)
+    root_mm: tuple[float, ...] = field(metadata=_VEC3)
+    length_mm: float = field(metadata=_POS)
     cols: int = field(metadata=_COUNT)
+    rows: int = field(metadata=_COUNT)
     pitch_mm: float = field(metadata=_POS)
+    row_pitch_mm: float = field(metadata=_POS)
     marker_diameter_mm: float = field(metadata=_POS)
-    centre_mm: tuple[float, ...] = field(metadata=_VEC3)
-    row_direction: tuple[float, ...] = _dir_field((1.0, 0.0, 0.0))
-    col_direction: tuple[float, ...] = _dir_field((0.0, 0.0, -1.0))
-    axis: tuple[float, ...] = _dir_field((0.0, 1.0, 0.0))
-    _DIRECTIONS = ("row_direction", "col_direction", "axis")
+    body: str = field(default="exciter", metadata=_BODIES)
+    length_direction: tuple[float, ...] = _dir_field((0.0, 1.0, 0.0))
+    width_direction: tuple[float, ...] = _dir_field((0.0, 0.0, 1.0))
+    normal: tuple[float, ...] = _dir_field((1.0, 0.0, 0.0))
+    axis: tuple[float, ...] | None = field(default=None, metadata=spec(length=3, check=_non_zero))
+    _DIRECTIONS = ("length_direction", "width_direction", "normal")
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        if self.cols * self.pitch_mm > self.length_mm:
+            raise ConfigError("targets.plate.cols", f"{self.cols} columns at {self.pitch_mm:g} mm reach "
+                                                    f"beyond length_mm = {self.length_mm:g}")
 
 
 @dataclass(frozen=True)
 class RotorTarget(_Directions):
-    """A marker at ``radius_mm`` from ``centre_mm`` on a rotor turning about ``axis``."""
+    """A marker at ``radius_mm`` from ``centre_mm`` on a disc turning about ``axis``; at angle 0 it lies along
+    ``zero_direction`` from the centre (positive angles right-handed about ``axis``)."""
 
+    centre_mm: tuple[float, ...] = field(metadata=_VEC3)
     radius_mm: float = field(metadata=_POS)
     marker_diameter_mm: float = field(metadata=_POS)
-    centre_mm: tuple[float, ...] = field(metadata=_VEC3)
-    axis: tuple[float, ...] = _dir_field((0.0, -1.0, 0.0))
+    axis: tuple[float, ...] = _dir_field((1.0, 0.0, 0.0))
+    zero_direction: tuple[float, ...] = _dir_field((0.0, 1.0, 0.0))
     _DIRECTIONS = ("axis",)
 
 
 @dataclass(frozen=True)
-class ReferenceMarkers:
-    """Fixed reference markers (always in view), base frame."""
+class ReferenceMarkers(_Directions):
+    """Fixed reference markers (base frame, ≥ 3, not collinear), always in view, facing ``normal``."""
 
+    positions_mm: tuple[tuple[float, ...], ...] = field(metadata=spec(length=(3, 100), lo=-1e5, hi=1e5))
     marker_diameter_mm: float = field(metadata=_POS)
-    positions_mm: tuple[tuple[float, ...], ...] = field(metadata=spec(length=(1, 100), lo=-1e5, hi=1e5))
+    normal: tuple[float, ...] = _dir_field((1.0, 0.0, 0.0))
+    _DIRECTIONS = ("normal",)
 
 
 @dataclass(frozen=True)
@@ -138,24 +166,25 @@ class MeasurementVolume:
 
 @dataclass(frozen=True)
 class TargetsConfig:
+    """Marker targets; field names and meanings match the twin's :mod:`drivers.sim.targets` one to one
+    (plus the procedure-only ``start_pose``/``slide_positions_mm`` and ``volume``)."""
+
     calibration_plate: CalibrationPlateTarget | None = None
     single_marker: SingleMarkerTarget | None = None
     marker_frame: MarkerFrameTarget | None = None
     sweep_column: SweepColumnTarget | None = None
     plate: PlateTarget | None = None
     rotor: RotorTarget | None = None
-    reference: ReferenceMarkers | None = None
+    references: ReferenceMarkers | None = None
     volume: MeasurementVolume | None = None
 
     def __post_init__(self) -> None:
-        for name in ("marker_frame", "reference"):
+        for name, key in (("marker_frame", "offsets_mm"), ("references", "positions_mm")):
             target = getattr(self, name)
             if target is None:
                 continue
-            points = target.markers_mm if name == "marker_frame" else target.positions_mm
-            for i, p in enumerate(points):
+            for i, p in enumerate(getattr(target, key)):
                 if len(p) != 3:
-                    key = "markers_mm" if name == "marker_frame" else "positions_mm"
                     raise ConfigError(f"targets.{name}.{key}[{i}]", f"{list(p)} has {len(p)} elements; "
                                                                    "allowed: exactly 3 (x, y, z mm)")
 
@@ -182,8 +211,14 @@ class SimCameraConfig(_Directions):
 @dataclass(frozen=True)
 class SimConfig:
     """The twin: ``seed`` for all noise, the virtual clock (``rate`` None = instant, else virtual s per
-    wall s), and one :class:`SimCameraConfig` per simulated camera."""
+    wall s), the arm's orientation speed/acceleration, the scene mounted at start, and one
+    :class:`SimCameraConfig` per simulated camera. (Robot home pose and crank radius come from
+    ``[devices.robot]`` / ``[devices.exciter]``; targets from ``[targets]``.)"""
 
     seed: int = field(default=0, metadata=spec(lo=0, hi=2**63 - 1))
     rate: float | None = field(default=None, metadata=spec(lo=0.0, lo_open=True, hi=1e6))
+    robot_rot_speed_deg_s: float = field(default=120.0, metadata=spec(lo=0.0, lo_open=True, hi=1e4))
+    robot_rot_accel_deg_s2: float = field(default=480.0, metadata=spec(lo=0.0, lo_open=True, hi=1e5))
+    initial_scene: str = field(default="calibration_plate", metadata=spec(choices=(
+        "calibration_plate", "single_marker", "marker_frame", "plate", "rotor", "sweep_column", "none")))
     cameras: dict[str, SimCameraConfig] = field(default_factory=dict)

@@ -46,9 +46,9 @@ def test_builtin_sim_config_is_valid_and_complete() -> None:
     cfg = default_config()
     assert isinstance(cfg, RigConfig) and cfg.station.simulated and cfg.source == "builtin:sim"
     assert cfg.camera_names() == ["left", "right"]
-    assert cfg.devices.exciter.crank_radius_mm == 5.0 and cfg.devices.rotor.unit_id == 2
+    assert cfg.devices.exciter.crank_radius_mm == 4.0 and cfg.devices.rotor.unit_id == 2
     assert cfg.limits.exciter.motion_limits().max_frequency_hz == 32.0
-    assert cfg.limits.robot.contains([450, 0, 350]) and not cfg.limits.robot.contains([450, 0, 800])
+    assert cfg.limits.robot.contains([420, 0, 300]) and not cfg.limits.robot.contains([420, 0, 800])
     assert set(cfg.sim.cameras) == {"left", "right"}
 
 
@@ -83,8 +83,11 @@ BAD = [  # (dotted field, bad value, the start of the expected message — plain
     ("cameras.left.resolution_px", [1920],
      "cameras.left.resolution_px: [1920] has 1 elements; allowed: exactly 2"),
     ("targets.rotor.axis", [0.0, 0.0, 0.0], "targets.rotor.axis: [0.0, 0.0, 0.0] is a zero vector"),
-    ("targets.marker_frame.markers_mm", [[0, 0, 0], [1, 1], [2, 2, 2]],
-     "targets.marker_frame.markers_mm[1]: [1.0, 1.0] has 2 elements; allowed: exactly 3"),
+    ("targets.marker_frame.offsets_mm", [[0, 0, 0], [1, 1], [2, 2, 2], [3, 3, 3]],
+     "targets.marker_frame.offsets_mm[1]: [1.0, 1.0] has 2 elements; allowed: exactly 3"),
+    ("targets.plate.cols", 7, "targets.plate.cols: 7 columns at 50 mm reach beyond length_mm = 320"),
+    ("targets.sweep_column.body", "motor",
+     "targets.sweep_column.body: 'motor' is not allowed; allowed: 'exciter'"),
     ("devices.robot.address", "udp://1.2.3.4:5007",
      "devices.robot.address: 'udp://1.2.3.4:5007' has an unknown scheme; allowed: tcp://HOST:PORT"),
     ("devices.robot.address", "tcp://host:99999",
