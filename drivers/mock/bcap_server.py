@@ -1,0 +1,418 @@
+"""A mock DENSO RC8 controller speaking b-CAP over TCP (127.0.0.1) or a pty serial line (with CRC).
+
+Behind it is the simulated robot body (``world.robot``) and the rig's virtual clock: a Move starts the
+body's move at the current virtual time and lasts as long as the body says. In *instant* clock mode the
+server advances the clock to the end of the move and replies at once; in *paced* mode the reply waits
+until the move ends in (scaled) wall time, with S_EXECUTING keep-alives every WDT ms meanwhile.
+
+Protocol behaviour (``../shared/notes/bcap.md`` §15): each reply is one write; handles are returned as
+VT_UI4 and accepted as VT_I4 or VT_UI4; a request arriving while a Move executes gets E_BUSY_PROC; on a
+serial line a retry (reserved field = first attempt's serial) is answered from the reply cache and
+bad-CRC packets are dropped silently; a second TCP client gets E_MAX_CONNECT. Fault switches are in
+:class:`Faults`.
+
+Run on its own (own world, paced clock at real time)::
+
+    python -m drivers.mock.bcap_server --port 5007          # tcp://127.0.0.1:5007
+    python -m drivers.mock.bcap_server --pty                # prints the pty slave to open
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import logging
+import os
+import pty
+import select
+import socket
+import threading
+import time
+import tty
+from collections import OrderedDict
+from dataclasses import dataclass
+from types import TracebackType
+from typing import Any
+
+from drivers.denso import hresult as hr
+from drivers.denso.bcap import Packet, PacketDecoder, encode_packet
+from drivers.denso.variant import EMPTY, Variant
+from drivers.mock.bcap_state import VALUE_RETURNING, ControllerState, RobotBodyLike
+
+log = logging.getLogger(__name__)
+CACHE_SIZE = 32
+
+
+@dataclass
+class Faults:
+    """Fault-injection switches; counters decrement as faults fire. ``*_function`` None = any function."""
+
+    drop_replies: int = 0            # replies executed but never sent (a retry gets the cached reply)
+    drop_function: int | None = None
+    delay_reply_s: float = 0.0       # wall delay before replies to delay_function
+    delay_function: int | None = None
+    corrupt_crc: int = 0             # serial line: replies sent with a broken CRC
+    close_mid_move: bool = False     # close the connection once a blocking Move has started
+    move_error: int | None = None    # HRESULT every Move fails with
+    busy_replies: int = 0            # requests answered E_BUSY_PROC without executing
+    busy_function: int | None = None
+    wrong_serial_first: bool = False  # send a copy of each reply under another serial first
+    stray_keepalive: bool = False     # send an S_EXECUTING before each reply
+    fragment_replies: bool = False    # opt-in: send replies byte by byte (tests client reassembly)
+
+    def matches(self, wanted: int | None, function_id: int) -> bool:
+        return wanted is None or wanted == function_id
+
+
+class _Channel:
+    """A byte pipe to one client: a TCP socket or a pty master."""
+
+    serial_line = False
+
+    def recv(self, timeout_s: float) -> bytes:  # b"" on timeout; EOFError when closed
+        raise NotImplementedError
+
+    def send(self, data: bytes) -> None:
+        raise NotImplementedError
+
+    def close(self) -> None:
+        raise NotImplementedError
+
+
+class _TcpChannel(_Channel):
+    def __init__(self, sock: socket.socket) -> None:
+        self.sock = sock
+        host, port = sock.getpeername()[:2]
+        self.name = f"tcp:{host}:{port}"
+
+    def recv(self, timeout_s: float) -> bytes:
+        self.sock.settimeout(timeout_s)
+        try:
+            data = self.sock.recv(65536)
+        except TimeoutError:
+            return b""
+        except OSError as exc:
+            raise EOFError(str(exc)) from exc
+        if not data:
+            raise EOFError("client closed")
+        return data
+
+    def send(self, data: bytes) -> None:
+        try:
+            self.sock.sendall(data)
+        except OSError as exc:
+            raise EOFError(str(exc)) from exc
+
+    def close(self) -> None:
+        with contextlib.suppress(OSError):
+            self.sock.shutdown(socket.SHUT_RDWR)
+        self.sock.close()
+
+
+class _PtyChannel(_Channel):
+    """Server end of a pty pair; the client opens :attr:`slave_name` with pyserial."""
+
+    serial_line = True
+
+    def __init__(self) -> None:
+        self.master_fd, self._slave_fd = pty.openpty()
+        tty.setraw(self._slave_fd)  # no echo, no cooking, before the client configures the line
+        self.slave_name = os.ttyname(self._slave_fd)
+        self.name = f"pty:{self.slave_name}"
+        self._closed = False
+
+    def recv(self, timeout_s: float) -> bytes:
+        if self._closed:
+            raise EOFError("pty closed")
+        ready, _, _ = select.select([self.master_fd], [], [], timeout_s)
+        if not ready:
+            return b""
+        try:
+            return os.read(self.master_fd, 4096)
+        except OSError as exc:
+            raise EOFError(str(exc)) from exc
+
+    def send(self, data: bytes) -> None:
+        view = memoryview(data)
+        while view:
+            try:
+                written = os.write(self.master_fd, view)
+            except OSError as exc:
+                raise EOFError(str(exc)) from exc
+            view = view[written:]
+
+    def close(self) -> None:
+        if not self._closed:
+            self._closed = True
+            for fd in (self.master_fd, self._slave_fd):
+                with contextlib.suppress(OSError):
+                    os.close(fd)
+
+
+class _Session:
+    """One client connection: reads requests, executes them on the shared state, writes replies."""
+
+    def __init__(self, server: BcapMockServer, channel: _Channel, *, refuse: bool = False) -> None:
+        self.server = server
+        self.channel = channel
+        self.refuse = refuse
+        self._write_lock = threading.Lock()
+        self._cache: OrderedDict[int, tuple[int, int, list[Variant]]] = OrderedDict()
+        self._executing: tuple[int, int] | None = None  # (original serial, function) of a running Move
+        self._stop = threading.Event()
+        self.thread = threading.Thread(target=self._run, name=f"bcap-{channel.name}", daemon=True)
+
+    # -------------------------------------------------------------------------------------- reading
+    def _run(self) -> None:
+        decoder = PacketDecoder(serial_line=self.channel.serial_line)
+        try:
+            while not self._stop.is_set():
+                decoder.feed(self.channel.recv(0.05))
+                while True:
+                    try:
+                        packet = decoder.next_packet()
+                    except hr.BcapProtocolError as exc:
+                        log.warning("%s: malformed request dropped: %s", self.channel.name, exc)
+                        continue
+                    if packet is None:
+                        break
+                    self._on_request(packet)
+        except EOFError:
+            log.info("%s: client gone", self.channel.name)
+        finally:
+            self._stop.set()
+            if not self.refuse:
+                with self.server.lock:
+                    self.server.state.release_all()
+                self.server._session_ended(self)
+            self.channel.close()
+
+    def stop(self) -> None:
+        self._stop.set()
+        self.channel.close()
+
+    def _on_request(self, packet: Packet) -> None:
+        faults, function = self.server.faults, packet.code
+        original = packet.reserved if self.channel.serial_line and packet.reserved else packet.serial
+        if self.refuse:
+            self._reply(packet, hr.E_MAX_CONNECT, [EMPTY] if function in VALUE_RETURNING else [])
+            return
+        if original != packet.serial:
+            if original in self._cache:  # a retry of an answered request: re-send the same reply
+                _fn, code, args = self._cache[original]
+                self._send(packet.serial, code, args, function)
+                return
+            if self._executing and self._executing[0] == original:
+                return  # still executing: the final reply goes out under the first serial
+        injected_busy = bool(faults.busy_replies) and faults.matches(faults.busy_function, function)
+        if self._executing is not None or injected_busy:
+            if self._executing is None:
+                faults.busy_replies -= 1
+            self._reply(packet, hr.E_BUSY_PROC, [EMPTY] if function in VALUE_RETURNING else [], cache=False)
+            return
+        with self.server.lock:
+            self.server.state.move_error = faults.move_error
+            outcome = self.server.state.execute(function, list(packet.args))
+        if outcome.motion_end_s is None or hr.is_failure(outcome.hresult):
+            self._reply(packet, outcome.hresult, outcome.args)
+            return
+        if self.server.instant:
+            if faults.close_mid_move:
+                self.stop()
+                return
+            self.server.clock.advance_to(outcome.motion_end_s)
+            self._reply(packet, outcome.hresult, outcome.args)
+            return
+        self._executing = (original, function)
+        threading.Thread(target=self._wait_for_move, args=(packet, outcome.hresult, outcome.args),
+                         name=f"bcap-move-{packet.serial}", daemon=True).start()
+
+    def _wait_for_move(self, packet: Packet, code: int, args: list[Variant]) -> None:
+        """Paced clock: keep-alives every WDT ms until the body is at rest, then the final reply."""
+        state, robot = self.server.state, self.server.state.robot
+        wdt_s = state.wdt_ms / 1000.0 if state.wdt_ms else None
+        started = time.monotonic()
+        invoke_deadline = started + state.invoke_timeout_ms / 1000.0
+        next_keepalive = started + wdt_s if wdt_s else float("inf")
+        try:
+            while robot.is_moving(self.server.clock.now_s()):
+                if self.server.faults.close_mid_move:
+                    self.stop()
+                    return
+                now = time.monotonic()
+                if now >= invoke_deadline:
+                    log.warning("serial %d: InvokeTimeout expired; no final reply", packet.serial)
+                    return
+                if now >= next_keepalive:
+                    self._write(encode_packet(packet.serial, 0, hr.S_EXECUTING, [],
+                                              serial_line=self.channel.serial_line))
+                    next_keepalive += wdt_s or 0.0
+                if self._stop.wait(min(0.01, max(0.0, next_keepalive - now))):
+                    return
+            self._reply(packet, code, args)
+        except EOFError:
+            self.stop()
+        finally:
+            self._executing = None
+
+    # -------------------------------------------------------------------------------------- writing
+    def _reply(self, packet: Packet, code: int, args: list[Any], *, cache: bool = True) -> None:
+        if cache and self.channel.serial_line:
+            original = packet.reserved or packet.serial
+            self._cache[original] = (packet.code, code, list(args))
+            while len(self._cache) > CACHE_SIZE:
+                self._cache.popitem(last=False)
+        self._send(packet.serial, code, args, packet.code)
+
+    def _send(self, serial: int, code: int, args: list[Any], function: int) -> None:
+        faults = self.server.faults
+        delayed = faults.delay_reply_s and faults.matches(faults.delay_function, function)
+        if delayed and self._stop.wait(faults.delay_reply_s):
+            return
+        if faults.drop_replies and faults.matches(faults.drop_function, function):
+            faults.drop_replies -= 1
+            log.info("fault: reply to serial %d dropped", serial)
+            return
+        serial_line = self.channel.serial_line
+        data = bytearray(encode_packet(serial, 0, code, args, serial_line=serial_line))
+        if serial_line and faults.corrupt_crc:
+            faults.corrupt_crc -= 1
+            data[-2] ^= 0x5A
+        if faults.stray_keepalive:
+            self._write(encode_packet(serial, 0, hr.S_EXECUTING, [], serial_line=serial_line))
+        if faults.wrong_serial_first:
+            self._write(encode_packet(serial % 0xFFFF + 1, 0, code, args, serial_line=serial_line))
+        self._write(bytes(data))
+
+    def _write(self, data: bytes) -> None:
+        with self._write_lock:
+            if self.server.faults.fragment_replies:
+                for i in range(len(data)):
+                    self.channel.send(data[i:i + 1])
+            else:
+                self.channel.send(data)  # one write per packet
+
+
+class BcapMockServer:
+    """The mock controller. Serve it over TCP (:meth:`serve_tcp`) and/or a pty (:meth:`serve_pty`).
+
+    Args:
+        robot: the simulated robot body (``world.robot``).
+        clock: the rig clock (``world.clock``); instant mode if it has ``is_instant`` true.
+        full_speed_mm_s, full_accel_mm_s2: what 100 % speed / acceleration mean on this controller.
+        faults: fault switches (shared, may be changed while serving).
+    """
+
+    def __init__(self, robot: RobotBodyLike, clock: Any, *, full_speed_mm_s: float = 1000.0,
+                 full_accel_mm_s2: float = 5000.0, faults: Faults | None = None) -> None:
+        self.clock = clock
+        self.state = ControllerState(robot, clock, full_speed_mm_s=full_speed_mm_s,
+                                     full_accel_mm_s2=full_accel_mm_s2)
+        self.faults = faults or Faults()
+        self.lock = threading.RLock()
+        self.instant = bool(getattr(clock, "is_instant", False))
+        self._sessions: list[_Session] = []
+        self._active: _Session | None = None
+        self._listener: socket.socket | None = None
+        self._closing = threading.Event()
+        self.port: int | None = None
+
+    def serve_tcp(self, host: str = "127.0.0.1", port: int = 0) -> int:
+        """Listen on ``host:port`` (0 = ephemeral); return the bound port."""
+        self._listener = socket.create_server((host, port))
+        self._listener.settimeout(0.1)
+        self.port = self._listener.getsockname()[1]
+        threading.Thread(target=self._accept_loop, name="bcap-accept", daemon=True).start()
+        log.info("b-CAP mock listening on tcp://%s:%d", host, self.port)
+        return self.port
+
+    def serve_pty(self) -> str:
+        """Open a pty pair, serve its master with serial framing; return the slave name for the client."""
+        channel = _PtyChannel()
+        self._start_session(channel)
+        return channel.slave_name
+
+    def _accept_loop(self) -> None:
+        assert self._listener is not None
+        while not self._closing.is_set():
+            try:
+                sock, _ = self._listener.accept()
+            except TimeoutError:
+                continue
+            except OSError:
+                return
+            sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+            self._start_session(_TcpChannel(sock))
+
+    def _start_session(self, channel: _Channel) -> None:
+        with self.lock:
+            refuse = self._active is not None
+            session = _Session(self, channel, refuse=refuse)
+            if not refuse:
+                self._active = session
+            self._sessions.append(session)
+        session.thread.start()
+
+    def _session_ended(self, session: _Session) -> None:
+        with self.lock:
+            if self._active is session:
+                self._active = None
+
+    def close(self) -> None:
+        self._closing.set()
+        if self._listener is not None:
+            self._listener.close()
+        for session in list(self._sessions):
+            session.stop()
+        for session in list(self._sessions):
+            session.thread.join(timeout=1.0)
+
+    def __enter__(self) -> BcapMockServer:
+        return self
+
+    def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None,
+                 tb: TracebackType | None) -> None:
+        self.close()
+
+
+def _standalone_robot(rate: float) -> tuple[Any, Any]:
+    from drivers.sim.clock import VirtualClock
+
+    clock = VirtualClock(rate=rate)
+    try:
+        from drivers.sim.world import World
+    except ImportError:
+        from drivers.sim.bodies import RobotBody
+
+        return RobotBody(), clock
+    world = World(clock)
+    return world.robot, world.clock
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description="Mock DENSO RC8 controller (b-CAP) on the simulated robot.")
+    parser.add_argument("--host", default="127.0.0.1", help="address to bind (default 127.0.0.1)")
+    parser.add_argument("--port", type=int, default=5007, help="TCP port (0 = any free port)")
+    parser.add_argument("--pty", action="store_true", help="also serve a pty serial line (CRC framing)")
+    parser.add_argument("--rate", type=float, default=1.0, help="virtual seconds per wall second")
+    options = parser.parse_args(argv)
+    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(message)s")
+    robot, clock = _standalone_robot(options.rate)
+    with BcapMockServer(robot, clock) as server:
+        port = server.serve_tcp(options.host, options.port)
+        print(f"b-CAP mock RC8 on tcp://{options.host}:{port}", flush=True)
+        if options.pty:
+            print(f"b-CAP mock RC8 on serial://{server.serve_pty()} (CRC framing)", flush=True)
+        try:
+            while True:
+                time.sleep(1.0)
+        except KeyboardInterrupt:
+            pass
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
+
+
+__all__ = ["BcapMockServer", "Faults"]
