@@ -23,6 +23,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from drivers.denso.pose import rotation_matrix
+
 SHOULDER_HEIGHT_MM = 280.0
 UPPER_ARM_MM = 210.0
 FOREARM_MM = math.hypot(210.0, 75.0)
@@ -32,17 +34,6 @@ J1_LIMIT_DEG = 160.0
 J2_LIMIT_DEG = 120.0
 J3_RANGE_DEG = (19.0, 160.0)
 J5_LIMIT_DEG = 120.0
-
-
-def rotation_matrix(rx_deg: float, ry_deg: float, rz_deg: float) -> np.ndarray:
-    """Denso orientation: R = Rz(rz)·Ry(ry)·Rx(rx), rotations about the fixed base axes."""
-    ax, ay, az = (math.radians(v) for v in (rx_deg, ry_deg, rz_deg))
-    cx, sx, cy, sy = math.cos(ax), math.sin(ax), math.cos(ay), math.sin(ay)
-    cz, sz = math.cos(az), math.sin(az)
-    rx = np.array([[1, 0, 0], [0, cx, -sx], [0, sx, cx]])
-    ry = np.array([[cy, 0, sy], [0, 1, 0], [-sy, 0, cy]])
-    rz = np.array([[cz, -sz, 0], [sz, cz, 0], [0, 0, 1]])
-    return rz @ ry @ rx
 
 
 @dataclass(frozen=True)

@@ -1,0 +1,277 @@
+"""The robot arm device used by procedures: safe moves of a DENSO arm through a :class:`BcapClient`.
+
+Safety (DESIGN.md): the workspace envelope and the speed cap are checked **before any byte is sent**;
+a violation raises :class:`LimitError` naming the axis, the value and the allowed range. After each
+move the pose reported by ``CurPos`` must match the target within the tolerances, else
+:class:`PositionMismatchError`. Any failure during a move attempts a halt before re-raising.
+
+Speeds: ``speed_mm_s`` is converted to the controller's SPEED percent with ``full_speed_mm_s`` (what
+100 % means on the controller; ExtSpeed is set to 100 % at :meth:`DensoArm.open`). **UNVERIFIED** on a
+real RC8: that SPEED of a linear move scales a Cartesian speed linearly (bcap.md §13); for PTP moves the
+real path is not straight, so the envelope is only guaranteed at the end points there.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import asdict, dataclass, field
+from types import TracebackType
+from typing import Any
+
+import numpy as np
+
+from drivers.clock import Clock
+from drivers.denso.client import BcapClient
+from drivers.denso.hresult import BcapError
+from drivers.denso.pose import check_pose, orientation_error_deg
+from drivers.transport import TransportError
+
+log = logging.getLogger(__name__)
+
+
+class LimitError(ValueError):
+    """A command is outside a configured safety limit; nothing was sent."""
+
+    def __init__(self, axis: str, value: float, allowed: tuple[float, float]) -> None:
+        self.axis, self.value, self.allowed = axis, value, allowed
+        super().__init__(f"{axis}={value:g} outside the allowed range [{allowed[0]:g}, {allowed[1]:g}]")
+
+
+class PositionMismatchError(RuntimeError):
+    """After a move the controller reports a pose farther from the target than the tolerance."""
+
+
+def _range(value: Sequence[float], name: str) -> tuple[float, float]:
+    low, high = (float(v) for v in value)
+    if not (math.isfinite(low) and math.isfinite(high) and low <= high):
+        raise ValueError(f"{name}={tuple(value)!r}: expected a finite (min, max) with min <= max")
+    return low, high
+
+
+def _check(axis: str, value: float, allowed: tuple[float, float]) -> None:
+    if not allowed[0] <= value <= allowed[1]:
+        raise LimitError(axis, value, allowed)
+
+
+@dataclass(frozen=True)
+class OrientationLimits:
+    """Allowed Denso angles in degrees (raw rx, ry, rz values as commanded)."""
+
+    rx_deg: tuple[float, float] = (-180.0, 180.0)
+    ry_deg: tuple[float, float] = (-180.0, 180.0)
+    rz_deg: tuple[float, float] = (-180.0, 180.0)
+
+    def __post_init__(self) -> None:
+        for name in ("rx_deg", "ry_deg", "rz_deg"):
+            object.__setattr__(self, name, _range(getattr(self, name), name))
+
+    def check(self, pose: np.ndarray) -> None:
+        for name, value in zip(("rx_deg", "ry_deg", "rz_deg"), pose[3:6], strict=True):
+            _check(name, float(value), getattr(self, name))
+
+
+@dataclass(frozen=True)
+class BoxEnvelope:
+    """Axis-aligned box of allowed flange positions (base frame, mm)."""
+
+    x_mm: tuple[float, float]
+    y_mm: tuple[float, float]
+    z_mm: tuple[float, float]
+    orientation: OrientationLimits = field(default_factory=OrientationLimits)
+
+    def __post_init__(self) -> None:
+        for name in ("x_mm", "y_mm", "z_mm"):
+            object.__setattr__(self, name, _range(getattr(self, name), name))
+
+    def check(self, pose: np.ndarray) -> None:
+        for name, value in zip(("x_mm", "y_mm", "z_mm"), pose[:3], strict=True):
+            _check(name, float(value), getattr(self, name))
+        self.orientation.check(pose)
+
+
+@dataclass(frozen=True)
+class CylinderEnvelope:
+    """Vertical cylinder (or annulus) of allowed flange positions around the base's J1 axis (mm)."""
+
+    radius_mm: float
+    z_mm: tuple[float, float]
+    inner_radius_mm: float = 0.0
+    orientation: OrientationLimits = field(default_factory=OrientationLimits)
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "z_mm", _range(self.z_mm, "z_mm"))
+        if not (0 <= self.inner_radius_mm < self.radius_mm and math.isfinite(self.radius_mm)):
+            raise ValueError(f"inner_radius_mm={self.inner_radius_mm}, radius_mm={self.radius_mm}: "
+                             "need 0 <= inner < radius")
+
+    def check(self, pose: np.ndarray) -> None:
+        _check("radius_mm", math.hypot(pose[0], pose[1]), (self.inner_radius_mm, self.radius_mm))
+        _check("z_mm", float(pose[2]), self.z_mm)
+        self.orientation.check(pose)
+
+
+Envelope = BoxEnvelope | CylinderEnvelope
+
+
+def envelope_from_config(config: Mapping[str, Any]) -> Envelope:
+    """``{"box": {"x_mm": [a, b], "y_mm": [...], "z_mm": [...]}}`` or ``{"cylinder": {"radius_mm": r,
+    "z_mm": [a, b], "inner_radius_mm": r0}}``, plus optional ``"orientation": {"rx_deg": [a, b], ...}``."""
+    orientation = OrientationLimits(**{k: tuple(v) for k, v in config.get("orientation", {}).items()})
+    unknown = set(config) - {"box", "cylinder", "orientation"}
+    if unknown or ("box" in config) == ("cylinder" in config):
+        raise ValueError(f"envelope keys {sorted(config)}: give exactly one of 'box' or 'cylinder' "
+                         "(and optionally 'orientation')")
+    if "box" in config:
+        box = config["box"]
+        return BoxEnvelope(tuple(box["x_mm"]), tuple(box["y_mm"]), tuple(box["z_mm"]), orientation)
+    cyl = config["cylinder"]
+    return CylinderEnvelope(float(cyl["radius_mm"]), tuple(cyl["z_mm"]),
+                            float(cyl.get("inner_radius_mm", 0.0)), orientation)
+
+
+@dataclass(frozen=True)
+class MoveResult:
+    """One completed move: poses (x, y, z mm; rx, ry, rz deg) and controller-clock times (s)."""
+
+    commanded_pose: list[float]
+    reported_pose: list[float]
+    t_start_s: float
+    t_end_s: float
+    position_error_mm: float
+    orientation_error_deg: float
+
+
+class DensoArm:
+    """A DENSO arm behind a b-CAP client.
+
+    Args:
+        client: a :class:`BcapClient` on an open transport (the arm runs the session on :meth:`open`).
+        envelope: allowed flange poses (:class:`BoxEnvelope` or :class:`CylinderEnvelope`).
+        max_speed_mm_s: speed cap; also the default move speed unless :meth:`set_speed` lowers it.
+        position_tolerance_mm: allowed distance between target and reported position after a move.
+        orientation_tolerance_deg: allowed rotation between target and reported orientation.
+        full_speed_mm_s: the controller's 100 % speed (SPEED percent = speed_mm_s / full_speed_mm_s).
+        clock: the rig clock (times of each move).
+        linear: linear (MOVE L) moves by default, else PTP (MOVE P).
+    """
+
+    def __init__(self, client: BcapClient, *, envelope: Envelope, max_speed_mm_s: float,
+                 position_tolerance_mm: float, clock: Clock, orientation_tolerance_deg: float = 0.1,
+                 full_speed_mm_s: float = 1000.0, linear: bool = True) -> None:
+        if not (0 < max_speed_mm_s <= full_speed_mm_s and math.isfinite(max_speed_mm_s)):
+            raise ValueError(f"max_speed_mm_s={max_speed_mm_s}: must be in (0, full_speed_mm_s="
+                             f"{full_speed_mm_s}]")
+        if not position_tolerance_mm > 0 or not orientation_tolerance_deg > 0:
+            raise ValueError(f"position_tolerance_mm={position_tolerance_mm}, orientation_tolerance_deg="
+                             f"{orientation_tolerance_deg}: both must be > 0")
+        self.client = client
+        self.envelope = envelope
+        self.max_speed_mm_s = float(max_speed_mm_s)
+        self.speed_mm_s = float(max_speed_mm_s)
+        self.position_tolerance_mm = float(position_tolerance_mm)
+        self.orientation_tolerance_deg = float(orientation_tolerance_deg)
+        self.full_speed_mm_s = float(full_speed_mm_s)
+        self.clock = clock
+        self.linear = linear
+        self.last_move: MoveResult | None = None
+        self.fig: int = -1
+
+    # ------------------------------------------------------------------------------------ session
+    def open(self, *, wdt_ms: int | None = 400) -> None:
+        """Service_Start … TakeArm, Motor on, ExtSpeed 100 %."""
+        self.client.open_robot(wdt_ms=wdt_ms, ext_speed_percent=100.0)
+
+    def close(self) -> None:
+        """Motor off, GiveArm, releases, Service_Stop (every step attempted)."""
+        self.client.close()
+
+    def __enter__(self) -> DensoArm:
+        self.open()
+        return self
+
+    def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None,
+                 tb: TracebackType | None) -> None:
+        self.close()
+
+    # ------------------------------------------------------------------------------------- limits
+    def check_pose(self, pose: Sequence[float] | np.ndarray) -> np.ndarray:
+        """Validate a target against the envelope; return it as an array (6,). Sends nothing."""
+        target = check_pose(pose)
+        self.envelope.check(target)
+        return target
+
+    def check_speed(self, speed_mm_s: float) -> float:
+        speed = float(speed_mm_s)
+        if not math.isfinite(speed) or speed <= 0:
+            raise LimitError("speed_mm_s", speed, (0.0, self.max_speed_mm_s))
+        _check("speed_mm_s", speed, (0.0, self.max_speed_mm_s))
+        return speed
+
+    def set_speed(self, speed_mm_s: float) -> None:
+        """Default speed of later moves (mm/s, at most ``max_speed_mm_s``)."""
+        self.speed_mm_s = self.check_speed(speed_mm_s)
+
+    # ------------------------------------------------------------------------------------- motion
+    def move_to(self, pose: Sequence[float] | np.ndarray, speed_mm_s: float | None = None, *,
+                linear: bool | None = None) -> MoveResult:
+        """Move the flange to ``pose`` and verify the reported pose; blocks until the arm is at rest."""
+        target = self.check_pose(pose)
+        speed = self.check_speed(self.speed_mm_s if speed_mm_s is None else speed_mm_s)
+        percent = speed / self.full_speed_mm_s * 100.0
+        t_start = self.clock.now_s()
+        try:
+            self.client.move(target.tolist(), linear=self.linear if linear is None else linear,
+                             speed_percent=percent, fig=self.fig)
+            t_end = self.clock.now_s()
+            reported = self.position()
+        except (BcapError, TransportError, OSError) as exc:
+            log.error("move to %s failed (%s); attempting a halt", target.tolist(), exc)
+            self._try_halt()
+            raise
+        position_error = float(np.linalg.norm(reported[:3] - target[:3]))
+        angle_error = orientation_error_deg(reported, target)
+        result = MoveResult(target.tolist(), reported.tolist(), t_start, t_end, position_error, angle_error)
+        self.last_move = result
+        if position_error > self.position_tolerance_mm or angle_error > self.orientation_tolerance_deg:
+            raise PositionMismatchError(
+                f"after the move to {target.tolist()} the controller reports {reported.tolist()}: "
+                f"{position_error:.3f} mm (tolerance {self.position_tolerance_mm:g} mm), "
+                f"{angle_error:.3f} deg (tolerance {self.orientation_tolerance_deg:g} deg)")
+        return result
+
+    def position(self) -> np.ndarray:
+        """Current flange pose (6,) from ``CurPos``: x, y, z mm; rx, ry, rz deg."""
+        values = self.client.cur_pos()
+        if len(values) > 6:
+            self.fig = int(values[6])
+        return np.asarray(values[:6], dtype=float)
+
+    def halt(self) -> None:
+        """Stop the arm now (Robot_Halt)."""
+        self.client.halt()
+
+    def _try_halt(self) -> None:
+        try:
+            self.halt()
+        except (BcapError, TransportError, OSError) as exc:
+            log.error("halt after a failed move also failed: %s", exc)
+
+    def snapshot(self) -> dict[str, Any]:
+        """Configuration and last state, for the run record."""
+        link = self.client.link
+        return {
+            "driver": "denso.bcap",
+            "transport": link.transport.url,
+            "serial_line": link.serial_line,
+            "timeout_s": link.timeout_s,
+            "envelope": {type(self.envelope).__name__: asdict(self.envelope)},
+            "max_speed_mm_s": self.max_speed_mm_s,
+            "speed_mm_s": self.speed_mm_s,
+            "full_speed_mm_s": self.full_speed_mm_s,
+            "position_tolerance_mm": self.position_tolerance_mm,
+            "orientation_tolerance_deg": self.orientation_tolerance_deg,
+            "linear": self.linear,
+            "last_move": asdict(self.last_move) if self.last_move else None,
+        }
