@@ -27,7 +27,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-__all__ = ["DELTA_MAP", "RegisterMap", "load_register_map", "register_map_from_dict"]
+__all__ = ["DELTA_MAP", "REGISTER_MAPS", "RegisterMap", "get_register_map", "load_register_map",
+           "register_map_from_dict"]
 
 _ADDRESS_FIELDS = ("command", "freq_set", "aux_command", "fault", "status", "freq_cmd", "freq_out",
                    "current", "accel_time", "decel_time")
@@ -143,6 +144,26 @@ class RegisterMap:
 
 DELTA_MAP = RegisterMap()
 """Delta VFD-E/EL/MS300 style map (see the module docstring)."""
+
+REGISTER_MAPS: dict[str, RegisterMap] = {"delta": DELTA_MAP}
+"""Built-in maps by the name a rig configuration uses (``register_map = "delta"``)."""
+
+
+def get_register_map(spec: str | dict[str, Any] | RegisterMap) -> RegisterMap:
+    """A built-in map by name, a map from a configuration table (overriding the map named by its
+    ``base`` key, default ``"delta"``), or a map passed through."""
+    if isinstance(spec, RegisterMap):
+        return spec
+    if isinstance(spec, str):
+        if spec not in REGISTER_MAPS:
+            raise ValueError(f"register_map={spec!r}: unknown; built-in maps are {sorted(REGISTER_MAPS)} "
+                             "(or give a table of registers)")
+        return REGISTER_MAPS[spec]
+    if isinstance(spec, dict):
+        table = dict(spec)
+        base = get_register_map(table.pop("base", "delta"))
+        return register_map_from_dict(table, base)
+    raise ValueError(f"register_map={spec!r}: must be a name, a table or a RegisterMap")
 
 
 def register_map_from_dict(table: dict[str, Any], base: RegisterMap = DELTA_MAP) -> RegisterMap:

@@ -1,0 +1,169 @@
+"""Test support for the exciter/VFD tests: an independent CRC, a scripted byte peer, mock rigs."""
+
+from __future__ import annotations
+
+import contextlib
+import socket
+import threading
+from collections.abc import Iterator
+from dataclasses import dataclass
+from typing import Any
+
+import serial
+from pymodbus.client import ModbusSerialClient, ModbusTcpClient
+from pymodbus.framer import FramerType
+
+from drivers.exciter.exciter import Exciter
+from drivers.exciter.limits import MotionLimits
+from drivers.exciter.vfd import VfdDriver
+from drivers.mock.pty_link import PtyLink
+from drivers.mock.vfd_drive import DriveModel
+from drivers.mock.vfd_server import VfdServer
+from drivers.sim.clock import VirtualClock
+from drivers.sim.world import World
+
+
+def crc16_modbus(data: bytes) -> bytes:
+    """CRC-16/MODBUS (poly 0xA001 reflected, init 0xFFFF), low byte first — written from the spec."""
+    crc = 0xFFFF
+    for byte in data:
+        crc ^= byte
+        for _ in range(8):
+            crc = (crc >> 1) ^ 0xA001 if crc & 1 else crc >> 1
+    return bytes([crc & 0xFF, crc >> 8])
+
+
+def rtu(hex_without_crc: str) -> bytes:
+    """An RTU frame from hex digits, with its CRC appended."""
+    body = bytes.fromhex(hex_without_crc)
+    return body + crc16_modbus(body)
+
+
+class ScriptedPeer:
+    """A byte peer that expects exact request bytes and answers with scripted bytes (PyMeasure's
+    ``expected_protocol`` idea, over a real serial line or socket).
+
+    script: [(expected request, reply), ...]. ``transport="pty"`` (RTU): the peer sits on one end of a
+    :class:`PtyLink` and the client opens :attr:`client_port`. ``transport="tcp"`` (Modbus TCP): the first
+    two bytes of each request (the MBAP transaction id) are not compared and are copied into the reply.
+    """
+
+    def __init__(self, script: list[tuple[bytes, bytes]], *, transport: str = "pty",
+                 read_timeout_s: float = 2.0) -> None:
+        self.script = list(script)
+        self.mbap = transport == "tcp"
+        self.read_timeout_s = read_timeout_s
+        self.received = bytearray()
+        self.mismatch: tuple[bytes, bytes] | None = None
+        self.served = 0
+        self.link: PtyLink | None = None
+        self._listener: socket.socket | None = None
+        if self.mbap:
+            self._listener = socket.create_server(("127.0.0.1", 0))
+            self.port = self._listener.getsockname()[1]
+        else:
+            self.link = PtyLink()
+            self.client_port = self.link.client_port
+            self._serial = serial.serial_for_url(self.link.device_port, timeout=read_timeout_s,
+                                                 write_timeout=read_timeout_s)
+        self._thread = threading.Thread(target=self._run, daemon=True)
+        self._thread.start()
+
+    def _exchange(self, read: Any, write: Any) -> None:
+        for expected, reply in self.script:
+            n = len(expected) + (2 if self.mbap else 0)
+            got = read(n)
+            self.received += got
+            body = got[2:] if self.mbap else got
+            if body != expected:
+                self.mismatch = (expected, body)
+                return
+            write((got[:2] if self.mbap else b"") + reply)
+            self.served += 1
+        self.received += read(4096, tail=True)  # anything unexpected right afterwards is recorded too
+
+    def _run(self) -> None:
+        if self._listener is None:
+            def read_serial(n: int, tail: bool = False) -> bytes:
+                self._serial.timeout = 0.05 if tail else self.read_timeout_s
+                return self._serial.read(n)
+            self._exchange(read_serial, self._serial.write)
+            return
+        self._listener.settimeout(5.0)
+        try:
+            conn, _ = self._listener.accept()
+        except OSError:
+            return
+        with conn:
+            def read_socket(n: int, tail: bool = False) -> bytes:
+                conn.settimeout(0.05 if tail else self.read_timeout_s)
+                data = b""
+                with contextlib.suppress(OSError):
+                    while len(data) < n and (chunk := conn.recv(n - len(data))):
+                        data += chunk
+                return data
+            self._exchange(read_socket, conn.sendall)
+
+    def close(self) -> None:
+        self._thread.join(timeout=3.0)
+        if self._listener is not None:
+            self._listener.close()
+        if self.link is not None:
+            self._serial.close()
+            self.link.close()
+
+
+@contextlib.contextmanager
+def rtu_client_for(peer: ScriptedPeer, timeout_s: float = 1.0) -> Iterator[ModbusSerialClient]:
+    client = ModbusSerialClient(peer.client_port, framer=FramerType.RTU, baudrate=115200, timeout=timeout_s,
+                                retries=0)
+    assert client.connect()
+    try:
+        yield client
+    finally:
+        client.close()
+
+
+EXCITER_LIMITS = MotionLimits(max_frequency_hz=32.0, max_displacement_mm=10.0, max_acceleration_m_s2=250.0,
+                              max_ramp_rate_hz_per_s=2.0)
+
+
+@dataclass
+class VfdRig:
+    world: World
+    clock: VirtualClock
+    drive: DriveModel
+    server: VfdServer
+    client: Any
+    vfd: VfdDriver
+    exciter: Exciter
+
+
+def connect_client(server: VfdServer, *, timeout_s: float = 0.25, retries: int = 0) -> Any:
+    if server.mode == "tcp":
+        client: Any = ModbusTcpClient("127.0.0.1", port=server.port, timeout=timeout_s, retries=retries)
+    else:
+        client = ModbusSerialClient(server.client_port, framer=FramerType.RTU, baudrate=115200,
+                                    timeout=timeout_s, retries=retries)
+    assert client.connect()
+    return client
+
+
+@contextlib.contextmanager
+def vfd_rig(mode: str, *, gear_ratio: float = 1.5, max_output_hz: float = 60.0, poll_interval_s: float = 0.25,
+            timeout_s: float = 0.25, **drive_kwargs: Any) -> Iterator[VfdRig]:
+    """World (instant clock) + mock drive moving world.exciter + connected driver + Exciter."""
+    world = World(VirtualClock(), seed=1)
+    drive = DriveModel(world.exciter, world.clock, gear_ratio=gear_ratio, max_output_hz=max_output_hz,
+                       **drive_kwargs)
+    server = VfdServer(drive, mode=mode).start()
+    client = connect_client(server, timeout_s=timeout_s)
+    vfd = VfdDriver(client, max_output_hz=max_output_hz)
+    exciter = Exciter(vfd, clock=world.clock, limits=EXCITER_LIMITS,
+                      crank_radius_mm=world.layout.crank_radius_mm, gear_ratio=gear_ratio,
+                      ramp_rate_hz_per_s=2.0, poll_interval_s=poll_interval_s)
+    try:
+        yield VfdRig(world, world.clock, drive, server, client, vfd, exciter)
+    finally:
+        client.close()
+        server.stop()
