@@ -188,7 +188,8 @@ class DensoArm:
         self.client.close()
 
     def __enter__(self) -> DensoArm:
-        self.open()
+        if not self.client.service_started:
+            self.open()
         return self
 
     def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None,

@@ -39,5 +39,7 @@ def orientation_error_deg(a: Sequence[float], b: Sequence[float]) -> float:
     """
     ra = rotation_matrix(*a[3:6])
     rb = rotation_matrix(*b[3:6])
-    cos_angle = (np.trace(ra.T @ rb) - 1.0) / 2.0
-    return math.degrees(math.acos(max(-1.0, min(1.0, float(cos_angle)))))
+    r = ra.T @ rb
+    sin_angle = 0.5 * math.hypot(r[2, 1] - r[1, 2], r[0, 2] - r[2, 0], r[1, 0] - r[0, 1])
+    cos_angle = 0.5 * (float(np.trace(r)) - 1.0)
+    return math.degrees(math.atan2(sin_angle, cos_angle))  # accurate near 0 (acos is not)

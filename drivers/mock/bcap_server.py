@@ -193,6 +193,7 @@ class _Session:
 
     def _on_request(self, packet: Packet) -> None:
         faults, function = self.server.faults, packet.code
+        self.server.requests.append((packet.serial, packet.reserved, function))
         original = packet.reserved if self.channel.serial_line and packet.reserved else packet.serial
         if self.refuse:
             self._reply(packet, hr.E_MAX_CONNECT, [EMPTY] if function in VALUE_RETURNING else [])
@@ -316,6 +317,7 @@ class BcapMockServer:
         self._listener: socket.socket | None = None
         self._closing = threading.Event()
         self.port: int | None = None
+        self.requests: list[tuple[int, int, int]] = []  # (serial, reserved, function ID) as received
 
     def serve_tcp(self, host: str = "127.0.0.1", port: int = 0) -> int:
         """Listen on ``host:port`` (0 = ephemeral); return the bound port."""
