@@ -70,6 +70,7 @@ class World:
             raise ValueError(f"initial_scene must be one of {SCENES}, got {lay.initial_scene!r}")
         self._scenes: tuple[tuple[float, str], ...] = ((-math.inf, lay.initial_scene),)
         self._lock = threading.Lock()
+        self._plans: dict[tuple[str, ...], list] = {}
 
     def _build(self, tg: TargetSet) -> tuple[dict[str, _Marker], dict[str, list[str]]]:
         markers: dict[str, _Marker] = {}
@@ -159,50 +160,62 @@ class World:
         return self._spec(marker_id).kind == "fixed"
 
     # ------------------------------------------------------------------ truth
+    def _plan(self, marker_ids: list[str]) -> list[tuple[str, str, np.ndarray, np.ndarray, np.ndarray,
+                                                          np.ndarray]]:
+        """Per (kind, body): indices, stacked points, axes (× weight), second axes; cached per id list."""
+        key = tuple(marker_ids)
+        plan = self._plans.get(key)
+        if plan is None:
+            specs = [self._spec(m) for m in marker_ids]
+            groups: dict[tuple[str, str], list[int]] = {}
+            for i, sp in enumerate(specs):
+                groups.setdefault((sp.kind, sp.body), []).append(i)
+            plan = []
+            for (kind, body), idx in groups.items():
+                pts = np.stack([specs[i].point for i in idx])
+                ax = np.stack([(specs[i].axis if specs[i].axis is not None else np.zeros(3)) * specs[i].weight
+                               for i in idx])
+                e1 = np.stack([(specs[i].e1 if specs[i].e1 is not None else np.zeros(3)) * specs[i].weight
+                               for i in idx])
+                plan.append((kind, body, np.array(idx), pts, ax, e1))
+            if len(self._plans) > 256:
+                self._plans.clear()
+            self._plans[key] = plan
+        return plan
+
     def positions(self, marker_ids: list[str], t_s: np.ndarray | float) -> np.ndarray:
         """Centres (M, N, 3) mm of M markers at times ``t_s``: (N,) shared by all, or (M, N) each its own."""
-        specs = [self._spec(m) for m in marker_ids]
         t = np.asarray(t_s, dtype=float)
-        tt = np.broadcast_to(t, (len(specs), *t.shape[-1:])) if t.ndim <= 1 else t
-        if tt.ndim == 1:
-            tt = tt[:, None]
-        out = np.empty((len(specs), tt.shape[1], 3))
-        groups: dict[tuple[str, str], list[int]] = {}
-        for i, sp in enumerate(specs):
-            groups.setdefault((sp.kind, sp.body), []).append(i)
-        for (kind, body), idx in groups.items():
+        m = len(marker_ids)
+        tt = t.reshape(1, -1) if t.ndim <= 1 else t
+        tt = np.broadcast_to(tt, (m, tt.shape[1]))
+        out = np.empty((m, tt.shape[1], 3))
+        for kind, body, idx, pts, ax, e1 in self._plan(marker_ids):
             ts = tt[idx]
             if kind == "fixed":
-                out[idx] = np.stack([specs[i].point for i in idx])[:, None, :]
+                out[idx] = pts[:, None, :]
             elif kind == "flange":
                 pos, rot = self.robot.transform_at(ts.ravel())
                 pos = pos.reshape((*ts.shape, 3))
                 rot = rot.reshape((*ts.shape, 3, 3))
-                offs = np.stack([specs[i].point for i in idx])
-                out[idx] = pos + np.einsum("mnij,mj->mni", rot, offs)
+                out[idx] = pos + np.einsum("mnij,mj->mni", rot, pts)
             elif kind == "osc":
                 disp = np.asarray(self._bodies[body].displacement_mm(ts))
-                rest = np.stack([specs[i].point for i in idx])[:, None, :]
-                ax = np.stack([specs[i].axis * specs[i].weight for i in idx])[:, None, :]
-                out[idx] = rest + disp[..., None] * ax
-            else:  # rotor
+                out[idx] = pts[:, None, :] + disp[..., None] * ax[:, None, :]
+            else:  # rotor: centre + r (cos φ e0 + sin φ e1)
                 phi = np.asarray(self._bodies[body].phase_rad(ts))[..., None]
-                for j, i in enumerate(idx):
-                    sp = specs[i]
-                    out[i] = sp.point + sp.weight * (np.cos(phi[j]) * sp.axis + np.sin(phi[j]) * sp.e1)
+                out[idx] = pts[:, None, :] + np.cos(phi) * ax[:, None, :] + np.sin(phi) * e1[:, None, :]
         return out
 
     def normals(self, marker_ids: list[str], t_s: np.ndarray | float) -> np.ndarray:
         """Unit normals (M, 3) of the marker discs at one time each (scalar or (M,) times)."""
         t = np.broadcast_to(np.asarray(t_s, dtype=float), (len(marker_ids),))
-        out = np.empty((len(marker_ids), 3))
-        for i, mid in enumerate(marker_ids):
-            sp = self._spec(mid)
-            if sp.kind == "flange":
-                _, rot = self.robot.transform_at(t[i : i + 1])
-                out[i] = rot[0] @ sp.normal
-            else:
-                out[i] = sp.normal
+        specs = [self._spec(m) for m in marker_ids]
+        out = np.array([sp.normal for sp in specs]).reshape(-1, 3)
+        flange = [i for i, sp in enumerate(specs) if sp.kind == "flange"]
+        if flange:
+            _, rot = self.robot.transform_at(t[flange])
+            out[flange] = np.einsum("mij,mj->mi", rot, out[flange])
         return out
 
     def marker_normal(self, marker_id: str, t_s: float) -> np.ndarray:
