@@ -77,7 +77,8 @@ class VfdAxis:
         self.settle_margin_s = float(settle_margin_s)
         self.fixed_drive_ramp_rate = fixed_drive_ramp_rate_hz_per_s
         self.reset_faults = reset_faults
-        self._rate_written: float | None = None  # mechanical Hz/s last written to the drive
+        self._rate_written: float | None = None  # mechanical Hz/s the drive ramps at (after rounding)
+        self._rate_requested: float | None = None  # what was asked for it
         self._setpoint_hz = 0.0
 
     # checks (no I/O) --------------------------------------------------------------------------------
@@ -97,8 +98,11 @@ class VfdAxis:
 
     def write_ramp_rate_hz_per_s(self, rate_hz_per_s: float) -> None:
         self.limits.check_ramp_rate(rate_hz_per_s, f"{self.kind} ramp")
-        obtained = self.vfd.set_ramp_rate_hz_per_s(rate_hz_per_s * self.gear_ratio)
+        obtained = self.vfd.set_ramp_rate_hz_per_s(
+            rate_hz_per_s * self.gear_ratio,
+            max_rate_hz_per_s=self.limits.max_ramp_rate_hz_per_s * self.gear_ratio)
         self._rate_written = obtained / self.gear_ratio
+        self._rate_requested = rate_hz_per_s
 
     def write_setpoint_hz(self, frequency_hz: float) -> None:
         self.check_frequency(frequency_hz)
@@ -135,7 +139,7 @@ class VfdAxis:
         self.check_frequency(frequency_hz)
         self.limits.check_ramp_rate(rate, f"{self.kind} ramp")
         self._prepare()
-        if self.fixed_drive_ramp_rate is None and self._rate_written != rate:
+        if self.fixed_drive_ramp_rate is None and self._rate_requested != rate:
             self.write_ramp_rate_hz_per_s(rate)
         self.vfd.set_frequency_hz(frequency_hz * self.gear_ratio, verify=True)
         self._setpoint_hz = frequency_hz
@@ -172,6 +176,11 @@ class VfdAxis:
         slope = profile.max_slope_hz_per_s()
         if slope > 0:
             self.limits.check_ramp_rate(slope, f"{self.kind} sweep slope")
+        fixed = self.fixed_ramp_rate_hz_per_s()
+        if fixed is not None and slope > fixed * (1 + 1e-9):
+            raise ValueError(f"{self.kind} sweep slope {slope:.6g} Hz/s exceeds the drive's fixed ramp rate "
+                             f"{fixed:.6g} Hz/s (its register map has no ramp-time registers); "
+                             "nothing was sent")
         self.set_frequency(profile.start_hz, wait=True)
         try:
             return run_sweep(self, profile, update_interval_s=update_interval_s,

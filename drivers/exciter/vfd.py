@@ -17,6 +17,7 @@ while stopping) and says in the message whether that stop went through.
 from __future__ import annotations
 
 import logging
+import math
 from dataclasses import dataclass
 from typing import Any
 
@@ -220,14 +221,20 @@ class VfdDriver:
         self._write(self.map.accel_time, accel, f"acceleration time {accel_s:g} s")
         self._write(self.map.decel_time, decel, f"deceleration time {decel_s:g} s")
 
-    def set_ramp_rate_hz_per_s(self, rate_hz_per_s: float) -> float:
-        """Set both ramp times so the drive changes frequency at ``rate_hz_per_s`` (drive Hz/s).
-        Returns the rate actually obtained after rounding to the register's resolution."""
+    def set_ramp_rate_hz_per_s(self, rate_hz_per_s: float, *,
+                               max_rate_hz_per_s: float | None = None) -> float:
+        """Set both ramp times so the drive changes frequency at ``rate_hz_per_s`` (drive Hz/s) or a
+        little faster (the ramp time is rounded down to the register's resolution, so the drive never
+        lags a profile), but never faster than ``max_rate_hz_per_s``. Returns the rate obtained."""
         if not rate_hz_per_s > 0:
             raise ValueError(f"rate_hz_per_s={rate_hz_per_s!r}: must be > 0")
-        time_s = self.max_output_hz / rate_hz_per_s
-        self.set_ramp_times_s(time_s, time_s)
-        return self.max_output_hz / (self.map.ramp_time_to_register(time_s) * self.map.ramp_time_unit_s)
+        unit = self.map.ramp_time_unit_s
+        exact = self.max_output_hz / rate_hz_per_s / unit
+        steps = max(1, math.floor(exact + 1e-9))
+        if max_rate_hz_per_s is not None and self.max_output_hz / (steps * unit) > max_rate_hz_per_s:
+            steps = math.ceil(exact - 1e-9)
+        self.set_ramp_times_s(steps * unit, steps * unit)
+        return self.max_output_hz / (steps * unit)
 
     # monitor -----------------------------------------------------------------------------------------
     def read_fault_code(self) -> int:
