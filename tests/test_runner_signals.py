@@ -1,0 +1,101 @@
+"""The runner as a real process: Ctrl-C once and twice, ``kill -9`` and ``--resume``."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+import warnings
+from pathlib import Path
+
+from rig.record import TruncatedRecordWarning, load_run
+
+HERE = Path(__file__).resolve().parent
+ROOT = HERE.parent
+
+
+def _start(tmp_path: Path, mode: str, *extra: str) -> tuple[subprocess.Popen[str], Path, Path]:
+    calls = tmp_path / "calls.txt"
+    env = {**os.environ, "PYTHONPATH": f"{ROOT}{os.pathsep}{HERE}"}
+    argv = [sys.executable, str(HERE / "runner_dummy.py"), str(tmp_path / "runs"), str(calls), mode, *extra]
+    proc = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env,
+                            cwd=tmp_path)
+    line = proc.stdout.readline().strip()  # the run folder, printed once inside step b
+    assert line, proc.stderr.read()
+    return proc, Path(line), calls
+
+
+def _ticks_after(run_dir: Path, n: int, timeout_s: float = 20.0) -> None:
+    """Wait until the record holds at least ``n`` tick events (the procedure is really running)."""
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        if (run_dir / "record.jsonl").read_text().count('"stream":"tick"') >= n:
+            return
+        time.sleep(0.02)
+    raise AssertionError("the procedure did not tick")
+
+
+def _finish(proc: subprocess.Popen[str]) -> tuple[int, str, str]:
+    out, err = proc.communicate(timeout=60)
+    return proc.returncode, out, err
+
+
+def test_first_ctrl_c_aborts_at_the_next_checkpoint(tmp_path: Path) -> None:
+    proc, run_dir, calls = _start(tmp_path, "forever")
+    _ticks_after(run_dir, 5)
+    proc.send_signal(signal.SIGINT)
+    code, out, err = _finish(proc)
+    assert code == 2, (out, err)
+    assert "abort requested; stopping at the next checkpoint" in err
+    run = load_run(run_dir)
+    assert not run.truncated_last_line
+    assert run.exit_status == "abort" and run.stop["reason"] == "aborted by the operator (Ctrl-C)"
+    assert run.stop["exit_code"] == 2 and "a" in run.steps_completed and "b" not in run.steps_completed
+    lines = calls.read_text().splitlines()
+    assert {"exciter.safe_state", "rotor.safe_state", "robot.safe_state"} <= set(lines)
+    assert lines[-1] == "station.closed"
+
+
+def test_second_ctrl_c_aborts_at_once(tmp_path: Path) -> None:
+    proc, run_dir, calls = _start(tmp_path, "deaf")  # never checkpoints in step b
+    _ticks_after(run_dir, 5)
+    proc.send_signal(signal.SIGINT)
+    time.sleep(0.3)
+    assert proc.poll() is None  # no checkpoint, so the first Ctrl-C cannot stop it
+    proc.send_signal(signal.SIGINT)
+    code, out, err = _finish(proc)
+    assert code == 2, (out, err)
+    run = load_run(run_dir)
+    assert run.exit_status == "abort" and run.stop["reason"] == "aborted at once (second Ctrl-C)"
+    assert "exciter.safe_state" in calls.read_text().splitlines()
+
+
+def test_kill_9_leaves_a_readable_record_and_resume_completes_it(tmp_path: Path) -> None:
+    proc, run_dir, calls = _start(tmp_path, "forever")
+    _ticks_after(run_dir, 20)
+    proc.kill()
+    proc.communicate(timeout=30)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", TruncatedRecordWarning)  # the kill may land mid-line
+        crashed = load_run(run_dir)
+    assert crashed.stop is None and crashed.steps_completed == {"a": ["a.json"]}
+    ticks_before = crashed.events["tick"]["i"].tolist()
+    assert ticks_before == list(range(len(ticks_before))) and len(ticks_before) >= 20
+    calls.write_text("")
+
+    proc, same_dir, calls = _start(tmp_path, "normal", "--resume", str(run_dir))
+    code, out, err = _finish(proc)
+    assert code == 0, (out, err)
+    assert same_dir == run_dir
+    run = load_run(run_dir)
+    assert not run.truncated_last_line and len(run.starts) == 2 and run.starts[1]["resume"] is True
+    assert run.exit_status == "success" and run.steps_completed == {"a": ["a.json"], "b": []}
+    # step a was not redone; the interrupted attempt at b is superseded by the completed one
+    assert "exciter.run_a" not in calls.read_text()
+    assert len(run.events["exciter"]) == 1
+    assert run.events["tick"]["i"].tolist() == list(range(30)) and set(run.events["tick"]["session"]) == {1}
+    # the superseded attempt is still in the file, and its seq numbers were not reused
+    full = load_run(run_dir, include_superseded=True)
+    assert full.events["tick"]["seq"].tolist() == list(range(len(ticks_before) + 30))
