@@ -1,0 +1,230 @@
+"""The certificate: acceptance criteria, PASS/FAIL with the expanded uncertainty, and the decision rule.
+
+Criteria and their limits come from the ``acceptance`` table of the rig configuration (the run's
+``start.rig`` snapshot), merged over :data:`DEFAULT_LIMITS`. Every criterion reports its measured value,
+limit, expanded uncertainty U = k·u (k = 2, or Student's t for fitted values with few degrees of freedom)
+and a decision.
+
+Decision rule (``acceptance.decision_rule``):
+
+* ``"guarded"`` (default) — ILAC-G8:09/2019 §4.2.3 guarded acceptance with guard band w = U: a criterion
+  "value ≤ limit" PASSES only if value + U ≤ limit (for "≥": value − U ≥ limit). When the interval
+  [value − U, value + U] straddles the limit the result is FAIL, zone "indeterminate": a setup is certified
+  only when conformity is demonstrated at ≈ 95 % confidence (the client's risk of a false accept ≤ 2.5 %).
+* ``"simple"`` — ILAC-G8 §4.2.1 simple acceptance (w = 0): PASS if value ≤ limit; the zone is still
+  reported, and a false accept can reach 50 % at the limit.
+
+A criterion without data is ``NOT EVALUATED``; the overall result is FAIL if any criterion fails,
+INCOMPLETE if none fails but one is not evaluated or the run did not stop with success, else PASS.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any
+
+from reports.errors import CriteriaError
+
+
+@dataclass(frozen=True)
+class CriterionSpec:
+    """One acceptance criterion: the limit key in ``acceptance``, what is compared and how."""
+
+    id: str
+    description: str
+    unit: str
+    comparison: str  # "<=" or ">="
+
+
+CRITERIA: tuple[CriterionSpec, ...] = (
+    CriterionSpec("position_error_max_mm", "Largest 3D position error over the commanded poses", "mm", "<="),
+    CriterionSpec("position_error_rms_mm", "RMS 3D position error over the commanded poses", "mm", "<="),
+    CriterionSpec("detection_pct", "Share of commanded marker poses that were measured", "%", ">="),
+    CriterionSpec("repeatability_rp_mm", "Largest ISO 9283 repeatability RP_l over the targets", "mm", "<="),
+    CriterionSpec(
+        "length_error_max_mm", "Largest VDI/VDE 2634-1 length error |ΔL| over marker pairs", "mm", "<="
+    ),
+    CriterionSpec(
+        "amplitude_error_pct", "Amplitude error |e(f)| of the fit at the required frequency", "%", "<="
+    ),
+    CriterionSpec(
+        "usable_frequency_hz", "Highest frequency with |e(f)| within the amplitude tolerance", "Hz", ">="
+    ),
+    CriterionSpec("rotation_radius_error_mm", "Rotor radius error |r̄ − r_ref|", "mm", "<="),
+    CriterionSpec("reprojection_rms_px", "Largest calibration reprojection RMS over the cameras", "px", "<="),
+    CriterionSpec("sync_offset_u_ms", "Standard uncertainty of the camera offset estimate", "ms", "<="),
+)
+CRITERION_IDS = tuple(c.id for c in CRITERIA)
+
+DEFAULT_LIMITS: dict[str, float] = {
+    "position_error_max_mm": 2.0,
+    "position_error_rms_mm": 1.0,
+    "detection_pct": 100.0,
+    "repeatability_rp_mm": 0.5,
+    "length_error_max_mm": 1.0,
+    "amplitude_error_pct": 5.0,
+    "usable_frequency_hz": 20.0,
+    "rotation_radius_error_mm": 1.0,
+    "reprojection_rms_px": 1.0,
+    "sync_offset_u_ms": 0.2,
+}
+# Settings of the acceptance table that are not limits.
+DEFAULT_SETTINGS: dict[str, Any] = {
+    "decision_rule": "guarded",
+    "required_frequency_hz": None,  # defaults to the usable_frequency_hz limit
+    "amplitude_tolerance_pct": None,  # defaults to the amplitude_error_pct limit
+    "reference_u_mm": 0.02,  # standard uncertainty of a commanded position (robot AP / artefact), Type B
+    "fit_max_hz": None,  # highest bin frequency in the quadratic fit; defaults to fs/3 (away from Nyquist)
+    "frequency_bin_hz": 1.0,  # width of the sweep's frequency bins
+    "identification_gate_mm": 50.0,  # a track farther than this from a commanded marker is not that marker
+}
+DECISION_RULES: dict[str, str] = {
+    "guarded": (
+        "Guarded acceptance, ILAC-G8:09/2019 §4.2.3, guard band w = U (k = 2): PASS only when the "
+        "whole interval value ± U lies on the accepted side of the limit; an interval straddling the "
+        "limit is a FAIL (zone 'indeterminate')."
+    ),
+    "simple": (
+        "Simple acceptance, ILAC-G8:09/2019 §4.2.1, guard band w = 0: PASS when the measured value "
+        "is on the accepted side of the limit, whatever its uncertainty (zone reported)."
+    ),
+}
+
+
+@dataclass(frozen=True)
+class Measured:
+    """A measured value with its standard uncertainty ``u`` and coverage factor ``k`` (U = k·u)."""
+
+    value: float
+    u: float = 0.0
+    k: float = 2.0
+    note: str = ""
+
+    @property
+    def expanded(self) -> float:
+        return self.k * self.u if math.isfinite(self.u) else float("nan")
+
+
+def acceptance_from_config(rig: dict[str, Any] | None) -> dict[str, Any]:
+    """Limits and settings from ``rig["acceptance"]`` merged over the defaults; unknown keys raise."""
+    table = dict((rig or {}).get("acceptance") or {})
+    allowed = set(DEFAULT_LIMITS) | set(DEFAULT_SETTINGS)
+    unknown = sorted(set(table) - allowed)
+    if unknown:
+        raise CriteriaError(f"acceptance: unknown key(s) {unknown}; allowed: {sorted(allowed)}")
+    out: dict[str, Any] = {**DEFAULT_LIMITS, **DEFAULT_SETTINGS}
+    for key, value in table.items():
+        if key == "decision_rule":
+            if value not in DECISION_RULES:
+                raise CriteriaError(
+                    f"acceptance.decision_rule must be one of {sorted(DECISION_RULES)}, got {value!r}"
+                )
+            out[key] = value
+            continue
+        if (
+            isinstance(value, bool)
+            or not isinstance(value, (int, float))
+            or not math.isfinite(value)
+            or value < 0
+        ):
+            raise CriteriaError(f"acceptance.{key} must be a finite number ≥ 0, got {value!r}")
+        out[key] = float(value)
+    if out["required_frequency_hz"] is None:
+        out["required_frequency_hz"] = out["usable_frequency_hz"]
+    for key in ("frequency_bin_hz", "identification_gate_mm"):
+        if not out[key] > 0:
+            raise CriteriaError(f"acceptance.{key} must be > 0, got {out[key]!r}")
+    if out["amplitude_tolerance_pct"] is None:
+        out["amplitude_tolerance_pct"] = out["amplitude_error_pct"]
+    if not out["amplitude_tolerance_pct"] > 0:
+        raise CriteriaError("acceptance.amplitude_tolerance_pct must be > 0")
+    return out
+
+
+def decide(value: float, expanded_u: float, limit: float, comparison: str, rule: str) -> tuple[str, str]:
+    """Return (status, zone) for one criterion; status PASS | FAIL | NOT EVALUATED.
+
+    zone: "conforming" (the whole interval is accepted), "non-conforming" (the whole interval is rejected),
+    "indeterminate" (the interval straddles or touches the limit from the wrong side).
+    """
+    if comparison not in ("<=", ">="):
+        raise CriteriaError(f"comparison must be '<=' or '>=', got {comparison!r}")
+    if rule not in DECISION_RULES:
+        raise CriteriaError(f"decision rule must be one of {sorted(DECISION_RULES)}, got {rule!r}")
+    if value is None or not math.isfinite(value):
+        return "NOT EVALUATED", "no data"
+    U = expanded_u if expanded_u is not None and math.isfinite(expanded_u) else 0.0
+    sign = 1.0 if comparison == "<=" else -1.0
+    worst, best = sign * value + U, sign * value - U  # in "≤" orientation
+    if worst <= sign * limit:
+        zone = "conforming"
+    elif best > sign * limit:
+        zone = "non-conforming"
+    else:
+        zone = "indeterminate"
+    accepted = zone == "conforming" if rule == "guarded" else sign * value <= sign * limit
+    return ("PASS" if accepted else "FAIL"), zone
+
+
+def evaluate(measured: dict[str, Measured | None], acceptance: dict[str, Any]) -> list[dict[str, Any]]:
+    """One row per criterion of :data:`CRITERIA` (in order); ``measured`` misses or None → NOT EVALUATED."""
+    unknown = sorted(set(measured) - set(CRITERION_IDS))
+    if unknown:
+        raise CriteriaError(f"measured: unknown criterion id(s) {unknown}; known: {list(CRITERION_IDS)}")
+    rule = acceptance["decision_rule"]
+    rows = []
+    for spec in CRITERIA:
+        m = measured.get(spec.id)
+        limit = float(acceptance[spec.id])
+        value = m.value if m is not None else float("nan")
+        U = m.expanded if m is not None else float("nan")
+        status, zone = decide(value, U, limit, spec.comparison, rule)
+        rows.append(
+            {
+                "id": spec.id,
+                "description": spec.description,
+                "unit": spec.unit,
+                "comparison": spec.comparison,
+                "limit": limit,
+                "value": value,
+                "expanded_uncertainty": U,
+                "coverage_factor": m.k if m is not None else float("nan"),
+                "status": status,
+                "zone": zone,
+                "note": m.note if m is not None else "no data in this run",
+            }
+        )
+    return rows
+
+
+def overall_result(rows: list[dict[str, Any]], exit_status: str | None) -> str:
+    """FAIL if any criterion fails; INCOMPLETE if one is not evaluated or the run failed; else PASS."""
+    statuses = [r["status"] for r in rows]
+    if "FAIL" in statuses:
+        return "FAIL"
+    if "NOT EVALUATED" in statuses or exit_status != "success":
+        return "INCOMPLETE"
+    return "PASS"
+
+
+def build_certificate(
+    measured: dict[str, Measured | None],
+    acceptance: dict[str, Any],
+    conditions: dict[str, Any],
+    extra: dict[str, Any] | None = None,
+) -> dict[str, Any]:
+    """The certificate document (plain JSON types; NaN left as float, turned into null when written)."""
+    rows = evaluate(measured, acceptance)
+    rule = acceptance["decision_rule"]
+    return {
+        "certificate_version": 1,
+        "result": overall_result(rows, conditions.get("exit_status")),
+        "run_id": conditions.get("run_id"),
+        "date_utc": conditions.get("date_utc"),
+        "decision_rule": {"name": rule, "text": DECISION_RULES[rule], "coverage_factor_default": 2.0},
+        "criteria": rows,
+        "acceptance": {k: acceptance[k] for k in sorted(acceptance)},
+        "conditions": conditions,
+        **(extra or {}),
+    }

@@ -1,0 +1,19 @@
+"""Exceptions of the reports layer; each message names the field or value at fault and what is allowed."""
+
+from __future__ import annotations
+
+
+class ReportError(ValueError):
+    """Base class of every error raised while building a report."""
+
+
+class RunFolderError(ReportError):
+    """The run folder is missing, unreadable or lacks a required document or field."""
+
+
+class CriteriaError(ReportError):
+    """An acceptance criterion in the configuration is unknown or has an invalid value."""
+
+
+class FitError(ReportError):
+    """A fit cannot be made (too few points, non-positive uncertainties, degenerate design)."""

@@ -1,0 +1,247 @@
+"""Error versus frequency along the sweep, per synchronization method.
+
+The ``sweep`` truth event gives the reference: displacement along ``axis`` = ``amplitude_mm``·sin φ(t),
+with f(t) the piecewise-linear ``profile`` [[t_s, f_hz], …] and φ its exact integral. The sweep is cut
+into frequency bins (``bin_hz`` wide); in each bin the measured displacement of every oscillating track
+is fitted by linear least squares with the reference phase, x = a·cos φ + b·sin φ + c (IEEE 1057
+three-parameter fit with the frequency known from the truth), so a slowly changing frequency costs
+nothing. Amplitude √(a²+b²) and its standard uncertainty come from the fit covariance.
+
+Relative amplitude error e = 100·(A_meas − A_ref)/A_ref in %, signed (linear interpolation loses
+amplitude, so e < 0 and grows quadratically in magnitude, notes §5).
+"""
+
+from __future__ import annotations
+
+import itertools
+
+import numpy as np
+import pandas as pd
+from scipy.signal import lombscargle
+
+from reports.errors import ReportError
+
+DEFAULT_BIN_HZ = 1.0
+MIN_CYCLES_PER_BIN = 3.0
+MIN_SAMPLES_PER_BIN = 12
+# A track oscillates with the exciter when the std of its axial displacement exceeds this share of a
+# sine's std (A/√2); static reference markers stay near zero and the sweep markers near one.
+OSCILLATING_STD_SHARE = 0.3
+BIN_COLUMNS = [
+    "sync_method",
+    "track",
+    "bin",
+    "frequency_lo_hz",
+    "frequency_hi_hz",
+    "frequency_hz",
+    "t_mid_s",
+    "n_samples",
+    "amplitude_ref_mm",
+    "amplitude_meas_mm",
+    "u_amplitude_mm",
+    "amplitude_error_pct",
+    "u_amplitude_error_pct",
+    "phase_deg",
+    "measured_frequency_hz",
+]
+
+
+def _profile(sweep: dict) -> tuple[np.ndarray, np.ndarray]:
+    prof = np.asarray(sweep.get("profile"), dtype=float)
+    if prof.ndim != 2 or prof.shape[1] != 2 or len(prof) < 2:
+        raise ReportError(f"sweep.profile must be [[t_s, f_hz], ...] with ≥ 2 rows, got shape {prof.shape}")
+    if np.any(np.diff(prof[:, 0]) <= 0):
+        raise ReportError("sweep.profile times must increase strictly")
+    return prof[:, 0], prof[:, 1]
+
+
+def profile_frequency_hz(sweep: dict, t_s: np.ndarray) -> np.ndarray:
+    """The commanded frequency f(t) of the sweep (linear between profile points, held outside)."""
+    tp, fp = _profile(sweep)
+    return np.interp(np.asarray(t_s, float), tp, fp)
+
+
+def sweep_phase_rad(sweep: dict, t_s: np.ndarray) -> np.ndarray:
+    """Exact phase φ(t) = 2π∫f dt of the piecewise-linear profile, zero at the first profile time."""
+    tp, fp = _profile(sweep)
+    t = np.asarray(t_s, float)
+    seg_cycles = 0.5 * (fp[1:] + fp[:-1]) * np.diff(tp)
+    knot_cycles = np.concatenate([[0.0], np.cumsum(seg_cycles)])
+    k = np.clip(np.searchsorted(tp, t, side="right") - 1, 0, len(tp) - 2)
+    dt = t - tp[k]
+    slope = (fp[k + 1] - fp[k]) / (tp[k + 1] - tp[k])
+    inside = (t >= tp[0]) & (t <= tp[-1])
+    cycles = np.where(inside, knot_cycles[k] + fp[k] * dt + 0.5 * slope * dt**2, np.nan)
+    before = t < tp[0]
+    cycles = np.where(before, fp[0] * (t - tp[0]), cycles)
+    after = t > tp[-1]
+    cycles = np.where(after, knot_cycles[-1] + fp[-1] * (t - tp[-1]), cycles)
+    return 2 * np.pi * cycles
+
+
+def sweep_samples(tracks: pd.DataFrame, sweep: dict) -> pd.DataFrame:
+    """Axial displacement of the oscillating tracks during the sweep.
+
+    Returns rows ``track`` (``"<segment>#<track_id>"``), ``time_s``, ``displacement_mm`` (projection on the
+    sweep axis minus the track's mean), for tracks whose displacement std exceeds
+    ``OSCILLATING_STD_SHARE``·A/√2 (static reference markers are left out).
+    """
+    for key in ("t_start_s", "t_stop_s", "amplitude_mm", "axis"):
+        if key not in sweep:
+            raise ReportError(f"sweep event: missing field '{key}'")
+    axis = np.asarray(sweep["axis"], float)
+    if axis.shape != (3,) or not np.linalg.norm(axis) > 0:
+        raise ReportError(f"sweep.axis must be a non-zero [x, y, z] vector, got {sweep['axis']!r}")
+    axis = axis / np.linalg.norm(axis)
+    amp = float(sweep["amplitude_mm"])
+    t = tracks["time_s"].to_numpy(float)
+    sel = tracks[(t >= sweep["t_start_s"]) & (t <= sweep["t_stop_s"])].dropna(subset=["x_mm", "y_mm", "z_mm"])
+    seg = sel["segment"].astype(str) if "segment" in sel.columns else pd.Series("", index=sel.index)
+    sel = sel.assign(track=seg + "#" + sel["track_id"].astype(str))
+    parts = []
+    for name, g in sel.groupby("track", sort=True):
+        s = g[["x_mm", "y_mm", "z_mm"]].to_numpy(float) @ axis
+        s = s - s.mean()
+        if len(s) >= MIN_SAMPLES_PER_BIN and s.std() >= OSCILLATING_STD_SHARE * amp / np.sqrt(2):
+            parts.append(
+                pd.DataFrame({"track": name, "time_s": g["time_s"].to_numpy(float), "displacement_mm": s})
+            )
+    if not parts:
+        return pd.DataFrame(columns=["track", "time_s", "displacement_mm"])
+    return pd.concat(parts, ignore_index=True).sort_values(
+        ["track", "time_s"], kind="stable", ignore_index=True
+    )
+
+
+def _fit_bin(t: np.ndarray, x: np.ndarray, phi: np.ndarray) -> tuple[float, float, float]:
+    """Three-parameter LS fit x = a·cos φ + b·sin φ + c → (amplitude, u(amplitude), phase δ in rad)."""
+    X = np.column_stack([np.cos(phi), np.sin(phi), np.ones_like(phi)])
+    coef, *_ = np.linalg.lstsq(X, x, rcond=None)
+    resid = x - X @ coef
+    dof = len(x) - 3
+    s2 = float(resid @ resid) / dof
+    cov = s2 * np.linalg.inv(X.T @ X)
+    a, b = coef[0], coef[1]
+    amp = float(np.hypot(a, b))
+    grad = np.array([a, b]) / amp if amp > 0 else np.array([np.sqrt(0.5), np.sqrt(0.5)])
+    u_amp = float(np.sqrt(max(grad @ cov[:2, :2] @ grad, 0.0)))
+    return amp, u_amp, float(np.arctan2(a, b))
+
+
+def _peak_frequency_hz(t: np.ndarray, x: np.ndarray, lo_hz: float, hi_hz: float) -> float:
+    """Frequency of the Lomb–Scargle peak in [lo, hi] (0.005 Hz grid, parabolic refinement)."""
+    freqs = np.arange(max(lo_hz, 0.05), hi_hz, 0.005)
+    if len(freqs) < 3:
+        return float("nan")
+    power = lombscargle(t - t[0], x - x.mean(), 2 * np.pi * freqs)
+    k = int(np.argmax(power))
+    if 0 < k < len(freqs) - 1:
+        y0, y1, y2 = power[k - 1 : k + 2]
+        denom = y0 - 2 * y1 + y2
+        shift = 0.5 * (y0 - y2) / denom if denom != 0 else 0.0
+        return float(freqs[k] + shift * 0.005)
+    return float(freqs[k])
+
+
+def amplitude_by_bin(
+    samples: pd.DataFrame, sweep: dict, *, sync_method: str, bin_hz: float = DEFAULT_BIN_HZ
+) -> pd.DataFrame:
+    """Per (track, frequency bin): reference and measured amplitude, error and phase (``BIN_COLUMNS``).
+
+    ``phase_deg`` is the phase of the measured motion relative to the reference, minus that of the track's
+    first bin (the sweep event does not fix the phase origin): a timing error shows as a phase growing with f.
+    Bins with fewer than 3 cycles or 12 samples are left out.
+    """
+    if not bin_hz > 0:
+        raise ReportError(f"bin_hz must be > 0, got {bin_hz!r}")
+    amp_ref = float(sweep["amplitude_mm"])
+    if not amp_ref > 0:
+        raise ReportError(f"sweep.amplitude_mm must be > 0, got {amp_ref!r}")
+    rows = []
+    for track, g in samples.groupby("track", sort=True):
+        t = g["time_s"].to_numpy(float)
+        x = g["displacement_mm"].to_numpy(float)
+        f_t = profile_frequency_hz(sweep, t)
+        phi = sweep_phase_rad(sweep, t)
+        edges = np.arange(np.floor(f_t.min() / bin_hz) * bin_hz, f_t.max() + bin_hz, bin_hz)
+        first_phase = None
+        for b, (lo, hi) in enumerate(itertools.pairwise(edges)):
+            m = (f_t >= lo) & (f_t < hi)
+            n = int(m.sum())
+            if n < MIN_SAMPLES_PER_BIN:
+                continue
+            cycles = (phi[m].max() - phi[m].min()) / (2 * np.pi)
+            if cycles < MIN_CYCLES_PER_BIN:
+                continue
+            amp, u_amp, delta = _fit_bin(t[m], x[m], phi[m])
+            u_amp = max(u_amp, 1e-9 * amp_ref)  # numerical floor: exact synthetic data give u ≈ 1e-16
+            first_phase = delta if first_phase is None else first_phase
+            phase = float(np.rad2deg(np.angle(np.exp(1j * (delta - first_phase)))))
+            rows.append(
+                {
+                    "sync_method": sync_method,
+                    "track": track,
+                    "bin": b,
+                    "frequency_lo_hz": float(lo),
+                    "frequency_hi_hz": float(hi),
+                    "frequency_hz": float(f_t[m].mean()),
+                    "t_mid_s": float(t[m].mean()),
+                    "n_samples": n,
+                    "amplitude_ref_mm": amp_ref,
+                    "amplitude_meas_mm": amp,
+                    "u_amplitude_mm": u_amp,
+                    "amplitude_error_pct": 100 * (amp - amp_ref) / amp_ref,
+                    "u_amplitude_error_pct": 100 * u_amp / amp_ref,
+                    "phase_deg": phase,
+                    "measured_frequency_hz": _peak_frequency_hz(
+                        t[m], x[m], lo - 0.5 * bin_hz, hi + 0.5 * bin_hz
+                    ),
+                }
+            )
+    return pd.DataFrame(rows, columns=BIN_COLUMNS)
+
+
+def bin_means(bins: pd.DataFrame) -> pd.DataFrame:
+    """Mean over tracks per (sync method, bin), for display: frequency, amplitudes, error, phase."""
+    cols = [
+        "frequency_hz",
+        "amplitude_ref_mm",
+        "amplitude_meas_mm",
+        "amplitude_error_pct",
+        "phase_deg",
+        "measured_frequency_hz",
+        "t_mid_s",
+    ]
+    if bins.empty:
+        return pd.DataFrame(columns=["sync_method", "bin", "n_tracks", *cols])
+    g = bins.groupby(["sync_method", "bin"], sort=True)
+    out = g[cols].mean()
+    out.insert(0, "n_tracks", g.size())
+    return out.reset_index()
+
+
+def linear_interp_gain(f_hz: np.ndarray, fs_hz: float, alpha: float) -> np.ndarray:
+    """|H(α)| of linear interpolation at fractional delay α ∈ [0, 1]: √(1 − 4α(1−α)·sin²(πf/fs)), notes §5."""
+    theta = 2 * np.pi * np.asarray(f_hz, float) / fs_hz
+    return np.sqrt(1 - 4 * alpha * (1 - alpha) * np.sin(theta / 2) ** 2)
+
+
+def theory_linear_pct(f_hz: np.ndarray, fs_hz: float, alpha: float | None = None) -> np.ndarray:
+    """Relative amplitude error (%) of linear interpolation of a sinusoid sampled at fs.
+
+    With ``alpha`` the gain at that fractional delay; with ``None`` the mean gain over α uniform in [0, 1]
+    (64-point Gauss–Legendre), the expectation for an unknown constant delay.
+    """
+    if not fs_hz > 0:
+        raise ReportError(f"fs_hz must be > 0, got {fs_hz!r}")
+    if alpha is not None:
+        return 100 * (linear_interp_gain(f_hz, fs_hz, alpha) - 1)
+    nodes, weights = np.polynomial.legendre.leggauss(64)
+    a = 0.5 * (nodes + 1)
+    gains = np.array([linear_interp_gain(f_hz, fs_hz, ai) for ai in a])
+    return 100 * (np.tensordot(0.5 * weights, gains, axes=1) - 1)
+
+
+def fractional_delay(offset_s: float, fs_hz: float) -> float:
+    """α = frac(offset·fs) ∈ [0, 1): where camera B's instants fall between camera A's samples."""
+    return float(np.mod(offset_s * fs_hz, 1.0))

@@ -1,0 +1,307 @@
+"""The self-contained ``report.html``: summary first, then the sections; figures embedded as base64 PNG.
+
+No external assets (no fonts, scripts or stylesheets from the network): the page opens offline and can
+be mailed as one file.
+"""
+
+from __future__ import annotations
+
+import base64
+import html
+import json
+import math
+from typing import Any
+
+import pandas as pd
+
+from reports.tables import ReportTables
+
+CSS = """
+:root{--ink:#1d2733;--muted:#5b6775;--line:#dde3ea;--bg:#f5f7fa;--pass:#1e7b4a;--fail:#b3261e;--inc:#9a6700}
+*{box-sizing:border-box}body{margin:0;background:var(--bg);color:var(--ink);
+font:15px/1.5 -apple-system,"Segoe UI",Roboto,"Helvetica Neue",Arial,sans-serif}
+main{max-width:1120px;margin:0 auto;padding:28px 28px 60px}
+header h1{font-size:22px;margin:0 0 4px}header .sub{color:var(--muted);font-size:13.5px}
+section{background:#fff;border:1px solid var(--line);border-radius:10px;padding:18px 22px;margin:18px 0}
+h2{font-size:18px;margin:0 0 12px;padding-bottom:6px;border-bottom:1px solid var(--line)}
+h3{font-size:15px;margin:18px 0 8px}
+.verdict{display:flex;gap:22px;align-items:center;border-radius:10px;padding:18px 22px;margin:18px 0;
+color:#fff}
+.verdict.PASS{background:var(--pass)}.verdict.FAIL{background:var(--fail)}.verdict.INCOMPLETE{background:var(--inc)}
+.verdict .big{font-size:40px;font-weight:800;letter-spacing:1px;min-width:210px}
+.verdict .why{font-size:15px}.verdict .why b{font-weight:700}
+.verdict ul{margin:6px 0 0;padding-left:18px}
+.cards{display:grid;grid-template-columns:repeat(auto-fill,minmax(200px,1fr));gap:12px}
+.card{border:1px solid var(--line);border-radius:8px;padding:10px 14px;background:#fff}
+.card .k{color:var(--muted);font-size:12.5px}.card .v{font-size:21px;font-weight:700}
+.card .l{font-size:12px;color:var(--muted)}
+.card.PASS{border-left:5px solid var(--pass)}.card.FAIL{border-left:5px solid var(--fail)}
+.card.NA{border-left:5px solid #b8c0ca}
+.tw{overflow-x:auto}table{border-collapse:collapse;width:100%;font-size:13px;margin:6px 0 10px}
+th,td{padding:5px 8px;border-bottom:1px solid var(--line);text-align:right;white-space:nowrap}
+th{background:#eef2f6;font-weight:600}td.t,th.t{text-align:left;white-space:normal}
+tr:hover td{background:#fafbfc}
+.badge{display:inline-block;padding:1px 8px;border-radius:10px;font-size:12px;font-weight:700;color:#fff}
+.badge.PASS{background:var(--pass)}.badge.FAIL{background:var(--fail)}.badge.NOT{background:#8a94a0}
+figure{margin:12px 0}figure img{max-width:100%;height:auto;display:block;margin:0 auto}
+figcaption{color:var(--muted);font-size:13px;text-align:center}
+.note{color:var(--muted);font-size:13.5px}details summary{cursor:pointer;color:var(--muted)}
+pre{background:#f0f3f6;padding:10px;border-radius:6px;overflow:auto;font-size:12px}
+nav a{margin-right:14px;color:#1f5fa8;text-decoration:none;font-size:13.5px}
+"""
+
+
+_SYMBOL = {"<=": "≤", ">=": "≥"}
+
+
+def _fmt(value: Any, digits: int = 4) -> str:
+    if value is None:
+        return "—"
+    if isinstance(value, float):
+        if not math.isfinite(value):
+            return "—"
+        return f"{value:.{digits}g}"
+    return html.escape(str(value))
+
+
+def table(df: pd.DataFrame, *, digits: int = 4, text_cols: tuple[str, ...] = ()) -> str:
+    """A DataFrame as an HTML table; text columns left-aligned, numbers to ``digits`` significant digits."""
+    if df is None or df.empty:
+        return '<p class="note">No data.</p>'
+    head = "".join(
+        f'<th class="{"t" if c in text_cols else ""}">{html.escape(str(c))}</th>' for c in df.columns
+    )
+    rows = []
+    for rec in df.itertuples(index=False):
+        cells = "".join(
+            f'<td class="{"t" if c in text_cols else ""}">{_fmt(v, digits)}</td>'
+            for c, v in zip(df.columns, rec, strict=True)
+        )
+        rows.append(f"<tr>{cells}</tr>")
+    return (
+        f"<div class='tw'><table><thead><tr>{head}</tr></thead><tbody>{''.join(rows)}</tbody></table></div>"
+    )
+
+
+def _figure(pngs: dict[str, bytes], name: str, caption: str) -> str:
+    if name not in pngs:
+        return ""
+    data = base64.b64encode(pngs[name]).decode("ascii")
+    return (
+        f'<figure><img alt="{html.escape(caption)}" src="data:image/png;base64,{data}">'
+        f"<figcaption>{html.escape(caption)}</figcaption></figure>"
+    )
+
+
+def _limit_text(lim: Any) -> str:
+    if lim.reached:
+        return f"{lim.limit_hz:.1f} Hz"
+    return f"at least {lim.limit_hz:.1f} Hz (the highest tested)"
+
+
+def _verdict(cert: dict[str, Any], t: ReportTables, tolerance_pct: float) -> str:
+    result = cert["result"]
+    crit = cert["criteria"]
+    failed = [c for c in crit if c["status"] == "FAIL"]
+    missing = [c for c in crit if c["status"] == "NOT EVALUATED"]
+    lines = []
+    lim = t.limits.get(t.primary_sync)
+    if lim is not None:
+        required = cert.get("acceptance", {}).get("required_frequency_hz")
+        req = f"; required {required:g} Hz" if isinstance(required, (int, float)) else ""
+        lines.append(
+            f"<b>Trusted up to {_limit_text(lim)}</b> "
+            f"(amplitude error within ±{tolerance_pct:g} %, sync '{html.escape(t.primary_sync)}'{req})"
+        )
+        for m, other in t.limits.items():
+            if m != t.primary_sync:
+                lines.append(f"with sync '{html.escape(m)}': up to {_limit_text(other)}")
+    else:
+        lines.append("<b>No usable frequency limit</b>: the run has no sweep that could be fitted")
+    reasons = [
+        f"<li>{html.escape(c['description'])}: {_fmt(c['value'])} {html.escape(c['unit'])} "
+        f"(U = {_fmt(c['expanded_uncertainty'], 2)}) against the limit "
+        f"{_SYMBOL[c['comparison']]} {_fmt(c['limit'])} "
+        f"— {html.escape(c['zone'])}</li>"
+        for c in failed
+    ]
+    if missing:
+        reasons.append(
+            f"<li>Not evaluated (no data): {html.escape(', '.join(c['id'] for c in missing))}</li>"
+        )
+    if not failed and not missing:
+        reasons.append(
+            f"<li>All {len(crit)} criteria met with their expanded uncertainty (k = 2) inside the limits</li>"
+        )
+    if cert["conditions"].get("exit_status") != "success":
+        reasons.append(
+            f"<li>The run stopped with status '{html.escape(str(cert['conditions'].get('exit_status')))}'"
+            "</li>"
+        )
+    return (
+        f'<div class="verdict {result}"><div class="big">{result}</div><div class="why">'
+        f"{'<br>'.join(lines)}<ul>{''.join(reasons)}</ul></div></div>"
+    )
+
+
+def _cards(cert: dict[str, Any]) -> str:
+    cards = []
+    for c in cert["criteria"]:
+        state = c["status"] if c["status"] in ("PASS", "FAIL") else "NA"
+        unit = "" if c["unit"] == "1" else f" {c['unit']}"
+        big_u = c["expanded_uncertainty"]
+        shown = (
+            c["status"] != "NOT EVALUATED" and isinstance(big_u, float) and math.isfinite(big_u) and big_u > 0
+        )
+        u = f" ± {_fmt(big_u, 2)}" if shown else ""
+        cards.append(
+            f'<div class="card {state}"><div class="k">{html.escape(c["description"])}</div>'
+            f'<div class="v">{_fmt(c["value"], 3)}{html.escape(unit)}</div>'
+            f'<div class="l">limit {_SYMBOL[c["comparison"]]} {_fmt(c["limit"])}{html.escape(unit)}{u}'
+            "</div></div>"
+        )
+    return f'<div class="cards">{"".join(cards)}</div>'
+
+
+def _criteria_table(cert: dict[str, Any]) -> str:
+    rows = []
+    for c in cert["criteria"]:
+        badge = c["status"].split()[0]
+        rows.append(
+            f'<tr><td class="t">{html.escape(c["description"])}<br><span class="note">{html.escape(c["id"])}'
+            f"</span></td><td>{_fmt(c['value'])}</td><td>{_fmt(c['expanded_uncertainty'], 2)}</td>"
+            f"<td>{_fmt(c['coverage_factor'], 3)}</td><td>{_SYMBOL[c['comparison']]} {_fmt(c['limit'])}</td>"
+            f'<td class="t">{html.escape(c["unit"])}</td><td class="t">{html.escape(c["zone"])}</td>'
+            f'<td><span class="badge {badge}">{html.escape(c["status"])}</span></td>'
+            f'<td class="t note">{html.escape(c["note"])}</td></tr>'
+        )
+    head = (
+        "<tr><th class='t'>criterion</th><th>measured</th><th>U</th><th>k</th><th>limit</th>"
+        "<th class='t'>unit</th>"
+        "<th class='t'>zone</th><th>decision</th><th class='t'>note</th></tr>"
+    )
+    return f"<div class='tw'><table><thead>{head}</thead><tbody>{''.join(rows)}</tbody></table></div>"
+
+
+def render(
+    cert: dict[str, Any],
+    t: ReportTables,
+    pngs: dict[str, bytes],
+    acceptance: dict[str, Any],
+    tables_html: dict[str, pd.DataFrame],
+) -> str:
+    """The whole page as a string (deterministic for the same inputs)."""
+    cond = cert["conditions"]
+    tol = float(acceptance["amplitude_tolerance_pct"])
+    parts = [
+        f"<header><h1>Certification report — {html.escape(str(cond.get('run_id')))}</h1>"
+        f"<div class='sub'>procedure {html.escape(str(cond.get('procedure')))} · run started "
+        f"{html.escape(str(cond.get('date_utc')))} · sync method '{html.escape(t.primary_sync)}' · "
+        f"software {html.escape(str(cond.get('report_software')))}</div></header>",
+        "<nav><a href='#cert'>Certificate</a><a href='#pos'>Position</a><a href='#freq'>Frequency</a>"
+        "<a href='#motion'>Steady motion</a><a href='#cal'>Calibration &amp; sync</a>"
+        "<a href='#cond'>Conditions</a></nav>",
+        _verdict(cert, t, tol),
+        "<section>" + _cards(cert) + "</section>",
+    ]
+    parts.append(
+        f"<section id='cert'><h2>Certificate</h2>{_criteria_table(cert)}<p class='note'><b>Decision rule."
+        f"</b> {html.escape(cert['decision_rule']['text'])} U is the expanded uncertainty, k its coverage "
+        "factor (2, or Student's t for fitted values with few degrees of freedom).</p></section>"
+    )
+    s = t.position_summary
+    parts.append(
+        "<section id='pos'><h2>Error versus position</h2>"
+        f"<p>{s['n_matched']} of {s['n_commanded']} commanded marker poses measured. "
+        f"|error|: mean {_fmt(s['mean_mm'])} mm, "
+        f"RMS {_fmt(s['rms_mm'])} mm, 95th percentile {_fmt(s['p95_mm'])} mm, max {_fmt(s['max_mm'])} mm.</p>"
+        + _figure(pngs, "error_vectors", "Error vectors at the commanded positions (scaled up)")
+        + _figure(
+            pngs,
+            "error_vs_position",
+            "|error| against the distance from the cameras and off the viewing axis",
+        )
+        + "<h3>ISO 9283 pose accuracy (AP) and repeatability (RP) per target</h3>"
+        + table(tables_html["iso9283"], text_cols=("target", "marker_id"))
+        + "<h3>VDI/VDE 2634-1 length measurement error ΔL between marker pairs</h3>"
+        + table(tables_html["length_summary"], text_cols=("marker_a", "marker_b"))
+        + "<details><summary>All poses</summary>"
+        + table(tables_html["poses"], text_cols=("target", "marker_id"))
+        + "</details></section>"
+    )
+    fit_rows = tables_html["fits"]
+    parts.append(
+        "<section id='freq'><h2>Error versus frequency</h2>"
+        f"<p>The sweep is cut into {float(acceptance['frequency_bin_hz']):g} Hz bins; in each, the measured "
+        "displacement along the exciter axis is fitted with the reference phase (three-parameter sine fit). "
+        "The relative amplitude error is fitted by weighted least squares with e(f) = c0 + c2·f² "
+        f"over bins up to {t.fit_max_hz:.1f} Hz (default fs/3, away from Nyquist; fs = {t.fs_hz:g} fps). "
+        "The dashed and dotted "
+        "curves are the exact amplitude loss of linear interpolation of one camera's image coordinates; "
+        "in 3D only a geometry-weighted share of it appears.</p>"
+        + _figure(
+            pngs,
+            "amplitude_error_vs_frequency",
+            "Amplitude error and phase versus frequency, per sync method",
+        )
+        + table(fit_rows, digits=4, text_cols=("sync_method",))
+        + _figure(pngs, "sweep_time_frequency", "Frequency of the sweep over time (paper Fig. 17)")
+        + "<details><summary>Per-bin values (mean over markers)</summary>"
+        + table(tables_html["sweep_means"], text_cols=("sync_method",))
+        + "</details></section>"
+    )
+    motion = []
+    if tables_html.get("plate") is not None and not tables_html["plate"].empty:
+        motion.append("<h3>Oscillating plate</h3>" + table(tables_html["plate"], text_cols=("track",)))
+    if t.rotation_summary:
+        motion.append("<h3>Rotor</h3>" + table(pd.DataFrame([t.rotation_summary])))
+    parts.append(
+        "<section id='motion'><h2>Steady motion: plate and rotor</h2>"
+        + "".join(motion)
+        + _figure(
+            pngs, "trajectory", "Trajectory X(t), Y(t), Z(t) and an enlarged 5 s segment (paper Figs. 5–8)"
+        )
+        + _figure(pngs, "rotation_radius", "Measured radius of rotation (paper Fig. 14)")
+        + _figure(pngs, "spectrum", "Spectrum of the rotor marker's height (paper Fig. 15)")
+        + ("" if motion or "trajectory" in pngs else "<p class='note'>No steady-motion data in this run.</p>")
+        + "</section>"
+    )
+    timing = t.timing or {}
+    parts.append(
+        "<section id='cal'><h2>Calibration and synchronization</h2><h3>Calibration residuals per camera</h3>"
+        + table(tables_html["calibration"], text_cols=("camera",))
+        + "<h3>Synchronization</h3>"
+        + table(tables_html["timing"], digits=6, text_cols=("camera",))
+        + f"<p class='note'>method: {html.escape(str(timing.get('method', '—')))}; reference camera: "
+        f"{html.escape(str(timing.get('reference_camera', '—')))}; uncertainty: "
+        f"{html.escape(json.dumps(timing.get('uncertainty', {}), sort_keys=True))}</p></section>"
+    )
+    notes = "".join(f"<li>{html.escape(n)}</li>" for n in cond.get("notes", []))
+    parts.append(
+        "<section id='cond'><h2>Conditions</h2>"
+        + table(
+            pd.DataFrame([{k: v for k, v in cond.items() if not isinstance(v, (dict, list))}])
+            .T.reset_index()
+            .set_axis(["field", "value"], axis=1),
+            text_cols=("field", "value"),
+        )
+        + (f"<ul class='note'>{notes}</ul>" if notes else "")
+        + "<details><summary>Rig snapshot and software versions</summary><pre>"
+        + html.escape(
+            json.dumps(
+                {"rig": cond.get("rig"), "versions": cond.get("versions")},
+                indent=2,
+                sort_keys=True,
+                default=str,
+            )
+        )
+        + "</pre></details></section>"
+    )
+    title = f"{cert['result']} — {cond.get('run_id')}"
+    return (
+        "<!DOCTYPE html><html lang='en'><head><meta charset='utf-8'>"
+        "<meta name='viewport' content='width=device-width, initial-scale=1'>"
+        f"<title>{html.escape(title)}</title><style>{CSS}</style></head><body><main>"
+        + "\n".join(parts)
+        + "</main></body></html>\n"
+    )

@@ -1,0 +1,187 @@
+"""Steady motions: the oscillating plate (paper Figs. 3–8) and the rotor (Figs. 9–15).
+
+* :func:`plate_table` — per oscillating track: reference and measured amplitude and frequency.
+* :func:`rotation_samples` / :func:`rotation_summary` — the rotor marker's radius about the commanded
+  centre and axis (Fig. 14) and its rotation frequency.
+* :func:`amplitude_spectrum` — one-sided amplitude spectrum in mm (Hann window, normalised by its coherent
+  gain so a sinusoid of amplitude A on a bin shows A; Fig. 15).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+
+from reports.errors import ReportError
+from reports.frequency import _peak_frequency_hz, sweep_samples
+
+DEFAULT_ROTOR_GATE_MM = 50.0
+
+
+def _window(tracks: pd.DataFrame, event: dict) -> pd.DataFrame:
+    for key in ("t_start_s", "t_stop_s"):
+        if key not in event:
+            raise ReportError(f"event: missing field '{key}'")
+    t = tracks["time_s"].to_numpy(float)
+    sel = tracks[(t >= event["t_start_s"]) & (t <= event["t_stop_s"])].dropna(subset=["x_mm", "y_mm", "z_mm"])
+    seg = sel["segment"].astype(str) if "segment" in sel.columns else pd.Series("", index=sel.index)
+    return sel.assign(track=seg + "#" + sel["track_id"].astype(str))
+
+
+def sine_fit_known_f(t_s: np.ndarray, x: np.ndarray, f_hz: float) -> tuple[float, float]:
+    """Amplitude and its standard uncertainty of x = a·cos 2πft + b·sin 2πft + c (frequency known)."""
+    w = 2 * np.pi * f_hz * (t_s - t_s[0])
+    X = np.column_stack([np.cos(w), np.sin(w), np.ones_like(w)])
+    coef, *_ = np.linalg.lstsq(X, x, rcond=None)
+    r = x - X @ coef
+    cov = float(r @ r) / max(len(x) - 3, 1) * np.linalg.inv(X.T @ X)
+    amp = float(np.hypot(coef[0], coef[1]))
+    g = coef[:2] / amp if amp > 0 else np.array([np.sqrt(0.5), np.sqrt(0.5)])
+    return amp, float(np.sqrt(max(g @ cov[:2, :2] @ g, 0.0)))
+
+
+def plate_table(tracks: pd.DataFrame, plate: dict) -> pd.DataFrame:
+    """Per oscillating track of a ``plate`` event: amplitude and frequency, reference vs measured."""
+    for key in ("frequency_hz", "amplitude_mm"):
+        if key not in plate:
+            raise ReportError(f"plate event: missing field '{key}'")
+    f_ref = float(plate["frequency_hz"])
+    as_sweep = dict(plate, profile=[[plate["t_start_s"], f_ref], [plate["t_stop_s"], f_ref]])
+    samples = sweep_samples(tracks, as_sweep)
+    rows = []
+    for track, g in samples.groupby("track", sort=True):
+        t = g["time_s"].to_numpy(float)
+        x = g["displacement_mm"].to_numpy(float)
+        amp, u_amp = sine_fit_known_f(t, x, f_ref)
+        rows.append(
+            {
+                "track": track,
+                "n_samples": len(t),
+                "frequency_ref_hz": f_ref,
+                "frequency_meas_hz": _peak_frequency_hz(t, x, 0.5 * f_ref, 1.5 * f_ref),
+                "amplitude_ref_mm": float(plate["amplitude_mm"]),
+                "amplitude_meas_mm": amp,
+                "u_amplitude_mm": u_amp,
+                "amplitude_error_pct": 100
+                * (amp - float(plate["amplitude_mm"]))
+                / float(plate["amplitude_mm"]),
+            }
+        )
+    cols = [
+        "track",
+        "n_samples",
+        "frequency_ref_hz",
+        "frequency_meas_hz",
+        "amplitude_ref_mm",
+        "amplitude_meas_mm",
+        "u_amplitude_mm",
+        "amplitude_error_pct",
+    ]
+    return pd.DataFrame(rows, columns=cols)
+
+
+def rotation_samples(
+    tracks: pd.DataFrame, rotation: dict, *, gate_mm: float = DEFAULT_ROTOR_GATE_MM
+) -> pd.DataFrame:
+    """Samples of the rotor marker: ``time_s``, ``x_mm``, ``y_mm``, ``z_mm``, ``radius_mm``, ``axial_mm``.
+
+    The rotor track is the one whose mean radius about the commanded axis through ``centre_mm`` is
+    closest to ``radius_mm`` among tracks whose centroid lies within ``gate_mm`` of the centre.
+    """
+    for key in ("centre_mm", "axis", "radius_mm"):
+        if key not in rotation:
+            raise ReportError(f"rotation event: missing field '{key}'")
+    centre = np.asarray(rotation["centre_mm"], float)
+    axis = np.asarray(rotation["axis"], float)
+    if centre.shape != (3,) or axis.shape != (3,) or not np.linalg.norm(axis) > 0:
+        raise ReportError("rotation.centre_mm and rotation.axis must be [x, y, z] (axis non-zero)")
+    axis = axis / np.linalg.norm(axis)
+    best, best_cost = None, np.inf
+    win = _window(tracks, rotation)
+    for track, g in win.groupby("track", sort=True):
+        p = g[["x_mm", "y_mm", "z_mm"]].to_numpy(float) - centre
+        if len(p) < 10 or np.linalg.norm(p.mean(axis=0)) > gate_mm:
+            continue
+        radial = p - np.outer(p @ axis, axis)
+        cost = abs(np.linalg.norm(radial, axis=1).mean() - float(rotation["radius_mm"]))
+        if cost < best_cost:
+            best, best_cost = track, cost
+    cols = ["track", "time_s", "x_mm", "y_mm", "z_mm", "radius_mm", "axial_mm"]
+    if best is None:
+        return pd.DataFrame(columns=cols)
+    g = win[win["track"] == best].sort_values("time_s")
+    p = g[["x_mm", "y_mm", "z_mm"]].to_numpy(float) - centre
+    axial = p @ axis
+    radial = p - np.outer(axial, axis)
+    return pd.DataFrame(
+        {
+            "track": best,
+            "time_s": g["time_s"].to_numpy(float),
+            "x_mm": g["x_mm"].to_numpy(float),
+            "y_mm": g["y_mm"].to_numpy(float),
+            "z_mm": g["z_mm"].to_numpy(float),
+            "radius_mm": np.linalg.norm(radial, axis=1),
+            "axial_mm": axial,
+        },
+        columns=cols,
+    )
+
+
+def rotation_summary(samples: pd.DataFrame, rotation: dict) -> dict[str, float]:
+    """Radius mean/std/error (mm) and the measured rotation frequency (Lomb–Scargle of the height, Hz)."""
+    r_ref = float(rotation["radius_mm"])
+    f_ref = float(rotation.get("frequency_hz", np.nan))
+    if samples.empty:
+        return {
+            "radius_ref_mm": r_ref,
+            "frequency_ref_hz": f_ref,
+            "n_samples": 0,
+            "radius_mean_mm": np.nan,
+            "radius_std_mm": np.nan,
+            "radius_error_mm": np.nan,
+            "u_radius_mm": np.nan,
+            "frequency_meas_hz": np.nan,
+        }
+    r = samples["radius_mm"].to_numpy(float)
+    t = samples["time_s"].to_numpy(float)
+    f_meas = (
+        _peak_frequency_hz(t, samples["z_mm"].to_numpy(float), 0.5 * f_ref, 1.5 * f_ref)
+        if f_ref > 0
+        else np.nan
+    )
+    return {
+        "radius_ref_mm": r_ref,
+        "frequency_ref_hz": f_ref,
+        "n_samples": len(r),
+        "radius_mean_mm": float(r.mean()),
+        "radius_std_mm": float(r.std(ddof=1)) if len(r) > 1 else np.nan,
+        "radius_error_mm": float(r.mean() - r_ref),
+        "u_radius_mm": float(r.std(ddof=1) / np.sqrt(len(r))) if len(r) > 1 else np.nan,
+        "frequency_meas_hz": f_meas,
+    }
+
+
+def amplitude_spectrum(t_s: np.ndarray, x: np.ndarray) -> pd.DataFrame:
+    """One-sided amplitude spectrum (``frequency_hz``, ``amplitude_mm``) of a nearly uniformly sampled signal.
+
+    The samples are linearly interpolated onto a uniform grid at the median step, the mean is removed, a
+    Hann window applied and the result normalised by the window's coherent gain (Σw/N).
+    """
+    t = np.asarray(t_s, float)
+    v = np.asarray(x, float)
+    ok = np.isfinite(t) & np.isfinite(v)
+    t, v = t[ok], v[ok]
+    if len(t) < 8:
+        raise ReportError(f"a spectrum needs ≥ 8 samples, got {len(t)}")
+    order = np.argsort(t)
+    t, v = t[order], v[order]
+    dt = float(np.median(np.diff(t)))
+    if not dt > 0:
+        raise ReportError("a spectrum needs increasing sample times")
+    grid = t[0] + dt * np.arange(int(np.floor((t[-1] - t[0]) / dt)) + 1)
+    y = np.interp(grid, t, v)
+    y = y - y.mean()
+    w = np.hanning(len(y))
+    spec = np.fft.rfft(y * w)
+    amp = 2 * np.abs(spec) / w.sum()
+    return pd.DataFrame({"frequency_hz": np.fft.rfftfreq(len(y), dt), "amplitude_mm": amp})

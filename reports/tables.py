@@ -1,0 +1,287 @@
+"""All report tables from the run data and the analysis tracks — pure functions, no file I/O.
+
+:func:`compute_tables` takes the record (:class:`reports.load.RunData`), the tracks of each sync method
+(``{method: Analysis.tracks}``, the first being the primary method) and the acceptance settings, and
+returns a :class:`ReportTables` from which the figures, the HTML and the certificate are drawn.
+:func:`measured_values` turns the tables into the certificate's measured values with uncertainties.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from reports import frequency, motion, position
+from reports.certificate import Measured
+from reports.errors import FitError
+from reports.load import RunData, accuracy_poses, calibration_residuals, camera_centres_mm, stream_events
+from reports.quadfit import QuadraticFit, UsableLimit, fit_quadratic, usable_limit
+
+DEFAULT_FPS = 60.0
+
+
+@dataclass
+class ReportTables:
+    """Everything the report shows. Frames have units in their column names."""
+
+    primary_sync: str
+    sync_methods: list[str]
+    fs_hz: float
+    fs_source: str
+    alpha: float | None
+    poses: pd.DataFrame
+    position_summary: dict[str, float]
+    iso9283: pd.DataFrame
+    lengths: pd.DataFrame
+    sweep: dict[str, Any] | None
+    sweep_bins: pd.DataFrame
+    sweep_means: pd.DataFrame
+    fit_max_hz: float
+    fits: dict[str, QuadraticFit] = field(default_factory=dict)
+    limits: dict[str, UsableLimit] = field(default_factory=dict)
+    fit_notes: dict[str, str] = field(default_factory=dict)
+    plate: pd.DataFrame | None = None
+    plate_event: dict[str, Any] | None = None
+    rotation: dict[str, Any] | None = None
+    rotation_samples: pd.DataFrame | None = None
+    rotation_summary: dict[str, float] | None = None
+    trajectory: pd.DataFrame | None = None
+    trajectory_source: str = ""
+    spectrum: pd.DataFrame | None = None
+    calibration: pd.DataFrame | None = None
+    timing: dict[str, Any] | None = None
+    centres_mm: dict[str, np.ndarray] = field(default_factory=dict)
+
+
+def camera_fps(rig: dict[str, Any], timing: dict[str, Any] | None) -> tuple[float, str]:
+    """Camera frame rate from the rig snapshot (``cameras.<name>.fps``) or timing.json; else 60 fps."""
+    cams = rig.get("cameras")
+    values = []
+    if isinstance(cams, dict):
+        values = [c.get("fps") for c in cams.values() if isinstance(c, dict)]
+    elif isinstance(cams, list):
+        values = [c.get("fps") for c in cams if isinstance(c, dict)]
+    values = [float(v) for v in values if isinstance(v, (int, float)) and v > 0]
+    if values:
+        return float(np.median(values)), "rig.cameras.*.fps"
+    if timing and isinstance(timing.get("fps"), (int, float)):
+        return float(timing["fps"]), "timing.json fps"
+    return DEFAULT_FPS, "default (no fps in the rig snapshot)"
+
+
+def _alpha(timing: dict[str, Any] | None, fs_hz: float) -> float | None:
+    offsets = (timing or {}).get("offset_s") or {}
+    ref = (timing or {}).get("reference_camera")
+    others = [float(v) for k, v in sorted(offsets.items()) if k != ref and isinstance(v, (int, float))]
+    return frequency.fractional_delay(others[0], fs_hz) if others else None
+
+
+def compute_tables(
+    run: RunData,
+    tracks_by_method: dict[str, pd.DataFrame],
+    acceptance: dict[str, Any],
+    *,
+    gate_mm: float = position.DEFAULT_GATE_MM,
+    bin_hz: float = frequency.DEFAULT_BIN_HZ,
+    timing: dict[str, Any] | None = None,
+    calibration: dict[str, Any] | None = None,
+) -> ReportTables:
+    """Compute every table. ``timing``/``calibration`` default to the run folder's files."""
+    if not tracks_by_method:
+        raise FitError("tracks_by_method must hold at least the primary sync method")
+    methods = list(tracks_by_method)
+    primary = methods[0]
+    tracks = tracks_by_method[primary]
+    timing = run.timing if timing is None else timing
+    calibration = run.calibration if calibration is None else calibration
+    fs_hz, fs_source = camera_fps(run.rig, timing)
+    centres = camera_centres_mm(calibration)
+
+    poses = position.add_geometry(
+        position.position_errors(position.match_static(tracks, accuracy_poses(run.events), gate_mm=gate_mm)),
+        centres,
+    )
+
+    sweeps = stream_events(run.events, "sweep")
+    sweep = sweeps[0] if sweeps else None
+    parts = []
+    if sweep is not None:
+        for method, tr in tracks_by_method.items():
+            parts.append(
+                frequency.amplitude_by_bin(
+                    frequency.sweep_samples(tr, sweep), sweep, sync_method=method, bin_hz=bin_hz
+                )
+            )
+    bins = pd.concat(parts, ignore_index=True) if parts else pd.DataFrame(columns=frequency.BIN_COLUMNS)
+    fit_max_hz = float(acceptance.get("fit_max_hz") or fs_hz / 3)
+    out = ReportTables(
+        primary_sync=primary,
+        sync_methods=methods,
+        fs_hz=fs_hz,
+        fs_source=fs_source,
+        alpha=_alpha(timing, fs_hz),
+        poses=poses,
+        position_summary=position.position_summary(poses),
+        iso9283=position.iso9283(poses),
+        lengths=position.length_errors(poses),
+        sweep=sweep,
+        sweep_bins=bins,
+        sweep_means=frequency.bin_means(bins),
+        fit_max_hz=fit_max_hz,
+        calibration=calibration_residuals(calibration),
+        timing=timing,
+        centres_mm=centres,
+    )
+    for method in methods:
+        sel = bins[(bins["sync_method"] == method) & (bins["frequency_hz"] <= fit_max_hz)]
+        try:
+            fit = fit_quadratic(sel["frequency_hz"], sel["amplitude_error_pct"], sel["u_amplitude_error_pct"])
+        except FitError as exc:
+            out.fit_notes[method] = str(exc)
+            continue
+        out.fits[method] = fit
+        f_max = float(bins.loc[bins["sync_method"] == method, "frequency_hz"].max())
+        out.limits[method] = usable_limit(fit, float(acceptance["amplitude_tolerance_pct"]), f_max)
+
+    plates = stream_events(run.events, "plate")
+    if plates:
+        out.plate_event = plates[0]
+        out.plate = motion.plate_table(tracks, plates[0])
+    rotations = stream_events(run.events, "rotation")
+    if rotations:
+        out.rotation = rotations[0]
+        out.rotation_samples = motion.rotation_samples(tracks, rotations[0])
+        out.rotation_summary = motion.rotation_summary(out.rotation_samples, rotations[0])
+        if len(out.rotation_samples) >= 8:
+            out.spectrum = motion.amplitude_spectrum(
+                out.rotation_samples["time_s"], out.rotation_samples["z_mm"]
+            )
+    out.trajectory, out.trajectory_source = _trajectory(tracks, out.plate_event, sweep, out.rotation_samples)
+    return out
+
+
+def _trajectory(
+    tracks: pd.DataFrame, plate: dict | None, sweep: dict | None, rot: pd.DataFrame | None
+) -> tuple[pd.DataFrame | None, str]:
+    """x, y, z over time of one oscillating marker (plate, else sweep, else rotor) for Figs. 5–8."""
+    for name, event in (("plate", plate), ("sweep", sweep)):
+        if event is None:
+            continue
+        prof = event.get("profile") or [
+            [event["t_start_s"], event.get("frequency_hz", 1.0)],
+            [event["t_stop_s"], event.get("frequency_hz", 1.0)],
+        ]
+        samples = frequency.sweep_samples(tracks, dict(event, profile=prof))
+        if samples.empty:
+            continue
+        track = samples.groupby("track").size().sort_values(kind="stable").index[-1]
+        seg, tid = str(track).rsplit("#", 1)
+        t = tracks["time_s"].to_numpy(float)
+        sel = tracks[
+            (tracks["track_id"].astype(str) == tid) & (t >= event["t_start_s"]) & (t <= event["t_stop_s"])
+        ]
+        if "segment" in tracks.columns:
+            sel = sel[sel["segment"].astype(str) == seg]
+        return sel[["time_s", "x_mm", "y_mm", "z_mm"]].sort_values("time_s").reset_index(
+            drop=True
+        ), f"{name} marker {track}"
+    if rot is not None and len(rot):
+        return rot[["time_s", "x_mm", "y_mm", "z_mm"]].reset_index(drop=True), "rotor marker"
+    return None, ""
+
+
+def _finite(x: float) -> bool:
+    return x is not None and math.isfinite(x)
+
+
+def measured_values(t: ReportTables, acceptance: dict[str, Any]) -> dict[str, Measured | None]:
+    """The certificate's measured values and standard uncertainties (k = 2 unless a t-factor applies)."""
+    u_ref = float(acceptance["reference_u_mm"])
+    m: dict[str, Measured | None] = {}
+    p = t.poses.dropna(subset=["error_mm"])
+    if len(t.poses):
+        m["detection_pct"] = Measured(100.0 * len(p) / len(t.poses), 0.0, note="counted; no uncertainty")
+    if len(p):
+        e = p["error_mm"].to_numpy(float)
+        u_i = np.sqrt(np.nan_to_num(p["u_error_mm"].to_numpy(float)) ** 2 + u_ref**2)
+        i = int(np.argmax(e))
+        m["position_error_max_mm"] = Measured(
+            float(e[i]),
+            float(u_i[i]),
+            note=f"pose {p['index'].iloc[i]}, marker {p['marker_id'].iloc[i]}; "
+            f"u = Type A (mean of {int(p['n_samples'].iloc[i])} samples) "
+            f"⊕ reference {u_ref:g} mm",
+        )
+        rms = float(np.sqrt(np.mean(e**2)))
+        u_rms = (
+            float(np.sqrt(np.sum((e * u_i) ** 2)) / (len(e) * rms))
+            if rms > 0
+            else float(np.sqrt(np.mean(u_i**2)))
+        )
+        m["position_error_rms_mm"] = Measured(rms, u_rms, note=f"{len(e)} poses; u propagated from each pose")
+    rp = t.iso9283.dropna(subset=["rp_l_mm"])
+    if len(rp):
+        j = int(np.argmax(rp["rp_l_mm"].to_numpy(float)))
+        row = rp.iloc[j]
+        n, s = int(row["n_cycles"]), float(row["s_l_mm"])
+        u_rp = math.sqrt((s / math.sqrt(n)) ** 2 + 9 * (s / math.sqrt(2 * (n - 1))) ** 2)
+        m["repeatability_rp_mm"] = Measured(
+            float(row["rp_l_mm"]), u_rp, note=f"target {row['target']}, marker {row['marker_id']}, {n} cycles"
+        )
+    if len(t.lengths):
+        dl = t.lengths["length_error_mm"].abs().to_numpy(float)
+        k = int(np.argmax(dl))
+        u_len = math.sqrt(float(t.lengths["u_length_mm"].iloc[k]) ** 2 + 2 * u_ref**2)
+        m["length_error_max_mm"] = Measured(
+            float(dl[k]),
+            u_len,
+            note=f"{len(dl)} test lengths; worst "
+            f"{t.lengths['marker_a'].iloc[k]}–{t.lengths['marker_b'].iloc[k]}",
+        )
+    fit = t.fits.get(t.primary_sync)
+    if fit is not None:
+        f_req = float(acceptance["required_frequency_hz"])
+        e_req = float(fit.predict(f_req))
+        note = f"sync '{t.primary_sync}', fit {fit.f_min_hz:.1f}–{fit.f_max_hz:.1f} Hz at {f_req:g} Hz"
+        if f_req > fit.f_max_hz:
+            note += " (extrapolated beyond the fitted range)"
+        m["amplitude_error_pct"] = Measured(
+            abs(e_req), float(fit.u_predict(f_req)), k=fit.t_factor, note=note + f"; k = t(0.975, {fit.dof})"
+        )
+        lim = t.limits[t.primary_sync]
+        if lim.reached:
+            m["usable_frequency_hz"] = Measured(
+                lim.limit_hz,
+                lim.u_limit_hz,
+                k=fit.t_factor,
+                note=f"|e| reaches {lim.tolerance:g} % at this frequency",
+            )
+        else:
+            m["usable_frequency_hz"] = Measured(
+                lim.limit_hz,
+                0.0,
+                note=f"|e| stays below {lim.tolerance:g} % up "
+                "to the highest tested frequency (a lower bound)",
+            )
+    rs = t.rotation_summary
+    if rs and _finite(rs.get("radius_error_mm", float("nan"))):
+        m["rotation_radius_error_mm"] = Measured(
+            abs(rs["radius_error_mm"]),
+            math.sqrt(rs["u_radius_mm"] ** 2 + u_ref**2),
+            note=f"{rs['n_samples']} samples",
+        )
+    if t.calibration is not None and len(t.calibration) and t.calibration["rms_px"].notna().any():
+        m["reprojection_rms_px"] = Measured(
+            float(t.calibration["rms_px"].max()), 0.0, note="from calibration.json"
+        )
+    u_off = ((t.timing or {}).get("uncertainty") or {}).get("offset_s")
+    if isinstance(u_off, dict):
+        vals = [float(v) for v in u_off.values() if isinstance(v, (int, float))]
+        u_off = max(vals) if vals else None
+    if isinstance(u_off, (int, float)):
+        m["sync_offset_u_ms"] = Measured(1000 * float(u_off), 0.0, note="from timing.json")
+    return m

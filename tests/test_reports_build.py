@@ -1,0 +1,174 @@
+"""build_report on a synthetic run folder (analysis injected): outputs, exact values, determinism."""
+
+from __future__ import annotations
+
+import json
+import re
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+import reports_synth as synth
+
+from reports.build import build_report
+from reports.errors import CriteriaError, RunFolderError
+
+
+@pytest.fixture(scope="module")
+def built(tmp_path_factory):
+    run_dir = synth.write_run(tmp_path_factory.mktemp("runs") / "20261121-231500_certify_ab12cd34")
+    return build_report(run_dir, analysis=synth.fake_analyse)
+
+
+def test_outputs_exist(built) -> None:
+    run = built.run_dir
+    assert built.report_html == run / "report.html" and built.report_html.stat().st_size > 50_000
+    assert built.certificate_json == run / "certificate.json"
+    for name in (
+        "position_errors",
+        "iso9283",
+        "length_errors",
+        "sweep_bins",
+        "quadratic_fit",
+        "criteria",
+        "calibration_residuals",
+        "timing",
+        "plate",
+        "rotation_summary",
+        "rotor_spectrum",
+    ):
+        assert (run / "tables" / f"{name}.csv").is_file(), name
+    assert set(built.figures) == {
+        "error_vectors",
+        "error_vs_position",
+        "amplitude_error_vs_frequency",
+        "sweep_time_frequency",
+        "trajectory",
+        "rotation_radius",
+        "spectrum",
+    }
+    for path in built.figures.values():
+        assert path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_certificate_values(built) -> None:
+    cert = json.loads(built.certificate_json.read_text())
+    assert cert["result"] == built.result == "PASS"
+    rows = {r["id"]: r for r in cert["criteria"]}
+    assert rows["position_error_max_mm"]["value"] == pytest.approx(
+        np.sqrt(0.3**2 + 0.1**2 + 0.04**2), abs=1e-9
+    )
+    assert rows["position_error_max_mm"]["limit"] == 1.0  # from the run's rig snapshot, not the default
+    # reference_u_mm default 0.02 → U = 0.04 on an exact measurement
+    assert rows["position_error_max_mm"]["expanded_uncertainty"] == pytest.approx(0.04, abs=1e-9)
+    c0, c2 = synth.SWEEP_COEFFS["trajectory"]
+    assert rows["amplitude_error_pct"]["value"] == pytest.approx(abs(c0 + c2 * 15.0**2), abs=1e-8)
+    assert rows["usable_frequency_hz"]["value"] == pytest.approx(max(synth.SWEEP_FREQS_HZ))
+    assert rows["rotation_radius_error_mm"]["value"] == pytest.approx(0.3, abs=1e-9)
+    assert rows["reprojection_rms_px"]["value"] == pytest.approx(0.31)
+    assert rows["sync_offset_u_ms"]["value"] == pytest.approx(0.02)
+    assert rows["detection_pct"]["value"] == 100.0
+    lin = cert["usable_frequency"]["linear"]
+    c0l, c2l = synth.SWEEP_COEFFS["linear"]
+    assert lin["limit_hz"] == pytest.approx(np.sqrt((-5.0 - c0l) / c2l), rel=1e-8)
+    assert lin["reached_within_tested_range"] is True
+    cond = cert["conditions"]
+    assert cond["run_id"] == built.run_dir.name and cond["date_utc"].startswith("2026-11-21T23:15")
+    assert cond["sync_method"] == "trajectory" and cond["compared_sync_methods"] == ["linear"]
+    assert cond["rig"]["acceptance"]["usable_frequency_hz"] == 15.0
+    assert cond["versions"]["rig-controller"] == "0.1.0"
+    assert "ILAC-G8" in cert["decision_rule"]["text"]
+
+
+def test_tables_have_units_and_exact_values(built) -> None:
+    fits = pd.read_csv(built.tables["quadratic_fit"]).set_index("sync_method")
+    for method, (c0, c2) in synth.SWEEP_COEFFS.items():
+        assert fits.loc[method, "c0_pct"] == pytest.approx(c0, abs=1e-8)
+        assert fits.loc[method, "c2_pct_per_hz2"] == pytest.approx(c2, abs=1e-10)
+    bins = pd.read_csv(built.tables["sweep_bins"])
+    assert {
+        "frequency_hz",
+        "amplitude_ref_mm",
+        "amplitude_meas_mm",
+        "amplitude_error_pct",
+        "phase_deg",
+    } <= set(bins.columns)
+    for method, g in bins.groupby("sync_method"):
+        np.testing.assert_allclose(
+            g["amplitude_error_pct"], synth.sweep_error_pct(g["frequency_hz"], method), atol=1e-7
+        )
+    poses = pd.read_csv(built.tables["position_errors"])
+    assert {"x_cmd_mm", "x_meas_mm", "ex_mm", "error_mm", "distance_mm", "off_axis_mm"} <= set(poses.columns)
+    numeric = [c for c in pd.read_csv(built.tables["iso9283"]).columns if c not in ("target", "marker_id")]
+    assert all(c.endswith(("_mm", "_cycles")) for c in numeric)
+
+
+def test_rebuild_is_byte_identical(built) -> None:
+    run = built.run_dir
+    outputs = sorted(
+        [*run.glob("tables/*.csv"), *run.glob("figures/*.png"), run / "certificate.json", run / "report.html"]
+    )
+    before = {p: p.read_bytes() for p in outputs}
+    again = build_report(run, analysis=synth.fake_analyse)
+    assert again.result == built.result
+    after = {p: p.read_bytes() for p in outputs}
+    changed = [p.name for p in outputs if before[p] != after[p]]
+    assert changed == []
+
+
+def test_report_is_self_contained(built) -> None:
+    text = built.report_html.read_text()
+    assert text.startswith("<!DOCTYPE html>")
+    assert not re.search(r"""(src|href)\s*=\s*["']?(https?:|//)""", text)
+    assert "@import" not in text and "url(" not in text
+    assert text.count("data:image/png;base64,") == len(built.figures)
+    # the verdict comes first, before any section
+    assert text.index('class="verdict PASS"') < text.index("<section")
+    assert "Trusted up to at least 23.5 Hz" in text
+
+
+def test_sync_option_changes_the_primary_method(tmp_path: Path) -> None:
+    run = synth.write_run(tmp_path / "run_linear")
+    res = build_report(run, sync="linear", analysis=synth.fake_analyse, make_figures=False)
+    rows = {r["id"]: r for r in res.certificate["criteria"]}
+    # the paper's method loses 5 % at 7.9 Hz: it cannot be trusted up to the required 15 Hz
+    assert rows["usable_frequency_hz"]["status"] == "FAIL"
+    assert rows["usable_frequency_hz"]["value"] == pytest.approx(np.sqrt(5.0 / 0.08), rel=1e-8)
+    assert res.result == "FAIL"
+    assert res.certificate["conditions"]["compared_sync_methods"] == []
+
+
+def test_failing_comparison_method_is_a_visible_note(tmp_path: Path) -> None:
+    run = synth.write_run(tmp_path / "run_note")
+
+    def analyse(run_dir, *, sync):
+        if sync == "linear":
+            raise RuntimeError("not implemented here")
+        return synth.fake_analyse(run_dir, sync=sync)
+
+    res = build_report(run, analysis=analyse, make_figures=False)
+    assert any("linear" in n and "not implemented here" in n for n in res.notes)
+    assert "not implemented here" in res.report_html.read_text()
+
+
+def test_aborted_run_without_sweep_is_incomplete(tmp_path: Path) -> None:
+    run = synth.write_run(tmp_path / "run_abort", exit_status="abort")
+    lines = [ln for ln in (run / "record.jsonl").read_text().splitlines() if '"stream": "sweep"' not in ln]
+    (run / "record.jsonl").write_text("\n".join(lines) + "\n" + '{"type": "event", "stream": "arm", "se')
+    with pytest.warns(UserWarning, match="truncated"):
+        res = build_report(run, analysis=synth.fake_analyse)
+    assert res.result == "INCOMPLETE"
+    rows = {r["id"]: r for r in res.certificate["criteria"]}
+    assert rows["usable_frequency_hz"]["status"] == "NOT EVALUATED"
+    assert rows["position_error_max_mm"]["status"] == "PASS"
+    assert "amplitude_error_vs_frequency" not in res.figures
+    assert any("cut short" in n for n in res.notes)
+
+
+def test_bad_run_folder_and_config_raise(tmp_path: Path) -> None:
+    with pytest.raises(RunFolderError, match=r"record\.jsonl"):
+        build_report(tmp_path, analysis=synth.fake_analyse)
+    run = synth.write_run(tmp_path / "run_badcfg", rig={"acceptance": {"max_error": 1}})
+    with pytest.raises(CriteriaError, match="max_error"):
+        build_report(run, analysis=synth.fake_analyse)

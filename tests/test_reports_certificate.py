@@ -1,0 +1,140 @@
+"""Certificate decisions at the boundaries, with uncertainty, under both decision rules; configuration."""
+
+from __future__ import annotations
+
+import pytest
+
+from reports.certificate import (
+    CRITERION_IDS,
+    DEFAULT_LIMITS,
+    Measured,
+    acceptance_from_config,
+    build_certificate,
+    decide,
+    evaluate,
+    overall_result,
+)
+from reports.errors import CriteriaError
+
+# binary-exact values so "just inside" and "touching" are exact
+U = 0.25
+LIMIT = 1.0
+
+
+@pytest.mark.parametrize(
+    ("value", "guarded", "simple", "zone"),
+    [
+        (0.5, "PASS", "PASS", "conforming"),  # far inside
+        (0.75, "PASS", "PASS", "conforming"),  # value + U touches the limit: still demonstrated
+        (0.875, "FAIL", "PASS", "indeterminate"),  # inside, but the interval straddles the limit
+        (1.0, "FAIL", "PASS", "indeterminate"),  # on the limit
+        (1.125, "FAIL", "FAIL", "indeterminate"),  # just outside, interval straddles
+        (1.25, "FAIL", "FAIL", "indeterminate"),  # value − U touches the limit
+        (1.5, "FAIL", "FAIL", "non-conforming"),  # far outside
+    ],
+)
+def test_upper_limit_boundaries(value: float, guarded: str, simple: str, zone: str) -> None:
+    assert decide(value, U, LIMIT, "<=", "guarded") == (guarded, zone)
+    assert decide(value, U, LIMIT, "<=", "simple") == (simple, zone)
+
+
+@pytest.mark.parametrize(
+    ("value", "guarded", "simple", "zone"),
+    [
+        (20.5, "PASS", "PASS", "conforming"),  # 20.5 − 0.5 = 20 touches the lower limit
+        (20.25, "FAIL", "PASS", "indeterminate"),
+        (19.75, "FAIL", "FAIL", "indeterminate"),
+        (19.25, "FAIL", "FAIL", "non-conforming"),
+    ],
+)
+def test_lower_limit_boundaries(value: float, guarded: str, simple: str, zone: str) -> None:
+    assert decide(value, 0.5, 20.0, ">=", "guarded") == (guarded, zone)
+    assert decide(value, 0.5, 20.0, ">=", "simple") == (simple, zone)
+
+
+def test_without_uncertainty_both_rules_agree_at_the_limit() -> None:
+    assert decide(1.0, 0.0, 1.0, "<=", "guarded") == ("PASS", "conforming")
+    assert decide(1.0 + 2**-40, 0.0, 1.0, "<=", "guarded") == ("FAIL", "non-conforming")
+
+
+def test_missing_value_is_not_evaluated() -> None:
+    assert decide(float("nan"), 0.1, 1.0, "<=", "guarded") == ("NOT EVALUATED", "no data")
+
+
+def test_expanded_uncertainty_uses_the_coverage_factor() -> None:
+    acc = acceptance_from_config({"acceptance": {"position_error_max_mm": 1.0}})
+    # u = 0.125, k = 2 → U = 0.25: 0.75 passes, 0.875 does not (guarded)
+    rows = {r["id"]: r for r in evaluate({"position_error_max_mm": Measured(0.75, 0.125)}, acc)}
+    assert rows["position_error_max_mm"]["expanded_uncertainty"] == 0.25
+    assert rows["position_error_max_mm"]["status"] == "PASS"
+    rows = {r["id"]: r for r in evaluate({"position_error_max_mm": Measured(0.875, 0.125)}, acc)}
+    assert rows["position_error_max_mm"]["status"] == "FAIL"
+    assert rows["position_error_max_mm"]["zone"] == "indeterminate"
+    # k from Student's t widens U
+    rows = {r["id"]: r for r in evaluate({"position_error_max_mm": Measured(0.75, 0.125, k=2.2)}, acc)}
+    assert rows["position_error_max_mm"]["status"] == "FAIL"
+
+
+def test_simple_rule_from_the_configuration() -> None:
+    acc = acceptance_from_config({"acceptance": {"decision_rule": "simple", "position_error_max_mm": 1.0}})
+    rows = {r["id"]: r for r in evaluate({"position_error_max_mm": Measured(0.875, 0.125)}, acc)}
+    assert rows["position_error_max_mm"]["status"] == "PASS"
+    assert rows["position_error_max_mm"]["zone"] == "indeterminate"
+
+
+def test_defaults_and_derived_settings() -> None:
+    acc = acceptance_from_config({})
+    for key, value in DEFAULT_LIMITS.items():
+        assert acc[key] == value
+    assert acc["decision_rule"] == "guarded"
+    assert acc["required_frequency_hz"] == DEFAULT_LIMITS["usable_frequency_hz"]
+    assert acc["amplitude_tolerance_pct"] == DEFAULT_LIMITS["amplitude_error_pct"]
+    acc = acceptance_from_config({"acceptance": {"usable_frequency_hz": 12, "required_frequency_hz": 10}})
+    assert acc["usable_frequency_hz"] == 12.0 and acc["required_frequency_hz"] == 10.0
+
+
+@pytest.mark.parametrize(
+    ("table", "match"),
+    [
+        ({"position_error_max": 1.0}, "unknown key"),
+        ({"position_error_max_mm": -1.0}, "position_error_max_mm"),
+        ({"position_error_max_mm": "1 mm"}, "position_error_max_mm"),
+        ({"position_error_max_mm": True}, "position_error_max_mm"),
+        ({"decision_rule": "optimistic"}, "decision_rule"),
+        ({"frequency_bin_hz": 0.0}, "frequency_bin_hz"),
+    ],
+)
+def test_bad_configuration_raises(table: dict, match: str) -> None:
+    with pytest.raises(CriteriaError, match=match):
+        acceptance_from_config({"acceptance": table})
+
+
+def test_overall_result() -> None:
+    acc = acceptance_from_config({})
+    good = {cid: Measured(0.0, 0.0) for cid in CRITERION_IDS}
+    good["detection_pct"] = Measured(100.0)
+    good["usable_frequency_hz"] = Measured(30.0)
+    rows = evaluate(good, acc)
+    assert overall_result(rows, "success") == "PASS"
+    assert overall_result(rows, "abort") == "INCOMPLETE"
+    partial = dict(good)
+    partial["rotation_radius_error_mm"] = None
+    assert overall_result(evaluate(partial, acc), "success") == "INCOMPLETE"
+    bad = dict(partial, position_error_max_mm=Measured(5.0))
+    assert overall_result(evaluate(bad, acc), "success") == "FAIL"
+
+
+def test_certificate_states_rule_and_conditions() -> None:
+    acc = acceptance_from_config({})
+    cert = build_certificate(
+        {}, acc, {"run_id": "r1", "date_utc": "2026-11-21T23:15:00+00:00", "exit_status": "success"}
+    )
+    assert cert["run_id"] == "r1" and cert["date_utc"].startswith("2026")
+    assert "ILAC-G8" in cert["decision_rule"]["text"]
+    assert [r["id"] for r in cert["criteria"]] == list(CRITERION_IDS)
+    assert cert["result"] == "INCOMPLETE"
+
+
+def test_unknown_measured_id_raises() -> None:
+    with pytest.raises(CriteriaError, match="unknown criterion"):
+        evaluate({"speed_mm_s": Measured(1.0)}, acceptance_from_config({}))

@@ -1,0 +1,113 @@
+"""The quadratic growth fit e(f) = c0 + c2·f²: recovery, interval coverage, usable frequency limit."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy import stats
+
+from reports.errors import FitError
+from reports.quadfit import fit_quadratic, usable_limit
+
+F_HZ = np.arange(1.0, 21.0)  # 20 bins, 1–20 Hz
+C0, C2 = 0.3, -0.08
+SIGMA = 0.2 * (1 + F_HZ / 5)  # heteroscedastic: the error scatter grows with frequency
+
+
+def test_exact_data_recover_the_coefficients() -> None:
+    fit = fit_quadratic(F_HZ, C0 + C2 * F_HZ**2, SIGMA)
+    assert fit.c0 == pytest.approx(C0, abs=1e-10)
+    assert fit.c2 == pytest.approx(C2, abs=1e-12)
+    assert fit.r2 == pytest.approx(1.0)
+    assert fit.dof == len(F_HZ) - 2
+
+
+def test_weighted_estimate_matches_the_closed_form() -> None:
+    rng = np.random.default_rng(5)
+    e = C0 + C2 * F_HZ**2 + rng.normal(0, SIGMA)
+    fit = fit_quadratic(F_HZ, e, SIGMA)
+    X = np.column_stack([np.ones_like(F_HZ), F_HZ**2])
+    W = np.diag(1 / SIGMA**2)
+    beta = np.linalg.solve(X.T @ W @ X, X.T @ W @ e)
+    r = e - X @ beta
+    s2 = (r @ W @ r) / (len(e) - 2)
+    np.testing.assert_allclose([fit.c0, fit.c2], beta, rtol=1e-10)
+    np.testing.assert_allclose(fit.cov, s2 * np.linalg.inv(X.T @ W @ X), rtol=1e-8)
+    assert fit.ci("c2")[1] - fit.c2 == pytest.approx(stats.t.ppf(0.975, 18) * np.sqrt(fit.cov[1, 1]))
+
+
+@pytest.mark.parametrize("confidence", [0.95, 0.68])
+def test_intervals_cover_the_truth_at_the_stated_rate(confidence: float) -> None:
+    """Monte-Carlo coverage with a fixed seed; tolerance = 4 binomial standard deviations."""
+    rng = np.random.default_rng(20261122)
+    trials = 2000
+    scale = 3.7  # the uncertainties are relative: an unknown common factor must not change coverage
+    hits_c0 = hits_c2 = 0
+    for _ in range(trials):
+        e = C0 + C2 * F_HZ**2 + rng.normal(0, scale * SIGMA)
+        fit = fit_quadratic(F_HZ, e, SIGMA, confidence=confidence)
+        lo, hi = fit.ci("c2")
+        hits_c2 += lo <= C2 <= hi
+        lo, hi = fit.ci("c0")
+        hits_c0 += lo <= C0 <= hi
+    tol = 4 * np.sqrt(confidence * (1 - confidence) / trials)
+    assert hits_c2 / trials == pytest.approx(confidence, abs=tol)
+    assert hits_c0 / trials == pytest.approx(confidence, abs=tol)
+
+
+def test_usable_limit_solves_the_tolerance_crossing() -> None:
+    fit = fit_quadratic(F_HZ, C0 + C2 * F_HZ**2, SIGMA)
+    lim = usable_limit(fit, 5.0)
+    expected = np.sqrt((-5.0 - C0) / C2)  # e falls to −5 % at √(5.3/0.08) ≈ 8.14 Hz
+    assert lim.reached
+    assert lim.limit_hz == pytest.approx(expected, rel=1e-9)
+    # positive growth runs into +tolerance instead
+    up = fit_quadratic(F_HZ, 0.3 + 0.02 * F_HZ**2, SIGMA)
+    assert usable_limit(up, 5.0).limit_hz == pytest.approx(np.sqrt(4.7 / 0.02), rel=1e-9)
+
+
+def test_usable_limit_is_capped_at_the_highest_tested_frequency() -> None:
+    fit = fit_quadratic(F_HZ, 0.1 - 0.001 * F_HZ**2, SIGMA)
+    lim = usable_limit(fit, 5.0)
+    assert not lim.reached
+    assert lim.crossing_hz == pytest.approx(np.sqrt(5.1 / 0.001))
+    assert lim.limit_hz == F_HZ.max()
+    assert np.isnan(lim.u_limit_hz)
+    assert usable_limit(fit, 5.0, f_max_tested_hz=23.5).limit_hz == 23.5
+
+
+def test_usable_limit_zero_when_the_offset_already_exceeds_tolerance() -> None:
+    fit = fit_quadratic(F_HZ, -6.0 + C2 * F_HZ**2, SIGMA)
+    assert usable_limit(fit, 5.0).limit_hz == 0.0
+
+
+def test_usable_limit_uncertainty_by_the_delta_method_matches_monte_carlo() -> None:
+    rng = np.random.default_rng(7)
+    limits, u_pred = [], []
+    for _ in range(800):
+        fit = fit_quadratic(F_HZ, C0 + C2 * F_HZ**2 + rng.normal(0, SIGMA), SIGMA)
+        lim = usable_limit(fit, 5.0)
+        limits.append(lim.limit_hz)
+        u_pred.append(lim.u_limit_hz)
+    # the scatter of the estimated limit matches its predicted standard uncertainty (within ≈ 10 %)
+    assert np.std(limits) == pytest.approx(np.median(u_pred), rel=0.12)
+
+
+@pytest.mark.parametrize(
+    ("f", "e", "u", "match"),
+    [
+        ([1, 2], [0, 0], [1, 1], "≥ 3"),
+        ([1, 2, 3], [0, 0, 0], [1, 0, 1], "u_e must be > 0"),
+        ([2, 2, 2], [0, 1, 2], [1, 1, 1], "distinct"),
+        ([1, 2, 3], [0, 1], [1, 1, 1], "equal lengths"),
+    ],
+)
+def test_bad_fit_inputs_raise(f, e, u, match) -> None:
+    with pytest.raises(FitError, match=match):
+        fit_quadratic(np.array(f, float), np.array(e, float), np.array(u, float))
+
+
+def test_bad_tolerance_raises() -> None:
+    fit = fit_quadratic(F_HZ, C0 + C2 * F_HZ**2, SIGMA)
+    with pytest.raises(FitError, match="tolerance"):
+        usable_limit(fit, 0.0)
