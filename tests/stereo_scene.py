@@ -93,8 +93,13 @@ def volume_points(n: int, rng: np.random.Generator) -> np.ndarray:
     return VOLUME_MIN + rng.random((n, 3)) * (VOLUME_MAX - VOLUME_MIN)
 
 
+def point_covariances_mm2(cameras: list[TrueCamera], xyz_mm: np.ndarray, sigma_px: float) -> np.ndarray:
+    """Covariance (N, 3, 3) of a point triangulated from pixel noise σ through the TRUE cameras: σ²(JᵀJ)⁻¹."""
+    H = sum(np.einsum("nki,nkj->nij", J, J) for J in (c.jacobian(xyz_mm) for c in cameras))
+    return sigma_px**2 * np.linalg.inv(H)
+
+
 def noise_floor_mm(cameras: list[TrueCamera], xyz_mm: np.ndarray, sigma_px: float) -> float:
     """RMS 3D error that pixel noise σ alone implies with the TRUE cameras: sqrt(mean trace σ²(JᵀJ)⁻¹)."""
-    H = sum(np.einsum("nki,nkj->nij", J, J) for J in (c.jacobian(xyz_mm) for c in cameras))
-    cov = sigma_px**2 * np.linalg.inv(H)
+    cov = point_covariances_mm2(cameras, xyz_mm, sigma_px)
     return float(np.sqrt(np.mean(np.trace(cov, axis1=1, axis2=2))))

@@ -55,7 +55,18 @@ def undistort(xy_d: np.ndarray, coeffs: np.ndarray, *, tol: float = 1e-12, max_i
             break
         pts = xy[active]
         resid = distort(pts, coeffs) - xy_d[active]
-        step = np.linalg.solve(distort_jacobian(pts, coeffs), resid[:, :, None])[:, :, 0]
+        J = distort_jacobian(pts, coeffs)
+        det = J[:, 0, 0] * J[:, 1, 1] - J[:, 0, 1] * J[:, 1, 0]
+        step = (
+            np.stack(
+                [
+                    J[:, 1, 1] * resid[:, 0] - J[:, 0, 1] * resid[:, 1],
+                    J[:, 0, 0] * resid[:, 1] - J[:, 1, 0] * resid[:, 0],
+                ],
+                axis=1,
+            )
+            / det[:, None]
+        )
         xy[active] = pts - step
         done = np.abs(step).max(axis=1) < tol
         idx = np.nonzero(active)[0]

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from functools import cached_property
 from typing import Any
 
 import numpy as np
@@ -116,6 +117,7 @@ class DLTCamera:
     def centre_mm(self) -> np.ndarray:
         return -np.linalg.solve(self.P[:, :3], self.P[:, 3])
 
+    @cached_property
     def _k(self) -> np.ndarray:
         return self.decompose()[0]
 
@@ -128,20 +130,23 @@ class DLTCamera:
     ) -> tuple[np.ndarray, np.ndarray | None]:
         """Pixels (N, 2) and, if asked, ∂(u, v)/∂(x, y, z) (N, 2, 3) in px/mm."""
         xyz = as_points(xyz_mm, "xyz_mm", 3, allow_nan=True, allow_empty=True)
-        x = homogeneous(xyz) @ self.P.T
+        x = xyz @ self.P[:, :3].T + self.P[:, 3]
         uv = x[:, :2] / x[:, 2:3]
         J = None
         if jacobian:
             J = (self.P[None, :2, :3] - uv[:, :, None] * self.P[None, 2:3, :3]) / x[:, 2, None, None]
         if self.distortion is None:
             return uv, J
-        K = self._k()
+        K = self._k
         A, Ainv = K[:2, :2], np.linalg.inv(K[:2, :2])
         xy = (uv - K[:2, 2]) @ Ainv.T
         coeffs = np.asarray(self.distortion)
         uv_d = distort(xy, coeffs) @ A.T + K[:2, 2]
         if jacobian:
-            J = A @ distort_jacobian(xy, coeffs) @ Ainv @ J
+            Jn = np.einsum("ij,njk->nik", Ainv, J)  # ∂(x, y)/∂X
+            Jd = distort_jacobian(xy, coeffs)
+            Jn = Jd[:, :, :1] * Jn[:, None, 0, :] + Jd[:, :, 1:] * Jn[:, None, 1, :]
+            J = np.einsum("ij,njk->nik", A, Jn)
         return uv_d, J
 
     def undistort_px(self, uv_px: object) -> np.ndarray:
@@ -149,7 +154,7 @@ class DLTCamera:
         uv = as_points(uv_px, "uv_px", 2, allow_nan=True, allow_empty=True)
         if self.distortion is None:
             return uv
-        K = self._k()
+        K = self._k
         A = K[:2, :2]
         xy_d = (uv - K[:2, 2]) @ np.linalg.inv(A).T
         return undistort(xy_d, np.asarray(self.distortion)) @ A.T + K[:2, 2]

@@ -95,38 +95,65 @@ def linear_triangulation(P_list: Sequence[np.ndarray], uv_ideal: np.ndarray) -> 
     """Homogeneous least squares per point (rows u·p3 − p1, v·p3 − p2), vectorized over points.
 
     ``uv_ideal`` (N, n, 2) are undistorted pixels (NaN = not seen). Image coordinates are Hartley-
-    normalized per camera and the world per call (camera centres), so the SVD is well conditioned.
-    Returns (N, 3) mm; NaN where fewer than 2 views or the point is at infinity.
+    normalized per camera and the world per call (from the camera centres). The solution is the right
+    singular vector of the smallest singular value of A, obtained as the eigenvector of the smallest
+    eigenvalue of the 4×4 AᵀA by inverse iteration started at the X₄ = 1 solution: the same vector as
+    an SVD, without a LAPACK call per point. Returns (N, 3) mm; NaN with fewer than 2 views or at infinity.
     """
-    n_pts, n_cam = uv_ideal.shape[:2]
+    n_pts = uv_ideal.shape[0]
     centres = np.array([-np.linalg.solve(P[:, :3], P[:, 3]) for P in P_list])
     c0 = centres.mean(axis=0)
     spread = float(np.mean(np.linalg.norm(centres - c0, axis=1))) or 1.0
     Hw_inv = np.diag([spread, spread, spread, 1.0])
     Hw_inv[:3, 3] = c0
-    A = np.zeros((n_pts, 2 * n_cam, 4))
     seen = np.isfinite(uv_ideal).all(axis=2)
+    M = np.zeros((n_pts, 4, 4))
     for c, P in enumerate(P_list):
         Ti = similarity_2d(uv_ideal[seen[:, c], c]) if seen[:, c].any() else np.eye(3)
         Pn = Ti @ P @ Hw_inv
         Pn /= np.linalg.norm(Pn)
-        uvn = uv_ideal[:, c] * Ti[0, 0] + Ti[:2, 2]
-        rows_u = uvn[:, :1] * Pn[2] - Pn[0]
-        rows_v = uvn[:, 1:2] * Pn[2] - Pn[1]
-        rows_u[~seen[:, c]] = 0.0
-        rows_v[~seen[:, c]] = 0.0
-        A[:, 2 * c], A[:, 2 * c + 1] = rows_u, rows_v
-    Xh = np.linalg.svd(A)[2][:, -1, :] @ Hw_inv.T
+        uvn = np.where(seen[:, c, None], uv_ideal[:, c] * Ti[0, 0] + Ti[:2, 2], 0.0)
+        w = seen[:, c, None].astype(np.float64)
+        for row in (uvn[:, :1] * Pn[2] - Pn[0], uvn[:, 1:2] * Pn[2] - Pn[1]):
+            weighted = row * w
+            M += weighted[:, :, None] * weighted[:, None, :]
+    ok = seen.sum(axis=1) >= 2
+    M[~ok] = np.eye(4)
+    # Start: minimise ‖A·[X, 1]‖² (3×3 normal equations), then refine toward the smallest eigenvector.
+    y = np.ones((n_pts, 4))
+    y[:, :3] = _solve3(M[:, :3, :3], -M[:, :3, 3])
+    shift = 1e-13 * np.trace(M, axis1=1, axis2=2)[:, None, None] * np.eye(4)
+    for _ in range(3):
+        y = np.linalg.solve(M + shift, y[:, :, None])[:, :, 0]
+        y /= np.linalg.norm(y, axis=1, keepdims=True)
+    Xh = y @ Hw_inv.T
     with np.errstate(invalid="ignore", divide="ignore"):
         xyz = Xh[:, :3] / Xh[:, 3:4]
-    at_infinity = np.abs(Xh[:, 3]) <= 1e-12 * np.linalg.norm(Xh[:, :3], axis=1)
-    xyz[(seen.sum(axis=1) < 2) | at_infinity] = np.nan
+    at_infinity = ~(np.abs(Xh[:, 3]) > 1e-12 * np.linalg.norm(Xh[:, :3], axis=1))
+    xyz[~ok | at_infinity] = np.nan
     return xyz
 
 
-def _project_all(cams: Sequence[DLTCamera], xyz: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    pred, jac = zip(*(c.project_with_jacobian(xyz) for c in cams), strict=True)
-    return np.stack(pred, axis=1), np.stack(jac, axis=1)  # (N, n, 2), (N, n, 2, 3)
+def _solve3(A: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Batched 3×3 solve by the adjugate (no LAPACK call per system); singular systems give inf/NaN."""
+    c0 = np.cross(A[:, 1], A[:, 2])
+    c1 = np.cross(A[:, 2], A[:, 0])
+    c2 = np.cross(A[:, 0], A[:, 1])
+    det = np.sum(A[:, 0] * c0, axis=1)
+    adj_t = np.stack([c0, c1, c2], axis=2)  # A⁻¹ = adj_t / det, adj_t[:, :, j] = c_j
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.einsum("nij,nj->ni", adj_t, b) / det[:, None]
+
+
+def _project_all(cams: Sequence[DLTCamera], xyz: np.ndarray, jacobian: bool = True):
+    out = [c.project_with_jacobian(xyz, jacobian=jacobian) for c in cams]
+    pred = np.stack([o[0] for o in out], axis=1)  # (N, n, 2)
+    return pred, (np.stack([o[1] for o in out], axis=1) if jacobian else None)  # (N, n, 2, 3)
+
+
+def _cost(cams: Sequence[DLTCamera], xyz: np.ndarray, uv: np.ndarray) -> np.ndarray:
+    r = _project_all(cams, xyz, jacobian=False)[0] - uv
+    return np.nansum(r**2, axis=(1, 2))
 
 
 def _normal_equations(cams: Sequence[DLTCamera], xyz: np.ndarray, uv: np.ndarray):
@@ -135,8 +162,14 @@ def _normal_equations(cams: Sequence[DLTCamera], xyz: np.ndarray, uv: np.ndarray
     seen = np.isfinite(r).all(axis=2)
     r = np.where(seen[..., None], r, 0.0)
     J = np.where(seen[..., None, None], J, 0.0)
-    H = np.einsum("ncki,nckj->nij", J, J)
-    g = np.einsum("ncki,nck->ni", J, r)
+    n = J.shape[0]
+    Jf = J.reshape(n, -1, 3)  # (N, 2n_cam, 3)
+    rf = r.reshape(n, -1)
+    H = np.empty((n, 3, 3))
+    for i in range(3):
+        for j in range(i, 3):
+            H[:, i, j] = H[:, j, i] = np.sum(Jf[:, :, i] * Jf[:, :, j], axis=1)
+    g = np.stack([np.sum(Jf[:, :, i] * rf, axis=1) for i in range(3)], axis=1)
     return np.sum(r**2, axis=(1, 2)), H, g, pred - uv
 
 
@@ -144,22 +177,24 @@ def _refine(cams: Sequence[DLTCamera], xyz0: np.ndarray, uv: np.ndarray, max_ite
     """Per-point Levenberg–Marquardt (3 unknowns each), all points advanced together."""
     xyz = xyz0.copy()
     ok = np.isfinite(xyz).all(axis=1)
-    lam = np.full(xyz.shape[0], 1e-3)
-    eye = np.eye(3)
+    lam = np.full(xyz.shape[0], 1e-4)
     for _ in range(max_iter):
         if not ok.any():
             break
         idx = np.nonzero(ok)[0]
         cost, H, g, _ = _normal_equations(cams, xyz[idx], uv[idx])
-        damped = H + lam[idx, None, None] * (np.diagonal(H, axis1=1, axis2=2)[:, :, None] * eye + 1e-12 * eye)
-        step = np.linalg.solve(damped, g[:, :, None])[:, :, 0]
+        damped = H.copy()
+        diag = np.einsum("nii->ni", damped)
+        diag += lam[idx, None] * diag + 1e-12
+        step = _solve3(damped, g)
         trial = xyz[idx] - step
-        new_cost = _normal_equations(cams, trial, uv[idx])[0]
+        new_cost = _cost(cams, trial, uv[idx])
         better = new_cost <= cost
         xyz[idx[better]] = trial[better]
         lam[idx] = np.where(better, lam[idx] * 0.1, lam[idx] * 10.0)
         small = np.linalg.norm(step, axis=1) <= 1e-9 * (1.0 + np.linalg.norm(xyz[idx], axis=1))
-        ok[idx[(better & small) | (lam[idx] > 1e8)]] = False
+        stalled = np.abs(cost - new_cost) <= 1e-12 * (cost + 1e-20)  # gain below rounding of the cost
+        ok[idx[small | stalled | (lam[idx] > 1e8) | ~np.isfinite(step).all(axis=1)]] = False
     return xyz
 
 
@@ -205,6 +240,7 @@ def triangulate(
     cov = None
     if pixel_sigma_px is not None:
         cov = np.full_like(H, np.nan)
-        good = np.isfinite(xyz).all(axis=1) & (np.linalg.matrix_rank(H) == 3)
+        det = np.linalg.det(H)
+        good = np.isfinite(xyz).all(axis=1) & (det > 1e-9 * np.trace(H, axis1=1, axis2=2) ** 3)
         cov[good] = pixel_sigma_px**2 * np.linalg.inv(H[good])
     return Triangulation(xyz_mm=xyz, residuals_px=residuals, covariance_mm2=cov, n_views=seen.sum(axis=1))
