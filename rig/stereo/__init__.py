@@ -24,10 +24,24 @@ from rig.stereo.errors import (
     StereoError,
     TimingError,
 )
+from rig.stereo.markers import (
+    FLAG_BORDER,
+    FLAG_LOST,
+    FLAG_OCCLUDED,
+    FLAG_SATURATED,
+    MARKER_DTYPE,
+    detect_markers,
+    track_markers,
+)
 from rig.stereo.reference import RigidTransform, Stabilized, rigid_transform, stabilize
 from rig.stereo.triangulate import Triangulation, triangulate
 
 __all__ = [
+    "FLAG_BORDER",
+    "FLAG_LOST",
+    "FLAG_OCCLUDED",
+    "FLAG_SATURATED",
+    "MARKER_DTYPE",
     "CalibrationFormatError",
     "DLTCamera",
     "DegenerateCalibrationError",
@@ -44,6 +58,7 @@ __all__ = [
     "TimingError",
     "Triangulation",
     "calibrate_dlt",
+    "detect_markers",
     "dlt11_from_P",
     "epipolar_distance_px",
     "fundamental_from_projections",
@@ -51,5 +66,6 @@ __all__ = [
     "rigid_transform",
     "solve_dlt11",
     "stabilize",
+    "track_markers",
     "triangulate",
 ]

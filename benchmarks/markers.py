@@ -1,0 +1,167 @@
+"""Benchmark of marker detection on synthetic 1920×1080 frames: speed and centroid error vs truth.
+
+Frames: 12 or 30 bright discs of radius 7.5–8.5 px, contrast 150 DN over a 20 DN background, Gaussian
+blur σ = 0.8 px, noise σ = 2 DN (rendered by tests/marker_images.py: supersampled ×8 coverage). The
+markers move a few pixels from frame to frame; tracking is fed the previous frame's result.
+
+Methods, timed in the same run (interleaved per round, so the load of the machine hits all alike):
+  ours/full      rig.stereo.detect_markers on the whole frame
+  ours/track     rig.stereo.track_markers around the previous frame's centres
+  sbd/tuned      cv2.SimpleBlobDetector, thresholds 50..170 step 20, area 50..2000, bright blobs
+  sbd/default    the same with OpenCV's default thresholds (50..220 step 10)
+  thr+cc         cv2.threshold at the mid level (95 DN) + cv2.connectedComponentsWithStats centroids
+
+Prints ms per frame (median over frames, best of the rounds), the speed ratios to sbd/tuned (median of
+the per-round ratios), and the centroid RMS error vs truth (all frames, matched within 3 px).
+Run: .venv/bin/python benchmarks/markers.py [--rounds N] [--frames N]
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "tests"))
+
+from marker_images import Disc, render  # noqa: E402
+
+from rig.stereo import detect_markers, track_markers  # noqa: E402
+
+SHAPE = (1080, 1920)
+DETECT_KW = {"min_area_px": 80.0, "max_area_px": 2000.0, "min_contrast": 40.0}
+TRACK_WINDOW_PX = 33
+
+
+def make_sequence(n_markers: int, n_frames: int, seed: int):
+    """Frames (uint8) and truth (n_frames, n_markers, 2) of markers drifting ≤ 3 px per frame."""
+    rng = np.random.default_rng(seed)
+    centres: list[tuple[float, float]] = []
+    while len(centres) < n_markers:
+        u, v = rng.uniform(60, SHAPE[1] - 60), rng.uniform(60, SHAPE[0] - 60)
+        if all((u - a) ** 2 + (v - b) ** 2 > 80**2 for a, b in centres):
+            centres.append((u, v))
+    base = np.array(centres)
+    radius = rng.uniform(7.5, 8.5, n_markers)
+    step = rng.uniform(-3, 3, (n_markers, 2))
+    frames, truth = [], []
+    for f in range(n_frames):
+        uv = base + f * step
+        discs = [Disc(u, v, r) for (u, v), r in zip(uv, radius, strict=True)]
+        frames.append(render(SHAPE, discs, background_dn=20.0, blur_sigma_px=0.8, noise_sigma_dn=2.0,
+                             seed=seed * 1000 + f))
+        truth.append(uv)
+    return frames, np.array(truth)
+
+
+def sbd(params: dict):
+    p = cv2.SimpleBlobDetector_Params()
+    p.filterByColor, p.blobColor = True, 255
+    p.filterByArea, p.minArea, p.maxArea = True, 50, 2000
+    p.filterByCircularity, p.minCircularity = True, 0.6
+    for key, value in params.items():
+        setattr(p, key, value)
+    detector = cv2.SimpleBlobDetector_create(p)
+
+    def run(img, _prev):
+        return np.array([k.pt for k in detector.detect(img)]).reshape(-1, 2)
+    return run
+
+
+def thr_cc(img, _prev):
+    _, binary = cv2.threshold(img, 95, 255, cv2.THRESH_BINARY)
+    _, _, stats, centroids = cv2.connectedComponentsWithStats(binary, connectivity=8)
+    keep = (stats[1:, cv2.CC_STAT_AREA] >= 50) & (stats[1:, cv2.CC_STAT_AREA] <= 2000)
+    return centroids[1:][keep]
+
+
+def ours_full(img, _prev):
+    r = detect_markers(img, **DETECT_KW)
+    return np.stack([r["u_px"], r["v_px"]], axis=1)
+
+
+def ours_track(img, prev):
+    r = track_markers(img, prev, window_px=TRACK_WINDOW_PX, **DETECT_KW)
+    return np.stack([r["u_px"], r["v_px"]], axis=1)
+
+
+METHODS = {
+    "ours/full": ours_full,
+    "ours/track": ours_track,
+    "sbd/tuned": sbd({"minThreshold": 50, "maxThreshold": 170, "thresholdStep": 20}),
+    "sbd/default": sbd({}),
+    "thr+cc": thr_cc,
+}
+
+
+def errors(found: np.ndarray, truth: np.ndarray):
+    """Errors (matched, 2) of detections within 3 px of a true centre, misses and false detections."""
+    found = found[np.isfinite(found).all(axis=1)]
+    if len(found) == 0:
+        return np.zeros((0, 2)), len(truth), 0
+    dist = np.linalg.norm(found[:, None, :] - truth[None, :, :], axis=2)
+    nearest = dist.argmin(axis=1)
+    ok = dist[np.arange(len(found)), nearest] < 3.0
+    matched = found[ok] - truth[nearest[ok]]
+    return matched, len(truth) - len(set(nearest[ok].tolist())), int((~ok).sum())
+
+
+def run(n_markers: int, n_frames: int, rounds: int) -> None:
+    frames, truth = make_sequence(n_markers, n_frames + 1, seed=n_markers)
+    per_round = {name: [] for name in METHODS}
+    results = {}
+    for _ in range(rounds):
+        for name, method in METHODS.items():
+            times, found_all = [], []
+            prev = truth[0]
+            method(frames[0], prev)  # warm-up (caches, first-call costs)
+            for f in range(1, n_frames + 1):
+                t0 = time.perf_counter()
+                found = method(frames[f], prev)
+                times.append(time.perf_counter() - t0)
+                found_all.append(found)
+                prev = found if name == "ours/track" else truth[f]
+            per_round[name].append(np.median(times) * 1e3)
+            results[name] = found_all
+    print(f"\n{n_markers} markers, {n_frames} frames 1920×1080, {rounds} rounds")
+    print(f"{'method':<12} {'ms/frame':>9} {'spread':>14} {'× vs sbd/tuned':>15} {'× vs sbd/def':>13}"
+          f" {'RMS px':>8} {'bias u,v px':>17} {'missed':>6} {'false':>5}")
+    ref = np.array(per_round["sbd/tuned"])
+    ref_default = np.array(per_round["sbd/default"])
+    for name in METHODS:
+        ms = np.array(per_round[name])
+        ratio = np.median(ref / ms)
+        ratio_default = np.median(ref_default / ms)
+        errs, missed, false = [], 0, 0
+        for f, found in enumerate(results[name], start=1):
+            e, m, fa = errors(found, truth[f])
+            errs.append(e)
+            missed += m
+            false += fa
+        e = np.concatenate(errs)
+        rms = np.sqrt((e**2).sum(axis=1).mean() / 2) if len(e) else np.nan
+        bias = e.mean(axis=0) if len(e) else (np.nan, np.nan)
+        print(f"{name:<12} {ms.min():9.3f} {ms.min():6.2f}–{ms.max():<7.2f} {ratio:15.1f}"
+              f" {ratio_default:13.1f} {rms:8.4f} {bias[0]:+8.4f},{bias[1]:+8.4f} {missed:6d} {false:5d}")
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--rounds", type=int, default=7)
+    parser.add_argument("--frames", type=int, default=10)
+    args = parser.parse_args()
+    print(f"OpenCV {cv2.__version__} ({cv2.getNumThreads()} threads), numpy {np.__version__}")
+    print("RMS = per-axis centroid error vs truth; ms/frame = best round's median; ratios = median of "
+          "per-round ratios")
+    for n in (12, 30):
+        run(n, args.frames, args.rounds)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,366 @@
+"""Circular markers in 8-bit frames: detection (binarization + region-of-interest filter) and tracking.
+
+:func:`detect_markers` follows the paper's two steps — binarize the frame, keep the blobs inside the
+regions of interest — and measures each marker with a sub-pixel centre. For speed the binarization
+runs on the frame reduced by area averaging (×2 or ×4, chosen from ``min_area_px``); each candidate is
+then measured at full resolution in a small window (:mod:`rig.stereo.markers_refine`; a window that
+turns out too small for its marker is measured again, larger). :func:`track_markers` skips the
+full-frame search: it measures only windows around predicted positions (the speed mode for
+sequences). Both measure a marker with the same pixels and weights; they differ only through the
+background plane fitted to the ring of their (differently placed) windows — by less than the
+centroid's own noise (tests/test_stereo_markers.py).
+
+Results are structured arrays of :data:`MARKER_DTYPE`, one row per marker: ``u_px`` (column) and
+``v_px`` (row) with the centre of the top-left pixel at (0, 0); ``area_px`` (px², integrated signal
+over contrast); ``roundness`` (minor/major axis ratio from second moments, 1 for a disc);
+``contrast`` (DN above the local background, positive for either polarity); ``flags`` (bit set of
+``FLAG_*``). A frame without markers gives an empty array (length 0), not an error, unless the caller
+passes ``require=True``; then :class:`~rig.stereo.errors.NoMarkersError` is raised.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import cv2
+import numpy as np
+
+from rig.stereo.errors import InputArrayError, NoMarkersError
+from rig.stereo.markers_refine import Measured, measure_windows
+from rig.stereo.markers_roi import inside_any, parse_roi, roi_bounds
+
+MARKER_DTYPE = np.dtype([("u_px", "f8"), ("v_px", "f8"), ("area_px", "f8"), ("roundness", "f8"),
+                         ("contrast", "f8"), ("flags", "u1")])
+FLAG_BORDER = 1  # the measuring window reaches outside the image: the centre may be biased
+FLAG_OCCLUDED = 2  # the outline is not an ellipse, or its area disagrees with the signal: partly hidden
+FLAG_SATURATED = 4  # a marker pixel is clipped (255 for bright markers, 0 for dark ones)
+FLAG_LOST = 8  # tracking only: no marker passing the filters in the window (u_px, v_px are NaN)
+
+# Occlusion tests (defaults). A whole disc or ellipse is centrally symmetric: its skewness (third
+# moments, see markers_refine) is ~0 and its half-contrast outline lies within a few hundredths of a
+# pixel of the fitted ellipse. A marker with a piece hidden is asymmetric and its outline has a chord or
+# a corner. Both tests allow for noise: skewness > MAX_SKEWNESS + SKEW_NOISE_FACTOR·8σ²/(contrast²·area)
+# and outline RMS² > MAX_EDGE_RMS_PX² + (EDGE_NOISE_FACTOR·noise RMS)². Measured on rendered discs
+# (r 2.5–30 px, ellipses to 2:1, blur ≤ 2.5 px, contrast/σ ≥ 7): whole markers reach at most 0.6 of either
+# limit; a disc of r ≥ 8 px with 30 % of its radius cut off by a straight edge exceeds it 2–5×.
+MAX_SKEWNESS = 0.01
+SKEW_NOISE_FACTOR = 50.0
+MAX_EDGE_RMS_PX = 0.15
+EDGE_NOISE_FACTOR = 3.0
+
+_HALF_LADDER = np.array([6, 8, 10, 12, 14, 16, 20, 24, 28, 32, 40, 48, 56, 64, 80, 96, 112, 128,
+                         160, 192, 224, 256])
+_CENTRES = ("centroid", "ellipse")
+_POLARITIES = ("bright", "dark")
+
+
+def check_gray(gray: object, name: str = "gray") -> np.ndarray:
+    """Return ``gray`` if it is a non-empty 2-D uint8 array, else raise InputArrayError saying why."""
+    if not isinstance(gray, np.ndarray):
+        raise InputArrayError(f"{name} must be a numpy array (2-D uint8 grayscale frame), got {type(gray)!r}")
+    if gray.dtype != np.uint8:
+        raise InputArrayError(
+            f"{name} has dtype {gray.dtype}; markers are found in 8-bit grayscale frames: convert with "
+            f"e.g. cv2.cvtColor(frame, cv2.COLOR_BGR2GRAY) or np.clip(x, 0, 255).astype(np.uint8)"
+        )
+    if gray.ndim != 2:
+        raise InputArrayError(
+            f"{name} has shape {gray.shape}; give one 2-D (rows, columns) grayscale frame (convert colour "
+            f"frames with cv2.cvtColor)"
+        )
+    if gray.shape[0] < 8 or gray.shape[1] < 8:
+        raise InputArrayError(f"{name} has shape {gray.shape}; a frame must be at least 8×8 pixels")
+    return gray
+
+
+def _check_options(polarity: str, centre: str, *, min_area_px: float, max_area_px: float,
+                   min_roundness: float, min_contrast: float) -> None:
+    if polarity not in _POLARITIES:
+        raise InputArrayError(f"polarity={polarity!r}; use 'bright' (light markers on dark) or 'dark'")
+    if centre not in _CENTRES:
+        raise InputArrayError(f"centre={centre!r}; use 'centroid' or 'ellipse'")
+    if not (0 < min_area_px <= max_area_px):
+        raise InputArrayError(
+            f"min_area_px={min_area_px}, max_area_px={max_area_px}; need 0 < min_area_px <= max_area_px (px²)"
+        )
+    if not (0 <= min_roundness <= 1):
+        raise InputArrayError(f"min_roundness={min_roundness}; must be in [0, 1] (1 = perfect disc)")
+    if not (min_contrast > 0):
+        raise InputArrayError(f"min_contrast={min_contrast}; must be > 0 DN")
+
+
+def _ladder(half_px: np.ndarray) -> np.ndarray:
+    idx = np.minimum(np.searchsorted(_HALF_LADDER, half_px), len(_HALF_LADDER) - 1)
+    return _HALF_LADDER[idx]
+
+
+def _noise_sigma(low: np.ndarray) -> float:
+    """Robust pixel noise σ (DN) of ``low`` from horizontal differences of every 4th row."""
+    diff = np.abs(low[::4, 1:].astype(np.int16) - low[::4, :-1]).ravel()
+    hist = np.bincount(diff, minlength=256)
+    median = np.searchsorted(np.cumsum(hist), diff.size / 2.0)
+    return max(1.4826 * float(median) / np.sqrt(2.0), 0.5)
+
+
+def _candidates(gray: np.ndarray, *, dark: bool, threshold: float | str | None, factor: int,
+                min_area_px: float, max_area_px: float, min_contrast: float):
+    """Blobs of the binarized, reduced frame: full-resolution integer centres (rows, cols) and half sizes."""
+    low = gray
+    for _ in range({1: 0, 2: 1, 4: 2}[factor]):
+        h, w = low.shape
+        low = cv2.resize(low[: h - h % 2, : w - w % 2], (w // 2, h // 2), interpolation=cv2.INTER_AREA)
+    if dark:
+        low = cv2.bitwise_not(low)
+    if threshold is None:
+        radius_low = np.sqrt(max_area_px / np.pi) / factor
+        block = int(2 * np.ceil(3.0 * radius_low) + 1)
+        block = max(3, min(block, 2 * ((min(low.shape) - 1) // 2) + 1))
+        offset = max(0.5 * min_contrast, 4.0 * _noise_sigma(low))
+        binary = cv2.adaptiveThreshold(low, 1, cv2.ADAPTIVE_THRESH_MEAN_C, cv2.THRESH_BINARY, block, -offset)
+    elif threshold == "otsu":
+        _, binary = cv2.threshold(low, 0, 1, cv2.THRESH_BINARY | cv2.THRESH_OTSU)
+    else:
+        level = 255.0 - float(threshold) if dark else float(threshold)
+        _, binary = cv2.threshold(low, level, 1, cv2.THRESH_BINARY)
+    # outer contours of the blobs (faster than connectedComponentsWithStats on a mostly empty frame)
+    contours, _ = cv2.findContours(binary, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
+    empty = np.zeros(0, dtype=np.int64)
+    if not contours:
+        return empty, empty, empty
+    lengths = np.fromiter((len(c) for c in contours), dtype=np.int64, count=len(contours))
+    pts = np.concatenate(contours).reshape(-1, 2)
+    starts = np.concatenate([[0], np.cumsum(lengths)[:-1]])
+    x0, x1 = np.minimum.reduceat(pts[:, 0], starts), np.maximum.reduceat(pts[:, 0], starts)
+    y0, y1 = np.minimum.reduceat(pts[:, 1], starts), np.maximum.reduceat(pts[:, 1], starts)
+    width, height = x1 - x0 + 1, y1 - y0 + 1
+    # loose size filter on the bounding box: the exact area is measured at full resolution
+    box_area = width * height * factor * factor
+    short_side_px = np.minimum(width, height) * factor
+    keep = (box_area >= 0.25 * min_area_px) & (short_side_px <= 4.0 * np.sqrt(max_area_px))
+    x0, y0, width, height = x0[keep], y0[keep], width[keep], height[keep]
+    half_f = 0.5 * (factor - 1)
+    cols = np.rint((x0 + 0.5 * (width - 1)) * factor + half_f).astype(np.int64)
+    rows = np.rint((y0 + 0.5 * (height - 1)) * factor + half_f).astype(np.int64)
+    half = np.ceil(0.5 * np.maximum(width, height) * factor).astype(np.int64) + 4
+    return rows, cols, half
+
+
+def _measure(gray: np.ndarray, rows: np.ndarray, cols: np.ndarray, half: np.ndarray, *, dark: bool,
+             fit_ellipse: bool = False, retries: int = 2, exact: bool = False) -> Measured:
+    """Measure windows of several sizes (grouped on the size ladder); Measured for all, in input order.
+
+    A window whose marker reaches the background ring is measured again one ladder step larger (up to
+    ``retries`` times), so a first size guess that is too small costs time, not accuracy. ``exact``:
+    use the given half sizes for the first attempt instead of rounding them up to the ladder.
+    """
+    n = len(rows)
+    fields: dict[str, np.ndarray] = {
+        key: np.full(n, np.nan) for key in Measured.__dataclass_fields__
+    }
+    for key in ("border", "saturated", "cramped"):
+        fields[key] = np.zeros(n, dtype=bool)
+    sizes = np.asarray(half, dtype=np.int64).copy() if exact else _ladder(half)
+    todo = np.arange(n)
+    for attempt in range(retries + 1):
+        again = []
+        for size in np.unique(sizes[todo]):
+            sel = todo[sizes[todo] == size]
+            part = measure_windows(gray, rows[sel], cols[sel], int(size), dark=dark, fit_ellipse=fit_ellipse)
+            for key, value in vars(part).items():
+                fields[key][sel] = value
+            if attempt < retries and size < _HALF_LADDER[-1]:
+                again.append(sel[part.cramped])
+        todo = np.concatenate(again) if again else np.zeros(0, dtype=np.int64)
+        if len(todo) == 0:
+            break
+        sizes[todo] = _HALF_LADDER[np.minimum(np.searchsorted(_HALF_LADDER, sizes[todo], side="right"),
+                                              len(_HALF_LADDER) - 1)]
+    return Measured(**fields)
+
+
+def _rows_from(m: Measured, centre: str, max_edge_rms_px: float, max_skewness: float) -> np.ndarray:
+    out = np.empty(len(m.u_px), dtype=MARKER_DTYPE)
+    use_ellipse = (centre == "ellipse") & np.isfinite(m.u_ellipse_px)
+    out["u_px"] = np.where(use_ellipse, m.u_ellipse_px, m.u_px)
+    out["v_px"] = np.where(use_ellipse, m.v_ellipse_px, m.v_px)
+    out["area_px"] = m.area_px
+    out["roundness"] = m.roundness
+    out["contrast"] = m.contrast
+    with np.errstate(invalid="ignore"):
+        skew_limit = max_skewness + SKEW_NOISE_FACTOR * m.skewness_noise
+        edge_limit2 = max_edge_rms_px**2 + (EDGE_NOISE_FACTOR * m.edge_noise_px) ** 2
+        occluded = (m.skewness > skew_limit) | (m.edge_rms_px**2 > edge_limit2)
+    flags = np.where(m.border, FLAG_BORDER, 0) | np.where(occluded, FLAG_OCCLUDED, 0)
+    out["flags"] = flags | np.where(m.saturated, FLAG_SATURATED, 0)
+    return out
+
+
+def _passes(rec: np.ndarray, min_area_px, max_area_px, min_roundness, min_contrast) -> np.ndarray:
+    with np.errstate(invalid="ignore"):
+        return (np.isfinite(rec["u_px"]) & np.isfinite(rec["v_px"])
+                & (rec["area_px"] >= min_area_px) & (rec["area_px"] <= max_area_px)
+                & (rec["roundness"] >= min_roundness) & (rec["contrast"] >= min_contrast))
+
+
+def detect_markers(
+    gray: np.ndarray,
+    *,
+    polarity: str = "bright",
+    threshold: float | str | None = None,
+    min_area_px: float = 20.0,
+    max_area_px: float = 20000.0,
+    min_roundness: float = 0.5,
+    min_contrast: float = 20.0,
+    roi: Sequence | None = None,
+    centre: str = "centroid",
+    downsample: int | None = None,
+    max_skewness: float = MAX_SKEWNESS,
+    outline_check: bool = False,
+    max_edge_rms_px: float = MAX_EDGE_RMS_PX,
+    require: bool = False,
+) -> np.ndarray:
+    """Find circular markers in a uint8 frame; one :data:`MARKER_DTYPE` row per marker, sorted by (v, u).
+
+    polarity: "bright" (light markers on a dark background) or "dark" (the inverse).
+    threshold: binarization level. None (default): local — a pixel is foreground when it exceeds the mean
+        of its neighbourhood (3 marker diameters wide) by max(min_contrast/2, 4σ of the noise); "otsu":
+        Otsu's global level; a number: a fixed level in DN of the raw frame (foreground above it for
+        bright markers, below it for dark ones).
+    min_area_px, max_area_px: marker area limits in px² (area = integrated signal / contrast).
+    min_roundness: minimum minor/major axis ratio (0..1); 0.5 accepts discs seen up to 60° off-axis.
+    min_contrast: minimum marker contrast above the local background, DN.
+    roi: regions of interest, a list of rectangles (x0, y0, x1, y1) and/or polygons [(x, y), ...]; a
+        marker is kept when its centre lies in any of them. Only their bounding box is searched.
+    centre: "centroid" (background-subtracted intensity-weighted centroid, default) or "ellipse" (centre of
+        an ellipse fitted to the sub-pixel half-contrast outline; falls back to the centroid for markers
+        with fewer than 6 edge points).
+    downsample: 1, 2 or 4, the reduction of the frame for binarization; None picks the largest that keeps
+        a marker of ``min_area_px`` at ≥ 5 reduced pixels.
+    max_skewness, outline_check, max_edge_rms_px: the occlusion tests (module constants explain them):
+        a marker is FLAG_OCCLUDED when its skewness exceeds max_skewness (plus a noise allowance) or,
+        when its outline is fitted (centre="ellipse" or outline_check=True, slower), when the outline's
+        RMS distance from the fitted ellipse exceeds max_edge_rms_px (plus a noise allowance).
+    require: raise NoMarkersError instead of returning an empty array when nothing is found.
+
+    Raises InputArrayError for a frame that is not a non-empty 2-D uint8 array or for invalid options.
+    """
+    gray = check_gray(gray)
+    _check_options(polarity, centre, min_area_px=min_area_px, max_area_px=max_area_px,
+                   min_roundness=min_roundness, min_contrast=min_contrast)
+    if isinstance(threshold, str) and threshold != "otsu":
+        raise InputArrayError(f"threshold={threshold!r}; use None (local), 'otsu' or a level in DN (0..255)")
+    if threshold is not None and not isinstance(threshold, str) and not (0 <= float(threshold) <= 255):
+        raise InputArrayError(f"threshold={threshold}; a fixed level must be within 0..255 DN")
+    if downsample is None:
+        factor = 4 if min_area_px / 16 >= 5 else 2 if min_area_px / 4 >= 5 else 1
+    elif downsample in (1, 2, 4):
+        factor = int(downsample)
+    else:
+        raise InputArrayError(f"downsample={downsample!r}; use 1, 2, 4 or None (automatic)")
+    dark = polarity == "dark"
+    regions = None if roi is None else parse_roi(roi)
+
+    search = gray
+    r_off = c_off = 0
+    if regions is not None:
+        x0, y0, x1, y1 = roi_bounds(regions)
+        margin = int(np.ceil(np.sqrt(max_area_px / np.pi))) + 8
+        c_off, r_off = max(int(np.floor(x0)) - margin, 0), max(int(np.floor(y0)) - margin, 0)
+        c_end = min(int(np.ceil(x1)) + margin + 1, gray.shape[1])
+        r_end = min(int(np.ceil(y1)) + margin + 1, gray.shape[0])
+        if c_end - c_off < 8 or r_end - r_off < 8:
+            return _none_found(require, "the regions of interest lie outside the frame")
+        search = gray[r_off:r_end, c_off:c_end]
+
+    rows, cols, half = _candidates(search, dark=dark, threshold=threshold, factor=factor,
+                                   min_area_px=min_area_px, max_area_px=max_area_px,
+                                   min_contrast=min_contrast)
+    fit = centre == "ellipse" or outline_check
+    measured = _measure(gray, rows + r_off, cols + c_off, half, dark=dark, fit_ellipse=fit)
+    rec = _rows_from(measured, centre, max_edge_rms_px, max_skewness)
+    rec = rec[_passes(rec, min_area_px, max_area_px, min_roundness, min_contrast)]
+    if regions is not None and len(rec):
+        rec = rec[inside_any(rec["u_px"], rec["v_px"], regions)]
+    if len(rec) > 1:
+        rec = _drop_duplicates(rec)
+    if len(rec) == 0:
+        return _none_found(require, "no blob passed the area, roundness and contrast filters")
+    return rec[np.lexsort((rec["u_px"], rec["v_px"]))]
+
+
+def _drop_duplicates(rec: np.ndarray) -> np.ndarray:
+    """Keep one row of markers found twice (centres closer than 1 px): the one with the larger area."""
+    order = np.argsort(-rec["area_px"], kind="stable")
+    rec = rec[order]
+    uv = np.stack([rec["u_px"], rec["v_px"]], axis=1)
+    dist2 = ((uv[:, None, :] - uv[None, :, :]) ** 2).sum(axis=2)
+    close = np.triu(dist2 < 1.0, k=1)
+    return rec[~close.any(axis=0)]
+
+
+def _none_found(require: bool, why: str) -> np.ndarray:
+    if require:
+        raise NoMarkersError(
+            f"no marker found: {why}; check polarity, threshold, min_contrast, the area limits and the roi"
+        )
+    return np.empty(0, dtype=MARKER_DTYPE)
+
+
+def track_markers(
+    gray: np.ndarray,
+    predicted_uv_px: np.ndarray,
+    *,
+    window_px: int = 41,
+    polarity: str = "bright",
+    min_area_px: float = 20.0,
+    max_area_px: float = 20000.0,
+    min_roundness: float = 0.5,
+    min_contrast: float = 20.0,
+    centre: str = "centroid",
+    max_skewness: float = MAX_SKEWNESS,
+    outline_check: bool = False,
+    max_edge_rms_px: float = MAX_EDGE_RMS_PX,
+) -> np.ndarray:
+    """Measure markers near predicted positions only; one :data:`MARKER_DTYPE` row per prediction, in order.
+
+    predicted_uv_px: (K, 2) predicted centres (u, v) in px, e.g. the previous frame's result.
+    window_px: side of the square searched around each prediction (odd, ≥ 7 px); a marker must lie
+        with its centre inside it (make it twice the largest expected frame-to-frame motion plus the
+        marker diameter). The marker is the blob under the window's centre, else the strong blob nearest
+        to it. Other options as in :func:`detect_markers`.
+    A prediction that is NaN, outside the frame, or whose window holds no marker passing the filters gives
+    a row with u_px = v_px = NaN and FLAG_LOST (area, roundness, contrast keep what was measured, or NaN).
+    """
+    gray = check_gray(gray)
+    _check_options(polarity, centre, min_area_px=min_area_px, max_area_px=max_area_px,
+                   min_roundness=min_roundness, min_contrast=min_contrast)
+    pred = np.asarray(predicted_uv_px, dtype=np.float64)
+    if pred.ndim != 2 or pred.shape[1] != 2:
+        raise InputArrayError(f"predicted_uv_px has shape {pred.shape}; give a (K, 2) array of (u, v) in px")
+    if int(window_px) != window_px or window_px < 7:
+        raise InputArrayError(f"window_px={window_px}; give an integer side of at least 7 px")
+    dark = polarity == "dark"
+    out = np.empty(len(pred), dtype=MARKER_DTYPE)
+    out[["u_px", "v_px", "area_px", "roundness", "contrast"]] = (np.nan,) * 5
+    out["flags"] = FLAG_LOST
+    height, width = gray.shape
+    with np.errstate(invalid="ignore"):
+        usable = (np.isfinite(pred).all(axis=1) & (pred[:, 0] > -0.5) & (pred[:, 0] < width - 0.5)
+                  & (pred[:, 1] > -0.5) & (pred[:, 1] < height - 0.5))
+    idx = np.nonzero(usable)[0]
+    if len(idx) == 0:
+        return out
+    half = int(window_px) // 2
+    rows = np.rint(pred[idx, 1]).astype(np.int64)
+    cols = np.rint(pred[idx, 0]).astype(np.int64)
+    fit = centre == "ellipse" or outline_check
+    measured = _measure(gray, rows, cols, np.full(len(idx), half), dark=dark, fit_ellipse=fit, exact=True)
+    rec = _rows_from(measured, centre, max_edge_rms_px, max_skewness)
+    passed = _passes(rec, min_area_px, max_area_px, min_roundness, min_contrast)
+    lost = rec[~passed]
+    lost["u_px"] = np.nan
+    lost["v_px"] = np.nan
+    lost["flags"] |= FLAG_LOST
+    rec[~passed] = lost
+    out[idx] = rec
+    return out

@@ -1,0 +1,308 @@
+"""Sub-pixel measurement of markers, batched over square windows of one size.
+
+Every candidate is measured in a square window of ``W = 2·half_px + 1`` pixels around an integer pixel
+centre; all windows of one call share one size, so a batch is a few dozen numpy operations on a
+``(K, W, W)`` stack, one ``cv2.connectedComponents`` call on a mosaic of the windows and one matrix
+product for all the moments — no per-pixel and (except the optional ellipse fit) no per-marker Python.
+
+Per window, in "polarity space" (bright markers as they are, dark markers as 255 − I):
+
+* background ``bg`` = a plane fitted to the outer 2-pixel ring (clipped to its median ± 4 spreads),
+  noise ``σ`` = RMS residual of that fit;
+* signal ``d = I − bg``; support = the 8-connected region of ``d > 3σ`` holding the marker (the centre
+  pixel's region, else the strong region nearest the centre), so a neighbouring marker is ignored;
+* centroid weights ``w = d − 3σ`` on the support (background-subtracted intensity with a noise floor:
+  an unclipped ``max(d, 0)`` over the window would add ≈ 0.4 σ of mass per background pixel and pull
+  the centre towards the window's centre);
+* contrast = peak of the 2×2 mean of ``d`` on the support (DN); area = Σ d / contrast on the support
+  (px², exact for a flat disc and conserved by blur); roundness = √(λmin/λmax) of the weighted second
+  moments (1 for a disc, minor/major axis ratio for an ellipse);
+* skewness = squared third central moments over det(Σ)^(3/2) (Mardia's b1 for a round blob): 0 for any
+  centrally symmetric blob — a disc, an ellipse, a disc seen obliquely — and large for a disc with a
+  piece missing;
+* optionally, sub-pixel edge points where ``d`` crosses contrast/2 (linear interpolation between pixel
+  centres) fitted with an ellipse (``cv2.fitEllipseDirect``): its centre, and the RMS distance of the
+  points from it (a few hundredths of a pixel for a whole disc).
+
+Coordinates: pixel centres are integers, the centre of the top-left pixel is (0, 0); u = column, v = row.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+NOISE_FLOOR_K = 3.0  # support and weight threshold, in units of the window's background noise σ
+MIN_SIGMA_DN = 0.5  # floor of σ: a flat 8-bit background has zero spread but ±0.5 DN quantization
+RING_PX = 2  # width of the background ring at the window's edge
+
+
+@dataclass
+class Measured:
+    """Per-window measurements (arrays of length K); NaN where a window held no marker."""
+
+    u_px: np.ndarray
+    v_px: np.ndarray
+    area_px: np.ndarray
+    roundness: np.ndarray
+    contrast: np.ndarray
+    background: np.ndarray  # DN at the window's centre pixel, polarity space
+    sigma: np.ndarray  # background noise, DN
+    skewness: np.ndarray  # third-moment asymmetry of the weights (0 for a centrally symmetric blob)
+    u_ellipse_px: np.ndarray  # centre of the ellipse fitted to the outline (NaN unless fitted)
+    v_ellipse_px: np.ndarray
+    edge_rms_px: np.ndarray  # RMS distance of the outline points from that ellipse
+    edge_noise_px: np.ndarray  # the part of edge_rms_px that the background noise σ explains
+    skewness_noise: np.ndarray  # expected skewness of a whole disc from noise: 8σ²/(contrast²·area)
+    border: np.ndarray  # bool: the window reaches outside the image
+    saturated: np.ndarray  # bool: a support pixel is clipped (255 bright / 0 dark)
+    cramped: np.ndarray  # bool: the support reaches the background ring (the window is too small)
+
+
+_BASIS_CACHE: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
+
+
+def _basis(half_px: int):
+    """(moment basis (W², 10), ring mask (W, W), squared distance from the centre (W, W)) for one size."""
+    if half_px not in _BASIS_CACHE:
+        w = 2 * half_px + 1
+        y, x = np.mgrid[-half_px : half_px + 1, -half_px : half_px + 1].astype(np.float64)
+        x, y = x.ravel(), y.ravel()
+        basis = np.stack([np.ones_like(x), x, y, x * x, x * y, y * y, x**3, x * x * y, x * y * y, y**3], 1)
+        ring = np.ones((w, w), dtype=bool)
+        ring[RING_PX:-RING_PX, RING_PX:-RING_PX] = False
+        dist2 = (x * x + y * y).reshape(w, w)
+        _BASIS_CACHE[half_px] = (basis, ring, dist2)
+    return _BASIS_CACHE[half_px]
+
+
+def gather_windows(image: np.ndarray, rows: np.ndarray, cols: np.ndarray, half_px: int):
+    """Stack the windows centred on integer ``(rows, cols)``: (uint8 (K, W, W), valid bool (K, W, W) | None).
+
+    Out-of-image pixels repeat the nearest edge pixel and are False in ``valid`` (None when every window
+    lies inside the image).
+    """
+    height, width = image.shape
+    w = 2 * half_px + 1
+    inside = (rows >= half_px) & (rows < height - half_px) & (cols >= half_px) & (cols < width - half_px)
+    stack = np.empty((len(rows), w, w), dtype=np.uint8)
+    if height >= w and width >= w:
+        views = np.lib.stride_tricks.as_strided(
+            image, (height - w + 1, width - w + 1, w, w), image.strides * 2, writeable=False
+        )
+        stack[inside] = views[rows[inside] - half_px, cols[inside] - half_px]
+    if inside.all():
+        return stack, None
+    offsets = np.arange(-half_px, half_px + 1)
+    out = ~inside
+    r = rows[out, None] + offsets
+    c = cols[out, None] + offsets
+    stack[out] = image[np.clip(r, 0, height - 1)[:, :, None], np.clip(c, 0, width - 1)[:, None, :]]
+    valid = np.ones(stack.shape, dtype=bool)
+    valid[out] = ((r >= 0) & (r < height))[:, :, None] & ((c >= 0) & (c < width))[:, None, :]
+    return stack, valid
+
+
+def _background(ring_vals: np.ndarray, ring_valid: np.ndarray | None, ring_xy: np.ndarray):
+    """Background plane and noise of each window from its ring values (K, P) at ring_xy (P, 2).
+
+    The ring is first clipped to its median ± 4 × half its 16–84 % spread (so that a neighbouring marker
+    reaching into the ring cannot tilt the plane), then a plane a + b·x + c·y is fitted by least squares;
+    σ is the RMS residual. A plane, not a constant, so that a background gradient (vignetting, uneven
+    lighting) does not pull the centroid uphill. Returns (coefficients float32 (K, 3), σ float32 (K,)).
+    """
+    n_win, n_ring = ring_vals.shape
+    if ring_valid is not None:  # out-of-image ring pixels: NaN, ignored by nanpercentile (rare path)
+        vals = np.where(ring_valid, ring_vals.astype(np.float32), np.nan)
+        p16, p50, p84 = np.nanpercentile(vals, [16, 50, 84], axis=1, method="lower")
+        p16, p50, p84 = (np.nan_to_num(p, nan=0.0) for p in (p16, p50, p84))
+    else:
+        # percentiles of uint8 values from one histogram per window (faster than sorting)
+        offsets = (np.arange(n_win, dtype=np.intp) * 256)[:, None]
+        hist = np.bincount((ring_vals + offsets).ravel(), minlength=256 * n_win).reshape(n_win, 256)
+        ranks = np.array([0.16, 0.5, 0.84]) * (n_ring - 1)
+        p16, p50, p84 = (hist.cumsum(axis=1)[:, :, None] <= ranks).sum(axis=1).T
+    spread = 4.0 * np.maximum(0.5 * (p84 - p16), MIN_SIGMA_DN)
+    clipped = np.clip(ring_vals, (p50 - spread)[:, None], (p50 + spread)[:, None]).astype(np.float64)
+    design = np.column_stack([np.ones(n_ring), ring_xy])
+    if ring_valid is None:
+        coef = clipped @ np.linalg.pinv(design).T
+        resid = clipped - coef @ design.T
+        dof = np.full(n_win, n_ring - 3.0)
+    else:
+        coef = np.empty((n_win, 3))
+        for i in range(n_win):  # border windows only: each has its own set of valid ring pixels
+            ok = ring_valid[i]
+            coef[i] = np.linalg.lstsq(design[ok], clipped[i, ok], rcond=None)[0]
+        resid = np.where(ring_valid, clipped - coef @ design.T, 0.0)
+        dof = np.maximum(ring_valid.sum(axis=1) - 3.0, 1.0)
+    sigma = np.maximum(np.sqrt((resid * resid).sum(axis=1) / dof), MIN_SIGMA_DN)
+    return coef.astype(np.float32), sigma.astype(np.float32)
+
+
+def _select_support(strong: np.ndarray, d: np.ndarray, half_px: int, dist2: np.ndarray) -> np.ndarray:
+    """The connected region of ``strong`` (K, W, W) that holds each window's marker, as a bool stack."""
+    k, w, _ = strong.shape
+    mosaic = np.zeros((k, w + 1, w), dtype=np.uint8)  # a zero row between windows keeps them apart
+    mosaic[:, :w, :] = strong
+    _, labels = cv2.connectedComponents(mosaic.reshape(k * (w + 1), w), connectivity=8, ltype=cv2.CV_32S)
+    labels = labels.reshape(k, w + 1, w)[:, :w, :]
+    own = labels[:, half_px, half_px].copy()
+    missing = np.nonzero(own == 0)[0]
+    if len(missing):
+        # centre pixel is background: the region of the strong pixel nearest the centre, among pixels
+        # at least half as strong as the window's strongest (so noise specks are never chosen)
+        sub_d = d[missing]
+        peak = sub_d.reshape(len(missing), -1).max(axis=1)
+        bright = (sub_d >= 0.5 * peak[:, None, None]) & strong[missing]
+        score = np.where(bright, dist2[None], np.inf).reshape(len(missing), -1)
+        best = score.argmin(axis=1)
+        own[missing] = labels[missing].reshape(len(missing), -1)[np.arange(len(missing)), best]
+    return (labels == own[:, None, None]) & (own[:, None, None] != 0)
+
+
+def _moment_shape(raw_m: np.ndarray):
+    """Centroid offsets, roundness and skewness from raw moments (K, 10) of (1, x, y, xx, xy, yy, xxx, ...).
+
+    skewness = (μ30² + 3μ21² + 3μ12² + μ03²) / det(Σ)^(3/2) from the central moments: Mardia's b1 for a
+    round blob, 0 for every centrally symmetric one.
+    """
+    with np.errstate(invalid="ignore", divide="ignore"):
+        e = raw_m[:, 1:] / raw_m[:, :1]
+        mx, my, exx, exy, eyy, exxx, exxy, exyy, eyyy = e.T
+        cxx = exx - mx * mx
+        cxy = exy - mx * my
+        cyy = eyy - my * my
+        det = cxx * cyy - cxy * cxy
+        half_trace = 0.5 * (cxx + cyy)
+        root = np.sqrt(np.maximum(half_trace * half_trace - det, 0.0))
+        roundness = np.sqrt(np.maximum(half_trace - root, 0.0) / (half_trace + root))
+        mx2 = 2 * mx * mx
+        my2 = 2 * my * my
+        c30 = exxx - mx * (3 * exx - mx2)
+        c03 = eyyy - my * (3 * eyy - my2)
+        c21 = exxy - 2 * mx * exy - my * (exx - mx2)
+        c12 = exyy - 2 * my * exy - mx * (eyy - my2)
+        skew = (c30 * c30 + 3 * c21 * c21 + 3 * c12 * c12 + c03 * c03) / det**1.5
+    return mx, my, roundness, skew
+
+
+def _edge_points(d: np.ndarray, level: np.ndarray):
+    """Sub-pixel crossings of ``d`` (K, W, W) through ``level`` (K,): (window index, x, y) in window px."""
+    a = d - level[:, None, None]
+    below = a < 0
+    kh, ih, jh = np.nonzero(below[:, :, :-1] != below[:, :, 1:])
+    a0, a1 = a[kh, ih, jh], a[kh, ih, jh + 1]
+    kv, iv, jv = np.nonzero(below[:, :-1, :] != below[:, 1:, :])
+    b0, b1 = a[kv, iv, jv], a[kv, iv + 1, jv]
+    k_all = np.concatenate([kh, kv])
+    x_all = np.concatenate([jh + a0 / (a0 - a1), jv.astype(np.float32)])
+    y_all = np.concatenate([ih.astype(np.float32), iv + b0 / (b0 - b1)])
+    step = np.abs(np.concatenate([a0 - a1, b0 - b1]))  # intensity step across the crossing, DN
+    order = np.argsort(k_all, kind="stable")
+    return k_all[order], x_all[order], y_all[order], step[order]
+
+
+def _fit_ellipses(k_idx: np.ndarray, x: np.ndarray, y: np.ndarray, step: np.ndarray, n: int):
+    """Ellipse fitted to each window's edge points: centre (n, 2), RMS point distance (n,), NaN if < 6
+    points, and the RMS distance that pixel noise of σ = 1 DN alone would give (n,).
+
+    A crossing interpolated between two pixels whose values differ by ``step`` moves by ≈ σ·√2/step
+    when both carry independent noise σ: mean(2/step²) is the noise term per DN² of σ.
+    """
+    centre = np.full((n, 2), np.nan)
+    axes = np.full((n, 2), np.nan)
+    angle = np.full(n, np.nan)
+    bounds = np.searchsorted(k_idx, np.arange(n + 1))
+    pts = np.stack([x, y], axis=1).astype(np.float32)
+    for i in range(n):
+        lo, hi = bounds[i], bounds[i + 1]
+        if hi - lo < 6:
+            continue
+        (cx, cy), (full_w, full_h), ang_deg = cv2.fitEllipseDirect(pts[lo:hi])
+        if np.isfinite(cx) and full_w > 0 and full_h > 0:
+            centre[i] = cx, cy
+            axes[i] = 0.5 * full_w, 0.5 * full_h
+            angle[i] = np.deg2rad(ang_deg)
+    # radial distance of every edge point from its window's ellipse, vectorized over all points
+    ok = np.isfinite(angle[k_idx])
+    kk = k_idx[ok]
+    dx, dy = x[ok] - centre[kk, 0], y[ok] - centre[kk, 1]
+    cos_a, sin_a = np.cos(angle[kk]), np.sin(angle[kk])
+    rho = np.hypot((dx * cos_a + dy * sin_a) / axes[kk, 0], (-dx * sin_a + dy * cos_a) / axes[kk, 1])
+    dist = (rho - 1.0) * np.hypot(dx, dy) / np.maximum(rho, 1e-9)
+    counts = np.bincount(kk, minlength=n)
+    sq = np.bincount(kk, weights=dist * dist, minlength=n)
+    noise = np.bincount(kk, weights=2.0 / np.maximum(step[ok], 1e-3) ** 2, minlength=n)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        fitted = np.isfinite(angle) & (counts > 0)
+        rms = np.where(fitted, np.sqrt(sq / np.maximum(counts, 1)), np.nan)
+        noise_rms = np.where(fitted, np.sqrt(noise / np.maximum(counts, 1)), np.nan)
+    return centre, rms, noise_rms
+
+
+def measure_windows(image: np.ndarray, rows: np.ndarray, cols: np.ndarray, half_px: int, *,
+                    dark: bool, fit_ellipse: bool = False) -> Measured:
+    """Measure the marker in each window centred on the integer pixel ``(rows[i], cols[i])``.
+
+    ``image``: uint8 frame; ``dark``: dark markers on a bright background; ``fit_ellipse``: also fit the
+    outline (``u_ellipse_px``, ``v_ellipse_px``, ``edge_rms_px``; NaN otherwise). Windows without any
+    support above the noise floor give NaN measurements.
+    """
+    n = len(rows)
+    basis, ring, dist2 = _basis(half_px)
+    xs = basis[:, 1].reshape(dist2.shape).astype(np.float32)  # x offset of each pixel from the centre
+    ring_xy = basis[ring.ravel(), 1:3]
+    raw, valid = gather_windows(image, rows, cols, half_px)
+    if dark:
+        raw = np.subtract(255, raw, dtype=np.uint8)
+    coef, sigma = _background(raw[:, ring], None if valid is None else valid[:, ring], ring_xy)
+    d = raw.astype(np.float32)
+    d -= coef[:, 0, None, None]
+    d -= coef[:, 1, None, None] * xs
+    d -= coef[:, 2, None, None] * xs.T
+    bg = coef[:, 0]
+    if valid is not None:
+        d *= valid
+    floor = (NOISE_FLOOR_K * sigma)[:, None, None]
+    strong = d > floor
+    support = _select_support(strong, d, half_px, dist2)
+    signal = d * support
+    weights = signal - floor * support
+    raw_m = weights.reshape(n, -1).astype(np.float64) @ basis
+    du, dv, roundness, skew = _moment_shape(raw_m)
+    empty = ~(raw_m[:, 0] > 0)
+    du[empty] = np.nan
+    dv[empty] = np.nan
+    # contrast: the largest 2×2 mean of the signal (noise σ/2), area: integrated signal / contrast
+    quad = signal[:, :-1, :-1] + signal[:, 1:, :-1]
+    quad += signal[:, :-1, 1:]
+    quad += signal[:, 1:, 1:]
+    contrast = 0.25 * quad.reshape(n, -1).max(axis=1).astype(np.float64)
+    contrast[empty] = np.nan
+    with np.errstate(invalid="ignore", divide="ignore"):
+        area = signal.reshape(n, -1).sum(axis=1, dtype=np.float64) / contrast
+    saturated = (support & (raw == 255)).any(axis=(1, 2)) if raw.max() == 255 else np.zeros(n, bool)
+    cramped = (support & ring).any(axis=(1, 2))
+    border = np.zeros(n, dtype=bool) if valid is None else ~valid.all(axis=(1, 2))
+
+    u_e = np.full(n, np.nan)
+    v_e = np.full(n, np.nan)
+    edge_rms = np.full(n, np.nan)
+    edge_noise = np.full(n, np.nan)
+    if fit_ellipse and n:
+        level = np.where(np.isfinite(contrast), 0.5 * contrast, np.inf).astype(np.float32)
+        centre, edge_rms, edge_noise = _fit_ellipses(*_edge_points(signal, level), n)
+        edge_noise *= sigma
+        u_e = cols + centre[:, 0] - half_px
+        v_e = rows + centre[:, 1] - half_px
+
+    return Measured(
+        u_px=cols + du, v_px=rows + dv, area_px=area, roundness=roundness, contrast=contrast,
+        background=bg.astype(np.float64), sigma=sigma.astype(np.float64), skewness=skew,
+        u_ellipse_px=u_e, v_ellipse_px=v_e, edge_rms_px=edge_rms,
+        edge_noise_px=edge_noise, skewness_noise=8.0 * sigma.astype(np.float64) ** 2 / (contrast**2 * area),
+        border=border, saturated=saturated, cramped=cramped,
+    )

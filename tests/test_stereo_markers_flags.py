@@ -1,0 +1,126 @@
+"""Marker quality flags (occluded, border, saturated) and geometric properties of the centre."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from marker_images import Disc, centroid_noise_px, render
+
+from rig.stereo import (
+    FLAG_BORDER,
+    FLAG_OCCLUDED,
+    FLAG_SATURATED,
+    detect_markers,
+    track_markers,
+)
+
+
+def only(found: np.ndarray) -> np.void:
+    assert len(found) == 1, found
+    return found[0]
+
+
+@pytest.mark.parametrize("outline_check", [False, True])
+@pytest.mark.parametrize("radius_px", [8.0, 20.0])
+@pytest.mark.parametrize("cut", [0.3, 0.5, 1.0])
+def test_partly_occluded_disc_is_flagged(radius_px, cut, outline_check):
+    """A straight-edged object hides the right part of the disc (cut = hidden depth / radius)."""
+    u, v = 60.3, 59.6
+    occluder = (u + radius_px * (1.0 - cut), 0.0, 500.0, 500.0)
+    img = render((120, 120), [Disc(u, v, radius_px)], occluders=[occluder], seed=1)
+    row = only(detect_markers(img, min_roundness=0.2, outline_check=outline_check))
+    assert row["flags"] & FLAG_OCCLUDED
+
+
+@pytest.mark.parametrize("radius_px", [2.5, 4.0, 8.0, 20.0, 30.0])
+@pytest.mark.parametrize("centre", ["centroid", "ellipse"])
+def test_whole_discs_and_ellipses_are_not_flagged(radius_px, centre):
+    rng = np.random.default_rng(int(radius_px * 10))
+    discs = [Disc(50 + rng.uniform(-0.5, 0.5), 50 + rng.uniform(-0.5, 0.5), radius_px),
+             Disc(150 + rng.uniform(-0.5, 0.5), 50 + rng.uniform(-0.5, 0.5), radius_px,
+                  0.6 * radius_px, rng.uniform(0, 180))]
+    for seed in range(5):
+        img = render((110, 210), discs, seed=seed)
+        found = detect_markers(img, min_area_px=5, centre=centre)
+        assert len(found) == 2
+        assert np.all(found["flags"] == 0), found
+
+
+def test_low_contrast_noisy_disc_is_not_flagged():
+    """Contrast 40 DN over noise σ = 6 DN: the occlusion tests widen with the noise."""
+    for seed in range(10):
+        img = render((80, 80), [Disc(40.2, 39.7, 8.0, contrast_dn=40.0)], noise_sigma_dn=6.0,
+                     background_dn=40.0, seed=seed)
+        row = only(detect_markers(img, outline_check=True))
+        assert row["flags"] == 0, row
+
+
+def test_small_bite_is_flagged_by_the_outline_check():
+    u, v, r = 60.0, 60.0, 20.0
+    bite = (u + 0.6 * r, v - 0.2 * r, u + r + 2, v + 0.2 * r)  # a 40 %-deep, 40 %-wide notch
+    img = render((120, 120), [Disc(u, v, r)], occluders=[bite], seed=2)
+    assert only(detect_markers(img, outline_check=True))["flags"] & FLAG_OCCLUDED
+
+
+def test_border_flag():
+    img = render((80, 120), [Disc(5.0, 40.0, 6.0), Disc(60.0, 40.0, 6.0)], seed=3)
+    found = detect_markers(img)
+    assert len(found) == 2
+    near, far = found[np.argsort(found["u_px"])]
+    assert near["flags"] & FLAG_BORDER
+    assert not far["flags"] & FLAG_BORDER
+    tracked = track_markers(img, np.array([[5.0, 40.0], [60.0, 40.0]]), window_px=21)
+    assert tracked["flags"][0] & FLAG_BORDER and not tracked["flags"][1] & FLAG_BORDER
+
+
+def test_saturated_flag_both_polarities():
+    img = render((80, 160), [Disc(40, 40, 7.0, contrast_dn=300.0), Disc(120, 40, 7.0, contrast_dn=150.0)],
+                 seed=4)
+    found = detect_markers(img)
+    assert len(found) == 2
+    sat, ok = found[np.argsort(found["u_px"])]
+    assert sat["flags"] & FLAG_SATURATED and not ok["flags"] & FLAG_SATURATED
+    dark = render((80, 160), [Disc(40, 40, 7.0, contrast_dn=250.0), Disc(120, 40, 7.0, contrast_dn=100.0)],
+                  background_dn=200.0, dark=True, seed=5)
+    found = detect_markers(dark, polarity="dark")
+    sat, ok = found[np.argsort(found["u_px"])]
+    assert sat["flags"] & FLAG_SATURATED and not ok["flags"] & FLAG_SATURATED
+
+
+NOISE_DN = 2.0
+
+
+@settings(max_examples=25, deadline=None)
+@given(
+    u=st.floats(30.0, 34.0), v=st.floats(30.0, 34.0),
+    du=st.floats(-12.0, 12.0), dv=st.floats(-12.0, 12.0),
+    radius=st.floats(4.0, 12.0), seed=st.integers(0, 2**16),
+)
+def test_translating_the_disc_translates_the_centre(u, v, du, dv, radius, seed):  # noqa: PLR0917
+    """Same noise pattern relative to the disc is not possible, so the tolerance is the noise: the
+    measured displacement equals (du, dv) within 5·√2·σ_c plus the grid allowance of 0.005 px per axis."""
+    shape = (72, 72)
+    a, clean = render(shape, [Disc(u, v, radius)], seed=seed, return_float=True)
+    b = render(shape, [Disc(u + du, v + dv, radius)], seed=seed + 1)
+    ra, rb = only(detect_markers(a)), only(detect_markers(b))
+    pixel_sigma = np.sqrt(NOISE_DN**2 + 1 / 12)
+    sigma_c = centroid_noise_px(clean, 20.0, (u, v), noise_sigma_dn=pixel_sigma, floor_dn=3 * pixel_sigma,
+                                half_px=int(radius) + 5)
+    tol = 5.0 * np.sqrt(2.0) * sigma_c + 0.005
+    assert abs((rb["u_px"] - ra["u_px"]) - du) < tol
+    assert abs((rb["v_px"] - ra["v_px"]) - dv) < tol
+
+
+@settings(max_examples=15, deadline=None)
+@given(angle=st.floats(0.0, 180.0), ratio=st.floats(0.55, 1.0), seed=st.integers(0, 2**16))
+def test_rotating_an_ellipse_keeps_its_centre(angle, ratio, seed):
+    u, v = 40.37, 39.81
+    img, clean = render((80, 80), [Disc(u, v, 10.0, 10.0 * ratio, angle)], seed=seed, return_float=True)
+    row = only(detect_markers(img))
+    pixel_sigma = np.sqrt(NOISE_DN**2 + 1 / 12)
+    sigma_c = centroid_noise_px(clean, 20.0, (u, v), noise_sigma_dn=pixel_sigma, floor_dn=3 * pixel_sigma,
+                                half_px=15)
+    assert np.hypot(row["u_px"] - u, row["v_px"] - v) < 5.0 * sigma_c + 0.005
+    assert row["roundness"] == pytest.approx(np.sqrt((ratio**2 * 25 + 0.64) / (25 + 0.64)), abs=0.05)
