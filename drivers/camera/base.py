@@ -1,0 +1,57 @@
+"""What every camera device delivers: frames with the camera's own time stamps.
+
+Implemented by the OpenCV devices and video files of ``drivers/camera/`` and by the simulated cameras
+(:class:`drivers.sim.source.SimFrameSource`). Time stamps are the camera's clock, never the rig's.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from dataclasses import dataclass
+from typing import Protocol, runtime_checkable
+
+import numpy as np
+
+__all__ = ["Frame", "FrameSource"]
+
+
+@dataclass(frozen=True)
+class Frame:
+    """One delivered frame.
+
+    ``index``: running index in the camera's stream (0-based; a duplicated frame takes two indices);
+    ``timestamp_s``: the camera's own time stamp in seconds; ``image``: 2-D uint8 (height, width);
+    ``exposure_s``: exposure time if the device reports it (None otherwise).
+    """
+
+    index: int
+    timestamp_s: float
+    image: np.ndarray
+    exposure_s: float | None = None
+
+    def __post_init__(self) -> None:
+        if self.image.ndim != 2 or self.image.dtype != np.uint8:
+            raise ValueError(f"Frame.image must be a 2-D uint8 array, got shape {self.image.shape} "
+                             f"dtype {self.image.dtype}")
+
+
+@runtime_checkable
+class FrameSource(Protocol):
+    """A camera that records between :meth:`start` and :meth:`stop` and yields what it recorded."""
+
+    name: str
+    width_px: int
+    height_px: int
+    fps: float
+
+    def start(self) -> None:
+        """Begin recording."""
+        ...
+
+    def stop(self) -> None:
+        """End recording."""
+        ...
+
+    def frames(self) -> Iterator[Frame]:
+        """The recorded frames in order (may be called once recording has stopped)."""
+        ...
