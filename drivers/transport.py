@@ -30,6 +30,13 @@ from urllib.parse import parse_qs, urlsplit
 
 import serial
 
+try:  # termios errors (not OSError) escape pyserial on a hung-up tty
+    from termios import error as _TermiosError  # noqa: N812
+except ImportError:  # pragma: no cover - Windows
+    _TermiosError = OSError  # type: ignore[misc,assignment]
+
+_SERIAL_ERRORS = (serial.SerialException, OSError, _TermiosError)
+
 log = logging.getLogger(__name__)
 
 DEFAULT_SERIAL_BAUD = 38400
@@ -262,7 +269,7 @@ class SerialTransport(_BufferedTransport):
                 return b""
             self._serial.timeout = max(timeout_s, 0.0)
             return self._serial.read(max(1, min(max_bytes, waiting)) if waiting else 1)
-        except serial.SerialException as exc:
+        except _SERIAL_ERRORS as exc:
             raise TransportError(f"{self.url}: receive failed: {exc}") from exc
 
     def _send(self, data: bytes) -> None:
@@ -271,11 +278,12 @@ class SerialTransport(_BufferedTransport):
             self._serial.flush()
         except serial.SerialTimeoutException as exc:
             raise TransportTimeout(f"{self.url}: write timed out after {self.timeout_s:g} s") from exc
-        except serial.SerialException as exc:
+        except _SERIAL_ERRORS as exc:
             raise TransportError(f"{self.url}: send failed: {exc}") from exc
 
     def _close(self) -> None:
-        self._serial.close()
+        with contextlib.suppress(*_SERIAL_ERRORS):
+            self._serial.close()
 
 
 def _serial_options(query: str, url: str) -> dict[str, object]:

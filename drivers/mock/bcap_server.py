@@ -191,6 +191,12 @@ class _Session:
         self._stop.set()
         self.channel.close()
 
+    def _drop_connection(self) -> None:
+        """Fault: the controller goes away mid-move. It stops the arm first, as a controller would."""
+        with self.server.lock:
+            self.server.state.release_all()
+        self.stop()
+
     def _on_request(self, packet: Packet) -> None:
         faults, function = self.server.faults, packet.code
         self.server.requests.append((packet.serial, packet.reserved, function))
@@ -219,7 +225,7 @@ class _Session:
             return
         if self.server.instant:
             if faults.close_mid_move:
-                self.stop()
+                self._drop_connection()
                 return
             self.server.clock.advance_to(outcome.motion_end_s)
             self._reply(packet, outcome.hresult, outcome.args)
@@ -238,7 +244,7 @@ class _Session:
         try:
             while robot.is_moving(self.server.clock.now_s()):
                 if self.server.faults.close_mid_move:
-                    self.stop()
+                    self._drop_connection()
                     return
                 now = time.monotonic()
                 if now >= invoke_deadline:
