@@ -37,3 +37,40 @@ class DistortionError(StereoError):
 
 class DegenerateReferenceError(DegenerateGeometryError):
     """Reference markers cannot fix a rigid transform (fewer than 3 visible, or collinear)."""
+
+
+# --- timing, resampling and spectral analysis (rig.stereo.timing*, resample, trajectory, spectrum) ---
+
+
+class TooFewSamplesError(TimingError):
+    """Too few frames/observations (or periods of motion) for the requested estimate."""
+
+
+class NonMonotonicTimestampsError(TimingError):
+    """Time stamps go backwards or repeat within one camera's record."""
+
+
+class NotRotatingError(TimingError):
+    """The rotor marker does not move on a circle at a steady, non-zero angular rate."""
+
+
+class NoCommonMotionError(TimingError):
+    """The cameras see no common motion that constrains the time offset (static, or motion only in the
+    epipolar plane, or records that do not overlap in time)."""
+
+
+class DelayOutOfRangeError(TimingError):
+    """The best time offset lies at the edge of (or beyond) the search range."""
+
+
+class AmbiguousOffsetError(TimingError):
+    """Several offsets (or frequencies) explain the data equally well, e.g. a periodic motion whose period is
+    shorter than the search range, or an alias that the sampling instants cannot separate."""
+
+
+class AmbiguousFrequencyError(TimingError):
+    """Two frequencies (a tone and its alias) fit the observations equally well."""
+
+
+class NonUniformSamplingError(TimingError):
+    """A method that needs (nearly) uniform sampling got irregular time stamps."""

@@ -1,0 +1,295 @@
+"""Joint estimate of time offset, rolling-shutter line time and clock drift from any moving marker (ours).
+
+For parameters θ = (offset δ, line time ℓ, drift d) the observations of both cameras get row-corrected
+instants (:func:`rig.stereo.timing.corrected_times`; the line time is common to both cameras unless fixed
+per camera), camera B's track is reconstructed band-limited at camera A's instants
+(:func:`rig.stereo.resample.bandlimited`, exact for irregular row times), and the signed Sampson epipolar
+distance of each pair is the residual. A coarse search over the offset range (step ≤ a tenth of a frame)
+finds the basin; local least squares (scipy ``least_squares``, finite-difference Jacobian) refines all
+parameters; the covariance s²·(JᵀJ)⁻¹ gives standard uncertainties.
+
+What the residual can see: only motion **out of the epipolar plane** constrains the offset (metrology notes
+§3), the line time only through the spread of the row difference v_B − v_A (with a common line time the
+effective delay is δ + ℓ·(v_B − v_A)), and the drift only over records long enough for δ to change
+measurably. A periodic motion repeats its cost every period: when another offset inside the search range
+fits as well (Δχ² < 25), AmbiguousOffsetError is raised instead of picking one.
+
+Units: seconds, pixels; drift in ppm (1e-6 s/s) of camera B's clock relative to camera A's.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+from scipy import optimize
+
+from rig.stereo._series import as_times
+from rig.stereo.errors import (
+    AmbiguousOffsetError,
+    DelayOutOfRangeError,
+    InputArrayError,
+    NoCommonMotionError,
+    TooFewSamplesError,
+)
+from rig.stereo.resample import bandlimited
+from rig.stereo.timing import TimingResult, projection_matrix
+
+MIN_OBSERVATIONS = 30
+CHI2_DISTINCT = 25.0  # Δχ² (5 σ) that separates a real minimum from an equally good one
+
+
+def fundamental_matrix(P_a: np.ndarray, P_b: np.ndarray) -> np.ndarray:
+    """F with x_bᵀ F x_a = 0 for image points of the same 3D point (pixels, homogeneous)."""
+    _, _, vt = np.linalg.svd(P_a)
+    centre_a = vt[-1]
+    e_b = P_b @ centre_a
+    ex = np.array([[0, -e_b[2], e_b[1]], [e_b[2], 0, -e_b[0]], [-e_b[1], e_b[0], 0]])
+    F = ex @ P_b @ np.linalg.pinv(P_a)
+    return F / np.linalg.norm(F)
+
+
+def sampson_px(F: np.ndarray, uv_a: np.ndarray, uv_b: np.ndarray) -> np.ndarray:
+    """Signed first-order (Sampson) epipolar distance of each pair, in pixels."""
+    xa = np.column_stack([uv_a, np.ones(len(uv_a))])
+    xb = np.column_stack([uv_b, np.ones(len(uv_b))])
+    Fxa = xa @ F.T
+    Ftxb = xb @ F
+    num = np.sum(xb * Fxa, axis=1)
+    den = np.sqrt(Fxa[:, 0] ** 2 + Fxa[:, 1] ** 2 + Ftxb[:, 0] ** 2 + Ftxb[:, 1] ** 2)
+    return num / den
+
+
+def _pairs(observations: object, name: str) -> list[tuple[object, object]]:
+    """One (t, uv) pair or a list of pairs → list of pairs."""
+    if isinstance(observations, list):
+        pairs = observations
+    elif isinstance(observations, tuple) and len(observations) == 2:
+        pairs = [observations]
+    else:
+        raise InputArrayError(f"{name} must be a pair (timestamp_s, uv_px) or a list of such pairs")
+    for i, pair in enumerate(pairs):
+        if not (isinstance(pair, tuple | list) and len(pair) == 2):
+            raise InputArrayError(f"{name}[{i}] must be a pair (timestamp_s, uv_px)")
+    return [tuple(p) for p in pairs]
+
+
+def as_tracks(observations_a: object, observations_b: object) -> list[tuple[np.ndarray, ...]]:
+    """Validate both cameras' tracks → [(tau_a, uv_a, tau_b, uv_b), ...]."""
+    pa, pb = _pairs(observations_a, "observations_a"), _pairs(observations_b, "observations_b")
+    if len(pa) != len(pb) or not pa:
+        raise InputArrayError(
+            f"observations_a has {len(pa)} tracks, observations_b {len(pb)}; they must match"
+        )
+    tracks = []
+    for i, ((ta, ua), (tb, ub)) in enumerate(zip(pa, pb, strict=True)):
+        out: list[np.ndarray] = []
+        for name, t, uv in ((f"observations_a[{i}]", ta, ua), (f"observations_b[{i}]", tb, ub)):
+            tt = as_times(t, f"{name} timestamp_s", min_count=MIN_OBSERVATIONS)
+            uu = np.asarray(uv, dtype=float)
+            if uu.shape != (tt.size, 2) or not np.all(np.isfinite(uu)):
+                raise InputArrayError(
+                    f"{name} uv_px must be finite with shape ({tt.size}, 2), got {uu.shape}"
+                )
+            out += [tt, uu]
+        tracks.append(tuple(out))
+    return tracks
+
+
+class _Problem:
+    """Residuals of the joint timing model for fixed data (one or more tracks)."""
+
+    def __init__(self, F, tracks, *, epoch_b, margin_s, guess_s, half_width_s, line_a, line_b):
+        self.F, self.epoch_b = F, epoch_b
+        self.line_a, self.line_b = line_a, line_b  # None → the common estimated line time
+        self.data = []
+        for ta, ua, tb, ub in tracks:
+            lo = tb[0] + guess_s + half_width_s + margin_s
+            hi = tb[-1] + guess_s - half_width_s - margin_s
+            sel = (ta >= lo) & (ta <= hi)
+            if np.count_nonzero(sel) >= 4:
+                self.data.append((ta[sel], ua[sel], tb, ub))
+        self.n = sum(len(d[0]) for d in self.data)
+
+    def residuals(self, delta_s: float, line_s: float, drift_ppm: float) -> np.ndarray:
+        la = line_s if self.line_a is None else self.line_a
+        lb = line_s if self.line_b is None else self.line_b
+        out = []
+        for ta, ua, tb, ub in self.data:
+            t_dst = ta + la * ua[:, 1]
+            t_src = tb + delta_s + drift_ppm * 1e-6 * (tb - self.epoch_b) + lb * ub[:, 1]
+            uv_b_at = bandlimited(t_src, ub, t_dst)
+            out.append(sampson_px(self.F, ua, uv_b_at))
+        return np.concatenate(out)
+
+
+def estimate_joint(
+    camera_a: object,
+    camera_b: object,
+    observations_a: object,
+    observations_b: object,
+    *,
+    names: tuple[str, str] = ("a", "b"),
+    offset_guess_s: float = 0.0,
+    search_half_width_s: float | None = None,
+    line_time_s: float | tuple[float, float] | None = None,
+    line_time_guess_s: float = 0.0,
+    estimate_drift: bool = True,
+    max_drift_ppm: float = 200.0,
+) -> TimingResult:
+    """Joint offset / line time / drift of camera B relative to camera A (see module doc).
+
+    The offset range searched is ``offset_guess_s`` ± ``search_half_width_s`` (default 1.5 frames of B).
+    ``line_time_s``: None → one line time common to both cameras is estimated (starting at
+    ``line_time_guess_s``); a number → fixed for both; a pair → fixed per camera (A, B).
+    ``estimate_drift``: fit B's clock rate error (ppm, |d| ≤ ``max_drift_ppm`` enters only the record margin).
+    Errors: TooFewSamplesError, NonMonotonicTimestampsError, NoCommonMotionError (no overlap, or the offset
+    does not change the residual), DelayOutOfRangeError (best offset at the edge of the range),
+    AmbiguousOffsetError (another offset in the range fits equally well).
+    """
+    P_a, P_b = projection_matrix(camera_a), projection_matrix(camera_b)
+    tracks = as_tracks(observations_a, observations_b)
+    period_b = float(np.median(np.concatenate([np.diff(tr[2]) for tr in tracks])))
+    half = 1.5 * period_b if search_half_width_s is None else float(search_half_width_s)
+    if not half > 0:
+        raise InputArrayError(f"search_half_width_s must be positive, got {search_half_width_s!r}")
+    all_tb = np.concatenate([tr[2] for tr in tracks])
+    epoch_b = 0.5 * (all_tb.min() + all_tb.max())
+    duration = all_tb.max() - all_tb.min()
+    margin = 34 * period_b + max_drift_ppm * 1e-6 * duration  # kernel half-width 32 + line-time spread
+    if line_time_s is None:
+        fixed_a = fixed_b = None
+        line0 = float(line_time_guess_s)
+    elif isinstance(line_time_s, tuple | list):
+        fixed_a, fixed_b = (float(x) for x in line_time_s)
+        line0 = 0.0
+    else:
+        fixed_a = fixed_b = float(line_time_s)
+        line0 = fixed_a
+    prob = _Problem(
+        fundamental_matrix(P_a, P_b),
+        tracks,
+        epoch_b=epoch_b,
+        margin_s=margin,
+        guess_s=offset_guess_s,
+        half_width_s=half,
+        line_a=fixed_a,
+        line_b=fixed_b,
+    )
+    if prob.n < MIN_OBSERVATIONS:
+        raise NoCommonMotionError(
+            f"only {prob.n} observations of camera A fall inside camera B's record for offsets "
+            f"{offset_guess_s:+.4f} ± {half:.4f} s (need {MIN_OBSERVATIONS}); "
+            "the records do not overlap enough (or are too short)"
+        )
+
+    # Coarse search over the offset.
+    step = min(period_b / 10.0, half / 15.0)
+    grid = offset_guess_s + np.arange(-half, half + 0.5 * step, step)
+    cost = np.array([np.sum(prob.residuals(d, line0, 0.0) ** 2) for d in grid])
+    k = int(np.argmin(cost))
+
+    # Local least squares in scaled units: ms, µs, ppm.
+    estimate_line = line_time_s is None
+    free = [True, estimate_line, estimate_drift]
+    full0 = np.array([grid[k] * 1e3, line0 * 1e6, 0.0])
+
+    def unpack(x: np.ndarray) -> tuple[float, float, float]:
+        full = full0.copy()
+        full[np.array(free)] = x
+        return full[0] * 1e-3, full[1] * 1e-6, full[2]
+
+    # Bounds keep every evaluation valid: the row-time spread must stay below half a frame for the
+    # band-limited reconstruction, the offset inside the searched range, the drift inside its limit.
+    v_span = max(float(np.ptp(np.concatenate([tr[1][:, 1], tr[3][:, 1]]))) for tr in tracks)
+    line_max_us = 0.4 * period_b / max(v_span, 1.0) * 1e6
+    lower = np.array([(grid[0] - step) * 1e3, -line_max_us, -max_drift_ppm])[np.array(free)]
+    upper = np.array([(grid[-1] + step) * 1e3, line_max_us, max_drift_ppm])[np.array(free)]
+    x0 = np.clip(full0[np.array(free)], lower + 1e-9, upper - 1e-9)
+    res = optimize.least_squares(
+        lambda x: prob.residuals(*unpack(x)),
+        x0,
+        method="trf",
+        bounds=(lower, upper),
+        diff_step=1e-7,
+        x_scale=1.0,
+        xtol=1e-12,
+        ftol=1e-12,
+        gtol=1e-12,
+    )
+    delta, line, drift = unpack(res.x)
+    r = res.fun
+    dof = r.size - int(np.sum(free))
+    if dof <= 0:
+        raise TooFewSamplesError(f"{r.size} residuals cannot determine {int(np.sum(free))} timing parameters")
+    s2 = float(r @ r) / dof
+    J = res.jac
+    cov = s2 * np.linalg.pinv(J.T @ J)
+    std_full = np.zeros(3)
+    std_full[np.array(free)] = np.sqrt(np.clip(np.diag(cov), 0, None))
+
+    # Identifiability checks on the coarse curve, in units of the final noise level.
+    chi2 = (cost - float(r @ r)) / s2
+    if chi2.max() < CHI2_DISTINCT:
+        raise NoCommonMotionError(
+            f"the epipolar residual hardly changes over offsets {grid[0]:+.4f} … {grid[-1]:+.4f} s "
+            f"(Δχ² = {chi2.max():.1f} < {CHI2_DISTINCT}); "
+            "the marker shows no motion out of the epipolar plane"
+        )
+    if k in (0, grid.size - 1) or not (grid[0] <= delta <= grid[-1]):
+        raise DelayOutOfRangeError(
+            f"the best offset {delta:+.6f} s lies at the edge of the search range "
+            f"{grid[0]:+.6f} … {grid[-1]:+.6f} s; widen search_half_width_s or correct offset_guess_s"
+        )
+    _check_ambiguity(prob, grid, cost, k, line=line, drift=drift, best_cost=float(r @ r), s2=s2)
+
+    a, b = names
+    return TimingResult(
+        reference_camera=a,
+        offset_s={a: 0.0, b: delta},
+        line_time_s={a: line if fixed_a is None else fixed_a, b: line if fixed_b is None else fixed_b},
+        drift_ppm={a: 0.0, b: drift},
+        method="joint",
+        uncertainty={
+            "offset_s": {a: 0.0, b: std_full[0] * 1e-3},
+            "line_time_s": {a: std_full[1] * 1e-6, b: std_full[1] * 1e-6},
+            "drift_ppm": {a: 0.0, b: std_full[2]},
+        },
+        epoch_s={a: 0.0, b: epoch_b},
+        details=_details(r, s2, cov, free, grid=grid, cost=cost),
+    )
+
+
+def _check_ambiguity(prob, grid, cost, k, *, line, drift, best_cost, s2) -> None:
+    """Raise AmbiguousOffsetError if a separate local minimum of the cost fits as well as the best."""
+    step = grid[1] - grid[0]
+    is_min = np.r_[False, (cost[1:-1] <= cost[:-2]) & (cost[1:-1] <= cost[2:]), False]
+    for j in np.flatnonzero(is_min):
+        if abs(j - k) <= 3:
+            continue
+        refined = optimize.minimize_scalar(
+            lambda d: float(np.sum(prob.residuals(d, line, drift) ** 2)),
+            bounds=(grid[j] - step, grid[j] + step),
+            method="bounded",
+        )
+        if (refined.fun - best_cost) / s2 < CHI2_DISTINCT:
+            raise AmbiguousOffsetError(
+                f"offsets {grid[k]:+.6f} s and {refined.x:+.6f} s fit equally well "
+                f"(Δχ² = {(refined.fun - best_cost) / s2:.1f}); the motion repeats within the search range: "
+                "narrow search_half_width_s around a better offset_guess_s, or use a non-periodic motion"
+            )
+
+
+def _details(r, s2, cov, free, *, grid, cost) -> dict[str, Any]:
+    names = [n for n, f in zip(("offset", "line_time", "drift"), free, strict=True) if f]
+    sd = np.sqrt(np.clip(np.diag(cov), 1e-300, None))
+    corr = cov / np.outer(sd, sd)
+    return {
+        "residual_rms_px": float(np.sqrt(np.mean(r**2))),
+        "n_residuals": int(r.size),
+        "sigma_px": float(np.sqrt(s2)),
+        "parameters": names,
+        "correlation": corr.tolist(),
+        "coarse_offset_s": grid.tolist(),
+        "coarse_cost_px2": cost.tolist(),
+    }

@@ -1,0 +1,170 @@
+"""The paper's delay estimate from a marker rotating at constant angular velocity (for comparison).
+
+Per camera: every observation's ray is intersected with the rotor plane (centre and axis from the rig's
+geometry, e.g. the ``rotation`` event), which maps the projected ellipse back to the circle; a circle is
+fitted in the plane, the marker's angle about the fitted centre is unwrapped and a straight line
+θ(t) = θ₀ + ω·t fitted to it (the rotation rate). For every frame of camera A the closest frame of camera B
+is taken, and the delay follows from their angular difference: δ = wrap(θ_B − θ_A)/ω − (τ_B − τ_A).
+The offset is the mean over all frame pairs, its uncertainty the standard error of that mean.
+
+As in the paper, the frame time stamps are used as they are: the rolling shutter is **not** corrected, so
+the delay carries a once-per-revolution ripple of amplitude ≈ line time × the spread of v_B − v_A and a bias
+of line time × mean(v_B − v_A) (metrology notes §4). The result is determined modulo one revolution;
+``offset_guess_s`` selects the revolution. Units: seconds, mm, radians.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from rig.stereo._series import as_times
+from rig.stereo.errors import InputArrayError, NotRotatingError, TooFewSamplesError
+from rig.stereo.timing import TimingResult, projection_matrix
+
+MIN_FRAMES = 12
+
+
+def plane_points_mm(P: np.ndarray, uv_px: np.ndarray, centre_mm: np.ndarray, axis: np.ndarray) -> np.ndarray:
+    """Intersect the rays of ``uv_px`` (N, 2) through camera ``P`` with the plane (centre, normal axis)."""
+    M, p4 = P[:, :3], P[:, 3]
+    cam_centre = -np.linalg.solve(M, p4)
+    rays = np.linalg.solve(M, np.column_stack([uv_px, np.ones(len(uv_px))]).T).T
+    denom = rays @ axis
+    if np.any(np.abs(denom) < 1e-12 * np.linalg.norm(rays, axis=1)):
+        raise NotRotatingError(
+            "a camera looks along the rotor plane; the projected circle degenerates to a line"
+        )
+    s = ((centre_mm - cam_centre) @ axis) / denom
+    return cam_centre + s[:, None] * rays
+
+
+def rotor_angles(
+    P: np.ndarray, uv_px: np.ndarray, centre_mm: np.ndarray, axis: np.ndarray, camera: str
+) -> tuple[np.ndarray, float, float]:
+    """Unwrapped rotor angle (rad) of each observation, fitted radius (mm) and radial scatter (mm)."""
+    X = plane_points_mm(P, uv_px, centre_mm, axis)
+    e1 = np.cross(axis, [1.0, 0.0, 0.0] if abs(axis[0]) < 0.9 else [0.0, 1.0, 0.0])
+    e1 /= np.linalg.norm(e1)
+    e2 = np.cross(axis, e1)
+    xy = np.column_stack([(X - centre_mm) @ e1, (X - centre_mm) @ e2])
+    # Algebraic (Kåsa) circle fit: x² + y² = 2ax + 2by + c.
+    A = np.column_stack([2 * xy, np.ones(len(xy))])
+    (a, b, c), *_ = np.linalg.lstsq(A, np.sum(xy**2, axis=1), rcond=None)
+    radius = float(np.sqrt(max(c + a * a + b * b, 0.0)))
+    r_each = np.hypot(xy[:, 0] - a, xy[:, 1] - b)
+    scatter = float(np.std(r_each - radius))
+    if radius <= 0 or scatter > 0.2 * radius or np.ptp(xy[:, 0]) < 1e-6:
+        raise NotRotatingError(
+            f"camera {camera}: the marker does not move on a circle in the rotor plane "
+            f"(fitted radius {radius:.3g} mm, radial scatter {scatter:.3g} mm); is the rotor turning?"
+        )
+    theta = np.unwrap(np.arctan2(xy[:, 1] - b, xy[:, 0] - a))
+    return theta, radius, scatter
+
+
+def _rate(theta: np.ndarray, tau: np.ndarray, camera: str) -> tuple[float, float]:
+    """Angular rate (rad/s) by a straight-line fit, checked for a steady non-zero rotation."""
+    steps = np.diff(theta)
+    if np.any(np.abs(steps) > 0.8 * np.pi):
+        raise NotRotatingError(
+            f"camera {camera}: the angle jumps by up to {np.degrees(np.abs(steps).max()):.0f}° "
+            "between frames; "
+            "the rotor turns too fast for the frame rate (must stay below about fs/2.5 revolutions/s)"
+        )
+    A = np.column_stack([np.ones_like(tau), tau - tau.mean()])
+    (th0, omega), *_ = np.linalg.lstsq(A, theta, rcond=None)
+    resid = theta - (th0 + omega * (tau - tau.mean()))
+    turns = abs(omega) * np.ptp(tau) / (2 * np.pi)
+    if turns < 1.0 or np.std(resid) > 0.25 * np.pi:
+        raise NotRotatingError(
+            f"camera {camera}: {turns:.2f} revolutions at {omega / (2 * np.pi):+.3f} rev/s with "
+            "angle scatter "
+            f"{np.degrees(np.std(resid)):.1f}° about a constant rate; the paper's method needs at least one "
+            "revolution at constant angular velocity"
+        )
+    return float(omega), float(np.std(resid))
+
+
+def estimate_rotor(
+    camera_a: object,
+    camera_b: object,
+    observations_a: object,
+    observations_b: object,
+    *,
+    rotor_centre_mm: object,
+    rotor_axis: object,
+    names: tuple[str, str] = ("a", "b"),
+    offset_guess_s: float = 0.0,
+) -> TimingResult:
+    """Delay of camera B relative to camera A by the paper's rotating-marker method (see module doc).
+
+    ``rotor_centre_mm`` (3,) and ``rotor_axis`` (3,) give the rotor plane in the cameras' world frame.
+    Raises TooFewSamplesError (< 12 frames per camera), NonMonotonicTimestampsError, NotRotatingError.
+    """
+    P_a, P_b = projection_matrix(camera_a), projection_matrix(camera_b)
+    centre = np.asarray(rotor_centre_mm, dtype=float).reshape(-1)
+    axis = np.asarray(rotor_axis, dtype=float).reshape(-1)
+    if (
+        centre.shape != (3,)
+        or axis.shape != (3,)
+        or not np.isfinite(centre).all()
+        or np.linalg.norm(axis) == 0
+    ):
+        raise InputArrayError("rotor_centre_mm and rotor_axis must be finite 3-vectors, the axis non-zero")
+    axis = axis / np.linalg.norm(axis)
+    series = []
+    for cam, P, obs in ((names[0], P_a, observations_a), (names[1], P_b, observations_b)):
+        if not (isinstance(obs, tuple | list) and len(obs) == 2):
+            raise InputArrayError(f"observations of camera {cam} must be one pair (timestamp_s, uv_px)")
+        t, uv = obs
+        tau = as_times(t, f"t_{cam}_s", min_count=MIN_FRAMES)
+        uvv = np.asarray(uv, dtype=float)
+        if uvv.shape != (tau.size, 2) or not np.isfinite(uvv).all():
+            raise InputArrayError(
+                f"uv of camera {cam} must be finite with shape ({tau.size}, 2), got {uvv.shape}"
+            )
+        theta, radius, _scatter = rotor_angles(P, uvv, centre, axis, cam)
+        omega, ang_scatter = _rate(theta, tau, cam)
+        series.append((tau, theta, omega, radius, ang_scatter))
+    (ta, tha, wa, ra, sa), (tb, thb, wb, rb, sb) = series
+    if np.sign(wa) != np.sign(wb):
+        raise NotRotatingError("the two cameras see opposite senses of rotation; check the rotor axis")
+    omega = 0.5 * (wa + wb)
+    # Closest frame of B for each frame of A (B's clock shifted by the guess).
+    idx = np.clip(np.searchsorted(tb - offset_guess_s, ta), 1, tb.size - 1)
+    left_closer = np.abs(tb[idx - 1] - offset_guess_s - ta) < np.abs(tb[idx] - offset_guess_s - ta)
+    j = idx - left_closer
+    gap = np.abs(tb[j] - offset_guess_s - ta)
+    keep = gap <= 0.75 * float(np.median(np.diff(tb)))
+    if np.count_nonzero(keep) < MIN_FRAMES:
+        raise TooFewSamplesError(
+            f"only {np.count_nonzero(keep)} frame pairs of the two cameras overlap in time "
+            f"(need {MIN_FRAMES})"
+        )
+    d_theta = thb[j[keep]] - tha[keep]
+    period = 2 * np.pi / abs(omega)
+    # Delay δ with θ_B(τ_B + δ) = θ_A(τ_A): pick the revolution nearest to the guess.
+    raw = d_theta / omega - (tb[j[keep]] - ta[keep])
+    delays = offset_guess_s + (raw - offset_guess_s + 0.5 * period) % period - 0.5 * period
+    delay = float(np.mean(delays))
+    std = float(np.std(delays, ddof=1) / np.sqrt(delays.size))
+    a, b = names
+    details: dict[str, Any] = {
+        "rotation_hz": omega / (2 * np.pi),
+        "radius_mm": {a: ra, b: rb},
+        "angle_scatter_rad": {a: sa, b: sb},
+        "n_pairs": int(delays.size),
+        "delay_spread_s": float(np.std(delays, ddof=1)),
+    }
+    return TimingResult(
+        reference_camera=a,
+        offset_s={a: 0.0, b: delay},
+        line_time_s={a: 0.0, b: 0.0},
+        drift_ppm={a: 0.0, b: 0.0},
+        method="rotor",
+        uncertainty={"offset_s": {a: 0.0, b: std}},
+        epoch_s={a: 0.0, b: 0.0},
+        details=details,
+    )

@@ -1,0 +1,351 @@
+"""Continuous-time 3D trajectories fitted to all 2D observations of all cameras at their exact times.
+
+Nothing is interpolated: every observation (camera c, row-corrected instant t_i, pixel u_i, v_i) constrains
+X(t_i) through that camera's projection matrix, and X(t) = Σ_j φ_j(t)·C_j is linear in the coefficients C
+(n_basis × 3). The fit minimises the reprojection error Σ‖uv_i − project_c(X(t_i))‖² by Gauss–Newton on C
+(the per-observation Jacobian is (p₁ − u·p₃)/w; sparse for splines), started from the linear (DLT-style)
+solution. Two unsynchronised cameras sample the motion at interleaved instants, so together they sample it
+up to twice as often as one.
+
+Bases:
+- :class:`SplineBasis`: cubic B-spline with a knot spacing (default 0.75 of a frame interval, i.e. finer
+  than one camera's frame interval) and a small second-difference penalty (P-spline) that fills gaps. Each
+  control point has 3 unknowns and each observation gives 2 equations, so with two cameras at fs the knot
+  spacing must stay ≥ 3/(4·fs) — a free 3D curve cannot go beyond that.
+- :class:`SineBasis`: a local sinusoidal model X(t) = c + Σ_k a_k cos kωt + b_k sin kωt (+ optional linear
+  drift). With the frequency known, each camera on its own determines its projected complex amplitude
+  unless f is a multiple of fs/2, so the amplitude is recovered even above one camera's Nyquist limit.
+  :func:`fit_sine_trajectory` also **estimates** the frequency by scanning the reprojection cost up to the
+  pair's combined Nyquist limit (fs for two cameras): above fs/2 this is where the interleaving matters. A
+  tone at f and its alias fs − f fit one camera identically; they differ only through the cameras' time
+  offset α (fraction of a frame): the separation vanishes as α → 0 (or 1), where the fit raises
+  AmbiguousFrequencyError instead of returning the alias. With α ≈ ½ (benchmarks/accuracy.py) a 40 Hz
+  oscillation at 60 fps is recovered with its amplitude; with α below ~0.05 it is not identifiable at
+  typical noise.
+
+Units: times s (all cameras on one clock), pixels, mm (whatever unit the projection matrices use).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import optimize, sparse
+from scipy.interpolate import BSpline
+from scipy.sparse.linalg import spsolve
+
+from rig.stereo._series import as_times
+from rig.stereo.errors import AmbiguousFrequencyError, InputArrayError, TimingError, TooFewSamplesError
+from rig.stereo.timing import projection_matrix
+
+CHI2_DISTINCT = 25.0
+
+
+@dataclass(frozen=True)
+class SplineBasis:
+    """Cubic B-spline basis on [t_min_s, t_max_s] with uniform knots every ``knot_spacing_s``."""
+
+    t_min_s: float
+    t_max_s: float
+    knot_spacing_s: float
+    penalty: float = 1e-3  # weight of the second-difference penalty relative to the pixel-scaled data rows
+
+    def knots(self) -> np.ndarray:
+        n = max(1, int(np.ceil((self.t_max_s - self.t_min_s) / self.knot_spacing_s)))
+        inner = np.linspace(self.t_min_s, self.t_max_s, n + 1)
+        h = inner[1] - inner[0]
+        return np.concatenate([inner[0] - h * np.arange(3, 0, -1), inner, inner[-1] + h * np.arange(1, 4)])
+
+    @property
+    def size(self) -> int:
+        return self.knots().size - 4
+
+    def design(self, t_s: np.ndarray) -> sparse.csr_matrix:
+        t = np.clip(np.asarray(t_s, float), self.t_min_s, self.t_max_s)
+        return BSpline.design_matrix(t, self.knots(), 3).tocsr()
+
+    def regulariser(self) -> sparse.csr_matrix | None:
+        n = self.size
+        D = sparse.diags([np.ones(n - 2), -2 * np.ones(n - 2), np.ones(n - 2)], [0, 1, 2], shape=(n - 2, n))
+        return (np.sqrt(self.penalty) * D).tocsr()
+
+
+@dataclass(frozen=True)
+class SineBasis:
+    """c + Σ_{k=1..n_harmonics} a_k cos(2πkf(t − t_ref)) + b_k sin(…) (+ d·(t − t_ref) if ``drift``)."""
+
+    frequency_hz: float
+    t_ref_s: float = 0.0
+    n_harmonics: int = 1
+    drift: bool = False
+
+    @property
+    def size(self) -> int:
+        return 1 + 2 * self.n_harmonics + int(self.drift)
+
+    def design(self, t_s: np.ndarray) -> sparse.csr_matrix:
+        tc = np.asarray(t_s, float) - self.t_ref_s
+        cols = [np.ones_like(tc)]
+        for k in range(1, self.n_harmonics + 1):
+            ph = 2 * np.pi * k * self.frequency_hz * tc
+            cols += [np.cos(ph), np.sin(ph)]
+        if self.drift:
+            cols.append(tc)
+        return sparse.csr_matrix(np.column_stack(cols))
+
+    def regulariser(self) -> None:
+        return None
+
+
+Basis = SplineBasis | SineBasis
+
+
+@dataclass(frozen=True)
+class Trajectory:
+    """A fitted trajectory: ``coefficients`` (n_basis, 3) of ``basis``; residuals per camera (N_c, 2) px."""
+
+    basis: Basis
+    coefficients: np.ndarray
+    residuals_px: list[np.ndarray]
+    rms_px: float
+
+    def position(self, t_s: object) -> np.ndarray:
+        """X(t) (N, 3) at ``t_s`` (s)."""
+        return np.asarray(self.basis.design(np.atleast_1d(np.asarray(t_s, float))) @ self.coefficients)
+
+    @property
+    def amplitude_vectors(self) -> tuple[np.ndarray, np.ndarray]:
+        """(a, b) 3-vectors of the fundamental of a SineBasis: X = c + a cos ωt + b sin ωt + …"""
+        if not isinstance(self.basis, SineBasis):
+            raise InputArrayError("amplitude_vectors needs a SineBasis trajectory")
+        return self.coefficients[1], self.coefficients[2]
+
+    @property
+    def amplitude(self) -> float:
+        """Major semi-axis of the fundamental's motion ellipse (the amplitude of a 1-D oscillation)."""
+        a, b = self.amplitude_vectors
+        return float(np.linalg.svd(np.column_stack([a, b]), compute_uv=False)[0])
+
+    @property
+    def direction(self) -> np.ndarray:
+        """Unit vector of the major axis of the fundamental's motion ellipse."""
+        a, b = self.amplitude_vectors
+        u, _, _ = np.linalg.svd(np.column_stack([a, b]))
+        return u[:, 0]
+
+
+def _check(cameras, t_list, uv_list) -> tuple[list[np.ndarray], list[np.ndarray], list[np.ndarray]]:
+    if not (len(cameras) == len(t_list) == len(uv_list)) or len(cameras) < 1:
+        raise InputArrayError("give one time array and one uv array per camera")
+    Ps, ts, uvs = [], [], []
+    for i, (cam, t, uv) in enumerate(zip(cameras, t_list, uv_list, strict=True)):
+        Ps.append(projection_matrix(cam))
+        tt = as_times(t, f"t_s[{i}]", min_count=2)
+        uu = np.asarray(uv, float)
+        if uu.shape != (tt.size, 2) or not np.isfinite(uu).all():
+            raise InputArrayError(f"uv_px[{i}] must be finite with shape ({tt.size}, 2), got {uu.shape}")
+        ts.append(tt)
+        uvs.append(uu)
+    return Ps, ts, uvs
+
+
+def _system(Ps, ts, uvs, basis, C):
+    """Gauss–Newton system (A, r) in vec(C) (row-major n_basis × 3) at coefficients C (None: linear DLT)."""
+    rows, rhs = [], []
+    for P, t, uv in zip(Ps, ts, uvs, strict=True):
+        Phi = basis.design(t).tocoo()
+        if C is None:
+            uhat, w = uv, np.ones(len(t))
+        else:
+            Xh = np.column_stack([np.asarray(basis.design(t) @ C), np.ones(len(t))])
+            proj = Xh @ P.T
+            w = proj[:, 2]
+            uhat = proj[:, :2] / w[:, None]
+        for k in range(2):
+            g = (P[k, :3][None, :] - uhat[:, k : k + 1] * P[2, :3][None, :]) / w[:, None]  # (N, 3)
+            data = (Phi.data[:, None] * g[Phi.row]).ravel()
+            r_idx = np.repeat(Phi.row, 3)
+            c_idx = (Phi.col[:, None] * 3 + np.arange(3)[None, :]).ravel()
+            rows.append(sparse.csr_matrix((data, (r_idx, c_idx)), shape=(len(t), 3 * basis.size)))
+            if C is None:
+                rhs.append(-(P[k, 3] - uv[:, k] * P[2, 3]))
+            else:
+                rhs.append(uv[:, k] - uhat[:, k])
+    return sparse.vstack(rows).tocsr(), np.concatenate(rhs)
+
+
+def _solve(A, r, basis, scale, c_now=None):
+    """Least-squares step; the penalty acts on the updated coefficients c_now + step (P-spline)."""
+    Areg = basis.regulariser()
+    if Areg is not None:
+        R3 = (sparse.kron(Areg, sparse.identity(3)) * scale).tocsr()
+        A = sparse.vstack([A, R3]).tocsr()
+        r = np.concatenate([r, np.zeros(R3.shape[0]) if c_now is None else -(R3 @ c_now)])
+    N = (A.T @ A).tocsc()
+    x = spsolve(N, A.T @ r) if sparse.issparse(N) else np.linalg.solve(N, A.T @ r)
+    return np.asarray(x)
+
+
+def fit_trajectory(
+    cameras: list[object], t_s: list[object], uv_px: list[object], basis: Basis, *, iterations: int = 8
+) -> Trajectory:
+    """Fit ``basis`` coefficients to all observations (per camera: row-corrected times, (N, 2) pixels).
+
+    ``cameras``: projection matrices or objects with ``.P`` (lens distortion already removed from uv).
+    Raises TooFewSamplesError when there are fewer equations than unknowns.
+    """
+    Ps, ts, uvs = _check(cameras, t_s, uv_px)
+    n_eq = 2 * sum(len(t) for t in ts)
+    if n_eq < 3 * basis.size and basis.regulariser() is None:
+        raise TooFewSamplesError(
+            f"{n_eq} equations cannot determine {3 * basis.size} trajectory coefficients"
+        )
+    A, r = _system(Ps, ts, uvs, basis, None)
+    scale = float(np.sqrt(sparse.linalg.norm(A) ** 2 / max(A.shape[0], 1)))
+    C = _solve(A, r, basis, scale).reshape(-1, 3)
+    for it in range(iterations):
+        A, r = _system(Ps, ts, uvs, basis, C)
+        if it == 0:  # penalty weight relative to the pixel-scaled equations
+            scale = float(np.sqrt(sparse.linalg.norm(A) ** 2 / max(A.shape[0], 1)))
+        dC = _solve(A, r, basis, scale, C.ravel()).reshape(-1, 3)
+        C = C + dC
+        if np.max(np.abs(dC)) < 1e-10 * (1.0 + np.max(np.abs(C))):
+            break
+    res = []
+    for P, t, uv in zip(Ps, ts, uvs, strict=True):
+        Xh = np.column_stack([np.asarray(basis.design(t) @ C), np.ones(len(t))]) @ P.T
+        res.append(uv - Xh[:, :2] / Xh[:, 2:3])
+    allr = np.concatenate(res)
+    return Trajectory(basis, C, res, float(np.sqrt(np.mean(allr**2))))
+
+
+def fit_spline_trajectory(
+    cameras: list[object],
+    t_s: list[object],
+    uv_px: list[object],
+    *,
+    knot_spacing_s: float | None = None,
+    penalty: float = 1e-3,
+) -> Trajectory:
+    """Cubic B-spline trajectory through all observations; knots every ``knot_spacing_s`` (default 0.75 of
+    the median frame interval of the first camera)."""
+    ts = [as_times(t, f"t_s[{i}]") for i, t in enumerate(t_s)]
+    if knot_spacing_s is None:
+        knot_spacing_s = 0.75 * float(np.median(np.diff(ts[0])))
+    t_min = min(t[0] for t in ts)
+    t_max = max(t[-1] for t in ts)
+    return fit_trajectory(cameras, ts, uv_px, SplineBasis(t_min, t_max, knot_spacing_s, penalty))
+
+
+def _sine_cost(Ps, ts, uvs, f, *, t_ref, n_harmonics, drift, iterations):
+    traj = fit_trajectory(Ps, ts, uvs, SineBasis(f, t_ref, n_harmonics, drift), iterations=iterations)
+    return float(sum(np.sum(r**2) for r in traj.residuals_px)), traj
+
+
+def fit_sine_trajectory(
+    cameras: list[object],
+    t_s: list[object],
+    uv_px: list[object],
+    *,
+    frequency_hz: float | None = None,
+    frequency_range_hz: tuple[float, float] | None = None,
+    n_harmonics: int = 1,
+    drift: bool = False,
+) -> tuple[Trajectory, float]:
+    """Local sinusoidal 3D trajectory; returns (trajectory, frequency_hz).
+
+    ``frequency_hz`` None → scanned over ``frequency_range_hz`` (default 1.5/duration … number of cameras ×
+    fs/2) on a grid of a quarter of the record's resolution, then refined. Raises AmbiguousFrequencyError when
+    another frequency (typically the alias fs − f) fits within Δχ² < 25 of the best.
+    """
+    Ps, ts, uvs = _check(cameras, t_s, uv_px)
+    t_all = np.concatenate(ts)
+    t_ref = 0.5 * (t_all.min() + t_all.max())
+
+    def cost_at(f: float, iterations: int) -> tuple[float, Trajectory]:
+        return _sine_cost(
+            Ps, ts, uvs, f, t_ref=t_ref, n_harmonics=n_harmonics, drift=drift, iterations=iterations
+        )
+
+    if frequency_hz is not None:
+        traj = fit_trajectory(Ps, ts, uvs, SineBasis(float(frequency_hz), t_ref, n_harmonics, drift))
+        return traj, float(frequency_hz)
+    duration = float(np.ptp(t_all))
+    fs = 1.0 / float(np.median(np.diff(ts[0])))
+    lo, hi = frequency_range_hz or (1.5 / duration, 0.5 * fs * len(ts))
+    if duration * lo < 1.0 and frequency_range_hz is None:
+        raise TooFewSamplesError(f"record of {duration:.3g} s is too short for a frequency search")
+    df = 0.25 / duration
+    grid = np.arange(lo, hi, df)
+    if grid.size < 3:
+        raise TooFewSamplesError(f"frequency range {lo}…{hi} Hz holds fewer than 3 grid points")
+    cost = _linearised_scan(Ps, ts, uvs, grid, t_ref=t_ref)
+    is_min = np.r_[
+        cost[0] < cost[1], (cost[1:-1] <= cost[:-2]) & (cost[1:-1] <= cost[2:]), cost[-1] < cost[-2]
+    ]
+    candidates = np.flatnonzero(is_min)
+    candidates = candidates[np.argsort(cost[candidates])][:4]  # refine the best few basins exactly
+    refined = []
+    for j in candidates:
+        r = optimize.minimize_scalar(
+            lambda f: cost_at(f, 3)[0],
+            bounds=(grid[max(j - 1, 0)], grid[min(j + 1, grid.size - 1)]),
+            method="bounded",
+            options={"xatol": 1e-7},
+        )
+        refined.append((float(r.fun), float(r.x)))
+    refined.sort()
+    best_cost, traj = cost_at(refined[0][1], 8)
+    f_best = refined[0][1]
+    n_par = 3 * traj.basis.size + 1
+    dof = 2 * t_all.size - n_par
+    if dof <= 0:
+        raise TooFewSamplesError(f"{2 * t_all.size} equations cannot determine {n_par} parameters")
+    s2 = best_cost / dof
+    for c_j, f_j in refined[1:]:
+        if abs(f_j - f_best) > 4 * df and (c_j - best_cost) / s2 < CHI2_DISTINCT:
+            raise AmbiguousFrequencyError(
+                f"frequencies {f_best:.4f} Hz and {f_j:.4f} Hz fit equally well (Δχ² = "
+                f"{(c_j - best_cost) / s2:.1f}); the cameras' sampling instants do not separate the alias "
+                "(time offset too close to 0 or a whole frame) — give frequency_hz or re-time the cameras"
+            )
+    if not np.isfinite(best_cost):
+        raise TimingError("sine trajectory fit failed (non-finite cost)")
+    return traj, f_best
+
+
+def _linearised_scan(Ps, ts, uvs, grid, *, t_ref, chunk: int = 64) -> np.ndarray:
+    """Sum of squared pixel residuals of a fundamental-only sine model at each frequency of ``grid``.
+
+    The projection is linearised about the static fit X0 (motion small against the distance), so each
+    frequency is a 9-unknown linear least-squares problem, solved for chunks of frequencies at once.
+    """
+    static = fit_trajectory(Ps, ts, uvs, SineBasis(1.0, t_ref, 0, False), iterations=4)
+    X0 = static.coefficients[0]
+    J_rows, e_rows, t_rows = [], [], []
+    for P, t, uv in zip(Ps, ts, uvs, strict=True):
+        x = P @ np.append(X0, 1.0)
+        J = (P[:2, :3] - np.outer(x[:2] / x[2], P[2, :3])) / x[2]  # (2, 3)
+        e = uv - x[:2] / x[2]
+        J_rows.append(np.broadcast_to(J, (len(t), 2, 3)))
+        e_rows.append(e)
+        t_rows.append(t - t_ref)
+    Jm = np.concatenate(J_rows).reshape(-1, 3)  # (2N, 3)
+    e = np.concatenate(e_rows).reshape(-1)
+    tt = np.repeat(np.concatenate(t_rows), 2)
+    e2 = float(e @ e)
+    out = np.empty(grid.size)
+    for s0 in range(0, grid.size, chunk):
+        w = 2 * np.pi * grid[s0 : s0 + chunk, None] * tt[None, :]  # (F, 2N)
+        c, s = np.cos(w), np.sin(w)
+        D = np.concatenate(
+            [np.broadcast_to(Jm, (*w.shape, 3)), c[..., None] * Jm, s[..., None] * Jm], axis=2
+        )  # (F, 2N, 9)
+        G = np.einsum("fni,fnj->fij", D, D)
+        h = np.einsum("fni,n->fi", D, e)
+        sol = np.linalg.solve(
+            G + 1e-12 * np.eye(9) * np.trace(G, axis1=1, axis2=2)[:, None, None], h[..., None]
+        )
+        out[s0 : s0 + chunk] = e2 - np.einsum("fi,fi->f", h, sol[..., 0])
+    return out
