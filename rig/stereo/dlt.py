@@ -42,7 +42,9 @@ CONVENTIONS = ("homogeneous-svd", "l12-lstsq", "refined", "external")
 
 def _normalized_p(P: np.ndarray) -> np.ndarray:
     """Scale P so that ‖m3‖ = 1 and det(M) > 0: then P[2]·[X,1] is the depth in mm in front of the camera."""
-    P = P / np.linalg.norm(P[2, :3])
+    norm = np.linalg.norm(P[2, :3])
+    if abs(norm - 1.0) > 4 * np.finfo(float).eps:  # idempotent, so from_dict(to_dict()) is bit-exact
+        P = P / norm
     return -P if np.linalg.det(P[:, :3]) < 0 else P
 
 
