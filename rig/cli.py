@@ -1,25 +1,263 @@
-"""The ``rig`` command: parses arguments, builds a station, runs procedures and reports."""
+"""The ``rig`` command: certify a stereo-camera measurement setup on a robot/exciter rig.
+
+Commands (``rig COMMAND --help`` for each):
+  certify   the whole certification (calibrate → sync → accuracy → sweep → report → certificate)
+  run       one scripted procedure (``rig list`` shows them), or a procedure file
+  report    rebuild tables, figures, report.html and certificate.json of a run folder, without hardware
+  check     validate a rig.toml and reach every device
+  mock      a mock device (robot, exciter, rotor, generator) as a standalone server on 127.0.0.1
+  list      the procedures and their parameters
+
+Without ``--config`` the built-in simulated rig is used. Exit codes: 0 pass, 1 certificate failed,
+2 aborted (Ctrl-C), 3 interlock or hardware fault, 4 bad input.
+"""
 
 from __future__ import annotations
 
 import argparse
+import importlib
+import importlib.util
+import logging
+import pkgutil
+import sys
+import types
+from pathlib import Path
+from typing import Any
+
+from rig.config import ConfigError, load_config
+from rig.procedure import ParameterError, check_procedure_module, parameter_table, parse_set
+from rig.safety import EXIT_BAD_INPUT, EXIT_FAULT
+
+log = logging.getLogger("rig.cli")
+MOCK_MODULES = {"robot": ("drivers.mock.bcap_server", []),
+                "exciter": ("drivers.mock.vfd_server", ["--body", "exciter"]),
+                "rotor": ("drivers.mock.vfd_server", ["--body", "rotor"]),
+                "generator": ("drivers.mock.scpi_server", [])}
+
+
+# ---------------------------------------------------------------------------- procedures
+def discover_procedures() -> dict[str, types.ModuleType]:
+    """Every module of the ``procedures`` package that defines ``NAME``, ``Parameters`` and ``run``."""
+    import procedures
+
+    found: dict[str, types.ModuleType] = {}
+    for info in pkgutil.iter_modules(procedures.__path__):
+        if info.name.startswith("_"):
+            continue
+        module = importlib.import_module(f"procedures.{info.name}")
+        try:
+            check_procedure_module(module)
+        except TypeError:
+            continue  # a helper module of the package, not a procedure
+        found[module.NAME] = module
+    return dict(sorted(found.items()))
+
+
+def load_procedure(name_or_path: str) -> types.ModuleType:
+    """A procedure by name (``rig list``) or from a ``.py`` file; ParameterError if there is none."""
+    if name_or_path.endswith(".py"):
+        path = Path(name_or_path)
+        if not path.is_file():
+            raise ParameterError("PROCEDURE", f"{name_or_path!r}: no such file")
+        spec = importlib.util.spec_from_file_location(f"rig_user_procedure_{path.stem}", path)
+        module = importlib.util.module_from_spec(spec)  # type: ignore[arg-type]
+        spec.loader.exec_module(module)  # type: ignore[union-attr]
+        try:
+            check_procedure_module(module)
+        except TypeError as exc:
+            raise ParameterError("PROCEDURE", str(exc)) from exc
+        return module
+    available = discover_procedures()
+    if name_or_path not in available:
+        raise ParameterError("PROCEDURE", f"{name_or_path!r} is not a procedure; allowed: "
+                                          f"{', '.join(available) or '(none installed)'} or a .py file")
+    return available[name_or_path]
+
+
+# ---------------------------------------------------------------------------- progress
+class ProgressBar:
+    """Plain one-line progress on stderr; silent when stderr is not a terminal."""
+
+    def __init__(self, stream: Any = None, enabled: bool | None = None, width: int = 30) -> None:
+        self.stream = stream or sys.stderr
+        self.enabled = self.stream.isatty() if enabled is None else enabled
+        self.width = width
+        self._shown = False
+
+    def __call__(self, fraction: float | None, message: str) -> None:
+        if not self.enabled:
+            return
+        if fraction is None:
+            line = f"[{'?' * self.width}]      {message}"
+        else:
+            filled = round(fraction * self.width)
+            line = f"[{'#' * filled}{'-' * (self.width - filled)}] {fraction * 100:5.1f}% {message}"
+        self.stream.write("\r" + line[:120].ljust(120))
+        self.stream.flush()
+        self._shown = True
+
+    def close(self) -> None:
+        if self._shown:
+            self.stream.write("\n")
+            self.stream.flush()
+            self._shown = False
+
+
+# ---------------------------------------------------------------------------- commands
+def _run_procedure(module: types.ModuleType, args: argparse.Namespace) -> int:
+    from rig.runner import Runner
+    from rig.station import open_station
+
+    config = load_config(args.config)
+    overrides = parse_set(args.set or [])
+    bar = ProgressBar()
+    runner = Runner(module, config=config, station_factory=open_station, runs_dir=args.runs_dir,
+                    progress=bar)
+    try:
+        outcome = runner.run(overrides, resume=args.resume)
+    finally:
+        bar.close()
+    where = f" — {outcome.run_dir}" if outcome.run_dir else ""
+    print(f"rig: {module.NAME}: {outcome.outcome} (exit {outcome.exit_code}): {outcome.reason}{where}",
+          file=sys.stderr if outcome.exit_code else sys.stdout, flush=True)
+    return outcome.exit_code
+
+
+def cmd_run(args: argparse.Namespace) -> int:
+    return _run_procedure(load_procedure(args.procedure), args)
+
+
+def cmd_certify(args: argparse.Namespace) -> int:
+    return _run_procedure(load_procedure("certify"), args)
+
+
+def cmd_report(args: argparse.Namespace) -> int:
+    from reports import build_report
+
+    run_dir = Path(args.run)
+    if not (run_dir / "record.jsonl").is_file():
+        raise ParameterError("RUN", f"{args.run!r} is not a run folder (no record.jsonl)")
+    result = build_report(run_dir, sync=args.sync)
+    verdict = getattr(result, "result", None)
+    print(f"rig: report of {run_dir}: {verdict or 'done'} — "
+          f"{getattr(result, 'report_html', None) or run_dir / 'report.html'}")
+    return 1 if verdict in ("FAIL", "INCOMPLETE") else 0
+
+
+def cmd_check(args: argparse.Namespace) -> int:
+    config = load_config(args.config)
+    devices = [n for n in ("robot", "exciter", "rotor", "generator") if getattr(config.devices, n)]
+    print(f"configuration {config.source}: valid ({config.station.name}; cameras "
+          f"{', '.join(config.camera_names())}; devices {', '.join(devices)})")
+    if args.no_devices:
+        return 0
+    from rig.clock import make_clock
+    from rig.station import open_station
+
+    clock = make_clock(config.station.clock == "virtual", rate=config.sim.rate if config.sim else None)
+    failures = 0
+    with open_station(config, clock) as station:
+        for name, device in station.devices.items():
+            beat = getattr(device, "heartbeat", None)
+            try:
+                ok = beat() if callable(beat) else True
+                print(f"  {name:10s} {'reachable' if ok is not False else 'NOT REACHABLE'}")
+                failures += ok is False
+            except Exception as exc:
+                print(f"  {name:10s} NOT REACHABLE: {type(exc).__name__}: {exc}")
+                failures += 1
+        station_safe = getattr(station, "make_safe", None)
+        if callable(station_safe):
+            station_safe()
+    return EXIT_FAULT if failures else 0
+
+
+def cmd_mock(args: argparse.Namespace) -> int:
+    module_name, fixed = MOCK_MODULES[args.device]
+    try:
+        module = importlib.import_module(module_name)
+    except ImportError as exc:
+        print(f"rig mock {args.device}: the mock server is not available ({exc})", file=sys.stderr)
+        return EXIT_FAULT
+    return int(module.main([*fixed, *args.options]) or 0)
+
+
+def cmd_list(args: argparse.Namespace) -> int:
+    for name, module in discover_procedures().items():
+        doc = getattr(module, "DESCRIPTION", None) or (module.__doc__ or "").strip().splitlines()[0:1]
+        print(f"{name}: {doc if isinstance(doc, str) else ''.join(doc)}")
+        for row in parameter_table(module):
+            allowed = f" ({row['allowed']})" if row["allowed"] else ""
+            doc_text = f" — {row['doc']}" if row["doc"] else ""
+            print(f"    {row['name']} = {row['default']!r}{allowed}{doc_text}")
+    return 0
+
+
+# ---------------------------------------------------------------------------- parser
+def _add_run_options(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--config", metavar="RIG.TOML",
+                   help="rig configuration (default: the built-in simulated rig)")
+    p.add_argument("--set", action="append", metavar="KEY=VALUE", help="override a procedure parameter "
+                   "(repeatable; values are TOML literals: 30, 2.5, true, [1, 2], \"text\")")
+    p.add_argument("--resume", metavar="RUN",
+                   help="continue the run folder RUN after its last completed step")
+    p.add_argument("--runs-dir", metavar="DIR", help="where run folders go (default: station.runs_dir)")
 
 
 def build_parser() -> argparse.ArgumentParser:
     """Return the top-level argument parser with one sub-command per verb."""
-    parser = argparse.ArgumentParser(prog="rig", description=__doc__)
-    parser.add_subparsers(dest="command", metavar="COMMAND")
+    parser = argparse.ArgumentParser(prog="rig", description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("-v", "--verbose", action="count", default=0, help="more log output (-vv: debug)")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    p = sub.add_parser("certify", help="run the whole certification", description=cmd_certify.__doc__ or
+                       "Run the certify procedure: calibrate, sync, accuracy, sweep, report, certificate.")
+    _add_run_options(p)
+    p = sub.add_parser("run", help="run one procedure", description="Run one scripted procedure.")
+    p.add_argument("procedure", metavar="PROCEDURE", help="a procedure name (see `rig list`) or a .py file")
+    _add_run_options(p)
+    p = sub.add_parser("report", help="rebuild the report of a run folder",
+                       description="Rebuild tables/, figures/, report.html and certificate.json from a run "
+                                   "folder's record, without hardware.")
+    p.add_argument("run", metavar="RUN", help="the run folder")
+    p.add_argument("--sync", metavar="METHOD", help="synchronization method: trajectory (default), "
+                   "bandlimited, cubic, or linear (the paper's)")
+    p = sub.add_parser("check", help="validate a rig.toml and reach its devices",
+                       description="Validate the configuration and ping every device.")
+    p.add_argument("--config", metavar="RIG.TOML", help="rig configuration (default: the simulated rig)")
+    p.add_argument("--no-devices", action="store_true", help="only validate the configuration")
+    p = sub.add_parser("mock", help="run a mock device server on 127.0.0.1",
+                       description="Start a mock device as a standalone server on 127.0.0.1, backed by a "
+                                   "simulated world, for trying a real configuration without hardware. "
+                                   "Options after the device name go to the mock "
+                                   "(try `rig mock robot --help`).")
+    p.add_argument("device", choices=sorted(MOCK_MODULES), help="which device")
+    p.add_argument("options", nargs=argparse.REMAINDER, help="options of the mock server")
+    sub.add_parser("list", help="list the procedures and their parameters",
+                   description="List the procedures with their parameters, defaults and ranges.")
     return parser
 
 
 def main(argv: list[str] | None = None) -> int:
     """Run the ``rig`` command; return its exit code."""
     parser = build_parser()
+    argv = list(sys.argv[1:] if argv is None else argv)
     args = parser.parse_args(argv)
+    level = (logging.WARNING, logging.INFO, logging.DEBUG)[min(args.verbose, 2)]
+    logging.basicConfig(level=level, format="%(levelname)s %(name)s: %(message)s", stream=sys.stderr)
     if args.command is None:
         parser.print_help()
         return 0
-    return 0
+    commands = {"run": cmd_run, "certify": cmd_certify, "report": cmd_report, "check": cmd_check,
+                "list": cmd_list, "mock": cmd_mock}
+    try:
+        return commands[args.command](args)
+    except (ConfigError, ParameterError) as exc:
+        print(f"rig: bad input: {exc}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    except KeyboardInterrupt:
+        print("rig: interrupted", file=sys.stderr)
+        return 2
 
 
 if __name__ == "__main__":

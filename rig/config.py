@@ -112,6 +112,8 @@ class RobotConfig:
     controller: str = field(default="rc8", metadata=spec(choices=("rc8", "rc7m")))
     timeout_s: float = field(default=3.0, metadata=spec(lo=0.05, hi=120.0))
     home_pose: tuple[float, ...] | None = field(default=None, metadata=spec(length=6))
+    full_speed_mm_s: float = field(default=1000.0, metadata=spec(lo=1.0, hi=10000.0))
+    position_tolerance_mm: float = field(default=0.5, metadata=spec(lo=0.0, lo_open=True, hi=100.0))
 
 
 @dataclass(frozen=True)
@@ -124,7 +126,8 @@ class VfdConfig:
     gear_ratio: float = field(default=1.0, metadata=spec(lo=0.0, lo_open=True, hi=1000.0))
     crank_radius_mm: float | None = field(default=None, metadata=spec(lo=0.0, lo_open=True, hi=500.0))
     timeout_s: float = field(default=1.0, metadata=spec(lo=0.05, hi=60.0))
-    heartbeat_s: float = field(default=0.5, metadata=spec(lo=0.05, hi=60.0))
+    max_output_hz: float = field(default=50.0, metadata=spec(lo=0.0, lo_open=True, hi=1000.0))
+    ramp_rate_hz_per_s: float = field(default=1.0, metadata=spec(lo=0.0, lo_open=True, hi=1000.0))
 
     def resolved_register_map(self) -> Any:
         """The :class:`drivers.exciter.register_map.RegisterMap`: the named map, overridden by ``registers``
@@ -290,6 +293,19 @@ def _cross_check(cfg: RigConfig) -> None:
                               f"{limit:g}")
     if cfg.station.simulated and cfg.sim is None:
         raise ConfigError("sim", "required when station.simulated = true")
+    for name in ("exciter", "rotor"):
+        dev, lim = getattr(cfg.devices, name), getattr(cfg.limits, name)
+        if dev is not None and lim is not None and dev.ramp_rate_hz_per_s > lim.max_ramp_rate_hz_per_s:
+            raise ConfigError(f"devices.{name}.ramp_rate_hz_per_s",
+                              f"{dev.ramp_rate_hz_per_s:g} exceeds limits.{name}.max_ramp_rate_hz_per_s = "
+                              f"{lim.max_ramp_rate_hz_per_s:g}")
+    if cfg.devices.robot is not None and cfg.limits.robot is not None \
+            and cfg.limits.robot.max_speed_mm_s > cfg.devices.robot.full_speed_mm_s:
+        raise ConfigError("limits.robot.max_speed_mm_s", f"{cfg.limits.robot.max_speed_mm_s:g} exceeds "
+                          f"devices.robot.full_speed_mm_s = {cfg.devices.robot.full_speed_mm_s:g}")
+    if cfg.station.simulated and cfg.station.clock != "virtual":
+        raise ConfigError("station.clock", f"{cfg.station.clock!r}: a simulated station runs on the "
+                                           "virtual clock; allowed: 'virtual'")
     if cfg.station.clock == "virtual" and not cfg.station.simulated:
         raise ConfigError("station.clock", "'virtual' is only allowed when station.simulated = true")
 

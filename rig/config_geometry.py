@@ -190,22 +190,36 @@ class TargetsConfig:
 
 
 @dataclass(frozen=True)
-class SimCameraConfig(_Directions):
-    """A simulated camera's hidden truth: pinhole intrinsics, distortion (k1, k2, p1, p2), pose (camera
-    centre ``position_mm`` looking at ``look_at_mm`` with ``up``), clock error, rolling shutter, noise."""
+class SimNoise:
+    """Sensor levels and noise of a simulated camera, in 8-bit digital numbers (DN)."""
 
-    focal_px: float = field(metadata=spec(lo=10.0, hi=1e5))
-    principal_point_px: tuple[float, ...] = field(metadata=spec(length=2, lo=-1e4, hi=1e5))
-    position_mm: tuple[float, ...] = field(metadata=_VEC3)
-    look_at_mm: tuple[float, ...] = field(metadata=_VEC3)
-    up: tuple[float, ...] = _dir_field((0.0, 0.0, 1.0))
+    background_level_dn: float = field(default=30.0, metadata=spec(lo=0.0, hi=255.0))
+    marker_level_dn: float = field(default=220.0, metadata=spec(lo=0.0, hi=255.0))
+    read_noise_dn: float = field(default=2.0, metadata=spec(lo=0.0, hi=100.0))
+    shot_noise_dn2_per_dn: float = field(default=0.05, metadata=spec(lo=0.0, hi=10.0))
+
+
+@dataclass(frozen=True)
+class SimCameraConfig:
+    """A simulated camera's hidden truth (the twin's ``CameraSpec`` field for field): camera centre
+    ``eye_mm`` looking at ``target_mm``, pinhole intrinsics (px), distortion (k1, k2, p1, p2), clock error
+    (ppm), start offset and timestamp origin (s), rolling-shutter line time (s; absent = 90 % of the frame
+    period over the rows), blur and noise. fps, exposure and resolution come from ``[cameras.<name>]``."""
+
+    eye_mm: tuple[float, ...] = field(metadata=_VEC3)
+    target_mm: tuple[float, ...] = field(default=(420.0, 0.0, 300.0), metadata=_VEC3)
+    fx_px: float = field(default=2400.0, metadata=spec(lo=10.0, hi=1e5))
+    fy_px: float = field(default=2400.0, metadata=spec(lo=10.0, hi=1e5))
+    cx_px: float = field(default=959.5, metadata=spec(lo=-1e4, hi=1e5))
+    cy_px: float = field(default=539.5, metadata=spec(lo=-1e4, hi=1e5))
     distortion: tuple[float, ...] = field(default=(0.0, 0.0, 0.0, 0.0),
                                           metadata=spec(length=4, lo=-1.0, hi=1.0))
     clock_ppm: float = field(default=0.0, metadata=spec(lo=-1000.0, hi=1000.0))
     start_offset_s: float = field(default=0.0, metadata=spec(lo=-10.0, hi=10.0))
-    line_time_s: float = field(default=0.0, metadata=spec(lo=0.0, hi=1e-3))
-    noise_grey: float = field(default=0.0, metadata=spec(lo=0.0, hi=100.0))
-    _DIRECTIONS = ("up",)
+    timestamp_origin_s: float = field(default=0.0, metadata=spec(lo=-1e9, hi=1e9))
+    line_time_s: float | None = field(default=None, metadata=spec(lo=0.0, hi=1e-3))
+    psf_sigma_px: float = field(default=0.6, metadata=spec(lo=0.0, hi=5.0))
+    noise: SimNoise = field(default_factory=SimNoise)
 
 
 @dataclass(frozen=True)

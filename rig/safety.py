@@ -81,8 +81,8 @@ def _interlock_error_types() -> tuple[type[BaseException], ...]:
     try:
         from drivers.denso import arm as _arm  # the arm driver's envelope/speed refusal
 
-        types_.extend(t for t in (getattr(_arm, "EnvelopeError", None), getattr(_arm, "ArmLimitError", None))
-                      if isinstance(t, type))
+        if isinstance(getattr(_arm, "LimitError", None), type):
+            types_.append(_arm.LimitError)
     except ImportError:
         pass
     return tuple(types_)
@@ -105,7 +105,8 @@ def classify(exc: BaseException | None, verdict_passed: bool | None, verdict_sum
                               verdict_summary or "certificate failed")
         return Classified(EXIT_PASS, "success", "pass", verdict_summary or "completed")
     if isinstance(exc, _interlock_error_types()):
-        device = getattr(exc, "device", None) or getattr(exc, "quantity", None) or "limits"
+        device = getattr(exc, "device", None) or getattr(exc, "quantity", None) or getattr(exc, "axis", None) \
+            or "limits"
         return Classified(EXIT_FAULT, "abort", "interlock", f"interlock: {exc}", str(device))
     if isinstance(exc, KeyboardInterrupt):
         return Classified(EXIT_ABORTED, "abort", "aborted", "aborted at once (second Ctrl-C)")
