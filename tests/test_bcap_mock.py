@@ -13,8 +13,8 @@ from drivers.denso.arm import BoxEnvelope, DensoArm, LimitError, OrientationLimi
 from drivers.denso.bcap import PacketDecoder, encode_packet
 from drivers.denso.client import BcapClient
 from drivers.denso.variant import VT_I4, VT_UI4, Variant
+from drivers.mock.bcap_args import JOINT_LIMIT, OUT_OF_REACH
 from drivers.mock.bcap_server import BcapMockServer
-from drivers.mock.bcap_state import JOINT_LIMIT, OUT_OF_REACH
 from drivers.sim.clock import VirtualClock
 from drivers.sim.world import World
 from drivers.transport import open_transport

@@ -37,7 +37,8 @@ from typing import Any
 from drivers.denso import hresult as hr
 from drivers.denso.bcap import Packet, PacketDecoder, encode_packet
 from drivers.denso.variant import EMPTY, Variant
-from drivers.mock.bcap_state import VALUE_RETURNING, ControllerState, RobotBodyLike
+from drivers.mock.bcap_args import VALUE_RETURNING
+from drivers.mock.bcap_state import ControllerState, RobotBodyLike
 
 log = logging.getLogger(__name__)
 CACHE_SIZE = 32
