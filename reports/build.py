@@ -117,6 +117,34 @@ def _fits_frame(t: ReportTables) -> pd.DataFrame:
     return pd.DataFrame(rows)
 
 
+def _fits_display(t: ReportTables) -> pd.DataFrame:
+    """The fit table for the page: coefficients with their intervals as text, the usable limit with U."""
+    rows = []
+    for method in t.sync_methods:
+        fit, lim = t.fits.get(method), t.limits.get(method)
+        if fit is None:
+            rows.append({"sync method": method, "c0 (%)": t.fit_notes.get(method, "no sweep data")})
+            continue
+        (a0, b0), (a2, b2) = fit.ci("c0"), fit.ci("c2")
+        if lim.reached:
+            usable = f"{lim.limit_hz:.2f} ± {fit.t_factor * lim.u_limit_hz:.2g}"
+        else:
+            usable = f"≥ {lim.limit_hz:.2f} (not reached)"
+        rows.append(
+            {
+                "sync method": method,
+                "c0 (%)": f"{fit.c0:.4g} [{a0:.4g}, {b0:.4g}]",
+                "c2 (%/Hz²)": f"{fit.c2:.4g} [{a2:.4g}, {b2:.4g}]",
+                "R²": fit.r2,
+                "χ²/ν": fit.chi2_reduced,
+                "bins": fit.n_points,
+                "fitted (Hz)": f"{fit.f_min_hz:.1f}–{fit.f_max_hz:.1f}",
+                f"usable limit at ±{lim.tolerance:g} % (Hz)": usable,
+            }
+        )
+    return pd.DataFrame(rows)
+
+
 def _length_summary(lengths: pd.DataFrame) -> pd.DataFrame:
     if lengths.empty:
         return lengths
@@ -296,7 +324,7 @@ def build_report(
         "iso9283": t.iso9283.drop(columns=["x_cmd_mm", "y_cmd_mm", "z_cmd_mm"]),
         "length_summary": frames["length_summary"],
         "poses": t.poses[pose_cols],
-        "fits": frames["quadratic_fit"],
+        "fits": _fits_display(t),
         "sweep_means": t.sweep_means,
         "plate": t.plate,
         "calibration": t.calibration,

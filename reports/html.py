@@ -244,7 +244,11 @@ def render(
             "amplitude_error_vs_frequency",
             "Amplitude error and phase versus frequency, per sync method",
         )
-        + table(fit_rows, digits=4, text_cols=("sync_method",))
+        + table(
+            fit_rows, digits=4, text_cols=tuple(c for c in fit_rows.columns if fit_rows[c].dtype == object)
+        )
+        + "<p class='note'>Intervals in brackets: 95 % confidence (Student's t); the limit's ± is its"
+        " expanded uncertainty from the fit covariance.</p>"
         + _figure(pngs, "sweep_time_frequency", "Frequency of the sweep over time (paper Fig. 17)")
         + "<details><summary>Per-bin values (mean over markers)</summary>"
         + table(tables_html["sweep_means"], text_cols=("sync_method",))
@@ -280,7 +284,15 @@ def render(
     parts.append(
         "<section id='cond'><h2>Conditions</h2>"
         + table(
-            pd.DataFrame([{k: v for k, v in cond.items() if not isinstance(v, (dict, list))}])
+            pd.DataFrame(
+                [
+                    {
+                        k: ", ".join(map(str, v)) if isinstance(v, list) else v
+                        for k, v in cond.items()
+                        if not isinstance(v, dict) and k != "notes"
+                    }
+                ]
+            )
             .T.reset_index()
             .set_axis(["field", "value"], axis=1),
             text_cols=("field", "value"),

@@ -174,8 +174,9 @@ def camera_centres_mm(calibration: dict[str, Any] | None) -> dict[str, np.ndarra
         if P is None or P.shape != (3, 4):
             continue
         M = P[:, :3]
-        if abs(np.linalg.det(M)) < 1e-12 * np.abs(M).max() ** 3:
-            continue
+        scale = float(np.abs(M).max())
+        if not np.isfinite(scale) or scale == 0 or abs(np.linalg.det(M)) <= 1e-12 * scale**3:
+            continue  # not a finite camera: no centre
         centres[name] = -np.linalg.solve(M, P[:, 3])
     return centres
 

@@ -172,3 +172,17 @@ def test_bad_run_folder_and_config_raise(tmp_path: Path) -> None:
     run = synth.write_run(tmp_path / "run_badcfg", rig={"acceptance": {"max_error": 1}})
     with pytest.raises(CriteriaError, match="max_error"):
         build_report(run, analysis=synth.fake_analyse)
+
+
+def test_command_line_entry_reports_a_missing_analysis(tmp_path: Path, capsys) -> None:
+    from reports.__main__ import main
+
+    run = synth.write_run(tmp_path / "run_cli")
+    code = main([str(run), "--no-figures"])
+    err = capsys.readouterr().err
+    try:
+        import rig.analysis  # noqa: F401
+    except ImportError:
+        assert code == 3 and "rig.analysis" in err
+    else:
+        assert code in (0, 1, 2)
