@@ -20,15 +20,10 @@ Run on its own (own world, paced clock at real time)::
 from __future__ import annotations
 
 import argparse
-import contextlib
 import logging
-import os
-import pty
-import select
 import socket
 import threading
 import time
-import tty
 from collections import OrderedDict
 from dataclasses import dataclass
 from types import TracebackType
@@ -38,6 +33,7 @@ from drivers.denso import hresult as hr
 from drivers.denso.bcap import Packet, PacketDecoder, encode_packet
 from drivers.denso.variant import EMPTY, Variant
 from drivers.mock.bcap_args import VALUE_RETURNING
+from drivers.mock.bcap_channels import Channel, PtyChannel, TcpChannel
 from drivers.mock.bcap_state import ControllerState, RobotBodyLike
 
 log = logging.getLogger(__name__)
@@ -65,95 +61,10 @@ class Faults:
         return wanted is None or wanted == function_id
 
 
-class _Channel:
-    """A byte pipe to one client: a TCP socket or a pty master."""
-
-    serial_line = False
-
-    def recv(self, timeout_s: float) -> bytes:  # b"" on timeout; EOFError when closed
-        raise NotImplementedError
-
-    def send(self, data: bytes) -> None:
-        raise NotImplementedError
-
-    def close(self) -> None:
-        raise NotImplementedError
-
-
-class _TcpChannel(_Channel):
-    def __init__(self, sock: socket.socket) -> None:
-        self.sock = sock
-        host, port = sock.getpeername()[:2]
-        self.name = f"tcp:{host}:{port}"
-
-    def recv(self, timeout_s: float) -> bytes:
-        self.sock.settimeout(timeout_s)
-        try:
-            data = self.sock.recv(65536)
-        except TimeoutError:
-            return b""
-        except OSError as exc:
-            raise EOFError(str(exc)) from exc
-        if not data:
-            raise EOFError("client closed")
-        return data
-
-    def send(self, data: bytes) -> None:
-        try:
-            self.sock.sendall(data)
-        except OSError as exc:
-            raise EOFError(str(exc)) from exc
-
-    def close(self) -> None:
-        with contextlib.suppress(OSError):
-            self.sock.shutdown(socket.SHUT_RDWR)
-        self.sock.close()
-
-
-class _PtyChannel(_Channel):
-    """Server end of a pty pair; the client opens :attr:`slave_name` with pyserial."""
-
-    serial_line = True
-
-    def __init__(self) -> None:
-        self.master_fd, self._slave_fd = pty.openpty()
-        tty.setraw(self._slave_fd)  # no echo, no cooking, before the client configures the line
-        self.slave_name = os.ttyname(self._slave_fd)
-        self.name = f"pty:{self.slave_name}"
-        self._closed = False
-
-    def recv(self, timeout_s: float) -> bytes:
-        if self._closed:
-            raise EOFError("pty closed")
-        ready, _, _ = select.select([self.master_fd], [], [], timeout_s)
-        if not ready:
-            return b""
-        try:
-            return os.read(self.master_fd, 4096)
-        except OSError as exc:
-            raise EOFError(str(exc)) from exc
-
-    def send(self, data: bytes) -> None:
-        view = memoryview(data)
-        while view:
-            try:
-                written = os.write(self.master_fd, view)
-            except OSError as exc:
-                raise EOFError(str(exc)) from exc
-            view = view[written:]
-
-    def close(self) -> None:
-        if not self._closed:
-            self._closed = True
-            for fd in (self.master_fd, self._slave_fd):
-                with contextlib.suppress(OSError):
-                    os.close(fd)
-
-
 class _Session:
     """One client connection: reads requests, executes them on the shared state, writes replies."""
 
-    def __init__(self, server: BcapMockServer, channel: _Channel, *, refuse: bool = False) -> None:
+    def __init__(self, server: BcapMockServer, channel: Channel, *, refuse: bool = False) -> None:
         self.server = server
         self.channel = channel
         self.refuse = refuse
@@ -337,7 +248,7 @@ class BcapMockServer:
 
     def serve_pty(self) -> str:
         """Open a pty pair, serve its master with serial framing; return the slave name for the client."""
-        channel = _PtyChannel()
+        channel = PtyChannel()
         self._start_session(channel)
         return channel.slave_name
 
@@ -351,9 +262,9 @@ class BcapMockServer:
             except OSError:
                 return
             sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-            self._start_session(_TcpChannel(sock))
+            self._start_session(TcpChannel(sock))
 
-    def _start_session(self, channel: _Channel) -> None:
+    def _start_session(self, channel: Channel) -> None:
         with self.lock:
             refuse = self._active is not None
             session = _Session(self, channel, refuse=refuse)
