@@ -105,8 +105,8 @@ def classify(exc: BaseException | None, verdict_passed: bool | None, verdict_sum
                               verdict_summary or "certificate failed")
         return Classified(EXIT_PASS, "success", "pass", verdict_summary or "completed")
     if isinstance(exc, _interlock_error_types()):
-        device = getattr(exc, "device", None) or getattr(exc, "quantity", None) or getattr(exc, "axis", None) \
-            or "limits"
+        device = next((getattr(exc, a) for a in ("device", "quantity", "axis") if getattr(exc, a, None)),
+                      "limits")
         return Classified(EXIT_FAULT, "abort", "interlock", f"interlock: {exc}", str(device))
     if isinstance(exc, KeyboardInterrupt):
         return Classified(EXIT_ABORTED, "abort", "aborted", "aborted at once (second Ctrl-C)")
