@@ -15,8 +15,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from stereo_scene import look_at_camera, noise_floor_mm, plate_points, stereo_pair, volume_points
 
-from rig.stereo import errors
-from rig.stereo.dlt import DLTCamera, P_from_dlt11, calibrate_dlt, dlt11_from_P
+from rig.stereo import DLTCamera, P_from_dlt11, calibrate_dlt, dlt11_from_P, errors
 
 SIGMA_PX = 0.3
 DISTORTION = (-0.25, 0.1, 1e-3, -5e-4)
@@ -127,6 +126,9 @@ def test_to_dict_round_trip_is_exact(scene) -> None:
         assert back.to_dict() == cam.to_dict()
     d = cam.to_dict()
     assert d["n_points"] == len(cal) and d["residuals_rms_px"] == cam.rms_px
+    true_k = stereo_pair()[0].K
+    assert d["intrinsics_px"]["fx_px"] == pytest.approx(true_k[0, 0], rel=0.01)
+    np.testing.assert_allclose(d["centre_mm"], stereo_pair()[0].centre_mm, atol=5.0)
 
 
 @pytest.mark.parametrize(

@@ -169,3 +169,15 @@ def test_linear_step_is_the_normalized_svd_solution() -> None:
             rows += [u * Pn[2] - Pn[0], v * Pn[2] - Pn[1]]
         Xh = H @ np.linalg.svd(np.array(rows))[2][-1]
         np.testing.assert_allclose(ours[k], Xh[:3] / Xh[3], atol=1e-8)
+
+
+def test_undistort_outside_invertible_field_raises() -> None:
+    """With k1 = −0.5 the distorted radius never exceeds 0.544 (normalized): beyond, no inverse exists."""
+    from rig.stereo.distortion import distort, undistort
+
+    coeffs = np.array([-0.5, 0.0, 0.0, 0.0])
+    xy = np.array([[0.3, 0.2], [0.1, -0.4]])
+    np.testing.assert_allclose(undistort(distort(xy, coeffs), coeffs), xy, atol=1e-12)
+    with pytest.raises(errors.DistortionError, match="outside the field"):
+        undistort(np.array([[0.7, 0.0]]), coeffs)
+    assert np.isnan(undistort(np.array([[np.nan, np.nan]]), coeffs)).all()

@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from rig.stereo.dlt import DLTCamera, P_from_dlt11, calibrate_dlt, dlt11_from_P, solve_dlt11
+from rig.stereo import DLTCamera, P_from_dlt11, calibrate_dlt, dlt11_from_P, solve_dlt11
 from rig.stereo.triangulate import triangulate
 
 DATA = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "vaila_dlt"

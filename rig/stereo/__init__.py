@@ -1,12 +1,7 @@
 """Stereo measurement core: pure functions on numpy arrays, no I/O (DESIGN.md, layer "math")."""
 
-from rig.stereo.dlt import (
-    DLTCamera,
-    P_from_dlt11,
-    calibrate_dlt,
-    dlt11_from_P,
-    solve_dlt11,
-)
+from rig.stereo.dlt import DLTCamera, calibrate_dlt
+from rig.stereo.dlt11 import P_from_dlt11, dlt11_from_P, solve_dlt11
 from rig.stereo.epipolar import (
     Matches,
     epipolar_distance_px,

@@ -23,20 +23,16 @@ import scipy.linalg
 import scipy.optimize
 
 from rig.stereo.distortion import distort, distort_jacobian, undistort
+from rig.stereo.dlt11 import P_from_dlt11, check_calibration_input, design_rows, dlt11_from_P
 from rig.stereo.errors import CalibrationFormatError, DegenerateCalibrationError, InputArrayError
 from rig.stereo.normalize import (
     as_points,
     as_projection,
     homogeneous,
-    principal_spread,
     similarity_2d,
     similarity_3d,
 )
 
-MIN_POINTS = 6
-#: Smallest allowed ratio of the 3rd (2nd) to the 1st singular value of the centred control points.
-#: Below it the points are treated as coplanar (collinear): the DLT is then undetermined or unstable.
-MIN_SPREAD_RATIO = 0.01
 CONVENTIONS = ("homogeneous-svd", "l12-lstsq", "refined", "external")
 
 
@@ -87,6 +83,11 @@ class DLTCamera:
     @property
     def n_points(self) -> int:
         return int(self.residuals_px.shape[0])
+
+    @property
+    def residuals(self) -> np.ndarray:
+        """Alias of ``residuals_px`` (DESIGN.md's public surface)."""
+        return self.residuals_px
 
     @property
     def rms_px(self) -> float:
@@ -189,6 +190,21 @@ class DLTCamera:
             "convention": self.convention,
             "refined": self.refined,
             "units": {"world": "mm", "image": "px"},
+            # Informational (ignored by from_dict): check them against the lens and the rig, since a low
+            # reprojection error alone does not prove a sound calibration.
+            "intrinsics_px": self.intrinsics_px(),
+            "centre_mm": self.centre_mm.tolist(),
+        }
+
+    def intrinsics_px(self) -> dict[str, float]:
+        """fx, fy, skew, cx, cy of K in px (from :meth:`decompose`), for plausibility checks."""
+        K = self._k
+        return {
+            "fx_px": float(K[0, 0]),
+            "fy_px": float(K[1, 1]),
+            "skew_px": float(K[0, 1]),
+            "cx_px": float(K[0, 2]),
+            "cy_px": float(K[1, 2]),
         }
 
     @classmethod
@@ -220,92 +236,11 @@ class DLTCamera:
         return cam
 
 
-# --------------------------------------------------------------------- Convention A (L12 = 1)
-def dlt11_from_P(P: object, *, length_unit_mm: float = 1.0) -> np.ndarray:  # noqa: N802
-    """L1…L11 = P(row-major)[:11] / P[2,3] for world units of ``length_unit_mm`` (1000 for metres)."""
-    P = as_projection(P).copy()
-    P[:, :3] *= length_unit_mm
-    if abs(P[2, 3]) < 1e-12 * np.abs(P).max():
-        raise DegenerateCalibrationError(
-            "P[2,3] ≈ 0: the world origin lies in the camera's principal plane, so the L12 = 1 form does not "
-            "exist; move the world origin (e.g. to the centroid of the control points) or keep P"
-        )
-    return (P / P[2, 3]).ravel()[:11]
-
-
-def P_from_dlt11(coefficients: object, *, length_unit_mm: float = 1.0) -> np.ndarray:  # noqa: N802
-    """The 3×4 P in mm → px from L1…L11 whose world unit is ``length_unit_mm``."""
-    L = np.asarray(coefficients, dtype=np.float64).ravel()
-    if L.shape != (11,) or not np.isfinite(L).all():
-        raise InputArrayError(
-            f"DLT coefficients: expected 11 finite numbers L1…L11, got shape {np.shape(coefficients)}"
-        )
-    P = np.append(L, 1.0).reshape(3, 4)
-    P[:, :3] /= length_unit_mm
-    return P
-
-
-def _design_rows(xyz: np.ndarray, uv: np.ndarray) -> np.ndarray:
-    """The paper's A (2N × 12): rows [X Y Z 1 0 0 0 0 −uX −uY −uZ −u] and the v counterpart."""
-    Xh = homogeneous(xyz)
-    A = np.zeros((2 * len(xyz), 12))
-    A[0::2, 0:4] = Xh
-    A[1::2, 4:8] = Xh
-    A[0::2, 8:12] = -uv[:, :1] * Xh
-    A[1::2, 8:12] = -uv[:, 1:2] * Xh
-    return A
-
-
-def solve_dlt11(xyz: object, uv_px: object) -> np.ndarray:
-    """Convention A: L1…L11 by ordinary least squares with L12 = 1 (as vaila, Argus and DLTdv do).
-
-    Units of the coefficients follow those of ``xyz``; no normalization is applied because it would
-    change this convention's solution (column scaling only, for conditioning).
-    """
-    xyz_a, uv = _check_calibration_input(xyz, uv_px)
-    A = _design_rows(xyz_a, uv)
-    rhs = -A[:, 11]
-    M = A[:, :11]
-    scale = np.linalg.norm(M, axis=0)
-    scale[scale == 0] = 1.0
-    sol = np.linalg.lstsq(M / scale, rhs, rcond=None)[0]
-    return sol / scale
-
-
-# --------------------------------------------------------------------- Convention B (the paper)
-def _check_calibration_input(xyz_mm: object, uv_px: object) -> tuple[np.ndarray, np.ndarray]:
-    xyz = as_points(xyz_mm, "xyz_mm", 3)
-    uv = as_points(uv_px, "uv_px", 2)
-    if xyz.shape[0] != uv.shape[0]:
-        raise InputArrayError(
-            f"xyz_mm has {xyz.shape[0]} points but uv_px has {uv.shape[0]}; pass one pixel per point"
-        )
-    n_distinct = np.unique(xyz, axis=0).shape[0]
-    if n_distinct < MIN_POINTS:
-        raise DegenerateCalibrationError(
-            f"{n_distinct} distinct control points; the DLT needs at least {MIN_POINTS} non-coplanar ones "
-            "(11 unknowns, 2 equations per point). Duplicated points do not help: add points at new positions"
-        )
-    spread = principal_spread(xyz)
-    if spread[1] < MIN_SPREAD_RATIO:
-        raise DegenerateCalibrationError(
-            f"the control points are (nearly) collinear (spread ratio {spread[1]:.2g} < {MIN_SPREAD_RATIO}); "
-            "add points off their line and off a common plane"
-        )
-    if spread[2] < MIN_SPREAD_RATIO:
-        raise DegenerateCalibrationError(
-            f"the control points are (nearly) coplanar: their thickness is {spread[2]:.2g} of their width "
-            f"(< {MIN_SPREAD_RATIO}); slide the plate along its normal to more positions covering the "
-            "measurement depth, or add points out of its plane"
-        )
-    return xyz, uv
-
-
 def _linear_p(xyz: np.ndarray, uv: np.ndarray, normalize: bool = True) -> np.ndarray:
     Tw, Ti = (similarity_3d(xyz), similarity_2d(uv)) if normalize else (np.eye(4), np.eye(3))
     xyz_n = (homogeneous(xyz) @ Tw.T)[:, :3]
     uv_n = (homogeneous(uv) @ Ti.T)[:, :2]
-    _, s, Vt = np.linalg.svd(_design_rows(xyz_n, uv_n), full_matrices=False)
+    _, s, Vt = np.linalg.svd(design_rows(xyz_n, uv_n), full_matrices=False)
     if s[-2] <= 1e-9 * s[0]:
         raise DegenerateCalibrationError(
             "the calibration equations have no unique solution (several cameras fit the points): "
@@ -348,7 +283,7 @@ def calibrate_dlt(
     points, :class:`InputArrayError` for empty, NaN or mis-shaped input. ``normalize=False`` skips the
     Hartley normalization (the paper's raw solve; worse conditioned, kept for comparison only).
     """
-    xyz, uv = _check_calibration_input(xyz_mm, uv_px)
+    xyz, uv = check_calibration_input(xyz_mm, uv_px)
     P = _linear_p(xyz, uv, normalize)
     linear = _camera(P, xyz, uv, image_size, convention="homogeneous-svd", refined=False)
     if not (refine or distortion):
