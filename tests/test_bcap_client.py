@@ -300,5 +300,5 @@ def test_pose_strings() -> None:
 
 def test_wdt_must_fit_the_receive_timeout() -> None:
     client = BcapClient(ScriptedTransport([]), timeout_s=0.5)
-    with pytest.raises(ValueError, match="1.5"):
+    with pytest.raises(ValueError, match=r"1\.5 × WDT"):
         client.service_start(wdt_ms=400)
