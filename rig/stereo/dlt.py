@@ -110,9 +110,7 @@ class DLTCamera:
         M = self.P[:, :3]
         K, R = scipy.linalg.rq(M)
         D = np.diag(np.sign(np.diag(K)))
-        K, R = K @ D, D @ R
-        if np.linalg.det(R) < 0:  # cannot happen with det(M) > 0, kept as a guard
-            K, R = -K, -R
+        K, R = K @ D, D @ R  # det(R) = det(M) / det(K) > 0 because P is normalized to det(M) > 0
         centre = -np.linalg.solve(M, self.P[:, 3])
         return K / K[2, 2], R, centre
 
