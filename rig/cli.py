@@ -132,11 +132,11 @@ def cmd_certify(args: argparse.Namespace) -> int:
 
 
 def cmd_report(args: argparse.Namespace) -> int:
-    from reports import build_report
-
     run_dir = Path(args.run)
     if not (run_dir / "record.jsonl").is_file():
         raise ParameterError("RUN", f"{args.run!r} is not a run folder (no record.jsonl)")
+    from reports.build import build_report
+
     result = build_report(run_dir, sync=args.sync)
     verdict = getattr(result, "result", None)
     print(f"rig: report of {run_dir}: {verdict or 'done'} — "
