@@ -209,16 +209,10 @@ class VfdServer:
 
 def _build_standalone(body_name: str, rate: float) -> tuple[Any, Any]:
     from drivers.sim.clock import VirtualClock
+    from drivers.sim.world import World
 
-    clock = VirtualClock(rate=rate)
-    try:
-        from drivers.sim.world import World  # the full twin, when present
-    except ImportError:  # pragma: no cover - only before the world module exists
-        from drivers.sim.bodies import OscillatorBody
-
-        return OscillatorBody(body_name, amplitude_mm=5.0), clock
-    world = World(clock, seed=0)
-    return getattr(world, body_name), clock
+    world = World(VirtualClock(rate=rate), seed=0)
+    return getattr(world, body_name), world.clock
 
 
 def main(argv: list[str] | None = None) -> int:

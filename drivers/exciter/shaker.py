@@ -1,0 +1,283 @@
+"""An electrodynamic shaker fed by the SCPI generator through a power amplifier.
+
+The generator sets volts; what reaches the table is displacement. ``SensitivityTable`` holds the
+measured displacement sensitivity of amplifier + shaker + payload in **mm (peak) per volt (peak) at the
+generator output** versus frequency, interpolated linearly (never extrapolated). Generator amplitudes
+are in volts peak-to-peak, so ``x_mm = s(f) · Vpp / 2``.
+
+Every operating point — and every frequency a sweep will pass through — is checked against the limits
+(frequency, displacement, acceleration (2πf)²·x, velocity, ramp rate) **before anything is sent**;
+the maximum of each quantity over a sweep is found exactly on each linear piece of the table.
+
+Safe sequence (notes §2.4): output OFF → ``*CLS`` → sine, high-Z load, Vpp, offset 0, minimum
+amplitude → errors drained → output ON → amplitude raised in steps → … → amplitude lowered in steps →
+output OFF. On any failure the abort path (minimum amplitude, output OFF) is attempted.
+"""
+
+from __future__ import annotations
+
+import bisect
+import contextlib
+import itertools
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any
+
+from drivers.exciter.generator import GeneratorError, ScpiGenerator
+from drivers.exciter.limits import LimitError, MotionLimits
+
+__all__ = ["SensitivityTable", "Shaker", "ShakerSweep"]
+
+
+class SensitivityTable:
+    """Displacement sensitivity s(f) in mm (peak) per V (peak), from ``[(f_hz, mm_per_v), ...]`` with
+    strictly increasing frequencies and positive sensitivities; linear between points."""
+
+    def __init__(self, points: Sequence[Sequence[float]]) -> None:
+        pts = []
+        for i, p in enumerate(points):
+            if len(p) != 2:
+                raise ValueError(f"sensitivity[{i}]={p!r}: must be a (f_hz, mm_per_v) pair")
+            f, s = float(p[0]), float(p[1])
+            if not (math.isfinite(f) and f >= 0):
+                raise ValueError(f"sensitivity[{i}].f_hz={p[0]!r}: must be a finite frequency >= 0")
+            if not (math.isfinite(s) and s > 0):
+                raise ValueError(f"sensitivity[{i}].mm_per_v={p[1]!r}: must be > 0")
+            if pts and f <= pts[-1][0]:
+                raise ValueError(f"sensitivity[{i}].f_hz={p[0]!r}: frequencies must increase strictly")
+            pts.append((f, s))
+        if not pts:
+            raise ValueError("sensitivity table is empty")
+        self.points = tuple(pts)
+        self.f_min_hz, self.f_max_hz = pts[0][0], pts[-1][0]
+
+    def _check_range(self, f_hz: float) -> None:
+        if not self.f_min_hz <= f_hz <= self.f_max_hz:
+            raise ValueError(f"frequency {f_hz:g} Hz is outside the sensitivity table "
+                             f"{self.f_min_hz:g}..{self.f_max_hz:g} Hz (no extrapolation)")
+
+    def mm_per_v(self, f_hz: float) -> float:
+        self._check_range(f_hz)
+        freqs = [p[0] for p in self.points]
+        i = bisect.bisect_right(freqs, f_hz) - 1
+        if i >= len(self.points) - 1:
+            return self.points[-1][1]
+        (f0, s0), (f1, s1) = self.points[i], self.points[i + 1]
+        return s0 + (s1 - s0) * (f_hz - f0) / (f1 - f0)
+
+    def pieces(self, f_lo: float, f_hi: float) -> list[tuple[float, float, float, float]]:
+        """Linear pieces ``(fa, fb, a, b)`` with s(f) = a + b·f on [fa, fb], covering [f_lo, f_hi]."""
+        self._check_range(f_lo)
+        self._check_range(f_hi)
+        knots = sorted({f_lo, f_hi, *(p[0] for p in self.points if f_lo < p[0] < f_hi)})
+        out = []
+        for fa, fb in itertools.pairwise(knots):
+            sa, sb = self.mm_per_v(fa), self.mm_per_v(fb)
+            b = (sb - sa) / (fb - fa)
+            out.append((fa, fb, sa - b * fa, b))
+        if not out:
+            out.append((f_lo, f_hi, self.mm_per_v(f_lo), 0.0))
+        return out
+
+
+@dataclass(frozen=True)
+class ShakerSweep:
+    """A sweep as carried out: rig-clock start/stop, frequencies, spacing, volts, and the commanded
+    profile ``[(t_s, f_hz), ...]`` (what a ``sweep`` record event holds)."""
+
+    t_start_s: float
+    t_stop_s: float
+    start_hz: float
+    stop_hz: float
+    spacing: str
+    amplitude_vpp: float
+    profile: list[tuple[float, float]]
+
+
+class Shaker:
+    """Shaker + amplifier + generator.
+
+    generator: the SCPI generator. clock: rig clock. limits: shaker limits. sensitivity: the table.
+    max_amplitude_vpp: the amplifier's input limit (V peak-to-peak). min_amplitude_vpp: the level used
+    while switching the output. amplitude_step_vpp / step_interval_s: amplitude ramp (strict steps).
+    """
+
+    def __init__(self, generator: ScpiGenerator, *, clock: Any, limits: MotionLimits,
+                 sensitivity: SensitivityTable, max_amplitude_vpp: float = 10.0,
+                 min_amplitude_vpp: float = 0.01,
+                 amplitude_step_vpp: float = 0.5, step_interval_s: float = 0.1) -> None:
+        for name, value in (("max_amplitude_vpp", max_amplitude_vpp),
+                            ("min_amplitude_vpp", min_amplitude_vpp),
+                            ("amplitude_step_vpp", amplitude_step_vpp), ("step_interval_s", step_interval_s)):
+            if not (math.isfinite(value) and value > 0):
+                raise ValueError(f"{name}={value!r}: must be a finite number > 0")
+        if min_amplitude_vpp >= max_amplitude_vpp:
+            raise ValueError(f"min_amplitude_vpp={min_amplitude_vpp!r} must be below max_amplitude_vpp")
+        self.generator = generator
+        self.clock = clock
+        self.limits = limits
+        self.sensitivity = sensitivity
+        self.max_amplitude_vpp = max_amplitude_vpp
+        self.min_amplitude_vpp = min_amplitude_vpp
+        self.amplitude_step_vpp = amplitude_step_vpp
+        self.step_interval_s = step_interval_s
+        self._amplitude_vpp = 0.0
+        self._output_on = False
+
+    # conversions and checks (no I/O) -----------------------------------------------------------------------
+    def displacement_mm(self, frequency_hz: float, amplitude_vpp: float) -> float:
+        return self.sensitivity.mm_per_v(frequency_hz) * amplitude_vpp / 2.0
+
+    def amplitude_vpp_for(self, frequency_hz: float, amplitude_mm: float) -> float:
+        """Generator Vpp giving peak displacement ``amplitude_mm`` at ``frequency_hz``."""
+        return 2.0 * amplitude_mm / self.sensitivity.mm_per_v(frequency_hz)
+
+    def _check_volts(self, amplitude_vpp: float) -> None:
+        if not 0 <= amplitude_vpp <= self.max_amplitude_vpp:
+            raise LimitError("generator amplitude", amplitude_vpp, self.max_amplitude_vpp, "Vpp",
+                             "amplifier input limit")
+
+    def check_point(self, frequency_hz: float, amplitude_vpp: float) -> None:
+        self._check_volts(amplitude_vpp)
+        self.limits.check_point(frequency_hz, self.displacement_mm(frequency_hz, amplitude_vpp),
+                                f"shaker at {amplitude_vpp:.4g} Vpp")
+
+    def check_sweep(self, start_hz: float, stop_hz: float, duration_s: float, spacing: str,
+                    amplitude_vpp: float) -> None:
+        """Every limit at every frequency of the sweep (exact maxima per linear piece of the table)."""
+        if spacing not in ("linear", "log"):
+            raise ValueError(f"spacing={spacing!r}: must be 'linear' or 'log'")
+        if not (math.isfinite(duration_s) and duration_s > 0):
+            raise ValueError(f"duration_s={duration_s!r}: must be > 0 s")
+        if spacing == "log" and min(start_hz, stop_hz) <= 0:
+            raise ValueError(f"a log sweep needs start_hz and stop_hz > 0, got {start_hz!r}, {stop_hz!r}")
+        self._check_volts(amplitude_vpp)
+        lo, hi = min(start_hz, stop_hz), max(start_hz, stop_hz)
+        for fa, fb, a, b in self.sensitivity.pieces(lo, hi):
+            candidates = {fa, fb}
+            if b != 0:  # stationary points of velocity f·(a+bf) and acceleration f²·(a+bf)
+                candidates |= {f for f in (-a / (2 * b), -2 * a / (3 * b)) if fa < f < fb}
+            for f in sorted(candidates):
+                self.check_point(f, amplitude_vpp)
+        slope = abs(stop_hz - start_hz) / duration_s if spacing == "linear" else \
+            hi * abs(math.log(stop_hz / start_hz)) / duration_s
+        if slope > 0:
+            self.limits.check_ramp_rate(slope, "shaker sweep")
+
+    # operations ---------------------------------------------------------------------------------------------
+    def _guarded(self, fn: Any, *args: Any) -> Any:
+        try:
+            return fn(*args)
+        except GeneratorError as exc:
+            note = self._abort_note()
+            exc.args = (f"{exc.args[0]}; {note}",)
+            raise
+
+    def _abort_note(self) -> str:
+        try:
+            self.abort()
+        except GeneratorError as abort_exc:
+            return f"abort (minimum amplitude, output OFF) attempted but failed: {abort_exc}"
+        return "abort sent: minimum amplitude, output OFF"
+
+    def prepare(self) -> None:
+        """Output OFF, clear errors, sine into a high-Z amplifier at minimum amplitude (no motion)."""
+        def run() -> None:
+            g = self.generator
+            if self._output_on:
+                self._ramp_amplitude(self.min_amplitude_vpp)
+            g.set_output(False)
+            self._output_on = False
+            g.clear_status()
+            g.set_sine()
+            g.set_load_high_z()
+            g.configure_units()
+            g.set_amplitude_vpp(self.min_amplitude_vpp)
+            self._amplitude_vpp = self.min_amplitude_vpp
+        self._guarded(run)
+
+    def _ramp_amplitude(self, target_vpp: float) -> None:
+        g = self.generator
+        while abs(self._amplitude_vpp - target_vpp) > 1e-12:
+            step = math.copysign(min(self.amplitude_step_vpp, abs(target_vpp - self._amplitude_vpp)),
+                                 target_vpp - self._amplitude_vpp)
+            g.set_amplitude_vpp(round(self._amplitude_vpp + step, 6))
+            self._amplitude_vpp = round(self._amplitude_vpp + step, 6)
+            if abs(self._amplitude_vpp - target_vpp) > 1e-12:
+                self.clock.sleep_s(self.step_interval_s)
+
+    def start(self, frequency_hz: float, amplitude_mm: float) -> float:
+        """Vibrate at ``frequency_hz`` with peak displacement ``amplitude_mm``; returns the Vpp used."""
+        vpp = self.amplitude_vpp_for(frequency_hz, amplitude_mm)
+        self.check_point(frequency_hz, vpp)
+
+        def run() -> None:
+            self.prepare()
+            self.generator.set_frequency_hz(frequency_hz)
+            self.generator.set_output(True)
+            self._output_on = True
+            self._ramp_amplitude(vpp)
+        self._guarded(run)
+        return vpp
+
+    def sweep(self, start_hz: float, stop_hz: float, duration_s: float, *, spacing: str = "linear",
+              amplitude_mm: float, reference_hz: float | None = None) -> ShakerSweep:
+        """One generator sweep at constant volts (giving ``amplitude_mm`` at ``reference_hz``, default the
+        start frequency), then ramp down and output OFF. Waits through the injected clock."""
+        ref = start_hz if reference_hz is None else reference_hz
+        vpp = self.amplitude_vpp_for(ref, amplitude_mm)
+        self.check_sweep(start_hz, stop_hz, duration_s, spacing, vpp)
+
+        def run() -> ShakerSweep:
+            g = self.generator
+            self.prepare()
+            g.set_frequency_hz(start_hz)
+            g.configure_sweep(start_hz, stop_hz, duration_s, spacing)
+            g.set_output(True)
+            self._output_on = True
+            self._ramp_amplitude(vpp)
+            t0 = self.clock.now_s()
+            g.set_sweep(True)
+            self.clock.sleep_s(duration_s)
+            t1 = self.clock.now_s()
+            g.set_frequency_hz(stop_hz)
+            g.set_sweep(False)
+            n = 50
+            if spacing == "linear":
+                freqs = [start_hz + (stop_hz - start_hz) * i / n for i in range(n + 1)]
+            else:
+                freqs = [start_hz * (stop_hz / start_hz) ** (i / n) for i in range(n + 1)]
+            prof = [(t0 + duration_s * i / n, f) for i, f in enumerate(freqs)]
+            return ShakerSweep(t0, t1, start_hz, stop_hz, spacing, vpp, prof)
+        result: ShakerSweep = self._guarded(run)
+        self.stop()
+        return result
+
+    def stop(self) -> None:
+        """Ramp the amplitude down in steps, then output OFF."""
+        def run() -> None:
+            if self._output_on:
+                self._ramp_amplitude(self.min_amplitude_vpp)
+            self.generator.set_output(False)
+            self._output_on = False
+        self._guarded(run)
+
+    def abort(self) -> None:
+        """Abort path: minimum amplitude at once, output OFF (tries both even if the first fails)."""
+        g = self.generator
+        first: GeneratorError | None = None
+        for action in (lambda: g.set_amplitude_vpp(self.min_amplitude_vpp), lambda: g.set_output(False)):
+            try:
+                action()
+            except GeneratorError as exc:
+                first = first or exc
+        self._output_on = False
+        self._amplitude_vpp = self.min_amplitude_vpp
+        if first is not None:
+            raise first
+
+    def close(self) -> None:
+        """Abort without raising (cleanup path)."""
+        with contextlib.suppress(GeneratorError):
+            self.abort()
