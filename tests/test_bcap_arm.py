@@ -75,7 +75,10 @@ def test_cylinder_envelope_on_the_mock() -> None:
             arm.move_to([0, 300, 50, 180, 0, 90])
         with pytest.raises(LimitError, match=r"ry_deg=25"):
             arm.move_to([0, 300, 300, 180, 25, 90])
-        assert len(server.state.moves) == 1
+        with pytest.raises(LimitError, match=r"path radius_mm=0 outside the allowed range \[150, 400\]"):
+            arm.move_to([0, -300, 300, 180, 0, 90])  # both ends allowed, the straight line crosses the core
+        arm.move_to([0, -300, 300, 180, 0, 90], linear=False)  # PTP: end points only
+        assert len(server.state.moves) == 2
 
 
 def test_set_speed_caps_and_converts_to_percent() -> None:

@@ -3,14 +3,17 @@ the link rules of ../shared/notes/bcap.md §2, §10, §16 (keep-alives, stray se
 
 from __future__ import annotations
 
+import contextlib
 import struct
 import time
 from collections import deque
 
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from drivers.denso.client import BcapClient, pose_string, service_option
-from drivers.denso.hresult import BcapConnectionError, BcapError, BcapTimeoutError
+from drivers.denso.hresult import BcapConnectionError, BcapError, BcapProtocolError, BcapTimeoutError
 from drivers.transport import TransportClosed, TransportTimeout
 
 
@@ -302,3 +305,14 @@ def test_wdt_must_fit_the_receive_timeout() -> None:
     client = BcapClient(ScriptedTransport([]), timeout_s=0.5)
     with pytest.raises(ValueError, match=r"1\.5 × WDT"):
         client.service_start(wdt_ms=400)
+
+
+@settings(max_examples=150, deadline=None)
+@given(st.binary(max_size=300), st.booleans())
+def test_random_reply_bytes_end_in_a_bcap_error(noise: bytes, serial_line: bool) -> None:
+    """Whatever the controller sends back, a call ends (no hang) in a reply or a typed b-CAP error."""
+    request = packet(1, 2, reserved=1 if serial_line else 0, serial_line=serial_line)
+    link = ScriptedTransport([(request, noise)])
+    client = BcapClient(link, serial_line=serial_line, retries=1, timeout_s=0.01)
+    with contextlib.suppress(BcapError, BcapProtocolError):
+        client.service_stop()

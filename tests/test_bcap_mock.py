@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import socket
 import struct
+import time
 
 import numpy as np
 import pytest
@@ -262,3 +263,18 @@ def test_a_request_split_into_single_bytes_is_reassembled_by_the_server(world, s
             data += sock.recv(64)
         assert data == bytes.fromhex("01 10 00 00 00 09 00 00 00 00 00 00 00 00 00 04")
         assert struct.unpack_from("<H", data, 5)[0] == 9
+
+
+def test_invoke_timeout_ends_a_long_move_without_reply() -> None:
+    """bcap.md §10: after InvokeTimeout the server sends nothing more, so the client times out."""
+    world = World(VirtualClock(rate=1.0))
+    with BcapMockServer(world.robot, world.clock) as server:
+        link, client = _connect(server, "tcp", timeout_s=0.25)
+        with link, client:
+            client.open_robot(wdt_ms=80, invoke_timeout_ms=200)
+            start = world.robot.pose_at(world.clock.now_s())
+            began = time.monotonic()
+            with pytest.raises(hr.BcapTimeoutError):
+                client.move([start[0] - 80.0, *start[1:]], speed_percent=10)  # 0.8 s at 100 mm/s
+            assert time.monotonic() - began < 0.2 + 0.25 + 0.5
+            assert client.link.keepalives_seen >= 1

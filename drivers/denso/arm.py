@@ -7,8 +7,9 @@ move the pose reported by ``CurPos`` must match the target within the tolerances
 
 Speeds: ``speed_mm_s`` is converted to the controller's SPEED percent with ``full_speed_mm_s`` (what
 100 % means on the controller; ExtSpeed is set to 100 % at :meth:`DensoArm.open`). **UNVERIFIED** on a
-real RC8: that SPEED of a linear move scales a Cartesian speed linearly (bcap.md §13); for PTP moves the
-real path is not straight, so the envelope is only guaranteed at the end points there.
+real RC8: that SPEED of a linear move scales a Cartesian speed linearly (bcap.md §13). Linear moves are
+checked along their straight path (the box and the plain cylinder are convex; an annulus is checked for
+cutting its core); a PTP move's real path is not straight, so there only the end points are guaranteed.
 """
 
 from __future__ import annotations
@@ -110,6 +111,16 @@ class CylinderEnvelope:
         _check("radius_mm", math.hypot(pose[0], pose[1]), (self.inner_radius_mm, self.radius_mm))
         _check("z_mm", float(pose[2]), self.z_mm)
         self.orientation.check(pose)
+
+    def check_path(self, start: np.ndarray, end: np.ndarray) -> None:
+        """A straight move between two allowed poses may still cut through the inner (forbidden) core."""
+        if self.inner_radius_mm <= 0:
+            return
+        p0, d = np.asarray(start[:2], float), np.asarray(end[:2], float) - np.asarray(start[:2], float)
+        t = float(np.clip(-(p0 @ d) / (d @ d), 0.0, 1.0)) if d @ d > 0 else 0.0
+        closest = float(np.linalg.norm(p0 + t * d))
+        if closest < self.inner_radius_mm:
+            raise LimitError("path radius_mm", closest, (self.inner_radius_mm, self.radius_mm))
 
 
 Envelope = BoxEnvelope | CylinderEnvelope
@@ -220,11 +231,14 @@ class DensoArm:
         """Move the flange to ``pose`` and verify the reported pose; blocks until the arm is at rest."""
         target = self.check_pose(pose)
         speed = self.check_speed(self.speed_mm_s if speed_mm_s is None else speed_mm_s)
+        linear = self.linear if linear is None else linear
+        if linear and isinstance(self.envelope, CylinderEnvelope) and self.envelope.inner_radius_mm > 0:
+            start = np.asarray(self.last_move.reported_pose) if self.last_move else self.position()
+            self.envelope.check_path(start, target)  # (may read the position; never moves before the check)
         percent = speed / self.full_speed_mm_s * 100.0
         t_start = self.clock.now_s()
         try:
-            self.client.move(target.tolist(), linear=self.linear if linear is None else linear,
-                             speed_percent=percent, fig=self.fig)
+            self.client.move(target.tolist(), linear=linear, speed_percent=percent, fig=self.fig)
             t_end = self.clock.now_s()
             reported = self.position()
         except (BcapError, TransportError, OSError) as exc:
