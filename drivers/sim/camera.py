@@ -34,6 +34,7 @@ from drivers.sim.world import World
 __all__ = ["SimCamera", "look_at"]
 
 _CHUNK = 4096
+_NORMAL_POOL = 1 << 20
 
 
 def look_at(eye_mm: Iterable[float], target_mm: Iterable[float],
@@ -113,6 +114,7 @@ class SimCamera:
         self._sensor_of_index = np.zeros(0, dtype=np.int64)
         self._chunks = 0
         self._pool: np.ndarray | None = None
+        self._normal_pool: np.ndarray | None = None
 
     # ------------------------------------------------------------------ clock and frame indices
     def _extend(self, sensor_frame: int) -> None:
@@ -234,6 +236,16 @@ class SimCamera:
         b, r, c = rng.integers(self._pool.shape[0]), rng.integers(m), rng.integers(m)
         return self._pool[b, r : r + self.height_px, c : c + self.width_px].copy()
 
+    def _normals(self, n: int, rng: np.random.Generator) -> np.ndarray:
+        """n standard normal numbers: a slice at a random offset of a pre-drawn pool (fresh if n is large)."""
+        if self._normal_pool is None:
+            self._normal_pool = np.random.default_rng((self.seed, self._name_id, 3)).standard_normal(
+                _NORMAL_POOL, dtype=np.float32)
+        if n > _NORMAL_POOL // 4:
+            return rng.standard_normal(n, dtype=np.float32)
+        start = int(rng.integers(_NORMAL_POOL - n))
+        return self._normal_pool[start : start + n]
+
     def render(self, frame_index: int) -> np.ndarray:
         """Frame ``frame_index`` as the sensor recorded it: (height, width) uint8, deterministic per seed."""
         k = self.sensor_frame(frame_index)
@@ -309,7 +321,8 @@ class SimCamera:
         sig = cov * np.float32(self.noise.marker_level_dn - self.noise.background_level_dn)
         if self.noise.shot_noise_dn2_per_dn > 0:
             extra = np.sqrt(np.maximum(sig, 0.0) * np.float32(self.noise.shot_noise_dn2_per_dn))
-            sig += extra * rng.standard_normal(sig.shape, dtype=np.float32)
+            extra *= self._normals(sig.size, rng).reshape(sig.shape)
+            sig += extra
         add = np.rint(sig).astype(np.int16)
         h, w = frame.shape
         hp, wp = add.shape[1:]

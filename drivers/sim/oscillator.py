@@ -38,14 +38,21 @@ class OscillatorBody:
             (-math.inf, _finite(amplitude_mm, "amplitude_mm", nonneg=True)),)
         self._last_command_s = -math.inf
         self._lock = threading.Lock()
+        self._table_cache: tuple[tuple[_Seg, ...] | None, np.ndarray] = (None, np.zeros((0, 5)))
 
     # -- evaluation
-    @staticmethod
-    def _eval(segs: tuple[_Seg, ...], t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        arr = np.array(segs)
+    def _eval(self, segs: tuple[_Seg, ...], t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        cached = self._table_cache  # (segments, their array): rebuilt only when the segments change
+        if cached[0] is segs:
+            arr = cached[1]
+        else:
+            arr = np.array(segs)
+            self._table_cache = (segs, arr)
         k = np.clip(np.searchsorted(arr[:, 0], t, side="right") - 1, 0, len(segs) - 1)
         t0, phi0, kind, f0, c = (arr[k, j] for j in range(5))
         tau = t - t0
+        if not np.any(kind):  # all constant-frequency segments
+            return f0, phi0 + 2.0 * np.pi * f0 * tau
         f = np.where(kind == _LINEAR, f0 + c * tau, f0)
         integral = np.where(kind == _LINEAR, f0 * tau + 0.5 * c * tau * tau, f0 * tau)
         log = kind == _LOG

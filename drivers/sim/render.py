@@ -15,9 +15,12 @@ How a frame is made (see :meth:`drivers.sim.camera.SimCamera.render`):
    solved in closed form and the exact covered length of every pixel is taken. Coverage is averaged over
    the sub-scanlines and the K samples (area anti-aliasing + time integration), blurred by a Gaussian PSF.
 4. **Noise** (see ``NoiseModel``): the background with its read and shot noise comes from a pool of
-   pre-generated noisy frames, picked per frame at a random row/column offset (a few MB; consecutive
-   frames never reuse the same noise, but the pool is finite: a background pixel's noise is not independent
-   over many thousands of frames). Marker patches get fresh shot noise for their extra signal on top.
+   pre-generated noisy frames (2 × ~2 MB), picked per frame at a random row/column offset; the extra shot
+   noise of the marker signal is drawn from a pool of 2²⁰ standard normals at a random offset. Honest
+   caveat: the pools are finite, so noise is not independent over many thousands of frames (two frames
+   may share shifted noise), and marker pixels carry the quantisation of the background once more
+   (+1/12 DN² variance). Within a frame, and between the few frames any estimate combines, it behaves as
+   fresh Gaussian read + shot noise; that is what makes rendering fast (no per-frame full-frame RNG).
 """
 
 from __future__ import annotations
@@ -81,6 +84,12 @@ class NoiseModel:
         return noise.astype(np.uint8)
 
 
+def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Row-wise cross product of (M, 3) arrays (np.cross has a large per-call overhead)."""
+    return np.column_stack([a[:, 1] * b[:, 2] - a[:, 2] * b[:, 1], a[:, 2] * b[:, 0] - a[:, 0] * b[:, 2],
+                            a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]])
+
+
 def disc_conics(centres_cam: np.ndarray, normals_cam: np.ndarray, radii_mm: np.ndarray,
                 jac_px: np.ndarray) -> np.ndarray:
     """Conics (M, 3, 3) of discs in pixel offsets from their projected centres, scaled so that C[2, 2] = −1.
@@ -90,9 +99,9 @@ def disc_conics(centres_cam: np.ndarray, normals_cam: np.ndarray, radii_mm: np.n
     """
     n = normals_cam / np.linalg.norm(normals_cam, axis=1, keepdims=True)
     helper = np.where(np.abs(n[:, :1]) < 0.9, np.array([[1.0, 0.0, 0.0]]), np.array([[0.0, 1.0, 0.0]]))
-    e1 = np.cross(n, helper)
+    e1 = _cross(n, helper)
     e1 /= np.linalg.norm(e1, axis=1, keepdims=True)
-    e2 = np.cross(n, e1)
+    e2 = _cross(n, e1)
     hom = np.stack([radii_mm[:, None] * e1, radii_mm[:, None] * e2, centres_cam], axis=2)  # columns
     hinv = np.linalg.inv(hom)
     c_norm = np.einsum("mji,jk,mkl->mil", hinv, np.diag([1.0, 1.0, -1.0]), hinv)
