@@ -32,7 +32,7 @@ log = logging.getLogger("rig.cli")
 MOCK_MODULES = {"robot": ("drivers.mock.bcap_server", []),
                 "exciter": ("drivers.mock.vfd_server", ["--body", "exciter"]),
                 "rotor": ("drivers.mock.vfd_server", ["--body", "rotor"]),
-                "generator": ("drivers.mock.scpi_server", [])}
+                "generator": ("drivers.mock.generator_server", [])}
 
 
 # ---------------------------------------------------------------------------- procedures

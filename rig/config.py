@@ -148,8 +148,19 @@ class GeneratorConfig:
     address: str = field(metadata=spec(check=_address))
     channel: int = field(default=1, metadata=spec(lo=1, hi=4))
     sensitivity_mm_per_v: tuple[tuple[float, ...], ...] = field(
-        default=((1.0, 1.0), (100.0, 1.0)), metadata=spec(length=(1, 1000), lo=0.0))
+        default=((1.0, 1.0), (100.0, 1.0)), metadata=spec(length=(1, 1000), lo=0.0, hi=1e6))
+    max_amplitude_vpp: float = field(default=10.0, metadata=spec(lo=0.0, lo_open=True, hi=100.0))
+    amplitude_step_vpp: float = field(default=0.5, metadata=spec(lo=0.0, lo_open=True, hi=100.0))
+    step_interval_s: float = field(default=0.1, metadata=spec(lo=0.0, lo_open=True, hi=60.0))
     timeout_s: float = field(default=2.0, metadata=spec(lo=0.05, hi=60.0))
+
+    def __post_init__(self) -> None:
+        from drivers.exciter.shaker import SensitivityTable
+
+        try:
+            SensitivityTable(self.sensitivity_mm_per_v)
+        except ValueError as exc:
+            raise ConfigError("devices.generator.sensitivity_mm_per_v", str(exc)) from exc
 
 
 @dataclass(frozen=True)

@@ -3,7 +3,8 @@
 ``with open_station(config, clock) as station:`` yields a :class:`Station` with
 
 - ``devices``: name → driver object for everything that moves (``robot`` → :class:`DensoArm`,
-  ``exciter`` → :class:`Exciter`, ``rotor`` → :class:`Rotor`); the runner makes each of them safe;
+  ``exciter`` → :class:`Exciter`, ``rotor`` → :class:`Rotor`, ``generator`` → :class:`Shaker` (SCPI
+  generator + amplifier + shaker)); the runner makes each of them safe;
 - ``cameras``: name → camera device (``FrameSource``: ``start()``, ``stop()``, ``frames()``);
 - ``world``: the twin (:class:`drivers.sim.world.World`) on a simulated station, else None — procedures
   must not use it for truth (truth is what they command, from the configuration); it exists for scene
@@ -12,9 +13,9 @@
 
 The simulated rig is not a special code path for the drivers: for each device whose address is
 ``mock://tcp`` or ``mock://pty`` the station starts the protocol-true mock server (b-CAP controller,
-Modbus VFD) on 127.0.0.1 or a pty, bound to one twin world, substitutes the server's real address, and
-connects **the same driver over the same transport** as on a real bench. Everything started is shut down
-on exit, in reverse order, each step attempted even if another fails.
+Modbus VFD, SCPI generator) on 127.0.0.1 or a pty, bound to one twin world, substitutes the server's
+real address, and connects **the same driver over the same transport** as on a real bench. Everything
+started is shut down on exit, in reverse order, each step attempted even if another fails.
 
 ``check_interlocks()`` is cheap and thread-safe (no device I/O; the drivers are not thread-safe): it
 reports a device whose transport was closed by a failure, and a mock server whose thread died.
@@ -219,6 +220,38 @@ def _build_vfd(st: Station, cfg: RigConfig, name: str) -> None:
     st.devices[name], st.addresses[name] = axis, url
 
 
+def _build_generator(st: Station, cfg: RigConfig) -> None:
+    from drivers.exciter.generator import ScpiGenerator
+    from drivers.exciter.shaker import SensitivityTable, Shaker
+    from drivers.transport import open_transport
+
+    gc, lim = cfg.devices.generator, cfg.limits.generator
+    assert gc is not None and lim is not None
+    addr = parse_address(gc.address, "devices.generator.address")
+    url = gc.address
+    if addr["scheme"] == "mock":
+        from drivers.mock.generator_instrument import GeneratorInstrument
+        from drivers.mock.generator_server import GeneratorServer
+
+        instrument = GeneratorInstrument(st.world.shaker, st.clock,
+                                         sensitivity_mm_per_v=[tuple(p) for p in gc.sensitivity_mm_per_v])
+        server = GeneratorServer(instrument, mode=addr["link"]).start()
+        st._closers.append(("generator mock server", server.stop))
+        url = server.url if addr["link"] == "tcp" else f"serial://{server.client_port}?baud=115200"
+    transport = open_transport(url, timeout_s=gc.timeout_s)
+    st._closers.append(("generator transport", transport.close))
+    generator = ScpiGenerator(transport, channel=gc.channel, timeout_s=gc.timeout_s)
+    generator.identify()
+    shaker = Shaker(generator, clock=st.clock, limits=lim.motion_limits(),
+                    sensitivity=SensitivityTable(gc.sensitivity_mm_per_v),
+                    max_amplitude_vpp=gc.max_amplitude_vpp,
+                    amplitude_step_vpp=gc.amplitude_step_vpp, step_interval_s=gc.step_interval_s)
+    st._closers.append(("generator output off", shaker.close))
+    st.devices["generator"], st.addresses["generator"] = shaker, url
+    st._liveness.append(("generator", lambda: "SCPI link closed" if getattr(transport, "closed", False)
+                         else None))
+
+
 def _build_cameras(st: Station, cfg: RigConfig) -> None:
     for name, cam in cfg.cameras.items():
         if cam.driver != "sim":
@@ -246,11 +279,8 @@ def open_station(config: RigConfig, clock: Any) -> Iterator[Station]:
                 raise ConfigError("station.clock", "a simulated station needs the virtual clock")
             seed = config.sim.seed if config.sim else 0
             station.world = World(clock, seed=seed, layout=world_layout(config))
-        if config.devices.generator is not None:
-            raise StationError("devices.generator: the 'scpi-generator' driver is not available in this "
-                               "version; remove [devices.generator] from the configuration")
         builders = (("robot", _build_robot), ("exciter", lambda s, c: _build_vfd(s, c, "exciter")),
-                    ("rotor", lambda s, c: _build_vfd(s, c, "rotor")))
+                    ("rotor", lambda s, c: _build_vfd(s, c, "rotor")), ("generator", _build_generator))
         for name, build in builders:
             if getattr(config.devices, name) is None:
                 continue

@@ -35,7 +35,8 @@ def test_simulated_station_moves_the_world_through_the_real_drivers() -> None:
     cfg = default_config()
     clock = make_clock(True)
     with open_station(cfg, clock) as st:
-        assert sorted(st.devices) == ["exciter", "robot", "rotor"] and sorted(st.cameras) == ["left", "right"]
+        assert sorted(st.devices) == ["exciter", "generator", "robot", "rotor"]
+        assert sorted(st.cameras) == ["left", "right"]
         assert st.addresses["robot"].startswith("tcp://127.0.0.1:")
         assert st.addresses["exciter"].startswith("serial:///dev/")  # Modbus RTU over a pty
         assert st.addresses["rotor"].startswith("tcp://127.0.0.1:")  # Modbus TCP
@@ -49,7 +50,10 @@ def test_simulated_station_moves_the_world_through_the_real_drivers() -> None:
         assert st.world.rotor.frequency_hz(clock.now_s()) == pytest.approx(10.0, abs=0.02)
         assert st.check_interlocks() == []
         snap = st.snapshot()
-        assert snap["simulated"] and set(snap["devices"]) == {"robot", "exciter", "rotor"}
+        assert snap["simulated"] and set(snap["devices"]) == {"robot", "exciter", "rotor", "generator"}
+        st.devices["generator"].start(8.0, 0.5)
+        assert st.world.shaker.frequency_hz(clock.now_s()) == pytest.approx(8.0)
+        assert st.world.shaker.amplitude_at_mm(clock.now_s()) == pytest.approx(0.5, rel=1e-3)
         port = parse_address(st.addresses["robot"])["port"]
     assert _refused_within(port, 3.0)  # the mock controller was shut down with the station
 
