@@ -40,6 +40,7 @@ _SERIAL_ERRORS = (serial.SerialException, OSError, _TermiosError)
 log = logging.getLogger(__name__)
 
 DEFAULT_SERIAL_BAUD = 38400
+SERIAL_POLL_S = 0.02  # pyserial read timeout; reads wait in slices of this length
 _PARITIES = {"N": serial.PARITY_NONE, "E": serial.PARITY_EVEN, "O": serial.PARITY_ODD,
              "M": serial.PARITY_MARK, "S": serial.PARITY_SPACE}
 _STOPBITS = {"1": serial.STOPBITS_ONE, "1.5": serial.STOPBITS_ONE_POINT_FIVE, "2": serial.STOPBITS_TWO}
@@ -257,17 +258,18 @@ class SerialTransport(_BufferedTransport):
         try:
             self._serial = serial.serial_for_url(
                 port_url, baudrate=int(baudrate), bytesize=bytesize, parity=parity, stopbits=stopbits,
-                timeout=self.timeout_s, write_timeout=self.timeout_s)
+                timeout=min(self.timeout_s, SERIAL_POLL_S), write_timeout=self.timeout_s)
         except (serial.SerialException, ValueError) as exc:
             raise TransportError(f"{port_url}: cannot open serial line: {exc}") from exc
         self.baudrate = int(baudrate)
 
     def _recv_some(self, max_bytes: int, timeout_s: float) -> bytes:
+        # pyserial's read timeout stays at SERIAL_POLL_S (changing it re-runs tcsetattr on every read);
+        # the caller loops until its own deadline, so a read may overshoot it by at most one poll.
         try:
             waiting = self._serial.in_waiting
             if timeout_s <= 0 and not waiting:
                 return b""
-            self._serial.timeout = max(timeout_s, 0.0)
             return self._serial.read(max(1, min(max_bytes, waiting)) if waiting else 1)
         except _SERIAL_ERRORS as exc:
             raise TransportError(f"{self.url}: receive failed: {exc}") from exc

@@ -25,7 +25,7 @@ import numpy as np
 
 from drivers.clock import Clock
 from drivers.denso.client import BcapClient
-from drivers.denso.hresult import BcapError
+from drivers.denso.hresult import BcapError, BcapProtocolError
 from drivers.denso.pose import check_pose, orientation_error_deg
 from drivers.transport import TransportError
 
@@ -241,7 +241,7 @@ class DensoArm:
             self.client.move(target.tolist(), linear=linear, speed_percent=percent, fig=self.fig)
             t_end = self.clock.now_s()
             reported = self.position()
-        except (BcapError, TransportError, OSError) as exc:
+        except (BcapError, BcapProtocolError, TransportError, OSError) as exc:
             log.error("move to %s failed (%s); attempting a halt", target.tolist(), exc)
             self._try_halt()
             raise
