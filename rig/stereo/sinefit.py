@@ -106,11 +106,6 @@ def fit_sine(
         if t.size < 6:
             raise TooFewSamplesError(f"a four-parameter sine fit needs at least 6 samples, got {t.size}")
         omega = 2 * np.pi * initial_frequency(t, xv)
-        if omega * duration < 2 * np.pi:
-            raise TooFewSamplesError(
-                f"record of {duration:.4g} s holds {omega * duration / (2 * np.pi):.2f} periods at "
-                f"{omega / (2 * np.pi):.4g} Hz; the four-parameter fit needs at least 1, give frequency_hz"
-            )
         p, *_ = np.linalg.lstsq(_design(tc, omega), xv, rcond=None)
         for _ in range(max_iterations):
             c, s = np.cos(omega * tc), np.sin(omega * tc)
@@ -125,6 +120,11 @@ def fit_sine(
                 break
         else:
             raise TimingError(f"four-parameter sine fit did not converge in {max_iterations} iterations")
+        if omega * duration < 2 * np.pi:
+            raise TooFewSamplesError(
+                f"record of {duration:.4g} s holds {omega * duration / (2 * np.pi):.2f} periods at "
+                f"{omega / (2 * np.pi):.4g} Hz; the four-parameter fit needs at least 1, give frequency_hz"
+            )
         c, s = np.cos(omega * tc), np.sin(omega * tc)
         J = np.column_stack([c, s, np.ones_like(tc), tc * (-p[0] * s + p[1] * c)])
         four = True
@@ -159,9 +159,10 @@ def fit_sine(
 
 @dataclass(frozen=True)
 class SlidingSineFit:
-    """Four-parameter fits in sliding windows: instantaneous frequency and amplitude of a sweep over time.
+    """Sine fits in sliding windows: instantaneous frequency and amplitude of a sweep over time.
 
-    Arrays are per window; ``time_s`` is the window centre (also the phase reference)."""
+    Arrays are per window; ``time_s`` is the window's mid time (the phase and frequency reference);
+    ``frequency_rate_hz_s`` is the fitted sweep rate (0 where ``chirp=False``)."""
 
     time_s: np.ndarray
     frequency_hz: np.ndarray
@@ -170,14 +171,52 @@ class SlidingSineFit:
     residual_rms: np.ndarray
     frequency_std_hz: np.ndarray
     amplitude_std: np.ndarray
+    frequency_rate_hz_s: np.ndarray
 
 
-def sliding_sine_fit(t_s: object, x: object, *, window_s: float, step_s: float) -> SlidingSineFit:
-    """Four-parameter sine fits in windows of ``window_s`` advanced by ``step_s`` (any time stamps).
+def fit_chirp(
+    tc: np.ndarray, x: np.ndarray, omega0: float, *, max_iterations: int = 50
+) -> tuple[np.ndarray, ...]:
+    """Gauss–Newton fit of a·cos θ + b·sin θ + c with θ = ω·tc + ½·ω̇·tc² (a linear chirp about tc = 0).
 
-    Each window must hold at least one period of the local frequency and 6 samples; during a sweep the
-    frequency changes within a window by rate·window_s, which biases the local amplitude only in second order
-    for linear sweeps. Windows with too few samples raise TooFewSamplesError.
+    Returns (p = [a, b, c, ω, ω̇], covariance, residuals); starts at ω0 with ω̇ = 0.
+    """
+    theta = omega0 * tc
+    p3, *_ = np.linalg.lstsq(np.column_stack([np.cos(theta), np.sin(theta), np.ones_like(tc)]), x, rcond=None)
+    p = np.r_[p3, omega0, 0.0]
+    span = float(np.ptp(tc))
+    for _ in range(max_iterations):
+        th = p[3] * tc + 0.5 * p[4] * tc**2
+        c, s = np.cos(th), np.sin(th)
+        d = -p[0] * s + p[1] * c
+        J = np.column_stack([c, s, np.ones_like(tc), tc * d, 0.5 * tc**2 * d])
+        r = x - (p[0] * c + p[1] * s + p[2])
+        step, *_ = np.linalg.lstsq(J, r, rcond=None)
+        p = p + step
+        if abs(step[3]) * span + abs(step[4]) * span**2 < 1e-10:
+            break
+    else:
+        raise TimingError(f"chirp fit did not converge in {max_iterations} iterations")
+    th = p[3] * tc + 0.5 * p[4] * tc**2
+    c, s = np.cos(th), np.sin(th)
+    d = -p[0] * s + p[1] * c
+    J = np.column_stack([c, s, np.ones_like(tc), tc * d, 0.5 * tc**2 * d])
+    r = x - (p[0] * c + p[1] * s + p[2])
+    dof = max(tc.size - 5, 1)
+    cov = float(r @ r) / dof * np.linalg.pinv(J.T @ J)
+    return p, cov, r
+
+
+def sliding_sine_fit(
+    t_s: object, x: object, *, window_s: float, step_s: float, chirp: bool = True
+) -> SlidingSineFit:
+    """Sine fits in windows of ``window_s`` advanced by ``step_s`` (any time stamps): a sweep's
+    instantaneous frequency and amplitude at each window's mid time (the paper's Figs. 15 and 17).
+
+    ``chirp=True`` (default) fits a linear chirp per window (five parameters: the frequency and its rate at
+    the mid time), which removes the bias a sweep causes in a plain four-parameter fit (its quadratic phase
+    π·rate·(window/2)² at the window edges); ``chirp=False`` fits four parameters. Each window needs at
+    least one period of the local frequency and 6 samples (TooFewSamplesError otherwise).
     """
     t = as_times(t_s, min_count=6)
     xv = as_values(x, t.size)
@@ -186,22 +225,40 @@ def sliding_sine_fit(t_s: object, x: object, *, window_s: float, step_s: float) 
     if window_s > t[-1] - t[0] + 1e-12:
         raise TooFewSamplesError(f"window_s = {window_s} s exceeds the record length {t[-1] - t[0]:.4g} s")
     starts = np.arange(t[0], t[-1] - window_s + 1e-12, step_s)
-    out: dict[str, list[float]] = {k: [] for k in ("t", "f", "a", "p", "r", "fs", "as")}
+    rows = []
     for s0 in starts:
         m = (t >= s0) & (t < s0 + window_s)
-        fit = fit_sine(t[m], xv[m], t_ref_s=s0 + 0.5 * window_s)
-        for key, val in zip(
-            ("t", "f", "a", "p", "r", "fs", "as"),
+        tm = t[m]
+        t_mid = 0.5 * (tm[0] + tm[-1])
+        fit = fit_sine(tm, xv[m], t_ref_s=t_mid)
+        if not chirp:
+            rows.append(
+                (
+                    t_mid,
+                    fit.frequency_hz,
+                    fit.amplitude,
+                    fit.phase_rad,
+                    fit.residual_rms,
+                    fit.frequency_std_hz,
+                    fit.amplitude_std,
+                    0.0,
+                )
+            )
+            continue
+        p, cov, r = fit_chirp(tm - t_mid, xv[m], 2 * np.pi * fit.frequency_hz)
+        amp = float(np.hypot(p[0], p[1]))
+        g = np.array([p[0], p[1]]) / amp
+        rows.append(
             (
-                fit.t_ref_s,
-                fit.frequency_hz,
-                fit.amplitude,
-                fit.phase_rad,
-                fit.residual_rms,
-                fit.frequency_std_hz,
-                fit.amplitude_std,
-            ),
-            strict=True,
-        ):
-            out[key].append(val)
-    return SlidingSineFit(*(np.array(out[k]) for k in ("t", "f", "a", "p", "r", "fs", "as")))
+                t_mid,
+                p[3] / (2 * np.pi),
+                amp,
+                float(np.arctan2(-p[1], p[0])),
+                float(np.sqrt(np.mean(r**2))),
+                float(np.sqrt(max(cov[3, 3], 0.0))) / (2 * np.pi),
+                float(np.sqrt(max(g @ cov[:2, :2] @ g, 0.0))),
+                p[4] / (2 * np.pi),
+            )
+        )
+    cols = np.array(rows, dtype=float).T if rows else np.zeros((8, 0))
+    return SlidingSineFit(*cols)

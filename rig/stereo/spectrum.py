@@ -4,7 +4,8 @@ Scaling: the returned amplitude of a bin is the **peak amplitude** of a sinusoid
 ``2·|Σ w_k x_k e^{-j2πf t_k}| / Σ w_k`` (normalised by the window's coherent gain; DC is not doubled).
 Between bins a tone loses the window's scalloping loss (rectangular 36 %, Hann 15 %, flat-top 0.1 %,
 metrology notes §8); the *interpolated* peak removes it: the peak of the windowed DTFT is located by a
-bounded search within ±1 bin of the largest bin, so its frequency and amplitude are exact for a single tone
+bounded search within ±1 bin of the largest bin (of the Hann-windowed DTFT for the flat-top window, whose
+flat main lobe cannot locate a tone), so its frequency and amplitude are exact for a single tone
 apart from leakage of the tone's negative-frequency image (small for records of several periods with a
 Hann or flat-top window; use :func:`rig.stereo.sinefit.fit_sine` for the least-squares optimum).
 
@@ -117,7 +118,11 @@ def spectrum(
         raise TooFewSamplesError(f"no DFT bin above min_frequency_hz = {f_min} Hz (record too short)")
     k = int(np.flatnonzero(search)[np.argmax(amp[search])])
     tg = t[0] + n_idx * period  # the fitted uniform grid: no jitter in the refinement
-    f_peak, a_peak = refine_peak(tg, xv, w, float(freq[k]), fs / n)
+    # A flat-top window's main lobe is flat by design, so its maximum does not locate the tone: the
+    # frequency comes from the Hann-windowed DTFT, the amplitude from the requested window at it.
+    w_locate = window_weights("hann", n) if window == "flattop" else w
+    f_peak, _ = refine_peak(tg, xv, w_locate, float(freq[k]), fs / n)
+    a_peak = dtft_amplitude(tg, xv, w, f_peak)
     return Spectrum(freq, amp, f_peak, a_peak, window, fs, fs / n)
 
 

@@ -5,7 +5,8 @@ geometry, e.g. the ``rotation`` event), which maps the projected ellipse back to
 fitted in the plane, the marker's angle about the fitted centre is unwrapped and a straight line
 θ(t) = θ₀ + ω·t fitted to it (the rotation rate). For every frame of camera A the closest frame of camera B
 is taken, and the delay follows from their angular difference: δ = wrap(θ_B − θ_A)/ω − (τ_B − τ_A).
-The offset is the mean over all frame pairs, its uncertainty the standard error of that mean.
+The offset is the mean over all frame pairs (drift ignored: ``epoch_s`` is the mean time stamp of the
+paired frames of B), its uncertainty the standard error of that mean.
 
 As in the paper, the frame time stamps are used as they are: the rolling shutter is **not** corrected, so
 the delay carries a once-per-revolution ripple of amplitude ≈ line time × the spread of v_B − v_A and a bias
@@ -132,11 +133,12 @@ def estimate_rotor(
     if np.sign(wa) != np.sign(wb):
         raise NotRotatingError("the two cameras see opposite senses of rotation; check the rotor axis")
     omega = 0.5 * (wa + wb)
-    # Closest frame of B for each frame of A (B's clock shifted by the guess).
-    idx = np.clip(np.searchsorted(tb - offset_guess_s, ta), 1, tb.size - 1)
-    left_closer = np.abs(tb[idx - 1] - offset_guess_s - ta) < np.abs(tb[idx] - offset_guess_s - ta)
+    # Closest frame of B for each frame of A, B's time stamps shifted by the guess onto A's clock.
+    tb_on_a = tb + offset_guess_s
+    idx = np.clip(np.searchsorted(tb_on_a, ta), 1, tb.size - 1)
+    left_closer = np.abs(tb_on_a[idx - 1] - ta) < np.abs(tb_on_a[idx] - ta)
     j = idx - left_closer
-    gap = np.abs(tb[j] - offset_guess_s - ta)
+    gap = np.abs(tb_on_a[j] - ta)
     keep = gap <= 0.75 * float(np.median(np.diff(tb)))
     if np.count_nonzero(keep) < MIN_FRAMES:
         raise TooFewSamplesError(
@@ -165,6 +167,6 @@ def estimate_rotor(
         drift_ppm={a: 0.0, b: 0.0},
         method="rotor",
         uncertainty={"offset_s": {a: 0.0, b: std}},
-        epoch_s={a: 0.0, b: 0.0},
+        epoch_s={a: 0.0, b: float(np.mean(tb[j[keep]]))},
         details=details,
     )
