@@ -153,7 +153,7 @@ class GeneratorServer:
 
     def _accept_loop(self) -> None:
         assert self._listener is not None
-        self._listener.settimeout(0.2)
+        self._listener.settimeout(0.05)
         while not self._stop.is_set():
             try:
                 conn, _ = self._listener.accept()
@@ -169,7 +169,7 @@ class GeneratorServer:
 
     def _conn_loop(self, conn: socket.socket) -> None:
         buffer = bytearray()
-        conn.settimeout(0.2)
+        conn.settimeout(0.05)
         with conn:
             while not self._stop.is_set():
                 try:
@@ -194,7 +194,7 @@ class GeneratorServer:
         tty.setraw(self._fd)
         buffer = bytearray()
         while not self._stop.is_set():
-            readable, _, _ = select.select([self._fd], [], [], 0.2)
+            readable, _, _ = select.select([self._fd], [], [], 0.05)
             if not readable:
                 continue
             try:
