@@ -181,3 +181,21 @@ def test_undistort_outside_invertible_field_raises() -> None:
     with pytest.raises(errors.DistortionError, match="outside the field"):
         undistort(np.array([[0.7, 0.0]]), coeffs)
     assert np.isnan(undistort(np.array([[np.nan, np.nan]]), coeffs)).all()
+
+
+def test_observation_outside_lens_model_is_dropped_and_flagged() -> None:
+    true = [
+        look_at_camera(TARGET + off, TARGET) for off in ([-400, 0, -1500], [400, 0, -1500], [0, 300, -1500])
+    ]
+    cams = [dlt_camera(c) for c in true]
+    strong = DLTCamera(cams[2].P, distortion=(-0.5, 0.0, 0.0, 0.0))  # invertible only for r_d < 0.544
+    X = volume_points(3, np.random.default_rng(5))
+    uv = [cams[0].project(X), cams[1].project(X), strong.project(X)]
+    K = strong.decompose()[0]
+    uv[2][1] = K[:2, 2] + 0.7 * K[0, 0] * np.array([1.0, 0.0])  # r_d = 0.7: no undistorted point maps there
+    r = triangulate([cams[0], cams[1], strong], uv, refine=True)
+    assert r.outside_lens_model.tolist() == [[False, False, False], [False, False, True], [False] * 3]
+    assert r.n_views.tolist() == [3, 2, 3]
+    np.testing.assert_allclose(r.xyz_mm, X, atol=1e-6)
+    with pytest.raises(errors.DistortionError, match="distortion='k1'"):
+        strong.undistort_px(uv[2])

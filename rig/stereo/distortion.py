@@ -42,14 +42,18 @@ def distort_jacobian(xy: np.ndarray, coeffs: np.ndarray) -> np.ndarray:
     return J
 
 
-def undistort(xy_d: np.ndarray, coeffs: np.ndarray, *, tol: float = 1e-12, max_iter: int = 50) -> np.ndarray:
+def undistort(
+    xy_d: np.ndarray, coeffs: np.ndarray, *, strict: bool = True, tol: float = 1e-12, max_iter: int = 50
+) -> np.ndarray:
     """Invert :func:`distort` by Newton's method, vectorized; NaN rows stay NaN.
 
-    Raises :class:`DistortionError` if some finite point does not converge (the point lies where the
-    model folds over, far outside the calibrated field).
+    A point fails when Newton does not reproduce it or lands where the model folds over (det ∂x_d/∂x ≤ 0:
+    far outside the calibrated field, where several or no undistorted points map to it). ``strict=True``
+    raises :class:`DistortionError` for any failed point; ``strict=False`` returns NaN for those rows.
     """
     xy = xy_d.copy()
     active = np.isfinite(xy_d).all(axis=1)
+    finite = active.copy()
     for _ in range(max_iter):
         if not active.any():
             break
@@ -57,27 +61,33 @@ def undistort(xy_d: np.ndarray, coeffs: np.ndarray, *, tol: float = 1e-12, max_i
         resid = distort(pts, coeffs) - xy_d[active]
         J = distort_jacobian(pts, coeffs)
         det = J[:, 0, 0] * J[:, 1, 1] - J[:, 0, 1] * J[:, 1, 0]
-        step = (
-            np.stack(
-                [
-                    J[:, 1, 1] * resid[:, 0] - J[:, 0, 1] * resid[:, 1],
-                    J[:, 0, 0] * resid[:, 1] - J[:, 1, 0] * resid[:, 0],
-                ],
-                axis=1,
+        with np.errstate(invalid="ignore", divide="ignore"):
+            step = (
+                np.stack(
+                    [
+                        J[:, 1, 1] * resid[:, 0] - J[:, 0, 1] * resid[:, 1],
+                        J[:, 0, 0] * resid[:, 1] - J[:, 1, 0] * resid[:, 0],
+                    ],
+                    axis=1,
+                )
+                / det[:, None]
             )
-            / det[:, None]
-        )
-        xy[active] = pts - step
-        done = np.abs(step).max(axis=1) < tol
         idx = np.nonzero(active)[0]
-        active[idx[done]] = False
-    if active.any():
-        # Points still moving after max_iter: accept if the forward model reproduces them.
-        check = np.abs(distort(xy[active], coeffs) - xy_d[active]).max(axis=1) < 1e-9
-        if not check.all():
+        moving = np.isfinite(step).all(axis=1)
+        xy[idx[moving]] = pts[moving] - step[moving]
+        active[idx[~moving | (np.abs(step).max(axis=1) < tol)]] = False
+    with np.errstate(invalid="ignore"):
+        reproduced = np.abs(distort(xy, coeffs) - xy_d).max(axis=1) < 1e-9
+        J = distort_jacobian(xy, coeffs)
+        unfolded = J[:, 0, 0] * J[:, 1, 1] - J[:, 0, 1] * J[:, 1, 0] > 0
+    failed = finite & ~(reproduced & unfolded)
+    if failed.any():
+        if strict:
             raise DistortionError(
-                f"{int((~check).sum())} points cannot be undistorted with coefficients {list(coeffs)}: "
-                "they lie outside the field where the distortion model is invertible; "
-                "drop them or recalibrate with points covering that part of the image"
+                f"{int(failed.sum())} points cannot be undistorted with coefficients "
+                f"{[round(float(c), 6) for c in coeffs]}: they lie outside the field where the lens model is "
+                "invertible; drop them, or recalibrate with points covering that part of the image "
+                "(or fit fewer terms, e.g. distortion='k1')"
             )
+        xy[failed] = np.nan
     return xy

@@ -150,15 +150,18 @@ class DLTCamera:
             J = np.einsum("ij,njk->nik", A, Jn)
         return uv_d, J
 
-    def undistort_px(self, uv_px: object) -> np.ndarray:
-        """Observed pixels (N, 2) → ideal pinhole pixels of P (identity without distortion); NaN kept."""
+    def undistort_px(self, uv_px: object, *, strict: bool = True) -> np.ndarray:
+        """Observed pixels (N, 2) → ideal pinhole pixels of P (identity without distortion); NaN kept.
+
+        Pixels outside the field where the lens model is invertible raise :class:`DistortionError`, or
+        become NaN with ``strict=False``."""
         uv = as_points(uv_px, "uv_px", 2, allow_nan=True, allow_empty=True)
         if self.distortion is None:
             return uv
         K = self._k
         A = K[:2, :2]
         xy_d = (uv - K[:2, 2]) @ np.linalg.inv(A).T
-        return undistort(xy_d, np.asarray(self.distortion)) @ A.T + K[:2, 2]
+        return undistort(xy_d, np.asarray(self.distortion), strict=strict) @ A.T + K[:2, 2]
 
     # ----------------------------------------------------------------- conventions and storage
     def dlt11(self, *, length_unit_mm: float = 1.0) -> np.ndarray:
@@ -268,7 +271,7 @@ def calibrate_dlt(
     uv_px: object,
     *,
     refine: bool = False,
-    distortion: bool = False,
+    distortion: bool | str = False,
     image_size: tuple[int, int] = (1920, 1080),
     normalize: bool = True,
 ) -> DLTCamera:
@@ -276,28 +279,48 @@ def calibrate_dlt(
 
     ``xyz_mm`` (N, 3) are known world positions in mm, ``uv_px`` (N, 2) their measured image positions.
     The linear step is the paper's A·b = 0 by SVD on Hartley-normalized coordinates. ``refine=True``
-    then minimises the pixel reprojection error over P; ``distortion=True`` (implies refinement) also
-    fits k1, k2, p1, p2. Raises :class:`DegenerateCalibrationError` for too few, collinear or coplanar
+    then minimises the pixel reprojection error over P; ``distortion`` (implies refinement) also fits
+    lens distortion: ``True`` or ``"k1k2p1p2"`` all four coefficients, ``"k1k2"`` or ``"k1"`` only radial
+    terms (fewer terms extrapolate more safely outside the calibrated field). Raises
+    :class:`DegenerateCalibrationError` for too few, collinear or coplanar
     points, :class:`InputArrayError` for empty, NaN or mis-shaped input. ``normalize=False`` skips the
     Hartley normalization (the paper's raw solve; worse conditioned, kept for comparison only).
     """
+    free = _distortion_terms(distortion)
     xyz, uv = check_calibration_input(xyz_mm, uv_px)
     P = _linear_p(xyz, uv, normalize)
     linear = _camera(P, xyz, uv, image_size, convention="homogeneous-svd", refined=False)
-    if not (refine or distortion):
+    if not (refine or free.any()):
         return linear
-    if distortion and xyz.shape[0] < 8:
+    n_unknowns = 11 + int(free.sum())
+    if 2 * xyz.shape[0] < n_unknowns + 1:
         raise DegenerateCalibrationError(
-            f"{xyz.shape[0]} control points cannot fit P and 4 distortion coefficients (15 unknowns); "
-            "use at least 8 points, better ≥ 30 spread over the image"
+            f"{xyz.shape[0]} control points cannot fit P and {int(free.sum())} distortion coefficients "
+            f"({n_unknowns} unknowns); use more points, better ≥ 30 spread over the image"
         )
-    refined = _refine(linear.P, xyz, uv, image_size, distortion)
+    refined = _refine(linear.P, xyz, uv, image_size, free)
     # least_squares never returns a worse cost than its start; keep the guard for pathological starts.
     return refined if refined.rms_px <= linear.rms_px else linear
 
 
+_DISTORTION_TERMS = {"k1": (1, 0, 0, 0), "k1k2": (1, 1, 0, 0), "k1k2p1p2": (1, 1, 1, 1)}
+
+
+def _distortion_terms(distortion: object) -> np.ndarray:
+    """Mask of the fitted coefficients (k1, k2, p1, p2) for the ``distortion`` argument."""
+    if distortion is False or distortion is None:
+        return np.zeros(4, dtype=bool)
+    if distortion is True:
+        return np.ones(4, dtype=bool)
+    if isinstance(distortion, str) and distortion in _DISTORTION_TERMS:
+        return np.array(_DISTORTION_TERMS[distortion], dtype=bool)
+    raise InputArrayError(
+        f"distortion={distortion!r}: pass False, True, or one of {sorted(_DISTORTION_TERMS)}"
+    )
+
+
 def _refine(
-    P0: np.ndarray, xyz: np.ndarray, uv: np.ndarray, size: tuple[int, int], with_dist: bool
+    P0: np.ndarray, xyz: np.ndarray, uv: np.ndarray, size: tuple[int, int], free: np.ndarray
 ) -> DLTCamera:
     """Levenberg–Marquardt on the pixel residuals; P in normalized coordinates with P_n[2,3] = 1 as gauge."""
     Tw, Ti = similarity_3d(xyz), similarity_2d(uv)
@@ -307,7 +330,11 @@ def _refine(
 
     def unpack(p: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
         P = Ti_inv @ np.append(p[:11], 1.0).reshape(3, 4) @ Tw
-        return P, (p[11:15] if with_dist else None)
+        if not free.any():
+            return P, None
+        d = np.zeros(4)
+        d[free] = p[11:]
+        return P, d
 
     def residuals(p: np.ndarray) -> np.ndarray:
         P, d = unpack(p)
@@ -317,7 +344,7 @@ def _refine(
             return np.full(uv.size, 1e6)
         return (cam.project(xyz) - uv).ravel()
 
-    p0 = np.concatenate([Pn.ravel()[:11], np.zeros(4) if with_dist else []])
+    p0 = np.concatenate([Pn.ravel()[:11], np.zeros(int(free.sum()))])
     sol = scipy.optimize.least_squares(residuals, p0, method="lm", x_scale="jac", xtol=1e-12, ftol=1e-12)
     P, d = unpack(sol.x)
     return _camera(

@@ -110,7 +110,8 @@ def match_epipolar(
     epipolar distance is ≤ ``gate_px``, then minimises the sum of squared distances. A pair (i, j) is
     ``ambiguous`` when another candidate of i or of j lies within the gate and within
     ``ambiguity_margin_px`` (default ``gate_px / 2``) of the pair's own distance: a marker on nearly the
-    same epipolar line. NaN rows (lost markers) are never matched.
+    same epipolar line. NaN rows (lost markers) and pixels outside the field where a camera's lens model
+    is invertible are never matched.
     """
     if isinstance(gate_px, bool) or not (
         isinstance(gate_px, numbers.Real) and math.isfinite(gate_px) and gate_px > 0
@@ -123,8 +124,8 @@ def match_epipolar(
         raise InputArrayError(
             f"ambiguity_margin_px={ambiguity_margin_px!r}: pass a non-negative number of pixels"
         )
-    a = uv_a if not isinstance(cam_a, DLTCamera) else cam_a.undistort_px(uv_a)
-    b = uv_b if not isinstance(cam_b, DLTCamera) else cam_b.undistort_px(uv_b)
+    a = uv_a if not isinstance(cam_a, DLTCamera) else cam_a.undistort_px(uv_a, strict=False)
+    b = uv_b if not isinstance(cam_b, DLTCamera) else cam_b.undistort_px(uv_b, strict=False)
     D = epipolar_distance_px(fundamental_from_projections(cam_a, cam_b), a, b)
     n_a, n_b = D.shape
     feasible = np.isfinite(D) & (gate_px >= D)

@@ -26,13 +26,16 @@ class Triangulation:
 
     ``xyz_mm`` (N, 3); ``residuals_px`` (N, n, 2) projected − observed, NaN where a camera did not see
     the point; ``covariance_mm2`` (N, 3, 3) = σ²(JᵀJ)⁻¹ when a pixel σ was given, else None;
-    ``n_views`` (N,) cameras used per point.
+    ``n_views`` (N,) cameras used per point; ``outside_lens_model`` (N, n) True where an observation
+    could not be undistorted (outside the field where the camera's lens model is invertible) and was
+    therefore not used.
     """
 
     xyz_mm: np.ndarray
     residuals_px: np.ndarray
     covariance_mm2: np.ndarray | None
     n_views: np.ndarray
+    outside_lens_model: np.ndarray
 
     @property
     def rms_px(self) -> np.ndarray:
@@ -210,7 +213,8 @@ def triangulate(
 
     ``cameras``: :class:`DLTCamera` objects (or (3, 4) matrices); ``uv_per_camera``: one (N, 2) array of
     observed pixels per camera, row k being the same point in all of them, NaN where not seen. Observed
-    pixels are undistorted with each camera's lens model for the linear step; ``refine=True`` then
+    pixels are undistorted with each camera's lens model for the linear step (observations outside the
+    field where it is invertible are dropped and flagged in ``outside_lens_model``); ``refine=True`` then
     minimises the reprojection error in observed pixels. ``pixel_sigma_px`` (> 0): isotropic pixel noise
     of the observations, giving ``covariance_mm2`` = σ²(JᵀJ)⁻¹. Raises
     :class:`DegenerateGeometryError` when the cameras seeing a point all share one centre.
@@ -218,6 +222,9 @@ def triangulate(
     cams, uv = _check_inputs(cameras, uv_per_camera)
     if pixel_sigma_px is not None and not (np.isfinite(pixel_sigma_px) and pixel_sigma_px > 0):
         raise InputArrayError(f"pixel_sigma_px={pixel_sigma_px!r}: pass a positive number of pixels, or None")
+    uv_ideal = np.stack([c.undistort_px(uv[:, i], strict=False) for i, c in enumerate(cams)], axis=1)
+    outside = np.isfinite(uv).all(axis=2) & ~np.isfinite(uv_ideal).all(axis=2)
+    uv[outside] = np.nan
     seen = np.isfinite(uv).all(axis=2)
     labels = _centre_groups(cams)
     if len(set(labels.tolist())) < len(cams):
@@ -231,7 +238,6 @@ def triangulate(
                 f"cameras {pairs} share a centre (no baseline), and {int(bad.sum())} points are seen only by "
                 "them: no baseline, no triangulation; move one camera or check the calibration"
             )
-    uv_ideal = np.stack([c.undistort_px(uv[:, i]) for i, c in enumerate(cams)], axis=1)
     xyz = linear_triangulation([c.P for c in cams], uv_ideal)
     if refine:
         xyz = _refine(cams, xyz, uv, max_iter)
@@ -245,4 +251,4 @@ def triangulate(
         good = np.isfinite(xyz).all(axis=1) & (det > 1e-9 * np.trace(H, axis1=1, axis2=2) ** 3)
         cov[good] = pixel_sigma_px**2 * np.linalg.inv(H[good])
     residuals[~seen] = np.nan
-    return Triangulation(xyz_mm=xyz, residuals_px=residuals, covariance_mm2=cov, n_views=seen.sum(axis=1))
+    return Triangulation(xyz, residuals, cov, seen.sum(axis=1), outside)
