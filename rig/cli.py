@@ -26,6 +26,7 @@ from typing import Any
 
 from rig.config import ConfigError, load_config
 from rig.procedure import ParameterError, check_procedure_module, parameter_table, parse_set
+from rig.record_reader import RecordError
 from rig.safety import EXIT_BAD_INPUT, EXIT_FAULT
 
 log = logging.getLogger("rig.cli")
@@ -124,7 +125,17 @@ def _run_procedure(module: types.ModuleType, args: argparse.Namespace) -> int:
 
 
 def cmd_run(args: argparse.Namespace) -> int:
-    return _run_procedure(load_procedure(args.procedure), args)
+    name = args.procedure
+    if name is None:
+        if not args.resume:
+            raise ParameterError("PROCEDURE", "missing; give a procedure name or file (or --resume RUN)")
+        from rig.record import parse_record
+
+        docs = parse_record(Path(args.resume) / "record.jsonl").documents
+        name = next((d.get("procedure") for d in docs if d.get("type") == "start"), None)
+        if not isinstance(name, str):
+            raise ParameterError("--resume", f"{args.resume!r} has no start document naming its procedure")
+    return _run_procedure(load_procedure(name), args)
 
 
 def cmd_certify(args: argparse.Namespace) -> int:
@@ -214,7 +225,8 @@ def build_parser() -> argparse.ArgumentParser:
                        "Run the certify procedure: calibrate, sync, accuracy, sweep, report, certificate.")
     _add_run_options(p)
     p = sub.add_parser("run", help="run one procedure", description="Run one scripted procedure.")
-    p.add_argument("procedure", metavar="PROCEDURE", help="a procedure name (see `rig list`) or a .py file")
+    p.add_argument("procedure", metavar="PROCEDURE", nargs="?",
+                   help="a procedure name (see `rig list`) or a .py file (with --resume: the run's)")
     _add_run_options(p)
     p = sub.add_parser("report", help="rebuild the report of a run folder",
                        description="Rebuild tables/, figures/, report.html and certificate.json from a run "
@@ -245,6 +257,9 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     level = (logging.WARNING, logging.INFO, logging.DEBUG)[min(args.verbose, 2)]
     logging.basicConfig(level=level, format="%(levelname)s %(name)s: %(message)s", stream=sys.stderr)
+    for handler in logging.getLogger().handlers:  # the console keeps its level when rig.log wants more
+        if isinstance(handler, logging.StreamHandler) and not isinstance(handler, logging.FileHandler):
+            handler.setLevel(level)
     if args.command is None:
         parser.print_help()
         return 0
@@ -252,7 +267,7 @@ def main(argv: list[str] | None = None) -> int:
                 "list": cmd_list, "mock": cmd_mock}
     try:
         return commands[args.command](args)
-    except (ConfigError, ParameterError) as exc:
+    except (ConfigError, ParameterError, RecordError) as exc:
         print(f"rig: bad input: {exc}", file=sys.stderr)
         return EXIT_BAD_INPUT
     except KeyboardInterrupt:
