@@ -292,3 +292,17 @@ def test_write_video_round_trip(tmp_path, fourcc: str, suffix: str) -> None:
     assert len(frames) == n
     diff = np.abs(frames[0].astype(float) - cam.render(0).astype(float))
     assert diff.mean() < 4.0  # lossy codecs, but the same picture
+
+
+def test_a_disc_turned_away_from_the_camera_is_neither_drawn_nor_observed() -> None:
+    world = World(layout=WorldLayout(initial_scene="single_marker"))
+    cam = default_stereo_pair(world, noise=NOISELESS)[0]
+    assert "arm" in set(cam.truth_observations(0.0, 0.05).marker_id)
+    world.robot.move(0.0, (350.0, 0.0, 300.0, 90.0, 0.0, -90.0), 100.0, 500.0)  # flange turned by 180°
+    t_end = world.robot.t_end_s()
+    obs = cam.truth_observations(t_end, t_end + 0.05)
+    assert "arm" not in set(obs.marker_id) and len(obs) > 0
+    i = cam.frame_indices_between(t_end, t_end + 0.05)[0]
+    uv = cam.project(world.positions(["arm"], [t_end])[:, 0])[0]
+    u, v = (round(float(x)) for x in uv)
+    assert cam.render(i)[v - 15 : v + 16, u - 15 : u + 16].max() == NOISELESS.background_level_dn

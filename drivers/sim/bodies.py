@@ -103,6 +103,7 @@ class RobotBody:
         self.rot_speed_deg_s = _finite(rot_speed_deg_s, "rot_speed_deg_s", positive=True)
         self.rot_accel_deg_s2 = _finite(rot_accel_deg_s2, "rot_accel_deg_s2", positive=True)
         self._moves: tuple[_Move, ...] = ()
+        self._starts_cache: tuple[tuple[_Move, ...] | None, np.ndarray] = (None, np.zeros(0))
         self._last_command_s = -math.inf
         self._lock = threading.Lock()
 
@@ -200,8 +201,11 @@ class RobotBody:
 
     def _segments(self, t: np.ndarray) -> tuple[tuple[_Move, ...], np.ndarray]:
         moves = self._moves
-        starts = np.array([m.t_start_s for m in moves])
-        idx = np.searchsorted(starts, t, side="right") - 1 if moves else np.full(t.shape, -1)
+        cached = self._starts_cache  # start times of the current move tuple, rebuilt when it changes
+        if cached[0] is not moves:
+            cached = (moves, np.array([m.t_start_s for m in moves]))
+            self._starts_cache = cached
+        idx = np.searchsorted(cached[1], t, side="right") - 1 if moves else np.full(t.shape, -1)
         return moves, idx
 
     def pose_at(self, t_s: float | np.ndarray) -> np.ndarray:

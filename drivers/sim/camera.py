@@ -13,6 +13,7 @@ Timing model (world time is the rig's virtual time; the camera never sees it):
 from __future__ import annotations
 
 import math
+import threading
 import zlib
 from collections.abc import Iterable
 from pathlib import Path
@@ -115,9 +116,14 @@ class SimCamera:
         self._chunks = 0
         self._pool: np.ndarray | None = None
         self._normal_pool: np.ndarray | None = None
+        self._index_lock = threading.RLock()  # the frame map and the noise pools are built lazily
 
     # ------------------------------------------------------------------ clock and frame indices
     def _extend(self, sensor_frame: int) -> None:
+        with self._index_lock:
+            self._extend_locked(sensor_frame)
+
+    def _extend_locked(self, sensor_frame: int) -> None:
         while self._chunks * _CHUNK <= sensor_frame:
             rng = np.random.default_rng((self.seed, self._name_id, 1, self._chunks))
             ks = np.arange(self._chunks * _CHUNK, (self._chunks + 1) * _CHUNK)
@@ -183,10 +189,17 @@ class SimCamera:
     def _depth(self, points_mm: np.ndarray) -> np.ndarray:
         return points_mm @ self.rotation[2] + self.tvec[2]
 
+    @staticmethod
+    def _faces_camera(normals_cam: np.ndarray, centres_cam: np.ndarray) -> np.ndarray:
+        """True where the disc's front faces the camera at more than ~1° from edge-on."""
+        cos = -np.sum(normals_cam * centres_cam, axis=-1) / np.linalg.norm(centres_cam, axis=-1)
+        return cos > 0.02
+
     def truth_observations(self, t_start_s: float, t_stop_s: float,
                            marker_ids: list[str] | None = None) -> pd.DataFrame:
         """Exact projected marker centres, no rendering, for every frame between the two world times.
 
+        Markers whose printed face turns away from the camera (or lies within ~1° of edge-on) are not seen.
         Each observation's time is the mid-exposure of the (fractional) image row where the centre is seen,
         found by fixed-point iteration v ← project(position(t_frame + v·line_time + exposure/2)).
         Columns: frame_index, timestamp_s (camera clock), t_true_s (world), marker_id, u_px, v_px.
@@ -213,8 +226,10 @@ class SimCamera:
                 if done:
                     break
             t = t0[None, :] + np.clip(v, 0.0, self.height_px - 1) * self.line_time_s + 0.5 * self.exposure_s
-            inside = ((self._depth(pts) > 0) & (uv[..., 0] >= -0.5) & (uv[..., 0] <= self.width_px - 0.5)
-                      & (v >= -0.5) & (v <= self.height_px - 0.5))
+            facing = self._faces_camera(self.world.normals(list(ids), t) @ self.rotation.T,
+                                        pts @ self.rotation.T + self.tvec)
+            inside = (facing & (self._depth(pts) > 0) & (uv[..., 0] >= -0.5)
+                      & (uv[..., 0] <= self.width_px - 0.5) & (v >= -0.5) & (v <= self.height_px - 0.5))
             mi, fi = np.nonzero(inside)
             rows.append(pd.DataFrame({
                 "frame_index": np.asarray(idx, dtype=np.int64)[fi],
@@ -230,8 +245,10 @@ class SimCamera:
     # ------------------------------------------------------------------ rendering
     def _background(self, rng: np.random.Generator) -> np.ndarray:
         if self._pool is None:
-            self._pool = self.noise.background_pool(self.height_px, self.width_px,
-                                                    seed=self.seed ^ self._name_id)
+            with self._index_lock:
+                if self._pool is None:
+                    self._pool = self.noise.background_pool(self.height_px, self.width_px,
+                                                            seed=self.seed ^ self._name_id)
         m = self.noise.pool_margin_px
         b, r, c = rng.integers(self._pool.shape[0]), rng.integers(m), rng.integers(m)
         return self._pool[b, r : r + self.height_px, c : c + self.width_px].copy()
@@ -239,8 +256,10 @@ class SimCamera:
     def _normals(self, n: int, rng: np.random.Generator) -> np.ndarray:
         """n standard normal numbers: a slice at a random offset of a pre-drawn pool (fresh if n is large)."""
         if self._normal_pool is None:
-            self._normal_pool = np.random.default_rng((self.seed, self._name_id, 3)).standard_normal(
-                _NORMAL_POOL, dtype=np.float32)
+            with self._index_lock:
+                if self._normal_pool is None:
+                    self._normal_pool = np.random.default_rng((self.seed, self._name_id, 3)).standard_normal(
+                        _NORMAL_POOL, dtype=np.float32)
         if n > _NORMAL_POOL // 4:
             return rng.standard_normal(n, dtype=np.float32)
         start = int(rng.integers(_NORMAL_POOL - n))
@@ -281,7 +300,11 @@ class SimCamera:
         ok = (cam[:, 2] > 1.0) & np.all(np.abs(q0) < fov, axis=1)
         if not ok.any():
             return
-        t_c, cam, q0, vel, centre = t_c[ok], cam[ok], q0[ok], vel[ok], centre[ok]
+        normals = world.normals(kept_ids, t_c) @ self.rotation.T
+        ok &= self._faces_camera(normals, cam)  # printed discs are one-sided
+        if not ok.any():
+            return
+        t_c, cam, q0, vel, centre, normals = t_c[ok], cam[ok], q0[ok], vel[ok], centre[ok], normals[ok]
         kept_ids = [m for m, o in zip(kept_ids, ok, strict=True) if o]
         uc = self.project(centre)
         eps = 1e-6
@@ -289,7 +312,6 @@ class SimCamera:
         pp = project_points(np.column_stack([probe, np.ones(len(probe))]), np.zeros(3), np.zeros(3),
                             self.camera_matrix, self.distortion).reshape(3, -1, 2)
         jac = np.stack([(pp[1] - pp[0]) / eps, (pp[2] - pp[0]) / eps], axis=2)
-        normals = world.normals(kept_ids, t_c) @ self.rotation.T
         radii = np.array([world.marker_diameter_mm(m) / 2 for m in kept_ids])
         conics = disc_conics(cam, normals, radii, jac)
         ext = conic_extents(conics)

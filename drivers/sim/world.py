@@ -208,14 +208,19 @@ class World:
         return out
 
     def normals(self, marker_ids: list[str], t_s: np.ndarray | float) -> np.ndarray:
-        """Unit normals (M, 3) of the marker discs at one time each (scalar or (M,) times)."""
-        t = np.broadcast_to(np.asarray(t_s, dtype=float), (len(marker_ids),))
+        """Unit normals of the marker discs: (M, 3) for one time each (scalar or (M,) times), or (M, N, 3)
+        for (M, N) times."""
+        t = np.asarray(t_s, dtype=float)
+        shape = t.shape if t.ndim == 2 else (len(marker_ids),)
+        t = np.broadcast_to(t, shape)
         specs = [self._spec(m) for m in marker_ids]
-        out = np.array([sp.normal for sp in specs]).reshape(-1, 3)
+        base = np.array([sp.normal for sp in specs]).reshape(-1, 3)
+        out = np.broadcast_to(base.reshape((len(specs),) + (1,) * (t.ndim - 1) + (3,)), (*shape, 3)).copy()
         flange = [i for i, sp in enumerate(specs) if sp.kind == "flange"]
         if flange:
-            _, rot = self.robot.transform_at(t[flange])
-            out[flange] = np.einsum("mij,mj->mi", rot, out[flange])
+            _, rot = self.robot.transform_at(t[flange].ravel())
+            n = np.repeat(base[flange], t[flange].size // len(flange), axis=0)
+            out[flange] = np.einsum("mij,mj->mi", rot, n).reshape(out[flange].shape)
         return out
 
     def marker_normal(self, marker_id: str, t_s: float) -> np.ndarray:
