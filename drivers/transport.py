@@ -5,6 +5,7 @@ from a configuration address:
 
 ==========================================  ==========================================================
 ``tcp://HOST:PORT``                         TCP socket (:class:`TcpTransport`)
+``udp://HOST:PORT``                         UDP datagrams (:class:`UdpTransport`)
 ``serial:///dev/ttyUSB0?baud=115200``       serial line through pyserial (:class:`SerialTransport`);
                                             query keys ``baud``, ``bytesize`` (5..8), ``parity``
                                             (N/E/O/M/S), ``stopbits`` (1, 1.5, 2)
@@ -245,6 +246,41 @@ class TcpTransport(_BufferedTransport):
         self._sock.close()
 
 
+class UdpTransport(_BufferedTransport):
+    """A connected UDP socket: each :meth:`write` is one datagram; received datagrams are read as a stream."""
+
+    def __init__(self, host: str, port: int, *, timeout_s: float = 3.0) -> None:
+        if not 0 < int(port) < 65536:
+            raise ValueError(f"port={port}: must be 1..65535")
+        super().__init__(f"udp://{host}:{int(port)}", timeout_s)
+        try:
+            self._sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+            self._sock.connect((host, int(port)))
+        except OSError as exc:
+            raise TransportError(f"{self.url}: cannot open: {exc}") from exc
+
+    def _recv_some(self, max_bytes: int, timeout_s: float) -> bytes:
+        try:
+            if timeout_s <= 0:
+                self._sock.setblocking(False)
+            else:
+                self._sock.settimeout(timeout_s)
+            return self._sock.recv(65535)
+        except (TimeoutError, BlockingIOError):
+            return b""
+        except OSError as exc:  # e.g. ICMP port unreachable
+            raise TransportError(f"{self.url}: receive failed: {exc}") from exc
+
+    def _send(self, data: bytes) -> None:
+        try:
+            self._sock.send(data)
+        except OSError as exc:
+            raise TransportError(f"{self.url}: send failed: {exc}") from exc
+
+    def _close(self) -> None:
+        self._sock.close()
+
+
 class SerialTransport(_BufferedTransport):
     """A serial line (or any pyserial URL: ``socket://``, ``loop://``, a pty slave name).
 
@@ -313,7 +349,7 @@ def _serial_options(query: str, url: str) -> dict[str, object]:
     return options
 
 
-def open_transport(url: str, timeout_s: float = 3.0) -> TcpTransport | SerialTransport:
+def open_transport(url: str, timeout_s: float = 3.0) -> TcpTransport | UdpTransport | SerialTransport:
     """Open the transport named by ``url`` (see the module docstring for the forms)."""
     parts = urlsplit(url)
     scheme = parts.scheme.lower()
@@ -321,6 +357,10 @@ def open_transport(url: str, timeout_s: float = 3.0) -> TcpTransport | SerialTra
         if not parts.hostname or parts.port is None:
             raise ValueError(f"{url!r}: a TCP address is tcp://HOST:PORT")
         return TcpTransport(parts.hostname, parts.port, timeout_s=timeout_s)
+    if scheme == "udp":
+        if not parts.hostname or parts.port is None:
+            raise ValueError(f"{url!r}: a UDP address is udp://HOST:PORT")
+        return UdpTransport(parts.hostname, parts.port, timeout_s=timeout_s)
     if scheme == "serial":
         path = parts.netloc + parts.path if parts.netloc else parts.path
         if not path:
@@ -330,5 +370,6 @@ def open_transport(url: str, timeout_s: float = 3.0) -> TcpTransport | SerialTra
         return SerialTransport(url, timeout_s=timeout_s)
     if url.startswith("/") or url.upper().startswith("COM"):
         return SerialTransport(url, timeout_s=timeout_s)
-    raise ValueError(f"{url!r}: unsupported address; use tcp://HOST:PORT, serial:///DEV?baud=N, "
+    raise ValueError(f"{url!r}: unsupported address; use tcp://HOST:PORT, udp://HOST:PORT, "
+                     "serial:///DEV?baud=N, "
                      "socket://HOST:PORT, loop:// or a device path")

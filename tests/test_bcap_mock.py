@@ -278,3 +278,20 @@ def test_invoke_timeout_ends_a_long_move_without_reply() -> None:
                 client.move([start[0] - 80.0, *start[1:]], speed_percent=10)  # 0.8 s at 100 mm/s
             assert time.monotonic() - began < 0.2 + 0.25 + 0.5
             assert client.link.keepalives_seen >= 1
+
+
+def test_udp_session_with_a_lost_reply_recovered_by_retry(world: World, server: BcapMockServer) -> None:
+    """UDP: 503-byte cap, retries with the first serial in the reserved field, no CRC (bcap.md §1, §2)."""
+    port = server.serve_udp()
+    with open_transport(f"udp://127.0.0.1:{port}", 0.2) as link, \
+            BcapClient(link, udp=True, retries=3, timeout_s=0.2) as client:
+        arm = _arm(client, world)
+        arm.open(wdt_ms=None)
+        server.faults.drop_replies, server.faults.drop_function = 1, 72
+        result = arm.move_to(POSES[1], 120.0)
+        assert result.position_error_mm < 1e-9 and len(server.state.moves) == 1
+        moves = [r for r in server.requests if r[2] == 72]
+        assert len(moves) == 2 and moves[1][1] == moves[0][0] == moves[0][1]  # reserved = first serial
+        with pytest.raises(hr.BcapError) as info:
+            client.robot_execute("x" * 300)  # 600 bytes of UTF-16: refused before sending
+        assert info.value.hresult == hr.E_TOO_MUCH_DATA

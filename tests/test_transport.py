@@ -165,3 +165,22 @@ def test_timeout_must_be_positive() -> None:
     with pytest.raises(ValueError, match="timeout_s"):
         open_transport("loop://", timeout_s=0)
     assert issubclass(serial.SerialException, OSError)  # pyserial errors are wrapped, not leaked
+
+
+def test_udp_datagrams_read_as_a_stream() -> None:
+    peer = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    peer.bind(("127.0.0.1", 0))
+    peer.settimeout(1.0)
+    try:
+        with open_transport(f"udp://127.0.0.1:{peer.getsockname()[1]}", timeout_s=0.5) as link:
+            link.write(b"\x01request\x04")
+            data, address = peer.recvfrom(100)
+            assert data == b"\x01request\x04"
+            peer.sendto(b"ab", address)
+            peer.sendto(b"cd", address)
+            assert link.read_exact(3) == b"abc"
+            assert link.read_exact(1) == b"d"
+            with pytest.raises(TransportTimeout):
+                link.read_exact(1, timeout_s=0.05)
+    finally:
+        peer.close()

@@ -80,15 +80,17 @@ class BcapClient:
     Args:
         transport: open transport to the controller (TCP port 5007 or a serial line).
         serial_line: CRC framing, 503-byte packets, retries (the address decides; see :class:`BcapLink`).
+        udp: the transport is UDP: 503-byte packets and retries, no CRC.
         retries: attempts per call on a serial line (1..7); TCP never re-sends.
         timeout_s: receive timeout; must exceed the WDT keep-alive period with margin.
         rc7m: RC7M quirks (empty connect strings, no TakeArm/GiveArm, Motor with an I2 scalar).
     """
 
-    def __init__(self, transport: Transport, *, serial_line: bool = False, retries: int = 3,
-                 timeout_s: float = 3.0, invoke_timeout_s: float = 180.0, rc7m: bool = False) -> None:
-        self.link = BcapLink(transport, serial_line=serial_line, retries=retries, timeout_s=timeout_s,
-                             invoke_timeout_s=invoke_timeout_s)
+    def __init__(self, transport: Transport, *, serial_line: bool = False, udp: bool = False,
+                 retries: int = 3, timeout_s: float = 3.0, invoke_timeout_s: float = 180.0,
+                 rc7m: bool = False) -> None:
+        self.link = BcapLink(transport, serial_line=serial_line, datagram=udp, retries=retries,
+                             timeout_s=timeout_s, invoke_timeout_s=invoke_timeout_s)
         self.rc7m = rc7m
         self.h_ctrl: Variant | None = None
         self.h_robot: Variant | None = None

@@ -2,7 +2,7 @@
 
 :class:`BcapLink` numbers requests (1..65535, wrapping to 1), writes each packet in one write, and waits
 for the reply with the same serial: replies with other serials are discarded, and each S_EXECUTING
-keep-alive is skipped and restarts the receive timeout. TCP never re-sends. On a serial line (or UDP)
+keep-alive is skipped and restarts the receive timeout. TCP never re-sends. On a serial line or UDP
 a call may be attempted ``retries`` times (1..7): every attempt gets a new serial and carries the first
 attempt's serial in the reserved field, so the controller answers a duplicate from its cache instead of
 executing twice.
@@ -45,13 +45,14 @@ class BcapLink:
     Args:
         transport: an open :class:`drivers.transport.Transport`.
         serial_line: True on RS-232C (CRC framing, 503-byte cap, retries allowed).
+        datagram: True on UDP (503-byte cap, retries allowed, no CRC).
         retries: attempts per call on a serial line, 1..7 (TCP always makes exactly one).
         timeout_s: receive timeout per attempt, restarted by each keep-alive; must exceed the WDT.
         invoke_timeout_s: cap on one call's total duration even while keep-alives arrive.
     """
 
-    def __init__(self, transport: Transport, *, serial_line: bool = False, retries: int = 3,
-                 timeout_s: float = 3.0, invoke_timeout_s: float = 180.0) -> None:
+    def __init__(self, transport: Transport, *, serial_line: bool = False, datagram: bool = False,
+                 retries: int = 3, timeout_s: float = 3.0, invoke_timeout_s: float = 180.0) -> None:
         if not 1 <= retries <= MAX_ATTEMPTS:
             raise ValueError(f"retries={retries}: must be 1..{MAX_ATTEMPTS} attempts")
         if not timeout_s > 0:
@@ -60,11 +61,13 @@ class BcapLink:
             raise ValueError(f"invoke_timeout_s={invoke_timeout_s}: must be >= timeout_s={timeout_s}")
         self.transport = transport
         self.serial_line = serial_line
-        self.attempts = retries if serial_line else 1
+        self.datagram = datagram
+        self.may_retry = serial_line or datagram
+        self.attempts = retries if self.may_retry else 1
         self.timeout_s = float(timeout_s)
         self.invoke_timeout_s = float(invoke_timeout_s)
-        self.max_length = SERIAL_MAX_PACKET if serial_line else TCP_MAX_PACKET
-        self._decoder = PacketDecoder(serial_line=serial_line)
+        self.max_length = SERIAL_MAX_PACKET if self.may_retry else TCP_MAX_PACKET
+        self._decoder = PacketDecoder(serial_line=serial_line, max_length=self.max_length)
         self._serial = 0
         self._lock = threading.Lock()
         self.keepalives_seen = 0
@@ -86,7 +89,7 @@ class BcapLink:
                 self._serial = next_serial(self._serial)
                 serial = self._serial
                 first = first or serial
-                reserved = first if self.serial_line else 0
+                reserved = first if self.may_retry else 0
                 packet = encode_packet(serial, reserved, function_id, args, serial_line=self.serial_line,
                                        max_length=self.max_length)
                 sent.add(serial)

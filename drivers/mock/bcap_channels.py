@@ -13,7 +13,8 @@ import tty
 class Channel:
     """A byte pipe to one client: a TCP socket or a pty master."""
 
-    serial_line = False
+    serial_line = False  # CRC framing
+    may_retry = False    # clients may re-send (serial line, UDP): keep a reply cache
 
     def recv(self, timeout_s: float) -> bytes:  # b"" on timeout; EOFError when closed
         raise NotImplementedError
@@ -59,6 +60,7 @@ class PtyChannel(Channel):
     """Server end of a pty pair; the client opens :attr:`slave_name` with pyserial."""
 
     serial_line = True
+    may_retry = True
 
     def __init__(self) -> None:
         self.master_fd, self._slave_fd = pty.openpty()
@@ -93,3 +95,36 @@ class PtyChannel(Channel):
             for fd in (self.master_fd, self._slave_fd):
                 with contextlib.suppress(OSError):
                     os.close(fd)
+
+
+class UdpChannel(Channel):
+    """A bound UDP socket; answers the address of the last datagram (one client at a time)."""
+
+    may_retry = True
+
+    def __init__(self, host: str, port: int) -> None:
+        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self.sock.bind((host, port))
+        self.port = self.sock.getsockname()[1]
+        self.name = f"udp:{host}:{self.port}"
+        self.peer: tuple[str, int] | None = None
+
+    def recv(self, timeout_s: float) -> bytes:
+        self.sock.settimeout(timeout_s)
+        try:
+            data, self.peer = self.sock.recvfrom(65535)
+        except TimeoutError:
+            return b""
+        except OSError as exc:
+            raise EOFError(str(exc)) from exc
+        return data
+
+    def send(self, data: bytes) -> None:
+        if self.peer is not None:
+            try:
+                self.sock.sendto(data, self.peer)
+            except OSError as exc:
+                raise EOFError(str(exc)) from exc
+
+    def close(self) -> None:
+        self.sock.close()

@@ -33,7 +33,7 @@ from drivers.denso import hresult as hr
 from drivers.denso.bcap import Packet, PacketDecoder, encode_packet
 from drivers.denso.variant import EMPTY, Variant
 from drivers.mock.bcap_args import VALUE_RETURNING
-from drivers.mock.bcap_channels import Channel, PtyChannel, TcpChannel
+from drivers.mock.bcap_channels import Channel, PtyChannel, TcpChannel, UdpChannel
 from drivers.mock.bcap_state import ControllerState, RobotBodyLike
 
 log = logging.getLogger(__name__)
@@ -112,7 +112,7 @@ class _Session:
     def _on_request(self, packet: Packet) -> None:
         faults, function = self.server.faults, packet.code
         self.server.requests.append((packet.serial, packet.reserved, function))
-        original = packet.reserved if self.channel.serial_line and packet.reserved else packet.serial
+        original = packet.reserved if self.channel.may_retry and packet.reserved else packet.serial
         if self.refuse:
             self._reply(packet, hr.E_MAX_CONNECT, [EMPTY] if function in VALUE_RETURNING else [])
             return
@@ -176,7 +176,7 @@ class _Session:
 
     # -------------------------------------------------------------------------------------- writing
     def _reply(self, packet: Packet, code: int, args: list[Any], *, cache: bool = True) -> None:
-        if cache and self.channel.serial_line:
+        if cache and self.channel.may_retry:
             original = packet.reserved or packet.serial
             self._cache[original] = (packet.code, code, list(args))
             while len(self._cache) > CACHE_SIZE:
@@ -245,6 +245,12 @@ class BcapMockServer:
         threading.Thread(target=self._accept_loop, name="bcap-accept", daemon=True).start()
         log.info("b-CAP mock listening on tcp://%s:%d", host, self.port)
         return self.port
+
+    def serve_udp(self, host: str = "127.0.0.1", port: int = 0) -> int:
+        """Serve b-CAP over UDP (503-byte packets, retry cache); return the bound port."""
+        channel = UdpChannel(host, port)
+        self._start_session(channel)
+        return channel.port
 
     def serve_pty(self) -> str:
         """Open a pty pair, serve its master with serial framing; return the slave name for the client."""
