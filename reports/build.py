@@ -291,7 +291,7 @@ def build_report(
         path = tables_dir / f"{name}.csv"
         write_csv(df, path)
         table_paths[name] = path
-    tol = float(acceptance["amplitude_tolerance_pct"])
+    tol = float(acceptance["amplitude_error_pct"])
     pngs: dict[str, bytes] = {}
     figure_paths = {}
     for name, fig in (figures.all_figures(t, tol) if make_figures else {}).items():

@@ -1,11 +1,12 @@
 """The certificate: acceptance criteria, PASS/FAIL with the expanded uncertainty, and the decision rule.
 
-Criteria and their limits come from the ``acceptance`` table of the rig configuration (the run's
-``start.rig`` snapshot), merged over :data:`DEFAULT_LIMITS`. Every criterion reports its measured value,
-limit, expanded uncertainty U = k·u (k = 2, or Student's t for fitted values with few degrees of freedom)
-and a decision.
+Limits come from the ``[criteria]`` table of ``rig.toml`` (``rig.config.CriteriaConfig``; the run's
+``start.rig["criteria"]`` snapshot), merged over :data:`DEFAULT_LIMITS` (the same defaults), with a
+few report settings (:data:`DEFAULT_SETTINGS`) that may be added to that table. Every criterion reports
+its measured value, limit, expanded uncertainty U = k·u (k = 2, or Student's t for fitted values with
+few degrees of freedom), its uncertainty budget and a decision.
 
-Decision rule (``acceptance.decision_rule``):
+Decision rule (``criteria.decision_rule``):
 
 * ``"guarded"`` (default) — ILAC-G8:09/2019 §4.2.3 guarded acceptance with guard band w = U: a criterion
   "value ≤ limit" PASSES only if value + U ≤ limit (for "≥": value − U ≥ limit). When the interval
@@ -29,7 +30,7 @@ from reports.errors import CriteriaError
 
 @dataclass(frozen=True)
 class CriterionSpec:
-    """One acceptance criterion: the limit key in ``acceptance``, what is compared and how."""
+    """One acceptance criterion: its limit key in ``[criteria]``, what is compared and how."""
 
     id: str
     description: str
@@ -38,42 +39,49 @@ class CriterionSpec:
 
 
 CRITERIA: tuple[CriterionSpec, ...] = (
-    CriterionSpec("position_error_max_mm", "Largest 3D position error over the commanded poses", "mm", "<="),
-    CriterionSpec("position_error_rms_mm", "RMS 3D position error over the commanded poses", "mm", "<="),
+    CriterionSpec("position_max_mm", "Largest 3D position error over the commanded poses", "mm", "<="),
+    CriterionSpec("position_rms_mm", "RMS 3D position error over the commanded poses", "mm", "<="),
     CriterionSpec("detection_pct", "Share of commanded marker poses that were measured", "%", ">="),
-    CriterionSpec("repeatability_rp_mm", "Largest ISO 9283 repeatability RP_l over the targets", "mm", "<="),
+    CriterionSpec("repeatability_mm", "Largest ISO 9283 repeatability RP_l over the targets", "mm", "<="),
     CriterionSpec(
-        "length_error_max_mm", "Largest VDI/VDE 2634-1 length error |ΔL| over marker pairs", "mm", "<="
+        "length_error_mm", "Largest VDI/VDE 2634-1 length error |ΔL| over marker pairs", "mm", "<="
     ),
     CriterionSpec(
-        "amplitude_error_pct", "Amplitude error |e(f)| of the fit at the required frequency", "%", "<="
+        "amplitude_error_pct",
+        "Largest amplitude error |e(f)| of the fit up to the required frequency",
+        "%",
+        "<=",
     ),
     CriterionSpec(
-        "usable_frequency_hz", "Highest frequency with |e(f)| within the amplitude tolerance", "Hz", ">="
+        "min_usable_frequency_hz", "Highest frequency with |e(f)| within the amplitude tolerance", "Hz", ">="
     ),
-    CriterionSpec("rotation_radius_error_mm", "Rotor radius error |r̄ − r_ref|", "mm", "<="),
-    CriterionSpec("reprojection_rms_px", "Largest calibration reprojection RMS over the cameras", "px", "<="),
-    CriterionSpec("sync_offset_u_ms", "Standard uncertainty of the camera offset estimate", "ms", "<="),
+    CriterionSpec(
+        "frequency_error_pct", "Largest error of a measured steady frequency (plate, rotor)", "%", "<="
+    ),
+    CriterionSpec("radius_error_mm", "Rotor radius error |r̄ − r_ref|", "mm", "<="),
+    CriterionSpec("calibration_rms_px", "Largest calibration reprojection RMS over the cameras", "px", "<="),
+    CriterionSpec("sync_uncertainty_ms", "Standard uncertainty of the camera offset estimate", "ms", "<="),
 )
 CRITERION_IDS = tuple(c.id for c in CRITERIA)
 
+# Same defaults as rig.config.CriteriaConfig; detection_pct and length_error_mm are the reports' own.
 DEFAULT_LIMITS: dict[str, float] = {
-    "position_error_max_mm": 2.0,
-    "position_error_rms_mm": 1.0,
+    "position_max_mm": 1.5,
+    "position_rms_mm": 0.5,
     "detection_pct": 100.0,
-    "repeatability_rp_mm": 0.5,
-    "length_error_max_mm": 1.0,
+    "repeatability_mm": 0.5,
+    "length_error_mm": 1.0,
     "amplitude_error_pct": 5.0,
-    "usable_frequency_hz": 20.0,
-    "rotation_radius_error_mm": 1.0,
-    "reprojection_rms_px": 1.0,
-    "sync_offset_u_ms": 0.2,
+    "min_usable_frequency_hz": 10.0,
+    "frequency_error_pct": 1.0,
+    "radius_error_mm": 0.5,
+    "calibration_rms_px": 0.5,
+    "sync_uncertainty_ms": 1.0,
 }
-# Settings of the acceptance table that are not limits.
+# Settings of the criteria table that are not limits.
 DEFAULT_SETTINGS: dict[str, Any] = {
+    "amplitude_error_up_to_hz": 10.0,  # amplitude_error_pct must hold from 0 up to this frequency
     "decision_rule": "guarded",
-    "required_frequency_hz": None,  # defaults to the usable_frequency_hz limit
-    "amplitude_tolerance_pct": None,  # defaults to the amplitude_error_pct limit
     "reference_u_mm": 0.02,  # standard uncertainty of a commanded position (robot AP / artefact), Type B
     "fit_max_hz": None,  # highest bin frequency in the quadratic fit; defaults to fs/3 (away from Nyquist)
     "frequency_bin_hz": 1.0,  # width of the sweep's frequency bins
@@ -94,12 +102,24 @@ DECISION_RULES: dict[str, str] = {
 
 @dataclass(frozen=True)
 class Measured:
-    """A measured value with its standard uncertainty ``u`` and coverage factor ``k`` (U = k·u)."""
+    """A measured value, its standard uncertainty ``u`` and coverage factor ``k`` (U = k·u).
+
+    ``budget`` lists the components (name, "A" | "B", standard uncertainty in the value's unit, already
+    multiplied by its sensitivity coefficient); :meth:`from_budget` combines them in quadrature.
+    """
 
     value: float
     u: float = 0.0
     k: float = 2.0
     note: str = ""
+    budget: tuple[tuple[str, str, float], ...] = ()
+
+    @classmethod
+    def from_budget(
+        cls, value: float, budget: list[tuple[str, str, float]], *, k: float = 2.0, note: str = ""
+    ) -> Measured:
+        u = math.sqrt(sum(c[2] ** 2 for c in budget if math.isfinite(c[2])))
+        return cls(value, u, k, note, tuple(budget))
 
     @property
     def expanded(self) -> float:
@@ -107,20 +127,22 @@ class Measured:
 
 
 def acceptance_from_config(rig: dict[str, Any] | None) -> dict[str, Any]:
-    """Limits and settings from ``rig["acceptance"]`` merged over the defaults; unknown keys raise."""
-    table = dict((rig or {}).get("acceptance") or {})
+    """Limits and settings from ``rig["criteria"]`` merged over the defaults; unknown keys raise."""
+    table = dict((rig or {}).get("criteria") or {})
     allowed = set(DEFAULT_LIMITS) | set(DEFAULT_SETTINGS)
     unknown = sorted(set(table) - allowed)
     if unknown:
-        raise CriteriaError(f"acceptance: unknown key(s) {unknown}; allowed: {sorted(allowed)}")
+        raise CriteriaError(f"criteria: unknown key(s) {unknown}; allowed: {sorted(allowed)}")
     out: dict[str, Any] = {**DEFAULT_LIMITS, **DEFAULT_SETTINGS}
     for key, value in table.items():
         if key == "decision_rule":
             if value not in DECISION_RULES:
                 raise CriteriaError(
-                    f"acceptance.decision_rule must be one of {sorted(DECISION_RULES)}, got {value!r}"
+                    f"criteria.decision_rule must be one of {sorted(DECISION_RULES)}, got {value!r}"
                 )
             out[key] = value
+            continue
+        if value is None and DEFAULT_SETTINGS.get(key, 0) is None:
             continue
         if (
             isinstance(value, bool)
@@ -128,17 +150,11 @@ def acceptance_from_config(rig: dict[str, Any] | None) -> dict[str, Any]:
             or not math.isfinite(value)
             or value < 0
         ):
-            raise CriteriaError(f"acceptance.{key} must be a finite number ≥ 0, got {value!r}")
+            raise CriteriaError(f"criteria.{key} must be a finite number ≥ 0, got {value!r}")
         out[key] = float(value)
-    if out["required_frequency_hz"] is None:
-        out["required_frequency_hz"] = out["usable_frequency_hz"]
-    for key in ("frequency_bin_hz", "identification_gate_mm"):
+    for key in ("frequency_bin_hz", "identification_gate_mm", "amplitude_error_pct"):
         if not out[key] > 0:
-            raise CriteriaError(f"acceptance.{key} must be > 0, got {out[key]!r}")
-    if out["amplitude_tolerance_pct"] is None:
-        out["amplitude_tolerance_pct"] = out["amplitude_error_pct"]
-    if not out["amplitude_tolerance_pct"] > 0:
-        raise CriteriaError("acceptance.amplitude_tolerance_pct must be > 0")
+            raise CriteriaError(f"criteria.{key} must be > 0, got {out[key]!r}")
     return out
 
 
@@ -193,6 +209,7 @@ def evaluate(measured: dict[str, Measured | None], acceptance: dict[str, Any]) -
                 "status": status,
                 "zone": zone,
                 "note": m.note if m is not None else "no data in this run",
+                "budget": [{"component": c[0], "type": c[1], "u": c[2]} for c in (m.budget if m else ())],
             }
         )
     return rows
@@ -224,7 +241,7 @@ def build_certificate(
         "date_utc": conditions.get("date_utc"),
         "decision_rule": {"name": rule, "text": DECISION_RULES[rule], "coverage_factor_default": 2.0},
         "criteria": rows,
-        "acceptance": {k: acceptance[k] for k in sorted(acceptance)},
+        "criteria_settings": {k: acceptance[k] for k in sorted(acceptance)},
         "conditions": conditions,
         **(extra or {}),
     }

@@ -107,7 +107,7 @@ def _verdict(cert: dict[str, Any], t: ReportTables, tolerance_pct: float) -> str
     lines = []
     lim = t.limits.get(t.primary_sync)
     if lim is not None:
-        required = cert.get("acceptance", {}).get("required_frequency_hz")
+        required = cert.get("criteria_settings", {}).get("min_usable_frequency_hz")
         req = f"; required {required:g} Hz" if isinstance(required, (int, float)) else ""
         lines.append(
             f"<b>Trusted up to {_limit_text(lim)}</b> "
@@ -192,7 +192,7 @@ def render(
 ) -> str:
     """The whole page as a string (deterministic for the same inputs)."""
     cond = cert["conditions"]
-    tol = float(acceptance["amplitude_tolerance_pct"])
+    tol = float(acceptance["amplitude_error_pct"])
     parts = [
         f"<header><h1>Certification report — {html.escape(str(cond.get('run_id')))}</h1>"
         f"<div class='sub'>procedure {html.escape(str(cond.get('procedure')))} · run started "

@@ -145,7 +145,7 @@ def compute_tables(
             continue
         out.fits[method] = fit
         f_max = float(bins.loc[bins["sync_method"] == method, "frequency_hz"].max())
-        out.limits[method] = usable_limit(fit, float(acceptance["amplitude_tolerance_pct"]), f_max)
+        out.limits[method] = usable_limit(fit, float(acceptance["amplitude_error_pct"]), f_max)
 
     plates = stream_events(run.events, "plate")
     if plates:
@@ -199,83 +199,112 @@ def _finite(x: float) -> bool:
 
 
 def measured_values(t: ReportTables, acceptance: dict[str, Any]) -> dict[str, Measured | None]:
-    """The certificate's measured values and standard uncertainties (k = 2 unless a t-factor applies)."""
+    """The certificate's measured values with their uncertainty budgets (k = 2 unless a t-factor applies).
+
+    Type A components come from the data (standard errors of means, fit covariances); the Type B
+    component ``reference_u_mm`` is the standard uncertainty of a commanded position (robot accuracy or
+    artefact calibration), taken as independent per pose.
+    """
     u_ref = float(acceptance["reference_u_mm"])
+    ref = ("reference position (robot AP / artefact)", "B")
     m: dict[str, Measured | None] = {}
     p = t.poses.dropna(subset=["error_mm"])
     if len(t.poses):
         m["detection_pct"] = Measured(100.0 * len(p) / len(t.poses), 0.0, note="counted; no uncertainty")
     if len(p):
         e = p["error_mm"].to_numpy(float)
-        u_i = np.sqrt(np.nan_to_num(p["u_error_mm"].to_numpy(float)) ** 2 + u_ref**2)
+        u_a = np.nan_to_num(p["u_error_mm"].to_numpy(float))
         i = int(np.argmax(e))
-        m["position_error_max_mm"] = Measured(
+        m["position_max_mm"] = Measured.from_budget(
             float(e[i]),
-            float(u_i[i]),
-            note=f"pose {p['index'].iloc[i]}, marker {p['marker_id'].iloc[i]}; "
-            f"u = Type A (mean of {int(p['n_samples'].iloc[i])} samples) "
-            f"⊕ reference {u_ref:g} mm",
+            [("mean of the static samples", "A", float(u_a[i])), (*ref, u_ref)],
+            note=f"pose {p['index'].iloc[i]}, marker {p['marker_id'].iloc[i]} "
+            f"({int(p['n_samples'].iloc[i])} samples)",
         )
         rms = float(np.sqrt(np.mean(e**2)))
-        u_rms = (
-            float(np.sqrt(np.sum((e * u_i) ** 2)) / (len(e) * rms))
-            if rms > 0
-            else float(np.sqrt(np.mean(u_i**2)))
+        w = e / (len(e) * rms) if rms > 0 else np.full(len(e), 1 / np.sqrt(len(e)))  # ∂rms/∂e_i
+        m["position_rms_mm"] = Measured.from_budget(
+            rms,
+            [
+                ("means of the static samples", "A", float(np.sqrt(np.sum((w * u_a) ** 2)))),
+                (*ref, float(u_ref * np.sqrt(np.sum(w**2)))),
+            ],
+            note=f"{len(e)} marker poses",
         )
-        m["position_error_rms_mm"] = Measured(rms, u_rms, note=f"{len(e)} poses; u propagated from each pose")
     rp = t.iso9283.dropna(subset=["rp_l_mm"])
     if len(rp):
         j = int(np.argmax(rp["rp_l_mm"].to_numpy(float)))
         row = rp.iloc[j]
-        n, s = int(row["n_cycles"]), float(row["s_l_mm"])
-        u_rp = math.sqrt((s / math.sqrt(n)) ** 2 + 9 * (s / math.sqrt(2 * (n - 1))) ** 2)
-        m["repeatability_rp_mm"] = Measured(
-            float(row["rp_l_mm"]), u_rp, note=f"target {row['target']}, marker {row['marker_id']}, {n} cycles"
+        n, sd = int(row["n_cycles"]), float(row["s_l_mm"])
+        m["repeatability_mm"] = Measured.from_budget(
+            float(row["rp_l_mm"]),
+            [
+                ("mean distance l̄ (s/√n)", "A", sd / math.sqrt(n)),
+                ("3·S_l (3·s/√(2(n−1)))", "A", 3 * sd / math.sqrt(2 * (n - 1))),
+            ],
+            note=f"target {row['target']}, marker {row['marker_id']}, {n} cycles",
         )
     if len(t.lengths):
         dl = t.lengths["length_error_mm"].abs().to_numpy(float)
         k = int(np.argmax(dl))
-        u_len = math.sqrt(float(t.lengths["u_length_mm"].iloc[k]) ** 2 + 2 * u_ref**2)
-        m["length_error_max_mm"] = Measured(
+        m["length_error_mm"] = Measured.from_budget(
             float(dl[k]),
-            u_len,
-            note=f"{len(dl)} test lengths; worst "
-            f"{t.lengths['marker_a'].iloc[k]}–{t.lengths['marker_b'].iloc[k]}",
+            [
+                ("means of the two endpoints", "A", float(t.lengths["u_length_mm"].iloc[k])),
+                ("reference positions of the two endpoints", "B", math.sqrt(2) * u_ref),
+            ],
+            note=f"{len(dl)} test lengths; worst {t.lengths['marker_a'].iloc[k]}–"
+            f"{t.lengths['marker_b'].iloc[k]} in pose {t.lengths['index'].iloc[k]}",
         )
     fit = t.fits.get(t.primary_sync)
     if fit is not None:
-        f_req = float(acceptance["required_frequency_hz"])
-        e_req = float(fit.predict(f_req))
-        note = f"sync '{t.primary_sync}', fit {fit.f_min_hz:.1f}–{fit.f_max_hz:.1f} Hz at {f_req:g} Hz"
-        if f_req > fit.f_max_hz:
-            note += " (extrapolated beyond the fitted range)"
-        m["amplitude_error_pct"] = Measured(
-            abs(e_req), float(fit.u_predict(f_req)), k=fit.t_factor, note=note + f"; k = t(0.975, {fit.dof})"
+        f_up = float(acceptance["amplitude_error_up_to_hz"])
+        # |c0 + c2·f²| is largest at f = 0 or f = f_up (monotone in f²)
+        f_worst = f_up if abs(fit.predict(f_up)) >= abs(fit.c0) else 0.0
+        note = (
+            f"sync '{t.primary_sync}', worst at {f_worst:g} Hz of 0–{f_up:g} Hz; fit "
+            f"{fit.f_min_hz:.1f}–{fit.f_max_hz:.1f} Hz; k = t(0.975, {fit.dof})"
+        )
+        if f_up > fit.f_max_hz:
+            note += "; extrapolated beyond the fitted range"
+        m["amplitude_error_pct"] = Measured.from_budget(
+            float(abs(fit.predict(f_worst))),
+            [("quadratic fit (scaled covariance)", "A", float(fit.u_predict(f_worst)))],
+            k=fit.t_factor,
+            note=note,
         )
         lim = t.limits[t.primary_sync]
         if lim.reached:
-            m["usable_frequency_hz"] = Measured(
+            m["min_usable_frequency_hz"] = Measured.from_budget(
                 lim.limit_hz,
-                lim.u_limit_hz,
+                [("quadratic fit (delta method)", "A", lim.u_limit_hz)],
                 k=fit.t_factor,
-                note=f"|e| reaches {lim.tolerance:g} % at this frequency",
+                note=f"|e| reaches {lim.tolerance:g} % here",
             )
         else:
-            m["usable_frequency_hz"] = Measured(
+            m["min_usable_frequency_hz"] = Measured(
                 lim.limit_hz,
                 0.0,
-                note=f"|e| stays below {lim.tolerance:g} % up "
-                "to the highest tested frequency (a lower bound)",
+                note=f"|e| stays below {lim.tolerance:g} % up to the highest tested frequency "
+                "(a lower bound)",
             )
+    freq = _frequency_errors(t)
+    if freq:
+        worst = max(freq, key=lambda r: abs(r[1]))
+        m["frequency_error_pct"] = Measured.from_budget(
+            abs(worst[1]),
+            [("four-parameter sine fit", "A", worst[2])],
+            note=f"worst: {worst[0]}; {len(freq)} steady motion(s)",
+        )
     rs = t.rotation_summary
     if rs and _finite(rs.get("radius_error_mm", float("nan"))):
-        m["rotation_radius_error_mm"] = Measured(
+        m["radius_error_mm"] = Measured.from_budget(
             abs(rs["radius_error_mm"]),
-            math.sqrt(rs["u_radius_mm"] ** 2 + u_ref**2),
+            [("mean radius (s/√n)", "A", float(rs["u_radius_mm"])), ("rotor centre and radius", "B", u_ref)],
             note=f"{rs['n_samples']} samples",
         )
     if t.calibration is not None and len(t.calibration) and t.calibration["rms_px"].notna().any():
-        m["reprojection_rms_px"] = Measured(
+        m["calibration_rms_px"] = Measured(
             float(t.calibration["rms_px"].max()), 0.0, note="from calibration.json"
         )
     u_off = ((t.timing or {}).get("uncertainty") or {}).get("offset_s")
@@ -283,5 +312,30 @@ def measured_values(t: ReportTables, acceptance: dict[str, Any]) -> dict[str, Me
         vals = [float(v) for v in u_off.values() if isinstance(v, (int, float))]
         u_off = max(vals) if vals else None
     if isinstance(u_off, (int, float)):
-        m["sync_offset_u_ms"] = Measured(1000 * float(u_off), 0.0, note="from timing.json")
+        m["sync_uncertainty_ms"] = Measured(1000 * float(u_off), 0.0, note="from timing.json")
     return m
+
+
+def _frequency_errors(t: ReportTables) -> list[tuple[str, float, float]]:
+    """(what, error %, standard uncertainty %) of every steady measured frequency (plate tracks, rotor)."""
+    out = []
+    if t.plate is not None:
+        for _, r in t.plate.iterrows():
+            if _finite(r["frequency_error_pct"]):
+                out.append(
+                    (
+                        f"plate {r['track']}",
+                        float(r["frequency_error_pct"]),
+                        100 * float(r["u_frequency_hz"]) / float(r["frequency_ref_hz"]),
+                    )
+                )
+    rs = t.rotation_summary
+    if rs and _finite(rs.get("frequency_error_pct", float("nan"))):
+        out.append(
+            (
+                "rotor",
+                float(rs["frequency_error_pct"]),
+                100 * float(rs["u_frequency_hz"]) / rs["frequency_ref_hz"],
+            )
+        )
+    return out

@@ -195,7 +195,7 @@ TIMING = {
 }
 RIG = {
     "cameras": {"left": {"fps": FS_HZ}, "right": {"fps": FS_HZ}},
-    "acceptance": {"position_error_max_mm": 1.0, "usable_frequency_hz": 15.0},
+    "criteria": {"position_max_mm": 1.0, "min_usable_frequency_hz": 15.0, "amplitude_error_up_to_hz": 15.0},
 }
 
 

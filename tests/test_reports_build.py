@@ -56,18 +56,25 @@ def test_certificate_values(built) -> None:
     cert = json.loads(built.certificate_json.read_text())
     assert cert["result"] == built.result == "PASS"
     rows = {r["id"]: r for r in cert["criteria"]}
-    assert rows["position_error_max_mm"]["value"] == pytest.approx(
-        np.sqrt(0.3**2 + 0.1**2 + 0.04**2), abs=1e-9
-    )
-    assert rows["position_error_max_mm"]["limit"] == 1.0  # from the run's rig snapshot, not the default
+    assert rows["position_max_mm"]["value"] == pytest.approx(np.sqrt(0.3**2 + 0.1**2 + 0.04**2), abs=1e-9)
+    assert rows["position_max_mm"]["limit"] == 1.0  # from the run's rig snapshot, not the default
     # reference_u_mm default 0.02 → U = 0.04 on an exact measurement
-    assert rows["position_error_max_mm"]["expanded_uncertainty"] == pytest.approx(0.04, abs=1e-9)
+    assert rows["position_max_mm"]["expanded_uncertainty"] == pytest.approx(0.04, abs=1e-9)
     c0, c2 = synth.SWEEP_COEFFS["trajectory"]
     assert rows["amplitude_error_pct"]["value"] == pytest.approx(abs(c0 + c2 * 15.0**2), abs=1e-8)
-    assert rows["usable_frequency_hz"]["value"] == pytest.approx(max(synth.SWEEP_FREQS_HZ))
-    assert rows["rotation_radius_error_mm"]["value"] == pytest.approx(0.3, abs=1e-9)
-    assert rows["reprojection_rms_px"]["value"] == pytest.approx(0.31)
-    assert rows["sync_offset_u_ms"]["value"] == pytest.approx(0.02)
+    # plate and rotor run at exactly their commanded frequencies
+    assert rows["frequency_error_pct"]["value"] == pytest.approx(0.0, abs=1e-6)
+    assert rows["frequency_error_pct"]["status"] == "PASS"
+    budget = {c["component"]: c for c in rows["position_max_mm"]["budget"]}
+    assert budget["reference position (robot AP / artefact)"] == {
+        "component": "reference position (robot AP / artefact)",
+        "type": "B",
+        "u": 0.02,
+    }
+    assert rows["min_usable_frequency_hz"]["value"] == pytest.approx(max(synth.SWEEP_FREQS_HZ))
+    assert rows["radius_error_mm"]["value"] == pytest.approx(0.3, abs=1e-9)
+    assert rows["calibration_rms_px"]["value"] == pytest.approx(0.31)
+    assert rows["sync_uncertainty_ms"]["value"] == pytest.approx(0.02)
     assert rows["detection_pct"]["value"] == 100.0
     lin = cert["usable_frequency"]["linear"]
     c0l, c2l = synth.SWEEP_COEFFS["linear"]
@@ -76,7 +83,7 @@ def test_certificate_values(built) -> None:
     cond = cert["conditions"]
     assert cond["run_id"] == built.run_dir.name and cond["date_utc"].startswith("2026-11-21T23:15")
     assert cond["sync_method"] == "trajectory" and cond["compared_sync_methods"] == ["linear"]
-    assert cond["rig"]["acceptance"]["usable_frequency_hz"] == 15.0
+    assert cond["rig"]["criteria"]["min_usable_frequency_hz"] == 15.0
     assert cond["versions"]["rig-controller"] == "0.1.0"
     assert "ILAC-G8" in cert["decision_rule"]["text"]
 
@@ -133,8 +140,8 @@ def test_sync_option_changes_the_primary_method(tmp_path: Path) -> None:
     res = build_report(run, sync="linear", analysis=synth.fake_analyse, make_figures=False)
     rows = {r["id"]: r for r in res.certificate["criteria"]}
     # the paper's method loses 5 % at 7.9 Hz: it cannot be trusted up to the required 15 Hz
-    assert rows["usable_frequency_hz"]["status"] == "FAIL"
-    assert rows["usable_frequency_hz"]["value"] == pytest.approx(np.sqrt(5.0 / 0.08), rel=1e-8)
+    assert rows["min_usable_frequency_hz"]["status"] == "FAIL"
+    assert rows["min_usable_frequency_hz"]["value"] == pytest.approx(np.sqrt(5.0 / 0.08), rel=1e-8)
     assert res.result == "FAIL"
     assert res.certificate["conditions"]["compared_sync_methods"] == []
 
@@ -160,8 +167,8 @@ def test_aborted_run_without_sweep_is_incomplete(tmp_path: Path) -> None:
         res = build_report(run, analysis=synth.fake_analyse)
     assert res.result == "INCOMPLETE"
     rows = {r["id"]: r for r in res.certificate["criteria"]}
-    assert rows["usable_frequency_hz"]["status"] == "NOT EVALUATED"
-    assert rows["position_error_max_mm"]["status"] == "PASS"
+    assert rows["min_usable_frequency_hz"]["status"] == "NOT EVALUATED"
+    assert rows["position_max_mm"]["status"] == "PASS"
     assert "amplitude_error_vs_frequency" not in res.figures
     assert any("cut short" in n for n in res.notes)
 
@@ -169,7 +176,7 @@ def test_aborted_run_without_sweep_is_incomplete(tmp_path: Path) -> None:
 def test_bad_run_folder_and_config_raise(tmp_path: Path) -> None:
     with pytest.raises(RunFolderError, match=r"record\.jsonl"):
         build_report(tmp_path, analysis=synth.fake_analyse)
-    run = synth.write_run(tmp_path / "run_badcfg", rig={"acceptance": {"max_error": 1}})
+    run = synth.write_run(tmp_path / "run_badcfg", rig={"criteria": {"max_error": 1}})
     with pytest.raises(CriteriaError, match="max_error"):
         build_report(run, analysis=synth.fake_analyse)
 

@@ -62,24 +62,24 @@ def test_missing_value_is_not_evaluated() -> None:
 
 
 def test_expanded_uncertainty_uses_the_coverage_factor() -> None:
-    acc = acceptance_from_config({"acceptance": {"position_error_max_mm": 1.0}})
+    acc = acceptance_from_config({"criteria": {"position_max_mm": 1.0}})
     # u = 0.125, k = 2 → U = 0.25: 0.75 passes, 0.875 does not (guarded)
-    rows = {r["id"]: r for r in evaluate({"position_error_max_mm": Measured(0.75, 0.125)}, acc)}
-    assert rows["position_error_max_mm"]["expanded_uncertainty"] == 0.25
-    assert rows["position_error_max_mm"]["status"] == "PASS"
-    rows = {r["id"]: r for r in evaluate({"position_error_max_mm": Measured(0.875, 0.125)}, acc)}
-    assert rows["position_error_max_mm"]["status"] == "FAIL"
-    assert rows["position_error_max_mm"]["zone"] == "indeterminate"
+    rows = {r["id"]: r for r in evaluate({"position_max_mm": Measured(0.75, 0.125)}, acc)}
+    assert rows["position_max_mm"]["expanded_uncertainty"] == 0.25
+    assert rows["position_max_mm"]["status"] == "PASS"
+    rows = {r["id"]: r for r in evaluate({"position_max_mm": Measured(0.875, 0.125)}, acc)}
+    assert rows["position_max_mm"]["status"] == "FAIL"
+    assert rows["position_max_mm"]["zone"] == "indeterminate"
     # k from Student's t widens U
-    rows = {r["id"]: r for r in evaluate({"position_error_max_mm": Measured(0.75, 0.125, k=2.2)}, acc)}
-    assert rows["position_error_max_mm"]["status"] == "FAIL"
+    rows = {r["id"]: r for r in evaluate({"position_max_mm": Measured(0.75, 0.125, k=2.2)}, acc)}
+    assert rows["position_max_mm"]["status"] == "FAIL"
 
 
 def test_simple_rule_from_the_configuration() -> None:
-    acc = acceptance_from_config({"acceptance": {"decision_rule": "simple", "position_error_max_mm": 1.0}})
-    rows = {r["id"]: r for r in evaluate({"position_error_max_mm": Measured(0.875, 0.125)}, acc)}
-    assert rows["position_error_max_mm"]["status"] == "PASS"
-    assert rows["position_error_max_mm"]["zone"] == "indeterminate"
+    acc = acceptance_from_config({"criteria": {"decision_rule": "simple", "position_max_mm": 1.0}})
+    rows = {r["id"]: r for r in evaluate({"position_max_mm": Measured(0.875, 0.125)}, acc)}
+    assert rows["position_max_mm"]["status"] == "PASS"
+    assert rows["position_max_mm"]["zone"] == "indeterminate"
 
 
 def test_defaults_and_derived_settings() -> None:
@@ -87,40 +87,51 @@ def test_defaults_and_derived_settings() -> None:
     for key, value in DEFAULT_LIMITS.items():
         assert acc[key] == value
     assert acc["decision_rule"] == "guarded"
-    assert acc["required_frequency_hz"] == DEFAULT_LIMITS["usable_frequency_hz"]
-    assert acc["amplitude_tolerance_pct"] == DEFAULT_LIMITS["amplitude_error_pct"]
-    acc = acceptance_from_config({"acceptance": {"usable_frequency_hz": 12, "required_frequency_hz": 10}})
-    assert acc["usable_frequency_hz"] == 12.0 and acc["required_frequency_hz"] == 10.0
+    assert acc["amplitude_error_up_to_hz"] == 10.0 and acc["reference_u_mm"] == 0.02
+    acc = acceptance_from_config({"criteria": {"min_usable_frequency_hz": 12, "amplitude_error_up_to_hz": 8}})
+    assert acc["min_usable_frequency_hz"] == 12.0 and acc["amplitude_error_up_to_hz"] == 8.0
+
+
+def test_defaults_match_the_rig_configuration() -> None:
+    """The limits the reports assume are the same as rig.config's [criteria] defaults and keys."""
+    import dataclasses
+
+    from rig.config import CriteriaConfig
+
+    config_defaults = {f.name: f.default for f in dataclasses.fields(CriteriaConfig)}
+    for key, value in config_defaults.items():
+        assert key in DEFAULT_LIMITS or key in acceptance_from_config({}), key
+        assert acceptance_from_config({})[key] == value, key
 
 
 @pytest.mark.parametrize(
     ("table", "match"),
     [
         ({"position_error_max": 1.0}, "unknown key"),
-        ({"position_error_max_mm": -1.0}, "position_error_max_mm"),
-        ({"position_error_max_mm": "1 mm"}, "position_error_max_mm"),
-        ({"position_error_max_mm": True}, "position_error_max_mm"),
+        ({"position_max_mm": -1.0}, "position_max_mm"),
+        ({"position_max_mm": "1 mm"}, "position_max_mm"),
+        ({"position_max_mm": True}, "position_max_mm"),
         ({"decision_rule": "optimistic"}, "decision_rule"),
         ({"frequency_bin_hz": 0.0}, "frequency_bin_hz"),
     ],
 )
 def test_bad_configuration_raises(table: dict, match: str) -> None:
     with pytest.raises(CriteriaError, match=match):
-        acceptance_from_config({"acceptance": table})
+        acceptance_from_config({"criteria": table})
 
 
 def test_overall_result() -> None:
     acc = acceptance_from_config({})
     good = {cid: Measured(0.0, 0.0) for cid in CRITERION_IDS}
     good["detection_pct"] = Measured(100.0)
-    good["usable_frequency_hz"] = Measured(30.0)
+    good["min_usable_frequency_hz"] = Measured(30.0)
     rows = evaluate(good, acc)
     assert overall_result(rows, "success") == "PASS"
     assert overall_result(rows, "abort") == "INCOMPLETE"
     partial = dict(good)
-    partial["rotation_radius_error_mm"] = None
+    partial["radius_error_mm"] = None
     assert overall_result(evaluate(partial, acc), "success") == "INCOMPLETE"
-    bad = dict(partial, position_error_max_mm=Measured(5.0))
+    bad = dict(partial, position_max_mm=Measured(5.0))
     assert overall_result(evaluate(bad, acc), "success") == "FAIL"
 
 
