@@ -316,3 +316,19 @@ def test_random_reply_bytes_end_in_a_bcap_error(noise: bytes, serial_line: bool)
     client = BcapClient(link, serial_line=serial_line, retries=1, timeout_s=0.01)
     with contextlib.suppress(BcapError, BcapProtocolError):
         client.service_stop()
+
+
+def test_failing_error_description_does_not_recurse() -> None:
+    script = [
+        (packet(1, 3, bstr("rig"), bstr("CaoProv.DENSO.VRC"), bstr("localhost"), bstr("")), reply(1, ui4(1))),
+        (packet(2, 17, ui4(1), bstr("Foo"), empty()), reply(2, empty(), code=0x83000001)),
+        (packet(3, 17, ui4(1), bstr("GetErrorDescription"), i4(0x83000001 - (1 << 32))),
+         reply(3, empty(), code=0x83000002)),
+    ]
+    link = ScriptedTransport(script)
+    client = BcapClient(link)
+    client.controller_connect()
+    with pytest.raises(BcapError) as info:
+        client.controller_execute("Foo")
+    assert info.value.hresult == 0x83000001 and "no description" in info.value.description
+    link.done()

@@ -97,6 +97,7 @@ class BcapClient:
         self.service_started = False
         self.arm_taken = False
         self.motor_on = False
+        self._describing = False
 
     # low level ------------------------------------------------------------------------------------
     def call(self, function_id: int, args: Sequence[Any] = (), *, timeout_s: float | None = None) -> Variant:
@@ -104,18 +105,22 @@ class BcapClient:
         try:
             reply = self.link.call(function_id, args, timeout_s=timeout_s)
         except BcapError as exc:
-            if is_controller_error(exc.hresult) and self.h_ctrl is not None and exc.hresult not in CODES:
+            describable = is_controller_error(exc.hresult) and exc.hresult not in CODES
+            if describable and self.h_ctrl is not None and not self._describing:
                 raise self._describe(exc) from None
             raise
         return reply[0] if reply else EMPTY
 
     def _describe(self, exc: BcapError) -> BcapError:
+        self._describing = True  # GetErrorDescription failing with a controller error must not recurse
         try:
             text = self.controller_execute("GetErrorDescription", Variant(VT_I4, to_signed(exc.hresult)))
             if text.vt == VT_BSTR and text.value:
                 return BcapError(exc.hresult, exc.name, text.value, function=exc.function)
         except BcapError:
             pass
+        finally:
+            self._describing = False
         return exc
 
     @staticmethod
