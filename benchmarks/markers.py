@@ -7,12 +7,15 @@ markers move a few pixels from frame to frame; tracking is fed the previous fram
 Methods, timed in the same run (interleaved per round, so the load of the machine hits all alike):
   ours/full      rig.stereo.detect_markers on the whole frame
   ours/track     rig.stereo.track_markers around the previous frame's centres
-  sbd/tuned      cv2.SimpleBlobDetector, thresholds 50..170 step 20, area 50..2000, bright blobs
-  sbd/default    the same with OpenCV's default thresholds (50..220 step 10)
+  sbd/default    cv2.SimpleBlobDetector, OpenCV's default thresholds (50..220 step 10); bright blobs,
+                 area 50..2000 px², circularity ≥ 0.6 (in all three sbd variants)
+  sbd/tuned      thresholds tuned to these markers (peak 170 DN): 50..170 step 10
+  sbd/coarse     50..170 step 20: half the thresholds, faster and less accurate
   thr+cc         cv2.threshold at the mid level (95 DN) + cv2.connectedComponentsWithStats centroids
 
-Prints ms per frame (median over frames, best of the rounds), the speed ratios to sbd/tuned (median of
-the per-round ratios), and the centroid RMS error vs truth (all frames, matched within 3 px).
+Prints ms per frame (median over the frames of a round; best and worst round), the speed ratios to each
+SimpleBlobDetector variant (median over rounds of the per-round ratio, so a busy machine slows both
+sides of a ratio alike), and the centroid RMS error per axis vs truth (all frames, matched within 3 px).
 Run: .venv/bin/python benchmarks/markers.py [--rounds N] [--frames N]
 """
 
@@ -94,8 +97,9 @@ def ours_track(img, prev):
 METHODS = {
     "ours/full": ours_full,
     "ours/track": ours_track,
-    "sbd/tuned": sbd({"minThreshold": 50, "maxThreshold": 170, "thresholdStep": 20}),
     "sbd/default": sbd({}),
+    "sbd/tuned": sbd({"minThreshold": 50, "maxThreshold": 170}),
+    "sbd/coarse": sbd({"minThreshold": 50, "maxThreshold": 170, "thresholdStep": 20}),
     "thr+cc": thr_cc,
 }
 
@@ -130,14 +134,12 @@ def run(n_markers: int, n_frames: int, rounds: int) -> None:
             per_round[name].append(np.median(times) * 1e3)
             results[name] = found_all
     print(f"\n{n_markers} markers, {n_frames} frames 1920×1080, {rounds} rounds")
-    print(f"{'method':<12} {'ms/frame':>9} {'spread':>14} {'× vs sbd/tuned':>15} {'× vs sbd/def':>13}"
-          f" {'RMS px':>8} {'bias u,v px':>17} {'missed':>6} {'false':>5}")
-    ref = np.array(per_round["sbd/tuned"])
-    ref_default = np.array(per_round["sbd/default"])
+    refs = ("sbd/default", "sbd/tuned", "sbd/coarse")
+    print(f"{'method':<12} {'ms/frame':>8} {'(worst)':>8} " + " ".join(f"{'×' + r[4:]:>8}" for r in refs)
+          + f" {'RMS px':>7} {'bias u,v px':>16} {'missed':>6} {'false':>5}")
     for name in METHODS:
         ms = np.array(per_round[name])
-        ratio = np.median(ref / ms)
-        ratio_default = np.median(ref_default / ms)
+        ratios = [np.median(np.array(per_round[r]) / ms) for r in refs]
         errs, missed, false = [], 0, 0
         for f, found in enumerate(results[name], start=1):
             e, m, fa = errors(found, truth[f])
@@ -147,18 +149,22 @@ def run(n_markers: int, n_frames: int, rounds: int) -> None:
         e = np.concatenate(errs)
         rms = np.sqrt((e**2).sum(axis=1).mean() / 2) if len(e) else np.nan
         bias = e.mean(axis=0) if len(e) else (np.nan, np.nan)
-        print(f"{name:<12} {ms.min():9.3f} {ms.min():6.2f}–{ms.max():<7.2f} {ratio:15.1f}"
-              f" {ratio_default:13.1f} {rms:8.4f} {bias[0]:+8.4f},{bias[1]:+8.4f} {missed:6d} {false:5d}")
+        print(f"{name:<12} {ms.min():8.3f} {ms.max():8.3f} " + " ".join(f"{r:8.1f}" for r in ratios)
+              + f" {rms:7.4f} {bias[0]:+7.4f},{bias[1]:+7.4f} {missed:6d} {false:5d}")
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--rounds", type=int, default=7)
     parser.add_argument("--frames", type=int, default=10)
+    parser.add_argument("--threads", type=int, default=None,
+                        help="cv2.setNumThreads for every method (default: OpenCV's own choice)")
     args = parser.parse_args()
+    if args.threads is not None:
+        cv2.setNumThreads(args.threads)
     print(f"OpenCV {cv2.__version__} ({cv2.getNumThreads()} threads), numpy {np.__version__}")
-    print("RMS = per-axis centroid error vs truth; ms/frame = best round's median; ratios = median of "
-          "per-round ratios")
+    print("ms/frame: median over frames, best (and worst) round; ×: speed-up, median of per-round ratios; "
+          "RMS: per-axis centroid error vs truth")
     for n in (12, 30):
         run(n, args.frames, args.rounds)
 

@@ -95,8 +95,8 @@ def _ladder(half_px: np.ndarray) -> np.ndarray:
 
 
 def _noise_sigma(low: np.ndarray) -> float:
-    """Robust pixel noise σ (DN) of ``low`` from horizontal differences of every 4th row."""
-    diff = np.abs(low[::4, 1:].astype(np.int16) - low[::4, :-1]).ravel()
+    """Robust pixel noise σ (DN) of ``low`` from horizontal differences of every 16th row."""
+    diff = np.abs(low[::16, 1:].astype(np.int16) - low[::16, :-1]).ravel()
     hist = np.bincount(diff, minlength=256)
     median = np.searchsorted(np.cumsum(hist), diff.size / 2.0)
     return max(1.4826 * float(median) / np.sqrt(2.0), 0.5)
@@ -115,8 +115,10 @@ def _candidates(gray: np.ndarray, *, dark: bool, threshold: float | str | None, 
         radius_low = np.sqrt(max_area_px / np.pi) / factor
         block = int(2 * np.ceil(3.0 * radius_low) + 1)
         block = max(3, min(block, 2 * ((min(low.shape) - 1) // 2) + 1))
-        offset = max(0.5 * min_contrast, 4.0 * _noise_sigma(low))
-        binary = cv2.adaptiveThreshold(low, 1, cv2.ADAPTIVE_THRESH_MEAN_C, cv2.THRESH_BINARY, block, -offset)
+        offset = int(np.ceil(max(0.5 * min_contrast, 4.0 * _noise_sigma(low))))
+        # foreground: brighter than the local mean (box of `block` reduced pixels) by more than `offset`
+        level = cv2.add(cv2.blur(low, (block, block), borderType=cv2.BORDER_REPLICATE), min(offset, 255))
+        binary = cv2.compare(low, level, cv2.CMP_GT)
     elif threshold == "otsu":
         _, binary = cv2.threshold(low, 0, 1, cv2.THRESH_BINARY | cv2.THRESH_OTSU)
     else:
@@ -127,12 +129,7 @@ def _candidates(gray: np.ndarray, *, dark: bool, threshold: float | str | None, 
     empty = np.zeros(0, dtype=np.int64)
     if not contours:
         return empty, empty, empty
-    lengths = np.fromiter((len(c) for c in contours), dtype=np.int64, count=len(contours))
-    pts = np.concatenate(contours).reshape(-1, 2)
-    starts = np.concatenate([[0], np.cumsum(lengths)[:-1]])
-    x0, x1 = np.minimum.reduceat(pts[:, 0], starts), np.maximum.reduceat(pts[:, 0], starts)
-    y0, y1 = np.minimum.reduceat(pts[:, 1], starts), np.maximum.reduceat(pts[:, 1], starts)
-    width, height = x1 - x0 + 1, y1 - y0 + 1
+    x0, y0, width, height = np.array([cv2.boundingRect(c) for c in contours], dtype=np.int64).T
     # loose size filter on the bounding box: the exact area is measured at full resolution
     box_area = width * height * factor * factor
     short_side_px = np.minimum(width, height) * factor
@@ -143,6 +140,22 @@ def _candidates(gray: np.ndarray, *, dark: bool, threshold: float | str | None, 
     rows = np.rint((y0 + 0.5 * (height - 1)) * factor + half_f).astype(np.int64)
     half = np.ceil(0.5 * np.maximum(width, height) * factor).astype(np.int64) + 4
     return rows, cols, half
+
+
+MERGE_PIXELS = 40_000  # extra window pixels that cost about as much as one more batch call
+
+
+def _merge_sizes(sizes: np.ndarray) -> np.ndarray:
+    """Grow small windows to the next size in use when that is cheaper than a separate batch."""
+    values, counts = np.unique(sizes, return_counts=True)
+    merged = sizes.copy()
+    for i in range(len(values) - 1):
+        small, large = values[i], values[i + 1]
+        extra = counts[i] * ((2 * large + 1) ** 2 - (2 * small + 1) ** 2)
+        if extra < MERGE_PIXELS:
+            merged[merged == small] = large
+            counts[i + 1] += counts[i]
+    return merged
 
 
 def _measure(gray: np.ndarray, rows: np.ndarray, cols: np.ndarray, half: np.ndarray, *, dark: bool,
@@ -159,7 +172,7 @@ def _measure(gray: np.ndarray, rows: np.ndarray, cols: np.ndarray, half: np.ndar
     }
     for key in ("border", "saturated", "cramped"):
         fields[key] = np.zeros(n, dtype=bool)
-    sizes = np.asarray(half, dtype=np.int64).copy() if exact else _ladder(half)
+    sizes = np.asarray(half, dtype=np.int64).copy() if exact else _merge_sizes(_ladder(half))
     todo = np.arange(n)
     for attempt in range(retries + 1):
         again = []
@@ -281,21 +294,25 @@ def detect_markers(
     rec = rec[_passes(rec, min_area_px, max_area_px, min_roundness, min_contrast)]
     if regions is not None and len(rec):
         rec = rec[inside_any(rec["u_px"], rec["v_px"], regions)]
-    if len(rec) > 1:
-        rec = _drop_duplicates(rec)
     if len(rec) == 0:
         return _none_found(require, "no blob passed the area, roundness and contrast filters")
-    return rec[np.lexsort((rec["u_px"], rec["v_px"]))]
+    return _drop_duplicates(rec)
 
 
-def _drop_duplicates(rec: np.ndarray) -> np.ndarray:
-    """Keep one row of markers found twice (centres closer than 1 px): the one with the larger area."""
-    order = np.argsort(-rec["area_px"], kind="stable")
-    rec = rec[order]
-    uv = np.stack([rec["u_px"], rec["v_px"]], axis=1)
-    dist2 = ((uv[:, None, :] - uv[None, :, :]) ** 2).sum(axis=2)
-    close = np.triu(dist2 < 1.0, k=1)
-    return rec[~close.any(axis=0)]
+def _drop_duplicates(rec: np.ndarray, reach: int = 8) -> np.ndarray:
+    """Sort by (v, u) and keep one row of markers found twice (centres closer than 1 px).
+
+    A marker split into two blobs by the binarization is measured twice on the same support; the two
+    rows are then within a pixel, and adjacent in the row-sorted order unless more than ``reach`` other
+    markers lie within 1 px of the same image row.
+    """
+    rec = rec[np.lexsort((rec["u_px"], rec["v_px"]))]
+    u, v = rec["u_px"], rec["v_px"]
+    dup = np.zeros(len(rec), dtype=bool)
+    for step in range(1, min(reach, len(rec) - 1) + 1):
+        close = (u[step:] - u[:-step]) ** 2 + (v[step:] - v[:-step]) ** 2 < 1.0
+        dup[step:] |= close & ~dup[:-step]
+    return rec[~dup]
 
 
 def _none_found(require: bool, why: str) -> np.ndarray:

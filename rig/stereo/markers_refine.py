@@ -14,9 +14,10 @@ Per window, in "polarity space" (bright markers as they are, dark markers as 255
 * centroid weights ``w = d − 3σ`` on the support (background-subtracted intensity with a noise floor:
   an unclipped ``max(d, 0)`` over the window would add ≈ 0.4 σ of mass per background pixel and pull
   the centre towards the window's centre);
-* contrast = peak of the 2×2 mean of ``d`` on the support (DN); area = Σ d / contrast on the support
-  (px², exact for a flat disc and conserved by blur); roundness = √(λmin/λmax) of the weighted second
-  moments (1 for a disc, minor/major axis ratio for an ellipse);
+* contrast = peak of the 2×2 mean of ``d`` on the support (DN); area = Σ w / (contrast − 3σ) (px²,
+  exact for a flat disc, and nearly so for a blurred one: only the skirt below 3σ is missed);
+  roundness = √(λmin/λmax) of the weighted second moments (1 for a disc, minor/major axis ratio for
+  an ellipse);
 * skewness = squared third central moments over det(Σ)^(3/2) (Mardia's b1 for a round blob): 0 for any
   centrally symmetric blob — a disc, an ellipse, a disc seen obliquely — and large for a disc with a
   piece missing;
@@ -61,21 +62,37 @@ class Measured:
     cramped: np.ndarray  # bool: the support reaches the background ring (the window is too small)
 
 
-_BASIS_CACHE: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
+@dataclass(frozen=True)
+class _Geometry:
+    """Constant arrays of one window size (cached): coordinates are offsets from the window's centre."""
+
+    moments: np.ndarray  # (W², 10) float32: 1, x, y, x², xy, y², x³, x²y, xy², y³
+    plane: np.ndarray  # (3, W²) float32: 1, x, y
+    ring_idx: np.ndarray  # flat indices of the background ring
+    ring_fit: np.ndarray  # (P, 3) pseudo-inverse of the ring's plane design matrix, transposed
+    ring_design: np.ndarray  # (P, 3): 1, x, y on the ring
+    dist2: np.ndarray  # (W, W) squared distance from the centre
 
 
-def _basis(half_px: int):
-    """(moment basis (W², 10), ring mask (W, W), squared distance from the centre (W, W)) for one size."""
-    if half_px not in _BASIS_CACHE:
+_GEOMETRY: dict[int, _Geometry] = {}
+
+
+def _geometry(half_px: int) -> _Geometry:
+    if half_px not in _GEOMETRY:
         w = 2 * half_px + 1
         y, x = np.mgrid[-half_px : half_px + 1, -half_px : half_px + 1].astype(np.float64)
         x, y = x.ravel(), y.ravel()
-        basis = np.stack([np.ones_like(x), x, y, x * x, x * y, y * y, x**3, x * x * y, x * y * y, y**3], 1)
+        moments = np.stack([np.ones_like(x), x, y, x * x, x * y, y * y, x**3, x * x * y, x * y * y, y**3], 1)
         ring = np.ones((w, w), dtype=bool)
         ring[RING_PX:-RING_PX, RING_PX:-RING_PX] = False
-        dist2 = (x * x + y * y).reshape(w, w)
-        _BASIS_CACHE[half_px] = (basis, ring, dist2)
-    return _BASIS_CACHE[half_px]
+        ring_idx = np.flatnonzero(ring)
+        design = np.column_stack([np.ones(len(ring_idx)), x[ring_idx], y[ring_idx]])
+        _GEOMETRY[half_px] = _Geometry(
+            moments=moments.astype(np.float32), plane=moments[:, :3].T.astype(np.float32),
+            ring_idx=ring_idx, ring_fit=np.linalg.pinv(design).T, ring_design=design,
+            dist2=(x * x + y * y).reshape(w, w),
+        )
+    return _GEOMETRY[half_px]
 
 
 def gather_windows(image: np.ndarray, rows: np.ndarray, cols: np.ndarray, half_px: int):
@@ -105,8 +122,8 @@ def gather_windows(image: np.ndarray, rows: np.ndarray, cols: np.ndarray, half_p
     return stack, valid
 
 
-def _background(ring_vals: np.ndarray, ring_valid: np.ndarray | None, ring_xy: np.ndarray):
-    """Background plane and noise of each window from its ring values (K, P) at ring_xy (P, 2).
+def _background(ring_vals: np.ndarray, ring_valid: np.ndarray | None, geo: _Geometry):
+    """Background plane and noise of each window from its ring values (K, P).
 
     The ring is first clipped to its median ± 4 × half its 16–84 % spread (so that a neighbouring marker
     reaching into the ring cannot tilt the plane), then a plane a + b·x + c·y is fitted by least squares;
@@ -119,16 +136,20 @@ def _background(ring_vals: np.ndarray, ring_valid: np.ndarray | None, ring_xy: n
         p16, p50, p84 = np.nanpercentile(vals, [16, 50, 84], axis=1, method="lower")
         p16, p50, p84 = (np.nan_to_num(p, nan=0.0) for p in (p16, p50, p84))
     else:
-        # percentiles of uint8 values from one histogram per window (faster than sorting)
-        offsets = (np.arange(n_win, dtype=np.intp) * 256)[:, None]
-        hist = np.bincount((ring_vals + offsets).ravel(), minlength=256 * n_win).reshape(n_win, 256)
-        ranks = np.array([0.16, 0.5, 0.84]) * (n_ring - 1)
-        p16, p50, p84 = (hist.cumsum(axis=1)[:, :, None] <= ranks).sum(axis=1).T
+        # percentiles of uint8 values from one histogram per window (faster than sorting): the windows'
+        # cumulative histograms, shifted apart, form one increasing sequence for a single searchsorted
+        win = np.arange(n_win, dtype=np.intp)[:, None]
+        hist = np.bincount((ring_vals + win * 256).ravel(), minlength=256 * n_win).reshape(n_win, 256)
+        cum = (hist.cumsum(axis=1) + win * (n_ring + 1)).ravel()
+        ranks = np.array([0.16, 0.5, 0.84]) * (n_ring - 1) + win * (n_ring + 1)
+        p16, p50, p84 = (np.searchsorted(cum, ranks.ravel(), side="right").reshape(n_win, 3) - win * 256).T
     spread = 4.0 * np.maximum(0.5 * (p84 - p16), MIN_SIGMA_DN)
-    clipped = np.clip(ring_vals, (p50 - spread)[:, None], (p50 + spread)[:, None]).astype(np.float64)
-    design = np.column_stack([np.ones(n_ring), ring_xy])
+    low = np.clip(p50 - spread, 0, 255).astype(np.uint8)[:, None]
+    high = np.clip(p50 + spread, 0, 255).astype(np.uint8)[:, None]
+    clipped = np.minimum(np.maximum(ring_vals, low), high).astype(np.float64)
+    design = geo.ring_design
     if ring_valid is None:
-        coef = clipped @ np.linalg.pinv(design).T
+        coef = clipped @ geo.ring_fit
         resid = clipped - coef @ design.T
         dof = np.full(n_win, n_ring - 3.0)
     else:
@@ -138,17 +159,21 @@ def _background(ring_vals: np.ndarray, ring_valid: np.ndarray | None, ring_xy: n
             coef[i] = np.linalg.lstsq(design[ok], clipped[i, ok], rcond=None)[0]
         resid = np.where(ring_valid, clipped - coef @ design.T, 0.0)
         dof = np.maximum(ring_valid.sum(axis=1) - 3.0, 1.0)
-    sigma = np.maximum(np.sqrt((resid * resid).sum(axis=1) / dof), MIN_SIGMA_DN)
+    sigma = np.maximum(np.sqrt(np.einsum("ij,ij->i", resid, resid) / dof), MIN_SIGMA_DN)
     return coef.astype(np.float32), sigma.astype(np.float32)
 
 
 def _select_support(strong: np.ndarray, d: np.ndarray, half_px: int, dist2: np.ndarray) -> np.ndarray:
-    """The connected region of ``strong`` (K, W, W) that holds each window's marker, as a bool stack."""
+    """The connected region of ``strong`` (K, W, W) that holds each window's marker, as a bool stack.
+
+    One ``cv2.connectedComponents`` call labels the windows stacked into one tall image. Windows touch
+    there, but a region can only cross into the next window through its first/last row — the ring, which
+    a marker's region reaches only when its window is too small (then it is measured again, larger).
+    """
     k, w, _ = strong.shape
-    mosaic = np.zeros((k, w + 1, w), dtype=np.uint8)  # a zero row between windows keeps them apart
-    mosaic[:, :w, :] = strong
-    _, labels = cv2.connectedComponents(mosaic.reshape(k * (w + 1), w), connectivity=8, ltype=cv2.CV_32S)
-    labels = labels.reshape(k, w + 1, w)[:, :w, :]
+    _, labels = cv2.connectedComponents(strong.view(np.uint8).reshape(k * w, w), connectivity=8,
+                                        ltype=cv2.CV_32S)
+    labels = labels.reshape(k, w, w)
     own = labels[:, half_px, half_px].copy()
     missing = np.nonzero(own == 0)[0]
     if len(missing):
@@ -160,7 +185,8 @@ def _select_support(strong: np.ndarray, d: np.ndarray, half_px: int, dist2: np.n
         score = np.where(bright, dist2[None], np.inf).reshape(len(missing), -1)
         best = score.argmin(axis=1)
         own[missing] = labels[missing].reshape(len(missing), -1)[np.arange(len(missing)), best]
-    return (labels == own[:, None, None]) & (own[:, None, None] != 0)
+        return (labels == own[:, None, None]) & (own[:, None, None] != 0)
+    return labels == own[:, None, None]
 
 
 def _moment_shape(raw_m: np.ndarray):
@@ -252,41 +278,44 @@ def measure_windows(image: np.ndarray, rows: np.ndarray, cols: np.ndarray, half_
     support above the noise floor give NaN measurements.
     """
     n = len(rows)
-    basis, ring, dist2 = _basis(half_px)
-    xs = basis[:, 1].reshape(dist2.shape).astype(np.float32)  # x offset of each pixel from the centre
-    ring_xy = basis[ring.ravel(), 1:3]
+    w = 2 * half_px + 1
+    geo = _geometry(half_px)
     raw, valid = gather_windows(image, rows, cols, half_px)
     if dark:
         raw = np.subtract(255, raw, dtype=np.uint8)
-    coef, sigma = _background(raw[:, ring], None if valid is None else valid[:, ring], ring_xy)
-    d = raw.astype(np.float32)
-    d -= coef[:, 0, None, None]
-    d -= coef[:, 1, None, None] * xs
-    d -= coef[:, 2, None, None] * xs.T
-    bg = coef[:, 0]
+    flat = raw.reshape(n, w * w)
+    ring_valid = None if valid is None else valid.reshape(n, -1)[:, geo.ring_idx]
+    coef, sigma = _background(flat[:, geo.ring_idx], ring_valid, geo)
+    d = flat.astype(np.float32)
+    d -= coef @ geo.plane
     if valid is not None:
-        d *= valid
-    floor = (NOISE_FLOOR_K * sigma)[:, None, None]
+        d *= valid.reshape(n, -1)
+    floor = (NOISE_FLOOR_K * sigma)[:, None]
     strong = d > floor
-    support = _select_support(strong, d, half_px, dist2)
-    signal = d * support
-    weights = signal - floor * support
-    raw_m = weights.reshape(n, -1).astype(np.float64) @ basis
+    support = _select_support(strong.reshape(n, w, w), d.reshape(n, w, w), half_px, geo.dist2)
+    support = support.reshape(n, -1)
+    weights = d - floor
+    weights *= support
+    raw_m = (weights @ geo.moments).astype(np.float64)
     du, dv, roundness, skew = _moment_shape(raw_m)
     empty = ~(raw_m[:, 0] > 0)
     du[empty] = np.nan
     dv[empty] = np.nan
-    # contrast: the largest 2×2 mean of the signal (noise σ/2), area: integrated signal / contrast
-    quad = signal[:, :-1, :-1] + signal[:, 1:, :-1]
-    quad += signal[:, :-1, 1:]
-    quad += signal[:, 1:, 1:]
-    contrast = 0.25 * quad.reshape(n, -1).max(axis=1).astype(np.float64)
+    # contrast: the largest 2×2 mean of the signal (noise σ/2) inside the support
+    grid = weights.reshape(n, w, w)
+    pair = grid[:, :-1, :] + grid[:, 1:, :]
+    quad = pair[:, :, :-1] + pair[:, :, 1:]
+    contrast = (0.25 * quad.reshape(n, -1).max(axis=1) + floor[:, 0]).astype(np.float64)
     contrast[empty] = np.nan
+    # area: integrated signal above the noise floor over the contrast above it (exact for a flat disc;
+    # the blurred skirt below the floor, 3σ of a contrast ≫ σ, is a small part)
     with np.errstate(invalid="ignore", divide="ignore"):
-        area = signal.reshape(n, -1).sum(axis=1, dtype=np.float64) / contrast
-    saturated = (support & (raw == 255)).any(axis=(1, 2)) if raw.max() == 255 else np.zeros(n, bool)
-    cramped = (support & ring).any(axis=(1, 2))
+        area = raw_m[:, 0] / (contrast - floor[:, 0])
+    saturated = (support & (flat == 255)).any(axis=1) if raw.max() == 255 else np.zeros(n, bool)
+    cramped = support[:, geo.ring_idx].any(axis=1)
     border = np.zeros(n, dtype=bool) if valid is None else ~valid.all(axis=(1, 2))
+    bg = coef[:, 0]
+    signal = None
 
     u_e = np.full(n, np.nan)
     v_e = np.full(n, np.nan)
@@ -294,6 +323,7 @@ def measure_windows(image: np.ndarray, rows: np.ndarray, cols: np.ndarray, half_
     edge_noise = np.full(n, np.nan)
     if fit_ellipse and n:
         level = np.where(np.isfinite(contrast), 0.5 * contrast, np.inf).astype(np.float32)
+        signal = (weights + floor * support).reshape(n, w, w)
         centre, edge_rms, edge_noise = _fit_ellipses(*_edge_points(signal, level), n)
         edge_noise *= sigma
         u_e = cols + centre[:, 0] - half_px
