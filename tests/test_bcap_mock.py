@@ -155,6 +155,9 @@ def test_unreachable_poses_are_refused_with_the_controller_error(world: World,
         assert client.error_count() == 0
         assert server.state.moves == []
         assert 70 in link.functions()  # a halt was attempted after each failed move
+    # the context manager released everything despite the errors
+    assert not server.state.handles and not server.state.motor_on and not server.state.arm_taken
+    assert link.functions()[-5:] == [64, 64, 84, 4, 2]
 
 
 def test_handles_accepted_as_i4_or_ui4_and_unknown_handles_refused(world: World,
