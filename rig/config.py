@@ -21,7 +21,8 @@ complete, commented example):
   plate, rotor, reference markers.
 - ``[limits.robot]`` envelope and speed; ``[limits.exciter|rotor|generator]`` frequency, displacement,
   acceleration (2πf)²·x and ramp-rate limits (as :class:`drivers.exciter.limits.MotionLimits`).
-- ``[criteria]`` acceptance thresholds of the certificate.
+- ``[criteria]`` acceptance thresholds of the certificate and its decision rule.
+- ``[analysis]`` ``sync`` method of the analysis (``trajectory`` default; ``linear`` = the paper's).
 - ``[sim]`` the twin's hidden truth (only for a simulated station): camera intrinsics, distortion,
   poses, clock errors, rolling-shutter line time, noise, seed.
 
@@ -242,6 +243,23 @@ class CriteriaConfig:
     sync_uncertainty_ms: float = field(default=1.0, metadata=_POSITIVE)
     frequency_error_pct: float = field(default=1.0, metadata=spec(lo=0.0, lo_open=True, hi=100.0))
     radius_error_mm: float = field(default=0.5, metadata=_POSITIVE)
+    detection_pct: float = field(default=100.0, metadata=spec(lo=0.0, hi=100.0))
+    length_error_mm: float = field(default=1.0, metadata=_POSITIVE)
+    # settings of the decision (reports/certificate.py)
+    decision_rule: str = field(default="guarded", metadata=spec(choices=("guarded", "simple")))
+    reference_u_mm: float = field(default=0.02, metadata=spec(lo=0.0, hi=100.0))
+    fit_max_hz: float | None = field(default=None, metadata=_POSITIVE)
+    frequency_bin_hz: float = field(default=1.0, metadata=_POSITIVE)
+    identification_gate_mm: float = field(default=50.0, metadata=_POSITIVE)
+
+
+@dataclass(frozen=True)
+class AnalysisConfig:
+    """How observations become tracks (``rig.analysis``): the synchronization method (``linear`` is the
+    paper's interpolation of camera B to camera A's instants; the others are ours)."""
+
+    sync: str = field(default="trajectory", metadata=spec(choices=("trajectory", "bandlimited", "cubic",
+                                                                    "linear")))
 
 
 @dataclass(frozen=True)
@@ -254,6 +272,7 @@ class RigConfig:
     targets: TargetsConfig
     limits: LimitsConfig
     criteria: CriteriaConfig = field(default_factory=CriteriaConfig)
+    analysis: AnalysisConfig = field(default_factory=AnalysisConfig)
     sim: SimConfig | None = None
     source: str = field(default="", init=False, compare=False)
 

@@ -7,8 +7,9 @@
 2. build the **station** (``station_factory(config, clock)``, a context manager yielding an object with
    ``devices: dict[str, device]`` and optionally ``snapshot() -> dict`` and
    ``check_interlocks() -> [(device, reason)]``); a failure to connect → exit 3, no run folder;
-3. **snapshot** (configuration + station) and write **start** (a new run folder, or the same folder with
-   a ``resume`` start when ``resume=RUN_DIR``: completed steps are skipped, see :class:`rig.procedure.Step`);
+3. **snapshot** and write **start** (``rig`` = the configuration snapshot, ``devices`` = the station's
+   snapshot): a new run folder, or the same folder with a ``resume`` start when ``resume=RUN_DIR``
+   (completed steps are then skipped, see :class:`rig.procedure.Step`);
 4. run ``module.run(ctx, params)`` with a watchdog thread polling every device's ``heartbeat()`` and the
    station's interlock checks, and SIGINT handled (first Ctrl-C: abort at the next checkpoint; second:
    ``KeyboardInterrupt`` at once);
@@ -220,19 +221,21 @@ class Runner:
         return validate_parameters(self.module, start.get("parameters") or {}), resume_dir
 
     def _run_with_station(self, station: Any, clock: Any, params: Any, resume_dir: Path | None) -> RunOutcome:
-        snapshot = {"config": self.config.snapshot()}
+        snapshot = self.config.snapshot()
+        station_snapshot: dict[str, Any] = {}
         snap = getattr(station, "snapshot", None)
         if callable(snap):
-            try:
-                snapshot["station"] = snap()
+            try:  # a snapshot failure must not prevent making safe
+                station_snapshot = snap()
             except Exception as exc:
-                snapshot["station_error"] = f"{type(exc).__name__}: {exc}"
+                station_snapshot = {"error": f"{type(exc).__name__}: {exc}"}
         devices: dict[str, Any] = dict(getattr(station, "devices", {}))
         try:
             if resume_dir is None:
-                record = RunRecord.create(self.runs_dir, self.module.NAME, to_dict(params), snapshot, clock)
+                record = RunRecord.create(self.runs_dir, self.module.NAME, to_dict(params), snapshot, clock,
+                                          devices=station_snapshot)
             else:
-                record = RunRecord.resume(resume_dir, clock, rig_snapshot=snapshot)
+                record = RunRecord.resume(resume_dir, clock, rig_snapshot=snapshot, devices=station_snapshot)
         except Exception as exc:
             results = make_safe(devices)
             return RunOutcome(EXIT_FAULT, None, "fault", f"could not create the run record: {exc}; "

@@ -54,7 +54,9 @@ def test_success_records_everything_and_makes_every_device_safe(tmp_path: Path) 
     assert (out.exit_code, out.exit_status, out.outcome) == (0, "success", "pass")
     run = load_run(out.run_dir)
     assert run.stop["exit_code"] == 0 and run.stop["verdict"] == "pass" and run.stop["result"]["summary"]
-    assert run.start["parameters"] == {"ticks": 3, "tick_s": 0.0} and run.start["rig"]["station"]
+    assert run.start["parameters"] == {"ticks": 3, "tick_s": 0.0}
+    assert run.start["devices"] == {"devices": ["exciter", "left", "robot", "rotor"]}
+    assert run.start["rig"]["criteria"]["position_max_mm"] == 1.5
     assert run.steps_completed == {"a": ["a.json"], "b": []}
     assert run.events["tick"]["i"].tolist() == [0, 1, 2] and set(run.events["tick"]["step"]) == {"b"}
     c = _calls(calls)
