@@ -315,17 +315,26 @@ class SimCamera:
         radii = np.array([world.marker_diameter_mm(m) / 2 for m in kept_ids])
         conics = disc_conics(cam, normals, radii, jac)
         ext = conic_extents(conics)
-        pad = 2.0 + 3.0 * self.psf_sigma_px + 0.5 * np.abs(vel) * te
+        ksamp = exposure_samples(np.hypot(vel[:, 0], vel[:, 1]) * te)
+        # excursion of the centre during the exposure (du_min, du_max, dv_min, dv_max), sampled on the path
+        # so that curved motion in long exposures (a rotor) stays inside the patch
+        exc = np.zeros((len(kept_ids), 4))
+        moving = np.nonzero(ksamp > 1)[0]
+        if moving.size:
+            ts = t_c[moving, None] + te * np.linspace(-0.5, 0.5, 9)[None, :]
+            d = self.project(world.positions([kept_ids[i] for i in moving], ts)) - uc[moving, None, :]
+            exc[moving] = np.column_stack([d[..., 0].min(1), d[..., 0].max(1),
+                                           d[..., 1].min(1), d[..., 1].max(1)])
+        pad = 2.0 + 3.0 * self.psf_sigma_px + 0.02 * (exc[:, 1] - exc[:, 0] + exc[:, 3] - exc[:, 2])
         g = np.clip(1.0 - vel[:, 1] * lt, 0.25, None)
-        y_lo = np.floor(uc[:, 1] + (ext[:, 2] - pad[:, 1]) / g).astype(int)
-        y_hi = np.ceil(uc[:, 1] + (ext[:, 3] + pad[:, 1]) / g).astype(int)
+        y_lo = np.floor(uc[:, 1] + (ext[:, 2] + exc[:, 2] - pad) / g).astype(int)
+        y_hi = np.ceil(uc[:, 1] + (ext[:, 3] + exc[:, 3] + pad) / g).astype(int)
         shift = (vel[:, 0] * lt)[:, None] * np.stack([y_lo - uc[:, 1], y_hi - uc[:, 1]], axis=1)
-        x_lo = np.floor(uc[:, 0] + ext[:, 0] - pad[:, 0] + shift.min(axis=1)).astype(int)
-        x_hi = np.ceil(uc[:, 0] + ext[:, 1] + pad[:, 0] + shift.max(axis=1)).astype(int)
+        x_lo = np.floor(uc[:, 0] + ext[:, 0] + exc[:, 0] - pad + shift.min(axis=1)).astype(int)
+        x_hi = np.ceil(uc[:, 0] + ext[:, 1] + exc[:, 1] + pad + shift.max(axis=1)).astype(int)
         on = (y_hi >= 0) & (y_lo < h) & (x_hi >= 0) & (x_lo < w)
         y_lo, y_hi = np.clip(y_lo, -h, 2 * h), np.clip(y_hi, -h, 2 * h)
         x_lo, x_hi = np.clip(x_lo, -w, 2 * w), np.clip(x_hi, -w, 2 * w)
-        ksamp = exposure_samples(np.hypot(vel[:, 0], vel[:, 1]) * te)
         for kk in np.unique(ksamp[on]):
             sel = np.nonzero(on & (ksamp == kk))[0]
             hp = int(np.max(y_hi[sel] - y_lo[sel])) + 1
