@@ -8,6 +8,7 @@ bin's fitted amplitude equals the injected one to rounding.
 
 from __future__ import annotations
 
+import functools
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -110,6 +111,11 @@ def _times(t0: float, t1: float) -> np.ndarray:
 
 def make_tracks(method: str, *, position_noise_mm: float = 0.0, seed: int = 0) -> pd.DataFrame:
     """Analysis tracks of the synthetic run for one sync method (the method changes only the sweep)."""
+    return _make_tracks(method, position_noise_mm, seed).copy()
+
+
+@functools.lru_cache(maxsize=8)
+def _make_tracks(method: str, position_noise_mm: float, seed: int) -> pd.DataFrame:
     rng = np.random.default_rng(seed)
     rows: list[pd.DataFrame] = []
 
