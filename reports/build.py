@@ -117,6 +117,39 @@ def _fits_frame(t: ReportTables) -> pd.DataFrame:
     return pd.DataFrame(rows)
 
 
+def _measurands(t: ReportTables, rig: dict[str, Any]) -> dict[str, Any]:
+    """What was measured and under which conditions (GUM §10): cameras, volume, sweep, plate, rotor."""
+    cams = rig.get("cameras") if isinstance(rig.get("cameras"), dict) else {}
+    out: dict[str, Any] = {
+        "cameras": {
+            n: {k: c.get(k) for k in ("fps", "exposure_s", "resolution_px", "driver") if k in c}
+            for n, c in sorted(cams.items())
+            if isinstance(c, dict)
+        },
+    }
+    p = t.poses
+    if len(p):
+        out["static_poses"] = {
+            "n_marker_poses": len(p),
+            "n_targets": int(p["target"].nunique()),
+            "n_cycles": int(p["cycle"].nunique()),
+            "distance_from_cameras_mm": [float(p["distance_mm"].min()), float(p["distance_mm"].max())],
+        }
+    if t.sweep is not None:
+        prof = np.asarray(t.sweep["profile"], float)
+        out["sweep"] = {
+            "amplitude_mm": float(t.sweep["amplitude_mm"]),
+            "frequency_hz": [float(prof[:, 1].min()), float(prof[:, 1].max())],
+            "duration_s": float(t.sweep["t_stop_s"] - t.sweep["t_start_s"]),
+            "axis": list(map(float, t.sweep["axis"])),
+        }
+    if t.plate_event is not None:
+        out["plate"] = {k: t.plate_event.get(k) for k in ("frequency_hz", "amplitude_mm")}
+    if t.rotation is not None:
+        out["rotor"] = {k: t.rotation.get(k) for k in ("frequency_hz", "radius_mm")}
+    return out
+
+
 def _fits_display(t: ReportTables) -> pd.DataFrame:
     """The fit table for the page: coefficients with their intervals as text, the usable limit with U."""
     rows = []
@@ -235,6 +268,7 @@ def build_report(
         "timing_method": (t.timing or {}).get("method"),
         "report_software": _software_version(),
         "versions": run.start.get("versions"),
+        "measurands": _measurands(t, run.rig),
         "rig": run.rig,
         "notes": notes,
     }

@@ -47,6 +47,7 @@ figure{margin:12px 0}figure img{max-width:100%;height:auto;display:block;margin:
 figcaption{color:var(--muted);font-size:13px;text-align:center}
 .note{color:var(--muted);font-size:13.5px}details summary{cursor:pointer;color:var(--muted)}
 pre{background:#f0f3f6;padding:10px;border-radius:6px;overflow:auto;font-size:12px}
+.budget{font-size:12px;color:#7a8591}
 nav a{margin-right:14px;color:#1f5fa8;text-decoration:none;font-size:13.5px}
 """
 
@@ -163,6 +164,15 @@ def _cards(cert: dict[str, Any]) -> str:
     return f'<div class="cards">{"".join(cards)}</div>'
 
 
+def _budget(c: dict[str, Any]) -> str:
+    """The uncertainty budget of a criterion as a short line: component (type) standard uncertainty."""
+    items = [f"{html.escape(b['component'])} ({b['type']}) {_fmt(b['u'], 2)}" for b in c.get("budget") or []]
+    if not items:
+        return ""
+    unit = "" if c["unit"] == "1" else f" {html.escape(c['unit'])}"
+    return f"<br><span class='budget'>u: {'; '.join(items)}{unit}</span>"
+
+
 def _criteria_table(cert: dict[str, Any]) -> str:
     rows = []
     for c in cert["criteria"]:
@@ -173,7 +183,7 @@ def _criteria_table(cert: dict[str, Any]) -> str:
             f"<td>{_fmt(c['coverage_factor'], 3)}</td><td>{_SYMBOL[c['comparison']]} {_fmt(c['limit'])}</td>"
             f'<td class="t">{html.escape(c["unit"])}</td><td class="t">{html.escape(c["zone"])}</td>'
             f'<td><span class="badge {badge}">{html.escape(c["status"])}</span></td>'
-            f'<td class="t note">{html.escape(c["note"])}</td></tr>'
+            f'<td class="t note">{html.escape(c["note"])}{_budget(c)}</td></tr>'
         )
     head = (
         "<tr><th class='t'>criterion</th><th>measured</th><th>U</th><th>k</th><th>limit</th>"
@@ -298,6 +308,17 @@ def render(
             text_cols=("field", "value"),
         )
         + (f"<ul class='note'>{notes}</ul>" if notes else "")
+        + "<h3>Measurands and conditions</h3>"
+        + table(
+            pd.DataFrame(
+                [
+                    {"item": k, "value": json.dumps(v, sort_keys=True, ensure_ascii=False, default=str)}
+                    for k, v in (cond.get("measurands") or {}).items()
+                ],
+                columns=["item", "value"],
+            ),
+            text_cols=("item", "value"),
+        )
         + "<details><summary>Rig snapshot and software versions</summary><pre>"
         + html.escape(
             json.dumps(
