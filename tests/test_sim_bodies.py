@@ -177,3 +177,10 @@ def test_commands_from_many_threads_keep_the_body_consistent() -> None:
     assert all("before the previous command" in str(e) for e in errors)
     t = np.linspace(0, clock[0] + 1.0, 20_001)
     assert np.max(np.abs(np.diff(body.phase_rad(t)))) <= 2 * math.pi * 30.0 * (t[1] - t[0]) * (1 + 1e-9)
+
+
+def test_a_move_to_the_current_pose_ends_at_once() -> None:
+    robot = RobotBody(HOME)
+    assert robot.move(1.0, HOME, 100.0, 500.0) == 1.0
+    assert not robot.is_moving(1.0)
+    assert robot.move(1.0, (360.0, 0.0, 300.0, 90.0, 0.0, 90.0), 100.0, 500.0) > 1.0

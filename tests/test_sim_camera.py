@@ -306,3 +306,36 @@ def test_a_disc_turned_away_from_the_camera_is_neither_drawn_nor_observed() -> N
     uv = cam.project(world.positions(["arm"], [t_end])[:, 0])[0]
     u, v = (round(float(x)) for x in uv)
     assert cam.render(i)[v - 15 : v + 16, u - 15 : u + 16].max() == NOISELESS.background_level_dn
+
+
+@pytest.mark.parametrize("tilt_deg", [0.0, 40.0, 60.0])
+def test_a_tilted_disc_is_drawn_as_the_ellipse_perspective_predicts(tilt_deg: float) -> None:
+    world = World(layout=WorldLayout(initial_scene="single_marker",
+                                     targets=TargetSet(single_marker=SingleMarker(marker_diameter_mm=40.0))))
+    world.robot.move(0.0, (350.0, 0.0, 300.0, 90.0, 0.0, 90.0 + tilt_deg), 100.0, 500.0)  # turn about z
+    eye, tgt = (1850.0, 0.0, 300.0), (380.0, 0.0, 300.0)
+    cam = SimCamera("c", world, rvec=look_at(eye, tgt)[0], tvec=look_at(eye, tgt)[1], noise=NOISELESS,
+                    psf_sigma_px=0.0)
+    t = max(world.robot.t_end_s(), 0.0) + 0.1
+    i = cam.first_frame_index_at_or_after(t)
+    centre = world.positions(["arm"], [t])[:, 0]
+    uv = cam.project(centre)[0]
+    img = cam.render(i).astype(float) - NOISELESS.background_level_dn
+    u0, v0 = (round(float(x)) for x in uv)
+    win = img[v0 - 45 : v0 + 46, u0 - 45 : u0 + 46]
+    yy, xx = np.mgrid[-45:46, -45:46].astype(float)
+    s = win.sum()
+    mu = np.array([(xx * win).sum(), (yy * win).sum()]) / s
+    cov = np.array([[((xx - mu[0]) ** 2 * win).sum(), ((xx - mu[0]) * (yy - mu[1]) * win).sum()],
+                    [((xx - mu[0]) * (yy - mu[1]) * win).sum(), ((yy - mu[1]) ** 2 * win).sum()]]) / s
+    minor, major = np.sqrt(np.linalg.eigvalsh(cov))
+    normal = world.marker_normal("arm", t)
+    view = np.array(eye) - centre[0]
+    cos_view = float(normal @ view / np.linalg.norm(view))
+    # an ellipse of semi-axes a, b has second moments a²/4, b²/4: the axis ratio is the foreshortening
+    # (1-px anti-aliased edge and 8-bit rounding: 1 % on this 65-px disc)
+    assert minor / major == pytest.approx(cos_view, abs=0.01)
+    # the area shrinks by the same factor
+    r_px = 20.0 * cam.camera_matrix[0, 0] / np.linalg.norm(view)
+    assert s / (NOISELESS.marker_level_dn - NOISELESS.background_level_dn) == pytest.approx(
+        math.pi * r_px**2 * cos_view, rel=0.01)

@@ -149,14 +149,14 @@ class RobotBody:
             angle_deg = math.degrees(float(np.linalg.norm(rotvec)))
             ta, tc, vp = trapezoid_duration_s(dist_mm, speed, accel)
             ra, rc, rvp = trapezoid_duration_s(angle_deg, self.rot_speed_deg_s, self.rot_accel_deg_s2)
+            if max(2 * ta + tc, 2 * ra + rc) <= 0.0:  # already there
+                return t0
             if 2 * ta + tc >= 2 * ra + rc:
                 t_acc, t_cruise = ta, tc
                 v_n, a_n = vp / dist_mm, accel / dist_mm
             else:
                 t_acc, t_cruise, v_n, a_n = ra, rc, rvp / angle_deg, self.rot_accel_deg_s2 / angle_deg
             duration = 2 * t_acc + t_cruise
-            if duration <= 0.0:
-                return t0
             s1 = 0.5 * a_n * t_acc * t_acc
             phases = [(t0, 0.0, 0.0, a_n)]
             if t_cruise > 0.0:
