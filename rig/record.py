@@ -20,7 +20,8 @@ recorded, or null) and ``start`` documents of a resumed session carry ``resume: 
 Durability: each document is written with one ``write`` call and flushed at once (a crash loses at
 most the line in flight); the file is ``fsync``'ed after ``start`` and ``stop``, after ``interlock``
 and ``step`` documents, and whenever ``fsync_interval_s`` (default 2 s of wall time) has passed since
-the last fsync. Writing is thread-safe (the runner's watchdog writes ``interlock`` documents).
+the last fsync (a background thread syncs a record that went quiet). Writing is thread-safe (the
+runner's watchdog writes ``interlock`` documents).
 
 Resume: :meth:`RunRecord.resume` reopens a folder, drops a truncated last line (its bytes are kept in
 a ``log`` document), continues each stream's ``seq``, and writes a new ``start`` with ``resume: true``.
@@ -121,6 +122,10 @@ class RunRecord:
         self._lock = threading.RLock()
         self._fh = open(self.path, "ab")  # noqa: SIM115 — lives as long as the record
         self._last_fsync = time.monotonic()
+        self._dirty = False  # written but not yet fsync'ed
+        self._closing = threading.Event()
+        self._syncer = threading.Thread(target=self._sync_loop, name="record-fsync", daemon=True)
+        self._syncer.start()
         self._stopped = False
         self._writers: list[ObservationWriter] = []
 
@@ -209,7 +214,19 @@ class RunRecord:
             if sync or now - self._last_fsync >= self._fsync_interval_s:
                 os.fsync(self._fh.fileno())
                 self._last_fsync = now
+                self._dirty = False
+            else:
+                self._dirty = True
             return to_jsonable(doc)
+
+    def _sync_loop(self) -> None:
+        """fsync what was written but not yet synced, every ``fsync_interval_s`` (a quiet record too)."""
+        while not self._closing.wait(self._fsync_interval_s):
+            with self._lock:
+                if self._dirty and not self._fh.closed:
+                    os.fsync(self._fh.fileno())
+                    self._last_fsync = time.monotonic()
+                    self._dirty = False
 
     def step_begin(self, name: str) -> None:
         """Record that step ``name`` begins; events and observations are tagged with it until done."""
@@ -283,6 +300,7 @@ class RunRecord:
 
     def close(self) -> None:
         """Flush observation writers, fsync and close the file (idempotent)."""
+        self._closing.set()
         with self._lock:
             for writer in self._writers:
                 writer.close()

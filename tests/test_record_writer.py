@@ -228,3 +228,18 @@ def test_kill_9_leaves_a_readable_record(tmp_path: Path) -> None:
     obs = run.observations["left"]
     assert len(obs) % 50 == 0 and obs["frame_index"].tolist() == list(range(len(obs)))
     assert run.stop is None
+
+
+def test_a_quiet_record_is_still_fsynced_within_the_interval(tmp_path: Path,
+                                                             monkeypatch: pytest.MonkeyPatch) -> None:
+    synced: list[int] = []
+    real_fsync = os.fsync
+    monkeypatch.setattr("rig.record.os.fsync", lambda fd: (synced.append(fd), real_fsync(fd))[1])
+    rec = RunRecord.create(tmp_path, "quiet", {}, {}, FakeClock(), versions={}, fsync_interval_s=0.05)
+    n_after_start = len(synced)
+    rec.event("s", {"v": 1})  # within the interval of the start's fsync: not synced by the write itself
+    deadline = time.monotonic() + 5.0
+    while (len(synced) == n_after_start or rec._dirty) and time.monotonic() < deadline:
+        time.sleep(0.01)
+    assert len(synced) > n_after_start and not rec._dirty
+    rec.close()
