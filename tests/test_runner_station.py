@@ -90,3 +90,19 @@ def test_an_unreachable_device_is_named_with_its_address() -> None:
     with pytest.raises(StationError, match=r"rotor: cannot connect to the drive at tcp://127\.0\.0\.1:9"), \
             open_station(bad, make_clock(True)):
         pass
+
+
+def test_every_device_also_works_over_a_pty_serial_line() -> None:
+    cfg = default_config()
+    for name in ("robot", "rotor", "generator"):
+        cfg = override(cfg, f"devices.{name}.address", "mock://pty")
+    clock = make_clock(True)
+    with open_station(cfg, clock) as st:
+        assert all(a.startswith("serial:///dev/") for a in st.addresses.values()), st.addresses
+        target = [400.0, -20.0, 320.0, 90.0, 0.0, 90.0]
+        st.devices["robot"].move_to(target)  # b-CAP with CRC framing on the serial line
+        assert np.allclose(st.world.robot.pose_at(clock.now_s()), target, atol=1e-6)
+        st.devices["rotor"].set_rotation_hz(3.0)
+        assert st.world.rotor.frequency_hz(clock.now_s()) == pytest.approx(3.0, abs=0.02)
+        st.devices["generator"].start(12.0, 0.2)
+        assert st.world.shaker.frequency_hz(clock.now_s()) == pytest.approx(12.0)
