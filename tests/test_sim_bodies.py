@@ -184,3 +184,21 @@ def test_a_move_to_the_current_pose_ends_at_once() -> None:
     assert robot.move(1.0, HOME, 100.0, 500.0) == 1.0
     assert not robot.is_moving(1.0)
     assert robot.move(1.0, (360.0, 0.0, 300.0, 90.0, 0.0, 90.0), 100.0, 500.0) > 1.0
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.lists(st.floats(-200.0, 200.0), min_size=3, max_size=3), st.floats(5.0, 500.0),
+       st.floats(50.0, 5000.0))
+def test_moves_never_exceed_the_commanded_speed_and_end_on_time(delta: list[float], speed: float,
+                                                                accel: float) -> None:
+    robot = RobotBody(HOME)
+    target = np.array(HOME) + np.array([*delta, 0.0, 0.0, 0.0])
+    dist = float(np.linalg.norm(delta))
+    t_end = robot.move(0.0, target, speed, accel)
+    expected = (dist / speed + speed / accel) if dist >= speed**2 / accel else 2 * math.sqrt(dist / accel)
+    assert t_end == pytest.approx(expected, rel=1e-9, abs=1e-12)
+    t = np.linspace(0.0, t_end, 2001)
+    pos = robot.pose_at(t)[:, :3]
+    step = np.linalg.norm(np.diff(pos, axis=0), axis=1) / np.diff(t) if t_end > 0 else np.zeros(1)
+    assert np.all(step <= speed * (1 + 1e-9))
+    np.testing.assert_allclose(robot.pose_at(t_end), target, atol=1e-9)
