@@ -18,7 +18,8 @@ real address, and connects **the same driver over the same transport** as on a r
 started is shut down on exit, in reverse order, each step attempted even if another fails.
 
 ``check_interlocks()`` is cheap and thread-safe (no device I/O; the drivers are not thread-safe): it
-reports a device whose transport was closed by a failure, and a mock server whose thread died.
+reports a device whose transport was closed by a failure, a mock server whose thread died, an arm whose
+last reported pose lies outside the envelope, and an exciter/rotor whose setpoint breaks its limits.
 """
 
 from __future__ import annotations
@@ -28,6 +29,8 @@ import logging
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from typing import Any
+
+import numpy as np
 
 from rig.config import ConfigError, RigConfig, parse_address
 from rig.config_schema import to_dict
@@ -171,6 +174,18 @@ def _build_robot(st: Station, cfg: RigConfig) -> None:
     arm.open()
     st._closers.append(("robot session", arm.close))
     st.devices["robot"], st.addresses["robot"] = arm, url
+
+    def reported_pose_in_envelope() -> str | None:
+        last = arm.last_move
+        if last is None:
+            return None
+        try:
+            arm.envelope.check(np.asarray(last.reported_pose, dtype=float))
+        except ValueError as exc:
+            return f"reported pose {list(last.reported_pose)} outside the envelope: {exc}"
+        return None
+
+    st._liveness.append(("robot", reported_pose_in_envelope))
     st._liveness.append(("robot", lambda: "b-CAP link closed" if getattr(transport, "closed", False)
                          else None))
 
@@ -218,6 +233,15 @@ def _build_vfd(st: Station, cfg: RigConfig, name: str) -> None:
         axis = Rotor(vfd, marker_radius_mm=radius, **common)
     st._closers.append((f"{name} stop", axis.close))
     st.devices[name], st.addresses[name] = axis, url
+
+    def setpoint_within_limits() -> str | None:
+        try:
+            axis.limits.check_point(axis.setpoint_hz, axis.amplitude_mm, f"{name} setpoint")
+        except ValueError as exc:
+            return str(exc)
+        return None
+
+    st._liveness.append((name, setpoint_within_limits))
 
 
 def _build_generator(st: Station, cfg: RigConfig) -> None:

@@ -3,6 +3,7 @@ bound to one twin world built from the configuration; limits refused before any 
 
 from __future__ import annotations
 
+import dataclasses
 import socket
 import time
 
@@ -106,3 +107,16 @@ def test_every_device_also_works_over_a_pty_serial_line() -> None:
         assert st.world.rotor.frequency_hz(clock.now_s()) == pytest.approx(3.0, abs=0.02)
         st.devices["generator"].start(12.0, 0.2)
         assert st.world.shaker.frequency_hz(clock.now_s()) == pytest.approx(12.0)
+
+
+def test_interlock_checks_see_a_pose_outside_the_envelope_without_device_io() -> None:
+    cfg = default_config()
+    clock = make_clock(True)
+    with open_station(cfg, clock) as st:
+        arm = st.devices["robot"]
+        arm.move_to([420.0, 0.0, 300.0, 90.0, 0.0, 90.0])
+        assert st.check_interlocks() == []
+        # what a misbehaving controller could report: the check reads the cached last move only
+        arm.last_move = dataclasses.replace(arm.last_move, reported_pose=[700.0, 0.0, 300.0, 90.0, 0.0, 90.0])
+        ((device, reason),) = st.check_interlocks()
+        assert device == "robot" and "outside the envelope" in reason and "x_mm=700" in reason
