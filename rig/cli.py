@@ -194,7 +194,10 @@ def cmd_mock(args: argparse.Namespace) -> int:
 
 
 def cmd_list(args: argparse.Namespace) -> int:
-    for name, module in discover_procedures().items():
+    procedures = discover_procedures()
+    if not procedures:
+        print("no procedures installed (the procedures/ package is empty)")
+    for name, module in procedures.items():
         doc = getattr(module, "DESCRIPTION", None) or (module.__doc__ or "").strip().splitlines()[0:1]
         print(f"{name}: {doc if isinstance(doc, str) else ''.join(doc)}")
         for row in parameter_table(module):
