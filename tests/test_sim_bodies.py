@@ -193,7 +193,7 @@ def test_moves_never_exceed_the_commanded_speed_and_end_on_time(delta: list[floa
                                                                 accel: float) -> None:
     robot = RobotBody(HOME)
     target = np.array(HOME) + np.array([*delta, 0.0, 0.0, 0.0])
-    dist = float(np.linalg.norm(delta))
+    dist = float(np.linalg.norm(target[:3] - np.array(HOME[:3])))  # as represented in floats
     t_end = robot.move(0.0, target, speed, accel)
     expected = (dist / speed + speed / accel) if dist >= speed**2 / accel else 2 * math.sqrt(dist / accel)
     assert t_end == pytest.approx(expected, rel=1e-9, abs=1e-12)
