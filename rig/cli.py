@@ -147,8 +147,13 @@ def cmd_report(args: argparse.Namespace) -> int:
     if not (run_dir / "record.jsonl").is_file():
         raise ParameterError("RUN", f"{args.run!r} is not a run folder (no record.jsonl)")
     from reports.build import build_report
+    from reports.errors import ReportError
 
-    result = build_report(run_dir, sync=args.sync)
+    try:
+        result = build_report(run_dir, sync=args.sync)
+    except ReportError as exc:
+        print(f"rig: report of {run_dir} failed: {exc}", file=sys.stderr)
+        return EXIT_BAD_INPUT
     verdict = getattr(result, "result", None)
     print(f"rig: report of {run_dir}: {verdict or 'done'} — "
           f"{getattr(result, 'report_html', None) or run_dir / 'report.html'}")
