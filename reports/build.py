@@ -250,6 +250,7 @@ def build_report(
         calibration=getattr(main, "calibration", None) or run.calibration,
     )
     notes += [f"quadratic fit, sync '{m}': {msg}" for m, msg in sorted(t.fit_notes.items())]
+    notes += t.notes
     if run.truncated_last_line:
         notes.append("the record's last line was cut short (the run was killed); it was ignored")
     stop = run.stop or {}

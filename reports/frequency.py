@@ -50,8 +50,10 @@ def _profile(sweep: dict) -> tuple[np.ndarray, np.ndarray]:
     prof = np.asarray(sweep.get("profile"), dtype=float)
     if prof.ndim != 2 or prof.shape[1] != 2 or len(prof) < 2:
         raise ReportError(f"sweep.profile must be [[t_s, f_hz], ...] with ≥ 2 rows, got shape {prof.shape}")
-    if np.any(np.diff(prof[:, 0]) <= 0):
-        raise ReportError("sweep.profile times must increase strictly")
+    if not np.all(np.isfinite(prof)):
+        raise ReportError("sweep.profile holds a non-finite value (null/NaN)")
+    if np.any(np.diff(prof[:, 0]) < 0):
+        raise ReportError("sweep.profile times must not decrease (equal times = a step in frequency)")
     return prof[:, 0], prof[:, 1]
 
 
@@ -69,7 +71,8 @@ def sweep_phase_rad(sweep: dict, t_s: np.ndarray) -> np.ndarray:
     knot_cycles = np.concatenate([[0.0], np.cumsum(seg_cycles)])
     k = np.clip(np.searchsorted(tp, t, side="right") - 1, 0, len(tp) - 2)
     dt = t - tp[k]
-    slope = (fp[k + 1] - fp[k]) / (tp[k + 1] - tp[k])
+    seg_dt = tp[k + 1] - tp[k]
+    slope = np.divide(fp[k + 1] - fp[k], seg_dt, out=np.zeros_like(dt), where=seg_dt > 0)
     inside = (t >= tp[0]) & (t <= tp[-1])
     cycles = np.where(inside, knot_cycles[k] + fp[k] * dt + 0.5 * slope * dt**2, np.nan)
     before = t < tp[0]

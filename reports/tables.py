@@ -44,6 +44,7 @@ class ReportTables:
     fits: dict[str, QuadraticFit] = field(default_factory=dict)
     limits: dict[str, UsableLimit] = field(default_factory=dict)
     fit_notes: dict[str, str] = field(default_factory=dict)
+    notes: list[str] = field(default_factory=list)
     plate: pd.DataFrame | None = None
     plate_event: dict[str, Any] | None = None
     rotation: dict[str, Any] | None = None
@@ -150,8 +151,14 @@ def compute_tables(
     plates = stream_events(run.events, "plate")
     if plates:
         out.plate_event = plates[0]
-        out.plate = motion.plate_table(tracks, plates[0])
+        tables = [motion.plate_table(tracks, p).assign(event=i) for i, p in enumerate(plates)]
+        out.plate = pd.concat(tables, ignore_index=True)
     rotations = stream_events(run.events, "rotation")
+    if len(sweeps) > 1 or len(rotations) > 1:
+        out.notes.append(
+            f"{len(sweeps)} sweep and {len(rotations)} rotation events recorded; "
+            "the report analyses the first of each"
+        )
     if rotations:
         out.rotation = rotations[0]
         out.rotation_samples = motion.rotation_samples(tracks, rotations[0])

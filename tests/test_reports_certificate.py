@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from reports.certificate import (
     CRITERION_IDS,
@@ -149,3 +151,23 @@ def test_certificate_states_rule_and_conditions() -> None:
 def test_unknown_measured_id_raises() -> None:
     with pytest.raises(CriteriaError, match="unknown criterion"):
         evaluate({"speed_mm_s": Measured(1.0)}, acceptance_from_config({}))
+
+
+@settings(max_examples=200, deadline=None)
+@given(
+    value=st.floats(0, 10),
+    u_small=st.floats(0, 2),
+    extra=st.floats(0, 2),
+    limit=st.floats(0.01, 10),
+    comparison=st.sampled_from(["<=", ">="]),
+)
+def test_guarded_is_never_more_lenient_than_simple_and_more_uncertainty_never_helps(
+    value: float, u_small: float, extra: float, limit: float, comparison: str
+) -> None:
+    guarded_small = decide(value, u_small, limit, comparison, "guarded")[0]
+    guarded_large = decide(value, u_small + extra, limit, comparison, "guarded")[0]
+    simple = decide(value, u_small, limit, comparison, "simple")[0]
+    if guarded_small == "PASS":
+        assert simple == "PASS"
+    if guarded_large == "PASS":
+        assert guarded_small == "PASS"

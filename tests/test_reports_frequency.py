@@ -125,7 +125,7 @@ def test_fractional_delay() -> None:
 def test_bad_sweep_fields_raise() -> None:
     with pytest.raises(ReportError, match="profile"):
         frequency.sweep_phase_rad({"profile": [[0, 1]]}, np.array([0.0]))
-    with pytest.raises(ReportError, match="increase"):
+    with pytest.raises(ReportError, match="must not decrease"):
         frequency.profile_frequency_hz({"profile": [[1, 1], [0, 2]]}, np.array([0.0]))
     with pytest.raises(ReportError, match="axis"):
         frequency.sweep_samples(
@@ -183,3 +183,11 @@ def test_linear_interpolation_of_a_continuous_sweep_matches_theory() -> None:
     tol = 0.5 * curvature * (1.0**2 / 12) + 4 * bins["u_amplitude_error_pct"].to_numpy(float) + 1e-6
     np.testing.assert_array_less(np.abs(bins["amplitude_error_pct"].to_numpy(float) - theory), tol)
     assert theory.min() < -10  # the test spans a large, quadratically growing loss
+
+
+def test_a_step_in_the_profile_is_allowed_and_integrated_exactly() -> None:
+    sweep = {"profile": [[0.0, 2.0], [1.0, 2.0], [1.0, 5.0], [3.0, 5.0]]}
+    phi = frequency.sweep_phase_rad(sweep, np.array([0.5, 1.0, 2.0, 3.0]))
+    np.testing.assert_allclose(phi / (2 * np.pi), [1.0, 2.0, 7.0, 12.0], atol=1e-12)
+    with pytest.raises(ReportError, match="non-finite"):
+        frequency.sweep_phase_rad({"profile": [[0.0, 1.0], [1.0, None]]}, np.array([0.5]))

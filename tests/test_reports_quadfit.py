@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from scipy import stats
 
 from reports.errors import FitError
@@ -111,3 +113,22 @@ def test_bad_tolerance_raises() -> None:
     fit = fit_quadratic(F_HZ, C0 + C2 * F_HZ**2, SIGMA)
     with pytest.raises(FitError, match="tolerance"):
         usable_limit(fit, 0.0)
+
+
+@settings(max_examples=40, deadline=None)
+@given(
+    scale=st.floats(1e-3, 1e3),
+    shift_c0=st.floats(-10, 10),
+    seed=st.integers(0, 2**16),
+)
+def test_fit_is_invariant_to_a_common_uncertainty_scale(scale: float, shift_c0: float, seed: int) -> None:
+    """Relative weights: multiplying every u by one factor changes nothing; the fit is linear in e."""
+    rng = np.random.default_rng(seed)
+    e = C0 + C2 * F_HZ**2 + rng.normal(0, SIGMA)
+    a = fit_quadratic(F_HZ, e, SIGMA)
+    b = fit_quadratic(F_HZ, e, SIGMA * scale)
+    np.testing.assert_allclose([b.c0, b.c2], [a.c0, a.c2], rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(b.cov, a.cov, rtol=1e-7, atol=1e-18)
+    c = fit_quadratic(F_HZ, e + shift_c0, SIGMA)
+    assert c.c0 == pytest.approx(a.c0 + shift_c0, abs=1e-9)
+    assert c.c2 == pytest.approx(a.c2, abs=1e-12)
