@@ -161,6 +161,14 @@ def cmd_report(args: argparse.Namespace) -> int:
 
 
 def cmd_check(args: argparse.Namespace) -> int:
+    if args.schema:
+        from rig.config import RigConfig
+        from rig.config_schema import describe
+
+        for row in describe(RigConfig):
+            allowed = f"  [{row['allowed']}]" if row["allowed"] else ""
+            print(f"{row['field']}: {row['type']} = {row['default']!r}{allowed}")
+        return 0
     config = load_config(args.config)
     devices = [n for n in ("robot", "exciter", "rotor", "generator") if getattr(config.devices, n)]
     print(f"configuration {config.source}: valid ({config.station.name}; cameras "
@@ -246,6 +254,8 @@ def build_parser() -> argparse.ArgumentParser:
                        description="Validate the configuration and ping every device.")
     p.add_argument("--config", metavar="RIG.TOML", help="rig configuration (default: the simulated rig)")
     p.add_argument("--no-devices", action="store_true", help="only validate the configuration")
+    p.add_argument("--schema", action="store_true",
+                   help="print every rig.toml field with its type, default and allowed values")
     p = sub.add_parser("mock", help="run a mock device server on 127.0.0.1",
                        description="Start a mock device as a standalone server on 127.0.0.1, backed by a "
                                    "simulated world, for trying a real configuration without hardware. "

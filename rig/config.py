@@ -147,7 +147,7 @@ class VfdConfig:
 class GeneratorConfig:
     driver: str = field(metadata=spec(choices=("scpi-generator",)))
     address: str = field(metadata=spec(check=_address))
-    channel: int = field(default=1, metadata=spec(lo=1, hi=4))
+    channel: int = field(default=1, metadata=spec(lo=1, hi=2))
     sensitivity_mm_per_v: tuple[tuple[float, ...], ...] = field(
         default=((1.0, 1.0), (100.0, 1.0)), metadata=spec(length=(1, 1000), lo=0.0, hi=1e6))
     max_amplitude_vpp: float = field(default=10.0, metadata=spec(lo=0.0, lo_open=True, hi=100.0))

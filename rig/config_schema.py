@@ -171,3 +171,45 @@ def to_dict(obj: Any) -> Any:
     if isinstance(obj, tuple | list):
         return [to_dict(v) for v in obj]
     return obj
+
+
+def describe(cls: type, path: str = "") -> list[dict[str, Any]]:
+    """Every field of the schema rooted at ``cls``: dotted name, type, default, allowed values, doc.
+
+    Nested dataclasses are expanded (``dict[str, X]`` tables as ``<name>``), so the reference printed by
+    ``rig check --schema`` always matches what validation accepts.
+    """
+    rows: list[dict[str, Any]] = []
+    hints = typing.get_type_hints(cls)
+    for f in dataclasses.fields(cls):
+        if not f.init:
+            continue
+        name = f"{path}.{f.name}" if path else f.name
+        tp = hints[f.name]
+        args = [a for a in typing.get_args(tp) if a is not type(None)]
+        inner = args[0] if typing.get_origin(tp) in (typing.Union, types.UnionType) and len(args) == 1 else tp
+        if dataclasses.is_dataclass(inner):
+            rows += describe(inner, name)
+            continue
+        if typing.get_origin(inner) is dict and dataclasses.is_dataclass(typing.get_args(inner)[1]):
+            rows += describe(typing.get_args(inner)[1], f"{name}.<name>")
+            continue
+        meta = dict(f.metadata)
+        if f.default is not dataclasses.MISSING:
+            default: Any = to_dict(f.default)
+        elif f.default_factory is not dataclasses.MISSING:
+            default = to_dict(f.default_factory())
+        else:
+            default = "(required)"
+        allowed = ""
+        if meta.get("choices"):
+            allowed = ", ".join(repr(c) for c in meta["choices"])
+        elif meta.get("lo") is not None or meta.get("hi") is not None:
+            allowed = _range_text(meta)
+        if meta.get("length"):
+            n = meta["length"]
+            allowed = (f"{n} elements" if isinstance(n, int) else f"{n[0]}-{n[1]} elements") + (
+                f"; each {allowed}" if allowed else "")
+        rows.append({"field": name, "type": _type_name(tp), "default": default, "allowed": allowed,
+                     "doc": meta.get("doc", "")})
+    return rows

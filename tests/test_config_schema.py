@@ -170,3 +170,29 @@ def test_any_fps_inside_its_range_is_kept(fps: float) -> None:
 def test_parse_config_string() -> None:
     with pytest.raises(ConfigError, match="station: required field missing"):
         parse_config("")
+
+
+def test_schema_reference_lists_every_field_of_the_builtin_config(capsys: pytest.CaptureFixture[str]) -> None:
+    from rig.cli import main
+    from rig.config_schema import describe
+
+    fields = {row["field"] for row in describe(RigConfig)}
+
+    def leaves(table: dict[str, Any], prefix: str = "") -> list[str]:
+        out = []
+        for key, value in table.items():
+            name = f"{prefix}.{key}" if prefix else key
+            if prefix in ("cameras", "sim.cameras"):
+                name = f"{prefix}.<name>"
+            if isinstance(value, dict) and name != "devices.exciter.registers":
+                out += leaves(value, name)
+            else:
+                out.append(name)
+        return out
+
+    missing = [leaf for leaf in leaves(SIM) if leaf not in fields]
+    assert missing == []
+    assert main(["check", "--schema"]) == 0
+    out = capsys.readouterr().out
+    assert "limits.exciter.max_frequency_hz: a number = '(required)'  [0 < value ≤ 2000]" in out
+    assert "cameras.<name>.driver: a string = '(required)'  ['sim', 'opencv', 'file']" in out
