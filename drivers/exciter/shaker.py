@@ -139,9 +139,10 @@ class Shaker:
                              "amplifier input limit")
 
     def check_point(self, frequency_hz: float, amplitude_vpp: float) -> None:
-        self._check_volts(amplitude_vpp)
+        """Mechanical limits at (f, volts), then the amplifier's input limit."""
         self.limits.check_point(frequency_hz, self.displacement_mm(frequency_hz, amplitude_vpp),
                                 f"shaker at {amplitude_vpp:.4g} Vpp")
+        self._check_volts(amplitude_vpp)
 
     def check_sweep(self, start_hz: float, stop_hz: float, duration_s: float, spacing: str,
                     amplitude_vpp: float) -> None:
@@ -198,13 +199,16 @@ class Shaker:
         self._guarded(run)
 
     def _ramp_amplitude(self, target_vpp: float) -> None:
+        """Move the amplitude to ``target_vpp`` in steps of at most ``amplitude_step_vpp``, waiting
+        ``step_interval_s`` between steps; the last step lands exactly on the target."""
         g = self.generator
-        while abs(self._amplitude_vpp - target_vpp) > 1e-12:
-            step = math.copysign(min(self.amplitude_step_vpp, abs(target_vpp - self._amplitude_vpp)),
-                                 target_vpp - self._amplitude_vpp)
-            g.set_amplitude_vpp(round(self._amplitude_vpp + step, 6))
-            self._amplitude_vpp = round(self._amplitude_vpp + step, 6)
-            if abs(self._amplitude_vpp - target_vpp) > 1e-12:
+        start = self._amplitude_vpp
+        n = max(1, math.ceil(abs(target_vpp - start) / self.amplitude_step_vpp - 1e-9))
+        for i in range(1, n + 1):
+            value = target_vpp if i == n else start + (target_vpp - start) * i / n
+            g.set_amplitude_vpp(value)
+            self._amplitude_vpp = value
+            if i < n:
                 self.clock.sleep_s(self.step_interval_s)
 
     def start(self, frequency_hz: float, amplitude_mm: float) -> float:
