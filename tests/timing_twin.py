@@ -33,6 +33,8 @@ class TwinRecord:
     t_right: np.ndarray
     uv_right: np.ndarray
     true_right: np.ndarray
+    world: World
+    marker_id: str
 
     def truth_offset_s(self, epoch_s: float) -> float:
         """offset_s of the right camera (at row 0, time stamp ``epoch_s``) on the left camera's clock."""
@@ -44,13 +46,45 @@ class TwinRecord:
 
     def right_on_left_clock(self, tau_right: np.ndarray, v_px: np.ndarray) -> np.ndarray:
         L, R = self.left, self.right
-        w = (R.start_offset_s + (tau_right - R.timestamp_origin_s) / (1 + R.clock_ppm * 1e-6)
-             + v_px * R.line_time_s + 0.5 * R.exposure_s)
+        w = (
+            R.start_offset_s
+            + (tau_right - R.timestamp_origin_s) / (1 + R.clock_ppm * 1e-6)
+            + v_px * R.line_time_s
+            + 0.5 * R.exposure_s
+        )
         return L.timestamp_origin_s + (w - L.start_offset_s - 0.5 * L.exposure_s) * (1 + L.clock_ppm * 1e-6)
 
     def left_clock_of_world(self, w: np.ndarray) -> np.ndarray:
         L = self.left
         return L.timestamp_origin_s + (w - L.start_offset_s - 0.5 * L.exposure_s) * (1 + L.clock_ppm * 1e-6)
+
+
+def offset_floor_s(rec: TwinRecord, sigma_px: float, *, line_time: bool = True, drift: bool = True) -> float:
+    """Standard deviation of the offset from white pixel noise alone (Cramér–Rao), with the line time and
+    drift free as in the joint fit. r is the Sampson distance of each left observation to the right camera's
+    track; ∂r/∂δ = g comes from the exact motion at the left camera's instants; the line time shifts the
+    pair by (v_B − v_A) and the drift by (τ_B − epoch), so their columns are g·Δv and g·Δτ·1e-6."""
+    from rig.stereo.timing_joint import fundamental_matrix, sampson_px
+
+    F = fundamental_matrix(rec.P_left, rec.P_right)
+    h = 1e-5
+
+    def proj(P, X):
+        x = np.column_stack([X, np.ones(len(X))]) @ P.T
+        return x[:, :2] / x[:, 2:3]
+
+    X0 = rec.world.positions([rec.marker_id], rec.true_left)[0]
+    X1 = rec.world.positions([rec.marker_id], rec.true_left + h)[0]
+    uv_a = proj(rec.P_left, X0)
+    uv_b = proj(rec.P_right, X0)
+    g = (sampson_px(F, uv_a, proj(rec.P_right, X1)) - sampson_px(F, uv_a, uv_b)) / h
+    cols = [g]
+    if line_time:
+        cols.append(g * (uv_b[:, 1] - uv_a[:, 1]))
+    if drift:
+        cols.append(g * (rec.t_left - rec.t_left.mean()) * 1e-6)
+    J = np.column_stack(cols)
+    return float(sigma_px * np.sqrt(np.linalg.inv(J.T @ J)[0, 0]))
 
 
 def projection(cam) -> np.ndarray:
@@ -85,4 +119,4 @@ def twin_record(
         uv = df[["u_px", "v_px"]].to_numpy(float)
         uv = uv + rng.normal(0.0, sigma_px, uv.shape) if sigma_px > 0 else uv
         out += [df["timestamp_s"].to_numpy(float), uv, df["t_true_s"].to_numpy(float)]
-    return TwinRecord(projection(left), projection(right), left, right, *out)
+    return TwinRecord(projection(left), projection(right), left, right, *out, world, marker_id)

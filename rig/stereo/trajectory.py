@@ -162,8 +162,14 @@ def _system(Ps, ts, uvs, basis, C):
             proj = Xh @ P.T
             w = proj[:, 2]
             uhat = proj[:, :2] / w[:, None]
+        dense = isinstance(basis, SineBasis)  # few dense columns: skip the sparse bookkeeping
         for k in range(2):
             g = (P[k, :3][None, :] - uhat[:, k : k + 1] * P[2, :3][None, :]) / w[:, None]  # (N, 3)
+            if dense:
+                phi = Phi.toarray()
+                rows.append((phi[:, :, None] * g[:, None, :]).reshape(len(t), -1))
+                rhs.append(-(P[k, 3] - uv[:, k] * P[2, 3]) if C is None else uv[:, k] - uhat[:, k])
+                continue
             data = (Phi.data[:, None] * g[Phi.row]).ravel()
             r_idx = np.repeat(Phi.row, 3)
             c_idx = (Phi.col[:, None] * 3 + np.arange(3)[None, :]).ravel()
@@ -172,6 +178,8 @@ def _system(Ps, ts, uvs, basis, C):
                 rhs.append(-(P[k, 3] - uv[:, k] * P[2, 3]))
             else:
                 rhs.append(uv[:, k] - uhat[:, k])
+    if isinstance(basis, SineBasis):
+        return np.vstack(rows), np.concatenate(rhs)
     return sparse.vstack(rows).tocsr(), np.concatenate(rhs)
 
 
@@ -182,9 +190,17 @@ def _solve(A, r, basis, scale, c_now=None):
         R3 = (sparse.kron(Areg, sparse.identity(3)) * scale).tocsr()
         A = sparse.vstack([A, R3]).tocsr()
         r = np.concatenate([r, np.zeros(R3.shape[0]) if c_now is None else -(R3 @ c_now)])
-    N = (A.T @ A).tocsc()
-    x = spsolve(N, A.T @ r) if sparse.issparse(N) else np.linalg.solve(N, A.T @ r)
-    return np.asarray(x)
+    if not sparse.issparse(A):  # a few dense columns: normal equations, scaled by the column norms
+        d = 1.0 / np.maximum(np.linalg.norm(A, axis=0), 1e-300)
+        As = A * d
+        return d * np.linalg.solve(As.T @ As, As.T @ r)
+    return np.asarray(spsolve((A.T @ A).tocsc(), A.T @ r))
+
+
+def _row_scale(A) -> float:
+    """RMS row norm of the design (sets the penalty relative to the data)."""
+    fro = sparse.linalg.norm(A) if sparse.issparse(A) else np.linalg.norm(A)
+    return float(fro / np.sqrt(max(A.shape[0], 1)))
 
 
 def fit_trajectory(
@@ -202,12 +218,12 @@ def fit_trajectory(
             f"{n_eq} equations cannot determine {3 * basis.size} trajectory coefficients"
         )
     A, r = _system(Ps, ts, uvs, basis, None)
-    scale = float(np.sqrt(sparse.linalg.norm(A) ** 2 / max(A.shape[0], 1)))
+    scale = _row_scale(A)
     C = _solve(A, r, basis, scale).reshape(-1, 3)
     for it in range(iterations):
         A, r = _system(Ps, ts, uvs, basis, C)
         if it == 0:  # penalty weight relative to the pixel-scaled equations
-            scale = float(np.sqrt(sparse.linalg.norm(A) ** 2 / max(A.shape[0], 1)))
+            scale = _row_scale(A)
         dC = _solve(A, r, basis, scale, C.ravel()).reshape(-1, 3)
         C = C + dC
         if np.max(np.abs(dC)) < 1e-10 * (1.0 + np.max(np.abs(C))):
@@ -315,37 +331,39 @@ def fit_sine_trajectory(
     return traj, f_best
 
 
-def _linearised_scan(Ps, ts, uvs, grid, *, t_ref, chunk: int = 64) -> np.ndarray:
+def _linearised_scan(Ps, ts, uvs, grid, *, t_ref, chunk: int = 256) -> np.ndarray:
     """Sum of squared pixel residuals of a fundamental-only sine model at each frequency of ``grid``.
 
-    The projection is linearised about the static fit X0 (motion small against the distance), so each
-    frequency is a 9-unknown linear least-squares problem, solved for chunks of frequencies at once.
+    The projection is linearised about the static fit X0 (motion small against the distance): camera c's
+    pixel residual is J_c·(d + a cos ωt + b sin ωt) with a constant 2×3 Jacobian J_c, so each frequency is a
+    9-unknown linear least-squares problem whose normal equations are Kronecker sums
+    Σ_c (Σ_i β_i β_iᵀ) ⊗ J_cᵀJ_c with β_i = (1, cos ωt_i, sin ωt_i) — cheap for thousands of frequencies.
     """
     static = fit_trajectory(Ps, ts, uvs, SineBasis(1.0, t_ref, 0, False), iterations=4)
     X0 = static.coefficients[0]
-    J_rows, e_rows, t_rows = [], [], []
+    G = np.zeros((grid.size, 9, 9))
+    h = np.zeros((grid.size, 9))
+    e2 = 0.0
     for P, t, uv in zip(Ps, ts, uvs, strict=True):
         x = P @ np.append(X0, 1.0)
         J = (P[:2, :3] - np.outer(x[:2] / x[2], P[2, :3])) / x[2]  # (2, 3)
         e = uv - x[:2] / x[2]
-        J_rows.append(np.broadcast_to(J, (len(t), 2, 3)))
-        e_rows.append(e)
-        t_rows.append(t - t_ref)
-    Jm = np.concatenate(J_rows).reshape(-1, 3)  # (2N, 3)
-    e = np.concatenate(e_rows).reshape(-1)
-    tt = np.repeat(np.concatenate(t_rows), 2)
-    e2 = float(e @ e)
-    out = np.empty(grid.size)
-    for s0 in range(0, grid.size, chunk):
-        w = 2 * np.pi * grid[s0 : s0 + chunk, None] * tt[None, :]  # (F, 2N)
-        c, s = np.cos(w), np.sin(w)
-        D = np.concatenate(
-            [np.broadcast_to(Jm, (*w.shape, 3)), c[..., None] * Jm, s[..., None] * Jm], axis=2
-        )  # (F, 2N, 9)
-        G = np.einsum("fni,fnj->fij", D, D)
-        h = np.einsum("fni,n->fi", D, e)
-        sol = np.linalg.solve(
-            G + 1e-12 * np.eye(9) * np.trace(G, axis1=1, axis2=2)[:, None, None], h[..., None]
-        )
-        out[s0 : s0 + chunk] = e2 - np.einsum("fi,fi->f", h, sol[..., 0])
-    return out
+        e2 += float(np.sum(e**2))
+        JtJ = J.T @ J
+        q = e @ J  # (N, 3): J_cᵀ e_i
+        tc = t - t_ref
+        for s0 in range(0, grid.size, chunk):
+            w = 2 * np.pi * grid[s0 : s0 + chunk, None] * tc[None, :]
+            c, s = np.cos(w), np.sin(w)
+            n = np.full(w.shape[0], float(tc.size))
+            sums = [n, c.sum(1), s.sum(1), (c * c).sum(1), (c * s).sum(1), (s * s).sum(1)]
+            one, sc, ss, cc, cs, s2 = sums
+            B = np.stack(
+                [np.stack([one, sc, ss], -1), np.stack([sc, cc, cs], -1), np.stack([ss, cs, s2], -1)], 1
+            )
+            G[s0 : s0 + chunk] += np.einsum("fij,kl->fikjl", B, JtJ).reshape(-1, 9, 9)
+            hq = np.stack([np.broadcast_to(q.sum(0), (w.shape[0], 3)), c @ q, s @ q], 1)  # (F, 3, 3)
+            h[s0 : s0 + chunk] += hq.reshape(-1, 9)
+    ridge = 1e-12 * np.trace(G, axis1=1, axis2=2)[:, None, None] * np.eye(9)
+    sol = np.linalg.solve(G + ridge, h[..., None])[..., 0]
+    return e2 - np.einsum("fi,fi->f", h, sol)

@@ -1,0 +1,142 @@
+"""Joint offset / line-time / drift estimate on the twin's rotor (known truth) and its error cases."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from timing_synth import observe, oscillation, rotor, stereo_pair
+from timing_twin import offset_floor_s, twin_record
+
+from rig.stereo.errors import (
+    AmbiguousOffsetError,
+    DelayOutOfRangeError,
+    InputArrayError,
+    NoCommonMotionError,
+    NonMonotonicTimestampsError,
+    TooFewSamplesError,
+)
+from rig.stereo.timing import estimate_offset
+
+SIGMA_PX = 0.1
+FS_HZ = 60.0
+
+
+@pytest.fixture(scope="module")
+def rotor_record():
+    return twin_record("rotor", "rotor", sigma_px=SIGMA_PX, setup=lambda w: w.rotor.set_frequency(0.0, 10.0))
+
+
+@pytest.fixture(scope="module")
+def rotor_result(rotor_record):
+    rec = rotor_record
+    # A coarse guess as the camera start events would give it (a few ms off).
+    guess = rec.truth_offset_s(float(np.mean(rec.t_right))) + 0.004
+    return estimate_offset(
+        rec.P_left,
+        rec.P_right,
+        (rec.t_left, rec.uv_left),
+        (rec.t_right, rec.uv_right),
+        names=("left", "right"),
+        offset_guess_s=guess,
+    )
+
+
+def test_offset_from_a_10_s_rotor_record_is_within_the_target_and_the_noise_floor(rotor_record, rotor_result):
+    rec, res = rotor_record, rotor_result
+    err_s = res.offset_s["right"] - rec.truth_offset_s(res.epoch_s["right"])
+    floor_s = offset_floor_s(rec, SIGMA_PX)
+    assert abs(err_s) <= 0.05e-3  # the issue's target: 0.05 ms
+    assert abs(err_s) <= 5 * floor_s
+    # The reported uncertainty matches the floor (the same quantity, from the fit's Jacobian and residuals).
+    assert 0.7 * floor_s <= res.uncertainty["offset_s"]["right"] <= 1.5 * floor_s
+    assert res.details["sigma_px"] == pytest.approx(SIGMA_PX, rel=0.15)
+
+
+def test_drift_and_line_time_agree_with_the_twin_within_their_uncertainty(rotor_record, rotor_result):
+    rec, res = rotor_record, rotor_result
+    u = res.uncertainty
+    assert abs(res.drift_ppm["right"] - rec.truth_drift_ppm()) <= 5 * u["drift_ppm"]["right"]
+    assert u["drift_ppm"]["right"] < 2.0
+    assert abs(res.line_time_s["right"] - rec.right.line_time_s) <= 5 * u["line_time_s"]["right"]
+    assert res.line_time_s["left"] == res.line_time_s["right"]
+    # Row-corrected times of every observation of both cameras on the left clock: right within 0.05 ms up to
+    # one constant common to both cameras (a clock origin, which no observation can reveal).
+    err = np.concatenate(
+        [
+            res.times("left", rec.t_left, rec.uv_left[:, 1]) - rec.left_clock_of_world(rec.true_left),
+            res.times("right", rec.t_right, rec.uv_right[:, 1]) - rec.left_clock_of_world(rec.true_right),
+        ]
+    )
+    assert np.max(np.abs(err - err.mean())) < 0.05e-3
+    assert res.method == "joint" and res.reference_camera == "left"
+
+
+def _synthetic(traj, *, offset_s=0.0043, n=420, line_time_s=12e-6, height_b_mm=120.0, seed=0):
+    cam_a, cam_b = stereo_pair(height_b_mm=height_b_mm)
+    rng = np.random.default_rng(seed)
+    tau = np.arange(n) / FS_HZ
+    ta, ua, _ = observe(cam_a, traj, tau, line_time_s=line_time_s, sigma_px=SIGMA_PX, rng=rng)
+    tb, ub, _ = observe(
+        cam_b, traj, tau, offset_s=offset_s, line_time_s=line_time_s, sigma_px=SIGMA_PX, rng=rng
+    )
+    return cam_a, cam_b, (ta, ua), (tb, ub)
+
+
+def test_fixed_line_time_and_several_tracks():
+    traj1, _, _ = rotor(frequency_hz=6.0, radius_mm=50.0)
+    traj2 = oscillation(4.0, 6.0, (0.2, 1.0, 0.1), centre_mm=(100.0, 50.0, 1400.0))
+    ca, cb, a1, b1 = _synthetic(traj1, seed=1)
+    _, _, a2, b2 = _synthetic(traj2, seed=2)
+    res = estimate_offset(ca, cb, [a1, a2], [b1, b2], line_time_s=12e-6, estimate_drift=False)
+    assert res.line_time_s == {"a": 12e-6, "b": 12e-6}
+    assert res.uncertainty["line_time_s"]["b"] == 0.0
+    assert abs(res.offset_s["b"] - 0.0043) <= 5 * res.uncertainty["offset_s"]["b"]
+    assert res.details["parameters"] == ["offset"]
+
+
+def test_motion_only_in_the_epipolar_plane_raises_no_common_motion():
+    # Cameras at the same height, marker moving along the baseline: every epipolar plane contains it.
+    traj = oscillation(3.0, 30.0, (1.0, 0.0, 0.0), centre_mm=(0.0, 0.0, 1500.0))
+    ca, cb, a, b = _synthetic(traj, height_b_mm=0.0)
+    with pytest.raises(NoCommonMotionError, match="epipolar plane"):
+        estimate_offset(ca, cb, a, b)
+
+
+def test_static_marker_raises_no_common_motion():
+    def still(t):
+        return np.tile([10.0, 20.0, 1500.0], (len(t), 1))
+
+    ca, cb, a, b = _synthetic(still)
+    with pytest.raises(NoCommonMotionError):
+        estimate_offset(ca, cb, a, b)
+
+
+def test_offset_beyond_the_search_range_raises():
+    traj, _, _ = rotor(frequency_hz=3.0)
+    ca, cb, a, b = _synthetic(traj, offset_s=0.030)
+    with pytest.raises(DelayOutOfRangeError, match="edge of the search range"):
+        estimate_offset(ca, cb, a, b, offset_guess_s=0.0, search_half_width_s=0.010)
+
+
+def test_periodic_motion_with_a_range_wider_than_its_period_is_ambiguous():
+    traj, _, _ = rotor(frequency_hz=10.0)
+    ca, cb, a, b = _synthetic(traj, offset_s=0.004)
+    with pytest.raises(AmbiguousOffsetError, match="fit equally well"):
+        estimate_offset(ca, cb, a, b, search_half_width_s=0.12)
+
+
+def test_bad_time_stamps_and_too_few_frames():
+    traj, _, _ = rotor(frequency_hz=3.0)
+    ca, cb, (ta, ua), b = _synthetic(traj)
+    back = ta.copy()
+    back[100] = back[98]
+    with pytest.raises(NonMonotonicTimestampsError, match=r"observations_a\[0\] timestamp_s\[100\]"):
+        estimate_offset(ca, cb, (back, ua), b)
+    with pytest.raises(TooFewSamplesError):
+        estimate_offset(ca, cb, (ta[:20], ua[:20]), b)
+    with pytest.raises(NoCommonMotionError, match="overlap"):
+        estimate_offset(ca, cb, (ta + 100.0, ua), b)
+    with pytest.raises(InputArrayError, match="pair"):
+        estimate_offset(ca, cb, ta, b)
+    with pytest.raises(InputArrayError, match="method"):
+        estimate_offset(ca, cb, (ta, ua), b, method="audio")

@@ -1,0 +1,130 @@
+"""Continuous-time trajectories on all observations of both cameras (twin truth): beyond one camera's
+Nyquist limit, amplitude at 25 Hz, frequency, and the B-spline model; where the alias cannot be separated."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from timing_synth import observe, oscillation, stereo_pair
+from timing_twin import twin_record
+
+from rig.stereo.errors import AmbiguousFrequencyError, InputArrayError, NonMonotonicTimestampsError
+from rig.stereo.sinefit import fit_sine
+from rig.stereo.trajectory import fit_sine_trajectory, fit_spline_trajectory
+
+SIGMA_PX = 0.1
+CRANK_MM = 4.0  # the twin's crank radius: the sweep column's displacement amplitude
+AXIS = np.array([0.0, 0.0, 1.0])
+
+
+def _column(f_hz: float, **kw):
+    return twin_record(
+        "sweep_column", "col2", sigma_px=SIGMA_PX, setup=lambda w: w.exciter.set_frequency(0.0, f_hz), **kw
+    )
+
+
+def _scale_px_per_mm(P, X, d):
+    x = P @ np.append(X, 1.0)
+    J = (P[:2, :3] - np.outer(x[:2] / x[2], P[2, :3])) / x[2]
+    return float(np.linalg.norm(J @ d))
+
+
+def _amplitude_floor_mm(rec):
+    """σ of a fitted amplitude along the known axis: σ_px·√2 / √(Σ_c N_c·s_c²), s_c px per mm along it."""
+    X = rec.world.positions([rec.marker_id], rec.true_left[:1])[0, 0]
+    info = sum(
+        n * _scale_px_per_mm(P, X, AXIS) ** 2
+        for n, P in ((rec.t_left.size, rec.P_left), (rec.t_right.size, rec.P_right))
+    )
+    return SIGMA_PX * np.sqrt(2.0 / info)
+
+
+def _fit(rec, **kw):
+    return fit_sine_trajectory(
+        [rec.P_left, rec.P_right], [rec.true_left, rec.true_right], [rec.uv_left, rec.uv_right], **kw
+    )
+
+
+def test_a_40_hz_oscillation_beyond_one_cameras_nyquist_limit_with_cameras_half_a_frame_apart():
+    rec = _column(40.0, right_start_offset_s=0.5 / 60.0)
+    traj, f_hz = _fit(rec)
+    floor = _amplitude_floor_mm(rec)
+    assert f_hz == pytest.approx(40.0, abs=0.005)
+    assert abs(traj.amplitude - CRANK_MM) <= min(0.05 * CRANK_MM, 5 * floor)
+    assert abs(abs(traj.direction @ AXIS) - 1.0) < 1e-3
+    # Each camera alone sees the alias at 20 Hz: its own four-parameter fit returns the alias.
+    alone = fit_sine(rec.t_left, rec.uv_left[:, 1])
+    assert alone.frequency_hz == pytest.approx(20.0, abs=0.01)
+
+
+def test_amplitude_at_25_hz_within_one_percent_with_the_trajectory_fit():
+    rec = _column(25.0)
+    traj, f_hz = _fit(rec)
+    assert f_hz == pytest.approx(25.0, abs=0.005)
+    assert abs(traj.amplitude - CRANK_MM) <= min(0.01 * CRANK_MM, 5 * _amplitude_floor_mm(rec))
+
+
+@pytest.mark.parametrize("f_hz", [3.5, 10.0])
+def test_frequency_within_5_millihertz_on_a_10_s_record(f_hz):
+    rec = _column(f_hz)
+    traj, f_est = _fit(rec)
+    # Cramér–Rao floor of the frequency with the amplitude in pixels of both cameras (white noise).
+    X = rec.world.positions([rec.marker_id], rec.true_left[:1])[0, 0]
+    amp_px = CRANK_MM * np.sqrt(
+        np.mean([_scale_px_per_mm(P, X, AXIS) ** 2 for P in (rec.P_left, rec.P_right)])
+    )
+    n = rec.t_left.size + rec.t_right.size
+    duration = np.ptp(rec.true_left)
+    floor = np.sqrt(24) * SIGMA_PX / (2 * np.pi * amp_px * duration * np.sqrt(n))
+    assert abs(f_est - f_hz) <= min(0.005, 5 * floor)
+    assert abs(traj.amplitude - CRANK_MM) <= 5 * _amplitude_floor_mm(rec)
+
+
+def _synthetic_pair(alpha: float, f_hz: float = 40.0, n: int = 600):
+    cam_a, cam_b = stereo_pair()
+    traj = oscillation(f_hz, 2.0, (0.3, 1.0, 0.2))
+    rng = np.random.default_rng(7)
+    tau = np.arange(n) / 60.0
+    _, ua, ta = observe(cam_a, traj, tau, sigma_px=SIGMA_PX, rng=rng)
+    _, ub, tb = observe(cam_b, traj, tau, offset_s=alpha / 60.0, sigma_px=SIGMA_PX, rng=rng)
+    return [cam_a, cam_b], [ta, tb], [ua, ub]
+
+
+def test_offset_zero_cannot_separate_40_hz_from_its_20_hz_alias_but_a_known_frequency_still_works():
+    cams, ts, uvs = _synthetic_pair(0.0)
+    with pytest.raises(AmbiguousFrequencyError, match="alias"):
+        fit_sine_trajectory(cams, ts, uvs)
+    traj, _ = fit_sine_trajectory(cams, ts, uvs, frequency_hz=40.0)
+    assert traj.amplitude == pytest.approx(2.0, rel=0.01)
+
+
+def test_b_spline_trajectory_at_10_hz_tracks_the_motion_at_the_triangulation_noise():
+    rec = _column(10.0)
+    sp = fit_spline_trajectory(
+        [rec.P_left, rec.P_right], [rec.true_left, rec.true_right], [rec.uv_left, rec.uv_right]
+    )
+    t = np.linspace(rec.true_left[30], rec.true_left[-30], 4000)
+    X = sp.position(t)
+    err = X - rec.world.positions([rec.marker_id], t)[0]
+    # Per-axis noise of a synchronous two-view triangulation at the marker: σ_px·√diag((JᵀJ)⁻¹).
+    X0 = rec.world.positions([rec.marker_id], t[:1])[0, 0]
+    J = []
+    for P in (rec.P_left, rec.P_right):
+        x = P @ np.append(X0, 1.0)
+        J.append((P[:2, :3] - np.outer(x[:2] / x[2], P[2, :3])) / x[2])
+    J = np.vstack(J)
+    sigma_xyz = SIGMA_PX * np.sqrt(np.diag(np.linalg.inv(J.T @ J)))
+    assert np.all(np.sqrt(np.mean(err**2, axis=0)) <= 2.0 * sigma_xyz)
+    assert fit_sine(t, X[:, 2], frequency_hz=10.0).amplitude == pytest.approx(CRANK_MM, rel=0.01)
+
+
+def test_bad_inputs():
+    cams, ts, uvs = _synthetic_pair(0.5, n=60)
+    with pytest.raises(InputArrayError, match="one time array"):
+        fit_sine_trajectory(cams, ts[:1], uvs)
+    back = ts[0].copy()
+    back[10] = back[8]
+    with pytest.raises(NonMonotonicTimestampsError):
+        fit_spline_trajectory(cams, [back, ts[1]], uvs)
+    with pytest.raises(InputArrayError, match="shape"):
+        fit_sine_trajectory(cams, ts, [uvs[0][:-1], uvs[1]])
