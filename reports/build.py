@@ -301,6 +301,10 @@ def build_report(
     tables_dir.mkdir(exist_ok=True)
     figures_dir.mkdir(exist_ok=True)
     criteria = pd.DataFrame(evaluate(measured, acceptance))
+    criteria["budget"] = [
+        "; ".join(f"{b['component']} ({b['type']}): {b['u']:.6g}" for b in budget)
+        for budget in criteria["budget"]
+    ]
     frames = {
         "position_errors": t.poses,
         "iso9283": t.iso9283,
