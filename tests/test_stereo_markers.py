@@ -261,3 +261,39 @@ def test_bad_predictions():
     with pytest.raises(InputArrayError, match="window_px"):
         track_markers(img, np.zeros((1, 2)), window_px=5)
     assert len(track_markers(img, np.zeros((0, 2)))) == 0
+
+
+def test_pixel_centre_origin_convention():
+    """A uniform 5×5 square on rows 10..14, columns 20..24 is centred at u = 22, v = 12 exactly."""
+    img = np.full((40, 48), 10, dtype=np.uint8)
+    img[10:15, 20:25] = 200
+    row = detect_markers(img, min_area_px=10, downsample=1)
+    assert len(row) == 1
+    assert row["u_px"][0] == pytest.approx(22.0, abs=1e-9)
+    assert row["v_px"][0] == pytest.approx(12.0, abs=1e-9)
+    assert row["area_px"][0] == pytest.approx(25.0, rel=1e-6)
+    assert row["contrast"][0] == pytest.approx(190.0, abs=1e-3)
+
+
+def test_tracking_dark_markers_with_the_ellipse_centre():
+    discs = grid_scene(11, contrast_dn=120.0, ellipse=True)
+    img = render((320, 320), discs, background_dn=200.0, dark=True, seed=11)
+    full = detect_markers(img, polarity="dark", centre="ellipse")
+    predicted = np.stack([full["u_px"], full["v_px"]], axis=1) + 2.0
+    tracked = track_markers(img, predicted, polarity="dark", centre="ellipse")
+    err = match(tracked, discs)
+    assert np.sqrt((err**2).mean()) < 0.02
+    assert np.all(tracked["flags"] == 0)
+
+
+def test_windows_grow_when_the_marker_reaches_the_ring():
+    """A strongly blurred marker (σ = 3 px) overflows a 25 px tracking window: it is measured again in a
+    larger window, so the centre stays unbiased; a large marker is measured whole by detection."""
+    u, v = 60.4, 59.7
+    img = render((120, 120), [Disc(u, v, 8.0)], blur_sigma_px=3.0, seed=12)
+    tracked = track_markers(img, np.array([[61.0, 59.0]]), window_px=25)
+    assert np.hypot(tracked["u_px"][0] - u, tracked["v_px"][0] - v) < 0.03
+    big = render((200, 200), [Disc(100.4, 90.7, 40.0)], seed=13)
+    full = detect_markers(big)
+    assert np.hypot(full["u_px"][0] - 100.4, full["v_px"][0] - 90.7) < 0.02
+    assert full["area_px"][0] == pytest.approx(np.pi * 40.0**2, rel=0.03)

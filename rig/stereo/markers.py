@@ -22,10 +22,10 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
-import cv2
 import numpy as np
 
 from rig.stereo.errors import InputArrayError, NoMarkersError
+from rig.stereo.markers_binarize import find_candidates
 from rig.stereo.markers_refine import Measured, measure_windows
 from rig.stereo.markers_roi import inside_any, parse_roi, roi_bounds
 
@@ -94,54 +94,6 @@ def _ladder(half_px: np.ndarray) -> np.ndarray:
     return _HALF_LADDER[idx]
 
 
-def _noise_sigma(low: np.ndarray) -> float:
-    """Robust pixel noise σ (DN) of ``low`` from horizontal differences of every 16th row."""
-    diff = np.abs(low[::16, 1:].astype(np.int16) - low[::16, :-1]).ravel()
-    hist = np.bincount(diff, minlength=256)
-    median = np.searchsorted(np.cumsum(hist), diff.size / 2.0)
-    return max(1.4826 * float(median) / np.sqrt(2.0), 0.5)
-
-
-def _candidates(gray: np.ndarray, *, dark: bool, threshold: float | str | None, factor: int,
-                min_area_px: float, max_area_px: float, min_contrast: float):
-    """Blobs of the binarized, reduced frame: full-resolution integer centres (rows, cols) and half sizes."""
-    low = gray
-    for _ in range({1: 0, 2: 1, 4: 2}[factor]):
-        h, w = low.shape
-        low = cv2.resize(low[: h - h % 2, : w - w % 2], (w // 2, h // 2), interpolation=cv2.INTER_AREA)
-    if dark:
-        low = cv2.bitwise_not(low)
-    if threshold is None:
-        radius_low = np.sqrt(max_area_px / np.pi) / factor
-        block = int(2 * np.ceil(3.0 * radius_low) + 1)
-        block = max(3, min(block, 2 * ((min(low.shape) - 1) // 2) + 1))
-        offset = int(np.ceil(max(0.5 * min_contrast, 4.0 * _noise_sigma(low))))
-        # foreground: brighter than the local mean (box of `block` reduced pixels) by more than `offset`
-        level = cv2.add(cv2.blur(low, (block, block), borderType=cv2.BORDER_REPLICATE), min(offset, 255))
-        binary = cv2.compare(low, level, cv2.CMP_GT)
-    elif threshold == "otsu":
-        _, binary = cv2.threshold(low, 0, 1, cv2.THRESH_BINARY | cv2.THRESH_OTSU)
-    else:
-        level = 255.0 - float(threshold) if dark else float(threshold)
-        _, binary = cv2.threshold(low, level, 1, cv2.THRESH_BINARY)
-    # outer contours of the blobs (faster than connectedComponentsWithStats on a mostly empty frame)
-    contours, _ = cv2.findContours(binary, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
-    empty = np.zeros(0, dtype=np.int64)
-    if not contours:
-        return empty, empty, empty
-    x0, y0, width, height = np.array([cv2.boundingRect(c) for c in contours], dtype=np.int64).T
-    # loose size filter on the bounding box: the exact area is measured at full resolution
-    box_area = width * height * factor * factor
-    short_side_px = np.minimum(width, height) * factor
-    keep = (box_area >= 0.25 * min_area_px) & (short_side_px <= 4.0 * np.sqrt(max_area_px))
-    x0, y0, width, height = x0[keep], y0[keep], width[keep], height[keep]
-    half_f = 0.5 * (factor - 1)
-    cols = np.rint((x0 + 0.5 * (width - 1)) * factor + half_f).astype(np.int64)
-    rows = np.rint((y0 + 0.5 * (height - 1)) * factor + half_f).astype(np.int64)
-    half = np.ceil(0.5 * np.maximum(width, height) * factor).astype(np.int64) + 4
-    return rows, cols, half
-
-
 MERGE_PIXELS = 40_000  # extra window pixels that cost about as much as one more batch call
 
 
@@ -166,29 +118,38 @@ def _measure(gray: np.ndarray, rows: np.ndarray, cols: np.ndarray, half: np.ndar
     ``retries`` times), so a first size guess that is too small costs time, not accuracy. ``exact``:
     use the given half sizes for the first attempt instead of rounding them up to the ladder.
     """
-    n = len(rows)
-    fields: dict[str, np.ndarray] = {
-        key: np.full(n, np.nan) for key in Measured.__dataclass_fields__
-    }
-    for key in ("border", "saturated", "cramped"):
-        fields[key] = np.zeros(n, dtype=bool)
     sizes = np.asarray(half, dtype=np.int64).copy() if exact else _merge_sizes(_ladder(half))
-    todo = np.arange(n)
-    for attempt in range(retries + 1):
-        again = []
-        for size in np.unique(sizes[todo]):
-            sel = todo[sizes[todo] == size]
+    groups = np.unique(sizes)
+    if len(groups) == 0:
+        flags = ("border", "saturated", "cramped")
+        return Measured(**{key: np.zeros(0, dtype=bool if key in flags else float)
+                           for key in Measured.__dataclass_fields__})
+    if len(groups) == 1:  # the usual case: one batch
+        result = measure_windows(gray, rows, cols, int(groups[0]), dark=dark, fit_ellipse=fit_ellipse)
+    else:
+        result = None
+        for size in groups:
+            sel = np.nonzero(sizes == size)[0]
             part = measure_windows(gray, rows[sel], cols[sel], int(size), dark=dark, fit_ellipse=fit_ellipse)
-            for key, value in vars(part).items():
-                fields[key][sel] = value
-            if attempt < retries and size < _HALF_LADDER[-1]:
-                again.append(sel[part.cramped])
-        todo = np.concatenate(again) if again else np.zeros(0, dtype=np.int64)
-        if len(todo) == 0:
-            break
-        sizes[todo] = _HALF_LADDER[np.minimum(np.searchsorted(_HALF_LADDER, sizes[todo], side="right"),
-                                              len(_HALF_LADDER) - 1)]
-    return Measured(**fields)
+            result = _scatter(result, len(rows), sel, part)
+    if retries > 0 and len(rows) and result.cramped.any():
+        again = np.nonzero(result.cramped & (sizes < _HALF_LADDER[-1]))[0]
+        if len(again):
+            bigger = _HALF_LADDER[np.minimum(np.searchsorted(_HALF_LADDER, sizes[again], side="right"),
+                                             len(_HALF_LADDER) - 1)]
+            part = _measure(gray, rows[again], cols[again], bigger, dark=dark, fit_ellipse=fit_ellipse,
+                            retries=retries - 1, exact=True)
+            result = _scatter(result, len(rows), again, part)
+    return result
+
+
+def _scatter(dst: Measured | None, n: int, sel: np.ndarray, src: Measured) -> Measured:
+    """Write the rows ``sel`` of ``dst`` (created, length n, if None) from ``src``."""
+    if dst is None:
+        dst = Measured(**{key: np.empty(n, dtype=value.dtype) for key, value in vars(src).items()})
+    for key, value in vars(src).items():
+        getattr(dst, key)[sel] = value
+    return dst
 
 
 def _rows_from(m: Measured, centre: str, max_edge_rms_px: float, max_skewness: float) -> np.ndarray:
@@ -285,7 +246,7 @@ def detect_markers(
             return _none_found(require, "the regions of interest lie outside the frame")
         search = gray[r_off:r_end, c_off:c_end]
 
-    rows, cols, half = _candidates(search, dark=dark, threshold=threshold, factor=factor,
+    rows, cols, half = find_candidates(search, dark=dark, threshold=threshold, factor=factor,
                                    min_area_px=min_area_px, max_area_px=max_area_px,
                                    min_contrast=min_contrast)
     fit = centre == "ellipse" or outline_check

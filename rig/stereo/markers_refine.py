@@ -14,8 +14,9 @@ Per window, in "polarity space" (bright markers as they are, dark markers as 255
 * centroid weights ``w = d − 3σ`` on the support (background-subtracted intensity with a noise floor:
   an unclipped ``max(d, 0)`` over the window would add ≈ 0.4 σ of mass per background pixel and pull
   the centre towards the window's centre);
-* contrast = peak of the 2×2 mean of ``d`` on the support (DN); area = Σ w / (contrast − 3σ) (px²,
-  exact for a flat disc, and nearly so for a blurred one: only the skirt below 3σ is missed);
+* contrast = the plateau of ``d``: its mean over the pixels above 85 % of the peak (DN);
+  area = Σ w / (contrast − 3σ) (px², exact for a flat disc, and nearly so for a blurred one: only the
+  skirt below 3σ is missed);
   roundness = √(λmin/λmax) of the weighted second moments (1 for a disc, minor/major axis ratio for
   an ellipse);
 * skewness = squared third central moments over det(Σ)^(3/2) (Mardia's b1 for a round blob): 0 for any
@@ -137,11 +138,10 @@ def _background(ring_vals: np.ndarray, ring_valid: np.ndarray | None, geo: _Geom
         p16, p50, p84 = (np.nan_to_num(p, nan=0.0) for p in (p16, p50, p84))
     else:
         # percentiles of uint8 values from one histogram per window (faster than sorting): the windows'
-        # cumulative histograms, shifted apart, form one increasing sequence for a single searchsorted
+        # histograms laid end to end have one running sum, in which window k starts at k·P counts
         win = np.arange(n_win, dtype=np.intp)[:, None]
-        hist = np.bincount((ring_vals + win * 256).ravel(), minlength=256 * n_win).reshape(n_win, 256)
-        cum = (hist.cumsum(axis=1) + win * (n_ring + 1)).ravel()
-        ranks = np.array([0.16, 0.5, 0.84]) * (n_ring - 1) + win * (n_ring + 1)
+        cum = np.bincount((ring_vals + win * 256).ravel(), minlength=256 * n_win).cumsum()
+        ranks = np.array([0.16, 0.5, 0.84]) * (n_ring - 1) + win * n_ring
         p16, p50, p84 = (np.searchsorted(cum, ranks.ravel(), side="right").reshape(n_win, 3) - win * 256).T
     spread = 4.0 * np.maximum(0.5 * (p84 - p16), MIN_SIGMA_DN)
     low = np.clip(p50 - spread, 0, 255).astype(np.uint8)[:, None]
@@ -286,33 +286,39 @@ def measure_windows(image: np.ndarray, rows: np.ndarray, cols: np.ndarray, half_
     flat = raw.reshape(n, w * w)
     ring_valid = None if valid is None else valid.reshape(n, -1)[:, geo.ring_idx]
     coef, sigma = _background(flat[:, geo.ring_idx], ring_valid, geo)
-    d = flat.astype(np.float32)
-    d -= coef @ geo.plane
-    if valid is not None:
-        d *= valid.reshape(n, -1)
     floor = (NOISE_FLOOR_K * sigma)[:, None]
-    strong = d > floor
-    support = _select_support(strong.reshape(n, w, w), d.reshape(n, w, w), half_px, geo.dist2)
-    support = support.reshape(n, -1)
-    weights = d - floor
+    weights = flat.astype(np.float32)
+    weights -= coef @ geo.plane
+    weights -= floor  # signal above the noise floor: > 0 on the marker's support
+    if valid is not None:
+        weights *= valid.reshape(n, -1)
+    grid = weights.reshape(n, w, w)
+    support = _select_support(grid > 0, grid, half_px, geo.dist2).reshape(n, -1)
     weights *= support
     raw_m = (weights @ geo.moments).astype(np.float64)
     du, dv, roundness, skew = _moment_shape(raw_m)
     empty = ~(raw_m[:, 0] > 0)
     du[empty] = np.nan
     dv[empty] = np.nan
-    # contrast: the largest 2×2 mean of the signal (noise σ/2) inside the support
-    grid = weights.reshape(n, w, w)
+    # contrast: the plateau, i.e. the mean signal of the pixels above 85 % of the peak (the peak is the
+    # largest mean of two vertically adjacent pixels; a plain maximum of N noisy pixels would be biased
+    # up by ≈ σ·√(2 ln N)); area: the integrated signal above the floor over the plateau above it (exact
+    # for a flat disc, nearly so for a blurred one: only its skirt below the floor, 3σ ≪ contrast, is
+    # left out)
     pair = grid[:, :-1, :] + grid[:, 1:, :]
-    quad = pair[:, :, :-1] + pair[:, :, 1:]
-    contrast = (0.25 * quad.reshape(n, -1).max(axis=1) + floor[:, 0]).astype(np.float64)
-    contrast[empty] = np.nan
-    # area: integrated signal above the noise floor over the contrast above it (exact for a flat disc;
-    # the blurred skirt below the floor, 3σ of a contrast ≫ σ, is a small part)
+    top = weights >= (0.425 * pair.reshape(n, -1).max(axis=1))[:, None]
     with np.errstate(invalid="ignore", divide="ignore"):
-        area = raw_m[:, 0] / (contrast - floor[:, 0])
+        peak = (np.einsum("ij,ij->i", weights, top, dtype=np.float64)
+                / np.count_nonzero(top, axis=1))
+    contrast = peak + floor[:, 0]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        area = raw_m[:, 0] / peak
+    contrast[empty] = np.nan
     saturated = (support & (flat == 255)).any(axis=1) if raw.max() == 255 else np.zeros(n, bool)
-    cramped = support[:, geo.ring_idx].any(axis=1)
+    # the support is connected to the centre: it reaches the ring only across the ring's inner edge
+    inner = support.reshape(n, w, w)[:, RING_PX - 1 : w - RING_PX + 1, RING_PX - 1 : w - RING_PX + 1]
+    cramped = (inner[:, 0, :].any(axis=1) | inner[:, -1, :].any(axis=1)
+               | inner[:, :, 0].any(axis=1) | inner[:, :, -1].any(axis=1))
     border = np.zeros(n, dtype=bool) if valid is None else ~valid.all(axis=(1, 2))
     bg = coef[:, 0]
     signal = None
@@ -323,7 +329,7 @@ def measure_windows(image: np.ndarray, rows: np.ndarray, cols: np.ndarray, half_
     edge_noise = np.full(n, np.nan)
     if fit_ellipse and n:
         level = np.where(np.isfinite(contrast), 0.5 * contrast, np.inf).astype(np.float32)
-        signal = (weights + floor * support).reshape(n, w, w)
+        signal = (weights + floor * support).reshape(n, w, w)  # d on the support, 0 elsewhere
         centre, edge_rms, edge_noise = _fit_ellipses(*_edge_points(signal, level), n)
         edge_noise *= sigma
         u_e = cols + centre[:, 0] - half_px

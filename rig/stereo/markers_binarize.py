@@ -1,0 +1,65 @@
+"""Binarization of a frame into marker candidates (the paper's first step), on a reduced copy for speed.
+
+The frame is reduced by area averaging (×2 or ×4: two successive halvings, OpenCV's fast path), then
+binarized — by default against the local mean (a box three marker diameters wide) plus an offset of
+max(min_contrast/2, 4σ of the noise), so uneven lighting does not matter; or at Otsu's level; or at a
+fixed level — and the outer contours of the blobs give candidate windows at full resolution. The exact
+measurement (area, contrast, centre) is made later at full resolution (:mod:`rig.stereo.markers_refine`),
+so the filters here are deliberately loose.
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+
+def noise_sigma(low: np.ndarray) -> float:
+    """Robust pixel noise σ (DN) of ``low`` from horizontal differences of every 32nd row."""
+    diff = np.abs(low[::32, 1:].astype(np.int16) - low[::32, :-1]).ravel()
+    hist = np.bincount(diff, minlength=256)
+    median = np.searchsorted(np.cumsum(hist), diff.size / 2.0)
+    return max(1.4826 * float(median) / np.sqrt(2.0), 0.5)
+
+
+def find_candidates(gray: np.ndarray, *, dark: bool, threshold: float | str | None, factor: int,
+                    min_area_px: float, max_area_px: float, min_contrast: float):
+    """Blobs of the binarized frame reduced ``factor`` (1, 2, 4) times.
+
+    Returns full-resolution integer window centres (rows, cols) and window half sizes, int64 arrays.
+    """
+    low = gray
+    for _ in range({1: 0, 2: 1, 4: 2}[factor]):
+        h, w = low.shape
+        low = cv2.resize(low[: h - h % 2, : w - w % 2], (w // 2, h // 2), interpolation=cv2.INTER_AREA)
+    if dark:
+        low = cv2.bitwise_not(low)
+    if threshold is None:
+        radius_low = np.sqrt(max_area_px / np.pi) / factor
+        block = int(2 * np.ceil(3.0 * radius_low) + 1)
+        block = max(3, min(block, 2 * ((min(low.shape) - 1) // 2) + 1))
+        offset = int(np.ceil(max(0.5 * min_contrast, 4.0 * noise_sigma(low))))
+        # foreground: brighter than the local mean (box of `block` reduced pixels) by more than `offset`
+        level = cv2.add(cv2.blur(low, (block, block), borderType=cv2.BORDER_REPLICATE), min(offset, 255))
+        binary = cv2.compare(low, level, cv2.CMP_GT)
+    elif threshold == "otsu":
+        _, binary = cv2.threshold(low, 0, 1, cv2.THRESH_BINARY | cv2.THRESH_OTSU)
+    else:
+        level = 255.0 - float(threshold) if dark else float(threshold)
+        _, binary = cv2.threshold(low, level, 1, cv2.THRESH_BINARY)
+    # outer contours of the blobs (faster than connectedComponentsWithStats on a mostly empty frame)
+    contours, _ = cv2.findContours(binary, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
+    empty = np.zeros(0, dtype=np.int64)
+    if not contours:
+        return empty, empty, empty
+    x0, y0, width, height = np.array([cv2.boundingRect(c) for c in contours], dtype=np.int64).T
+    # loose size filter on the bounding box: the exact area is measured at full resolution
+    box_area = width * height * factor * factor
+    short_side_px = np.minimum(width, height) * factor
+    keep = (box_area >= 0.25 * min_area_px) & (short_side_px <= 4.0 * np.sqrt(max_area_px))
+    x0, y0, width, height = x0[keep], y0[keep], width[keep], height[keep]
+    half_f = 0.5 * (factor - 1)
+    cols = np.rint((x0 + 0.5 * (width - 1)) * factor + half_f).astype(np.int64)
+    rows = np.rint((y0 + 0.5 * (height - 1)) * factor + half_f).astype(np.int64)
+    half = np.ceil(0.5 * np.maximum(width, height) * factor).astype(np.int64) + 4
+    return rows, cols, half
