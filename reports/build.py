@@ -333,7 +333,9 @@ def build_report(
     tol = float(acceptance["amplitude_error_pct"])
     pngs: dict[str, bytes] = {}
     figure_paths = {}
-    for name, fig in (figures.all_figures(t, tol) if make_figures else {}).items():
+    for name, fig in (
+        figures.all_figures(t, tol, float(acceptance["position_max_mm"])) if make_figures else {}
+    ).items():
         path = figures_dir / f"{name}.png"
         figures.save_png(fig, path)
         pngs[name] = path.read_bytes()

@@ -97,7 +97,7 @@ def fig_error_vectors(t: ReportTables) -> Figure | None:
     return fig
 
 
-def fig_error_vs_position(t: ReportTables) -> Figure | None:
+def fig_error_vs_position(t: ReportTables, limit_mm: float | None = None) -> Figure | None:
     """|error| against distance from the cameras and distance off the viewing axis, per target."""
     p = t.poses.dropna(subset=["error_mm"])
     if p.empty:
@@ -117,7 +117,22 @@ def fig_error_vs_position(t: ReportTables) -> Figure | None:
                 capsize=2,
                 label=str(target),
             )
+        if limit_mm is not None:
+            ax.axhline(limit_mm, color=COLORS["linear"], ls="--", lw=1)
         ax.set_xlabel(label)
+    if limit_mm is not None:
+        axes[0, 0].annotate(
+            f"limit {limit_mm:g} mm",
+            (0.01, limit_mm),
+            xycoords=("axes fraction", "data"),
+            xytext=(0, 3),
+            textcoords="offset points",
+            color=COLORS["linear"],
+            fontsize=8.5,
+        )
+        axes[0, 0].set_ylim(
+            0, max(1.15 * limit_mm, 1.1 * float((p["error_mm"] + 2 * p["u_error_mm"].fillna(0)).max()))
+        )
     axes[0, 0].set_ylabel("|error| (mm), bars ±2u")
     if p["target"].nunique() <= 12:
         axes[0, 1].legend(title="target", ncols=2)
@@ -292,11 +307,13 @@ def fig_rotation_radius(t: ReportTables) -> Figure | None:
     return fig
 
 
-def all_figures(t: ReportTables, tolerance_pct: float) -> dict[str, Figure]:
+def all_figures(
+    t: ReportTables, tolerance_pct: float, position_limit_mm: float | None = None
+) -> dict[str, Figure]:
     """Every figure with data, by file stem, in report order."""
     made = {
         "error_vectors": fig_error_vectors(t),
-        "error_vs_position": fig_error_vs_position(t),
+        "error_vs_position": fig_error_vs_position(t, position_limit_mm),
         "amplitude_error_vs_frequency": fig_amplitude_error(t, tolerance_pct),
         "sweep_time_frequency": fig_time_frequency(t),
         "trajectory": fig_trajectory(t),
