@@ -141,3 +141,17 @@ def test_sweep_rejects_a_profile_steeper_than_a_fixed_ramp_drive() -> None:
         with pytest.raises(ValueError, match="fixed ramp rate"):
             exciter.sweep(LinearSweep(0.0, 30.0, 15.0))  # 2 Hz/s
         assert rig.drive.request_count == before  # checked before anything was sent
+
+
+@pytest.mark.parametrize("mode", ["tcp", "rtu"])
+def test_safe_state_brings_the_twin_to_rest_and_heartbeat_reports_faults(mode: str) -> None:
+    with vfd_rig(mode, gear_ratio=GEAR, overspeed_hz=30.0) as rig:
+        rig.exciter.set_frequency(12.0)
+        assert rig.exciter.heartbeat() is True
+        rig.exciter.safe_state()
+        t = rig.clock.now_s()
+        assert rig.world.exciter.frequency_hz(t) == 0.0
+        assert rig.drive.regs[DELTA_MAP.freq_set] == 0 and not rig.drive.running
+        rig.exciter.set_frequency(12.0)
+        rig.drive.trip(0x41)  # the drive trips on its own (overspeed sensor)
+        assert rig.exciter.heartbeat() is False

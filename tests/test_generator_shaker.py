@@ -172,3 +172,12 @@ def test_instrument_error_raises_and_aborts() -> None:
         # the abort still switched the output off (it tries both of its commands)
         assert server.instrument.output is False
         assert world.shaker.amplitude_at_mm(world.clock.now_s()) == 0.0
+
+
+def test_safe_state_and_heartbeat() -> None:
+    with shaker_rig("pty") as (shaker, world, server):
+        shaker.start(10.0, 1.0)
+        assert shaker.heartbeat() is True
+        shaker.safe_state()
+        assert server.instrument.output is False
+        assert world.shaker.amplitude_at_mm(world.clock.now_s()) == 0.0

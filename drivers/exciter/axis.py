@@ -198,6 +198,19 @@ class VfdAxis:
         self._setpoint_hz = 0.0
         return self.wait_until_reached(0.0) if wait else None
 
+    def safe_state(self) -> None:
+        """The runner's "make safe": stop command, setpoint 0 Hz, wait until the output is at rest.
+        Raises (after the driver's own stop attempt) if the drive cannot be reached."""
+        self.vfd.stop()
+        self.vfd.set_frequency_hz(0.0, verify=False)
+        self._setpoint_hz = 0.0
+        self.wait_until_reached(0.0)
+
+    def heartbeat(self) -> bool:
+        """Watchdog probe (thread-safe: one Modbus request): False if the drive reports a fault.
+        A lost link raises (and the driver attempts a stop)."""
+        return self.vfd.read_fault_code() == 0
+
     def _stop_quietly(self) -> None:
         with contextlib.suppress(VfdError):
             self.vfd.stop()

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import logging
 import math
+import threading
 from typing import Any
 
 from drivers.exciter.scpi import (
@@ -70,6 +71,7 @@ class ScpiGenerator:
         self.timeout_s = timeout_s
         self.check_errors = check_errors
         self.source = f"SOUR{channel}"
+        self._lock = threading.RLock()  # a command and its error check are one exchange
         self.output_node = f"OUTP{channel}"
 
     # line level ------------------------------------------------------------------------------------------
@@ -109,21 +111,23 @@ class ScpiGenerator:
     def write(self, header: str, *args: float | str) -> None:
         """Send one command, then check the error queue."""
         command = format_command(header, *args)
-        self._send(command)
-        self._check(command)
+        with self._lock:
+            self._send(command)
+            self._check(command)
 
     def query(self, header: str) -> str:
         """Send a query, read its reply line, then check the error queue."""
         if not header.endswith("?"):
             raise ValueError(f"header={header!r}: a query ends with '?'")
         command = format_command(header)
-        self._send(command)
-        try:
-            reply = self._readline(command)
-        except GeneratorError:
-            self._check(command)  # an error in the queue explains the missing reply better
-            raise
-        self._check(command)
+        with self._lock:
+            self._send(command)
+            try:
+                reply = self._readline(command)
+            except GeneratorError:
+                self._check(command)  # an error in the queue explains the missing reply better
+                raise
+            self._check(command)
         return reply
 
     # instrument commands ----------------------------------------------------------------------------------
@@ -137,8 +141,9 @@ class ScpiGenerator:
 
     def clear_status(self) -> None:
         """``*CLS``: empty the error queue and the status registers."""
-        self._send("*CLS")
-        self._check("*CLS")
+        with self._lock:
+            self._send("*CLS")
+            self._check("*CLS")
 
     def wait_complete(self) -> None:
         """``*OPC?``: returns once every pending operation is done."""

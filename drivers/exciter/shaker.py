@@ -267,6 +267,18 @@ class Shaker:
             self._output_on = False
         self._guarded(run)
 
+    def safe_state(self) -> None:
+        """The runner's "make safe": ramp down and output OFF; the abort path if that fails."""
+        try:
+            self.stop()
+        except GeneratorError:
+            self.abort()
+
+    def heartbeat(self) -> bool:
+        """Watchdog probe: ``*OPC?`` answered (the generator serialises it with other commands)."""
+        self.generator.wait_complete()
+        return True
+
     def abort(self) -> None:
         """Abort path: minimum amplitude at once, output OFF (tries both even if the first fails)."""
         g = self.generator
