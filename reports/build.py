@@ -22,7 +22,7 @@ import pandas as pd
 
 from reports import figures, html
 from reports.certificate import acceptance_from_config, build_certificate, evaluate
-from reports.errors import ReportError
+from reports.errors import AnalysisFailedError, ReportError
 from reports.load import load_record
 from reports.tables import ReportTables, compute_tables, measured_values
 
@@ -237,6 +237,8 @@ def build_report(
             results[method] = analyse(run_dir, sync=method)
         except Exception as exc:
             if method == primary:
+                if isinstance(exc, ValueError | OSError):  # the analysis' own errors name the cause
+                    raise AnalysisFailedError(f"analysis with sync '{method}' failed: {exc}") from exc
                 raise
             notes.append(f"comparison sync '{method}' failed: {type(exc).__name__}: {exc}")
     main = results[primary]

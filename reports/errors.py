@@ -15,5 +15,9 @@ class CriteriaError(ReportError):
     """An acceptance criterion in the configuration is unknown or has an invalid value."""
 
 
+class AnalysisFailedError(ReportError):
+    """The analysis of the primary sync method failed (the cause is chained and named in the message)."""
+
+
 class FitError(ReportError):
     """A fit cannot be made (too few points, non-positive uncertainties, degenerate design)."""

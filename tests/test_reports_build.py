@@ -193,3 +193,15 @@ def test_command_line_entry_reports_a_missing_analysis(tmp_path: Path, capsys) -
         assert code == 3 and "rig.analysis" in err
     else:
         assert code in (0, 1, 2)
+
+
+def test_failing_primary_analysis_raises_a_report_error(tmp_path: Path) -> None:
+    from reports.errors import AnalysisFailedError
+
+    run = synth.write_run(tmp_path / "run_fail_primary")
+
+    def analyse(run_dir, *, sync):
+        raise FileNotFoundError("calibration.json missing: run `rig run calibrate` first")
+
+    with pytest.raises(AnalysisFailedError, match=r"sync 'trajectory'.*calibration\.json missing"):
+        build_report(run, analysis=analyse, make_figures=False)
