@@ -142,3 +142,23 @@ def test_modbus_tcp_carries_the_same_pdu_behind_mbap() -> None:
         client.close()
         peer.close()
     assert peer.mismatch is None and peer.served == 1
+
+
+def test_single_register_reads() -> None:
+    fault = _run([(rtu("01 03 21 00 00 01"), rtu("01 03 02 01 05"))], lambda d: d.read_fault_code())
+    assert fault == 5  # the high byte (a warning) is masked off
+    out = _run([(rtu("01 03 21 03 00 01"), rtu("01 03 02 0B B8"))], lambda d: d.read_actual_frequency_hz())
+    assert out == pytest.approx(30.0)
+
+
+def test_other_unit_ids_are_on_the_wire() -> None:
+    from drivers.exciter.register_map import RegisterMap
+
+    frame = rtu("02 06 20 00 00 01")
+    peer = ScriptedPeer([(frame, frame)])
+    try:
+        with rtu_client_for(peer) as client:
+            VfdDriver(client, RegisterMap(unit_id=2)).stop()
+    finally:
+        peer.close()
+    assert peer.mismatch is None and peer.served == 1
