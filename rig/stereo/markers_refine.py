@@ -287,9 +287,10 @@ def measure_windows(image: np.ndarray, rows: np.ndarray, cols: np.ndarray, half_
     ring_valid = None if valid is None else valid.reshape(n, -1)[:, geo.ring_idx]
     coef, sigma = _background(flat[:, geo.ring_idx], ring_valid, geo)
     floor = (NOISE_FLOOR_K * sigma)[:, None]
-    weights = flat.astype(np.float32)
-    weights -= coef @ geo.plane
-    weights -= floor  # signal above the noise floor: > 0 on the marker's support
+    coef[:, :1] += floor
+    # signal above background plane + noise floor: > 0 on the marker's support
+    weights = np.subtract(flat, coef @ geo.plane, dtype=np.float32)
+    coef[:, :1] -= floor
     if valid is not None:
         weights *= valid.reshape(n, -1)
     grid = weights.reshape(n, w, w)
@@ -300,16 +301,13 @@ def measure_windows(image: np.ndarray, rows: np.ndarray, cols: np.ndarray, half_
     empty = ~(raw_m[:, 0] > 0)
     du[empty] = np.nan
     dv[empty] = np.nan
-    # contrast: the plateau, i.e. the mean signal of the pixels above 85 % of the peak (the peak is the
-    # largest mean of two vertically adjacent pixels; a plain maximum of N noisy pixels would be biased
-    # up by ≈ σ·√(2 ln N)); area: the integrated signal above the floor over the plateau above it (exact
-    # for a flat disc, nearly so for a blurred one: only its skirt below the floor, 3σ ≪ contrast, is
-    # left out)
-    pair = grid[:, :-1, :] + grid[:, 1:, :]
-    top = weights >= (0.425 * pair.reshape(n, -1).max(axis=1))[:, None]
+    # contrast: the plateau, i.e. the mean signal of the pixels above 85 % of the peak (the peak alone,
+    # a maximum of N noisy pixels, would be biased up by ≈ σ·√(2 ln N)); area: the integrated signal
+    # above the floor over the plateau above it (exact for a flat disc, nearly so for a blurred one:
+    # only its skirt below the floor, 3σ ≪ contrast, is left out)
+    top = (weights >= (0.85 * weights.max(axis=1))[:, None]).astype(np.float32)
     with np.errstate(invalid="ignore", divide="ignore"):
-        peak = (np.einsum("ij,ij->i", weights, top, dtype=np.float64)
-                / np.count_nonzero(top, axis=1))
+        peak = (np.einsum("ij,ij->i", weights, top) / (top @ geo.moments[:, 0])).astype(np.float64)
     contrast = peak + floor[:, 0]
     with np.errstate(invalid="ignore", divide="ignore"):
         area = raw_m[:, 0] / peak
