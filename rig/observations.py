@@ -74,7 +74,7 @@ class ObservationWriter:
         self.directory.mkdir(parents=True, exist_ok=True)
         self._chunk_rows = int(chunk_rows)
         self._flush_interval_s = float(flush_interval_s)
-        self._buffer: list[pd.DataFrame] = []
+        self._columns: dict[str, list[np.ndarray]] = {}  # column → buffered chunks
         self._buffered_rows = 0
         self._last_flush = time.monotonic()
         existing = [int(m.group(1)) for p in self.directory.iterdir() if (m := _PART_RE.match(p.name))]
@@ -92,29 +92,64 @@ class ObservationWriter:
         """
         if self._closed:
             raise RuntimeError(f"observation writer for camera {self.camera!r} is closed")
-        frame = _as_frame(rows)
+        columns = _as_columns(rows)
+        n = len(next(iter(columns.values()))) if columns else 0
+        if any(len(v) != n for v in columns.values()):
+            lengths = {k: len(v) for k, v in columns.items()}
+            raise ValueError(f"observation columns differ in length: {lengths}")
         if frame_index is not None:
-            frame["frame_index"] = int(frame_index)
+            columns["frame_index"] = np.full(n, int(frame_index), dtype=np.int64)
         if timestamp_s is not None:
-            frame["timestamp_s"] = float(timestamp_s)
-        if segment is not None:
-            frame["segment"] = segment
-        elif "segment" not in frame.columns:
-            frame["segment"] = self.segment
-        frame = _normalise(frame, self.session)
-        if len(frame):
-            self._buffer.append(frame)
-            self._buffered_rows += len(frame)
+            columns["timestamp_s"] = np.full(n, float(timestamp_s))
+        if segment is not None or "segment" not in columns:
+            columns["segment"] = np.full(n, self.segment if segment is None else segment, dtype=object)
+        missing = [c for c in ("frame_index", "timestamp_s", "u_px", "v_px") if c not in columns]
+        if missing:
+            raise ValueError(f"observation rows lack required column(s) {missing}; required: frame_index, "
+                             "timestamp_s, u_px, v_px")
+        if n == 0:
+            return
+        for name, default in _DEFAULTS.items():
+            if name not in columns:
+                columns[name] = np.full(n, default)
+        columns["session"] = np.full(n, self.session, dtype=np.int64)
+        for name in set(self._columns) | set(columns):
+            if name not in self._columns:  # a new (extra) column: earlier rows of the chunk get "no value"
+                self._columns[name] = [np.full(self._buffered_rows, None, dtype=object)] \
+                    if self._buffered_rows else []
+            if name in columns:
+                dtype = OBSERVATION_COLUMNS.get(name)
+                value = np.asarray(columns[name])
+                self._columns[name].append(value.astype(dtype) if dtype not in (None, "object") else value)
+            else:
+                self._columns[name].append(np.full(n, None, dtype=object))
+        self._buffered_rows += n
         if self._buffered_rows >= self._chunk_rows or (
-                self._buffered_rows and time.monotonic() - self._last_flush >= self._flush_interval_s):
+                time.monotonic() - self._last_flush >= self._flush_interval_s):
             self.flush()
+
+    def _table(self) -> pa.Table:
+        arrays, names = [], []
+        ordered = list(OBSERVATION_COLUMNS) + sorted(c for c in self._columns if c not in OBSERVATION_COLUMNS)
+        for name in ordered:
+            parts = self._columns[name]
+            if name == "segment":
+                arrays.append(pa.array([str(v) for p in parts for v in p], type=pa.string()))
+            else:
+                value = np.concatenate(parts)
+                if value.dtype == object:  # an extra column, possibly with gaps
+                    arrays.append(pa.array(value.tolist()))
+                else:
+                    arrays.append(pa.array(value))
+            names.append(name)
+        return pa.Table.from_arrays(arrays, names=names)
 
     def flush(self) -> Path | None:
         """Write the buffered rows as one new part file (atomic rename); return its path or None."""
         self._last_flush = time.monotonic()
         if not self._buffered_rows:
             return None
-        table = pa.Table.from_pandas(pd.concat(self._buffer, ignore_index=True), preserve_index=False)
+        table = self._table()
         final = self.directory / f"part-{self._next_part:05d}.parquet"
         tmp = final.with_name(final.name + ".tmp")
         with open(tmp, "wb") as fh:
@@ -125,7 +160,7 @@ class ObservationWriter:
         _fsync_dir(self.directory)
         self._next_part += 1
         self.rows_written += self._buffered_rows
-        self._buffer.clear()
+        self._columns = {}
         self._buffered_rows = 0
         return final
 
@@ -142,37 +177,17 @@ class ObservationWriter:
         self.close()
 
 
-def _as_frame(rows: pd.DataFrame | Mapping[str, Any] | np.ndarray) -> pd.DataFrame:
+def _as_columns(rows: pd.DataFrame | Mapping[str, Any] | np.ndarray) -> dict[str, np.ndarray]:
     if isinstance(rows, pd.DataFrame):
-        return rows.copy()
+        return {str(c): rows[c].to_numpy() for c in rows.columns}
     if isinstance(rows, np.ndarray):
         if rows.dtype.names is None:
             raise TypeError("observation rows as an array must be a structured array with named fields")
-        return pd.DataFrame({name: rows[name] for name in rows.dtype.names})
+        return {name: rows[name] for name in rows.dtype.names}
     if isinstance(rows, Mapping):
-        return pd.DataFrame(dict(rows))
+        return {str(k): np.atleast_1d(np.asarray(v)) for k, v in rows.items()}
     raise TypeError("observation rows must be a DataFrame, mapping or structured array, "
                     f"not {type(rows).__name__}")
-
-
-def _normalise(frame: pd.DataFrame, session: int) -> pd.DataFrame:
-    for name, default in _DEFAULTS.items():
-        if name not in frame.columns:
-            frame[name] = default
-    frame["session"] = session
-    if "segment" not in frame.columns:
-        frame["segment"] = ""
-    missing = [c for c in ("frame_index", "timestamp_s", "u_px", "v_px") if c not in frame.columns]
-    if missing:
-        raise ValueError(f"observation rows lack required column(s) {missing}; required: frame_index, "
-                         "timestamp_s, u_px, v_px")
-    for name, dtype in OBSERVATION_COLUMNS.items():
-        if dtype == "object":
-            frame[name] = frame[name].fillna("").astype(str)
-        else:
-            frame[name] = frame[name].astype(dtype)
-    ordered = list(OBSERVATION_COLUMNS) + [c for c in frame.columns if c not in OBSERVATION_COLUMNS]
-    return frame[ordered]
 
 
 def _fsync_dir(directory: Path) -> None:

@@ -243,3 +243,20 @@ def test_a_quiet_record_is_still_fsynced_within_the_interval(tmp_path: Path,
         time.sleep(0.01)
     assert len(synced) > n_after_start and not rec._dirty
     rec.close()
+
+
+def test_extra_columns_are_kept_and_missing_values_are_null(tmp_path: Path) -> None:
+    rec = _new(tmp_path)
+    w = rec.observation_writer("left", segment="s1")
+    w.append(pd.DataFrame({"frame_index": [0, 0], "timestamp_s": [0.0, 0.0], "u_px": [1.0, 2.0],
+                           "v_px": [1.0, 2.0]}))
+    w.append({"frame_index": [1], "timestamp_s": [0.1], "u_px": [3.0], "v_px": [3.0], "marker_id": ["arm"]})
+    w.append({"frame_index": 2, "timestamp_s": 0.2, "u_px": 4.0, "v_px": 4.0})  # scalars: one row
+    with pytest.raises(ValueError, match="observation columns differ in length"):
+        w.append({"frame_index": [3, 3], "timestamp_s": [0.3], "u_px": [5.0, 5.0], "v_px": [5.0, 5.0]})
+    rec.stop("success")
+    rec.close()
+    obs = load_run(rec.run_dir).observations["left"]
+    assert obs["frame_index"].tolist() == [0, 0, 1, 2] and obs["u_px"].tolist() == [1.0, 2.0, 3.0, 4.0]
+    assert obs["marker_id"].isna().tolist() == [True, True, False, True] and obs["marker_id"][2] == "arm"
+    assert set(obs["segment"]) == {"s1"} and obs["flags"].tolist() == [0, 0, 0, 0]
