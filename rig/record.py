@@ -32,6 +32,7 @@ Reading: :func:`load_run` (re-exported from :mod:`rig.record_reader`) returns pa
 from __future__ import annotations
 
 import datetime as _dt
+import json
 import os
 import platform
 import subprocess
@@ -41,7 +42,7 @@ import uuid
 from pathlib import Path
 from typing import Any, Protocol
 
-from rig.jsonenc import dumps, to_jsonable
+from rig.jsonenc import to_jsonable
 from rig.observations import ObservationWriter, read_observations
 from rig.record_reader import (
     RECORD_NAME,
@@ -207,7 +208,9 @@ class RunRecord:
             doc = {"type": doc_type, "time_s": float(self.clock.now_s()),
                    "wall_utc": _dt.datetime.now(_dt.UTC).isoformat(timespec="microseconds"),
                    "session": self.session, **fields}
-            line = dumps(doc).encode("utf-8") + b"\n"
+            clean = to_jsonable(doc)
+            text = json.dumps(clean, ensure_ascii=False, separators=(",", ":"), allow_nan=False)
+            line = text.encode("utf-8") + b"\n"
             self._fh.write(line)
             self._fh.flush()
             now = time.monotonic()
@@ -217,7 +220,7 @@ class RunRecord:
                 self._dirty = False
             else:
                 self._dirty = True
-            return to_jsonable(doc)
+            return clean
 
     def _sync_loop(self) -> None:
         """fsync what was written but not yet synced, every ``fsync_interval_s`` (a quiet record too)."""
