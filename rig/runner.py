@@ -125,9 +125,11 @@ class Runner:
         if self._record is not None:
             with contextlib.suppress(Exception):
                 self._record.interlock(device, reason)
-        if self.handle_signals and not self._control.in_cleanup:
+        main_thread = threading.main_thread()
+        from_other_thread = threading.current_thread() is not main_thread
+        if self.handle_signals and not self._control.in_cleanup and from_other_thread:
             with contextlib.suppress(Exception):
-                signal.pthread_kill(threading.main_thread().ident, signal.SIGUSR1)  # type: ignore[arg-type]
+                signal.pthread_kill(main_thread.ident, signal.SIGUSR1)  # type: ignore[arg-type]
 
     def _checkpoint(self, station: Any) -> None:
         c = self._control
