@@ -9,6 +9,8 @@ from collections.abc import Iterator
 
 import pytest
 import serial
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from drivers.mock.generator_instrument import ERROR_QUEUE_DEPTH, GeneratorInstrument
 from drivers.mock.generator_server import GeneratorServer
@@ -199,3 +201,35 @@ def test_sweep_moves_the_twin_and_repeats() -> None:
         world.clock.sleep_s(12.0)
         assert line.ask("SYST:ERR?") == '+0,"No error"'  # any request applies the restart at t0 + 10
         assert world.shaker.frequency_hz(t0 + 10.0 + 5.0) == pytest.approx(5.0 * 6**0.5)
+
+
+KNOWN = ["*IDN?", "*RST", "*CLS", "*OPC?", "SYST:ERR?", "SOUR1:FREQ 10", "FREQ?", "VOLT 0.5", "VOLT?",
+         "OUTP1 ON", "OUTP1?", "FUNC SIN", "SWE:STAT ON", "SWE:SPAC LOG", "FREQ:STAR 5", "OUTP1:LOAD INF"]
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.lists(st.one_of(st.sampled_from(KNOWN), st.text(max_size=20)), min_size=1, max_size=6))
+def test_any_line_is_answered_or_queued_never_crashes(parts: list[str]) -> None:
+    world = World(VirtualClock(), seed=6)
+    instrument = GeneratorInstrument(world.shaker, world.clock)
+    line = ";".join(p.replace("\n", " ") for p in parts)
+    before = len(instrument.errors)
+    reply = instrument.handle_line(line)
+    assert reply is None or isinstance(reply, str)
+    assert len(instrument.errors) <= max(before + 1, ERROR_QUEUE_DEPTH)  # at most one error per message
+    assert world.shaker.amplitude_at_mm(world.clock.now_s()) >= 0.0
+
+
+@given(st.sampled_from(["FREQ", "FREQUENCY", "SOUR:FREQ", "SOURCE1:FREQUENCY:CW", ":SOUR1:FREQ"]),
+       st.data())
+def test_header_case_does_not_matter(header: str, data: st.DataObject) -> None:
+    mixed = "".join(c.lower() if data.draw(st.booleans()) else c for c in header)
+    world = World(VirtualClock(), seed=7)
+    instrument = GeneratorInstrument(world.shaker, world.clock)
+    assert instrument.handle_line(f"{mixed} 123.5") is None
+    assert instrument.handle_line(f"{mixed}?") == "+1.23500000000000E+02"
+    assert not instrument.errors
+    # in one message the second header continues the first one's path: SOUR:SOUR:FREQ? is undefined
+    if ":" in header.strip(":"):
+        instrument.handle_line(f"{mixed} 1;{mixed.lstrip(':')}?")
+        assert list(instrument.errors) == [(-113, "Undefined header")]

@@ -34,8 +34,9 @@ LIMITS = MotionLimits(max_frequency_hz=100.0, max_displacement_mm=5.0, max_accel
 def shaker_rig(mode: str = "tcp", timeout_s: float = 0.5) -> Iterator[tuple[Shaker, World, GeneratorServer]]:
     world = World(VirtualClock(), seed=5)
     instrument = GeneratorInstrument(world.shaker, world.clock, sensitivity_mm_per_v=TABLE)
-    with GeneratorServer(instrument, mode=mode) as server:
-        transport = open_transport(server.url, timeout_s=timeout_s)
+    with GeneratorServer(instrument, mode="tcp" if mode == "socket" else mode) as server:
+        url = f"socket://127.0.0.1:{server.port}" if mode == "socket" else server.url  # pyserial's URL
+        transport = open_transport(url, timeout_s=timeout_s)
         try:
             generator = ScpiGenerator(transport, timeout_s=timeout_s)
             yield (Shaker(generator, clock=world.clock, limits=LIMITS, sensitivity=SensitivityTable(TABLE),
@@ -56,7 +57,7 @@ def test_sensitivity_table_interpolates_and_never_extrapolates() -> None:
         SensitivityTable([(1.0, 0)])
 
 
-@pytest.mark.parametrize("mode", ["tcp", "pty"])
+@pytest.mark.parametrize("mode", ["tcp", "pty", "socket"])
 def test_start_vibrates_the_twin_at_the_commanded_displacement(mode: str) -> None:
     with shaker_rig(mode) as (shaker, world, server):
         vpp = shaker.start(10.0, 1.3)

@@ -11,6 +11,7 @@ import re
 import time
 
 import pytest
+from pymodbus.exceptions import ModbusIOException
 from vfd_support import vfd_rig
 
 from drivers.exciter.sweep import LinearSweep
@@ -115,3 +116,11 @@ def test_watchdog_trip_is_reported_on_the_next_poll(mode: str) -> None:
             rig.exciter.read_sample()
         assert info.value.fault_code == FAULT_WATCHDOG
         assert info.value.stop_attempted
+
+
+def test_rtu_drive_stays_silent_for_another_unit_id() -> None:
+    with vfd_rig("rtu", timeout_s=TIMEOUT_S) as rig:
+        reply_for_us = rig.client.read_holding_registers(0x2100, count=1, device_id=1)
+        assert not reply_for_us.isError()
+        with pytest.raises(ModbusIOException):
+            rig.client.read_holding_registers(0x2100, count=1, device_id=7)

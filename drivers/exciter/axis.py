@@ -72,7 +72,8 @@ class VfdAxis:
         self.amplitude_mm = float(amplitude_mm)
         self.ramp_rate_hz_per_s = float(ramp_rate_hz_per_s)
         self.direction = direction
-        self.tolerance_hz = float(tolerance_hz)
+        # never tighter than the drive's own resolution (half a register step, in mechanical Hz)
+        self.tolerance_hz = max(float(tolerance_hz), 0.5001 * vfd.map.freq_unit_hz / gear_ratio)
         self.poll_interval_s = float(poll_interval_s)
         self.settle_margin_s = float(settle_margin_s)
         self.fixed_drive_ramp_rate = fixed_drive_ramp_rate_hz_per_s

@@ -16,6 +16,8 @@ Fault injection (:meth:`VfdServer.inject`), each for the next ``count`` replies 
 * ``"disconnect"`` — TCP: the connection is closed instead of replying; RTU: the cable is pulled
   (everything is lost until :meth:`clear_faults`).
 
+On RTU the drive stays silent for requests to other unit ids, like a slave on a shared RS-485 bus.
+
 Drive faults (overload, overspeed, watchdog) are :class:`DriveModel` parameters or ``server.drive.trip``.
 
 Run standalone (its own world with a paced clock)::
@@ -189,6 +191,8 @@ class VfdServer:
         """pymodbus packet hook: alters outgoing replies according to the injected fault."""
         if not sending:
             return data
+        if self.mode == "rtu" and data and data[0] != self.drive.map.unit_id:
+            return b""  # an RS-485 slave never answers for another unit id (pymodbus would send exception 4)
         kind = self._consume(("no_reply", "bad_crc", "disconnect", "exception"))
         if kind == "no_reply":
             return b""
