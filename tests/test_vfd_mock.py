@@ -154,3 +154,28 @@ def test_overspeed_trip() -> None:
         world.clock.advance_to(world.clock.now_s() + 10.0)
         assert read(client, FAULT) == [FAULT_OVERSPEED]
         assert max(world.exciter.frequency_hz(world.clock.now_s() - k * 0.1) for k in range(100)) <= 10.0
+
+
+def test_paced_clock_watchdog_trips_with_nobody_asking() -> None:
+    """In paced mode the server's housekeeping applies the trip; no request is needed to stop the twin."""
+    world = World(VirtualClock(rate=50.0), seed=3)
+    drive = DriveModel(world.exciter, world.clock, watchdog_s=1.0, accel_time_s=10.0, decel_time_s=5.0)
+    with VfdServer(drive) as server:
+        client = ModbusTcpClient("127.0.0.1", port=server.port, timeout=1.0, retries=0)
+        try:
+            assert client.connect()
+            write(client, FREQ_SET, 1000)
+            t0 = world.clock.now_s()
+            write(client, CMD, RUN_FWD)  # the last request: the run starts when the drive handles it
+            t1 = world.clock.now_s()
+            world.clock.wait_until(t1 + 3.0, timeout_s=5.0)  # ~60 ms of wall time, no requests
+            assert drive.fault_code == FAULT_WATCHDOG  # set by the housekeeping tick, not by a request
+            t_trip = drive.fault_time_s
+            assert t_trip is not None and t0 + 1.0 <= t_trip <= t1 + 1.0
+            # acceleration at 50 Hz / 10 s from the run command (handled between t0 and t1) to the trip,
+            # then deceleration at 50 Hz / 5 s
+            f_trip = world.exciter.frequency_hz(t_trip)
+            assert 5.0 * (t_trip - t1) - 1e-9 <= f_trip <= 5.0 * (t_trip - t0) + 1e-9
+            assert world.exciter.frequency_hz(t_trip + 0.25) == pytest.approx(f_trip - 2.5, abs=1e-9)
+        finally:
+            client.close()
