@@ -297,3 +297,11 @@ def test_windows_grow_when_the_marker_reaches_the_ring():
     full = detect_markers(big)
     assert np.hypot(full["u_px"][0] - 100.4, full["v_px"][0] - 90.7) < 0.02
     assert full["area_px"][0] == pytest.approx(np.pi * 40.0**2, rel=0.03)
+
+
+def test_roi_outside_the_frame_and_require():
+    img = render((120, 160), [Disc(80.2, 60.1, 8.0)], seed=14)
+    assert len(detect_markers(img, roi=[(500, 500, 600, 600)])) == 0
+    with pytest.raises(NoMarkersError, match="roi"):
+        detect_markers(img, roi=[(500, 500, 600, 600)], require=True)
+    assert len(detect_markers(img, roi=(60, 40, 100, 80))) == 1  # a single bare rectangle

@@ -32,7 +32,7 @@ from rig.stereo.markers_roi import inside_any, parse_roi, roi_bounds
 MARKER_DTYPE = np.dtype([("u_px", "f8"), ("v_px", "f8"), ("area_px", "f8"), ("roundness", "f8"),
                          ("contrast", "f8"), ("flags", "u1")])
 FLAG_BORDER = 1  # the measuring window reaches outside the image: the centre may be biased
-FLAG_OCCLUDED = 2  # the outline is not an ellipse, or its area disagrees with the signal: partly hidden
+FLAG_OCCLUDED = 2  # partly hidden: the blob is not centrally symmetric, or its outline is not an ellipse
 FLAG_SATURATED = 4  # a marker pixel is clipped (255 for bright markers, 0 for dark ones)
 FLAG_LOST = 8  # tracking only: no marker passing the filters in the window (u_px, v_px are NaN)
 
@@ -154,18 +154,24 @@ def _scatter(dst: Measured | None, n: int, sel: np.ndarray, src: Measured) -> Me
 
 def _rows_from(m: Measured, centre: str, max_edge_rms_px: float, max_skewness: float) -> np.ndarray:
     out = np.empty(len(m.u_px), dtype=MARKER_DTYPE)
-    use_ellipse = (centre == "ellipse") & np.isfinite(m.u_ellipse_px)
-    out["u_px"] = np.where(use_ellipse, m.u_ellipse_px, m.u_px)
-    out["v_px"] = np.where(use_ellipse, m.v_ellipse_px, m.v_px)
+    fitted = bool(np.isfinite(m.u_ellipse_px).any())
+    if centre == "ellipse" and fitted:
+        use_ellipse = np.isfinite(m.u_ellipse_px)
+        out["u_px"] = np.where(use_ellipse, m.u_ellipse_px, m.u_px)
+        out["v_px"] = np.where(use_ellipse, m.v_ellipse_px, m.v_px)
+    else:
+        out["u_px"] = m.u_px
+        out["v_px"] = m.v_px
     out["area_px"] = m.area_px
     out["roundness"] = m.roundness
     out["contrast"] = m.contrast
     with np.errstate(invalid="ignore"):
-        skew_limit = max_skewness + SKEW_NOISE_FACTOR * m.skewness_noise
-        edge_limit2 = max_edge_rms_px**2 + (EDGE_NOISE_FACTOR * m.edge_noise_px) ** 2
-        occluded = (m.skewness > skew_limit) | (m.edge_rms_px**2 > edge_limit2)
-    flags = np.where(m.border, FLAG_BORDER, 0) | np.where(occluded, FLAG_OCCLUDED, 0)
-    out["flags"] = flags | np.where(m.saturated, FLAG_SATURATED, 0)
+        occluded = m.skewness > max_skewness + SKEW_NOISE_FACTOR * m.skewness_noise
+        if fitted:
+            edge_limit2 = max_edge_rms_px**2 + (EDGE_NOISE_FACTOR * m.edge_noise_px) ** 2
+            occluded |= m.edge_rms_px**2 > edge_limit2
+    out["flags"] = (m.border * np.uint8(FLAG_BORDER)) | (occluded * np.uint8(FLAG_OCCLUDED)) | (
+        m.saturated * np.uint8(FLAG_SATURATED))
     return out
 
 
@@ -302,10 +308,12 @@ def track_markers(
     """Measure markers near predicted positions only; one :data:`MARKER_DTYPE` row per prediction, in order.
 
     predicted_uv_px: (K, 2) predicted centres (u, v) in px, e.g. the previous frame's result.
-    window_px: side of the square searched around each prediction (odd, ≥ 7 px); a marker must lie
-        with its centre inside it (make it twice the largest expected frame-to-frame motion plus the
-        marker diameter). The marker is the blob under the window's centre, else the strong blob nearest
-        to it. Other options as in :func:`detect_markers`.
+    window_px: side of the square searched around each prediction (≥ 7 px; an even side is rounded up
+        to the next odd one). The whole marker, with its blurred edge, must fit inside it with a few
+        pixels of background around: make it the marker diameter + 8 px + twice the largest expected
+        frame-to-frame motion. A marker that reaches the window's edge is measured again in a larger
+        window; one larger than the window is lost. The marker is the blob under the window's centre,
+        else the strong blob nearest to it. Other options as in :func:`detect_markers`.
     A prediction that is NaN, outside the frame, or whose window holds no marker passing the filters gives
     a row with u_px = v_px = NaN and FLAG_LOST (area, roundness, contrast keep what was measured, or NaN).
     """
@@ -318,16 +326,12 @@ def track_markers(
     if int(window_px) != window_px or window_px < 7:
         raise InputArrayError(f"window_px={window_px}; give an integer side of at least 7 px")
     dark = polarity == "dark"
-    out = np.empty(len(pred), dtype=MARKER_DTYPE)
-    out[["u_px", "v_px", "area_px", "roundness", "contrast"]] = (np.nan,) * 5
-    out["flags"] = FLAG_LOST
     height, width = gray.shape
     with np.errstate(invalid="ignore"):
         usable = (np.isfinite(pred).all(axis=1) & (pred[:, 0] > -0.5) & (pred[:, 0] < width - 0.5)
                   & (pred[:, 1] > -0.5) & (pred[:, 1] < height - 0.5))
-    idx = np.nonzero(usable)[0]
-    if len(idx) == 0:
-        return out
+    all_usable = bool(usable.all())
+    idx = np.arange(len(pred)) if all_usable else np.nonzero(usable)[0]
     half = int(window_px) // 2
     rows = np.rint(pred[idx, 1]).astype(np.int64)
     cols = np.rint(pred[idx, 0]).astype(np.int64)
@@ -335,10 +339,16 @@ def track_markers(
     measured = _measure(gray, rows, cols, np.full(len(idx), half), dark=dark, fit_ellipse=fit, exact=True)
     rec = _rows_from(measured, centre, max_edge_rms_px, max_skewness)
     passed = _passes(rec, min_area_px, max_area_px, min_roundness, min_contrast)
-    lost = rec[~passed]
-    lost["u_px"] = np.nan
-    lost["v_px"] = np.nan
-    lost["flags"] |= FLAG_LOST
-    rec[~passed] = lost
+    if not passed.all():
+        lost = ~passed
+        rec["u_px"][lost] = np.nan
+        rec["v_px"][lost] = np.nan
+        rec["flags"][lost] |= FLAG_LOST
+    if all_usable:
+        return rec
+    out = np.zeros(len(pred), dtype=MARKER_DTYPE)
+    for field in ("u_px", "v_px", "area_px", "roundness", "contrast"):
+        out[field] = np.nan
+    out["flags"] = FLAG_LOST
     out[idx] = rec
     return out

@@ -104,12 +104,17 @@ def gather_windows(image: np.ndarray, rows: np.ndarray, cols: np.ndarray, half_p
     """
     height, width = image.shape
     w = 2 * half_px + 1
-    inside = (rows >= half_px) & (rows < height - half_px) & (cols >= half_px) & (cols < width - half_px)
-    stack = np.empty((len(rows), w, w), dtype=np.uint8)
-    if height >= w and width >= w:
+    fits = height >= w and width >= w
+    if fits:
         views = np.lib.stride_tricks.as_strided(
             image, (height - w + 1, width - w + 1, w, w), image.strides * 2, writeable=False
         )
+        if (len(rows) and rows.min() >= half_px and rows.max() < height - half_px
+                and cols.min() >= half_px and cols.max() < width - half_px):
+            return views[rows - half_px, cols - half_px], None  # the usual case: all inside
+    inside = (rows >= half_px) & (rows < height - half_px) & (cols >= half_px) & (cols < width - half_px)
+    stack = np.empty((len(rows), w, w), dtype=np.uint8)
+    if fits:
         stack[inside] = views[rows[inside] - half_px, cols[inside] - half_px]
     if inside.all():
         return stack, None
