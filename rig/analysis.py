@@ -1,0 +1,283 @@
+"""Observations of a run folder → matched, time-aligned, triangulated 3-D tracks (``analyse``).
+
+The pure steps live in their own modules and work on DataFrames without a run folder (``rig measure``
+reuses them): :func:`rig.tracks2d.tracks_2d` (per camera, frame to frame), :func:`rig.pairing.pair_tracks`
+(cross-camera, median epipolar distance, optimal assignment, ambiguity flagged),
+:func:`rig.sync_tracks.row_corrected_times` (timing model) and :func:`rig.sync_tracks.triangulate_tracks`
+(sync methods ``trajectory`` (default), ``bandlimited``, ``cubic``, ``linear`` = the paper's).
+
+:func:`analyse` reads ``record.jsonl`` (through :func:`rig.record.load_run`), ``observations/``,
+``calibration.json`` and ``timing.json``, analyses every recording segment (the step that recorded the
+observations, per session) and puts the tracks on the **controller clock** (contracts.md,
+"Analysis → reports"):
+
+- the timing model puts every observation on the reference camera's clock;
+- each ``camera`` event with ``action = "start"`` (contracts.md) relates a camera clock to the controller
+  clock: the controller time of the event and the camera time stamp of the first frame recorded after it.
+  That frame's exposure started within one frame period after the event, so its row-0 instant is taken as
+  event time + ½ frame period (uniform uncertainty: standard uncertainty T/√12 ≈ 4.8 ms at 60 fps; it shifts
+  whole tracks in time, never their shape). The offsets of all start events of the segment (every camera,
+  through the timing model) are averaged; without one in the segment, all start events of the run are
+  used (noted); without any, :class:`ClockMappingError`;
+- pairing is restricted to a **volume**: the robot envelope box of the configuration snapshot
+  (``rig["limits"]["robot"]["envelope_*_mm"]``) joined with the reference markers' positions
+  (``rig["targets"]["references"]["positions_mm"]``), grown by ``volume_margin_mm``; pairs that would
+  triangulate outside it are wrong pairs (ghosts of markers on a common epipolar plane).
+
+Nothing is cached: every call recomputes from the files, so a changed file can never give stale tracks.
+"""
+
+from __future__ import annotations
+
+import json
+import warnings
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from rig.analysis_errors import (
+    AnalysisError,
+    ClockMappingError,
+    MissingInputError,
+    MissingObservationsError,
+    NoPairableTracksError,
+)
+from rig.record_reader import RecordError, load_run
+from rig.stereo.dlt import DLTCamera
+from rig.stereo.errors import StereoError
+from rig.stereo.timing import TimingResult
+from rig.sync_tracks import (
+    SYNC_METHODS,
+    TRACK_COLUMNS,
+    pair_all,
+    prepare_observations,
+    timing_result,
+    triangulate_tracks,
+)
+from rig.tracks2d import tracks_2d
+
+CALIBRATION_FILE = "calibration.json"
+TIMING_FILE = "timing.json"
+
+__all__ = ["SYNC_METHODS", "TRACK_COLUMNS", "Analysis", "analyse", "controller_offsets", "pairing_volume"]
+
+
+@dataclass
+class Analysis:
+    """The analysis of one run folder.
+
+    ``tracks``: ``TRACK_COLUMNS`` — segment (str), time_s (controller clock), track_id (int, unique within a
+    segment), x_mm, y_mm, z_mm, reprojection_px, n_cameras. ``timing`` / ``calibration``: the file contents
+    used. ``pairs``: every cross-camera pair (segment, session, camera, track_a, track_b, distance_px,
+    n_common, ambiguous, resolved). ``clock``: per (segment, session) the offset controller − reference
+    clock (s) and where it came from. ``notes``: what was skipped and why.
+    """
+
+    tracks: pd.DataFrame
+    timing: dict[str, Any]
+    calibration: dict[str, Any]
+    sync: str
+    pairs: pd.DataFrame = field(default_factory=pd.DataFrame)
+    clock: pd.DataFrame = field(default_factory=pd.DataFrame)
+    notes: list[str] = field(default_factory=list)
+
+
+def _read_json(path: Path, what: str, how: str) -> dict[str, Any]:
+    if not path.is_file():
+        raise MissingInputError(f"{path}: no {what}; {how}")
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except json.JSONDecodeError as exc:
+        raise AnalysisError(f"{path}: not valid JSON ({exc.msg} at line {exc.lineno}); {how}") from exc
+    if not isinstance(data, dict):
+        raise AnalysisError(f"{path}: the top level must be a JSON object; {how}")
+    return data
+
+
+def load_cameras(calibration: dict[str, Any], path: Path | str = CALIBRATION_FILE) -> dict[str, DLTCamera]:
+    """camera name → :class:`DLTCamera` from the ``calibration.json`` content."""
+    entries = calibration.get("cameras")
+    if not isinstance(entries, dict) or len(entries) < 2:
+        raise AnalysisError(f"{path}: 'cameras' must map ≥ 2 camera names to DLT entries, got "
+                            f"{str(entries)[:80]}; run `rig run calibrate`")
+    out = {}
+    for name, entry in entries.items():
+        try:
+            out[str(name)] = DLTCamera.from_dict(entry)
+        except StereoError as exc:
+            raise AnalysisError(f"{path}: camera {name!r}: {exc}") from exc
+    return out
+
+
+def pairing_volume(rig: dict[str, Any], margin_mm: float = 150.0) -> tuple[tuple[float, float], ...] | None:
+    """Box (mm) where markers can be: robot envelope ∪ reference markers, grown by ``margin_mm``; None if
+    the snapshot has no envelope."""
+    try:
+        robot = rig["limits"]["robot"]
+        box = np.array([robot[f"envelope_{a}_mm"] for a in "xyz"], dtype=float)
+    except (KeyError, TypeError, ValueError):
+        return None
+    if box.shape != (3, 2) or not np.isfinite(box).all():
+        return None
+    refs = ((rig.get("targets") or {}).get("references") or {}).get("positions_mm") or []
+    pts = np.asarray(refs, dtype=float).reshape(-1, 3) if len(refs) else np.zeros((0, 3))
+    lo = np.min(np.vstack([box[:, 0], pts]), axis=0) - margin_mm
+    hi = np.max(np.vstack([box[:, 1], pts]), axis=0) + margin_mm
+    return tuple((float(a), float(b)) for a, b in zip(lo, hi, strict=True))
+
+
+def _frame_period_s(rig: dict[str, Any], camera: str, obs: pd.DataFrame) -> float:
+    fps = ((rig.get("cameras") or {}).get(camera) or {}).get("fps")
+    if isinstance(fps, int | float) and fps > 0:
+        return 1.0 / float(fps)
+    stamps = np.unique(obs["timestamp_s"].to_numpy(float)) if len(obs) else np.zeros(0)
+    steps = np.diff(stamps)
+    return float(np.median(steps)) if steps.size else 1.0 / 60.0
+
+
+def controller_offsets(camera_events: pd.DataFrame | None, timing: TimingResult,
+                       frame_period_s: dict[str, float]) -> pd.DataFrame:
+    """One row per usable ``camera`` start event: step, session, camera, offset_s (controller − reference).
+
+    ``camera_events``: the ``camera`` stream of :func:`rig.record.load_run` (columns time_s, step, session,
+    camera, action, first_timestamp_s). See the module docstring for the ½-frame convention.
+    """
+    cols = ["step", "session", "camera", "offset_s"]
+    if camera_events is None or camera_events.empty or "action" not in camera_events.columns:
+        return pd.DataFrame(columns=cols)
+    rows = []
+    for r in camera_events.itertuples():
+        cam = getattr(r, "camera", None)
+        first = getattr(r, "first_timestamp_s", None)
+        if getattr(r, "action", None) != "start" or cam not in timing.offset_s:
+            continue
+        if first is None or not np.isfinite(float(first)) or r.time_s is None:
+            continue
+        t_ref = float(timing.times(cam, np.array([float(first)]), np.array([0.0]))[0])
+        period = frame_period_s.get(cam, 1.0 / 60.0)
+        session = 0 if r.session is None or pd.isna(r.session) else int(r.session)
+        rows.append((r.step, session, cam, float(r.time_s) + 0.5 * period - t_ref))
+    return pd.DataFrame(rows, columns=cols)
+
+
+def _offset_for(offsets: pd.DataFrame, segment: str, session: int) -> tuple[float, str]:
+    here = offsets[(offsets["step"] == segment) & (offsets["session"] == session)]
+    if len(here):
+        return float(here["offset_s"].mean()), f"{len(here)} camera start event(s) of the segment"
+    if len(offsets):
+        return (float(offsets["offset_s"].median()),
+                f"median of all {len(offsets)} camera start events of the run")
+    raise ClockMappingError(
+        f"segment {segment!r}: the record has no `camera` start events relating the camera clocks to the "
+        "controller clock (contracts.md); re-record the segment with a procedure that logs them"
+    )
+
+
+def analyse(
+    run_dir: str | Path,
+    *,
+    sync: str = "trajectory",
+    gate_px: float = 5.0,
+    track_gate_px: float = 25.0,
+    volume_margin_mm: float = 150.0,
+    knot_spacing_frames: float = 0.75,
+) -> Analysis:
+    """Analyse the run folder ``run_dir`` (see the module docstring); deterministic, nothing cached.
+
+    ``sync``: one of ``SYNC_METHODS``. ``gate_px``: epipolar gate of the cross-camera pairing (px).
+    ``track_gate_px``: frame-to-frame gate of the 2-D tracking (px).
+    Raises :class:`MissingInputError` (no calibration.json / timing.json / record),
+    :class:`MissingObservationsError` (a calibrated camera without observations, in the run or in a
+    segment), :class:`NoPairableTracksError`, :class:`ClockMappingError`, :class:`AnalysisError` for
+    malformed files.
+    """
+    if sync not in SYNC_METHODS:
+        raise AnalysisError(f"sync={sync!r}: allowed are {SYNC_METHODS}")
+    run_dir = Path(run_dir)
+    if not (run_dir / "record.jsonl").is_file():
+        raise MissingInputError(f"{run_dir}: not a run folder (no record.jsonl)")
+    calibration = _read_json(run_dir / CALIBRATION_FILE, "calibration",
+                             "run `rig run calibrate` (or copy the bench's calibration.json) first")
+    timing_dict = _read_json(run_dir / TIMING_FILE, "timing", "run `rig run sync` first")
+    cameras = load_cameras(calibration, run_dir / CALIBRATION_FILE)
+    timing = timing_result(timing_dict)
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            run = load_run(run_dir)
+    except RecordError as exc:
+        raise MissingInputError(f"{run_dir}: {exc}") from exc
+    rig = run.start.get("rig") or {}
+    for cam in cameras:
+        if cam not in timing.offset_s:
+            raise AnalysisError(f"{run_dir / TIMING_FILE}: camera {cam!r} of calibration.json has no offset "
+                                f"(timing.json has {sorted(timing.offset_s)}); run `rig run sync`")
+        if cam not in run.observations or run.observations[cam].empty:
+            raise MissingObservationsError(
+                f"{run_dir / 'observations' / cam}: camera {cam!r} of calibration.json has no observations; "
+                "check the camera and re-run the measuring procedure (`rig run <procedure>`)")
+    if timing.reference_camera not in cameras:
+        raise AnalysisError(f"{run_dir / TIMING_FILE}: reference camera {timing.reference_camera!r} is not "
+                            f"calibrated (calibration.json has {sorted(cameras)})")
+    periods = {c: _frame_period_s(rig, c, run.observations[c]) for c in cameras}
+    offsets = controller_offsets(run.events.get("camera"), timing, periods)
+    volume = pairing_volume(rig, volume_margin_mm) if isinstance(rig, dict) else None
+    obs = {}
+    for cam in cameras:
+        o = run.observations[cam].copy()
+        if "session" not in o.columns:
+            o["session"] = 0
+        o["segment"] = o["segment"].astype(str)
+        obs[cam] = prepare_observations(o.drop(columns=["time_s", "track_id"], errors="ignore"), timing, cam)
+        obs[cam]["track_id"] = tracks_2d(obs[cam], gate_px=track_gate_px).to_numpy()
+    ref = timing.reference_camera
+    groups = sorted({(s, int(n)) for cam in cameras for s, n in zip(obs[cam]["segment"], obs[cam]["session"],
+                                                                     strict=True)})
+    tracks, pairs, clock, notes = [], [], [], []
+    next_id: dict[str, int] = {}
+    for segment, session in groups:
+        sel = {c: o[(o["segment"] == segment) & (o["session"] == session)] for c, o in obs.items()}
+        empty = sorted(c for c, o in sel.items() if o.empty)
+        if empty:
+            raise MissingObservationsError(
+                f"segment {segment!r} (session {session}): camera(s) {empty} recorded no observations while "
+                f"{sorted(set(sel) - set(empty))} did; check the camera view and re-run that step")
+        p, more = pair_all(sel, cameras, ref, gate_px=gate_px, volume_mm=volume)
+        p.insert(1, "session", session)
+        pairs.append(p)
+        notes += more
+        if p.empty or not (~p["ambiguous"].astype(bool)).any():
+            notes.append(f"segment {segment!r} (session {session}): no pairable tracks")
+            continue
+        t = triangulate_tracks(sel, cameras, timing, sync=sync, reference=ref, pairs=p,
+                               knot_spacing_frames=knot_spacing_frames)
+        notes += t.attrs.get("notes", [])
+        if t.empty:
+            continue
+        offset, source = _offset_for(offsets, segment, session)
+        clock.append((segment, session, offset, source))
+        t = t.copy()
+        t["time_s"] = t["time_s"] + offset
+        t["segment"] = segment
+        t["track_id"] = t["track_id"].astype(np.int64) + next_id.get(segment, 0)
+        next_id[segment] = int(t["track_id"].max()) + 1  # sessions of a segment continue the numbering
+        tracks.append(t)
+    if not tracks:
+        raise NoPairableTracksError(
+            f"{run_dir}: no track of {ref!r} could be paired with another camera in any segment "
+            f"({', '.join(repr(s) for s, _ in groups)}); check that calibration.json and timing.json belong "
+            "to these cameras (`rig run calibrate`, `rig run sync`)")
+    out = pd.concat(tracks, ignore_index=True)
+    out = out.sort_values(["segment", "time_s", "track_id"], kind="stable", ignore_index=True)
+    return Analysis(
+        tracks=out[TRACK_COLUMNS],
+        timing=timing_dict,
+        calibration=calibration,
+        sync=sync,
+        pairs=pd.concat(pairs, ignore_index=True) if pairs else pd.DataFrame(),
+        clock=pd.DataFrame(clock, columns=["segment", "session", "offset_s", "source"]),
+        notes=notes,
+    )
