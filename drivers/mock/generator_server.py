@@ -25,6 +25,7 @@ import contextlib
 import logging
 import os
 import select
+import signal
 import socket
 import threading
 from types import TracebackType
@@ -211,6 +212,10 @@ class GeneratorServer:
             self.instrument.advance(self.instrument.clock.now_s())
 
 
+def _interrupt(signum: int, frame: object) -> None:
+    raise KeyboardInterrupt
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m drivers.mock.generator_server",
                                      description="Mock SCPI function generator driving the twin's shaker.")
@@ -227,6 +232,7 @@ def main(argv: list[str] | None = None) -> int:
     server = GeneratorServer(instrument, mode="pty" if args.pty else "tcp", port=args.port).start()
     print(f"mock SCPI generator serving at {server.url} (socket://127.0.0.1:{server.port} for pyserial)"
           if server.mode == "tcp" else f"mock SCPI generator serving on {server.url}", flush=True)
+    signal.signal(signal.SIGTERM, _interrupt)  # `kill` stops it as cleanly as Ctrl-C
     try:
         threading.Event().wait()
     except KeyboardInterrupt:

@@ -32,6 +32,7 @@ import argparse
 import asyncio
 import contextlib
 import logging
+import signal
 import threading
 from types import TracebackType
 from typing import Any
@@ -219,6 +220,10 @@ def _build_standalone(body_name: str, rate: float) -> tuple[Any, Any]:
     return getattr(world, body_name), world.clock
 
 
+def _interrupt(signum: int, frame: object) -> None:
+    raise KeyboardInterrupt
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m drivers.mock.vfd_server",
                                      description="Mock VFD (Delta-style register map) on Modbus TCP or RTU.")
@@ -238,6 +243,7 @@ def main(argv: list[str] | None = None) -> int:
     mode = "rtu" if (args.rtu or args.serial) else "tcp"
     server = VfdServer(drive, mode=mode, port=args.port, serial_port=args.serial).start()
     print(f"mock VFD ({args.body}) serving Modbus {mode.upper()} at {server.url}", flush=True)
+    signal.signal(signal.SIGTERM, _interrupt)  # `kill` stops it as cleanly as Ctrl-C
     try:
         threading.Event().wait()
     except KeyboardInterrupt:
