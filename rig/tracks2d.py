@@ -11,7 +11,8 @@ position, within a gate:
   position is better at a reversal of a fast oscillation (at 20 Hz and 60 fps the velocity changes by more
   than the step between frames), so taking the nearer keeps both kinds of motion inside a tight gate;
 - dropped frames: the frames elapsed come from the time stamps (gap / median frame period), so a track
-  survives ``max_gap_frames`` missing frames and its prediction spans the gap;
+  survives ``max_gap_frames`` missing frames; its prediction spans the gap and the gate grows in
+  proportion to the frames elapsed (the prediction error grows with the gap);
 - duplicated frames (a camera repeating an image with the same time stamp, metrology notes §3): their
   observations get track id −1 and are not used (they carry no new information and would repeat an instant);
 - tracks with fewer than ``min_length`` observations get −1 (spurious detections).
@@ -137,9 +138,9 @@ def _track_group(obs: pd.DataFrame, gate: float, max_gap: int, min_length: int) 
             d_last = np.linalg.norm(det[None, :, :] - L[:, None, :], axis=2)
             d_pred = np.linalg.norm(det[None, :, :] - pred[:, None, :], axis=2)
             cost = np.minimum(d_last, d_pred)
-            feasible = cost <= gate
+            feasible = cost <= gate * np.maximum(gap, 1.0)[:, None]  # the prediction error grows with the gap
             if feasible.any():
-                big = gate * gate * (min(cost.shape) + 1.0)
+                big = float(np.max(np.where(feasible, cost, 0.0))) ** 2 * (min(cost.shape) + 1.0) + 1.0
                 r, c = linear_sum_assignment(np.where(feasible, cost**2, big))
                 for ti, di in zip(r, c, strict=True):
                     if feasible[ti, di]:

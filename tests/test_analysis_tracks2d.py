@@ -1,0 +1,105 @@
+"""Per-camera 2-D tracking on twin observations: continuity through dropped frames, duplicated frames left
+out, fast oscillation kept in one track per marker, segments never crossed, bad input named."""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+import pytest
+from analysis_twin import twin
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from rig.analysis_errors import AnalysisError
+from rig.tracks2d import NOT_TRACKED, tracks_2d
+
+
+def _one_track_per_marker(obs: pd.DataFrame, ids: pd.Series) -> None:
+    """Every marker's observations carry one track id, and no two markers share one."""
+    pairs = pd.DataFrame({"marker": obs["marker_id"].to_numpy(), "track": ids.to_numpy()})
+    per_marker = pairs.groupby("marker")["track"].nunique()
+    per_track = pairs.groupby("track")["marker"].nunique()
+    assert (per_marker == 1).all(), per_marker
+    assert (per_track == 1).all(), per_track
+    assert (ids >= 0).all()
+
+
+@pytest.mark.parametrize("f_hz", [5.0, 20.0])
+def test_oscillating_column_is_one_track_per_marker(f_hz):
+    tw = twin("sweep_column", setup=lambda w: w.exciter.set_frequency(0.0, f_hz), t_start_s=1.0,
+              t_stop_s=3.0, sigma_px=0.2)
+    for obs in tw.observations.values():
+        _one_track_per_marker(obs, tracks_2d(obs))
+
+
+def test_tracks_continue_through_dropped_frames():
+    dropped = (75, 76, 130)  # sensor frames never delivered: gaps in the time stamps
+    tw = twin("rotor", setup=lambda w: w.rotor.set_frequency(0.0, 2.0), t_start_s=1.0, t_stop_s=3.0,
+              sigma_px=0.2, left_overrides={"dropped_frames": dropped})
+    obs = tw.observations["left"]
+    stamps = np.unique(obs["timestamp_s"])
+    assert np.max(np.diff(stamps)) > 2.5 / 60  # the gap is really there
+    _one_track_per_marker(obs, tracks_2d(obs))
+
+
+def test_a_gap_longer_than_allowed_splits_the_track():
+    tw = twin("rotor", setup=lambda w: w.rotor.set_frequency(0.0, 0.5), t_start_s=1.0, t_stop_s=3.0,
+              sigma_px=0.2, marker_ids=["rotor"], left_overrides={"dropped_frames": tuple(range(80, 90))})
+    obs = tw.observations["left"]
+    assert tracks_2d(obs, max_gap_frames=5).nunique() == 2
+    assert tracks_2d(obs, max_gap_frames=12).nunique() == 1
+
+
+def test_duplicated_frames_are_left_out():
+    tw = twin("rotor", setup=lambda w: w.rotor.set_frequency(0.0, 2.0), t_start_s=1.0, t_stop_s=2.0,
+              sigma_px=0.2, marker_ids=["rotor"], left_overrides={"duplicated_frames": (70, 71, 90)})
+    obs = tw.observations["left"]
+    ids = tracks_2d(obs)
+    repeated = obs["timestamp_s"].duplicated(keep="first").to_numpy()
+    assert repeated.sum() == 3
+    assert (ids[repeated] == NOT_TRACKED).all()
+    assert ids[~repeated].nunique() == 1 and (ids[~repeated] >= 0).all()
+
+
+def test_segments_are_never_crossed():
+    tw = twin("sweep_column", t_start_s=1.0, t_stop_s=2.0, sigma_px=0.1, marker_ids=["col0", "col1"])
+    obs = tw.observations["left"].copy()
+    obs["segment"] = np.where(obs["frame_index"] < obs["frame_index"].median(), "one", "two")
+    ids = tracks_2d(obs)
+    assert ids.nunique() == 4
+    assert (pd.DataFrame({"s": obs["segment"], "t": ids}).groupby("t")["s"].nunique() == 1).all()
+
+
+def test_short_tracks_are_not_tracked():
+    obs = pd.DataFrame({"frame_index": [0, 1, 2, 3, 1], "timestamp_s": [0, 1 / 60, 2 / 60, 3 / 60, 1 / 60],
+                        "u_px": [100.0, 101, 102, 103, 900], "v_px": [100.0, 100, 100, 100, 500]})
+    ids = tracks_2d(obs, min_length=3)
+    assert ids.tolist() == [0, 0, 0, 0, NOT_TRACKED]
+
+
+@pytest.mark.parametrize(("kwargs", "word"), [({"gate_px": 0.0}, "gate_px"), ({"gate_px": np.nan}, "gate_px"),
+                                              ({"max_gap_frames": -1}, "max_gap_frames"),
+                                              ({"min_length": 0}, "min_length")])
+def test_bad_options_are_named(kwargs, word):
+    obs = pd.DataFrame({"frame_index": [0], "timestamp_s": [0.0], "u_px": [1.0], "v_px": [1.0]})
+    with pytest.raises(AnalysisError, match=word):
+        tracks_2d(obs, **kwargs)
+
+
+def test_missing_and_non_finite_columns_are_named():
+    with pytest.raises(AnalysisError, match="v_px"):
+        tracks_2d(pd.DataFrame({"frame_index": [0], "timestamp_s": [0.0], "u_px": [1.0]}))
+    with pytest.raises(AnalysisError, match="u_px"):
+        tracks_2d(pd.DataFrame({"frame_index": [0], "timestamp_s": [0.0], "u_px": [np.nan], "v_px": [1.0]}))
+
+
+@settings(max_examples=25, deadline=None)
+@given(st.permutations(list(range(12))))
+def test_row_order_does_not_change_the_partition(perm):
+    """Three well separated markers over four frames: the same tracks whatever the row order."""
+    rows = [(f, f / 60, 100.0 + 300 * m + 2 * f, 200.0 + 50 * m, m) for f in range(4) for m in range(3)]
+    obs = pd.DataFrame(rows, columns=["frame_index", "timestamp_s", "u_px", "v_px", "marker"])
+    shuffled = obs.iloc[list(perm)]
+    ids = tracks_2d(shuffled)
+    pairs = pd.DataFrame({"m": shuffled["marker"].to_numpy(), "t": ids.to_numpy()})
+    assert pairs.groupby("m")["t"].nunique().eq(1).all() and pairs["t"].nunique() == 3
