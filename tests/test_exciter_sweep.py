@@ -155,3 +155,28 @@ def test_safe_state_brings_the_twin_to_rest_and_heartbeat_reports_faults(mode: s
         rig.exciter.set_frequency(12.0)
         rig.drive.trip(0x41)  # the drive trips on its own (overspeed sensor)
         assert rig.exciter.heartbeat() is False
+
+
+def test_exciter_and_rotor_share_one_rs485_line() -> None:
+    world = World(VirtualClock(), seed=8)
+    exciter_map, rotor_map = RegisterMap(unit_id=1), RegisterMap(unit_id=2)
+    drives = [DriveModel(world.exciter, world.clock, register_map=exciter_map, max_output_hz=60.0),
+              DriveModel(world.rotor, world.clock, register_map=rotor_map, max_output_hz=60.0)]
+    with VfdServer(drives, mode="rtu") as server:
+        client = connect_client(server)
+        try:
+            exciter = Exciter(VfdDriver(client, exciter_map, max_output_hz=60.0), clock=world.clock,
+                              limits=EXCITER_LIMITS, crank_radius_mm=4.0, ramp_rate_hz_per_s=2.0,
+                              poll_interval_s=0.25)
+            rotor = Rotor(VfdDriver(client, rotor_map, max_output_hz=60.0), clock=world.clock,
+                          limits=EXCITER_LIMITS, marker_radius_mm=5.0, ramp_rate_hz_per_s=2.0,
+                          poll_interval_s=0.25)
+            exciter.set_frequency(8.0)
+            rotor.set_rotation_hz(3.0)
+            t = world.clock.now_s()
+            assert world.exciter.frequency_hz(t) == pytest.approx(8.0, abs=0.005)
+            assert world.rotor.frequency_hz(t) == pytest.approx(3.0, abs=0.005)
+            assert rotor.rotation_hz() == pytest.approx(3.0, abs=0.005)
+            assert exciter.vibration_hz() == pytest.approx(8.0, abs=0.005)
+        finally:
+            client.close()

@@ -53,18 +53,24 @@ HOUSEKEEPING_S = 0.02  # wall seconds between checks for trips that happen while
 
 
 class VfdServer:
-    """Serve a :class:`DriveModel` in a background thread (its own asyncio loop).
+    """Serve one :class:`DriveModel`, or several with distinct unit ids sharing one line (an RS-485
+    bus with the exciter and the rotor drives), in a background thread (its own asyncio loop).
 
     mode: "tcp" or "rtu". host/port: TCP bind address (127.0.0.1 only by default; port 0 picks one).
     serial_port: RTU device path to open; None creates a pty pair (see :attr:`client_port`).
     baudrate: RTU line speed (a pty ignores it, but pymodbus times frames with it).
     """
 
-    def __init__(self, drive: DriveModel, *, mode: str = "tcp", host: str = "127.0.0.1", port: int = 0,
+    def __init__(self, drive: DriveModel | list[DriveModel], *, mode: str = "tcp", host: str = "127.0.0.1",
+                 port: int = 0,
                  serial_port: str | None = None, baudrate: int = 115200) -> None:
         if mode not in ("tcp", "rtu"):
             raise ValueError(f"mode={mode!r}: must be 'tcp' or 'rtu'")
-        self.drive = drive
+        self.drives = list(drive) if isinstance(drive, list) else [drive]
+        units = [d.map.unit_id for d in self.drives]
+        if not self.drives or len(set(units)) != len(units):
+            raise ValueError(f"drives need distinct unit ids on one line, got {units}")
+        self.drive = self.drives[0]
         self.mode = mode
         self.host = host
         self.port = port
@@ -119,7 +125,7 @@ class VfdServer:
             loop.close()
 
     async def _serve(self) -> None:
-        device = self.drive.sim_device()
+        device = [d.sim_device() for d in self.drives]
         if self.mode == "tcp":
             server: ModbusTcpServer | ModbusSerialServer = ModbusTcpServer(
                 device, address=(self.host, self.port), trace_packet=self._trace_packet)
@@ -135,7 +141,8 @@ class VfdServer:
         self._stop_event = asyncio.Event()
         self._ready.set()
         while not self._stop_event.is_set():
-            self.drive.advance(self.drive.clock.now_s())
+            for drive in self.drives:
+                drive.advance(drive.clock.now_s())
             with contextlib.suppress(asyncio.TimeoutError):
                 await asyncio.wait_for(self._stop_event.wait(), HOUSEKEEPING_S)
         await server.shutdown()
@@ -168,12 +175,16 @@ class VfdServer:
         with self._fault_lock:
             self._fault = (fault, count, exception_code)
         if fault == "exception":
-            self.drive.forced_exception = exception_code
+            self._force_exception(exception_code)
+
+    def _force_exception(self, code: int | None) -> None:
+        for drive in self.drives:
+            drive.forced_exception = code
 
     def clear_faults(self) -> None:
         with self._fault_lock:
             self._fault = None
-        self.drive.forced_exception = None
+        self._force_exception(None)
         if self.link is not None:
             self.link.plug()
 
@@ -185,14 +196,14 @@ class VfdServer:
             if remaining is not None:
                 self._fault = None if remaining <= 1 else (kind, remaining - 1, code)
                 if self._fault is None and kind == "exception":
-                    self.drive.forced_exception = None
+                    self._force_exception(None)
             return kind
 
     def _trace_packet(self, sending: bool, data: bytes) -> bytes:
         """pymodbus packet hook: alters outgoing replies according to the injected fault."""
         if not sending:
             return data
-        if self.mode == "rtu" and data and data[0] != self.drive.map.unit_id:
+        if self.mode == "rtu" and data and data[0] not in {d.map.unit_id for d in self.drives}:
             return b""  # an RS-485 slave never answers for another unit id (pymodbus would send exception 4)
         kind = self._consume(("no_reply", "bad_crc", "disconnect", "exception"))
         if kind == "no_reply":
