@@ -102,10 +102,11 @@ def twin(
 
 
 def write_run(runs_dir, tw: Twin, segments: list[tuple[str, float, float]], *, rig: dict | None = None,
-              calibration: bool = True, timing: bool = True, camera_events: bool = True):
+              calibration: bool = True, timing: bool = True, camera_events: bool = True,
+              blind: tuple[tuple[str, str], ...] = ()):
     """A run folder written by the real record writer: per segment (name, t_start_s, t_stop_s) a step with
     ``camera`` start events and the twin's noisy observations; ``calibration.json`` / ``timing.json`` from
-    the true cameras and timing. Returns the run folder."""
+    the true cameras and timing; ``blind`` (segment, camera) pairs record nothing. Returns the run folder."""
     import json
 
     from rig.record import RunRecord
@@ -124,11 +125,14 @@ def write_run(runs_dir, tw: Twin, segments: list[tuple[str, float, float]], *, r
                 rec.event("camera", {"camera": cam.name, "action": "start", "first_index": first,
                                      "first_timestamp_s": cam.frame_timestamp_s(first)})
             df = cam.truth_observations(t0, t1, None)
+            if (name, cam.name) in blind:
+                df = df.iloc[:0]
             if tw.sigma_px > 0:
                 df["u_px"] = df["u_px"] + rng.normal(0.0, tw.sigma_px, len(df))
                 df["v_px"] = df["v_px"] + rng.normal(0.0, tw.sigma_px, len(df))
             writer = rec.observation_writer(cam.name)
-            writer.append(df[["frame_index", "timestamp_s", "u_px", "v_px"]])
+            if len(df):
+                writer.append(df[["frame_index", "timestamp_s", "u_px", "v_px"]])
             writer.close()
         world.clock.advance_to(t1)
         rec.step_done(name)
