@@ -180,3 +180,12 @@ def test_exciter_and_rotor_share_one_rs485_line() -> None:
             assert exciter.vibration_hz() == pytest.approx(8.0, abs=0.005)
         finally:
             client.close()
+
+
+def test_stop_after_a_trip_waits_for_rest_instead_of_failing() -> None:
+    with vfd_rig("tcp", gear_ratio=GEAR) as rig:
+        rig.exciter.set_frequency(12.0)
+        rig.drive.trip(0x41)
+        rest = rig.exciter.stop()
+        assert rest is not None and rest.frequency_hz == 0.0 and rest.status == "fault 65"
+        assert rig.world.exciter.frequency_hz(rig.clock.now_s()) == 0.0

@@ -110,15 +110,18 @@ class VfdAxis:
         self.vfd.set_frequency_hz(frequency_hz * self.gear_ratio, verify=False)
         self._setpoint_hz = frequency_hz
 
-    def read_sample(self) -> FrequencySample:
-        """Poll the drive: time-stamped actual frequency (mechanical Hz); raises on a drive fault."""
+    def read_sample(self, *, fault_is_error: bool = True) -> FrequencySample:
+        """Poll the drive: time-stamped actual frequency (mechanical Hz); raises on a drive fault
+        unless ``fault_is_error`` is False (then the status reads ``"fault N"``)."""
         t_before = self.clock.now_s()
         status = self.vfd.read_status()
         t_after = self.clock.now_s()
-        self.vfd.raise_if_faulted(status, f"{self.kind} poll")
+        if fault_is_error:
+            self.vfd.raise_if_faulted(status, f"{self.kind} poll")
+        state = f"fault {status.fault_code}" if status.fault_code else status.state
         return FrequencySample(t_s=0.5 * (t_before + t_after),
                                frequency_hz=status.freq_out_hz / self.gear_ratio,
-                               setpoint_hz=status.freq_cmd_hz / self.gear_ratio, status=status.state)
+                               setpoint_hz=status.freq_cmd_hz / self.gear_ratio, status=state)
 
     # operations ------------------------------------------------------------------------------------------
     def frequency_hz(self) -> float:
@@ -147,11 +150,11 @@ class VfdAxis:
         self.vfd.run(self.direction)
         return self.wait_until_reached(frequency_hz) if wait else None
 
-    def wait_until_reached(self, frequency_hz: float, *,
+    def wait_until_reached(self, frequency_hz: float, *, fault_is_error: bool = True,
                            on_sample: Callable[[FrequencySample], None] | None = None) -> FrequencySample:
         """Poll until the actual frequency is within tolerance twice in a row; raises
         :class:`VfdTimeoutError` (after a stop attempt) past the expected ramp time + margin."""
-        first = self.read_sample()
+        first = self.read_sample(fault_is_error=fault_is_error)
         ramp_s = abs(frequency_hz - first.frequency_hz) / self._current_rate()
         deadline = first.t_s + ramp_s + self.settle_margin_s
         sample, hits = first, 0
@@ -166,7 +169,7 @@ class VfdAxis:
                     f"{self.kind}: actual frequency {sample.frequency_hz:.4g} Hz did not reach "
                     f"{frequency_hz:.4g} Hz ± {self.tolerance_hz:g} Hz by t = {deadline:.3f} s"))
             self.clock.sleep_s(self.poll_interval_s)
-            sample = self.read_sample()
+            sample = self.read_sample(fault_is_error=fault_is_error)
 
     def sweep(self, profile: SweepProfile, *, update_interval_s: float = 0.5,
               on_sample: Callable[[FrequencySample], None] | None = None) -> SweepResult:
@@ -197,7 +200,8 @@ class VfdAxis:
         """Command a stop; with ``wait``, poll until the output frequency is 0 (within tolerance)."""
         self.vfd.stop()
         self._setpoint_hz = 0.0
-        return self.wait_until_reached(0.0) if wait else None
+        # a tripped drive is already coasting down: still wait for rest, do not fail on its fault code
+        return self.wait_until_reached(0.0, fault_is_error=False) if wait else None
 
     def safe_state(self) -> None:
         """The runner's "make safe": stop command, setpoint 0 Hz, wait until the output is at rest.
@@ -205,7 +209,7 @@ class VfdAxis:
         self.vfd.stop()
         self.vfd.set_frequency_hz(0.0, verify=False)
         self._setpoint_hz = 0.0
-        self.wait_until_reached(0.0)
+        self.wait_until_reached(0.0, fault_is_error=False)
 
     def heartbeat(self) -> bool:
         """Watchdog probe (thread-safe: one Modbus request): False if the drive reports a fault.
