@@ -91,6 +91,10 @@ def test_queries_parse_their_replies() -> None:
     assert (freq, out, volt) == (10.0, True, 0.5)
 
 
+def test_remote_mode() -> None:
+    run(cmd("SYST:REM"), lambda g: g.set_remote())
+
+
 def test_clear_status() -> None:
     run([(b"*CLS\n", b""), OK], lambda g: g.clear_status())
 

@@ -139,6 +139,11 @@ class ScpiGenerator:
         except ScpiReplyError as exc:
             raise GeneratorError(str(exc)) from exc
 
+    def set_remote(self) -> None:
+        """``SYST:REM``: older RS-232 instruments (Agilent 33120A/E3632A era) need it before remote
+        commands; instruments on USB/LAN accept or ignore it."""
+        self.write("SYST:REM")
+
     def clear_status(self) -> None:
         """``*CLS``: empty the error queue and the status registers."""
         with self._lock:

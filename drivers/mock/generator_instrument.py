@@ -210,6 +210,8 @@ class GeneratorInstrument:
             (Pattern("*OPC"), lambda u: None, lambda: "1"),
             (Pattern("*TRG"), lambda u: None, None),
             (Pattern("SYSTem:ERRor[:NEXT]"), None, syst_err),
+            (Pattern("SYSTem:REMote"), lambda u: None, None),
+            (Pattern("SYSTem:LOCal"), lambda u: None, None),
             (Pattern("[SOURce#:]FUNCtion"), lambda u: self._set("function", self._choice(u, FUNCTIONS)),
              lambda: self.function),
             (Pattern("[SOURce#:]FREQuency[:CW]"), *f_cw),
