@@ -112,7 +112,9 @@ class SimCamera:
         self._dropped = {int(k) for k in dropped_frames}
         self._duplicated = {int(k) for k in duplicated_frames}
         self._p_drop, self._p_dup = float(drop_probability), float(duplicate_probability)
-        self._sensor_of_index = np.zeros(0, dtype=np.int64)
+        self._index_buffer = np.empty(2 * _CHUNK, dtype=np.int64)
+        self._n_indexed = 0
+        self._sensor_of_index = self._index_buffer[:0]  # delivered index → sensor frame
         self._chunks = 0
         self._pool: np.ndarray | None = None
         self._normal_pool: np.ndarray | None = None
@@ -133,7 +135,14 @@ class SimCamera:
             dup |= np.isin(ks, list(self._duplicated))
             keep = ks[~drop]
             reps = 1 + (dup[~drop]).astype(int)
-            self._sensor_of_index = np.concatenate([self._sensor_of_index, np.repeat(keep, reps)])
+            new = np.repeat(keep, reps)
+            if self._n_indexed + new.size > self._index_buffer.size:  # grow by doubling (long recordings)
+                grown = np.empty(max(2 * self._index_buffer.size, self._n_indexed + new.size), dtype=np.int64)
+                grown[: self._n_indexed] = self._index_buffer[: self._n_indexed]
+                self._index_buffer = grown
+            self._index_buffer[self._n_indexed : self._n_indexed + new.size] = new
+            self._n_indexed += new.size
+            self._sensor_of_index = self._index_buffer[: self._n_indexed]
             self._chunks += 1
 
     def sensor_frame(self, frame_index: int) -> int:
