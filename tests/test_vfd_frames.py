@@ -10,9 +10,12 @@ from collections.abc import Callable
 from typing import Any
 
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from pymodbus.client import ModbusTcpClient
 from vfd_support import ScriptedPeer, crc16_modbus, rtu, rtu_client_for
 
+from drivers.exciter.register_map import RegisterMap
 from drivers.exciter.vfd import (
     VfdDriver,
     VfdExceptionResponseError,
@@ -152,13 +155,26 @@ def test_single_register_reads() -> None:
 
 
 def test_other_unit_ids_are_on_the_wire() -> None:
-    from drivers.exciter.register_map import RegisterMap
-
     frame = rtu("02 06 20 00 00 01")
     peer = ScriptedPeer([(frame, frame)])
     try:
         with rtu_client_for(peer) as client:
             VfdDriver(client, RegisterMap(unit_id=2)).stop()
+    finally:
+        peer.close()
+    assert peer.mismatch is None and peer.served == 1
+
+
+@settings(max_examples=25, deadline=None)
+@given(st.floats(0.0, 60.0), st.integers(1, 247))
+def test_any_setpoint_frame_matches_the_independent_encoder(f_hz: float, unit: int) -> None:
+    value = round(f_hz * 100)
+    frame = rtu(f"{unit:02X} 06 20 01 {value:04X}")
+    peer = ScriptedPeer([(frame, frame)])
+    try:
+        with rtu_client_for(peer) as client:
+            driver = VfdDriver(client, RegisterMap(unit_id=unit), max_output_hz=60.0)
+            driver.set_frequency_hz(f_hz, verify=False)
     finally:
         peer.close()
     assert peer.mismatch is None and peer.served == 1
