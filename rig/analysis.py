@@ -30,6 +30,7 @@ Nothing is cached: every call recomputes from the files, so a changed file can n
 from __future__ import annotations
 
 import json
+import math
 import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -140,31 +141,42 @@ def _frame_period_s(rig: dict[str, Any], camera: str, obs: pd.DataFrame) -> floa
 
 def controller_offsets(camera_events: pd.DataFrame | None, timing: TimingResult,
                        frame_period_s: dict[str, float]) -> pd.DataFrame:
-    """One row per usable ``camera`` start event: step, session, camera, offset_s (controller − reference).
+    """One row per usable ``camera`` start event: segment, session, camera, offset_s (controller − reference).
 
     ``camera_events``: the ``camera`` stream of :func:`rig.record.load_run` (columns time_s, step, session,
-    camera, action, first_timestamp_s). See the module docstring for the ½-frame convention.
+    camera, action, first_timestamp_s; optional ``t_s`` = controller time of the start when the event is
+    written later, and ``segment`` when a step records several segments). See the module docstring for the
+    ½-frame convention.
     """
-    cols = ["step", "session", "camera", "offset_s"]
+    cols = ["segment", "session", "camera", "offset_s"]
     if camera_events is None or camera_events.empty or "action" not in camera_events.columns:
         return pd.DataFrame(columns=cols)
     rows = []
-    for r in camera_events.itertuples():
-        cam = getattr(r, "camera", None)
-        first = getattr(r, "first_timestamp_s", None)
-        if getattr(r, "action", None) != "start" or cam not in timing.offset_s:
+    for r in camera_events.to_dict("records"):
+        cam, first = r.get("camera"), _number(r.get("first_timestamp_s"))
+        t_start = _number(r.get("t_s"))
+        t_start = _number(r.get("time_s")) if t_start is None else t_start
+        if r.get("action") != "start" or cam not in timing.offset_s or first is None or t_start is None:
             continue
-        if first is None or not np.isfinite(float(first)) or r.time_s is None:
-            continue
-        t_ref = float(timing.times(cam, np.array([float(first)]), np.array([0.0]))[0])
+        t_ref = float(timing.times(cam, np.array([first]), np.array([0.0]))[0])
         period = frame_period_s.get(cam, 1.0 / 60.0)
-        session = 0 if r.session is None or pd.isna(r.session) else int(r.session)
-        rows.append((r.step, session, cam, float(r.time_s) + 0.5 * period - t_ref))
+        segment = r.get("segment") if isinstance(r.get("segment"), str) else r.get("step")
+        session = _number(r.get("session"))
+        rows.append((segment, 0 if session is None else int(session), cam, t_start + 0.5 * period - t_ref))
     return pd.DataFrame(rows, columns=cols)
 
 
+def _number(value: Any) -> float | None:
+    """A finite float, or None for None/NaN/non-numbers."""
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        return None
+    return v if math.isfinite(v) else None
+
+
 def _offset_for(offsets: pd.DataFrame, segment: str, session: int) -> tuple[float, str]:
-    here = offsets[(offsets["step"] == segment) & (offsets["session"] == session)]
+    here = offsets[(offsets["segment"] == segment) & (offsets["session"] == session)]
     if len(here):
         return float(here["offset_s"].mean()), f"{len(here)} camera start event(s) of the segment"
     if len(offsets):
@@ -226,8 +238,13 @@ def analyse(
     offsets = controller_offsets(run.events.get("camera"), timing, periods)
     volume = pairing_volume(rig, volume_margin_mm) if isinstance(rig, dict) else None
     obs = {}
+    notes: list[str] = []
     for cam in cameras:
         o = run.observations[cam].copy()
+        finite = np.isfinite(o[["timestamp_s", "u_px", "v_px"]].to_numpy(float)).all(axis=1)
+        if not finite.all():
+            notes.append(f"camera {cam!r}: {int((~finite).sum())} observation(s) without a position left out")
+            o = o[finite]
         if "session" not in o.columns:
             o["session"] = 0
         o["segment"] = o["segment"].astype(str)
@@ -236,7 +253,7 @@ def analyse(
     ref = timing.reference_camera
     groups = sorted({(s, int(n)) for cam in cameras for s, n in zip(obs[cam]["segment"], obs[cam]["session"],
                                                                      strict=True)})
-    tracks, pairs, clock, notes = [], [], [], []
+    tracks, pairs, clock = [], [], []
     next_id: dict[str, int] = {}
     for segment, session in groups:
         sel = {c: o[(o["segment"] == segment) & (o["session"] == session)] for c, o in obs.items()}

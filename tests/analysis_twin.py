@@ -103,10 +103,13 @@ def twin(
 
 def write_run(runs_dir, tw: Twin, segments: list[tuple[str, float, float]], *, rig: dict | None = None,
               calibration: bool = True, timing: bool = True, camera_events: bool = True,
-              blind: tuple[tuple[str, str], ...] = ()):
+              blind: tuple[tuple[str, str], ...] = (), event_style: str = "acquire"):
     """A run folder written by the real record writer: per segment (name, t_start_s, t_stop_s) a step with
     ``camera`` start events and the twin's noisy observations; ``calibration.json`` / ``timing.json`` from
-    the true cameras and timing; ``blind`` (segment, camera) pairs record nothing. Returns the run folder."""
+    the true cameras and timing; ``blind`` (segment, camera) pairs record nothing. ``event_style``:
+    "acquire" writes the events after the recording with ``t_s`` = start time and ``segment`` in the data
+    (as procedures/_acquire.py does); "contract" writes them at the start with the contract's fields only.
+    Returns the run folder."""
     import json
 
     from rig.record import RunRecord
@@ -119,11 +122,14 @@ def write_run(runs_dir, tw: Twin, segments: list[tuple[str, float, float]], *, r
     for name, t0, t1 in segments:
         world.clock.advance_to(t0)
         rec.step_begin(name)
+        starts = []
         for cam in (tw.left, tw.right):
             first = cam.first_frame_index_at_or_after(t0)
-            if camera_events:
-                rec.event("camera", {"camera": cam.name, "action": "start", "first_index": first,
-                                     "first_timestamp_s": cam.frame_timestamp_s(first)})
+            start = {"camera": cam.name, "action": "start", "first_index": first,
+                     "first_timestamp_s": cam.frame_timestamp_s(first)}
+            if camera_events and event_style == "contract":
+                rec.event("camera", start)
+            starts.append(start)
             df = cam.truth_observations(t0, t1, None)
             if (name, cam.name) in blind:
                 df = df.iloc[:0]
@@ -135,6 +141,9 @@ def write_run(runs_dir, tw: Twin, segments: list[tuple[str, float, float]], *, r
                 writer.append(df[["frame_index", "timestamp_s", "u_px", "v_px"]])
             writer.close()
         world.clock.advance_to(t1)
+        if camera_events and event_style == "acquire":
+            for start in starts:
+                rec.event("camera", {**start, "segment": name, "t_s": t0})
         rec.step_done(name)
     rec.stop("success")
     rec.close()

@@ -59,6 +59,15 @@ def test_tracks_are_on_the_controller_clock_within_the_stated_bound(run):
         assert "start event" in row["source"]
 
 
+def test_contract_style_events_give_the_same_clock(run, tmp_path):
+    """Events written at the start with only the contract's fields give the same offsets as events written
+    after the recording carrying ``t_s`` and ``segment`` (procedures/_acquire.py)."""
+    tw = _moving()
+    run_dir = write_run(tmp_path, tw, SEGMENTS, rig=RIG, event_style="contract")
+    a, b = analyse(run_dir, sync="linear"), analyse(run[1], sync="linear")
+    assert np.allclose(a.clock["offset_s"], b.clock["offset_s"], rtol=0, atol=1e-9)
+
+
 def test_static_segment_reaches_the_noise_floor(run):
     """Still markers: the controller-clock uncertainty does not matter; the error is the pixel noise's."""
     tw, run_dir = run
