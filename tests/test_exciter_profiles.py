@@ -88,7 +88,8 @@ def test_segments_are_contiguous_exact_at_ends_and_monotone(f0: float, f1: float
     for t0, fa, t1, fb in segs:
         assert 0 < t1 - t0 <= step * (1 + 1e-9)
         assert (fb - fa) * (f1 - f0) >= -1e-12  # never turns back
-        assert abs(fb - fa) / (t1 - t0) <= profile.max_slope_hz_per_s() * (1 + 1e-9)
+        # relative slack for the rounding of f(t) at the segment ends, absolute for near-flat sweeps
+        assert abs(fb - fa) / (t1 - t0) <= profile.max_slope_hz_per_s() * (1 + 1e-9) + 1e-9
 
 
 @given(st.floats(0.5, 30.0), st.floats(0.5, 30.0), durations, st.floats(0, 1))

@@ -18,6 +18,7 @@ truth of the sweep. All waiting goes through the injected clock.
 
 from __future__ import annotations
 
+import abc
 import itertools
 import math
 from collections.abc import Callable, Sequence
@@ -36,7 +37,7 @@ def _finite(name: str, value: float, *, minimum: float | None = None, strict: bo
     return float(value)
 
 
-class SweepProfile:
+class SweepProfile(abc.ABC):
     """Base class: subclasses define :meth:`frequency_hz`, ``start_hz``, ``stop_hz``, ``duration_s``
     and their exact breakpoints (:meth:`_knots`)."""
 
@@ -44,8 +45,9 @@ class SweepProfile:
     stop_hz: float
     duration_s: float
 
+    @abc.abstractmethod
     def frequency_hz(self, t_s: float) -> float:
-        raise NotImplementedError
+        """Frequency (Hz) at ``t_s`` seconds from the start of the profile."""
 
     def _knots(self) -> list[float]:
         """Times (s) where the profile's slope may jump (always includes 0 and duration)."""
@@ -71,9 +73,9 @@ class SweepProfile:
                 out.append((t0, self.frequency_hz(t0), t1, self.frequency_hz(t1)))
         return out
 
+    @abc.abstractmethod
     def max_slope_hz_per_s(self) -> float:
         """Largest |df/dt| of the profile (Hz/s)."""
-        raise NotImplementedError
 
     def points(self, max_step_s: float) -> list[tuple[float, float]]:
         """The segment ends as ``(t_s, f_hz)`` pairs (what a record's ``profile`` field holds)."""
