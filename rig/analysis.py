@@ -192,7 +192,7 @@ def analyse(
     run_dir: str | Path,
     *,
     sync: str = "trajectory",
-    gate_px: float = 5.0,
+    gate_px: float = 8.0,
     track_gate_px: float = 25.0,
     volume_margin_mm: float = 150.0,
     knot_spacing_frames: float = 0.75,

@@ -4,7 +4,10 @@ Two tracks are compared over their common time span: camera B's track is linearl
 A's instants (both on one clock, row-corrected — :func:`rig.sync_tracks.row_corrected_times`) and the
 **median** symmetric epipolar distance (px, undistorted pixels, :func:`rig.stereo.epipolar_distance_px`)
 is the pair's cost; the median ignores the few instants where the interpolation error of fast motion is
-large. A candidate is *feasible* when its cost is ≤ ``gate_px``, it has ≥ ``min_common`` common instants,
+large. The right pair's cost is the pixel noise's for slow motion and grows with the motion between frames
+(on the twin, a marker oscillating 6 px in the image: 0.6 px at 12 Hz, 2 px at 20 Hz, ≈ 5 px at 30 Hz =
+fs/2), hence the default gate of 8 px — still far below the image spacing of markers (≥ 50 px on the rig's
+targets) that it must tell apart. A candidate is *feasible* when its cost is ≤ ``gate_px``, it has ≥ ``min_common`` common instants,
 and the point it triangulates to (median over the span) lies in front of both cameras and inside
 ``volume_mm`` when given (a pair that triangulates behind a camera or far outside the measured scene is a
 wrong pair, not a measurement).
@@ -122,7 +125,7 @@ def pair_tracks(
     cam_a: object,
     cam_b: object,
     *,
-    gate_px: float = 5.0,
+    gate_px: float = 8.0,
     ambiguity_margin_px: float | None = None,
     min_common: int = 5,
     volume_mm: object = None,
