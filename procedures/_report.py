@@ -1,0 +1,43 @@
+"""The ``report`` step shared by the procedures: analysis → tables, figures, report.html, certificate.json.
+
+Calls :func:`reports.build.build_report` on the run folder (a pure function of it). The report is built
+before the run's ``stop`` document exists, so the certificate's overall ``result`` cannot be ``PASS`` yet
+(the reports require a successful stop); the procedure's verdict is therefore taken from the criteria:
+passed when every criterion is evaluated and passes.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+__all__ = ["report_step", "verdict_of"]
+
+
+def verdict_of(certificate: dict[str, Any]) -> tuple[bool, str]:
+    """(passed, summary) from the certificate's criteria rows (``status`` PASS / FAIL / NOT EVALUATED)."""
+    rows = certificate.get("criteria") or []
+    failed = [r.get("id", "?") for r in rows if r["status"] == "FAIL"]
+    missing = [r.get("id", "?") for r in rows
+               if r["status"] not in ("PASS", "FAIL")]
+    passed = bool(rows) and not failed and not missing
+    parts = [f"{sum(r['status'] == 'PASS' for r in rows)}/{len(rows)} criteria pass"]
+    if failed:
+        parts.append("failed: " + ", ".join(map(str, failed)))
+    if missing:
+        parts.append("not evaluated: " + ", ".join(map(str, missing)))
+    return passed, "; ".join(parts)
+
+
+def report_step(ctx: Any, *, make_figures: bool = True) -> dict[str, Any]:
+    """Build the report as step ``report``; return the verdict dict (``passed``, ``summary``, paths)."""
+    from reports.build import build_report
+
+    with ctx.step("report") as step:
+        ctx.progress(None, "report: analysis, tables, figures, certificate")
+        result = build_report(ctx.run_dir, make_figures=make_figures)
+        if not step.skipped:
+            for path in (result.report_html, result.certificate_json):
+                step.output(path.relative_to(ctx.run_dir))
+    passed, summary = verdict_of(result.certificate)
+    return {"passed": passed, "summary": summary, "report": str(result.report_html),
+            "certificate": str(result.certificate_json)}

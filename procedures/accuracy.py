@@ -1,0 +1,174 @@
+"""Static accuracy: known marker positions over the measurement volume (error versus position).
+
+Three steps, each a list of arm poses with the cameras recording ``frames_per_pose`` still frames at each:
+
+1. ``accuracy_grid`` — the single marker visits a ``grid_points``³ grid filling ``grid_fraction`` of
+   ``targets.volume`` (error versus position);
+2. ``accuracy_iso9283`` — ISO 9283-style repeated cycles over five poses: P1 at the centre, P2–P5 on a
+   diagonal plane at 10 % of the diagonal from the corners of the cube (``grid_fraction`` sets that
+   share), visited in the standard order P1 → P5 → P4 → P3 → P2 for ``cycles`` cycles (repeatability);
+3. ``accuracy_frame`` — the marker frame (several markers at known offsets) at ``frame_poses`` known
+   positions (length errors, VDI/VDE 2634-1 style).
+
+Truth: one ``accuracy_pose`` event per visit with the commanded marker positions (from the commanded
+pose and the target geometry of the configuration) and the still window; an ``arm`` event per move.
+Every pose is checked against the envelope before the first motion (a violation: nothing moves, exit 3).
+Marker orientation: the robot's home orientation (``devices.robot.home_pose``), printed faces towards the
+cameras.
+"""
+
+from __future__ import annotations
+
+import itertools
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from procedures._acquire import Acquirer, ReduceOptions
+from procedures._common import arm_marker_positions, check_poses, mount, move_arm, require_target
+from rig.procedure import param
+
+NAME = "accuracy"
+DESCRIPTION = "Known marker poses over the volume, ISO 9283 cycles, marker frame → error versus position."
+ISO_ORDER = ("P1", "P5", "P4", "P3", "P2")
+ISO_CORNERS = {"P2": (1, 1, 1), "P3": (1, -1, 1), "P4": (-1, -1, -1), "P5": (-1, 1, -1)}
+
+
+@dataclass(frozen=True)
+class Parameters:
+    grid_points: int = field(default=3, metadata=param(lo=0, hi=12, doc="grid nodes per axis (0: no grid)"))
+    grid_fraction: float = field(default=0.8, metadata=param(lo=0.05, hi=1.0,
+                                                             doc="share of the volume's size spanned"))
+    cycles: int = field(default=10, metadata=param(lo=0, hi=100, doc="ISO 9283 cycles over P1–P5 (0: none)"))
+    frame_poses: int = field(default=4, metadata=param(lo=0, hi=20, doc="marker frame positions (0: none)"))
+    frames_per_pose: int = field(default=10, metadata=param(lo=1, hi=600, doc="still frames per pose"))
+    settle_s: float = field(default=0.2, metadata=param(lo=0.0, hi=60.0, doc="wait after each move, s"))
+    speed_mm_s: float | None = field(default=None, metadata=param(lo=0.0, lo_open=True, hi=5000.0,
+                                                                  doc="arm speed (default: the limit)"))
+
+
+def _orientation(ctx: Any) -> np.ndarray:
+    robot = ctx.config.devices.robot
+    if robot is not None and robot.home_pose is not None:
+        return np.asarray(robot.home_pose[3:], dtype=float)
+    plate = ctx.config.targets.calibration_plate
+    return np.asarray(plate.start_pose[3:] if plate is not None else (90.0, 0.0, 90.0), dtype=float)
+
+
+def flange_pose_for(marker_mm: np.ndarray, offset_tool_mm: np.ndarray, orientation_deg: np.ndarray) -> list:
+    """Flange pose putting a tool-frame ``offset_tool_mm`` at base-frame ``marker_mm`` (orientation fixed)."""
+    o = np.asarray(arm_marker_positions([0, 0, 0, *orientation_deg], {"m": offset_tool_mm})["m"])
+    return [*(np.asarray(marker_mm, float) - o).tolist(), *orientation_deg.tolist()]
+
+
+def grid_targets(volume: Any, points: int, fraction: float) -> list[np.ndarray]:
+    """``points``³ marker positions (mm) spanning ``fraction`` of the volume, x fastest."""
+    if points == 0:
+        return []
+    c, h = np.asarray(volume.centre_mm, float), 0.5 * fraction * np.asarray(volume.size_mm, float)
+    axes = [np.array([0.0]) if points == 1 else np.linspace(-1, 1, points)] * 3
+    return [c + h * np.array([x, y, z]) for z, y, x in itertools.product(*axes[::-1])]
+
+
+def iso_targets(volume: Any, fraction: float) -> dict[str, np.ndarray]:
+    """ISO 9283 poses P1–P5 (mm): P1 the centre, P2–P5 on a diagonal plane at ``fraction`` of the
+    half-diagonal (0.8 = 10 % of the diagonal from the corners)."""
+    c, h = np.asarray(volume.centre_mm, float), 0.5 * fraction * np.asarray(volume.size_mm, float)
+    out = {"P1": c}
+    out.update({k: c + h * np.asarray(s, float) for k, s in ISO_CORNERS.items()})
+    return out
+
+
+def frame_flange_poses(volume: Any, offsets: np.ndarray, orientation: np.ndarray, n: int) -> list[list]:
+    """``n`` flange poses of the marker frame, its centroid at the volume centre then at ± a quarter of
+    the volume along alternating diagonals."""
+    c, q = np.asarray(volume.centre_mm, float), 0.25 * np.asarray(volume.size_mm, float)
+    shifts = [np.zeros(3)] + [q * np.asarray(s, float) for s in itertools.product((1, -1), repeat=3)]
+    centroid = offsets.mean(axis=0)
+    return [flange_pose_for(c + shifts[k % len(shifts)], centroid, orientation) for k in range(n)]
+
+
+def _visit(ctx: Any, acq: Acquirer, arm: Any, pose: list, *, offsets: dict[str, Any], params: Parameters,
+           index: int, cycle: int, target: str, segment: str) -> None:
+    fps = max(c.fps for c in ctx.config.cameras.values())
+    move_arm(ctx, arm, pose, params.speed_mm_s)
+    ctx.sleep_s(params.settle_s)
+    rec = acq.record(segment, (params.frames_per_pose + 1.5) / fps)
+    ctx.event("accuracy_pose", {"index": index, "cycle": cycle, "target": target, "t_start_s": rec.t_start_s,
+                                "t_stop_s": rec.t_stop_s, "pose": pose, "segment": segment,
+                                "markers": arm_marker_positions(pose, offsets)})
+
+
+def plan(ctx: Any, params: Parameters) -> dict[str, list[tuple[list, str, int]]]:
+    """Every pose of the three steps as (flange pose, target name, cycle), checked later as a whole."""
+    volume = require_target(ctx, "volume")
+    orient = _orientation(ctx)
+    out: dict[str, list[tuple[list, str, int]]] = {"accuracy_grid": [], "accuracy_iso9283": [],
+                                                   "accuracy_frame": []}
+    if params.grid_points or params.cycles:
+        single = np.asarray(require_target(ctx, "single_marker").offset_tool_mm, float)
+        for k, m in enumerate(grid_targets(volume, params.grid_points, params.grid_fraction)):
+            out["accuracy_grid"].append((flange_pose_for(m, single, orient), f"G{k:03d}", 0))
+        iso = iso_targets(volume, params.grid_fraction)
+        for cycle in range(params.cycles):
+            for name in ISO_ORDER:
+                out["accuracy_iso9283"].append((flange_pose_for(iso[name], single, orient), name, cycle))
+    if params.frame_poses:
+        frame = require_target(ctx, "marker_frame")
+        offsets = np.asarray(frame.offsets_mm, float)
+        for k, pose in enumerate(frame_flange_poses(volume, offsets, orient, params.frame_poses)):
+            out["accuracy_frame"].append((pose, f"F{k}", 0))
+    return out
+
+
+def check_plan(ctx: Any, params: Parameters) -> dict[str, list[tuple[list, str, int]]]:
+    """The plan, every pose checked against the envelope before anything moves."""
+    steps = plan(ctx, params)
+    check_poses(ctx.device("robot"), [p for visits in steps.values() for p, _, _ in visits])
+    return steps
+
+
+def run_steps(ctx: Any, params: Parameters) -> int:
+    """The three accuracy steps (each skipped on --resume when done); returns the number of visits."""
+    arm = ctx.device("robot")
+    steps = check_plan(ctx, params)
+    single = {"arm": list(ctx.config.targets.single_marker.offset_tool_mm)} \
+        if ctx.config.targets.single_marker is not None else {}
+    frame = {f"frame{k}": list(o) for k, o in enumerate(ctx.config.targets.marker_frame.offsets_mm)} \
+        if ctx.config.targets.marker_frame is not None else {}
+    total = sum(len(v) for v in steps.values())
+    done = index = 0
+    for step_name, visits in steps.items():
+        if not visits:
+            continue
+        with ctx.step(step_name) as step:
+            if step.skipped:
+                done += len(visits)
+                index += len(visits)
+                continue
+            is_frame = step_name == "accuracy_frame"
+            scene, offsets = ("marker_frame", frame) if is_frame else ("single_marker", single)
+            mount(ctx, scene)
+            with Acquirer(ctx, ReduceOptions(mode="track", window_px=31)) as acq:
+                for pose, target, cycle in visits:
+                    ctx.progress(done / total, f"{step_name}: {target} (cycle {cycle})")
+                    _visit(ctx, acq, arm, pose, offsets=offsets, params=params, index=index, cycle=cycle,
+                           target=target, segment=step_name)
+                    done += 1
+                    index += 1
+    return total
+
+
+def run(ctx: Any, params: Parameters) -> dict[str, Any]:
+    from procedures import calibrate, sync
+    from procedures._report import report_step
+
+    calibrate.check_plan(ctx, calibrate.Parameters())
+    sync.check_plan(ctx, sync.Parameters())
+    check_plan(ctx, params)
+    calibrate.run_step(ctx, calibrate.Parameters())
+    sync.run_step(ctx, sync.Parameters())
+    n = run_steps(ctx, params)
+    result = report_step(ctx)
+    return {"summary": f"{n} poses visited; " + result["summary"], "report": result["report"]}

@@ -1,0 +1,155 @@
+"""Calibrate the cameras: the arm slides the calibration plate to known positions along its normal.
+
+At each position (``targets.calibration_plate.start_pose`` moved by ``slide_positions_mm`` along tool z)
+the arm stops, the cameras record ``frames_per_position`` still frames, and each marker's image position
+is averaged over them. The plate's markers are told from the fixed reference markers (they move between
+positions, the references do not) and ordered on the grid (:mod:`rig.plate_grid`); their base-frame
+positions follow from the commanded pose and the plate geometry of the configuration. One DLT per camera
+(:func:`rig.stereo.calibrate_dlt`; refined, with radial distortion ``k1`` by default — with a small plate
+``k1`` extrapolates best over the measurement volume, docs/stereo_core.md) → ``calibration.json`` with the
+residuals. Truth events: ``arm`` per move and ``calibration_position`` per position.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from procedures._acquire import Acquirer, ReduceOptions, mean_positions
+from procedures._common import (
+    arm_marker_positions,
+    check_poses,
+    mount,
+    move_arm,
+    plate_offsets_tool_mm,
+    require_target,
+)
+from rig.plate_grid import GridError, moving_points, order_grid
+from rig.procedure import ParameterError, param
+from rig.stereo import calibrate_dlt
+
+NAME = "calibrate"
+DESCRIPTION = "Slide the calibration plate to known positions with the arm; one DLT per camera."
+DISTORTION = {"none": False, "k1": "k1", "k1k2": "k1k2", "full": True}
+
+
+@dataclass(frozen=True)
+class Parameters:
+    frames_per_position: int = field(default=8, metadata=param(lo=1, hi=600, doc="still frames averaged "
+                                                                               "per plate position"))
+    settle_s: float = field(default=0.2, metadata=param(lo=0.0, hi=60.0, doc="wait after each move, s"))
+    speed_mm_s: float | None = field(default=None, metadata=param(lo=0.0, lo_open=True, hi=5000.0,
+                                                                  doc="arm speed (default: the limit)"))
+    slide_positions_mm: tuple[float, ...] = field(default=(), metadata=param(
+        length=(0, 100), lo=-2000.0, hi=2000.0, doc="slides along the plate normal, mm (empty: the rig's "
+                                                     "targets.calibration_plate.slide_positions_mm)"))
+    refine: bool = field(default=True, metadata=param(doc="refine P on the reprojection error"))
+    distortion: str = field(default="k1", metadata=param(choices=tuple(DISTORTION),
+                                                         doc="lens distortion terms fitted"))
+
+
+def plate_poses(plate: Any, slides_mm: tuple[float, ...]) -> list[list[float]]:
+    """Flange poses of the slid positions: ``start_pose`` moved by each slide along tool z (mm)."""
+    start = np.asarray(plate.start_pose, dtype=float)
+    z_tool = np.asarray(arm_marker_positions(start, {"z": [0.0, 0.0, 1.0]})["z"]) - start[:3]
+    return [np.r_[start[:3] + s * z_tool, start[3:]].tolist() for s in slides_mm]
+
+
+def _control_points(ctx: Any, positions: list[dict[str, Any]], camera: str, plate: Any,
+                    min_frames: int) -> tuple[np.ndarray, np.ndarray, list[float]]:
+    """(xyz_mm, uv_px, grid residual per position) of one camera over all positions."""
+    means = [mean_positions(p["observations"][camera], min_frames=min_frames) for p in positions]
+    uv_sets = [m[["u_px", "v_px"]].to_numpy(float) for m in means]
+    moving = moving_points(uv_sets)
+    ids = [f"cal_r{r}c{c}" for r in range(plate.rows) for c in range(plate.cols)]
+    xyz, uv, resid = [], [], []
+    for i, (pts, idx, pos) in enumerate(zip(uv_sets, moving, positions, strict=True)):
+        try:
+            fit = order_grid(pts[idx], plate.rows, plate.cols)
+        except GridError as exc:
+            raise GridError(f"camera {camera!r}, plate position {i} (slide "
+                            f"{pos['slide_mm']:g} mm): {exc}") from exc
+        xyz.append(np.array([pos["points"][k] for k in ids]))
+        uv.append(fit.uv_px)
+        resid.append(fit.residual_rms_px)
+    return np.concatenate(xyz), np.concatenate(uv), resid
+
+
+def check_plan(ctx: Any, params: Parameters) -> tuple[tuple[float, ...], list[list[float]]]:
+    """The slides and flange poses, every pose checked against the envelope (nothing moves)."""
+    plate = require_target(ctx, "calibration_plate")
+    slides = tuple(params.slide_positions_mm) or tuple(plate.slide_positions_mm)
+    if len(set(slides)) < 2:
+        raise ParameterError("calibrate.slide_positions_mm",
+                             f"{list(slides)}: allowed: at least 2 distinct positions (the control points "
+                             "must not be coplanar)")
+    poses = plate_poses(plate, slides)
+    check_poses(ctx.device("robot"), poses)
+    return slides, poses
+
+
+def calibrate_cameras(ctx: Any, params: Parameters) -> dict[str, Any]:
+    """Acquire the slid plate and fit every camera; return the ``calibration.json`` content."""
+    plate = require_target(ctx, "calibration_plate")
+    arm = ctx.device("robot")
+    slides, poses = check_plan(ctx, params)
+    mount(ctx, "calibration_plate")
+    offsets = plate_offsets_tool_mm(plate)
+    fps = max(c.fps for c in ctx.config.cameras.values())
+    still_s = (params.frames_per_position + 1.5) / fps
+    positions = []
+    with Acquirer(ctx, ReduceOptions(mode="track", window_px=31)) as acq:
+        for i, pose in enumerate(poses):
+            ctx.progress(i / len(poses), f"calibrate: plate position {i + 1}/{len(poses)}")
+            move_arm(ctx, arm, pose, params.speed_mm_s)
+            ctx.sleep_s(params.settle_s)
+            rec = acq.record("calibrate", still_s)
+            points = arm_marker_positions(pose, offsets)
+            ctx.event("calibration_position", {"index": i, "t_start_s": rec.t_start_s,
+                                               "t_stop_s": rec.t_stop_s,
+                                               "pose": list(pose), "slide_mm": slides[i],
+                                               "points": points})
+            positions.append({"points": points, "observations": rec.observations, "slide_mm": slides[i]})
+    cameras, grid = {}, {}
+    min_frames = max(1, params.frames_per_position // 2)
+    for name in ctx.station.cameras:
+        xyz, uv, resid = _control_points(ctx, positions, name, plate, min_frames)
+        cam = calibrate_dlt(xyz, uv, refine=params.refine, distortion=DISTORTION[params.distortion],
+                            image_size=tuple(ctx.config.cameras[name].resolution_px))
+        cameras[name] = cam.to_dict()
+        grid[name] = resid
+        ctx.log.info("camera %s: %d control points, reprojection RMS %.3f px", name, len(xyz), cam.rms_px)
+    first = next(iter(cameras.values()))
+    return {"cameras": cameras, "convention": first["convention"], "units": {"world": "mm", "image": "px"},
+            "method": {"procedure": NAME, "refine": params.refine, "distortion": params.distortion,
+                       "frames_per_position": params.frames_per_position,
+                       "slide_positions_mm": list(slides),
+                       "plate": {"rows": plate.rows, "cols": plate.cols, "pitch_mm": plate.pitch_mm}},
+            "grid_residual_rms_px": grid}
+
+
+def calibration_summary(calibration: dict[str, Any]) -> tuple[float, str]:
+    """Worst reprojection RMS (px) over the cameras and a one-line summary."""
+    rms = {n: float(c["residuals_rms_px"]) for n, c in calibration["cameras"].items()}
+    text = ", ".join(f"{n} {v:.3f} px" for n, v in rms.items())
+    return max(rms.values()), f"reprojection RMS {text}"
+
+
+def run_step(ctx: Any, params: Parameters) -> dict[str, Any]:
+    """The ``calibrate`` step (skipped on --resume when done); returns the calibration."""
+    import json
+
+    with ctx.step("calibrate") as step:
+        if not step.skipped:
+            step.output(ctx.write_json("calibration.json", calibrate_cameras(ctx, params)))
+    return json.loads(ctx.path("calibration.json").read_text(encoding="utf-8"))
+
+
+def run(ctx: Any, params: Parameters) -> dict[str, Any]:
+    check_plan(ctx, params)
+    calibration = run_step(ctx, params)
+    worst, summary = calibration_summary(calibration)
+    limit = ctx.config.criteria.calibration_rms_px
+    return {"passed": worst <= limit, "summary": f"{summary} (limit {limit:g} px)", "rms_px": worst}

@@ -1,0 +1,99 @@
+"""The certification: calibrate → sync → accuracy → sweep → analysis → report → certificate.
+
+One run folder holds everything: ``calibration.json`` (calibrate), ``timing.json`` (sync, which also
+records the rotor's radius and frequency), the static poses (accuracy), the frequency sweep, then the
+report (:func:`reports.build.build_report`: analysis, tables, figures, ``report.html``,
+``certificate.json``). Every plan (arm poses, rotor and exciter frequencies, the sweep's slope) is checked
+against the rig's limits **before anything moves**: a violation ends the run with exit code 3 and nothing
+sent. The verdict: passed when every acceptance criterion of the certificate is evaluated and passes
+(exit 0), else exit 1.
+
+``preset = "full"`` is the certification (grid 3³, 10 ISO 9283 cycles, 4 marker-frame poses, sweep
+1 → 30 Hz in 24 s); ``"fast"`` is a short check of the whole chain (grid 2³, 3 cycles, 2 frame poses,
+sweep 2 → 12 Hz in 8 s). The ``sweep_*`` and ``accuracy_*`` parameters override the preset when given.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+from typing import Any
+
+from procedures import accuracy, calibrate, sweep, sync
+from procedures._report import report_step
+from rig.procedure import param
+
+NAME = "certify"
+DESCRIPTION = "The whole certification: calibrate, sync, accuracy, sweep, report, certificate."
+
+PRESETS: dict[str, dict[str, Any]] = {
+    "full": {
+        "calibrate": {},
+        "sync": {},
+        "accuracy": {},
+        "sweep": {},
+    },
+    "fast": {
+        "calibrate": {"frames_per_position": 4},
+        "sync": {"record_s": 2.0},
+        "accuracy": {"grid_points": 2, "cycles": 3, "frame_poses": 2, "frames_per_pose": 8},
+        "sweep": {"start_hz": 2.0, "max_hz": 12.0, "duration_s": 8.0, "hold_s": 0.5},
+    },
+}
+
+
+@dataclass(frozen=True)
+class Parameters:
+    preset: str = field(default="full", metadata=param(choices=tuple(PRESETS), doc="scope of the run"))
+    sweep_start_hz: float | None = field(default=None, metadata=param(lo=0.1, hi=1000.0,
+                                                                      doc="sweep: first frequency, Hz"))
+    sweep_max_hz: float | None = field(default=None, metadata=param(lo=0.1, hi=1000.0,
+                                                                    doc="sweep: peak frequency, Hz"))
+    sweep_duration_s: float | None = field(default=None, metadata=param(lo=0.5, hi=3600.0,
+                                                                        doc="sweep: rise time, s"))
+    accuracy_grid_points: int | None = field(default=None, metadata=param(
+        lo=0, hi=12, doc="accuracy: grid nodes per axis"))
+    accuracy_cycles: int | None = field(default=None, metadata=param(lo=0, hi=100,
+                                                                     doc="accuracy: ISO 9283 cycles"))
+    calibrate_slide_positions_mm: tuple[float, ...] = field(default=(), metadata=param(
+        length=(0, 100), lo=-2000.0, hi=2000.0, doc="calibrate: plate slides, mm (empty: the rig's)"))
+    figures: bool = field(default=True, metadata=param(doc="draw the report's figures"))
+
+
+def sub_parameters(params: Parameters) -> dict[str, Any]:
+    """The four procedures' parameters: the preset, then the explicit overrides."""
+    chosen = {k: dict(v) for k, v in PRESETS[params.preset].items()}
+    overrides = {"sweep": {"start_hz": params.sweep_start_hz, "max_hz": params.sweep_max_hz,
+                           "duration_s": params.sweep_duration_s},
+                 "accuracy": {"grid_points": params.accuracy_grid_points, "cycles": params.accuracy_cycles},
+                 "calibrate": {"slide_positions_mm": params.calibrate_slide_positions_mm or None}}
+    for name, values in overrides.items():
+        chosen[name].update({k: v for k, v in values.items() if v is not None})
+    modules = {"calibrate": calibrate, "sync": sync, "accuracy": accuracy, "sweep": sweep}
+    out = {}
+    for name, module in modules.items():
+        try:
+            out[name] = module.Parameters(**chosen[name])
+        except ValueError as exc:
+            from rig.procedure import ParameterError
+
+            raise ParameterError(f"certify.{name}", str(exc)) from exc
+    return out
+
+
+def run(ctx: Any, params: Parameters) -> dict[str, Any]:
+    sub = sub_parameters(params)
+    # every plan against the limits before the first motion (nothing is sent on a violation)
+    calibrate.check_plan(ctx, sub["calibrate"])
+    sync.check_plan(ctx, sub["sync"])
+    accuracy.check_plan(ctx, sub["accuracy"])
+    sweep.check_plan(ctx, sub["sweep"])
+    ctx.log.info("certify (%s): %s", params.preset,
+                 {k: dataclasses.asdict(v) for k, v in sub.items()})
+    calibrate.run_step(ctx, sub["calibrate"])
+    sync.run_step(ctx, sub["sync"])
+    accuracy.run_steps(ctx, sub["accuracy"])
+    sweep.run_step(ctx, sub["sweep"])
+    result = report_step(ctx, make_figures=params.figures)
+    return {"passed": result["passed"], "summary": result["summary"], "report": result["report"],
+            "certificate": result["certificate"], "preset": params.preset}

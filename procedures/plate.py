@@ -1,0 +1,99 @@
+"""The oscillating plate (the paper's Figs. 3–8): every marker's trajectory at about 3.5 Hz.
+
+The crank exciter drives the free end of the clamped plate (``targets.plate``) at ``frequency_hz`` with its
+fixed amplitude (the crank radius); a marker at distance s from the clamp moves by that amplitude times
+the cantilever shape (3ξ² − ξ³)/2, ξ = s / length. The cameras record ``record_s`` seconds of the steady
+oscillation. Truth: the ``plate`` event (frequency actually polled, tip amplitude, the displacement axis,
+the marker ids and each marker's amplitude) and the polled ``exciter`` events.
+
+Run alone (``rig run plate``) it first calibrates and synchronizes the cameras in the same run folder,
+then builds the report (trajectories, amplitude and frequency per marker).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from procedures._acquire import Acquirer, ReduceOptions
+from procedures._common import mount, poll_event, require_target
+from rig.procedure import param
+
+NAME = "plate"
+DESCRIPTION = "Oscillating plate at about 3.5 Hz: trajectories of every marker (Figs. 4-8)."
+
+
+@dataclass(frozen=True)
+class Parameters:
+    frequency_hz: float = field(default=3.5, metadata=param(lo=0.1, hi=1000.0,
+                                                            doc="oscillation frequency, Hz"))
+    record_s: float = field(default=6.0, metadata=param(lo=0.5, hi=3600.0, doc="recording length, s"))
+    poll_interval_s: float = field(default=0.25, metadata=param(lo=0.01, hi=10.0, doc="exciter polls, s"))
+
+
+def marker_amplitudes_mm(plate: Any, tip_mm: float) -> dict[str, float]:
+    """Amplitude of every plate marker (mm): tip amplitude × (3ξ² − ξ³)/2 at its distance from the clamp."""
+    out = {}
+    for r in range(plate.rows):
+        for c in range(plate.cols):
+            xi = (c + 1) * plate.pitch_mm / plate.length_mm
+            out[f"plate_r{r}c{c}"] = float(tip_mm * 0.5 * (3 * xi**2 - xi**3))
+    return out
+
+
+def check_plan(ctx: Any, params: Parameters) -> None:
+    plate = require_target(ctx, "plate")
+    ctx.device(plate.body if plate.body != "shaker" else "generator").check_frequency(params.frequency_hz)
+
+
+def run_step(ctx: Any, params: Parameters, *, step_name: str = "plate") -> None:
+    with ctx.step(step_name) as step:
+        if step.skipped:
+            return
+        check_plan(ctx, params)
+        plate = require_target(ctx, "plate")
+        exciter = ctx.device(plate.body if plate.body != "shaker" else "generator")
+        mount(ctx, "plate")
+        poll_event(ctx, "exciter", exciter.set_frequency(params.frequency_hz, wait=True))
+        samples: list[Any] = []
+
+        def hold() -> None:
+            end = ctx.clock.now_s() + params.record_s
+            while True:
+                s = exciter.read_sample()
+                samples.append(s)
+                poll_event(ctx, "exciter", s)
+                remaining = end - ctx.clock.now_s()
+                if remaining <= 0:
+                    return
+                ctx.sleep_s(min(params.poll_interval_s, remaining))
+
+        with Acquirer(ctx, ReduceOptions(mode="track", window_px=41)) as acq:
+            rec = acq.record(step_name, hold)
+        axis = plate.axis if plate.axis is not None else plate.normal
+        amplitudes = marker_amplitudes_mm(plate, exciter.amplitude_mm)
+        ctx.event("plate", {"t_start_s": rec.t_start_s, "t_stop_s": rec.t_stop_s,
+                            "frequency_hz": float(np.mean([s.frequency_hz for s in samples])),
+                            "setpoint_hz": params.frequency_hz, "amplitude_mm": exciter.amplitude_mm,
+                            "axis": [float(v) / float(np.linalg.norm(axis)) for v in axis],
+                            "marker_ids": list(amplitudes), "marker_amplitudes_mm": amplitudes,
+                            "segment": step_name})
+        stopped = exciter.stop(wait=True)
+        if stopped is not None:
+            poll_event(ctx, "exciter", stopped)
+
+
+def run(ctx: Any, params: Parameters) -> dict[str, Any]:
+    from procedures import calibrate, sync
+    from procedures._report import report_step
+
+    calibrate.check_plan(ctx, calibrate.Parameters())
+    sync.check_plan(ctx, sync.Parameters())
+    check_plan(ctx, params)
+    calibrate.run_step(ctx, calibrate.Parameters())
+    sync.run_step(ctx, sync.Parameters())
+    run_step(ctx, params)
+    result = report_step(ctx)
+    return {"summary": result["summary"], "report": result["report"]}

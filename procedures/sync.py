@@ -1,0 +1,181 @@
+"""Synchronize the cameras: the rotor spins its marker at 10 Hz; offset, line time and drift → timing.json.
+
+The rotor marker crosses the epipolar lines fast (≈ 3.8 m/s at 60 mm and 10 Hz), so the offset between
+the two unsynchronized cameras shows clearly. The primary estimate is the joint method (offset, rolling
+shutter line time and clock drift together, :func:`rig.stereo.estimate_offset` ``method="joint"``); the
+paper's rotating-marker method (``method="rotor"``) is computed beside it for comparison and stored under
+``comparison`` in ``timing.json``. The search starts from the offset implied by the recordings' ``camera``
+events (both cameras started at the same rig instant), ± ``search_frames`` frame periods.
+
+Truth events: ``rotor`` (polled actual frequency) and ``rotation`` (the steady rotation recorded, for the
+radius and frequency checks of the report). Needs ``calibration.json`` (the calibrate step) first.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from procedures._acquire import Acquirer, ReduceOptions
+from procedures._common import load_calibration, mount, require_target
+from rig.procedure import param
+from rig.stereo import DLTCamera, TimingError
+from rig.stereo.timing import estimate_offset
+
+NAME = "sync"
+DESCRIPTION = "Spin the rotor at 10 Hz; estimate camera offset, line time and drift → timing.json."
+
+
+@dataclass(frozen=True)
+class Parameters:
+    rotation_hz: float = field(default=10.0, metadata=param(lo=0.1, hi=100.0, doc="rotor speed, rev/s"))
+    record_s: float = field(default=3.0, metadata=param(lo=0.5, hi=600.0, doc="recording length, s"))
+    poll_interval_s: float = field(default=0.25, metadata=param(lo=0.01, hi=10.0,
+                                                                doc="rotor polls while recording, s"))
+    search_frames: float = field(default=2.0, metadata=param(lo=0.5, hi=30.0,
+                                                             doc="offset search half-width, frame periods"))
+    compare_rotor_method: bool = field(default=True, metadata=param(doc="also run the paper's method"))
+
+
+def _static_tracks(obs: pd.DataFrame, n_frames: int, still_px: float = 1.5) -> np.ndarray:
+    """Image positions (K, 2) of markers that stay put (references): present in ≥ 80 % of the frames."""
+    rounded = obs.assign(ku=(obs["u_px"] / still_px).round(), kv=(obs["v_px"] / still_px).round())
+    g = rounded.groupby(["ku", "kv"]).agg(u=("u_px", "mean"), v=("v_px", "mean"), n=("u_px", "size"))
+    cand = g[g["n"] >= 0.4 * n_frames][["u", "v"]].to_numpy(float)
+    keep = []
+    for p in cand:  # merge cells split by the rounding
+        if not any(np.hypot(*(p - q)) < 2 * still_px for q in keep):
+            keep.append(p)
+    return np.array(keep).reshape(-1, 2)
+
+
+def moving_marker(obs: pd.DataFrame, still_px: float = 3.0) -> tuple[np.ndarray, np.ndarray]:
+    """Time stamps (N,) and image positions (N, 2) of the one moving marker of a recording: per frame the
+    single observation farther than ``still_px`` from every static marker (frames with none or several
+    are left out)."""
+    frames = obs["frame_index"].nunique()
+    static = _static_tracks(obs, frames)
+    uv = obs[["u_px", "v_px"]].to_numpy(float)
+    if len(static):
+        d = np.linalg.norm(uv[:, None, :] - static[None, :, :], axis=2).min(axis=1)
+        moving = obs[d > still_px]
+    else:
+        moving = obs
+    counts = moving.groupby("frame_index")["u_px"].transform("size")
+    one = moving[counts == 1].sort_values("frame_index")
+    return one["timestamp_s"].to_numpy(float), one[["u_px", "v_px"]].to_numpy(float)
+
+
+def offset_guess_s(events: list[dict[str, Any]], reference: str, other: str) -> float:
+    """Offset of ``other``'s clock onto ``reference``'s implied by one recording's ``camera`` start events
+    (both cameras started at the same rig instant; good to about one frame period)."""
+    first = {e["camera"]: e["first_timestamp_s"] for e in events if e["action"] == "start"}
+    return float(first[reference] - first[other])
+
+
+def estimate_timing(calibration: dict[str, Any], rec: Any, camera_events: list[dict[str, Any]], *,
+                    params: Parameters, rotor: Any, fps: float) -> dict[str, Any]:
+    """timing.json content from the rotor recording (joint method; the rotor method for comparison)."""
+    names = list(calibration["cameras"])[:2]
+    ref, other = names
+    cams = {n: DLTCamera.from_dict(calibration["cameras"][n]) for n in names}
+    series = {}
+    for n in names:
+        t, uv = moving_marker(rec.observations[n])
+        if len(t) < 12:
+            raise TimingError(f"camera {n!r}: the rotor marker was identified in only {len(t)} frames "
+                              "(need ≥ 12); is the rotor target mounted and turning?")
+        series[n] = (t, cams[n].undistort_px(uv, strict=False))
+        ok = np.all(np.isfinite(series[n][1]), axis=1)
+        series[n] = (series[n][0][ok], series[n][1][ok])
+    guess = offset_guess_s(camera_events, ref, other)
+    half = params.search_frames / fps
+    joint = estimate_offset(cams[ref], cams[other], series[ref], series[other], method="joint",
+                            names=(ref, other), offset_guess_s=guess, search_half_width_s=half)
+    timing = joint.to_dict()
+    timing["search"] = {"offset_guess_s": guess, "half_width_s": half, "source": "camera start events"}
+    if params.compare_rotor_method:
+        try:
+            paper = estimate_offset(cams[ref], cams[other], series[ref], series[other], method="rotor",
+                                    names=(ref, other), offset_guess_s=guess,
+                                    rotor_centre_mm=list(rotor.centre_mm), rotor_axis=list(rotor.axis))
+            timing["comparison"] = {"rotor": paper.to_dict()}
+        except TimingError as exc:
+            timing["comparison"] = {"rotor": {"error": f"{type(exc).__name__}: {exc}"}}
+    return timing
+
+
+def spin_and_record(ctx: Any, acq: Acquirer, segment: str, *, rotation_hz: float, record_s: float,
+                    poll_interval_s: float) -> tuple[Any, list[dict[str, Any]]]:
+    """Spin the rotor up, record ``record_s`` s (polling it), record ``rotation`` truth, stop it."""
+    rotor_cfg = require_target(ctx, "rotor")
+    rotor = ctx.device("rotor")
+    rotor.check_frequency(rotation_hz)  # limits before anything moves
+    mount(ctx, "rotor")
+    reached = rotor.set_rotation_hz(rotation_hz, wait=True)
+    ctx.event("rotor", reached.as_event())
+    samples: list[Any] = []
+
+    def hold() -> None:
+        end = ctx.clock.now_s() + record_s
+        while True:
+            s = rotor.read_sample()
+            samples.append(s)
+            ctx.event("rotor", s.as_event())
+            remaining = end - ctx.clock.now_s()
+            if remaining <= 0:
+                return
+            ctx.sleep_s(min(poll_interval_s, remaining))
+
+    rec = acq.record(segment, hold)
+    freq = float(np.mean([s.frequency_hz for s in samples]))
+    ctx.event("rotation", {"t_start_s": rec.t_start_s, "t_stop_s": rec.t_stop_s, "frequency_hz": freq,
+                           "setpoint_hz": rotation_hz, "radius_mm": rotor_cfg.radius_mm,
+                           "centre_mm": list(rotor_cfg.centre_mm), "axis": list(rotor_cfg.axis),
+                           "marker_ids": ["rotor"], "segment": segment})
+    stopped = rotor.stop(wait=True)
+    if stopped is not None:
+        ctx.event("rotor", stopped.as_event())
+    events = [{"camera": n, "action": "start", "first_timestamp_s": float(o["timestamp_s"].min())}
+              for n, o in rec.observations.items() if len(o)]
+    return rec, events
+
+
+def check_plan(ctx: Any, params: Parameters) -> None:
+    """The rotor's limits at ``rotation_hz`` (nothing is sent)."""
+    require_target(ctx, "rotor")
+    ctx.device("rotor").check_frequency(params.rotation_hz)
+
+
+def run_step(ctx: Any, params: Parameters) -> dict[str, Any]:
+    """The ``sync`` step (skipped on --resume when done); returns the timing."""
+    with ctx.step("sync") as step:
+        if not step.skipped:
+            calibration = load_calibration(ctx)
+            fps = max(c.fps for c in ctx.config.cameras.values())
+            with Acquirer(ctx, ReduceOptions(mode="detect")) as acq:
+                rec, events = spin_and_record(ctx, acq, "sync", rotation_hz=params.rotation_hz,
+                                              record_s=params.record_s,
+                                              poll_interval_s=params.poll_interval_s)
+            timing = estimate_timing(calibration, rec, events, params=params,
+                                     rotor=require_target(ctx, "rotor"), fps=fps)
+            step.output(ctx.write_json("timing.json", timing))
+    return json.loads(ctx.path("timing.json").read_text(encoding="utf-8"))
+
+
+def run(ctx: Any, params: Parameters) -> dict[str, Any]:
+    from procedures import calibrate
+
+    calibrate.check_plan(ctx, calibrate.Parameters())
+    check_plan(ctx, params)
+    calibrate.run_step(ctx, calibrate.Parameters())
+    timing = run_step(ctx, params)
+    u = max((timing.get("uncertainty") or {}).get("offset_s", {}).values(), default=float("nan"))
+    limit_ms = ctx.config.criteria.sync_uncertainty_ms
+    offsets = ", ".join(f"{k} {1e3 * v:+.3f} ms" for k, v in timing["offset_s"].items())
+    return {"passed": bool(1e3 * u <= limit_ms), "summary": f"offsets {offsets}; u(offset) {1e3 * u:.3f} ms "
+                                                           f"(limit {limit_ms:g} ms)"}
