@@ -305,3 +305,24 @@ def test_roi_outside_the_frame_and_require():
     with pytest.raises(NoMarkersError, match="roi"):
         detect_markers(img, roi=[(500, 500, 600, 600)], require=True)
     assert len(detect_markers(img, roi=(60, 40, 100, 80))) == 1  # a single bare rectangle
+
+
+@pytest.mark.parametrize("gap_px", [6.0, 12.0])
+def test_close_neighbours(gap_px):
+    """Discs (r = 8 px) only gap_px apart edge to edge: each is measured on its own, the neighbours that
+    reach into its window and background ring are left out, detection and tracking stay within noise."""
+    rng = np.random.default_rng(int(gap_px))
+    errs, tracked_errs = [], []
+    for seed in range(4):
+        first = Disc(60 + rng.uniform(-0.5, 0.5), 60 + rng.uniform(-0.5, 0.5), 8.0)
+        discs = [first, Disc(first.u_px + 16 + gap_px, first.v_px + rng.uniform(-3, 3), 8.0),
+                 Disc(first.u_px + rng.uniform(-3, 3), first.v_px + 16 + gap_px, 8.0)]
+        img = render((140, 140), discs, seed=seed)
+        errs.append(match(detect_markers(img), discs))
+        truth = np.array([[d.u_px, d.v_px] for d in discs])
+        tracked = track_markers(img, truth + rng.uniform(-2, 2, truth.shape), window_px=41)
+        tracked_errs.append(np.stack([tracked["u_px"], tracked["v_px"]], axis=1) - truth)
+    # σ_c of one such disc alone (the neighbours would enter its window in the prediction)
+    sigma_c = predicted_sigma({0: [Disc(60.3, 59.8, 8.0)]}, [0], shape=(140, 140))
+    for err in (np.concatenate(errs), np.concatenate(tracked_errs)):
+        assert np.sqrt((err**2).mean()) < 2.0 * np.hypot(sigma_c, GRID_BIAS_PX)

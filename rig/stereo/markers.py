@@ -144,7 +144,7 @@ def _measure(gray: np.ndarray, rows: np.ndarray, cols: np.ndarray, half: np.ndar
 
 
 def _scatter(dst: Measured | None, n: int, sel: np.ndarray, src: Measured) -> Measured:
-    """Write the rows ``sel`` of ``dst`` (created, length n, if None) from ``src``."""
+    """Write the rows ``sel`` of ``dst`` from ``src``; a new ``dst`` of length n (uninitialized) if None."""
     if dst is None:
         dst = Measured(**{key: np.empty(n, dtype=value.dtype) for key, value in vars(src).items()})
     for key, value in vars(src).items():
@@ -254,9 +254,26 @@ def detect_markers(
 
     rows, cols, half = find_candidates(search, dark=dark, threshold=threshold, factor=factor,
                                    min_area_px=min_area_px, max_area_px=max_area_px,
-                                   min_contrast=min_contrast)
+                                   min_contrast=min_contrast, min_roundness=min_roundness)
     fit = centre == "ellipse" or outline_check
-    measured = _measure(gray, rows + r_off, cols + c_off, half, dark=dark, fit_ellipse=fit)
+    rows, cols = rows + r_off, cols + c_off
+    measured = _measure(gray, rows, cols, half, dark=dark, fit_ellipse=fit)
+    # a marker found off the centre of its window — the binarized blob held two markers that nearly
+    # touch, or an odd shape — is measured again in a window of its own, and the mirror image of its
+    # position about the blob's centre is searched for the other one (duplicates are dropped below)
+    with np.errstate(invalid="ignore"):
+        off = np.hypot(measured.u_px - cols, measured.v_px - rows) > np.maximum(2.0, 0.25 * half)
+        off &= np.isfinite(measured.area_px)
+    if off.any():
+        sel = np.nonzero(off)[0]
+        u_found, v_found = measured.u_px[sel], measured.v_px[sel]
+        size = np.ceil(np.sqrt(measured.area_px[sel] / np.pi)).astype(np.int64) + 6
+        again = _measure(gray, np.rint(np.concatenate([v_found, 2 * rows[sel] - v_found])).astype(np.int64),
+                         np.rint(np.concatenate([u_found, 2 * cols[sel] - u_found])).astype(np.int64),
+                         np.concatenate([size, size]), dark=dark, fit_ellipse=fit)
+        n_first, n_total = len(rows), len(rows) + len(sel)
+        grown = _scatter(None, n_total, np.arange(n_first), measured)
+        measured = _scatter(grown, n_total, np.concatenate([sel, n_first + np.arange(len(sel))]), again)
     rec = _rows_from(measured, centre, max_edge_rms_px, max_skewness)
     rec = rec[_passes(rec, min_area_px, max_area_px, min_roundness, min_contrast)]
     if regions is not None and len(rec):
@@ -267,7 +284,7 @@ def detect_markers(
 
 
 def _drop_duplicates(rec: np.ndarray, reach: int = 8) -> np.ndarray:
-    """Sort by (v, u) and keep one row of markers found twice (centres closer than 1 px).
+    """Sort by (v, u) and keep one row of a marker found twice (centres closer than 1 px).
 
     A marker split into two blobs by the binarization is measured twice on the same support; the two
     rows are then within a pixel, and adjacent in the row-sorted order unless more than ``reach`` other
@@ -275,10 +292,15 @@ def _drop_duplicates(rec: np.ndarray, reach: int = 8) -> np.ndarray:
     """
     rec = rec[np.lexsort((rec["u_px"], rec["v_px"]))]
     u, v = rec["u_px"], rec["v_px"]
+    # of two rows of one marker keep the one with fewer flags (e.g. not measured across the border)
+    score = rec["flags"].astype(np.int64)
     dup = np.zeros(len(rec), dtype=bool)
     for step in range(1, min(reach, len(rec) - 1) + 1):
         close = (u[step:] - u[:-step]) ** 2 + (v[step:] - v[:-step]) ** 2 < 1.0
-        dup[step:] |= close & ~dup[:-step]
+        close &= ~dup[:-step] & ~dup[step:]
+        later_worse = score[step:] >= score[:-step]
+        dup[step:] |= close & later_worse
+        dup[:-step] |= close & ~later_worse
     return rec[~dup]
 
 

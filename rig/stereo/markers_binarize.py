@@ -23,7 +23,7 @@ def noise_sigma(low: np.ndarray) -> float:
 
 
 def find_candidates(gray: np.ndarray, *, dark: bool, threshold: float | str | None, factor: int,
-                    min_area_px: float, max_area_px: float, min_contrast: float):
+                    min_area_px: float, max_area_px: float, min_contrast: float, min_roundness: float):
     """Blobs of the binarized frame reduced ``factor`` (1, 2, 4) times.
 
     Returns full-resolution integer window centres (rows, cols) and window half sizes, int64 arrays.
@@ -53,10 +53,15 @@ def find_candidates(gray: np.ndarray, *, dark: bool, threshold: float | str | No
     if not contours:
         return empty, empty, empty
     x0, y0, width, height = np.array([cv2.boundingRect(c) for c in contours], dtype=np.int64).T
-    # loose size filter on the bounding box: the exact area is measured at full resolution
+    # loose size and shape filters on the bounding box (the exact area and roundness are measured at
+    # full resolution): an ellipse of area ≤ max_area_px and axis ratio ≥ min_roundness is at most
+    # 2·sqrt(max_area_px / (π·min_roundness)) long; allow 1.5× that and the reduction's rounding
     box_area = width * height * factor * factor
-    short_side_px = np.minimum(width, height) * factor
-    keep = (box_area >= 0.25 * min_area_px) & (short_side_px <= 4.0 * np.sqrt(max_area_px))
+    long_side, short_side = np.maximum(width, height), np.minimum(width, height)
+    ratio = max(min_roundness, 0.05)
+    max_long_px = 3.0 * np.sqrt(max_area_px / (np.pi * ratio)) + 2 * factor
+    keep = ((box_area >= 0.25 * min_area_px) & (long_side * factor <= max_long_px)
+            & (long_side <= 2.0 / ratio * short_side + 2))
     x0, y0, width, height = x0[keep], y0[keep], width[keep], height[keep]
     half_f = 0.5 * (factor - 1)
     cols = np.rint((x0 + 0.5 * (width - 1)) * factor + half_f).astype(np.int64)

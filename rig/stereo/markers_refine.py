@@ -7,8 +7,8 @@ product for all the moments — no per-pixel and (except the optional ellipse fi
 
 Per window, in "polarity space" (bright markers as they are, dark markers as 255 − I):
 
-* background ``bg`` = a plane fitted to the outer 2-pixel ring (clipped to its median ± 4 spreads),
-  noise ``σ`` = RMS residual of that fit;
+* background ``bg`` = a plane fitted to the outer 2-pixel ring (pixels more than 4 robust spreads from
+  its median left out), noise ``σ`` = RMS residual of that fit;
 * signal ``d = I − bg``; support = the 8-connected region of ``d > 3σ`` holding the marker (the centre
   pixel's region, else the strong region nearest the centre), so a neighbouring marker is ignored;
 * centroid weights ``w = d − 3σ`` on the support (background-subtracted intensity with a noise floor:
@@ -70,8 +70,8 @@ class _Geometry:
     moments: np.ndarray  # (W², 10) float32: 1, x, y, x², xy, y², x³, x²y, xy², y³
     plane: np.ndarray  # (3, W²) float32: 1, x, y
     ring_idx: np.ndarray  # flat indices of the background ring
-    ring_fit: np.ndarray  # (P, 3) pseudo-inverse of the ring's plane design matrix, transposed
     ring_design: np.ndarray  # (P, 3): 1, x, y on the ring
+    ring_outer: np.ndarray  # (P, 9): the outer products of the design rows, for batched normal equations
     dist2: np.ndarray  # (W, W) squared distance from the centre
 
 
@@ -90,7 +90,8 @@ def _geometry(half_px: int) -> _Geometry:
         design = np.column_stack([np.ones(len(ring_idx)), x[ring_idx], y[ring_idx]])
         _GEOMETRY[half_px] = _Geometry(
             moments=moments.astype(np.float32), plane=moments[:, :3].T.astype(np.float32),
-            ring_idx=ring_idx, ring_fit=np.linalg.pinv(design).T, ring_design=design,
+            ring_idx=ring_idx, ring_design=design,
+            ring_outer=(design[:, :, None] * design[:, None, :]).reshape(-1, 9),
             dist2=(x * x + y * y).reshape(w, w),
         )
     return _GEOMETRY[half_px]
@@ -131,10 +132,12 @@ def gather_windows(image: np.ndarray, rows: np.ndarray, cols: np.ndarray, half_p
 def _background(ring_vals: np.ndarray, ring_valid: np.ndarray | None, geo: _Geometry):
     """Background plane and noise of each window from its ring values (K, P).
 
-    The ring is first clipped to its median ± 4 × half its 16–84 % spread (so that a neighbouring marker
-    reaching into the ring cannot tilt the plane), then a plane a + b·x + c·y is fitted by least squares;
-    σ is the RMS residual. A plane, not a constant, so that a background gradient (vignetting, uneven
-    lighting) does not pull the centroid uphill. Returns (coefficients float32 (K, 3), σ float32 (K,)).
+    Robust to whatever else crosses the ring (a neighbouring marker, the edge of a plate) on up to about
+    a third of it: the spread is taken from the quieter side of the median (min of p50 − p16 and
+    p84 − p50, ≈ σ for Gaussian noise), ring pixels farther than 4 such spreads from the median are left
+    out, and a plane a + b·x + c·y is fitted to the rest by least squares; σ is the RMS residual of the
+    fit. A plane, not a constant, so that a background gradient (vignetting, uneven lighting) does not
+    pull the centroid uphill. Returns (coefficients float32 (K, 3), σ float32 (K,)).
     """
     n_win, n_ring = ring_vals.shape
     if ring_valid is not None:  # out-of-image ring pixels: NaN, ignored by nanpercentile (rare path)
@@ -148,22 +151,19 @@ def _background(ring_vals: np.ndarray, ring_valid: np.ndarray | None, geo: _Geom
         cum = np.bincount((ring_vals + win * 256).ravel(), minlength=256 * n_win).cumsum()
         ranks = np.array([0.16, 0.5, 0.84]) * (n_ring - 1) + win * n_ring
         p16, p50, p84 = (np.searchsorted(cum, ranks.ravel(), side="right").reshape(n_win, 3) - win * 256).T
-    spread = 4.0 * np.maximum(0.5 * (p84 - p16), MIN_SIGMA_DN)
-    low = np.clip(p50 - spread, 0, 255).astype(np.uint8)[:, None]
-    high = np.clip(p50 + spread, 0, 255).astype(np.uint8)[:, None]
-    clipped = np.minimum(np.maximum(ring_vals, low), high).astype(np.float64)
+    reach = 4.0 * np.maximum(np.minimum(p50 - p16, p84 - p50), 1.0)
+    values = ring_vals.astype(np.float64)
+    inlier = np.abs(values - p50[:, None]) <= reach[:, None]
+    if ring_valid is not None:
+        inlier &= ring_valid
+    mask = inlier.astype(np.float64)
+    # weighted normal equations, batched: (AᵀMA) coef = AᵀMy with A the ring's (1, x, y) design
     design = geo.ring_design
-    if ring_valid is None:
-        coef = clipped @ geo.ring_fit
-        resid = clipped - coef @ design.T
-        dof = np.full(n_win, n_ring - 3.0)
-    else:
-        coef = np.empty((n_win, 3))
-        for i in range(n_win):  # border windows only: each has its own set of valid ring pixels
-            ok = ring_valid[i]
-            coef[i] = np.linalg.lstsq(design[ok], clipped[i, ok], rcond=None)[0]
-        resid = np.where(ring_valid, clipped - coef @ design.T, 0.0)
-        dof = np.maximum(ring_valid.sum(axis=1) - 3.0, 1.0)
+    normal = (mask @ geo.ring_outer).reshape(n_win, 3, 3)
+    rhs = (mask * values) @ design
+    coef = np.linalg.solve(normal + 1e-9 * np.eye(3), rhs[:, :, None])[:, :, 0]
+    resid = (values - coef @ design.T) * mask
+    dof = np.maximum(mask.sum(axis=1) - 3.0, 1.0)
     sigma = np.maximum(np.sqrt(np.einsum("ij,ij->i", resid, resid) / dof), MIN_SIGMA_DN)
     return coef.astype(np.float32), sigma.astype(np.float32)
 
