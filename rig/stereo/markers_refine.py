@@ -71,6 +71,7 @@ class _Geometry:
     plane: np.ndarray  # (3, W²) float32: 1, x, y
     ring_idx: np.ndarray  # flat indices of the background ring
     ring_design: np.ndarray  # (P, 3): 1, x, y on the ring
+    ring_fit: np.ndarray  # (P, 3): transposed pseudo-inverse of ring_design (plain least squares)
     ring_outer: np.ndarray  # (P, 9): the outer products of the design rows, for batched normal equations
     dist2: np.ndarray  # (W, W) squared distance from the centre
 
@@ -90,7 +91,7 @@ def _geometry(half_px: int) -> _Geometry:
         design = np.column_stack([np.ones(len(ring_idx)), x[ring_idx], y[ring_idx]])
         _GEOMETRY[half_px] = _Geometry(
             moments=moments.astype(np.float32), plane=moments[:, :3].T.astype(np.float32),
-            ring_idx=ring_idx, ring_design=design,
+            ring_idx=ring_idx, ring_design=design, ring_fit=np.linalg.pinv(design).T,
             ring_outer=(design[:, :, None] * design[:, None, :]).reshape(-1, 9),
             dist2=(x * x + y * y).reshape(w, w),
         )
@@ -156,14 +157,17 @@ def _background(ring_vals: np.ndarray, ring_valid: np.ndarray | None, geo: _Geom
     inlier = np.abs(values - p50[:, None]) <= reach[:, None]
     if ring_valid is not None:
         inlier &= ring_valid
-    mask = inlier.astype(np.float64)
-    # weighted normal equations, batched: (AᵀMA) coef = AᵀMy with A the ring's (1, x, y) design
     design = geo.ring_design
-    normal = (mask @ geo.ring_outer).reshape(n_win, 3, 3)
-    rhs = (mask * values) @ design
-    coef = np.linalg.solve(normal + 1e-9 * np.eye(3), rhs[:, :, None])[:, :, 0]
-    resid = (values - coef @ design.T) * mask
-    dof = np.maximum(mask.sum(axis=1) - 3.0, 1.0)
+    coef = values @ geo.ring_fit  # plain least squares, right for every window with a clean ring
+    partial = np.nonzero(~inlier.all(axis=1))[0]
+    if len(partial):
+        # weighted normal equations for the others, batched: (AᵀMA) coef = AᵀMy, M the inlier mask
+        mask = inlier[partial].astype(np.float64)
+        normal = (mask @ geo.ring_outer).reshape(len(partial), 3, 3)
+        rhs = (mask * values[partial]) @ design
+        coef[partial] = np.linalg.solve(normal + 1e-9 * np.eye(3), rhs[:, :, None])[:, :, 0]
+    resid = (values - coef @ design.T) * inlier
+    dof = np.maximum(np.count_nonzero(inlier, axis=1) - 3.0, 1.0)
     sigma = np.maximum(np.sqrt(np.einsum("ij,ij->i", resid, resid) / dof), MIN_SIGMA_DN)
     return coef.astype(np.float32), sigma.astype(np.float32)
 
