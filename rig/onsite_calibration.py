@@ -1,0 +1,232 @@
+"""On-site calibration from a video pair of the calibration plate held still at known positions.
+
+``rig calibrate LEFT RIGHT --target target.toml --out calibration.json`` (the paper's slid plate, on site):
+
+1. each video is reduced to marker detections, every frame searched whole (:mod:`rig.video_markers`);
+2. **still segments**: frame i is still when every marker seen in frames i − lag and i + lag lies within
+   ``still_px`` of where it is in frame i (a slide along the optical axis moves the image slowly, so motion
+   is measured over ``lag`` frames, not one), and a still segment is ≥ ``min_still_frames`` still frames in
+   a row. The segments are matched **in order** to the positions of ``target.toml``; another number of
+   segments is a :class:`OnsiteCalibrationError` that lists the segments found;
+3. per segment each marker's image position is averaged over the segment's frames; the plate's markers are
+   told from fixed markers (those stay put between positions) and identified on the plate's grid by
+   :mod:`rig.plate_grid` (an unidentifiable grid is a clear error naming the camera and position);
+4. one DLT per camera (:func:`rig.stereo.calibrate_dlt`, refined, radial distortion ``k1`` by default)
+   with its residuals → ``calibration.json`` (contracts.md layout plus the segments found).
+
+``target.toml``::
+
+    [plate]
+    rows = 5            # grid rows (row 0 on top as the cameras see the plate)
+    cols = 7            # grid columns (column 0 on the left)
+    [[positions]]       # one table per still position, in the order they were filmed
+    markers_mm = [[x, y, z], ...]   # rows × cols points, node r·cols + c, in mm
+
+Units: px, mm, s (the videos' own clocks).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import tomllib
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from rig.plate_grid import GridError, moving_points, order_grid
+from rig.stereo import calibrate_dlt
+from rig.stereo.errors import StereoError
+from rig.video_markers import ExtractOptions, associate, extract_video
+
+__all__ = ["DISTORTION_MODELS", "OnsiteCalibrationError", "PlateTarget", "calibrate_from_videos",
+           "load_target", "still_segments"]
+
+DISTORTION_MODELS = {"none": False, "k1": "k1", "k1k2": "k1k2", "full": True}
+
+
+class OnsiteCalibrationError(ValueError):
+    """The videos or the target file cannot give a calibration (the message says what to change)."""
+
+
+@dataclass(frozen=True)
+class PlateTarget:
+    """The plate's grid and the known marker coordinates (mm) of every still position, in filming order."""
+
+    rows: int
+    cols: int
+    positions_mm: tuple[np.ndarray, ...]  # each (rows·cols, 3)
+
+
+def load_target(path: str | Path) -> PlateTarget:
+    """Read ``target.toml`` (layout in the module docstring); errors name the field and what is allowed."""
+    path = Path(path)
+    if not path.is_file():
+        raise OnsiteCalibrationError(f"{path}: no such target file (layout: `rig calibrate --help`)")
+    try:
+        doc = tomllib.loads(path.read_text(encoding="utf-8"))
+    except tomllib.TOMLDecodeError as exc:
+        raise OnsiteCalibrationError(f"{path}: not valid TOML: {exc}") from exc
+    plate = doc.get("plate")
+    if not isinstance(plate, dict):
+        raise OnsiteCalibrationError(f"{path}: [plate] missing; allowed: rows = int ≥ 2, cols = int ≥ 2")
+    rows, cols = plate.get("rows"), plate.get("cols")
+    for key, v in (("rows", rows), ("cols", cols)):
+        if not isinstance(v, int) or isinstance(v, bool) or v < 2:
+            raise OnsiteCalibrationError(f"{path}: plate.{key} = {v!r}; allowed: an integer ≥ 2")
+    positions = doc.get("positions")
+    if not isinstance(positions, list) or len(positions) < 2:
+        count = len(positions) if isinstance(positions, list) else 0
+        raise OnsiteCalibrationError(f"{path}: [[positions]] has {count} entries; allowed: at least 2 "
+                                     "plate positions (control points must not be coplanar)")
+    out = []
+    for i, pos in enumerate(positions):
+        pts = pos.get("markers_mm") if isinstance(pos, dict) else None
+        try:
+            arr = np.asarray(pts, dtype=float)
+        except (TypeError, ValueError):
+            arr = np.zeros((0,))
+        if arr.shape != (rows * cols, 3) or not np.all(np.isfinite(arr)):
+            raise OnsiteCalibrationError(
+                f"{path}: positions[{i}].markers_mm has shape {arr.shape}; allowed: {rows * cols} finite "
+                f"[x, y, z] points in mm (rows × cols = {rows} × {cols}, node r·cols + c)")
+        out.append(arr)
+    return PlateTarget(rows=int(rows), cols=int(cols), positions_mm=tuple(out))
+
+
+def _per_frame(obs: pd.DataFrame) -> tuple[np.ndarray, np.ndarray, list[np.ndarray]]:
+    obs = obs[~obs["duplicate"].to_numpy(bool)] if "duplicate" in obs.columns else obs
+    frames, starts = np.unique(obs["frame_index"].to_numpy(), return_index=True)
+    uv = obs[["u_px", "v_px"]].to_numpy(float)
+    stamps = obs["timestamp_s"].to_numpy(float)[starts]
+    ends = np.r_[starts[1:], len(obs)]
+    return frames, stamps, [uv[a:b] for a, b in zip(starts, ends, strict=True)]
+
+
+def _motion_px(a: np.ndarray, b: np.ndarray, gate_px: float) -> float:
+    """Largest displacement of a marker between two frames (inf if the markers do not correspond)."""
+    if len(a) == 0 or len(a) != len(b):
+        return math.inf
+    idx = associate(a, b, gate_px)
+    if np.any(idx < 0):
+        return math.inf
+    return float(np.max(np.linalg.norm(b - a[idx], axis=1)))
+
+
+def still_segments(obs: pd.DataFrame, *, still_px: float = 0.3, lag_frames: int = 6,
+                   min_still_frames: int = 20) -> list[dict[str, Any]]:
+    """Still segments of one camera's detections (see the module docstring): list of
+    ``{"first_index", "last_index", "t_start_s", "t_stop_s", "frames": [frame indices]}`` in time order."""
+    if not (still_px > 0 and lag_frames >= 1 and min_still_frames >= 2):
+        raise OnsiteCalibrationError(f"still_px={still_px!r} (> 0), lag_frames={lag_frames!r} (≥ 1), "
+                                     f"min_still_frames={min_still_frames!r} (≥ 2)")
+    frames, stamps, uv = _per_frame(obs)
+    n = len(frames)
+    gate = max(10.0 * still_px, 5.0)
+    still = np.zeros(n, dtype=bool)
+    for i in range(n):
+        lo, hi = max(0, i - lag_frames), min(n - 1, i + lag_frames)
+        still[i] = max(_motion_px(uv[lo], uv[i], gate), _motion_px(uv[i], uv[hi], gate)) <= still_px
+    segments, i = [], 0
+    while i < n:
+        if not still[i]:
+            i += 1
+            continue
+        j = i
+        while j + 1 < n and still[j + 1]:
+            j += 1
+        if j - i + 1 >= min_still_frames:
+            segments.append({"first_index": int(frames[i]), "last_index": int(frames[j]),
+                             "t_start_s": float(stamps[i]), "t_stop_s": float(stamps[j]),
+                             "frames": frames[i:j + 1].tolist()})
+        i = j + 1
+    return segments
+
+
+def _mean_positions(obs: pd.DataFrame, segment: dict[str, Any], gate_px: float = 2.0) -> np.ndarray:
+    """Mean (u, v) of every marker seen in ≥ 80 % of the segment's frames."""
+    sel = obs[obs["frame_index"].isin(segment["frames"])]
+    _, _, per = _per_frame(sel)
+    ref = per[0]
+    sums, counts = np.zeros_like(ref), np.zeros(len(ref))
+    for uv in per:
+        idx = associate(ref, uv, gate_px)
+        ok = idx >= 0
+        np.add.at(sums, idx[ok], uv[ok])
+        np.add.at(counts, idx[ok], 1)
+    keep = counts >= 0.8 * len(per)
+    return sums[keep] / counts[keep, None]
+
+
+def _describe(segments: list[dict[str, Any]]) -> str:
+    return ", ".join(f"{s['t_start_s']:.2f}–{s['t_stop_s']:.2f} s" for s in segments) or "none"
+
+
+def calibrate_from_videos(videos: dict[str, str | Path], target: PlateTarget | str | Path, *,
+                          distortion: str = "k1", refine: bool = True, still_px: float = 0.3,
+                          lag_frames: int = 6, min_still_frames: int = 20,
+                          detect: dict[str, Any] | None = None) -> dict[str, Any]:
+    """The ``calibration.json`` content from one video per camera (name → path) of the slid plate."""
+    if distortion not in DISTORTION_MODELS:
+        raise OnsiteCalibrationError(f"distortion={distortion!r}; allowed: {sorted(DISTORTION_MODELS)}")
+    if len(videos) < 2:
+        raise OnsiteCalibrationError(f"{len(videos)} video(s) given; a stereo calibration needs 2")
+    tgt = target if isinstance(target, PlateTarget) else load_target(target)
+    opts = ExtractOptions(mode="detect", detect=dict(detect or {}))
+    cameras, details, sizes = {}, {}, {}
+    for name, path in videos.items():
+        vo = extract_video(path, name, opts)
+        if vo.error:
+            raise OnsiteCalibrationError(f"camera {name!r}: {vo.error}")
+        sizes[name] = (vo.width_px, vo.height_px)
+        segs = still_segments(vo.observations, still_px=still_px, lag_frames=lag_frames,
+                              min_still_frames=min_still_frames)
+        if len(segs) != len(tgt.positions_mm):
+            raise OnsiteCalibrationError(
+                f"camera {name!r} ({path}): found {len(segs)} still segment(s) ({_describe(segs)}) but "
+                f"target lists {len(tgt.positions_mm)} positions; hold the plate still ≥ {min_still_frames} "
+                f"frames at each listed position (or change still_px={still_px} px / min_still_frames)")
+        means = [_mean_positions(vo.observations, s) for s in segs]
+        moving = moving_points(means)
+        xyz, uv, grid_rms = [], [], []
+        for i, (pts, idx) in enumerate(zip(means, moving, strict=True)):
+            try:
+                fit = order_grid(pts[idx], tgt.rows, tgt.cols)
+            except GridError as exc:
+                raise OnsiteCalibrationError(f"camera {name!r}, position {i} ({_describe([segs[i]])}): "
+                                             f"plate grid not identified: {exc}") from exc
+            xyz.append(tgt.positions_mm[i])
+            uv.append(fit.uv_px)
+            grid_rms.append(fit.residual_rms_px)
+        try:
+            cam = calibrate_dlt(np.concatenate(xyz), np.concatenate(uv), refine=refine,
+                                distortion=DISTORTION_MODELS[distortion], image_size=sizes[name])
+        except StereoError as exc:
+            raise OnsiteCalibrationError(f"camera {name!r}: DLT failed: {exc}") from exc
+        cameras[name] = cam.to_dict()
+        details[name] = {"video": str(path), "segments": [{k: v for k, v in s.items() if k != "frames"}
+                                                          for s in segs],
+                         "grid_residual_rms_px": grid_rms, "frames": vo.report.to_dict()}
+    first = next(iter(cameras.values()))
+    return {"cameras": cameras, "convention": first["convention"], "units": {"world": "mm", "image": "px"},
+            "method": {"command": "rig calibrate", "refine": refine, "distortion": distortion,
+                       "still_px": still_px, "lag_frames": lag_frames, "min_still_frames": min_still_frames,
+                       "plate": {"rows": tgt.rows, "cols": tgt.cols}, "positions": len(tgt.positions_mm)},
+            "videos": details}
+
+
+def residual_summary(calibration: dict[str, Any]) -> str:
+    """One line per camera: control points, reprojection RMS and max (px)."""
+    return "\n".join(f"  {n}: {c['n_points']} points, reprojection RMS {c['residuals_rms_px']:.3f} px, "
+                     f"max {c['residuals_max_px']:.3f} px" for n, c in calibration["cameras"].items())
+
+
+def write_calibration(calibration: dict[str, Any], out: str | Path) -> Path:
+    """Write ``calibration.json`` (parent folders created)."""
+    out = Path(out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(json.dumps(calibration, indent=1), encoding="utf-8")
+    return out
