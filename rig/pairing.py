@@ -1,16 +1,16 @@
 """Cross-camera pairing of 2-D tracks: which track of camera B is the same marker as a track of camera A.
 
-Two tracks are compared over their common time span: camera B's track is linearly interpolated to camera
-A's instants (both on one clock, row-corrected — :func:`rig.sync_tracks.row_corrected_times`) and the
+Two tracks are compared over their common time span: camera B's track is interpolated (cubic spline) to
+camera A's instants (both on one clock, row-corrected — :func:`rig.sync_tracks.row_corrected_times`) and the
 **median** symmetric epipolar distance (px, undistorted pixels, :func:`rig.stereo.epipolar_distance_px`)
 is the pair's cost; the median ignores the few instants where the interpolation error of fast motion is
 large. The right pair's cost is the pixel noise's for slow motion and grows with the motion between frames
-(on the twin, a marker oscillating 6 px in the image: 0.6 px at 12 Hz, 2 px at 20 Hz, ≈ 5 px at 30 Hz =
-fs/2), hence the default gate of 8 px — still far below the image spacing of markers (≥ 50 px on the rig's
-targets) that it must tell apart. A candidate is *feasible* when its cost is ≤ ``gate_px``, it has ≥ ``min_common`` common instants,
-and the point it triangulates to (median over the span) lies in front of both cameras and inside
-``volume_mm`` when given (a pair that triangulates behind a camera or far outside the measured scene is a
-wrong pair, not a measurement).
+(the interpolation error), hence the default gate of 8 px — still far below the image spacing of markers
+(≥ 50 px on the rig's targets) that it must tell apart (twin: 0.2 px for a 10 Hz rotor, 4.4 px for the
+sweep column at 30 Hz = fs/2). A candidate is *feasible* when its cost is ≤ ``gate_px``, it has
+≥ ``min_common`` common instants, and the point it triangulates to (median over the span) lies in front
+of both cameras and inside ``volume_mm`` when given (a pair that triangulates behind a camera or far
+outside the measured scene is a wrong pair, not a measurement).
 
 Assignment: ``scipy.optimize.linear_sum_assignment`` first maximises the number of feasible pairs, then
 minimises the sum of squared costs. A track broken in one camera (a marker lost for a while) pairs with
@@ -35,6 +35,7 @@ from dataclasses import dataclass
 
 import numpy as np
 import pandas as pd
+from scipy.interpolate import CubicSpline
 from scipy.optimize import linear_sum_assignment
 
 from rig.analysis_errors import AnalysisError
@@ -89,6 +90,13 @@ def _tracks(obs: pd.DataFrame, cam: DLTCamera, what: str) -> dict[int, _Track]:
             keep = np.r_[True, np.diff(t) > 0]
             out[int(tid)] = _Track(t[keep], uv[keep])
     return out
+
+
+def _interpolate(track: _Track, t_s: np.ndarray) -> np.ndarray:
+    """B's track at A's instants: not-a-knot cubic spline (≥ 4 samples), else linear."""
+    if track.t.size >= 4:
+        return CubicSpline(track.t, track.uv, axis=0, bc_type="not-a-knot")(t_s)
+    return np.column_stack([np.interp(t_s, track.t, track.uv[:, k]) for k in range(2)])
 
 
 def _ray_angles(cam: DLTCamera, uv: np.ndarray, baseline: np.ndarray) -> np.ndarray:
@@ -163,7 +171,7 @@ def pair_tracks(
             if n < min_common:
                 continue
             uva = a.uv[inside]
-            uvb = np.column_stack([np.interp(a.t[inside], b.t, b.uv[:, k]) for k in range(2)])
+            uvb = _interpolate(b, a.t[inside])
             d = float(np.median(epipolar_distance_px(F, uva, uvb, pairwise=False)))
             in_front = in_vol = False
             if d <= gate:

@@ -6,10 +6,13 @@ a track never crosses a segment). Each frame's detections are assigned to the li
 one-to-one assignment (``scipy.optimize.linear_sum_assignment``) on the distance to each track's predicted
 position, within a gate:
 
-- prediction: the track's last position and the constant-velocity extrapolation over the frames elapsed
-  are both candidates, and the nearer one counts. Constant velocity follows smooth motion; the last
-  position is better at a reversal of a fast oscillation (at 20 Hz and 60 fps the velocity changes by more
-  than the step between frames), so taking the nearer keeps both kinds of motion inside a tight gate;
+- prediction: the track's last position, the constant-velocity extrapolation and, once the track has
+  ``AR_MIN`` consecutive frames, the linear recurrence of a sinusoid x_{k+1} = λ·x_k − x_{k−1} + d fitted to
+  its recent frames (exact for an oscillation or a rotation at one frequency and for straight uniform
+  motion) are candidates, and the nearest counts. The recurrence follows a 10 Hz rotor whose marker
+  moves 60° (≈ 100 px) per frame, where any polynomial prediction is off by the radius; the last
+  position is best for a still marker. A track young or fast enough that every prediction misses takes a
+  detection up to ``acquire_gate_px`` away when the two are each other's only candidate within it;
 - dropped frames: the frames elapsed come from the time stamps (gap / median frame period), so a track
   survives ``max_gap_frames`` missing frames; its prediction spans the gap and the gate grows in
   proportion to the frames elapsed (the prediction error grows with the gap);
@@ -69,6 +72,7 @@ def tracks_2d(
     obs: pd.DataFrame,
     *,
     gate_px: float = 25.0,
+    acquire_gate_px: float = 150.0,
     max_gap_frames: int = 5,
     min_length: int = 3,
 ) -> pd.Series:
@@ -77,11 +81,15 @@ def tracks_2d(
     ``obs``: one camera's observations with ``frame_index``, ``timestamp_s`` (camera clock, s), ``u_px``,
     ``v_px`` (and optionally ``segment``/``session``). ``gate_px``: largest distance (px) from a track's
     prediction to a detection it may take — above the frame-to-frame prediction error of the motion,
-    below half the image distance between markers. ``max_gap_frames``: frames a track may miss (dropped
+    below half the image distance between markers. ``acquire_gate_px``: a track whose predictions miss
+    every detection still takes a detection within this distance of its last position when each is the
+    other's only candidate there (a lone fast marker, e.g. a 10 Hz rotor moving ~100 px per frame before its
+    periodic prediction is established). ``max_gap_frames``: frames a track may miss (dropped
     frames, a marker briefly lost) before it ends. ``min_length``: shortest track kept.
     """
     check_observations(obs)
     gate = _positive("gate_px", gate_px)
+    acquire = _positive("acquire_gate_px", acquire_gate_px)
     if not _is_int(max_gap_frames) or max_gap_frames < 0:
         raise AnalysisError(f"max_gap_frames={max_gap_frames!r}: pass an integer ≥ 0")
     if not _is_int(min_length) or min_length < 1:
@@ -94,14 +102,53 @@ def tracks_2d(
     next_id = 0
     ids = out.to_numpy().copy()
     for _, positions in sorted(groups.items(), key=lambda kv: int(kv[1].min())):
-        labels, n = _track_group(obs.iloc[positions], gate, int(max_gap_frames), int(min_length))
+        labels, n = _track_group(obs.iloc[positions], gate, int(max_gap_frames), int(min_length), acquire)
         ids[positions] = np.where(labels >= 0, labels + next_id, NOT_TRACKED)
         next_id += n
     out[:] = ids
     return out
 
 
-def _track_group(obs: pd.DataFrame, gate: float, max_gap: int, min_length: int) -> tuple[np.ndarray, int]:
+HISTORY = 10  # positions kept per track for the prediction
+AR_MIN = 5  # consecutive frames needed before the periodic (AR(2)) prediction is used
+
+
+def _simple_predictions(slots: list[float], pos: list[np.ndarray], s_now: float) -> np.ndarray:
+    """The last position and the constant-velocity extrapolation (k, 2)."""
+    last = pos[-1]
+    if len(pos) < 2:
+        return last[None, :]
+    gap = s_now - slots[-1]
+    return np.stack([last, last + (pos[-1] - pos[-2]) * gap / max(slots[-1] - slots[-2], 1e-9)])
+
+
+def _periodic_prediction(slots: list[float], pos: list[np.ndarray], s_now: float) -> np.ndarray | None:
+    """After ``AR_MIN`` consecutive frames, the linear recurrence of a sinusoid (or of a straight line):
+    x_{k+1} + x_{k−1} = λ·x_k + d, λ = 2 cos(2πf/fs) and d fitted to the track's recent frames; else None."""
+    gap = s_now - slots[-1]
+    run = 1
+    while run < len(slots) and round(slots[-run] - slots[-run - 1]) == 1:
+        run += 1
+    if run >= AR_MIN:
+        P = np.asarray(pos[-run:])
+        m = run - 2
+        A = np.zeros((2 * m, 3))
+        A[:m, 0], A[m:, 0] = P[1:-1, 0], P[1:-1, 1]
+        A[:m, 1] = A[m:, 2] = 1.0
+        b = np.concatenate([P[2:, 0] + P[:-2, 0], P[2:, 1] + P[:-2, 1]])
+        N = A.T @ A
+        if abs(np.linalg.det(N)) <= 1e-9 * max(np.trace(N), 1e-300) ** 3:
+            return None  # a still marker: the recurrence is undetermined (and not needed)
+        lam, du, dv = np.linalg.solve(N, A.T @ b)
+        prev, cur = P[-2], P[-1]
+        for _ in range(max(1, min(round(gap), 50))):
+            prev, cur = cur, lam * cur - prev + np.array([du, dv])
+        return cur
+    return None
+
+
+def _track_group(obs: pd.DataFrame, gate: float, max_gap: int, min_length: int,
+                 acquire_gate: float) -> tuple[np.ndarray, int]:
     """Labels (local ids ≥ 0 or −1) for one segment's observations, and the number of ids used."""
     frame = obs["frame_index"].to_numpy(np.int64)
     stamp = obs["timestamp_s"].to_numpy(float)
@@ -113,11 +160,10 @@ def _track_group(obs: pd.DataFrame, gate: float, max_gap: int, min_length: int) 
     steps = np.diff(frame_stamps)
     period = float(np.median(steps[steps > 0])) if np.any(steps > 0) else 1.0
     labels = np.full(len(frame), NOT_TRACKED, dtype=np.int64)
-    # live tracks: id, last position, velocity (px per frame period), slot (frame count) of the last hit
+    # live tracks: id, recent frame slots (time stamp / period) and positions
     ids: list[int] = []
-    last: list[np.ndarray] = []
-    vel: list[np.ndarray] = []
-    slot: list[float] = []
+    slots: list[list[float]] = []
+    hist: list[list[np.ndarray]] = []
     n_ids = 0
     prev_stamp = -np.inf
     for k in range(len(frames)):
@@ -127,33 +173,42 @@ def _track_group(obs: pd.DataFrame, gate: float, max_gap: int, min_length: int) 
             continue
         prev_stamp = now
         s_now = now / period
-        alive = [i for i in range(len(ids)) if s_now - slot[i] <= max_gap + 1.5]
-        ids, last, vel, slot = ([x[i] for i in alive] for x in (ids, last, vel, slot))
+        alive = [i for i in range(len(ids)) if s_now - slots[i][-1] <= max_gap + 1.5]
+        ids, slots, hist = ([x[i] for i in alive] for x in (ids, slots, hist))
         det = uv[rows]
         assigned = np.full(len(rows), -1)
         if ids:
-            L = np.array(last)
-            gap = s_now - np.array(slot)
-            pred = L + np.array(vel) * gap[:, None]
-            d_last = np.linalg.norm(det[None, :, :] - L[:, None, :], axis=2)
-            d_pred = np.linalg.norm(det[None, :, :] - pred[:, None, :], axis=2)
-            cost = np.minimum(d_last, d_pred)
+            cost = np.empty((len(ids), len(rows)))
+            for ti in range(len(ids)):
+                cands = _simple_predictions(slots[ti], hist[ti], s_now)
+                cost[ti] = np.min(np.linalg.norm(det[None, :, :] - cands[:, None, :], axis=2), axis=0)
+                if cost[ti].min() > 0.2 * gate:  # the simple predictions miss: try the periodic one
+                    periodic = _periodic_prediction(slots[ti], hist[ti], s_now)
+                    if periodic is not None:
+                        cost[ti] = np.minimum(cost[ti], np.linalg.norm(det - periodic, axis=1))
+            gap = s_now - np.array([sl[-1] for sl in slots])
             feasible = cost <= gate * np.maximum(gap, 1.0)[:, None]  # the prediction error grows with the gap
+            if acquire_gate > gate:  # a lone marker and a lone track within the acquisition gate: together
+                last = np.array([h[-1] for h in hist])
+                d_last = np.linalg.norm(det[None, :, :] - last[:, None, :], axis=2)
+                near = d_last <= acquire_gate
+                lone = near & (near.sum(axis=1) == 1)[:, None] & (near.sum(axis=0) == 1)[None, :]
+                lone &= ~feasible.any(axis=1)[:, None]
+                cost = np.where(lone, np.minimum(cost, d_last), cost)
+                feasible |= lone
             if feasible.any():
                 big = float(np.max(np.where(feasible, cost, 0.0))) ** 2 * (min(cost.shape) + 1.0) + 1.0
                 r, c = linear_sum_assignment(np.where(feasible, cost**2, big))
                 for ti, di in zip(r, c, strict=True):
                     if feasible[ti, di]:
                         assigned[di] = ti
-                        vel[ti] = (det[di] - last[ti]) / max(gap[ti], 1e-9)
-                        last[ti] = det[di]
-                        slot[ti] = s_now
+                        slots[ti] = [*slots[ti][-HISTORY + 1:], s_now]
+                        hist[ti] = [*hist[ti][-HISTORY + 1:], det[di]]
         for di in range(len(rows)):
             if assigned[di] < 0:
                 ids.append(n_ids)
-                last.append(det[di])
-                vel.append(np.zeros(2))
-                slot.append(s_now)
+                slots.append([s_now])
+                hist.append([det[di]])
                 assigned[di] = len(ids) - 1
                 n_ids += 1
             labels[rows[di]] = ids[assigned[di]]

@@ -103,3 +103,15 @@ def test_row_order_does_not_change_the_partition(perm):
     ids = tracks_2d(shuffled)
     pairs = pd.DataFrame({"m": shuffled["marker"].to_numpy(), "t": ids.to_numpy()})
     assert pairs.groupby("m")["t"].nunique().eq(1).all() and pairs["t"].nunique() == 3
+
+
+@pytest.mark.parametrize("f_hz", [5.0, 10.0])
+def test_fast_rotor_is_one_track(f_hz):
+    """At 10 Hz the rotor marker moves 60° (≈ 100 px) per frame: no polynomial prediction is within the gate;
+    the lone-marker acquisition starts the track and the periodic prediction keeps it."""
+    tw = twin("rotor", setup=lambda w: w.rotor.set_frequency(0.0, f_hz), t_start_s=1.0, t_stop_s=2.5,
+              sigma_px=0.2)
+    for obs in tw.observations.values():
+        rotor = obs[obs["marker_id"] == "rotor"][["u_px", "v_px"]].to_numpy()
+        assert np.median(np.linalg.norm(np.diff(rotor, axis=0), axis=1)) > (60 if f_hz >= 10 else 30)
+        _one_track_per_marker(obs, tracks_2d(obs))
