@@ -154,3 +154,18 @@ def test_observations_without_track_ids_are_refused(column):
     with pytest.raises(AnalysisError, match="track_id"):
         pair_tracks(column.observations["left"].assign(time_s=0.0), column.observations["right"],
                     column.cameras["left"], column.cameras["right"])
+
+
+def test_rows_of_the_calibration_plate_are_resolved_by_order():
+    """Seven markers per row on one epipolar plane: within the volume each row is a cluster of mutually
+    ambiguous candidates; without the ordering constraint they are flagged, with it all 35 are right."""
+    tw = twin("calibration_plate", t_start_s=1.0, t_stop_s=1.5, sigma_px=0.2, seed=2)
+    obs = _prepared(tw)
+    cams = tw.cameras["left"], tw.cameras["right"]
+    flagged = pair_tracks(obs["left"], obs["right"], *cams, volume_mm=VOLUME, use_order=False)
+    ma = _marker_of(obs["left"])
+    amb = {ma[t] for t in flagged.pairs.loc[flagged.pairs["ambiguous"], "track_a"]}
+    assert len(amb) >= 28 and all(m.startswith("cal_") for m in amb)
+    ordered = pair_tracks(obs["left"], obs["right"], *cams, volume_mm=VOLUME)
+    assert len(ordered.pairs) == 39 and not ordered.pairs["ambiguous"].any()
+    _check_correct(ordered, obs)
