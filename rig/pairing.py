@@ -135,7 +135,7 @@ def pair_tracks(
     *,
     gate_px: float = 8.0,
     ambiguity_margin_px: float | None = None,
-    min_common: int = 5,
+    min_common: int = 2,
     volume_mm: object = None,
     use_order: bool = True,
 ) -> TrackPairs:

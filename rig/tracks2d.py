@@ -74,7 +74,7 @@ def tracks_2d(
     gate_px: float = 25.0,
     acquire_gate_px: float = 150.0,
     max_gap_frames: int = 5,
-    min_length: int = 3,
+    min_length: int = 2,
 ) -> pd.Series:
     """Track id per observation (a Series aligned with ``obs.index``, int64, −1 = not in a track).
 

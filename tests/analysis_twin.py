@@ -104,9 +104,10 @@ def twin(
 def write_run(runs_dir, tw: Twin, segments: list[tuple[str, float, float]], *, rig: dict | None = None,
               calibration: bool = True, timing: bool = True, camera_events: bool = True,
               blind: tuple[tuple[str, str], ...] = (), event_style: str = "acquire"):
-    """A run folder written by the real record writer: per segment (name, t_start_s, t_stop_s) a step with
-    ``camera`` start events and the twin's noisy observations; ``calibration.json`` / ``timing.json`` from
-    the true cameras and timing; ``blind`` (segment, camera) pairs record nothing. ``event_style``:
+    """A run folder written by the real record writer: per recording (name, t_start_s, t_stop_s) — consecutive
+    recordings of one name in one step, like the accuracy procedure's poses — ``camera`` start events and
+    the twin's noisy observations; ``calibration.json`` / ``timing.json`` from the true cameras and timing;
+    ``blind`` (segment, camera) pairs record nothing. ``event_style``:
     "acquire" writes the events after the recording with ``t_s`` = start time and ``segment`` in the data
     (as procedures/_acquire.py does); "contract" writes them at the start with the contract's fields only.
     Returns the run folder."""
@@ -119,9 +120,10 @@ def write_run(runs_dir, tw: Twin, segments: list[tuple[str, float, float]], *, r
     snapshot = rig if rig is not None else {"cameras": {"left": {"fps": 60.0}, "right": {"fps": 60.0}}}
     rec = RunRecord.create(runs_dir, "twin", {}, snapshot, world.clock, versions={})
     rng = np.random.default_rng(99)
-    for name, t0, t1 in segments:
+    for k, (name, t0, t1) in enumerate(segments):
         world.clock.advance_to(t0)
-        rec.step_begin(name)
+        if k == 0 or segments[k - 1][0] != name:  # consecutive recordings of one name share a step
+            rec.step_begin(name)
         starts = []
         for cam in (tw.left, tw.right):
             first = cam.first_frame_index_at_or_after(t0)
@@ -144,7 +146,8 @@ def write_run(runs_dir, tw: Twin, segments: list[tuple[str, float, float]], *, r
         if camera_events and event_style == "acquire":
             for start in starts:
                 rec.event("camera", {**start, "segment": name, "t_s": t0})
-        rec.step_done(name)
+        if k + 1 == len(segments) or segments[k + 1][0] != name:
+            rec.step_done(name)
     rec.stop("success")
     rec.close()
     run_dir = rec.run_dir

@@ -170,3 +170,35 @@ def test_malformed_timing_is_named(copy):
 def test_not_a_run_folder(tmp_path):
     with pytest.raises(MissingInputError, match=r"record\.jsonl"):
         analyse(tmp_path)
+
+
+def test_short_still_recordings_at_several_arm_poses(tmp_path):
+    """The accuracy procedure's pattern: one step, a few still frames at each pose, the arm moving unseen in
+    between. Every pose gives its own track of the arm marker, at the commanded place within the noise."""
+    tw = twin("single_marker", t_start_s=0.5, t_stop_s=0.6, sigma_px=0.15, seed=31)
+    poses = [(420.0, -60.0, 260.0, 90.0, 0.0, 90.0), (470.0, 60.0, 340.0, 90.0, 0.0, 90.0),
+             (380.0, 0.0, 300.0, 90.0, 0.0, 90.0)]
+    t, windows = 1.0, []
+    for pose in poses:
+        t_end = tw.world.robot.move(t, np.array(pose), 300.0, 2000.0, True)
+        windows.append(("accuracy", t_end + 0.2, t_end + 0.2 + 5.5 / 60.0))  # four or five still frames
+        t = t_end + 0.5
+    run_dir = write_run(tmp_path, tw, windows, rig=RIG)
+    a = analyse(run_dir, sync="trajectory")
+    cams = [tw.cameras["left"], tw.cameras["right"]]
+    arm_tracks = 0
+    for _, g in a.tracks.groupby("track_id"):
+        X = g[["x_mm", "y_mm", "z_mm"]].to_numpy()
+        pos = tw.world.markers(g["time_s"].to_numpy())
+        if np.linalg.norm(pos["arm"] - X, axis=1).mean() > 20.0:
+            continue  # a reference marker
+        arm_tracks += 1
+        truth = pos["arm"]  # still: the ± T/2 clock uncertainty does not matter
+        cov = triangulate(cams, [c.project(truth) for c in cams], pixel_sigma_px=tw.sigma_px).covariance_mm2
+        # the spline of a few still frames averages them: its error is at most one frame's triangulation
+        # error; bound the mean square by a single frame's expectation + 4 sd
+        tr = np.trace(cov, axis1=1, axis2=2)
+        assert np.mean(np.sum((X - truth) ** 2, axis=1)) <= np.mean(tr) * (1 + 4 * np.sqrt(2)), g
+    assert arm_tracks == len(poses)
+    assert len(a.clock) == 1 and "3 camera" not in a.clock["source"].iloc[0]
+    assert a.clock["source"].iloc[0].startswith("6 camera start event")
