@@ -152,6 +152,7 @@ def _scatter(dst: Measured | None, n: int, sel: np.ndarray, src: Measured) -> Me
     return dst
 
 
+@np.errstate(invalid="ignore")
 def _rows_from(m: Measured, centre: str, max_edge_rms_px: float, max_skewness: float) -> np.ndarray:
     out = np.empty(len(m.u_px), dtype=MARKER_DTYPE)
     fitted = bool(np.isfinite(m.u_ellipse_px).any())
@@ -165,21 +166,20 @@ def _rows_from(m: Measured, centre: str, max_edge_rms_px: float, max_skewness: f
     out["area_px"] = m.area_px
     out["roundness"] = m.roundness
     out["contrast"] = m.contrast
-    with np.errstate(invalid="ignore"):
-        occluded = m.skewness > max_skewness + SKEW_NOISE_FACTOR * m.skewness_noise
-        if fitted:
-            edge_limit2 = max_edge_rms_px**2 + (EDGE_NOISE_FACTOR * m.edge_noise_px) ** 2
-            occluded |= m.edge_rms_px**2 > edge_limit2
+    occluded = m.skewness > max_skewness + SKEW_NOISE_FACTOR * m.skewness_noise
+    if fitted:
+        edge_limit2 = max_edge_rms_px**2 + (EDGE_NOISE_FACTOR * m.edge_noise_px) ** 2
+        occluded |= m.edge_rms_px**2 > edge_limit2
     out["flags"] = (m.border * np.uint8(FLAG_BORDER)) | (occluded * np.uint8(FLAG_OCCLUDED)) | (
         m.saturated * np.uint8(FLAG_SATURATED))
     return out
 
 
+@np.errstate(invalid="ignore")
 def _passes(rec: np.ndarray, min_area_px, max_area_px, min_roundness, min_contrast) -> np.ndarray:
-    with np.errstate(invalid="ignore"):
-        return (np.isfinite(rec["u_px"]) & np.isfinite(rec["v_px"])
-                & (rec["area_px"] >= min_area_px) & (rec["area_px"] <= max_area_px)
-                & (rec["roundness"] >= min_roundness) & (rec["contrast"] >= min_contrast))
+    return (np.isfinite(rec["u_px"]) & np.isfinite(rec["v_px"])
+            & (rec["area_px"] >= min_area_px) & (rec["area_px"] <= max_area_px)
+            & (rec["roundness"] >= min_roundness) & (rec["contrast"] >= min_contrast))
 
 
 def detect_markers(
@@ -292,6 +292,10 @@ def _drop_duplicates(rec: np.ndarray, reach: int = 8) -> np.ndarray:
     """
     rec = rec[np.lexsort((rec["u_px"], rec["v_px"]))]
     u, v = rec["u_px"], rec["v_px"]
+    if len(rec) <= 128:  # usual case, all pairs at once: nothing to drop?
+        du, dv = u[:, None] - u[None, :], v[:, None] - v[None, :]
+        if np.count_nonzero(du * du + dv * dv < 1.0) == len(rec):  # only each row with itself
+            return rec
     # of two rows of one marker keep the one with fewer flags (e.g. not measured across the border)
     score = rec["flags"].astype(np.int64)
     dup = np.zeros(len(rec), dtype=bool)

@@ -67,7 +67,7 @@ class Measured:
 class _Geometry:
     """Constant arrays of one window size (cached): coordinates are offsets from the window's centre."""
 
-    moments: np.ndarray  # (W², 10) float32: 1, x, y, x², xy, y², x³, x²y, xy², y³
+    moments: np.ndarray  # (W², 11) float32: 1, x, y, x², xy, y², x³, x²y, xy², y³, ring's inner edge
     plane: np.ndarray  # (3, W²) float32: 1, x, y
     ring_idx: np.ndarray  # flat indices of the background ring
     ring_design: np.ndarray  # (P, 3): 1, x, y on the ring
@@ -84,9 +84,14 @@ def _geometry(half_px: int) -> _Geometry:
         w = 2 * half_px + 1
         y, x = np.mgrid[-half_px : half_px + 1, -half_px : half_px + 1].astype(np.float64)
         x, y = x.ravel(), y.ravel()
-        moments = np.stack([np.ones_like(x), x, y, x * x, x * y, y * y, x**3, x * x * y, x * y * y, y**3], 1)
         ring = np.ones((w, w), dtype=bool)
         ring[RING_PX:-RING_PX, RING_PX:-RING_PX] = False
+        # the ring's inner edge: a marker's support, connected to the centre, reaches the ring only here
+        edge = np.zeros((w, w))
+        edge[[RING_PX - 1, w - RING_PX], RING_PX - 1 : w - RING_PX + 1] = 1.0
+        edge[RING_PX - 1 : w - RING_PX + 1, [RING_PX - 1, w - RING_PX]] = 1.0
+        moments = np.stack([np.ones_like(x), x, y, x * x, x * y, y * y, x**3, x * x * y, x * y * y, y**3,
+                            edge.ravel()], 1)
         ring_idx = np.flatnonzero(ring)
         design = np.column_stack([np.ones(len(ring_idx)), x[ring_idx], y[ring_idx]])
         _GEOMETRY[half_px] = _Geometry(
@@ -202,25 +207,25 @@ def _moment_shape(raw_m: np.ndarray):
     """Centroid offsets, roundness and skewness from raw moments (K, 10) of (1, x, y, xx, xy, yy, xxx, ...).
 
     skewness = (μ30² + 3μ21² + 3μ12² + μ03²) / det(Σ)^(3/2) from the central moments: Mardia's b1 for a
-    round blob, 0 for every centrally symmetric one.
+    round blob, 0 for every centrally symmetric one. Called under measure_windows' np.errstate (empty
+    windows give NaN).
     """
-    with np.errstate(invalid="ignore", divide="ignore"):
-        e = raw_m[:, 1:] / raw_m[:, :1]
-        mx, my, exx, exy, eyy, exxx, exxy, exyy, eyyy = e.T
-        cxx = exx - mx * mx
-        cxy = exy - mx * my
-        cyy = eyy - my * my
-        det = cxx * cyy - cxy * cxy
-        half_trace = 0.5 * (cxx + cyy)
-        root = np.sqrt(np.maximum(half_trace * half_trace - det, 0.0))
-        roundness = np.sqrt(np.maximum(half_trace - root, 0.0) / (half_trace + root))
-        mx2 = 2 * mx * mx
-        my2 = 2 * my * my
-        c30 = exxx - mx * (3 * exx - mx2)
-        c03 = eyyy - my * (3 * eyy - my2)
-        c21 = exxy - 2 * mx * exy - my * (exx - mx2)
-        c12 = exyy - 2 * my * exy - mx * (eyy - my2)
-        skew = (c30 * c30 + 3 * c21 * c21 + 3 * c12 * c12 + c03 * c03) / det**1.5
+    e = raw_m[:, 1:] / raw_m[:, :1]
+    mx, my, exx, exy, eyy, exxx, exxy, exyy, eyyy = e.T
+    cxx = exx - mx * mx
+    cxy = exy - mx * my
+    cyy = eyy - my * my
+    det = cxx * cyy - cxy * cxy
+    half_trace = 0.5 * (cxx + cyy)
+    root = np.sqrt(np.maximum(half_trace * half_trace - det, 0.0))
+    roundness = np.sqrt(np.maximum(half_trace - root, 0.0) / (half_trace + root))
+    mx2 = 2 * mx * mx
+    my2 = 2 * my * my
+    c30 = exxx - mx * (3 * exx - mx2)
+    c03 = eyyy - my * (3 * eyy - my2)
+    c21 = exxy - 2 * mx * exy - my * (exx - mx2)
+    c12 = exyy - 2 * my * exy - mx * (eyy - my2)
+    skew = (c30 * c30 + 3 * c21 * c21 + 3 * c12 * c12 + c03 * c03) / det**1.5
     return mx, my, roundness, skew
 
 
@@ -278,6 +283,7 @@ def _fit_ellipses(k_idx: np.ndarray, x: np.ndarray, y: np.ndarray, step: np.ndar
     return centre, rms, noise_rms
 
 
+@np.errstate(invalid="ignore", divide="ignore")
 def measure_windows(image: np.ndarray, rows: np.ndarray, cols: np.ndarray, half_px: int, *,
                     dark: bool, fit_ellipse: bool = False) -> Measured:
     """Measure the marker in each window centred on the integer pixel ``(rows[i], cols[i])``.
@@ -306,7 +312,7 @@ def measure_windows(image: np.ndarray, rows: np.ndarray, cols: np.ndarray, half_
     support = _select_support(grid > 0, grid, half_px, geo.dist2).reshape(n, -1)
     weights *= support
     raw_m = (weights @ geo.moments).astype(np.float64)
-    du, dv, roundness, skew = _moment_shape(raw_m)
+    du, dv, roundness, skew = _moment_shape(raw_m[:, :10])
     empty = ~(raw_m[:, 0] > 0)
     du[empty] = np.nan
     dv[empty] = np.nan
@@ -315,17 +321,12 @@ def measure_windows(image: np.ndarray, rows: np.ndarray, cols: np.ndarray, half_
     # above the floor over the plateau above it (exact for a flat disc, nearly so for a blurred one:
     # only its skirt below the floor, 3σ ≪ contrast, is left out)
     top = (weights >= (0.85 * weights.max(axis=1))[:, None]).astype(np.float32)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        peak = (np.einsum("ij,ij->i", weights, top) / (top @ geo.moments[:, 0])).astype(np.float64)
+    peak = (np.einsum("ij,ij->i", weights, top) / (top @ geo.moments[:, 0])).astype(np.float64)
     contrast = peak + floor[:, 0]
-    with np.errstate(invalid="ignore", divide="ignore"):
-        area = raw_m[:, 0] / peak
+    area = raw_m[:, 0] / peak
     contrast[empty] = np.nan
     saturated = (support & (flat == 255)).any(axis=1) if raw.max() == 255 else np.zeros(n, bool)
-    # the support is connected to the centre: it reaches the ring only across the ring's inner edge
-    inner = support.reshape(n, w, w)[:, RING_PX - 1 : w - RING_PX + 1, RING_PX - 1 : w - RING_PX + 1]
-    cramped = (inner[:, 0, :].any(axis=1) | inner[:, -1, :].any(axis=1)
-               | inner[:, :, 0].any(axis=1) | inner[:, :, -1].any(axis=1))
+    cramped = raw_m[:, 10] > 0  # weight on the ring's inner edge: the marker reaches the ring
     border = np.zeros(n, dtype=bool) if valid is None else ~valid.all(axis=(1, 2))
     bg = coef[:, 0]
     signal = None
