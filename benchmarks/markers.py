@@ -4,7 +4,7 @@ Frames: 12 or 30 bright discs of radius 7.5–8.5 px, contrast 150 DN over a 20 
 blur σ = 0.8 px, noise σ = 2 DN (rendered by tests/marker_images.py: supersampled ×8 coverage). The
 markers move a few pixels from frame to frame; tracking is fed the previous frame's result.
 
-Methods, timed in the same run (interleaved per round, so the load of the machine hits all alike):
+Methods, timed in the same run:
   ours/full      rig.stereo.detect_markers on the whole frame
   ours/track     rig.stereo.track_markers around the previous frame's centres
   sbd/default    cv2.SimpleBlobDetector, OpenCV's default thresholds (50..220 step 10); bright blobs,
@@ -13,9 +13,10 @@ Methods, timed in the same run (interleaved per round, so the load of the machin
   sbd/coarse     50..170 step 20: half the thresholds, faster and less accurate
   thr+cc         cv2.threshold at the mid level (95 DN) + cv2.connectedComponentsWithStats centroids
 
-Prints ms per frame (median over the frames of a round; best and worst round), the speed ratios to each
-SimpleBlobDetector variant (median over rounds of the per-round ratio, so a busy machine slows both
-sides of a ratio alike), and the centroid RMS error per axis vs truth (all frames, matched within 3 px).
+Every frame is processed by all methods one right after the other (in a rotating order), so a change
+in the machine's load hits them alike. Prints ms per frame (median over the frames of a round; best
+and worst round), the speed-up over each SimpleBlobDetector variant (median of the per-frame paired
+ratios), and the centroid RMS error per axis vs truth (first round, matched within 3 px).
 Run: .venv/bin/python benchmarks/markers.py [--rounds N] [--frames N]
 """
 
@@ -118,28 +119,34 @@ def errors(found: np.ndarray, truth: np.ndarray):
 
 def run(n_markers: int, n_frames: int, rounds: int) -> None:
     frames, truth = make_sequence(n_markers, n_frames + 1, seed=n_markers)
-    per_round = {name: [] for name in METHODS}
-    results = {}
-    for _ in range(rounds):
-        for name, method in METHODS.items():
-            times, found_all = [], []
-            prev = truth[0]
-            method(frames[0], prev)  # warm-up (caches, first-call costs)
-            for f in range(1, n_frames + 1):
+    names = list(METHODS)
+    for name in names:  # warm-up (caches, first-call costs)
+        METHODS[name](frames[0], truth[0])
+    # times[name][round, frame]: every method runs on a frame right after the others (in a rotating
+    # order), so a change of the machine's load hits all of them alike and per-frame ratios are paired
+    times = {name: np.zeros((rounds, n_frames)) for name in names}
+    results: dict[str, list[np.ndarray]] = {name: [] for name in names}
+    for r in range(rounds):
+        prev_track = truth[0]
+        for f in range(1, n_frames + 1):
+            order = names[(r + f) % len(names):] + names[: (r + f) % len(names)]
+            for name in order:
+                prev = prev_track if name == "ours/track" else truth[f - 1]
                 t0 = time.perf_counter()
-                found = method(frames[f], prev)
-                times.append(time.perf_counter() - t0)
-                found_all.append(found)
-                prev = found if name == "ours/track" else truth[f]
-            per_round[name].append(np.median(times) * 1e3)
-            results[name] = found_all
+                found = METHODS[name](frames[f], prev)
+                times[name][r, f - 1] = time.perf_counter() - t0
+                if name == "ours/track":
+                    prev_track = found
+                if r == 0:
+                    results[name].append(found)
+    per_round = {name: np.median(times[name], axis=1) * 1e3 for name in names}
     print(f"\n{n_markers} markers, {n_frames} frames 1920×1080, {rounds} rounds")
     refs = ("sbd/default", "sbd/tuned", "sbd/coarse")
     print(f"{'method':<12} {'ms/frame':>8} {'(worst)':>8} " + " ".join(f"{'×' + r[4:]:>8}" for r in refs)
           + f" {'RMS px':>7} {'bias u,v px':>16} {'missed':>6} {'false':>5}")
     for name in METHODS:
-        ms = np.array(per_round[name])
-        ratios = [np.median(np.array(per_round[r]) / ms) for r in refs]
+        ms = per_round[name]
+        ratios = [np.median(times[r] / times[name]) for r in refs]
         errs, missed, false = [], 0, 0
         for f, found in enumerate(results[name], start=1):
             e, m, fa = errors(found, truth[f])
@@ -163,8 +170,8 @@ def main() -> None:
     if args.threads is not None:
         cv2.setNumThreads(args.threads)
     print(f"OpenCV {cv2.__version__} ({cv2.getNumThreads()} threads), numpy {np.__version__}")
-    print("ms/frame: median over frames, best (and worst) round; ×: speed-up, median of per-round ratios; "
-          "RMS: per-axis centroid error vs truth")
+    print("ms/frame: median over frames, best (and worst) round; ×: speed-up, median of per-frame paired "
+          "ratios; RMS: per-axis centroid error vs truth")
     for n in (12, 30):
         run(n, args.frames, args.rounds)
 
