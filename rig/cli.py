@@ -7,6 +7,8 @@ Commands (``rig COMMAND --help`` for each):
   check     validate a rig.toml and reach every device
   mock      a mock device (robot, exciter, rotor, generator) as a standalone server on 127.0.0.1
   list      the procedures and their parameters
+  calibrate on-site calibration from a video pair of the slid plate (target.toml)
+  measure   displacement and spectra from a video pair and a calibration
 
 Without ``--config`` the built-in simulated rig is used. Exit codes: 0 pass, 1 certificate failed,
 2 aborted (Ctrl-C), 3 interlock or hardware fault, 4 bad input.
@@ -265,6 +267,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("options", nargs=argparse.REMAINDER, help="options of the mock server")
     sub.add_parser("list", help="list the procedures and their parameters",
                    description="List the procedures with their parameters, defaults and ranges.")
+    from rig.measure_cli import add_parsers
+
+    add_parsers(sub)  # calibrate (on site, from videos) and measure
     return parser
 
 
@@ -281,8 +286,10 @@ def main(argv: list[str] | None = None) -> int:
     if args.command is None:
         parser.print_help()
         return 0
+    from rig.measure_cli import COMMANDS as DEPLOYMENT_COMMANDS
+
     commands = {"run": cmd_run, "certify": cmd_certify, "report": cmd_report, "check": cmd_check,
-                "list": cmd_list, "mock": cmd_mock}
+                "list": cmd_list, "mock": cmd_mock, **DEPLOYMENT_COMMANDS}
     try:
         return commands[args.command](args)
     except (ConfigError, ParameterError, RecordError) as exc:

@@ -28,6 +28,7 @@ OpenCV's colour → grey conversion; about twice as fast), else the BGR image co
 from __future__ import annotations
 
 import math
+import threading
 from collections import deque
 from collections.abc import Iterator
 from dataclasses import asdict, dataclass, field
@@ -119,6 +120,21 @@ class FrameTimeReport:
         if self.truncated:
             parts.append(f"TRUNCATED ({self.error})")
         return "; ".join(parts)
+
+
+_quiet_lock = threading.Lock()
+_quiet_state = {"readers": 0, "level": 0}
+
+
+def _quiet(step: int) -> None:
+    """OpenCV's log level is process-wide: lowered while any file is being read, restored after the last."""
+    with _quiet_lock:
+        if step > 0 and _quiet_state["readers"] == 0:
+            _quiet_state["level"] = cv2.utils.logging.getLogLevel()
+            cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_ERROR)
+        _quiet_state["readers"] += step
+        if step < 0 and _quiet_state["readers"] == 0:
+            cv2.utils.logging.setLogLevel(_quiet_state["level"])
 
 
 def find_gaps(timestamps_s: np.ndarray, period_s: float, gap_tolerance: float = 0.5) -> list[dict[str, Any]]:
@@ -242,13 +258,12 @@ class VideoFile:
             duplicate_policy=self.duplicate_policy)
         self.duplicate_indices = set()
         period = 1.0 / self.fps
-        level = cv2.utils.logging.getLogLevel()
-        cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_ERROR)  # luma plane: one warning a frame
+        _quiet(+1)  # the luma plane makes OpenCV warn once a frame
         try:
             cap, rep.luma_plane = self._luma_capture()
             yield from self._decode(cap, rep, period)
         finally:
-            cv2.utils.logging.setLogLevel(level)
+            _quiet(-1)
         # a container's frame count may be an estimate (duration × rate, e.g. Matroska) that dropped frames
         # undercut: the file is truncated when its frames also end early in time
         end_expected_s = self._first_pts_s + (self.frames_declared or 0) * period

@@ -1,0 +1,238 @@
+"""``rig measure``: two videos of a vibrating structure + a calibration → displacement, spectra, report.
+
+Pipeline (every step reuses the shared modules):
+
+1. both videos → marker observations, in parallel (:mod:`rig.video_markers`; duplicated and dropped frames
+   reported per file, duplicates left out of the analysis);
+2. timing: ``timing.json`` given (``--timing``), or estimated from the videos' motion
+   (:mod:`rig.video_timing`; the default);
+3. 2-D tracks, cross-camera pairs and time-aligned 3-D tracks on the reference (first) camera's clock:
+   :func:`rig.sync_tracks.prepare_observations`, :func:`~rig.sync_tracks.pair_all`,
+   :func:`~rig.sync_tracks.triangulate_tracks` (sync method ``trajectory`` by default);
+4. reference markers (``auto``: tracks that stay within ``static_mm``; or positions ``X,Y,Z`` in mm, the
+   nearest track within ``reference_gate_mm``): each target is stabilised by the rigid transform mapping
+   the references back home (:func:`rig.stereo.stabilize`), references interpolated to the target's
+   instants; displacement = stabilised position − its median;
+5. per target: principal direction of motion, spectrum (uniform grid of one frame period) and dominant
+   frequency, four-parameter sine fit at it (amplitude and frequency with standard uncertainties);
+6. ``DIR``: ``tables/*.csv`` (units in column names), ``figures/*.png``, ``report.html``,
+   ``timing.json``, ``measure.json`` (inputs, frame reports, notes).
+
+Times in the outputs are seconds on the reference video's clock (its presentation time stamps).
+A truncated or corrupt video does not stop the measurement: the frames read are used, the problem is in
+``MeasureResult.problems`` and the report, and ``rig measure`` exits with code 4.
+"""
+
+from __future__ import annotations
+
+import json
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import pandas as pd
+
+from drivers.camera.video_file import VideoFile
+from rig.analysis import load_cameras
+from rig.analysis_errors import AnalysisError
+from rig.measure_series import SeriesError, reference_tracks, stabilised_displacement, summarise
+from rig.stereo.dlt import DLTCamera
+from rig.stereo.errors import StereoError
+from rig.sync_tracks import SYNC_METHODS, pair_all, prepare_observations, timing_result, triangulate_tracks
+from rig.video_markers import ExtractOptions, VideoObservations, extract_video
+from rig.video_timing import VideoTimingError, estimate_video_timing
+
+__all__ = ["MeasureError", "MeasureOptions", "MeasureResult", "measure_videos"]
+
+
+class MeasureError(ValueError):
+    """The inputs cannot give a measurement (the message names the file or option and what to do)."""
+
+
+@dataclass(frozen=True)
+class MeasureOptions:
+    """Options of :func:`measure_videos` (units in the names)."""
+
+    sync: str = "trajectory"
+    reference_markers: str | tuple[tuple[float, float, float], ...] = "auto"  # "auto" | "none" | positions
+    static_mm: float = 0.1
+    reference_gate_mm: float = 20.0
+    window_s: tuple[float, float] | None = None
+    gate_px: float = 5.0
+    line_time_s: float | None = None
+    extract: ExtractOptions = field(default_factory=ExtractOptions)
+    make_figures: bool = True
+
+
+@dataclass
+class MeasureResult:
+    """What :func:`measure_videos` produced: tables (DataFrames), files written, notes and input problems."""
+
+    out_dir: Path
+    tracks: pd.DataFrame
+    displacement: pd.DataFrame
+    summary: pd.DataFrame
+    spectra: pd.DataFrame
+    timing: dict[str, Any]
+    frame_reports: dict[str, dict[str, Any]]
+    files: dict[str, Path]
+    notes: list[str]
+    problems: list[str]
+    timings_s: dict[str, float]
+
+
+def _load_json(path: Path | None, what: str, how: str) -> dict[str, Any]:
+    if path is None or not Path(path).is_file():
+        raise MeasureError(f"{path}: no {what} file; {how}")
+    try:
+        data = json.loads(Path(path).read_text(encoding="utf-8"))
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise MeasureError(f"{path}: not a valid JSON {what} file ({exc}); {how}") from exc
+    if not isinstance(data, dict):
+        raise MeasureError(f"{path}: the {what} file must hold a JSON object; {how}")
+    return data
+
+
+def check_inputs(videos: dict[str, Path], calibration_path: Path) -> dict[str, DLTCamera]:
+    """Calibration present and matching the videos (names, image sizes) — before any decoding."""
+    how = "make one with `rig calibrate LEFT RIGHT --target target.toml --out calibration.json`"
+    calibration = _load_json(calibration_path, "calibration", how)
+    try:
+        cameras = load_cameras(calibration, calibration_path)
+    except AnalysisError as exc:
+        raise MeasureError(str(exc)) from exc
+    missing = [n for n in videos if n not in cameras]
+    if missing:
+        raise MeasureError(f"{calibration_path}: no calibration for camera(s) {missing} (it has "
+                           f"{sorted(cameras)}); name the videos' cameras with --names")
+    for name, path in videos.items():
+        size = VideoFile(path, name=name)
+        want = tuple(cameras[name].image_size)
+        if (size.width_px, size.height_px) != want:
+            raise MeasureError(f"{path}: camera {name!r} video is {size.width_px}×{size.height_px} px but "
+                               f"{calibration_path} was made at {want[0]}×{want[1]} px; calibrate at the "
+                               "resolution you measure with")
+    return cameras
+
+
+def _observations(vo: VideoObservations) -> pd.DataFrame:
+    obs = vo.observations
+    obs = obs[~obs["duplicate"].to_numpy(bool)].drop(columns=["duplicate"]).reset_index(drop=True)
+    obs["segment"] = "measure"
+    return obs
+
+
+def _timing(args: dict[str, Any], obs: dict[str, pd.DataFrame], cameras: dict[str, DLTCamera], *,
+            fps: dict[str, float], reference: str, notes: list[str]) -> dict[str, Any]:
+    if args.get("timing") is not None:
+        d = _load_json(Path(args["timing"]), "timing",
+                       "write one with `rig run sync` or use --estimate-timing")
+        tr = timing_result(d)
+        if set(tr.offset_s) != set(obs):
+            raise MeasureError(f"{args['timing']}: cameras {sorted(tr.offset_s)} do not match the videos' "
+                               f"{sorted(obs)}")
+        notes.append(f"timing from {args['timing']} (method {tr.method})")
+        return tr.to_dict()
+    try:
+        tr = estimate_video_timing(obs, cameras, fps, reference=reference,
+                                   line_time_s=args.get("line_time_s"))
+    except (VideoTimingError, AnalysisError) as exc:
+        raise MeasureError(f"estimating the timing from the videos: {exc}") from exc
+    coarse = tr.details["coarse"]
+    if tr.details.get("line_time_note"):
+        notes.append("timing: " + tr.details["line_time_note"])
+    notes.append(f"timing estimated from the videos' motion: coarse offset {coarse['offset_s']:+.4f} s "
+                 f"(correlation {coarse['correlation']:.2f}), joint offset "
+                 f"{tr.offset_s[next(c for c in obs if c != reference)]:+.6f} s")
+    if coarse["ambiguous"]:
+        notes.append(f"timing: the motion correlates almost as well at {coarse['second_offset_s']:+.4f} s "
+                     "(a steady periodic motion): amplitudes and frequencies hold, absolute timing may be "
+                     "off "
+                     "by whole periods — film the start of the motion, or give --timing")
+    return tr.to_dict()
+
+
+def measure_videos(videos: dict[str, str | Path], calibration: str | Path, out_dir: str | Path, *,
+                   timing: str | Path | None = None, options: MeasureOptions | None = None) -> MeasureResult:
+    """Measure (see the module docstring). ``videos``: camera name → file, the first is the reference."""
+    opts = options or MeasureOptions()
+    if opts.sync not in SYNC_METHODS:
+        raise MeasureError(f"sync={opts.sync!r}; allowed: {SYNC_METHODS}")
+    if len(videos) != 2:
+        raise MeasureError(f"{len(videos)} video(s) given; rig measure takes exactly 2 (LEFT RIGHT)")
+    paths = {n: Path(p) for n, p in videos.items()}
+    cameras = check_inputs(paths, Path(calibration))
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    notes: list[str] = []
+    problems: list[str] = []
+    with ThreadPoolExecutor(max_workers=2, thread_name_prefix="measure-video") as pool:
+        futures = {n: pool.submit(extract_video, p, n, opts.extract) for n, p in paths.items()}
+        vos = {n: f.result() for n, f in futures.items()}
+    reports = {n: vo.report.to_dict() for n, vo in vos.items()}
+    for n, vo in vos.items():
+        notes.append(f"camera {n}: {vo.report.summary()}")
+        if vo.error:
+            problems.append(f"camera {n}: {vo.error}")
+    obs = {n: _observations(vo) for n, vo in vos.items()}
+    files: dict[str, Path] = {}
+    (out / "observations").mkdir(exist_ok=True)
+    for n, o in obs.items():
+        files[f"observations_{n}"] = out / "observations" / f"{n}.csv"
+        o.to_csv(files[f"observations_{n}"], index=False)
+    (out / "frames.json").write_text(json.dumps(reports, indent=1), encoding="utf-8")
+    files["frames"] = out / "frames.json"
+    for n, o in obs.items():
+        if o.empty:
+            raise MeasureError(f"camera {n} ({paths[n]}): no marker found in any frame; check the "
+                               "detection options (polarity, min_contrast) and the video")
+    reference = next(iter(paths))
+    fps = {n: vo.fps for n, vo in vos.items()}
+    timing_dict = _timing({"timing": timing, "line_time_s": opts.line_time_s}, obs, cameras, fps=fps,
+                          reference=reference, notes=notes)
+    files["timing"] = out / "timing.json"
+    files["timing"].write_text(json.dumps(timing_dict, indent=1), encoding="utf-8")
+    try:
+        prepared = {n: prepare_observations(o, timing_dict, n) for n, o in obs.items()}
+        pairs, more = pair_all(prepared, cameras, reference, gate_px=opts.gate_px)
+        notes += more
+        tracks = triangulate_tracks(prepared, cameras, timing_dict, sync=opts.sync, reference=reference,
+                                    pairs=pairs)
+    except (AnalysisError, StereoError) as exc:
+        raise MeasureError(f"3-D tracks: {exc}") from exc
+    notes += tracks.attrs.get("notes", [])
+    if tracks.empty:
+        raise MeasureError("no marker track could be paired between the two videos; check that the "
+                           "calibration belongs to these cameras and the timing (--timing/--estimate-timing)")
+    try:
+        refs, ref_note = reference_tracks(tracks, opts.reference_markers, static_mm=opts.static_mm,
+                                          gate_mm=opts.reference_gate_mm)
+        notes.append(ref_note)
+        displacement = stabilised_displacement(tracks, refs)
+        summary, spectra = summarise(displacement, refs, window_s=opts.window_s, notes=notes)
+    except (SeriesError, StereoError) as exc:
+        raise MeasureError(f"displacement: {exc}") from exc
+    tables = out / "tables"
+    tables.mkdir(exist_ok=True)
+    for name, frame in (("tracks_3d", tracks), ("displacement", displacement), ("summary", summary),
+                        ("spectra", spectra)):
+        files[name] = tables / f"{name}.csv"
+        frame.to_csv(files[name], index=False)
+    timings = {f"{n}_{k}": v for n, vo in vos.items() for k, v in vo.timings_s.items()}
+    result = MeasureResult(out, tracks, displacement, summary, spectra, timing_dict, reports, files, notes,
+                           problems, timings)
+    if opts.make_figures:
+        from rig.measure_report import write_report
+
+        files.update(write_report(result, {n: str(p) for n, p in paths.items()}, str(calibration)))
+    meta = {"videos": {n: str(p) for n, p in paths.items()}, "calibration": str(calibration),
+            "timing": str(timing) if timing else "estimated", "sync": opts.sync,
+            "reference_camera": reference,
+            "reference_markers": refs, "window_s": opts.window_s, "notes": notes,
+            "problems": problems,
+            "files": {k: str(v.relative_to(out)) for k, v in files.items()},
+            "clock": "reference video PTS, s"}
+    files["measure"] = out / "measure.json"
+    files["measure"].write_text(json.dumps(meta, indent=1, default=str), encoding="utf-8")
+    return result
