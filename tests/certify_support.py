@@ -1,0 +1,67 @@
+"""Helpers of the certify end-to-end tests: a rig.toml in a temporary folder and the twin's truth."""
+
+from __future__ import annotations
+
+import json
+import re
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from rig.config import load_config
+
+SIM_TOML = resources.files("rig").joinpath("data/sim.toml").read_text()
+# the VP-6242 reach model of the mock controller: the plate's flange must stay ≤ ~500 mm from the base
+REACHABLE_SLIDES = "slide_positions_mm = [-120.0, -80.0, -40.0, 0.0, 40.0, 80.0]"
+
+
+def write_config(tmp_path: Path) -> Path:
+    """The built-in simulated rig with runs in ``tmp_path/runs`` (and reachable calibration slides)."""
+    text = re.sub(r'^runs_dir = .*$', f'runs_dir = "{(tmp_path / "runs").as_posix()}"', SIM_TOML, flags=re.M)
+    text = re.sub(r"^slide_positions_mm = .*$", REACHABLE_SLIDES, text, flags=re.M)
+    path = tmp_path / "rig.toml"
+    path.write_text(text)
+    return path
+
+
+def twin_cameras(config_path: Path) -> dict[str, Any]:
+    """The simulated cameras of the configuration (their hidden truth), on a fresh world."""
+    from drivers.sim.clock import VirtualClock
+    from drivers.sim.stereo_rig import make_camera
+    from drivers.sim.world import World
+    from rig.station import camera_specs
+
+    cfg = load_config(config_path)
+    world = World(VirtualClock())
+    return {s.name: make_camera(s, world) for s in camera_specs(cfg)}
+
+
+def true_offset_s(ref: Any, other: Any, tau_other_s: float) -> float:
+    """τ_ref − τ_other at the world instant when ``other``'s frame stamped ``tau_other_s`` starts (row 0)."""
+    k = (tau_other_s - other.timestamp_origin_s) * other.fps
+    t_world = other.start_offset_s + k / (other.fps * (1 + other.clock_ppm * 1e-6))
+    k_ref = (t_world - ref.start_offset_s) * ref.fps * (1 + ref.clock_ppm * 1e-6)
+    return ref.timestamp_origin_s + k_ref / ref.fps - tau_other_s
+
+
+def still_pixel_noise_px(observations: Any) -> float:
+    """Single-frame centroid noise (px): median over still markers of the per-axis std across frames."""
+    g = observations.groupby(["segment", "track_2d"]).agg(su=("u_px", "std"), sv=("v_px", "std"),
+                                                          n=("u_px", "size"))
+    g = g[g["n"] >= 4]
+    return float(np.median(np.r_[g["su"].to_numpy(), g["sv"].to_numpy()]))
+
+
+def depth_scale(calibration: dict[str, Any], point_mm: Any) -> tuple[float, float]:
+    """(mm per px at ``point_mm``, depth / baseline) of the calibrated pair (Z/f and Z/B)."""
+    cams = list(calibration["cameras"].values())
+    centres = [np.asarray(c["centre_mm"], float) for c in cams]
+    f_px = np.mean([c["intrinsics_px"]["fx_px"] for c in cams])
+    z_mm = float(np.mean([np.linalg.norm(np.asarray(point_mm, float) - c) for c in centres]))
+    return z_mm / f_px, z_mm / float(np.linalg.norm(centres[0] - centres[1]))
+
+
+def read_json(path: Path) -> dict[str, Any]:
+    return json.loads(path.read_text(encoding="utf-8"))

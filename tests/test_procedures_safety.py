@@ -1,0 +1,107 @@
+"""The procedures' safety on the simulated rig, through the real ``rig`` command:
+
+- Ctrl-C (SIGINT) in the middle of the certification's sweep: exit 2, the run's stop is ``abort``, the
+  exciter stopped and the arm halted by the runner, the record readable;
+- a plan beyond a limit (a sweep above the exciter's frequency limit, a plate slide outside the arm's
+  envelope): exit 3 before anything is sent (no motion event, no step), the reason recorded.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+from rig.record import load_run
+from tests.certify_support import write_config
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _env() -> dict[str, str]:
+    return {**os.environ, "PYTHONPATH": str(ROOT)}
+
+
+def _rig(tmp_path: Path, *args: str) -> subprocess.CompletedProcess:
+    config = write_config(tmp_path)
+    return subprocess.run([sys.executable, "-m", "rig.cli", *args, "--config", str(config)], cwd=tmp_path,
+                          env=_env(), capture_output=True, text=True, timeout=240, check=False)
+
+
+def _only_run(tmp_path: Path) -> Path:
+    runs = sorted((tmp_path / "runs").iterdir())
+    assert len(runs) == 1
+    return runs[0]
+
+
+def _documents(run_dir: Path) -> list[dict]:
+    return [json.loads(line) for line in (run_dir / "record.jsonl").read_text().splitlines() if line.strip()]
+
+
+def test_sweep_above_the_frequency_limit_sends_nothing(tmp_path: Path) -> None:
+    proc = _rig(tmp_path, "certify", "--set", 'preset="fast"', "--set", "sweep_max_hz=40")
+    assert proc.returncode == 3, proc.stderr
+    docs = _documents(_only_run(tmp_path))
+    interlocks = [d for d in docs if d["type"] == "interlock"]
+    assert interlocks and "exceeds the limit 32 Hz" in interlocks[0]["reason"]
+    assert "nothing was sent" in interlocks[0]["reason"]
+    assert not [d for d in docs if d["type"] == "step"]
+    assert not [d for d in docs if d["type"] == "event"]  # no move, no exciter command, no recording
+    stop = docs[-1]
+    assert stop["type"] == "stop" and stop["outcome"] == "interlock" and stop["exit_code"] == 3
+
+
+def test_plate_slide_outside_the_envelope_sends_nothing(tmp_path: Path) -> None:
+    proc = _rig(tmp_path, "run", "calibrate", "--set", "slide_positions_mm=[0.0, 300.0]")
+    assert proc.returncode == 3, proc.stderr
+    docs = _documents(_only_run(tmp_path))
+    reason = next(d for d in docs if d["type"] == "interlock")["reason"]
+    assert "x_mm=720" in reason and "[150, 650]" in reason
+    assert not [d for d in docs if d["type"] in ("step", "event")]
+
+
+def test_ctrl_c_mid_sweep_aborts_with_exciter_stopped_and_arm_halted(tmp_path: Path) -> None:
+    config = write_config(tmp_path)
+    proc = subprocess.Popen([sys.executable, "-m", "rig.cli", "certify", "--config", str(config),
+                             "--set", 'preset="fast"', "--set", "sweep_duration_s=120",
+                             "--set", "accuracy_grid_points=0", "--set", "accuracy_cycles=0",
+                             "--set", "figures=false"],
+                            cwd=tmp_path, env=_env(), stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True)
+    try:
+        deadline = time.monotonic() + 180
+        record = None
+        while time.monotonic() < deadline:
+            runs = list((tmp_path / "runs").glob("*")) if (tmp_path / "runs").is_dir() else []
+            if runs:
+                record = runs[0] / "record.jsonl"
+                text = record.read_text() if record.is_file() else ""
+                sweeping = [ln for ln in text.splitlines()
+                            if '"stream":"exciter"' in ln and '"step":"sweep"' in ln]
+                if len(sweeping) >= 20:
+                    break
+            assert proc.poll() is None, proc.communicate()
+            time.sleep(0.05)
+        else:
+            raise AssertionError("the sweep did not start in time")
+        proc.send_signal(signal.SIGINT)
+        _, err = proc.communicate(timeout=120)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 2, err
+    run = load_run(record.parent)
+    assert run.stop["exit_status"] == "abort" and run.stop["outcome"] == "aborted"
+    assert run.stop["safe_state_failures"] == []
+    steps = run.documents
+    assert not any(d["type"] == "step" and d["name"] == "sweep" and d["status"] == "done" for d in steps)
+    logs = [d["message"] for d in steps if d["type"] == "log"]
+    assert any(m.startswith("exciter:") and "done" in m for m in logs), logs
+    assert any(m.startswith("robot:") and "done" in m for m in logs), logs
+    # the exciter was running when interrupted (its last polled frequency was not zero)
+    polled = [d["data"]["frequency_hz"] for d in steps if d["type"] == "event" and d["stream"] == "exciter"]
+    assert polled[-1] > 0
