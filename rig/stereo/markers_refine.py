@@ -31,6 +31,7 @@ Coordinates: pixel centres are integers, the centre of the top-left pixel is (0,
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import cv2
@@ -135,6 +136,14 @@ def gather_windows(image: np.ndarray, rows: np.ndarray, cols: np.ndarray, half_p
     return stack, valid
 
 
+@functools.lru_cache(maxsize=64)
+def _rank_tables(n_win: int, n_ring: int) -> tuple[np.ndarray, np.ndarray]:
+    """Histogram offsets (K, 1) = 256·k and the running-sum ranks of the 16/50/84 % points (3K,)."""
+    win = np.arange(n_win, dtype=np.intp)[:, None]
+    ranks = (np.array([0.16, 0.5, 0.84]) * (n_ring - 1) + win * n_ring).ravel()
+    return win * 256, ranks
+
+
 def _background(ring_vals: np.ndarray, ring_valid: np.ndarray | None, geo: _Geometry):
     """Background plane and noise of each window from its ring values (K, P).
 
@@ -153,10 +162,9 @@ def _background(ring_vals: np.ndarray, ring_valid: np.ndarray | None, geo: _Geom
     else:
         # percentiles of uint8 values from one histogram per window (faster than sorting): the windows'
         # histograms laid end to end have one running sum, in which window k starts at k·P counts
-        win = np.arange(n_win, dtype=np.intp)[:, None]
-        cum = np.bincount((ring_vals + win * 256).ravel(), minlength=256 * n_win).cumsum()
-        ranks = np.array([0.16, 0.5, 0.84]) * (n_ring - 1) + win * n_ring
-        p16, p50, p84 = (np.searchsorted(cum, ranks.ravel(), side="right").reshape(n_win, 3) - win * 256).T
+        offsets, ranks = _rank_tables(n_win, n_ring)
+        cum = np.bincount((ring_vals + offsets).ravel(), minlength=256 * n_win).cumsum()
+        p16, p50, p84 = (np.searchsorted(cum, ranks, side="right").reshape(n_win, 3) - offsets).T
     reach = 4.0 * np.maximum(np.minimum(p50 - p16, p84 - p50), 1.0)
     values = ring_vals.astype(np.float64)
     inlier = np.abs(values - p50[:, None]) <= reach[:, None]
