@@ -20,6 +20,7 @@ import pandas as pd
 from scipy.signal import lombscargle
 
 from reports.errors import ReportError
+from reports.select import event_window
 
 DEFAULT_BIN_HZ = 1.0
 MIN_CYCLES_PER_BIN = 3.0
@@ -97,10 +98,7 @@ def sweep_samples(tracks: pd.DataFrame, sweep: dict) -> pd.DataFrame:
         raise ReportError(f"sweep.axis must be a non-zero [x, y, z] vector, got {sweep['axis']!r}")
     axis = axis / np.linalg.norm(axis)
     amp = float(sweep["amplitude_mm"])
-    t = tracks["time_s"].to_numpy(float)
-    sel = tracks[(t >= sweep["t_start_s"]) & (t <= sweep["t_stop_s"])].dropna(subset=["x_mm", "y_mm", "z_mm"])
-    seg = sel["segment"].astype(str) if "segment" in sel.columns else pd.Series("", index=sel.index)
-    sel = sel.assign(track=seg + "#" + sel["track_id"].astype(str))
+    sel = event_window(tracks, sweep)
     parts = []
     for name, g in sel.groupby("track", sort=True):
         s = g[["x_mm", "y_mm", "z_mm"]].to_numpy(float) @ axis

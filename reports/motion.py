@@ -11,21 +11,17 @@ from __future__ import annotations
 
 import numpy as np
 import pandas as pd
+from scipy.optimize import linear_sum_assignment
 
 from reports.errors import ReportError
 from reports.frequency import _peak_frequency_hz, sweep_samples
+from reports.select import event_window
 
 DEFAULT_ROTOR_GATE_MM = 50.0
 
 
 def _window(tracks: pd.DataFrame, event: dict) -> pd.DataFrame:
-    for key in ("t_start_s", "t_stop_s"):
-        if key not in event:
-            raise ReportError(f"event: missing field '{key}'")
-    t = tracks["time_s"].to_numpy(float)
-    sel = tracks[(t >= event["t_start_s"]) & (t <= event["t_stop_s"])].dropna(subset=["x_mm", "y_mm", "z_mm"])
-    seg = sel["segment"].astype(str) if "segment" in sel.columns else pd.Series("", index=sel.index)
-    return sel.assign(track=seg + "#" + sel["track_id"].astype(str))
+    return event_window(tracks, event)
 
 
 def sine_fit_known_f(t_s: np.ndarray, x: np.ndarray, f_hz: float) -> tuple[float, float]:
@@ -78,38 +74,98 @@ def fit_frequency(t_s: np.ndarray, x: np.ndarray, f0_hz: float) -> tuple[float, 
     return float(sol.x[3]), u_f
 
 
-def plate_table(tracks: pd.DataFrame, plate: dict) -> pd.DataFrame:
-    """Per oscillating track of a ``plate`` event: amplitude and frequency, reference vs measured."""
+def plate_rest_positions_mm(geometry: dict) -> dict[str, np.ndarray]:
+    """Rest position of every plate marker ``plate_r{r}c{c}`` from the rig's ``targets.plate`` table (mm).
+
+    Column c lies (c + 1)·pitch from the clamp ``root_mm`` along ``length_direction``; rows are
+    ``row_pitch_mm`` apart along ``width_direction``, centred on the root.
+    """
+    try:
+        root = np.asarray(geometry["root_mm"], float)
+        lv = np.asarray(geometry.get("length_direction", (0.0, 1.0, 0.0)), float)
+        wv = np.asarray(geometry.get("width_direction", (0.0, 0.0, 1.0)), float)
+        rows, cols = int(geometry["rows"]), int(geometry["cols"])
+        pitch, row_pitch = float(geometry["pitch_mm"]), float(geometry["row_pitch_mm"])
+    except (KeyError, TypeError, ValueError) as exc:
+        raise ReportError(f"targets.plate of the rig snapshot is incomplete or invalid ({exc!r})") from exc
+    lv, wv = lv / np.linalg.norm(lv), wv / np.linalg.norm(wv)
+    return {
+        f"plate_r{r}c{c}": root + (c + 1) * pitch * lv + ((rows - 1) / 2 - r) * row_pitch * wv
+        for r in range(rows)
+        for c in range(cols)
+    }
+
+
+def _identify(
+    means: dict[str, np.ndarray], expected: dict[str, np.ndarray], gate_mm: float
+) -> dict[str, str]:
+    """track → marker id by unique nearest assignment of mean positions, within ``gate_mm``."""
+    if not means or not expected:
+        return {}
+    tracks, ids = list(means), list(expected)
+    dist = np.linalg.norm(
+        np.stack([means[k] for k in tracks])[:, None, :] - np.stack([expected[i] for i in ids])[None, :, :],
+        axis=2,
+    )
+    r_idx, c_idx = linear_sum_assignment(dist)
+    return {tracks[r]: ids[c] for r, c in zip(r_idx, c_idx, strict=True) if dist[r, c] <= gate_mm}
+
+
+def plate_table(
+    tracks: pd.DataFrame, plate: dict, geometry: dict | None = None, *, gate_mm: float = DEFAULT_ROTOR_GATE_MM
+) -> pd.DataFrame:
+    """Per oscillating track of a ``plate`` event: amplitude and frequency, reference vs measured.
+
+    A clamped plate's markers move by different amplitudes (``marker_amplitudes_mm``): each track is then
+    identified as a marker by its mean position against the rest positions of ``geometry`` (the rig's
+    ``targets.plate``); a track that cannot be identified gets no reference amplitude (NaN). Without
+    per-marker amplitudes every track's reference is ``amplitude_mm``.
+    """
     for key in ("frequency_hz", "amplitude_mm"):
         if key not in plate:
             raise ReportError(f"plate event: missing field '{key}'")
     f_ref = float(plate["frequency_hz"])
-    as_sweep = dict(plate, profile=[[plate["t_start_s"], f_ref], [plate["t_stop_s"], f_ref]])
+    per_marker = {str(k): float(v) for k, v in (plate.get("marker_amplitudes_mm") or {}).items()}
+    smallest = min(per_marker.values()) if per_marker else float(plate["amplitude_mm"])
+    as_sweep = dict(
+        plate, amplitude_mm=smallest, profile=[[plate["t_start_s"], f_ref], [plate["t_stop_s"], f_ref]]
+    )
     samples = sweep_samples(tracks, as_sweep)
+    window = event_window(tracks, plate)
+    means = {
+        k: g[["x_mm", "y_mm", "z_mm"]].to_numpy(float).mean(axis=0)
+        for k, g in window[window["track"].isin(set(samples["track"]))].groupby("track", sort=True)
+    }
+    identity: dict[str, str] = {}
+    if per_marker and geometry:
+        expected = {k: v for k, v in plate_rest_positions_mm(geometry).items() if k in per_marker}
+        identity = _identify(means, expected, gate_mm)
     rows = []
     for track, g in samples.groupby("track", sort=True):
         t = g["time_s"].to_numpy(float)
         x = g["displacement_mm"].to_numpy(float)
         amp, u_amp = sine_fit_known_f(t, x, f_ref)
         f_meas, u_f = fit_frequency(t, x, f_ref)
+        marker = identity.get(track, "")
+        a_ref = per_marker.get(marker, np.nan) if per_marker else float(plate["amplitude_mm"])
         rows.append(
             {
                 "track": track,
+                "marker_id": marker,
                 "n_samples": len(t),
                 "frequency_ref_hz": f_ref,
                 "frequency_meas_hz": f_meas,
                 "u_frequency_hz": u_f,
                 "frequency_error_pct": 100 * (f_meas - f_ref) / f_ref,
-                "amplitude_ref_mm": float(plate["amplitude_mm"]),
+                "amplitude_ref_mm": a_ref,
                 "amplitude_meas_mm": amp,
                 "u_amplitude_mm": u_amp,
-                "amplitude_error_pct": 100
-                * (amp - float(plate["amplitude_mm"]))
-                / float(plate["amplitude_mm"]),
+                "amplitude_error_pct": 100 * (amp - a_ref) / a_ref,
             }
         )
     cols = [
         "track",
+        "marker_id",
         "n_samples",
         "frequency_ref_hz",
         "frequency_meas_hz",

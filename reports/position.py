@@ -42,12 +42,18 @@ def match_static(
         out[col] = np.nan
     out["n_samples"] = 0
     out["track_id"] = -1
-    seg = tracks["segment"] if "segment" in tracks.columns else pd.Series("", index=tracks.index)
-    key = seg.astype(str) + "#" + tracks["track_id"].astype(str)
+    seg = tracks["segment"].astype(str) if "segment" in tracks.columns else pd.Series("", index=tracks.index)
+    key = seg + "#" + tracks["track_id"].astype(str)
     times = tracks["time_s"].to_numpy(float)
     xyz_all = tracks[["x_mm", "y_mm", "z_mm"]].to_numpy(float)
-    for (_index, t0, t1), rows in out.groupby(["index", "t_start_s", "t_stop_s"], sort=True):
+    if "segment" not in out.columns:
+        out["segment"] = ""
+    for (_index, t0, t1, segment), rows in out.groupby(
+        ["index", "t_start_s", "t_stop_s", "segment"], sort=True
+    ):
         sel = (times >= t0) & (times <= t1) & np.all(np.isfinite(xyz_all), axis=1)
+        if segment and "segment" in tracks.columns:
+            sel &= (seg == segment).to_numpy()
         if not sel.any():
             continue
         keys = key[sel].to_numpy()

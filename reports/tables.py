@@ -20,6 +20,7 @@ from reports.certificate import Measured
 from reports.errors import FitError
 from reports.load import RunData, accuracy_poses, calibration_residuals, camera_centres_mm, stream_events
 from reports.quadfit import QuadraticFit, UsableLimit, fit_quadratic, usable_limit
+from reports.select import event_window
 
 DEFAULT_FPS = 60.0
 
@@ -151,7 +152,13 @@ def compute_tables(
     plates = stream_events(run.events, "plate")
     if plates:
         out.plate_event = plates[0]
-        tables = [motion.plate_table(tracks, p).assign(event=i) for i, p in enumerate(plates)]
+        geometry = (
+            (run.rig.get("targets") or {}).get("plate") if isinstance(run.rig.get("targets"), dict) else None
+        )
+        tables = [
+            motion.plate_table(tracks, p, geometry, gate_mm=gate_mm).assign(event=i)
+            for i, p in enumerate(plates)
+        ]
         out.plate = pd.concat(tables, ignore_index=True)
     rotations = stream_events(run.events, "rotation")
     if len(sweeps) > 1 or len(rotations) > 1:
@@ -174,7 +181,9 @@ def compute_tables(
 def _trajectory(
     tracks: pd.DataFrame, plate: dict | None, sweep: dict | None, rot: pd.DataFrame | None
 ) -> tuple[pd.DataFrame | None, str]:
-    """x, y, z over time of one oscillating marker (plate, else sweep, else rotor) for Figs. 5–8."""
+    """x, y, z over time of the most moving marker (plate, else sweep, else rotor) for Figs. 5–8.
+
+    On the plate that is the marker nearest the free end (the paper's "rightmost top marker")."""
     for name, event in (("plate", plate), ("sweep", sweep)):
         if event is None:
             continue
@@ -185,17 +194,12 @@ def _trajectory(
         samples = frequency.sweep_samples(tracks, dict(event, profile=prof))
         if samples.empty:
             continue
-        track = samples.groupby("track").size().sort_values(kind="stable").index[-1]
-        seg, tid = str(track).rsplit("#", 1)
-        t = tracks["time_s"].to_numpy(float)
-        sel = tracks[
-            (tracks["track_id"].astype(str) == tid) & (t >= event["t_start_s"]) & (t <= event["t_stop_s"])
-        ]
-        if "segment" in tracks.columns:
-            sel = sel[sel["segment"].astype(str) == seg]
-        return sel[["time_s", "x_mm", "y_mm", "z_mm"]].sort_values("time_s").reset_index(
-            drop=True
-        ), f"{name} marker {track}"
+        spread = samples.groupby("track", sort=True)["displacement_mm"].std()
+        track = spread.index[int(np.argmax(spread.to_numpy()))]
+        window = event_window(tracks, event)
+        sel = window[window["track"] == track]
+        out = sel[["time_s", "x_mm", "y_mm", "z_mm"]].sort_values("time_s").reset_index(drop=True)
+        return out, f"{name} marker {track}"
     if rot is not None and len(rot):
         return rot[["time_s", "x_mm", "y_mm", "z_mm"]].reset_index(drop=True), "rotor marker"
     return None, ""

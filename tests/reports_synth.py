@@ -24,6 +24,7 @@ SWEEP_AXIS = (1.0, 0.0, 0.0)
 SWEEP_BIN_S = 3.0
 SWEEP_FREQS_HZ = tuple(k + 0.5 for k in range(1, 24))  # 1.5 … 23.5 Hz, one per 1 Hz bin
 ROTATION = {
+    "segment": "rotation",
     "t_start_s": 300.0,
     "t_stop_s": 310.0,
     "frequency_hz": 2.0,
@@ -33,6 +34,7 @@ ROTATION = {
 }
 ROTOR_RADIUS_MEAS_MM = 50.3
 PLATE = {
+    "segment": "plate",
     "t_start_s": 400.0,
     "t_stop_s": 406.0,
     "frequency_hz": 3.5,
@@ -81,6 +83,7 @@ def sweep_event() -> dict[str, Any]:
         "axis": list(SWEEP_AXIS),
         "marker_ids": ["col0", "col1"],
         "profile": prof,
+        "segment": "sweep",
     }
 
 
@@ -98,6 +101,7 @@ def accuracy_events() -> list[dict[str, Any]]:
                     "t_start_s": t0,
                     "t_stop_s": t0 + 0.5,
                     "markers": markers,
+                    "segment": "accuracy",
                 }
             )
             index += 1
@@ -197,7 +201,7 @@ TIMING = {
     "line_time_s": {"left": 1.4e-5, "right": 1.4e-5},
     "drift_ppm": {"left": 0.0, "right": 3.0},
     "method": "trajectory",
-    "uncertainty": {"offset_s": 2.0e-5},
+    "uncertainty": {"offset_s": {"right": 2.0e-5}},
 }
 RIG = {
     "cameras": {"left": {"fps": FS_HZ}, "right": {"fps": FS_HZ}},

@@ -135,3 +135,26 @@ def test_bad_inputs_raise() -> None:
         position.match_static(pd.DataFrame(), pd.DataFrame(), gate_mm=0)
     with pytest.raises(ReportError, match="missing column"):
         position.match_static(pd.DataFrame({"time_s": []}), pd.DataFrame())
+
+
+def test_a_track_of_another_segment_is_never_taken(poses: pd.DataFrame) -> None:
+    """A decoy exactly at the commanded position, at the same instants but recorded by another step."""
+    tracks = synth.make_tracks("trajectory")
+    ev = synth.accuracy_events()[0]
+    t = tracks.loc[(tracks["segment"] == "accuracy") & (tracks["track_id"] == 0), "time_s"].to_numpy()
+    x, y, z = ev["markers"]["frame0"]
+    decoy = pd.DataFrame(
+        {
+            "segment": "elsewhere",
+            "time_s": t,
+            "track_id": 0,
+            "x_mm": x,
+            "y_mm": y,
+            "z_mm": z,
+            "reprojection_px": 0.1,
+            "n_cameras": 2,
+        }
+    )
+    errs = position.position_errors(position.match_static(pd.concat([tracks, decoy]), poses))
+    row = errs[(errs["index"] == 0) & (errs["marker_id"] == "frame0")].iloc[0]
+    assert row["ex_mm"] == pytest.approx(0.1, abs=TOL)  # the injected error, not the decoy's zero
