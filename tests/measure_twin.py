@@ -74,3 +74,48 @@ def measurement_world(seed: int = 5, frequency_hz: float = FREQUENCY_HZ, onset_s
 def truth_displacement_mm(world: World, t_world_s: np.ndarray) -> np.ndarray:
     """The column's displacement along base z (mm) at world times."""
     return np.asarray(world.exciter.displacement_mm(np.asarray(t_world_s, float)), float)
+
+
+def write_pair(
+    left: SimCamera,
+    right: SimCamera,
+    folder: Path,
+    *,
+    fourcc: str = "mp4v",
+    ext: str = "mp4",
+    t_left_s: tuple[float, float] = (0.0, 2.5),
+    t_right_s: tuple[float, float] = (0.15, 2.65),
+) -> tuple[Path, Path]:
+    """Both cameras' videos of their intervals (world s); the right camera starts later, as on site."""
+    folder.mkdir(parents=True, exist_ok=True)
+    paths = folder / f"left.{ext}", folder / f"right.{ext}"
+    left.write_video(paths[0], *t_left_s, fourcc=fourcc)
+    right.write_video(paths[1], *t_right_s, fourcc=fourcc)
+    return paths
+
+
+def truth_timing(left: SimCamera, right: SimCamera, t_left0_s: float, t_right0_s: float) -> dict:
+    """timing.json of the twin's truth for videos starting at those world times: time stamps are the files'
+    (first frame at 0), the left camera's clock is the reference (its rate error makes the drift)."""
+    k0l = left.sensor_frame(left.first_frame_index_at_or_after(t_left0_s))
+    k0r = right.sensor_frame(right.first_frame_index_at_or_after(t_right0_s))
+    rate_l = 1.0 + left.clock_ppm * 1e-6
+    rate_r = 1.0 + right.clock_ppm * 1e-6
+    start_l = left.start_offset_s + k0l * left.frame_period_true_s
+    start_r = right.start_offset_s + k0r * right.frame_period_true_s
+    return {
+        "reference_camera": "left",
+        "offset_s": {"left": 0.0, "right": (start_r - start_l) * rate_l},
+        "line_time_s": {"left": left.line_time_s * rate_l, "right": right.line_time_s * rate_l},
+        "drift_ppm": {"left": 0.0, "right": (rate_l / rate_r - 1.0) * 1e6},
+        "epoch_s": {"left": 0.0, "right": 0.0},
+        "method": "twin truth",
+        "uncertainty": {},
+    }
+
+
+def world_time(left: SimCamera, t_left0_s: float, t_ref_s: np.ndarray) -> np.ndarray:
+    """World time of instants on the left video's clock (mid-exposure)."""
+    k0l = left.sensor_frame(left.first_frame_index_at_or_after(t_left0_s))
+    start_l = left.start_offset_s + k0l * left.frame_period_true_s
+    return start_l + np.asarray(t_ref_s, float) / (1.0 + left.clock_ppm * 1e-6) + 0.5 * left.exposure_s

@@ -1,0 +1,169 @@
+"""`rig calibrate` then `rig measure` on videos written by the twin, against the twin's truth.
+
+Tolerances are derived, never tuned: the amplitude's noise floor is the sine fit's own standard uncertainty
+(from its residuals), the calibration's scale floor is the largest relative length error of the plate's
+points when their exact images are triangulated with the calibration, and the sync method's bias at 5 Hz
+is < 0.1 % (rig/sync_tracks.py); the frequency's floor is the fit's standard uncertainty plus the
+reference camera's clock-rate error.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+from scipy.spatial.distance import pdist
+
+import measure_twin as mt
+from camera_mkv import write_mkv
+from rig.analysis import load_cameras
+from rig.cli import main
+from rig.measure import MeasureError, MeasureOptions, measure_videos
+from rig.stereo import triangulate
+
+WINDOW = (0.6, 2.4)  # s on the left video's clock: the exciter runs from 0.4 s
+
+
+@pytest.fixture(scope="module")
+def site(tmp_path_factory: pytest.TempPathFactory) -> dict:
+    folder = tmp_path_factory.mktemp("site")
+    world, truth, t_end = mt.calibration_world()
+    left, right = mt.camera_pair(world)
+    left.write_video(folder / "cal_left.mp4", 0.0, t_end, fourcc="mp4v")
+    right.write_video(folder / "cal_right.mp4", 0.0, t_end, fourcc="mp4v")
+    target = mt.write_target(folder / "target.toml", truth)
+    code = main(["calibrate", str(folder / "cal_left.mp4"), str(folder / "cal_right.mp4"), "--target",
+                 str(target), "--out", str(folder / "calibration.json")])
+    assert code == 0
+    cams = load_cameras(json.loads((folder / "calibration.json").read_text()))
+    pts = np.concatenate(truth)
+    tri = triangulate([cams["left"], cams["right"]], [left.project(pts), right.project(pts)])
+    d_true, d_meas = pdist(pts), pdist(tri.xyz_mm)
+    long = d_true > 100.0
+    scale = float(np.max(np.abs(d_meas[long] - d_true[long]) / d_true[long]))
+    return {"folder": folder, "calibration": folder / "calibration.json", "scale_floor": scale}
+
+
+def _check_targets(summary: pd.DataFrame, clock_ppm: float, scale_floor: float) -> None:
+    targets = summary[summary["role"] == "target"]
+    assert len(targets) == 5  # the sweep column's markers; the 4 references are recognised as static
+    assert (summary["role"] == "reference").sum() == 4
+    for r in targets.itertuples():
+        tol_a = 4 * r.amplitude_std_mm + mt.CRANK_MM * (scale_floor + 1e-3)
+        assert abs(r.amplitude_mm - mt.CRANK_MM) <= tol_a, (r.track_id, r.amplitude_mm, tol_a)
+        tol_f = 4 * r.frequency_std_hz + abs(clock_ppm) * 1e-6 * mt.FREQUENCY_HZ
+        assert abs(r.frequency_hz - mt.FREQUENCY_HZ) <= tol_f, (r.track_id, r.frequency_hz, tol_f)
+        assert abs(r.direction_z) > 0.99  # the column moves along base z
+        assert abs(r.dominant_frequency_hz - mt.FREQUENCY_HZ) <= r.resolution_hz / 2
+
+
+@pytest.mark.parametrize(("fourcc", "ext"), [("mp4v", "mp4"), ("MJPG", "avi")])
+def test_calibrate_then_measure_matches_the_twin(site: dict, tmp_path: Path, fourcc: str, ext: str) -> None:
+    world = mt.measurement_world()
+    left, right = mt.camera_pair(world)
+    paths = mt.write_pair(left, right, tmp_path, fourcc=fourcc, ext=ext)
+    timing = tmp_path / "timing.json"
+    timing.write_text(json.dumps(mt.truth_timing(left, right, 0.0, 0.15)))
+    out = tmp_path / "out"
+    code = main(["measure", str(paths[0]), str(paths[1]), "--calibration", str(site["calibration"]),
+                 "--timing", str(timing), "--out", str(out), "--window", *map(str, WINDOW)])
+    assert code == 0
+    summary = pd.read_csv(out / "tables" / "summary.csv")
+    _check_targets(summary, left.clock_ppm, site["scale_floor"])
+    for name in ("displacement", "spectra", "tracks_3d"):
+        assert (out / "tables" / f"{name}.csv").stat().st_size > 0
+    html = (out / "report.html").read_text()
+    assert "data:image/png;base64," in html and "Summary per track" in html
+    assert (out / "figures" / "spectrum.png").is_file()
+    # displacement over time against the truth, on the world clock: within the noise and scale floors
+    disp = pd.read_csv(out / "tables" / "displacement.csv")
+    tid = int(summary[summary["role"] == "target"]["track_id"].iloc[2])
+    d = disp[(disp["track_id"] == tid) & disp["time_s"].between(*WINDOW)]
+    truth = mt.truth_displacement_mm(world, mt.world_time(left, 0.0, d["time_s"].to_numpy()))
+    resid = d["dz_mm"].to_numpy() - (truth - np.median(truth))
+    row = summary[summary["track_id"] == tid].iloc[0]
+    floor = row["fit_residual_rms_mm"] + mt.CRANK_MM * site["scale_floor"]
+    assert np.sqrt(np.mean((resid - resid.mean()) ** 2)) <= 1.5 * floor
+
+
+def test_estimated_timing_finds_the_offset_and_the_result(site: dict, tmp_path: Path) -> None:
+    world = mt.measurement_world()
+    left, right = mt.camera_pair(world)
+    paths = mt.write_pair(left, right, tmp_path)
+    res = measure_videos({"left": paths[0], "right": paths[1]}, site["calibration"], tmp_path / "out",
+                         options=MeasureOptions(window_s=WINDOW, make_figures=False))
+    truth = mt.truth_timing(left, right, 0.0, 0.15)["offset_s"]["right"]
+    # the line time is not identifiable from a column moving along its own rows' direction: taken as 0,
+    # which shifts the offset by at most (row difference) × line time; 1 ms bounds it here (< 1/16 frame)
+    assert abs(res.timing["offset_s"]["right"] - truth) < 1e-3
+    _check_targets(res.summary, left.clock_ppm, site["scale_floor"])
+
+
+def _mkv(cam, t0: float, t1: float, path: Path) -> None:
+    idx = cam.frame_indices_between(t0, t1)
+    stamps = [cam.frame_timestamp_s(i) - cam.frame_timestamp_s(idx[0]) for i in idx]
+    write_mkv(path, (cam.render(i) for i in idx), stamps)
+
+
+def test_duplicated_and_dropped_frames_are_reported_and_the_result_holds(site: dict, tmp_path: Path) -> None:
+    world = mt.measurement_world()
+    left, right = mt.camera_pair(world, left={"duplicated_frames": (30, 100)}, right={
+        "dropped_frames": (50, 51, 95), "duplicated_frames": (70,)})
+    _mkv(left, 0.0, 2.5, tmp_path / "left.mkv")
+    _mkv(right, 0.15, 2.65, tmp_path / "right.mkv")
+    timing = tmp_path / "timing.json"
+    timing.write_text(json.dumps(mt.truth_timing(left, right, 0.0, 0.15)))
+    res = measure_videos({"left": tmp_path / "left.mkv", "right": tmp_path / "right.mkv"}, site["calibration"],
+                         tmp_path / "out", timing=timing, options=MeasureOptions(window_s=WINDOW))
+    frames = json.loads((tmp_path / "out" / "frames.json").read_text())
+    assert [d["index"] for d in frames["left"]["duplicated"]] == [31, 102]  # delivered indices
+    assert all(d["pts_repeated"] and d["image_repeated"] for d in frames["left"]["duplicated"])
+    assert frames["right"]["missing_frames"] == 3
+    assert [d["missing_frames"] for d in frames["right"]["dropped"]] == [2, 1]
+    assert len(frames["right"]["duplicated"]) == 1
+    assert any("duplicated" in n for n in res.notes) and any("dropped" in n for n in res.notes)
+    _check_targets(res.summary, left.clock_ppm, site["scale_floor"])
+
+
+def test_truncated_video_keeps_the_partial_result(site: dict, tmp_path: Path) -> None:
+    world = mt.measurement_world()
+    left, right = mt.camera_pair(world)
+    paths = mt.write_pair(left, right, tmp_path, fourcc="MJPG", ext="avi")
+    data = paths[1].read_bytes()
+    paths[1].write_bytes(data[: int(len(data) * 0.7)])
+    timing = tmp_path / "timing.json"
+    timing.write_text(json.dumps(mt.truth_timing(left, right, 0.0, 0.15)))
+    out = tmp_path / "out"
+    code = main(["measure", str(paths[0]), str(paths[1]), "--calibration", str(site["calibration"]),
+                 "--timing", str(timing), "--out", str(out)])
+    assert code == 4
+    meta = json.loads((out / "measure.json").read_text())
+    assert any("truncated" in p for p in meta["problems"])
+    assert "Problems with the inputs" in (out / "report.html").read_text()
+    frames = json.loads((out / "frames.json").read_text())
+    assert frames["right"]["truncated"] and 0 < frames["right"]["frames_read"] < frames["right"]["frames_declared"]
+    assert (pd.read_csv(out / "tables" / "summary.csv")["role"] == "target").sum() == 5
+
+
+def test_truncated_mp4_and_missing_or_mismatched_calibration_are_clear_errors(
+        site: dict, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    world = mt.measurement_world()
+    left, right = mt.camera_pair(world)
+    paths = mt.write_pair(left, right, tmp_path, t_left_s=(0.0, 0.5), t_right_s=(0.0, 0.5))
+    cut = tmp_path / "cut.mp4"
+    cut.write_bytes(paths[1].read_bytes()[:-2000])  # the MP4 index (moov) is written last
+    assert main(["measure", str(paths[0]), str(cut), "--calibration", str(site["calibration"]),
+                 "--out", str(tmp_path / "o1")]) == 4
+    assert "no decoder can open it" in capsys.readouterr().err
+    assert main(["measure", str(paths[0]), str(paths[1]), "--calibration", str(tmp_path / "none.json"),
+                 "--out", str(tmp_path / "o2")]) == 4
+    assert "no calibration file" in capsys.readouterr().err
+    cal = json.loads(site["calibration"].read_text())
+    cal["cameras"]["right"]["image_size"] = [1920, 1080]
+    other = tmp_path / "cal_1080p.json"
+    other.write_text(json.dumps(cal))
+    with pytest.raises(MeasureError, match=r"960×540 px but .* 1920×1080"):
+        measure_videos({"left": paths[0], "right": paths[1]}, other, tmp_path / "o3")
