@@ -12,13 +12,13 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import measure_twin as mt
 import numpy as np
 import pandas as pd
 import pytest
+from camera_mkv import write_mkv
 from scipy.spatial.distance import pdist
 
-import measure_twin as mt
-from camera_mkv import write_mkv
 from rig.analysis import load_cameras
 from rig.cli import main
 from rig.measure import MeasureError, MeasureOptions, measure_videos
@@ -60,7 +60,8 @@ def _check_targets(summary: pd.DataFrame, clock_ppm: float, scale_floor: float) 
         assert abs(r.dominant_frequency_hz - mt.FREQUENCY_HZ) <= r.resolution_hz / 2
 
 
-@pytest.mark.parametrize(("fourcc", "ext"), [("mp4v", "mp4"), ("MJPG", "avi")])
+@pytest.mark.parametrize(("fourcc", "ext"),
+                         [("mp4v", "mp4"), pytest.param("MJPG", "avi", marks=pytest.mark.slow)])
 def test_calibrate_then_measure_matches_the_twin(site: dict, tmp_path: Path, fourcc: str, ext: str) -> None:
     world = mt.measurement_world()
     left, right = mt.camera_pair(world)
@@ -89,6 +90,7 @@ def test_calibrate_then_measure_matches_the_twin(site: dict, tmp_path: Path, fou
     assert np.sqrt(np.mean((resid - resid.mean()) ** 2)) <= 1.5 * floor
 
 
+@pytest.mark.slow
 def test_estimated_timing_finds_the_offset_and_the_result(site: dict, tmp_path: Path) -> None:
     world = mt.measurement_world()
     left, right = mt.camera_pair(world)
@@ -116,8 +118,9 @@ def test_duplicated_and_dropped_frames_are_reported_and_the_result_holds(site: d
     _mkv(right, 0.15, 2.65, tmp_path / "right.mkv")
     timing = tmp_path / "timing.json"
     timing.write_text(json.dumps(mt.truth_timing(left, right, 0.0, 0.15)))
-    res = measure_videos({"left": tmp_path / "left.mkv", "right": tmp_path / "right.mkv"}, site["calibration"],
-                         tmp_path / "out", timing=timing, options=MeasureOptions(window_s=WINDOW))
+    res = measure_videos({"left": tmp_path / "left.mkv", "right": tmp_path / "right.mkv"},
+                         site["calibration"], tmp_path / "out", timing=timing,
+                         options=MeasureOptions(window_s=WINDOW))
     frames = json.loads((tmp_path / "out" / "frames.json").read_text())
     assert [d["index"] for d in frames["left"]["duplicated"]] == [31, 102]  # delivered indices
     assert all(d["pts_repeated"] and d["image_repeated"] for d in frames["left"]["duplicated"])
@@ -144,7 +147,8 @@ def test_truncated_video_keeps_the_partial_result(site: dict, tmp_path: Path) ->
     assert any("truncated" in p for p in meta["problems"])
     assert "Problems with the inputs" in (out / "report.html").read_text()
     frames = json.loads((out / "frames.json").read_text())
-    assert frames["right"]["truncated"] and 0 < frames["right"]["frames_read"] < frames["right"]["frames_declared"]
+    right = frames["right"]
+    assert right["truncated"] and 0 < right["frames_read"] < right["frames_declared"]
     assert (pd.read_csv(out / "tables" / "summary.csv")["role"] == "target").sum() == 5
 
 
