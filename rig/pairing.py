@@ -74,28 +74,33 @@ class _Track:
     t: np.ndarray  # (N,) s, increasing
     uv: np.ndarray  # (N, 2) undistorted px
     angle: float = math.nan  # median angle between the viewing ray and the baseline, rad
+    spline: CubicSpline | None = None  # built on first use
 
 
 def _tracks(obs: pd.DataFrame, cam: DLTCamera, what: str) -> dict[int, _Track]:
     check_observations(obs, ("time_s", "u_px", "v_px", "track_id"), what)
+    sel = obs[obs["track_id"].to_numpy() >= 0].sort_values(["track_id", "time_s"], kind="stable")
+    tid = sel["track_id"].to_numpy()
+    t_all = sel["time_s"].to_numpy(float)
+    uv_all = cam.undistort_px(sel[["u_px", "v_px"]].to_numpy(float), strict=False)
+    cuts = np.flatnonzero(np.diff(tid)) + 1
     out: dict[int, _Track] = {}
-    sel = obs[obs["track_id"].to_numpy() >= 0]
-    for tid, group in sel.groupby("track_id", sort=True):
-        g = group.sort_values("time_s", kind="stable")
-        uv = cam.undistort_px(g[["u_px", "v_px"]].to_numpy(float), strict=False)
-        t = g["time_s"].to_numpy(float)
+    for lo, hi in zip(np.r_[0, cuts], np.r_[cuts, len(tid)], strict=True):
+        t, uv = t_all[lo:hi], uv_all[lo:hi]
         ok = np.isfinite(uv).all(axis=1)
         t, uv = t[ok], uv[ok]
         if t.size >= 2:
             keep = np.r_[True, np.diff(t) > 0]
-            out[int(tid)] = _Track(t[keep], uv[keep])
+            out[int(tid[lo])] = _Track(t[keep], uv[keep])
     return out
 
 
 def _interpolate(track: _Track, t_s: np.ndarray) -> np.ndarray:
     """B's track at A's instants: not-a-knot cubic spline (≥ 4 samples), else linear."""
     if track.t.size >= 4:
-        return CubicSpline(track.t, track.uv, axis=0, bc_type="not-a-knot")(t_s)
+        if track.spline is None:
+            track.spline = CubicSpline(track.t, track.uv, axis=0, bc_type="not-a-knot")
+        return track.spline(t_s)
     return np.column_stack([np.interp(t_s, track.t, track.uv[:, k]) for k in range(2)])
 
 
@@ -106,10 +111,13 @@ def _ray_angles(cam: DLTCamera, uv: np.ndarray, baseline: np.ndarray) -> np.ndar
     return np.arccos(np.clip(rays @ baseline, -1.0, 1.0))
 
 
-def _in_volume(xyz: np.ndarray, volume: Volume | None) -> bool:
+def _in_volume(xyz: np.ndarray, volume: Volume | None) -> np.ndarray:
+    """(N,) True where the points (N, 3) lie in the box (all True without one; NaN rows False)."""
     if volume is None:
-        return True
-    return all(lo <= v <= hi for v, (lo, hi) in zip(xyz, volume, strict=True))
+        return np.ones(len(xyz), bool)
+    box = np.asarray(volume, float)
+    with np.errstate(invalid="ignore"):
+        return np.all((xyz >= box[:, 0]) & (xyz <= box[:, 1]), axis=1)
 
 
 def _check_volume(volume_mm: object) -> Volume | None:
@@ -163,28 +171,35 @@ def pair_tracks(
         tr.angle = float(np.median(_ray_angles(ca, tr.uv, baseline)))
     for tr in tb.values():
         tr.angle = float(np.median(_ray_angles(cb, tr.uv, baseline)))
-    rows = []
+    rows, probe = [], []
     for ia, a in ta.items():
         for ib, b in tb.items():
+            if a.t[-1] < b.t[0] or b.t[-1] < a.t[0]:
+                continue
             inside = (a.t >= b.t[0]) & (a.t <= b.t[-1])
             n = int(inside.sum())
             if n < min_common:
                 continue
             uva = a.uv[inside]
             uvb = _interpolate(b, a.t[inside])
-            d = float(np.median(epipolar_distance_px(F, uva, uvb, pairwise=False)))
-            in_front = in_vol = False
-            if d <= gate:
-                step = max(1, n // 50)
-                xyz = linear_triangulation([ca.P, cb.P], np.stack([uva[::step], uvb[::step]], axis=1))
-                xyz_med = np.nanmedian(xyz, axis=0)
-                if np.isfinite(xyz_med).all():
-                    depth = [float(P[2] @ np.append(xyz_med, 1.0)) for P in (ca.P, cb.P)]
-                    in_front = min(depth) > 0
-                    in_vol = _in_volume(xyz_med, volume)
-            rows.append((ia, ib, d, n, in_front, in_vol, d <= gate and in_front and in_vol))
-    cand = pd.DataFrame(rows, columns=["track_a", "track_b", "distance_px", "n_common", "in_front",
-                                       "in_volume", "feasible"])
+            dist = epipolar_distance_px(F, uva, uvb, pairwise=False)
+            k = int(np.argsort(dist)[n // 2])  # the instant of the median distance
+            rows.append((ia, ib, float(dist[k]) if n % 2 else float(np.median(dist)), n))
+            probe.append((uva[k], uvb[k]))
+    cand = pd.DataFrame(rows, columns=["track_a", "track_b", "distance_px", "n_common"])
+    # where each candidate puts the marker (at its median instant): in front of both cameras, in the volume?
+    in_front = np.zeros(len(rows), bool)
+    in_vol = np.zeros(len(rows), bool)
+    gated = np.flatnonzero(cand["distance_px"].to_numpy() <= gate) if rows else np.zeros(0, int)
+    if gated.size:
+        xyz = linear_triangulation([ca.P, cb.P], np.array([probe[i] for i in gated]))
+        xyz_h = np.column_stack([xyz, np.ones(len(xyz))])
+        ok = np.isfinite(xyz).all(axis=1)
+        in_front[gated] = ok & (xyz_h @ ca.P[2] > 0) & (xyz_h @ cb.P[2] > 0)
+        in_vol[gated] = ok & _in_volume(xyz, volume)
+    cand["in_front"] = in_front
+    cand["in_volume"] = in_vol
+    cand["feasible"] = (cand["distance_px"].to_numpy() <= gate) & in_front & in_vol if rows else in_front
     pairs = _assign(cand, ta, tb, margin)
     if use_order and len(pairs) and pairs["ambiguous"].any():
         pairs = _resolve_by_order(pairs, cand, ta, tb)

@@ -170,8 +170,9 @@ def triangulate_tracks(
         pairs, notes = pair_all(obs, cams, ref, **dict(pair_options or {}))
     usable = pairs[~pairs["ambiguous"].astype(bool)] if "ambiguous" in pairs.columns else pairs
     rows = []
+    arrays = {c: _track_arrays(o) for c, o in obs.items()}
     for key, (comp_seg, comp) in enumerate(_components(usable, obs[ref])):
-        part, more = _triangulate_component(comp, obs, cams, ref, sync=sync,
+        part, more = _triangulate_component(comp, arrays, cams, ref, sync=sync,
                                             knot_spacing_frames=knot_spacing_frames)
         notes += more
         if len(part):
@@ -217,24 +218,32 @@ def _components(pairs: pd.DataFrame, ref_obs: pd.DataFrame) -> list[tuple[str, d
     return out
 
 
-def _track(obs: pd.DataFrame, ids: set[int]) -> list[tuple[np.ndarray, np.ndarray]]:
-    """Per track id: (time_s increasing, observed uv (N, 2)); repeated instants dropped."""
-    out = []
-    for tid in sorted(ids):
-        g = obs[obs["track_id"].to_numpy() == tid].sort_values("time_s", kind="stable")
-        t = g["time_s"].to_numpy(float)
-        uv = g[["u_px", "v_px"]].to_numpy(float)
+def _track_arrays(obs: pd.DataFrame) -> dict[int, tuple[np.ndarray, np.ndarray]]:
+    """Track id → (time_s increasing, observed uv (N, 2)); repeated instants dropped; −1 rows left out."""
+    sel = obs[obs["track_id"].to_numpy() >= 0].sort_values(["track_id", "time_s"], kind="stable")
+    tid = sel["track_id"].to_numpy()
+    t_all = sel["time_s"].to_numpy(float)
+    uv_all = sel[["u_px", "v_px"]].to_numpy(float)
+    cuts = np.flatnonzero(np.diff(tid)) + 1
+    out = {}
+    for lo, hi in zip(np.r_[0, cuts], np.r_[cuts, len(tid)], strict=True):
+        t, uv = t_all[lo:hi], uv_all[lo:hi]
         keep = np.r_[True, np.diff(t) > 0]
-        out.append((t[keep], uv[keep]))
+        out[int(tid[lo])] = (t[keep], uv[keep])
     return out
 
 
-def _triangulate_component(comp, obs, cams, ref, *, sync, knot_spacing_frames):
+def _track(arrays: dict[int, tuple[np.ndarray, np.ndarray]], ids: set[int]) -> list[tuple[np.ndarray, ...]]:
+    """The (time_s, uv) arrays of ``ids`` in id order."""
+    return [arrays[tid] for tid in sorted(ids) if tid in arrays]
+
+
+def _triangulate_component(comp, arrays, cams, ref, *, sync, knot_spacing_frames):
     notes: list[str] = []
     others = [c for c in cams if c != ref and c in comp]
     parts = []
-    for t_a, uv_a in _track(obs[ref], comp.get("", set())):
-        pieces = {c: _track(obs[c], comp[c]) for c in others}
+    for t_a, uv_a in _track(arrays[ref], comp.get("", set())):
+        pieces = {c: _track(arrays[c], comp[c]) for c in others}
         try:
             if sync == "trajectory":
                 part = _by_trajectory(t_a, uv_a, pieces, cams, ref=ref, others=others,
