@@ -151,7 +151,8 @@ def triangulate_tracks(
     ``observations``: camera → observations frame (run-folder columns; ``time_s`` and ``track_id`` are
     computed when absent). ``cameras``: camera → :class:`DLTCamera` or 3×4 matrix. ``timing``: the
     :class:`TimingResult` or ``timing.json`` dict; ``reference`` defaults to its reference camera.
-    ``pairs``: from :func:`pair_all` (computed when None); ambiguous pairs are not triangulated.
+    ``pairs``: from :func:`pair_all`, or ``pair_tracks(...).pairs`` with two cameras (computed when None);
+    ambiguous pairs are not triangulated.
     ``frame.attrs["notes"]`` lists what was skipped and why.
     """
     _check_sync(sync)
@@ -168,6 +169,14 @@ def triangulate_tracks(
     notes: list[str] = []
     if pairs is None:
         pairs, notes = pair_all(obs, cams, ref, **dict(pair_options or {}))
+    if "camera" not in pairs.columns:
+        others = [c for c in cams if c != ref]
+        if len(others) != 1:
+            raise AnalysisError(f"pairs need a 'camera' column with {len(cams)} cameras ({sorted(cams)})")
+        pairs = pairs.assign(camera=others[0])
+    missing = [c for c in ("track_a", "track_b") if c not in pairs.columns]
+    if missing:
+        raise AnalysisError(f"pairs lack column(s) {missing}; pass the pairs of pair_all or pair_tracks")
     usable = pairs[~pairs["ambiguous"].astype(bool)] if "ambiguous" in pairs.columns else pairs
     rows = []
     arrays = {c: _track_arrays(o) for c, o in obs.items()}

@@ -112,7 +112,7 @@ def test_decoy_on_the_epipolar_line_is_flagged_not_guessed(column):
     assert len(others) == 8
     # triangulation leaves the ambiguous marker out instead of picking one of the two
     tracks = triangulate_tracks(obs, dict(zip(("left", "right"), cams, strict=True)), column.timing,
-                                sync="linear", pairs=res.pairs.assign(camera="right"))
+                                sync="linear", pairs=res.pairs)
     assert tracks["track_id"].nunique() == 8
 
 
