@@ -41,6 +41,7 @@ def rotor_result(rotor_record):
     )
 
 
+@pytest.mark.slow
 def test_offset_from_a_10_s_rotor_record_is_within_the_target_and_the_noise_floor(rotor_record, rotor_result):
     rec, res = rotor_record, rotor_result
     err_s = res.offset_s["right"] - rec.truth_offset_s(res.epoch_s["right"])
@@ -52,6 +53,7 @@ def test_offset_from_a_10_s_rotor_record_is_within_the_target_and_the_noise_floo
     assert res.details["sigma_px"] == pytest.approx(SIGMA_PX, rel=0.15)
 
 
+@pytest.mark.slow
 def test_drift_and_line_time_agree_with_the_twin_within_their_uncertainty(rotor_record, rotor_result):
     rec, res = rotor_record, rotor_result
     u = res.uncertainty
@@ -82,6 +84,7 @@ def _synthetic(traj, *, offset_s=0.0043, n=420, line_time_s=12e-6, height_b_mm=1
     return cam_a, cam_b, (ta, ua), (tb, ub)
 
 
+@pytest.mark.slow
 def test_fixed_line_time_and_several_tracks():
     traj1, _, _ = rotor(frequency_hz=6.0, radius_mm=50.0)
     traj2 = oscillation(4.0, 6.0, (0.2, 1.0, 0.1), centre_mm=(100.0, 50.0, 1400.0))

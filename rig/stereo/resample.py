@@ -18,9 +18,8 @@ Times in seconds; values in any unit.
 from __future__ import annotations
 
 import numpy as np
-from scipy import sparse
+from scipy import linalg, sparse
 from scipy.interpolate import CubicSpline
-from scipy.sparse.linalg import splu
 
 from rig.stereo._series import as_times, as_values
 from rig.stereo.errors import InputArrayError, NonUniformSamplingError
@@ -75,8 +74,14 @@ def bandlimited(
     *,
     half_width_samples: int = 32,
     beta: float = 5.65,
-) -> np.ndarray:
-    """Windowed-sinc reconstruction of ``values`` (N, k) sampled at ``t_src`` evaluated at ``t_dst``."""
+    noise_gain: bool = False,
+) -> np.ndarray | tuple[np.ndarray, np.ndarray]:
+    """Windowed-sinc reconstruction of ``values`` (N, k) sampled at ``t_src`` evaluated at ``t_dst``.
+
+    ``noise_gain=True`` also returns, per destination, Σ_j M_ij² where M is the linear map from source
+    values to reconstructed values: the variance of the output for white source noise of unit variance
+    (≈ 1; it depends on the irregularity of ``t_src`` and on the destination's position between samples).
+    """
     t0, period, m = _grid(t_src)
     n_grid = int(m[-1]) + 1
     # Remove a straight line first: the kernel's pass-band ripple would otherwise act on large offsets
@@ -85,17 +90,27 @@ def bandlimited(
     trend, *_ = np.linalg.lstsq(A, values, rcond=None)
     detrended = values - A @ trend
     tau_src = (t_src - t0) / period
-    if np.allclose(tau_src, m, atol=1e-9, rtol=0) and n_grid == t_src.size:
-        grid_vals = detrended
-    else:
-        S = _kernel_matrix(tau_src, n_grid, half_width_samples, beta)
-        lam = 1e-8
-        N = (S.T @ S + lam * sparse.identity(n_grid)).tocsc()
-        grid_vals = splu(N).solve(np.asarray(S.T @ detrended))
     tau_dst = (t_dst - t0) / period
     K = _kernel_matrix(tau_dst, n_grid, half_width_samples, beta)
     B = np.column_stack([np.ones_like(t_dst), t_dst - t_src[0]])
-    return np.asarray(K @ grid_vals) + B @ trend
+    if np.allclose(tau_src, m, atol=1e-9, rtol=0) and n_grid == t_src.size:
+        out = np.asarray(K @ detrended) + B @ trend
+        gain = np.asarray(K.multiply(K).sum(axis=1)).ravel() if noise_gain else None
+    else:
+        S = _kernel_matrix(tau_src, n_grid, half_width_samples, beta)
+        lam = 1e-8
+        N = (S.T @ S + lam * sparse.identity(n_grid)).tocsr()
+        bands = np.zeros((2 * half_width_samples + 1, n_grid))  # lower banded form of the SPD matrix N
+        for d in range(bands.shape[0]):
+            diag = N.diagonal(-d)
+            bands[d, : diag.size] = diag
+        grid_vals = linalg.solveh_banded(bands, np.asarray(S.T @ detrended), lower=True)
+        out = np.asarray(K @ grid_vals) + B @ trend
+        if noise_gain:
+            # M = K N⁻¹ Sᵀ and SᵀS = N − λI, so diag(M Mᵀ) = diag(K Z) − λ·diag(ZᵀZ) with Z = N⁻¹ Kᵀ.
+            Z = linalg.solveh_banded(bands, K.T.toarray(), lower=True)
+            gain = np.asarray(K.multiply(Z.T).sum(axis=1)).ravel() - lam * np.sum(Z * Z, axis=0)
+    return (out, gain) if noise_gain else out
 
 
 def resample(
