@@ -2,9 +2,9 @@
 
 :func:`detect_markers` follows the paper's two steps — binarize the frame, keep the blobs inside the
 regions of interest — and measures each marker with a sub-pixel centre. For speed the binarization
-runs on the frame reduced by area averaging (×2 or ×4, chosen from ``min_area_px``); each candidate is
-then measured at full resolution in a small window (:mod:`rig.stereo.markers_refine`; a window that
-turns out too small for its marker is measured again, larger). :func:`track_markers` skips the
+runs on the frame reduced ×2 or ×4 (chosen from ``min_area_px``; :mod:`rig.stereo.markers_binarize`);
+each candidate is then measured at full resolution in a small window (:mod:`rig.stereo.markers_refine`;
+a window that turns out too small for its marker is measured again, larger). :func:`track_markers` skips the
 full-frame search: it measures only windows around predicted positions (the speed mode for
 sequences). Both measure a marker with the same pixels and weights; they differ only through the
 background plane fitted to the ring of their (differently placed) windows — by less than the

@@ -1,7 +1,7 @@
 """Binarization of a frame into marker candidates (the paper's first step), on a reduced copy for speed.
 
-The frame is reduced by area averaging (×2 or ×4: two successive halvings, OpenCV's fast path), then
-binarized — by default against the local mean (a box three marker diameters wide) plus an offset of
+The frame is reduced ×2 or ×4 — subsampled when its noise is low, else averaged (see reduce_frame) —
+then binarized — by default against the local mean (a box three marker diameters wide) plus an offset of
 max(min_contrast/2, 4σ of the noise), so uneven lighting does not matter; or at Otsu's level; or at a
 fixed level — and the outer contours of the blobs give candidate windows at full resolution. The exact
 measurement (area, contrast, centre) is made later at full resolution (:mod:`rig.stereo.markers_refine`),
@@ -22,23 +22,42 @@ def noise_sigma(low: np.ndarray) -> float:
     return max(1.4826 * float(median) / np.sqrt(2.0), 0.5)
 
 
+def reduce_frame(gray: np.ndarray, factor: int, min_contrast: float) -> tuple[np.ndarray, float]:
+    """The frame reduced ``factor`` times, and the pixel noise σ (DN) of the reduced frame.
+
+    Subsampling (one pixel of each factor×factor block, near its centre) reads a quarter or a sixteenth
+    of the frame's memory and keeps the markers' full contrast; it is used when the noise is small
+    against the contrast sought (4σ ≤ min_contrast/2, so the noise does not set the binarization level).
+    Otherwise the blocks are averaged (area interpolation, two halvings), which divides σ by the factor.
+    """
+    if factor == 1:
+        return gray, noise_sigma(gray)
+    start = factor // 2
+    low = np.ascontiguousarray(gray[start::factor, start::factor])
+    sigma = noise_sigma(low)
+    if 4.0 * sigma <= 0.5 * min_contrast:
+        return low, sigma
+    low = gray
+    for _ in range({2: 1, 4: 2}[factor]):
+        h, w = low.shape
+        low = cv2.resize(low[: h - h % 2, : w - w % 2], (w // 2, h // 2), interpolation=cv2.INTER_AREA)
+    return low, noise_sigma(low)
+
+
 def find_candidates(gray: np.ndarray, *, dark: bool, threshold: float | str | None, factor: int,
                     min_area_px: float, max_area_px: float, min_contrast: float, min_roundness: float):
     """Blobs of the binarized frame reduced ``factor`` (1, 2, 4) times.
 
     Returns full-resolution integer window centres (rows, cols) and window half sizes, int64 arrays.
     """
-    low = gray
-    for _ in range({1: 0, 2: 1, 4: 2}[factor]):
-        h, w = low.shape
-        low = cv2.resize(low[: h - h % 2, : w - w % 2], (w // 2, h // 2), interpolation=cv2.INTER_AREA)
+    low, sigma = reduce_frame(gray, factor, min_contrast)
     if dark:
         low = cv2.bitwise_not(low)
     if threshold is None:
         radius_low = np.sqrt(max_area_px / np.pi) / factor
         block = int(2 * np.ceil(3.0 * radius_low) + 1)
         block = max(3, min(block, 2 * ((min(low.shape) - 1) // 2) + 1))
-        offset = int(np.ceil(max(0.5 * min_contrast, 4.0 * noise_sigma(low))))
+        offset = int(np.ceil(max(0.5 * min_contrast, 4.0 * sigma)))
         # foreground: brighter than the local mean (box of `block` reduced pixels) by more than `offset`
         level = cv2.add(cv2.blur(low, (block, block), borderType=cv2.BORDER_REPLICATE), min(offset, 255))
         binary = cv2.compare(low, level, cv2.CMP_GT)
