@@ -278,9 +278,18 @@ def _build_generator(st: Station, cfg: RigConfig) -> None:
 
 def _build_cameras(st: Station, cfg: RigConfig) -> None:
     for name, cam in cfg.cameras.items():
-        if cam.driver != "sim":
-            raise StationError(f"cameras.{name}.driver {cam.driver!r}: live and file cameras are not built "
-                               "by this version of the station (only 'sim')")
+        if cam.driver == "opencv":
+            from drivers.camera.opencv_device import OpenCVCamera
+
+            width, height = cam.resolution_px
+            st.cameras[name] = OpenCVCamera(name, cam.source, fps=cam.fps, width_px=width, height_px=height)
+        elif cam.driver == "file":
+            from drivers.camera.video_file import VideoFile, VideoFileError
+
+            try:
+                st.cameras[name] = VideoFile(cam.source, name=name, fps=cam.fps)
+            except VideoFileError as exc:
+                raise StationError(f"cameras.{name}.source: {exc}") from exc
     if st.world is None:
         return
     from drivers.sim.source import SimFrameSource
