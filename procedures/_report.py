@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from typing import Any
 
-__all__ = ["report_step", "verdict_of"]
+__all__ = ["evaluated_summary", "report_step", "verdict_of"]
 
 
 def verdict_of(certificate: dict[str, Any]) -> tuple[bool, str]:
@@ -28,6 +28,12 @@ def verdict_of(certificate: dict[str, Any]) -> tuple[bool, str]:
     return passed, "; ".join(parts)
 
 
+def evaluated_summary(result: dict[str, Any]) -> str:
+    """For a procedure that covers only part of the certification: the criteria its run evaluated."""
+    done = [f"{k} {v}" for k, v in result["criteria"].items() if v in ("PASS", "FAIL")]
+    return f"report {result['report']}; " + (", ".join(done) if done else "no acceptance criterion evaluated")
+
+
 def report_step(ctx: Any, *, make_figures: bool = True) -> dict[str, Any]:
     """Build the report as step ``report``; return the verdict dict (``passed``, ``summary``, paths)."""
     from reports.build import build_report
@@ -40,4 +46,5 @@ def report_step(ctx: Any, *, make_figures: bool = True) -> dict[str, Any]:
                 step.output(path.relative_to(ctx.run_dir))
     passed, summary = verdict_of(result.certificate)
     return {"passed": passed, "summary": summary, "report": str(result.report_html),
-            "certificate": str(result.certificate_json)}
+            "certificate": str(result.certificate_json),
+            "criteria": {r.get("id", "?"): r["status"] for r in result.certificate.get("criteria") or []}}

@@ -162,7 +162,7 @@ def run_steps(ctx: Any, params: Parameters) -> int:
 
 def run(ctx: Any, params: Parameters) -> dict[str, Any]:
     from procedures import calibrate, sync
-    from procedures._report import report_step
+    from procedures._report import evaluated_summary, report_step
 
     calibrate.check_plan(ctx, calibrate.Parameters())
     sync.check_plan(ctx, sync.Parameters())
@@ -171,4 +171,4 @@ def run(ctx: Any, params: Parameters) -> dict[str, Any]:
     sync.run_step(ctx, sync.Parameters())
     n = run_steps(ctx, params)
     result = report_step(ctx)
-    return {"summary": f"{n} poses visited; " + result["summary"], "report": result["report"]}
+    return {"summary": f"{n} poses visited; " + evaluated_summary(result), "report": result["report"]}

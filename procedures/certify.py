@@ -96,4 +96,4 @@ def run(ctx: Any, params: Parameters) -> dict[str, Any]:
     sweep.run_step(ctx, sub["sweep"])
     result = report_step(ctx, make_figures=params.figures)
     return {"passed": result["passed"], "summary": result["summary"], "report": result["report"],
-            "certificate": result["certificate"], "preset": params.preset}
+            "certificate": result["certificate"], "preset": params.preset, "criteria": result["criteria"]}

@@ -101,7 +101,7 @@ def run_step(ctx: Any, params: Parameters, *, step_name: str = "sweep") -> None:
 
 def run(ctx: Any, params: Parameters) -> dict[str, Any]:
     from procedures import calibrate, sync
-    from procedures._report import report_step
+    from procedures._report import evaluated_summary, report_step
 
     calibrate.check_plan(ctx, calibrate.Parameters())
     sync.check_plan(ctx, sync.Parameters())
@@ -110,5 +110,5 @@ def run(ctx: Any, params: Parameters) -> dict[str, Any]:
     sync.run_step(ctx, sync.Parameters())
     run_step(ctx, params)
     result = report_step(ctx)
-    return {"summary": result["summary"], "report": result["report"]}
+    return {"summary": evaluated_summary(result), "report": result["report"]}
 
