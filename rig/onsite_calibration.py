@@ -12,7 +12,8 @@
    told from fixed markers (those stay put between positions) and identified on the plate's grid by
    :mod:`rig.plate_grid` (an unidentifiable grid is a clear error naming the camera and position);
 4. one DLT per camera (:func:`rig.stereo.calibrate_dlt`, refined, radial distortion ``k1`` by default)
-   with its residuals → ``calibration.json`` (contracts.md layout plus the segments found).
+   with its residuals → ``calibration.json`` (contracts.md layout plus the segments found); a reprojection
+   RMS above ``max_rms_px`` means the identification or the coordinates are wrong and is an error.
 
 ``target.toml``::
 
@@ -168,8 +169,11 @@ def _describe(segments: list[dict[str, Any]]) -> str:
 def calibrate_from_videos(videos: dict[str, str | Path], target: PlateTarget | str | Path, *,
                           distortion: str = "k1", refine: bool = True, still_px: float = 0.3,
                           lag_frames: int = 6, min_still_frames: int = 20,
-                          detect: dict[str, Any] | None = None) -> dict[str, Any]:
-    """The ``calibration.json`` content from one video per camera (name → path) of the slid plate."""
+                          detect: dict[str, Any] | None = None, max_rms_px: float = 2.0) -> dict[str, Any]:
+    """The ``calibration.json`` content from one video per camera (name → path) of the slid plate.
+
+    ``max_rms_px``: largest reprojection RMS accepted (px); above it the grid identification or the target
+    coordinates are wrong (a consistent but transposed or mirrored assignment still fits a homography)."""
     if distortion not in DISTORTION_MODELS:
         raise OnsiteCalibrationError(f"distortion={distortion!r}; allowed: {sorted(DISTORTION_MODELS)}")
     if len(videos) < 2:
@@ -206,6 +210,11 @@ def calibrate_from_videos(videos: dict[str, str | Path], target: PlateTarget | s
                                 distortion=DISTORTION_MODELS[distortion], image_size=sizes[name])
         except StereoError as exc:
             raise OnsiteCalibrationError(f"camera {name!r}: DLT failed: {exc}") from exc
+        if not cam.rms_px <= max_rms_px:
+            raise OnsiteCalibrationError(
+                f"camera {name!r}: the control points do not fit a camera (reprojection RMS "
+                f"{cam.rms_px:.2f} px > {max_rms_px:g} px): the plate's grid (rows × cols = {tgt.rows} × "
+                f"{tgt.cols}, row 0 on top) or the target coordinates do not match the filmed plate")
         cameras[name] = cam.to_dict()
         details[name] = {"video": str(path), "segments": [{k: v for k, v in s.items() if k != "frames"}
                                                           for s in segs],
