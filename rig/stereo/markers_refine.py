@@ -172,7 +172,8 @@ def _background(ring_vals: np.ndarray, ring_valid: np.ndarray | None, geo: _Geom
         inlier &= ring_valid
     design = geo.ring_design
     coef = values @ geo.ring_fit  # plain least squares, right for every window with a clean ring
-    partial = np.nonzero(~inlier.all(axis=1))[0]
+    n_inlier = inlier.sum(axis=1)
+    partial = np.nonzero(n_inlier < n_ring)[0]
     if len(partial):
         # weighted normal equations for the others, batched: (AᵀMA) coef = AᵀMy, M the inlier mask
         mask = inlier[partial].astype(np.float64)
@@ -180,7 +181,7 @@ def _background(ring_vals: np.ndarray, ring_valid: np.ndarray | None, geo: _Geom
         rhs = (mask * values[partial]) @ design
         coef[partial] = np.linalg.solve(normal + 1e-9 * np.eye(3), rhs[:, :, None])[:, :, 0]
     resid = (values - coef @ design.T) * inlier
-    dof = np.maximum(np.count_nonzero(inlier, axis=1) - 3.0, 1.0)
+    dof = np.maximum(n_inlier - 3.0, 1.0)
     sigma = np.maximum(np.sqrt(np.einsum("ij,ij->i", resid, resid) / dof), MIN_SIGMA_DN)
     return coef.astype(np.float32), sigma.astype(np.float32)
 
