@@ -13,8 +13,9 @@ Methods, timed in the same run:
   sbd/coarse     50..170 step 20: half the thresholds, faster and less accurate
   thr+cc         cv2.threshold at the mid level (95 DN) + cv2.connectedComponentsWithStats centroids
 
-Every frame is processed by all methods one right after the other (in a rotating order), so a change
-in the machine's load hits them alike. Prints ms per frame (median over the frames of a round; best
+By default every frame is processed by all methods one right after the other (in a rotating order),
+so a change in the machine's load hits them alike (--order blocked runs each method through all frames,
+as a pipeline that only measures markers would). Prints ms per frame (median over the frames of a round; best
 and worst round), the speed-up over each SimpleBlobDetector variant (median of the per-frame paired
 ratios), and the centroid RMS error per axis vs truth (first round, matched within 3 px).
 Run: .venv/bin/python benchmarks/markers.py [--rounds N] [--frames N] [--threads 1] [--clock cpu]
@@ -120,30 +121,34 @@ def errors(found: np.ndarray, truth: np.ndarray):
     return matched, len(truth) - len(set(nearest[ok].tolist())), int((~ok).sum())
 
 
-def run(n_markers: int, n_frames: int, rounds: int, clock=time.perf_counter) -> None:
+def run(n_markers: int, n_frames: int, rounds: int, clock=time.perf_counter,
+        order: str = "interleaved") -> None:
     frames, truth = make_sequence(n_markers, n_frames + 1, seed=n_markers)
     names = list(METHODS)
     for name in names:  # warm-up (caches, first-call costs)
         METHODS[name](frames[0], truth[0])
-    # times[name][round, frame]: every method runs on a frame right after the others (in a rotating
-    # order), so a change of the machine's load hits all of them alike and per-frame ratios are paired
+    # times[name][round, frame]; speed-ups are medians of the ratios paired by (round, frame)
     times = {name: np.zeros((rounds, n_frames)) for name in names}
     results: dict[str, list[np.ndarray]] = {name: [] for name in names}
     for r in range(rounds):
         prev_track = truth[0]
-        for f in range(1, n_frames + 1):
-            order = names[(r + f) % len(names):] + names[: (r + f) % len(names)]
-            for name in order:
-                prev = prev_track if name == "ours/track" else truth[f - 1]
-                t0 = clock()
-                found = METHODS[name](frames[f], prev)
-                times[name][r, f - 1] = clock() - t0
-                if name == "ours/track":
-                    prev_track = found
-                if r == 0:
-                    results[name].append(found)
+        if order == "interleaved":  # each frame through every method, in a rotating order
+            steps = [(f, name) for f in range(1, n_frames + 1)
+                     for name in names[(r + f) % len(names):] + names[: (r + f) % len(names)]]
+        else:  # blocked: each method through every frame, methods in a rotating order per round
+            steps = [(f, name) for name in names[r % len(names):] + names[: r % len(names)]
+                     for f in range(1, n_frames + 1)]
+        for f, name in steps:
+            prev = prev_track if name == "ours/track" else truth[f - 1]
+            t0 = clock()
+            found = METHODS[name](frames[f], prev)
+            times[name][r, f - 1] = clock() - t0
+            if name == "ours/track":
+                prev_track = found
+            if r == 0:
+                results[name].append(found)
     per_round = {name: np.median(times[name], axis=1) * 1e3 for name in names}
-    print(f"\n{n_markers} markers, {n_frames} frames 1920×1080, {rounds} rounds")
+    print(f"\n{n_markers} markers, {n_frames} frames 1920×1080, {rounds} rounds, {order}")
     refs = ("sbd/default", "sbd/tuned", "sbd/coarse")
     print(f"{'method':<12} {'ms/frame':>8} {'(worst)':>8} " + " ".join(f"{'×' + r[4:]:>8}" for r in refs)
           + f" {'RMS px':>7} {'bias u,v px':>16} {'missed':>6} {'false':>5}")
@@ -172,6 +177,10 @@ def main() -> None:
     parser.add_argument("--clock", choices=("wall", "cpu"), default="wall",
                         help="wall: time.perf_counter; cpu: time.thread_time, the CPU time of this thread "
                              "(insensitive to other processes; needs --threads 1 to include OpenCV's work)")
+    parser.add_argument("--order", choices=("interleaved", "blocked"), default="interleaved",
+                        help="interleaved: every frame through all methods in turn (each method finds its "
+                             "caches cold, as after other work); blocked: each method through all frames "
+                             "(as in a pipeline that only detects markers)")
     args = parser.parse_args()
     if args.threads is not None:
         cv2.setNumThreads(args.threads)
@@ -182,7 +191,7 @@ def main() -> None:
     print("ms/frame: median over frames, best (and worst) round; ×: speed-up, median of per-frame paired "
           "ratios; RMS: per-axis centroid error vs truth")
     for n in (12, 30):
-        run(n, args.frames, args.rounds, CLOCKS[args.clock])
+        run(n, args.frames, args.rounds, CLOCKS[args.clock], args.order)
 
 
 if __name__ == "__main__":
