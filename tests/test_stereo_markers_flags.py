@@ -124,3 +124,26 @@ def test_rotating_an_ellipse_keeps_its_centre(angle, ratio, seed):
                                 half_px=15)
     assert np.hypot(row["u_px"] - u, row["v_px"] - v) < 5.0 * sigma_c + 0.005
     assert row["roundness"] == pytest.approx(np.sqrt((ratio**2 * 25 + 0.64) / (25 + 0.64)), abs=0.05)
+
+
+@settings(max_examples=30, deadline=None)
+@given(
+    radius=st.floats(3.0, 25.0), ratio=st.floats(0.6, 1.0), angle=st.floats(0.0, 180.0),
+    contrast=st.floats(30.0, 200.0), noise=st.floats(0.5, 4.0), blur=st.floats(0.3, 2.0),
+    du=st.floats(0.0, 1.0), dv=st.floats(0.0, 1.0), seed=st.integers(0, 2**16),
+)
+def test_any_whole_marker_is_found_once_unflagged_within_noise(  # noqa: PLR0917
+        radius, ratio, angle, contrast, noise, blur, du, dv, seed):
+    """Random size, shape, contrast, noise and blur: one detection, no occlusion flag, and a centre error
+    within 5 per-axis σ_c (times √2 for the 2-D distance) plus the 0.005 px grid allowance per axis."""
+    u, v = 64.0 + du, 64.0 + dv
+    background = 20.0
+    img, clean = render((128, 128), [Disc(u, v, radius, radius * ratio, angle, contrast)],
+                        background_dn=background, noise_sigma_dn=noise, blur_sigma_px=blur, seed=seed,
+                        return_float=True)
+    row = only(detect_markers(img, min_area_px=10, min_contrast=10))
+    assert not row["flags"] & FLAG_OCCLUDED
+    pixel_sigma = np.sqrt(noise**2 + 1 / 12)
+    sigma_c = centroid_noise_px(clean, background, (u, v), noise_sigma_dn=pixel_sigma,
+                                floor_dn=3 * pixel_sigma, half_px=int(radius) + 8)
+    assert np.hypot(row["u_px"] - u, row["v_px"] - v) < np.sqrt(2) * (5.0 * sigma_c + 0.005)
