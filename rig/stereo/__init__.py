@@ -49,6 +49,7 @@ from rig.stereo.trajectory import (
     fit_spline_trajectory,
     fit_trajectory,
 )
+from rig.stereo.trajectory_sweep import SweepTrack, sliding_sine_trajectory
 from rig.stereo.triangulate import Triangulation, triangulate
 
 __all__ = [
@@ -83,6 +84,7 @@ __all__ = [
     "SplineBasis",
     "Stabilized",
     "StereoError",
+    "SweepTrack",
     "TimingError",
     "TimingResult",
     "TooFewSamplesError",
@@ -103,6 +105,7 @@ __all__ = [
     "resample",
     "rigid_transform",
     "sliding_sine_fit",
+    "sliding_sine_trajectory",
     "solve_dlt11",
     "spectrum",
     "stabilize",

@@ -81,12 +81,14 @@ class SplineBasis:
 
 @dataclass(frozen=True)
 class SineBasis:
-    """c + Σ_{k=1..n_harmonics} a_k cos(2πkf(t − t_ref)) + b_k sin(…) (+ d·(t − t_ref) if ``drift``)."""
+    """c + Σ_{k=1..n_harmonics} a_k cos(k·φ(t)) + b_k sin(k·φ(t)) (+ d·(t − t_ref) if ``drift``), with the
+    phase φ = 2π(f·τ + ½·rate·τ²), τ = t − t_ref: a steady tone, or a linear chirp of ``rate_hz_s``."""
 
     frequency_hz: float
     t_ref_s: float = 0.0
     n_harmonics: int = 1
     drift: bool = False
+    rate_hz_s: float = 0.0
 
     @property
     def size(self) -> int:
@@ -95,9 +97,9 @@ class SineBasis:
     def design(self, t_s: np.ndarray) -> sparse.csr_matrix:
         tc = np.asarray(t_s, float) - self.t_ref_s
         cols = [np.ones_like(tc)]
+        phase = 2 * np.pi * (self.frequency_hz * tc + 0.5 * self.rate_hz_s * tc**2)
         for k in range(1, self.n_harmonics + 1):
-            ph = 2 * np.pi * k * self.frequency_hz * tc
-            cols += [np.cos(ph), np.sin(ph)]
+            cols += [np.cos(k * phase), np.sin(k * phase)]
         if self.drift:
             cols.append(tc)
         return sparse.csr_matrix(np.column_stack(cols))
