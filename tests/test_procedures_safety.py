@@ -16,6 +16,8 @@ import sys
 import time
 from pathlib import Path
 
+import pytest
+
 from rig.record import load_run
 from tests.certify_support import write_config
 
@@ -105,3 +107,37 @@ def test_ctrl_c_mid_sweep_aborts_with_exciter_stopped_and_arm_halted(tmp_path: P
     # the exciter was running when interrupted (its last polled frequency was not zero)
     polled = [d["data"]["frequency_hz"] for d in steps if d["type"] == "event" and d["stream"] == "exciter"]
     assert polled[-1] > 0
+
+
+@pytest.mark.slow
+def test_certify_killed_mid_accuracy_resumes_without_repeating_done_steps(tmp_path: Path) -> None:
+    config = write_config(tmp_path)
+    args = [sys.executable, "-m", "rig.cli", "certify", "--config", str(config), "--set", 'preset="fast"',
+            "--set", "figures=false"]
+    proc = subprocess.Popen(args, cwd=tmp_path, env=_env(), stdout=subprocess.DEVNULL,
+                            stderr=subprocess.DEVNULL)
+    try:
+        deadline = time.monotonic() + 180
+        while time.monotonic() < deadline:
+            records = list((tmp_path / "runs").glob("*/record.jsonl")) if (tmp_path / "runs").is_dir() else []
+            if records and '"name":"accuracy_iso9283","status":"begin"' in records[0].read_text():
+                break
+            assert proc.poll() is None
+            time.sleep(0.05)
+        proc.kill()  # SIGKILL: no cleanup, no stop document
+        proc.wait(timeout=30)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    run_dir = records[0].parent
+    assert not any(d["type"] == "stop" for d in _documents(run_dir))
+    resumed = subprocess.run([sys.executable, "-m", "rig.cli", "run", "--resume", str(run_dir), "--config",
+                              str(config)], cwd=tmp_path, env=_env(), capture_output=True, text=True,
+                             timeout=300, check=False)
+    assert resumed.returncode in (0, 1), resumed.stderr
+    docs = _documents(run_dir)
+    begins = [d["name"] for d in docs if d["type"] == "step" and d["status"] == "begin"]
+    assert begins.count("calibrate") == 1 and begins.count("sync") == 1 and begins.count("accuracy_grid") == 1
+    assert begins.count("accuracy_iso9283") == 2  # cut short, then redone
+    assert (run_dir / "certificate.json").is_file() and docs[-1]["type"] == "stop"
+    assert docs[-1]["exit_status"] == "success"
