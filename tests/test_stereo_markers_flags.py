@@ -147,3 +147,15 @@ def test_any_whole_marker_is_found_once_unflagged_within_noise(  # noqa: PLR0917
     sigma_c = centroid_noise_px(clean, background, (u, v), noise_sigma_dn=pixel_sigma,
                                 floor_dn=3 * pixel_sigma, half_px=int(radius) + 8)
     assert np.hypot(row["u_px"] - u, row["v_px"] - v) < np.sqrt(2) * (5.0 * sigma_c + 0.005)
+
+
+@pytest.mark.parametrize("shape", [(8, 8), (12, 20), (24, 24)])
+def test_frames_smaller_than_the_windows(shape):
+    """Windows larger than the frame: the marker is still measured, flagged at the border, no warning."""
+    disc = Disc(shape[1] / 2 - 0.3, shape[0] / 2 + 0.2, min(shape) / 4)
+    img = render(shape, [disc], seed=1)
+    for found in (detect_markers(img, min_area_px=5),
+                  track_markers(img, np.array([[disc.u_px, disc.v_px]]), window_px=41, min_area_px=5)):
+        row = only(found)
+        assert row["flags"] & FLAG_BORDER
+        assert np.hypot(row["u_px"] - disc.u_px, row["v_px"] - disc.v_px) < 1.0

@@ -32,6 +32,7 @@ Coordinates: pixel centres are integers, the centre of the top-left pixel is (0,
 from __future__ import annotations
 
 import functools
+import warnings
 from dataclasses import dataclass
 
 import cv2
@@ -157,7 +158,9 @@ def _background(ring_vals: np.ndarray, ring_valid: np.ndarray | None, geo: _Geom
     n_win, n_ring = ring_vals.shape
     if ring_valid is not None:  # out-of-image ring pixels: NaN, ignored by nanpercentile (rare path)
         vals = np.where(ring_valid, ring_vals.astype(np.float32), np.nan)
-        p16, p50, p84 = np.nanpercentile(vals, [16, 50, 84], axis=1, method="lower")
+        with warnings.catch_warnings():  # a ring wholly outside the frame: NaN, replaced just below
+            warnings.simplefilter("ignore", RuntimeWarning)
+            p16, p50, p84 = np.nanpercentile(vals, [16, 50, 84], axis=1, method="lower")
         p16, p50, p84 = (np.nan_to_num(p, nan=0.0) for p in (p16, p50, p84))
     else:
         # percentiles of uint8 values from one histogram per window (faster than sorting): the windows'
