@@ -11,7 +11,11 @@ Bases:
 - :class:`SplineBasis`: cubic B-spline with a knot spacing (default 0.75 of a frame interval, i.e. finer
   than one camera's frame interval) and a small second-difference penalty (P-spline) that fills gaps. Each
   control point has 3 unknowns and each observation gives 2 equations, so with two cameras at fs the knot
-  spacing must stay ≥ 3/(4·fs) — a free 3D curve cannot go beyond that.
+  spacing must stay ≥ 3/(4·fs) — a free 3D curve cannot go beyond that. On the twin (60 fps, cameras
+  0.27 frame apart, σ = 0.1 px, 3 seeds) the defaults (0.75 frame, penalty 1e-4) give amplitude errors of
+  −0.07 % at 5 Hz, −0.02 % at 15 Hz and −0.7 % at 25 Hz (model bias that depends on where the samples fall
+  between the knots; penalty 1e-3: −2.1 %, knots at 0.9 frame: −1.3 %). For a steady oscillation the
+  sinusoidal model below has no such bias.
 - :class:`SineBasis`: a local sinusoidal model X(t) = c + Σ_k a_k cos kωt + b_k sin kωt (+ optional linear
   drift). With the frequency known, each camera on its own determines its projected complex amplitude
   unless f is a multiple of fs/2, so the amplitude is recovered even above one camera's Nyquist limit.
@@ -57,7 +61,7 @@ class SplineBasis:
     t_min_s: float
     t_max_s: float
     knot_spacing_s: float
-    penalty: float = 1e-3  # weight of the second-difference penalty relative to the pixel-scaled data rows
+    penalty: float = 1e-4  # weight of the second-difference penalty relative to the pixel-scaled data rows
 
     def knots(self) -> np.ndarray:
         n = max(1, int(np.ceil((self.t_max_s - self.t_min_s) / self.knot_spacing_s)))
@@ -252,7 +256,7 @@ def fit_spline_trajectory(
     uv_px: list[object],
     *,
     knot_spacing_s: float | None = None,
-    penalty: float = 1e-3,
+    penalty: float = 1e-4,
 ) -> Trajectory:
     """Cubic B-spline trajectory through all observations; knots every ``knot_spacing_s`` (default 0.75 of
     the median frame interval of the first camera)."""
