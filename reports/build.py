@@ -112,6 +112,7 @@ def _fits_frame(t: ReportTables) -> pd.DataFrame:
                 "u_usable_limit_hz": lim.u_limit_hz,
                 "tolerance_reached": lim.reached,
                 "f_max_tested_hz": lim.f_max_tested_hz,
+                "track_delay_ms": t.track_delay_ms.get(method, float("nan")),
             }
         )
     return pd.DataFrame(rows)
@@ -173,6 +174,7 @@ def _fits_display(t: ReportTables) -> pd.DataFrame:
                 "bins": fit.n_points,
                 "fitted (Hz)": f"{fit.f_min_hz:.1f}–{fit.f_max_hz:.1f}",
                 f"usable limit at ±{lim.tolerance:g} % (Hz)": usable,
+                "track delay (ms)": t.track_delay_ms.get(method, float("nan")),
             }
         )
     return pd.DataFrame(rows)
@@ -253,6 +255,11 @@ def build_report(
     )
     notes += [f"quadratic fit, sync '{m}': {msg}" for m, msg in sorted(t.fit_notes.items())]
     notes += t.notes
+    if run.stop is None:
+        notes.append(
+            "the record has no stop document yet: the report was built as a step of the run (or the run "
+            "was killed); the result follows from the criteria"
+        )
     if run.truncated_last_line:
         notes.append("the record's last line was cut short (the run was killed); it was ignored")
     stop = run.stop or {}
@@ -364,7 +371,7 @@ def build_report(
         "off_axis_mm",
     ]
     html_tables = {
-        "iso9283": t.iso9283.drop(columns=["x_cmd_mm", "y_cmd_mm", "z_cmd_mm"]),
+        "iso9283": t.iso9283[t.iso9283["n_cycles"] >= 2].drop(columns=["x_cmd_mm", "y_cmd_mm", "z_cmd_mm"]),
         "length_summary": frames["length_summary"],
         "poses": t.poses[pose_cols],
         "fits": _fits_display(t),

@@ -216,11 +216,16 @@ def evaluate(measured: dict[str, Measured | None], acceptance: dict[str, Any]) -
 
 
 def overall_result(rows: list[dict[str, Any]], exit_status: str | None) -> str:
-    """FAIL if any criterion fails; INCOMPLETE if one is not evaluated or the run failed; else PASS."""
+    """FAIL if any criterion fails; INCOMPLETE if one is not evaluated or the run aborted/failed; else PASS.
+
+    ``exit_status`` None (no stop document yet) is not held against the result: the procedures build the
+    report as the run's last step, before the runner writes ``stop``; a run killed earlier lacks data for
+    some criterion and is INCOMPLETE through it.
+    """
     statuses = [r["status"] for r in rows]
     if "FAIL" in statuses:
         return "FAIL"
-    if "NOT EVALUATED" in statuses or exit_status != "success":
+    if "NOT EVALUATED" in statuses or exit_status not in ("success", None):
         return "INCOMPLETE"
     return "PASS"
 

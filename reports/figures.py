@@ -117,10 +117,11 @@ def fig_error_vs_position(t: ReportTables, limit_mm: float | None = None) -> Fig
                 capsize=2,
                 label=str(target),
             )
-        if limit_mm is not None:
-            ax.axhline(limit_mm, color=COLORS["linear"], ls="--", lw=1)
         ax.set_xlabel(label)
-    if limit_mm is not None:
+    top = 1.15 * float((p["error_mm"] + 2 * p["u_error_mm"].fillna(0)).max())
+    if limit_mm is not None and limit_mm <= 3 * top:  # show the limit when it does not squash the data
+        for ax in axes[0]:
+            ax.axhline(limit_mm, color=COLORS["linear"], ls="--", lw=1)
         axes[0, 0].annotate(
             f"limit {limit_mm:g} mm",
             (0.01, limit_mm),
@@ -130,9 +131,18 @@ def fig_error_vs_position(t: ReportTables, limit_mm: float | None = None) -> Fig
             color=COLORS["linear"],
             fontsize=8.5,
         )
-        axes[0, 0].set_ylim(
-            0, max(1.15 * limit_mm, 1.1 * float((p["error_mm"] + 2 * p["u_error_mm"].fillna(0)).max()))
+        top = max(top, 1.15 * limit_mm)
+    elif limit_mm is not None:
+        axes[0, 0].text(
+            0.01,
+            0.97,
+            f"limit {limit_mm:g} mm: far above",
+            transform=axes[0, 0].transAxes,
+            va="top",
+            color=COLORS["linear"],
+            fontsize=8.5,
         )
+    axes[0, 0].set_ylim(0, top)
     axes[0, 0].set_ylabel("|error| (mm), bars ±2u")
     if p["target"].nunique() <= 12:
         axes[0, 1].legend(title="target", ncols=2)
@@ -144,7 +154,7 @@ def fig_amplitude_error(t: ReportTables, tolerance_pct: float) -> Figure | None:
     """Amplitude error and phase versus frequency per sync method, with the quadratic fit and the theory."""
     if t.sweep_bins.empty:
         return None
-    fig, axes = _new(2, 1, size=(8.0, 6.2), sharex=True, height_ratios=[2.2, 1])
+    fig, axes = _new(2, 1, size=(10.0, 6.2), sharex=True, height_ratios=[2.2, 1])
     ax, axp = axes[0, 0], axes[1, 0]
     f_max = float(t.sweep_bins["frequency_hz"].max())
     f = np.linspace(0, f_max, 300)
@@ -221,7 +231,7 @@ def fig_amplitude_error(t: ReportTables, tolerance_pct: float) -> Figure | None:
     ax.set_xlim(0, f_max * 1.03)
     ax.set_ylabel("amplitude error (%)")
     ax.set_title("Amplitude error versus frequency (bars ±2u, band: 95 % confidence of the fit)")
-    ax.legend(loc="lower left", ncols=2)
+    ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0))
     axp.set_ylabel("phase (deg)\nrel. first bin")
     axp.set_xlabel("frequency (Hz)")
     return fig
@@ -261,6 +271,7 @@ def fig_trajectory(t: ReportTables) -> Figure | None:
     time = tr["time_s"].to_numpy(float) - float(tr["time_s"].iloc[0])
     for ax, col in zip(axes[:3, 0], ("x_mm", "y_mm", "z_mm"), strict=True):
         ax.plot(time, tr[col], lw=0.7, color=COLORS["primary"])
+        ax.ticklabel_format(axis="y", useOffset=False)
         ax.set_ylabel(col.replace("_mm", " (mm)").upper().replace("(MM)", "(mm)"))
     main = max(("x_mm", "y_mm", "z_mm"), key=lambda c: float(np.ptp(tr[c])))
     mid = 0.5 * (time[0] + time[-1])

@@ -84,6 +84,12 @@ def table(df: pd.DataFrame, *, digits: int = 4, text_cols: tuple[str, ...] = ())
     )
 
 
+def _vertical(values: dict[str, Any]) -> str:
+    """A one-row summary as a two-column table (quantity, value): readable without scrolling."""
+    frame = pd.DataFrame({"quantity": list(values), "value": [_fmt(v, 6) for v in values.values()]})
+    return table(frame, text_cols=("quantity",))
+
+
 def _figure(pngs: dict[str, bytes], name: str, caption: str) -> str:
     if name not in pngs:
         return ""
@@ -134,7 +140,7 @@ def _verdict(cert: dict[str, Any], t: ReportTables, tolerance_pct: float) -> str
         reasons.append(
             f"<li>All {len(crit)} criteria met with their expanded uncertainty (k = 2) inside the limits</li>"
         )
-    if cert["conditions"].get("exit_status") != "success":
+    if cert["conditions"].get("exit_status") not in ("success", None):
         reasons.append(
             f"<li>The run stopped with status '{html.escape(str(cert['conditions'].get('exit_status')))}'"
             "</li>"
@@ -232,6 +238,8 @@ def render(
             "|error| against the distance from the cameras and off the viewing axis",
         )
         + "<h3>ISO 9283 pose accuracy (AP) and repeatability (RP) per target</h3>"
+        + "<p class='note'>Targets visited in at least two cycles; poses visited once are in the pose table "
+        "and in the figures above.</p>"
         + table(tables_html["iso9283"], text_cols=("target", "marker_id"))
         + "<h3>VDI/VDE 2634-1 length measurement error ΔL between marker pairs</h3>"
         + table(tables_html["length_summary"], text_cols=("marker_a", "marker_b"))
@@ -257,6 +265,10 @@ def render(
         + table(
             fit_rows, digits=4, text_cols=tuple(c for c in fit_rows.columns if fit_rows[c].dtype == object)
         )
+        + "<p class='note'>The phase of every bin is taken relative to the track's first bin: it grows as "
+        "−360°·f·τ when the tracks' time stamps are offset by τ from the rig clock (the camera-to-controller "
+        "clock mapping); 'track delay' is that τ from the slope. It shifts the motion in time and does not "
+        "change the amplitude.</p>"
         + "<p class='note'>Intervals in brackets: 95 % confidence (Student's t); the limit's ± is its"
         " expanded uncertainty from the fit covariance.</p>"
         + _figure(pngs, "sweep_time_frequency", "Frequency of the sweep over time (paper Fig. 17)")
@@ -268,7 +280,7 @@ def render(
     if tables_html.get("plate") is not None and not tables_html["plate"].empty:
         motion.append("<h3>Oscillating plate</h3>" + table(tables_html["plate"], text_cols=("track",)))
     if t.rotation_summary:
-        motion.append("<h3>Rotor</h3>" + table(pd.DataFrame([t.rotation_summary])))
+        motion.append("<h3>Rotor</h3>" + _vertical(t.rotation_summary))
     parts.append(
         "<section id='motion'><h2>Steady motion: plate and rotor</h2>"
         + "".join(motion)

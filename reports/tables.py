@@ -46,6 +46,7 @@ class ReportTables:
     limits: dict[str, UsableLimit] = field(default_factory=dict)
     fit_notes: dict[str, str] = field(default_factory=dict)
     notes: list[str] = field(default_factory=list)
+    track_delay_ms: dict[str, float] = field(default_factory=dict)
     plate: pd.DataFrame | None = None
     plate_event: dict[str, Any] | None = None
     rotation: dict[str, Any] | None = None
@@ -139,6 +140,14 @@ def compute_tables(
         centres_mm=centres,
     )
     for method in methods:
+        b = bins[bins["sync_method"] == method]
+        if b["frequency_hz"].nunique() >= 2:
+            # phase = const − 360°·f·τ for tracks delayed by τ against the rig clock: one slope, an
+            # intercept per track (each track's phase is relative to its own first bin)
+            df = b["frequency_hz"] - b.groupby("track")["frequency_hz"].transform("mean")
+            dp = b["phase_deg"] - b.groupby("track")["phase_deg"].transform("mean")
+            slope = float((df * dp).sum() / (df**2).sum())
+            out.track_delay_ms[method] = -slope / 360.0 * 1000.0
         sel = bins[(bins["sync_method"] == method) & (bins["frequency_hz"] <= fit_max_hz)]
         try:
             fit = fit_quadratic(sel["frequency_hz"], sel["amplitude_error_pct"], sel["u_amplitude_error_pct"])

@@ -130,6 +130,8 @@ def test_overall_result() -> None:
     rows = evaluate(good, acc)
     assert overall_result(rows, "success") == "PASS"
     assert overall_result(rows, "abort") == "INCOMPLETE"
+    assert overall_result(rows, "fail") == "INCOMPLETE"
+    assert overall_result(rows, None) == "PASS"  # report built as the run's last step, before `stop`
     partial = dict(good)
     partial["radius_error_mm"] = None
     assert overall_result(evaluate(partial, acc), "success") == "INCOMPLETE"
