@@ -34,13 +34,15 @@ def evaluated_summary(result: dict[str, Any]) -> str:
     return f"report {result['report']}; " + (", ".join(done) if done else "no acceptance criterion evaluated")
 
 
-def report_step(ctx: Any, *, make_figures: bool = True) -> dict[str, Any]:
-    """Build the report as step ``report``; return the verdict dict (``passed``, ``summary``, paths)."""
+def report_step(ctx: Any, *, make_figures: bool = True,
+                compare: tuple[str, ...] = ("linear",)) -> dict[str, Any]:
+    """Build the report as step ``report``; return the verdict dict (``passed``, ``summary``, paths).
+    ``compare``: sync methods analysed beside the primary one (default: the paper's ``linear``)."""
     from reports.build import build_report
 
     with ctx.step("report") as step:
         ctx.progress(None, "report: analysis, tables, figures, certificate")
-        result = build_report(ctx.run_dir, make_figures=make_figures)
+        result = build_report(ctx.run_dir, make_figures=make_figures, compare=compare)
         if not step.skipped:
             for path in (result.report_html, result.certificate_json):
                 step.output(path.relative_to(ctx.run_dir))

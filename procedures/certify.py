@@ -9,8 +9,9 @@ sent. The verdict: passed when every acceptance criterion of the certificate is 
 (exit 0), else exit 1.
 
 ``preset = "full"`` is the certification (grid 3³, 10 ISO 9283 cycles, 4 marker-frame poses, sweep
-1 → 30 Hz in 24 s); ``"fast"`` is a short check of the whole chain (grid 2³, 3 cycles, 2 frame poses,
-sweep 2 → 12 Hz in 8 s). The ``sweep_*`` and ``accuracy_*`` parameters override the preset when given.
+1 → 30 Hz in 24 s, the paper's linear sync analysed beside ours); ``"fast"`` is a short check of the whole
+chain (grid 2³, 3 cycles, 2 frame poses, sweep 2 → 12 Hz in 8 s, no comparison analysis). The
+``sweep_*``, ``accuracy_*``, ``calibrate_*`` and ``compare_paper_sync`` parameters override the preset.
 """
 
 from __future__ import annotations
@@ -58,6 +59,8 @@ class Parameters:
     calibrate_slide_positions_mm: tuple[float, ...] = field(default=(), metadata=param(
         length=(0, 100), lo=-2000.0, hi=2000.0, doc="calibrate: plate slides, mm (empty: the rig's)"))
     figures: bool = field(default=True, metadata=param(doc="draw the report's figures"))
+    compare_paper_sync: bool | None = field(default=None, metadata=param(
+        doc="also analyse with the paper's linear interpolation (default: full yes, fast no)"))
 
 
 def sub_parameters(params: Parameters) -> dict[str, Any]:
@@ -94,6 +97,7 @@ def run(ctx: Any, params: Parameters) -> dict[str, Any]:
     sync.run_step(ctx, sub["sync"])
     accuracy.run_steps(ctx, sub["accuracy"])
     sweep.run_step(ctx, sub["sweep"])
-    result = report_step(ctx, make_figures=params.figures)
+    compare = params.preset == "full" if params.compare_paper_sync is None else params.compare_paper_sync
+    result = report_step(ctx, make_figures=params.figures, compare=("linear",) if compare else ())
     return {"passed": result["passed"], "summary": result["summary"], "report": result["report"],
             "certificate": result["certificate"], "preset": params.preset, "criteria": result["criteria"]}
