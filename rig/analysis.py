@@ -15,10 +15,13 @@ observations, per session) and puts the tracks on the **controller clock** (cont
 - each ``camera`` event with ``action = "start"`` (contracts.md) relates a camera clock to the controller
   clock: the controller time of the event and the camera time stamp of the first frame recorded after it.
   That frame's exposure started within one frame period after the event, so its row-0 instant is taken as
-  event time + ½ frame period (uniform uncertainty: standard uncertainty T/√12 ≈ 4.8 ms at 60 fps; it shifts
-  whole tracks in time, never their shape). The offsets of all start events of the segment (every camera,
-  through the timing model) are averaged; without one in the segment, all start events of the run are
-  used (noted); without any, :class:`ClockMappingError`;
+  event time + ½ frame period (uniform error ±T/2, standard uncertainty T/√12 ≈ 4.8 ms at 60 fps per event;
+  it shifts whole tracks in time, never their shape). When all start events of a session (every camera,
+  through the timing model) agree within the ±T/2 band about one constant or straight line — clocks
+  continuous, drifting linearly — that fit gives every segment's offset (uncertainty T/√(12·n));
+  otherwise each segment uses the mean of its own events, and a segment without any the median of the
+  run's; without any event, :class:`ClockMappingError`. ``Analysis.clock`` says which, with the standard
+  uncertainty;
 - pairing is restricted to a **volume**: the robot envelope box of the configuration snapshot
   (``rig["limits"]["robot"]["envelope_*_mm"]``) joined with the reference markers' positions
   (``rig["targets"]["references"]["positions_mm"]``), grown by ``volume_margin_mm``; pairs that would
@@ -74,7 +77,8 @@ class Analysis:
     segment), x_mm, y_mm, z_mm, reprojection_px, n_cameras. ``timing`` / ``calibration``: the file contents
     used. ``pairs``: every cross-camera pair (segment, session, camera, track_a, track_b, distance_px,
     n_common, ambiguous, resolved). ``clock``: per (segment, session) the offset controller − reference
-    clock (s) and where it came from. ``notes``: what was skipped and why.
+    clock (s), its standard uncertainty ``u_offset_s`` and where it came from. ``notes``: what was skipped
+    and why.
     """
 
     tracks: pd.DataFrame
@@ -148,7 +152,7 @@ def controller_offsets(camera_events: pd.DataFrame | None, timing: TimingResult,
     written later, and ``segment`` when a step records several segments). See the module docstring for the
     ½-frame convention.
     """
-    cols = ["segment", "session", "camera", "offset_s"]
+    cols = ["segment", "session", "camera", "offset_s", "t_s", "period_s"]
     if camera_events is None or camera_events.empty or "action" not in camera_events.columns:
         return pd.DataFrame(columns=cols)
     rows = []
@@ -162,7 +166,8 @@ def controller_offsets(camera_events: pd.DataFrame | None, timing: TimingResult,
         period = frame_period_s.get(cam, 1.0 / 60.0)
         segment = r.get("segment") if isinstance(r.get("segment"), str) else r.get("step")
         session = _number(r.get("session"))
-        rows.append((segment, 0 if session is None else int(session), cam, t_start + 0.5 * period - t_ref))
+        rows.append((segment, 0 if session is None else int(session), cam, t_start + 0.5 * period - t_ref,
+                     t_start, period))
     return pd.DataFrame(rows, columns=cols)
 
 
@@ -175,12 +180,41 @@ def _number(value: Any) -> float | None:
     return v if math.isfinite(v) else None
 
 
-def _offset_for(offsets: pd.DataFrame, segment: str, session: int) -> tuple[float, str]:
+def _offset_for(offsets: pd.DataFrame, segment: str, session: int) -> tuple[float, float, str]:
+    """(offset_s, standard uncertainty s, source) of controller − reference clock for one segment.
+
+    Each start event's offset carries a uniform error of ±T/2 (standard uncertainty T/√12). When all start
+    events of the session agree with one relation (a constant, or a straight line in controller time when
+    they span long enough to resolve a drift of 20 ppm; residuals within a range of T) it is used — the
+    error averages over all of them; otherwise (a camera clock restarted) the mean of the segment's own
+    events.
+    """
     here = offsets[(offsets["segment"] == segment) & (offsets["session"] == session)]
+    same = offsets[offsets["session"] == session]
+    if len(same) >= 3:
+        t = same["t_s"].to_numpy(float)
+        period = float(same["period_s"].max())
+        t_mid = float(t.mean())
+        spread = float(np.sum((t - t_mid) ** 2))
+        # the drift is fitted only when the events span enough time to pin it to ≤ 20 ppm (1 σ)
+        with_drift = spread > 0 and period / math.sqrt(12.0 * spread) <= 20e-6
+        A = np.column_stack([np.ones_like(t), t - t_mid]) if with_drift else np.ones((len(t), 1))
+        coef, *_ = np.linalg.lstsq(A, same["offset_s"].to_numpy(float), rcond=None)
+        resid = same["offset_s"].to_numpy(float) - A @ coef
+        if np.ptp(resid) <= period * 1.02 + 1e-7:  # uniform errors of width T: one consistent clock relation
+            drift = float(coef[1]) if with_drift else 0.0
+            t_seg = float(here["t_s"].mean()) if len(here) else t_mid
+            u = period / math.sqrt(12.0 * len(same))
+            return (float(coef[0] + drift * (t_seg - t_mid)), u,
+                    f"fit of all {len(same)} camera start events of session {session} (drift "
+                    f"{'%+.1f ppm' % (drift * 1e6) if with_drift else 'not resolved, 0'}, residuals "
+                    f"within {1e3 * np.ptp(resid):.2f} ms)")
     if len(here):
-        return float(here["offset_s"].mean()), f"{len(here)} camera start event(s) of the segment"
+        u = float(here["period_s"].max()) / math.sqrt(12.0 * len(here))
+        return float(here["offset_s"].mean()), u, f"{len(here)} camera start event(s) of the segment"
     if len(offsets):
-        return (float(offsets["offset_s"].median()),
+        u = float(offsets["period_s"].max()) / math.sqrt(12.0)
+        return (float(offsets["offset_s"].median()), u,
                 f"median of all {len(offsets)} camera start events of the run")
     raise ClockMappingError(
         f"segment {segment!r}: the record has no `camera` start events relating the camera clocks to the "
@@ -274,8 +308,8 @@ def analyse(
         notes += t.attrs.get("notes", [])
         if t.empty:
             continue
-        offset, source = _offset_for(offsets, segment, session)
-        clock.append((segment, session, offset, source))
+        offset, u_offset, source = _offset_for(offsets, segment, session)
+        clock.append((segment, session, offset, u_offset, source))
         t = t.copy()
         t["time_s"] = t["time_s"] + offset
         t["segment"] = segment
@@ -295,6 +329,6 @@ def analyse(
         calibration=calibration,
         sync=sync,
         pairs=pd.concat(pairs, ignore_index=True) if pairs else pd.DataFrame(),
-        clock=pd.DataFrame(clock, columns=["segment", "session", "offset_s", "source"]),
+        clock=pd.DataFrame(clock, columns=["segment", "session", "offset_s", "u_offset_s", "source"]),
         notes=notes,
     )

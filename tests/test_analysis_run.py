@@ -201,4 +201,4 @@ def test_short_still_recordings_at_several_arm_poses(tmp_path):
         assert np.mean(np.sum((X - truth) ** 2, axis=1)) <= np.mean(tr) * (1 + 4 * np.sqrt(2)), g
     assert arm_tracks == len(poses)
     assert len(a.clock) == 1 and "3 camera" not in a.clock["source"].iloc[0]
-    assert a.clock["source"].iloc[0].startswith("6 camera start event")
+    assert a.clock["source"].iloc[0].startswith("fit of all 6 camera start events")
