@@ -159,7 +159,7 @@ def _fits_display(t: ReportTables) -> pd.DataFrame:
         if fit is None:
             rows.append({"sync method": method, "c0 (%)": t.fit_notes.get(method, "no sweep data")})
             continue
-        (a0, b0), (a2, b2) = fit.ci("c0"), fit.ci("c2")
+        h0, h2 = fit.t_factor * fit.u_c0, fit.t_factor * fit.u_c2  # 95 % half-widths
         if lim.reached:
             usable = f"{lim.limit_hz:.2f} ± {fit.t_factor * lim.u_limit_hz:.2g}"
         else:
@@ -167,10 +167,9 @@ def _fits_display(t: ReportTables) -> pd.DataFrame:
         rows.append(
             {
                 "sync method": method,
-                "c0 (%)": f"{fit.c0:.4g} [{a0:.4g}, {b0:.4g}]",
-                "c2 (%/Hz²)": f"{fit.c2:.4g} [{a2:.4g}, {b2:.4g}]",
+                "c0 (%)": f"{fit.c0:.3g} ± {h0:.2g}",
+                "c2 (%/Hz²)": f"{fit.c2:.3g} ± {h2:.2g}",
                 "R²": fit.r2,
-                "χ²/ν": fit.chi2_reduced,
                 "bins": fit.n_points,
                 "fitted (Hz)": f"{fit.f_min_hz:.1f}–{fit.f_max_hz:.1f}",
                 f"usable limit at ±{lim.tolerance:g} % (Hz)": usable,

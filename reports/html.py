@@ -84,6 +84,21 @@ def table(df: pd.DataFrame, *, digits: int = 4, text_cols: tuple[str, ...] = ())
     )
 
 
+def _length_line(lengths: pd.DataFrame) -> str:
+    """One sentence on the test lengths: how many, their range, mean and worst ΔL."""
+    if lengths is None or lengths.empty:
+        return "<p class='note'>No marker pairs measured in one pose.</p>"
+    dl = lengths["length_error_mm"]
+    worst = lengths.iloc[int(dl.abs().to_numpy().argmax())]
+    return (
+        f"<p>{len(lengths)} test lengths of {_fmt(float(lengths['length_cal_mm'].min()))}–"
+        f"{_fmt(float(lengths['length_cal_mm'].max()))} mm: mean ΔL {_fmt(float(dl.mean()))} mm, "
+        f"RMS {_fmt(float((dl**2).mean() ** 0.5))} mm, worst {_fmt(float(worst['length_error_mm']))} mm "
+        f"({html.escape(str(worst['marker_a']))}–{html.escape(str(worst['marker_b']))}, "
+        f"L = {_fmt(float(worst['length_cal_mm']))} mm).</p>"
+    )
+
+
 def _vertical(values: dict[str, Any]) -> str:
     """A one-row summary as a two-column table (quantity, value): readable without scrolling."""
     frame = pd.DataFrame({"quantity": list(values), "value": [_fmt(v, 6) for v in values.values()]})
@@ -242,7 +257,10 @@ def render(
         "and in the figures above.</p>"
         + table(tables_html["iso9283"], text_cols=("target", "marker_id"))
         + "<h3>VDI/VDE 2634-1 length measurement error ΔL between marker pairs</h3>"
+        + _length_line(t.lengths)
+        + "<details><summary>Per marker pair</summary>"
         + table(tables_html["length_summary"], text_cols=("marker_a", "marker_b"))
+        + "</details>"
         + "<details><summary>All poses</summary>"
         + table(tables_html["poses"], text_cols=("target", "marker_id"))
         + "</details></section>"
@@ -269,7 +287,7 @@ def render(
         "−360°·f·τ when the tracks' time stamps are offset by τ from the rig clock (the camera-to-controller "
         "clock mapping); 'track delay' is that τ from the slope. It shifts the motion in time and does not "
         "change the amplitude.</p>"
-        + "<p class='note'>Intervals in brackets: 95 % confidence (Student's t); the limit's ± is its"
+        + "<p class='note'>± on c0 and c2: 95 % confidence half-widths (Student's t); on the limit: its"
         " expanded uncertainty from the fit covariance.</p>"
         + _figure(pngs, "sweep_time_frequency", "Frequency of the sweep over time (paper Fig. 17)")
         + "<details><summary>Per-bin values (mean over markers)</summary>"
