@@ -16,7 +16,8 @@ Pipeline (every step reuses the shared modules):
 5. per target: principal direction of motion, spectrum (uniform grid of one frame period) and dominant
    frequency, four-parameter sine fit at it (amplitude and frequency with standard uncertainties);
 6. ``DIR``: ``tables/*.csv`` (units in column names), ``figures/*.png``, ``report.html``,
-   ``timing.json``, ``measure.json`` (inputs, frame reports, notes).
+   ``timing.json``, ``measure.json`` (inputs, frame reports, notes); with a run record (``--record``), the
+   controller's clock too (:mod:`rig.video_clock`, ``clock.json``, ``controller_time_s`` columns).
 
 Times in the outputs are seconds on the reference video's clock (its presentation time stamps).
 A truncated or corrupt video does not stop the measurement: the frames read are used, the problem is in
@@ -153,9 +154,28 @@ def _timing(args: dict[str, Any], obs: dict[str, pd.DataFrame], cameras: dict[st
     return tr.to_dict()
 
 
+def _controller_clock(record: str | Path, obs: pd.DataFrame, period_s: float,
+                      notes: list[str]) -> dict[str, Any]:
+    from rig.record_reader import RecordError, load_run
+    from rig.video_clock import VideoClockError, relate_to_record
+
+    try:
+        run = load_run(record)
+        rel = relate_to_record(obs, run.events, period_s)
+    except (RecordError, VideoClockError, OSError) as exc:
+        raise MeasureError(f"relating the video to the record {record}: {exc}") from exc
+    notes.append(f"controller clock: controller − video = {rel['offset_s']:+.4f} s ± "
+                 f"{rel['uncertainty_s']:.4f} s ({rel['method']}, {'/'.join(rel['streams'])} events, "
+                 f"correlation {rel['correlation']:.2f})")
+    return {**rel, "record": str(record)}
+
+
 def measure_videos(videos: dict[str, str | Path], calibration: str | Path, out_dir: str | Path, *,
-                   timing: str | Path | None = None, options: MeasureOptions | None = None) -> MeasureResult:
-    """Measure (see the module docstring). ``videos``: camera name → file, the first is the reference."""
+                   timing: str | Path | None = None, options: MeasureOptions | None = None,
+                   record: str | Path | None = None) -> MeasureResult:
+    """Measure (see the module docstring). ``videos``: camera name → file, the first is the reference.
+    ``record``: a run folder whose motion events the videos show; adds ``controller_time_s`` (the
+    controller's clock, related by :mod:`rig.video_clock`) to the tables and writes ``clock.json``."""
     opts = options or MeasureOptions()
     if opts.sync not in SYNC_METHODS:
         raise MeasureError(f"sync={opts.sync!r}; allowed: {SYNC_METHODS}")
@@ -205,6 +225,11 @@ def measure_videos(videos: dict[str, str | Path], calibration: str | Path, out_d
     if tracks.empty:
         raise MeasureError("no marker track could be paired between the two videos; check that the "
                            "calibration belongs to these cameras and the timing (--timing/--estimate-timing)")
+    clock = None
+    if record is not None:
+        clock = _controller_clock(record, obs[reference], 1.0 / fps[reference], notes)
+        files["clock"] = out / "clock.json"
+        files["clock"].write_text(json.dumps(clock, indent=1), encoding="utf-8")
     try:
         refs, ref_note = reference_tracks(tracks, opts.reference_markers, static_mm=opts.static_mm,
                                           gate_mm=opts.reference_gate_mm)
@@ -213,6 +238,10 @@ def measure_videos(videos: dict[str, str | Path], calibration: str | Path, out_d
         summary, spectra = summarise(displacement, refs, window_s=opts.window_s, notes=notes)
     except (SeriesError, StereoError) as exc:
         raise MeasureError(f"displacement: {exc}") from exc
+    if clock is not None:
+        for frame in (tracks, displacement):
+            frame.insert(frame.columns.get_loc("time_s") + 1, "controller_time_s",
+                         frame["time_s"] + clock["offset_s"])
     tables = out / "tables"
     tables.mkdir(exist_ok=True)
     for name, frame in (("tracks_3d", tracks), ("displacement", displacement), ("summary", summary),
@@ -232,7 +261,7 @@ def measure_videos(videos: dict[str, str | Path], calibration: str | Path, out_d
             "reference_markers": refs, "window_s": opts.window_s, "notes": notes,
             "problems": problems,
             "files": {k: str(v.relative_to(out)) for k, v in files.items()},
-            "clock": "reference video PTS, s"}
+            "clock": "reference video PTS, s", "controller_clock": clock}
     files["measure"] = out / "measure.json"
     files["measure"].write_text(json.dumps(meta, indent=1, default=str), encoding="utf-8")
     return result

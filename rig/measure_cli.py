@@ -41,7 +41,7 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     try:
         cal = calibrate_from_videos({names[0]: args.left, names[1]: args.right}, args.target,
                                     distortion=args.distortion, still_px=args.still_px,
-                                    min_still_frames=args.min_still_frames)
+                                    min_still_frames=args.min_still_frames, max_rms_px=args.max_rms_px)
     except (OnsiteCalibrationError, VideoFileError) as exc:
         print(f"rig calibrate: {exc}", file=sys.stderr)
         return EXIT_BAD_INPUT
@@ -82,7 +82,8 @@ def cmd_measure(args: argparse.Namespace) -> int:
                                                     duplicate_policy=args.duplicate_policy))
     try:
         result = measure_videos({names[0]: args.left, names[1]: args.right}, args.calibration, args.out,
-                                timing=None if args.estimate_timing else args.timing, options=options)
+                                timing=None if args.estimate_timing else args.timing, options=options,
+                                record=args.record)
     except (MeasureError, VideoFileError) as exc:
         print(f"rig measure: {exc}", file=sys.stderr)
         return EXIT_BAD_INPUT
@@ -114,6 +115,8 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
                    help="lens distortion terms fitted (default k1)")
     p.add_argument("--still-px", type=float, default=0.3, help="largest marker motion of a still frame, px")
     p.add_argument("--min-still-frames", type=int, default=20, help="frames a still segment lasts at least")
+    p.add_argument("--max-rms-px", type=float, default=2.0,
+                   help="largest reprojection RMS accepted (px); above it the grid or coordinates are wrong")
     p = sub.add_parser("measure", help="displacement and spectra from a video pair",
                        description="Markers → matches → timing → 3-D tracks → displacement relative to the "
                                    "reference markers → spectra → tables, figures and report.html in OUT.")
@@ -133,6 +136,8 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
                    help="analyse spectra and amplitudes in this time window only (reference clock, s)")
     p.add_argument("--line-time-s", type=float,
                    help="known rolling-shutter line time (s) for --estimate-timing")
+    p.add_argument("--record", metavar="RUN", help="run folder of the procedure the videos show: relate the "
+                   "video clock to the controller's (controller_time_s columns, clock.json)")
     p.add_argument("--window-px", type=int, default=41, help="marker tracking window, px")
     p.add_argument("--polarity", choices=("bright", "dark"), help="markers brighter or darker than around")
     p.add_argument("--duplicate-policy", choices=("replace", "insert"), default="replace",

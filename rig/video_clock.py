@@ -10,13 +10,15 @@ controller moved things. The procedure's motion is visible in the video, so the 
 - commanded: from the record's ``arm`` events (1 while a move runs, ``t_start_s`` … ``t_end_s``) and
   ``exciter``/``rotor`` events (the polled frequency, normalised, held until the next event), on the same
   grid on the controller clock;
-- both are made zero-mean and unit-norm and cross-correlated (FFT); the lag of the peak, refined by a
-  parabola through its neighbours, is the offset **controller time − video time** (s).
+- their time derivatives (the starts and stops of motion: levels would let long steady stretches outweigh
+  the edges) are made zero-mean and unit-norm and cross-correlated (FFT); the lag of the peak, refined by
+  a parabola through its neighbours, is the offset **controller time − video time** (s).
 
 The peak's height is the correlation coefficient (1 = the same shape). The offset inherits the latency
 between a command and visible motion (an arm accelerating, an exciter spinning up): a few frames at most
-for moves, more for slow ramps; ``uncertainty_s`` states half a frame plus half the grid resolution of the
-record's events, and the method is recorded so a report can say how the clocks were related.
+for moves, more for slow ramps. ``uncertainty_s`` (a bound, not a standard uncertainty) is one frame period
+for the sampling plus one for a rolling shutter's readout (a marker's row is exposed up to a frame after the
+frame's time stamp); the method is recorded so a report can say how the clocks were related.
 """
 
 from __future__ import annotations
@@ -115,7 +117,9 @@ def relate_to_record(obs: pd.DataFrame, events: dict[str, pd.DataFrame], period_
     tr, sr, used = record_motion(events, period_s, smooth_s=smooth_s, margin_s=video_span)
     if sv.max() <= 0:
         raise VideoClockError("no marker moves in the video; its clock cannot be related to the record")
-    c = correlate(_unit(sr), _unit(sv), mode="full", method="fft")
+    # the changes of the motion (starts and stops) are what locate the clocks: levels would let a long
+    # stretch of steady motion outweigh the edges, and a mean removed over unequal spans biases the peak
+    c = correlate(_unit(np.gradient(sr)), _unit(np.gradient(sv)), mode="full", method="fft")
     # c[k] = Σ_i sr[i + L] sv[i] with L = k − (len(sv) − 1): record sample i + L ↔ video sample i
     k = int(np.argmax(c))
     lag = float(k - (len(sv) - 1))
@@ -129,5 +133,7 @@ def relate_to_record(obs: pd.DataFrame, events: dict[str, pd.DataFrame], period_
                               f"the record's {'/'.join(used)} events: it does not show the recorded "
                               "procedure")
     offset = float(tr[0] + lag * period_s - tv[0])
-    return {"offset_s": offset, "correlation": corr, "uncertainty_s": period_s, "streams": used,
+    # one frame period for the sampling of both signals, plus up to one for a rolling shutter (a marker's
+    # row is exposed up to the readout time after the frame's time stamp)
+    return {"offset_s": offset, "correlation": corr, "uncertainty_s": 2.0 * period_s, "streams": used,
             "method": "cross-correlation of the video's image speed with the record's motion events"}

@@ -45,8 +45,8 @@ def test_offset_from_the_arm_moves_the_video_shows(tmp_path: Path) -> None:
     first = left.first_frame_index_at_or_after(0.3)
     truth = left.frame_start_true_s(first) + 0.5 * left.exposure_s  # controller (= world) − video clock
     assert rel["streams"] == ["arm"] and rel["correlation"] > 0.5
-    # the stated uncertainty (one frame period) holds: the arm's symmetric trapezoid moves centre on the
-    # commanded spans, what is left is the frame quantisation and the different image speeds of the moves
+    # the stated bound (a frame for the sampling, a frame for the rolling-shutter readout) holds: the arm's
+    # symmetric trapezoid moves centre on the commanded spans
     assert abs(rel["offset_s"] - truth) <= rel["uncertainty_s"], (rel, truth)
 
 

@@ -19,9 +19,11 @@ import pytest
 from camera_mkv import write_mkv
 from scipy.spatial.distance import pdist
 
+from drivers.sim.clock import VirtualClock
 from rig.analysis import load_cameras
 from rig.cli import main
 from rig.measure import MeasureError, MeasureOptions, measure_videos
+from rig.record import RunRecord
 from rig.stereo import triangulate
 
 WINDOW = (0.6, 2.4)  # s on the left video's clock: the exciter runs from 0.4 s
@@ -47,6 +49,19 @@ def site(tmp_path_factory: pytest.TempPathFactory) -> dict:
     return {"folder": folder, "calibration": folder / "calibration.json", "scale_floor": scale}
 
 
+def _exciter_record(folder: Path) -> Path:
+    """A run record of the exciter started at ONSET_S (controller clock = the twin's world clock)."""
+    clock = VirtualClock()
+    rec = RunRecord.create(folder / "runs", "plate", {}, {}, clock)
+    rec.event("exciter", {"frequency_hz": 0.0, "setpoint_hz": 0.0, "status": "stopped"})
+    clock.advance_to(mt.ONSET_S)
+    rec.event("exciter", {"frequency_hz": mt.FREQUENCY_HZ, "setpoint_hz": mt.FREQUENCY_HZ, "status": "run"})
+    clock.advance_to(3.0)
+    rec.stop("success")
+    rec.close()
+    return rec.run_dir
+
+
 def _check_targets(summary: pd.DataFrame, clock_ppm: float, scale_floor: float) -> None:
     targets = summary[summary["role"] == "target"]
     assert len(targets) == 5  # the sweep column's markers; the 4 references are recognised as static
@@ -69,9 +84,16 @@ def test_calibrate_then_measure_matches_the_twin(site: dict, tmp_path: Path, fou
     timing = tmp_path / "timing.json"
     timing.write_text(json.dumps(mt.truth_timing(left, right, 0.0, 0.15)))
     out = tmp_path / "out"
+    record = _exciter_record(tmp_path)
     code = main(["measure", str(paths[0]), str(paths[1]), "--calibration", str(site["calibration"]),
-                 "--timing", str(timing), "--out", str(out), "--window", *map(str, WINDOW)])
+                 "--timing", str(timing), "--out", str(out), "--window", *map(str, WINDOW),
+                 "--record", str(record)])
     assert code == 0
+    # the controller's clock (= world time on the twin) from the exciter's start seen in the video
+    clock = json.loads((out / "clock.json").read_text())
+    truth_offset = float(mt.world_time(left, 0.0, np.zeros(1))[0])
+    assert clock["streams"] == ["exciter"]
+    assert abs(clock["offset_s"] - truth_offset) <= clock["uncertainty_s"], (clock, truth_offset)
     summary = pd.read_csv(out / "tables" / "summary.csv")
     _check_targets(summary, left.clock_ppm, site["scale_floor"])
     for name in ("displacement", "spectra", "tracks_3d"):
@@ -81,6 +103,7 @@ def test_calibrate_then_measure_matches_the_twin(site: dict, tmp_path: Path, fou
     assert (out / "figures" / "spectrum.png").is_file()
     # displacement over time against the truth, on the world clock: within the noise and scale floors
     disp = pd.read_csv(out / "tables" / "displacement.csv")
+    assert np.allclose(disp["controller_time_s"] - disp["time_s"], clock["offset_s"])
     tid = int(summary[summary["role"] == "target"]["track_id"].iloc[2])
     d = disp[(disp["track_id"] == tid) & disp["time_s"].between(*WINDOW)]
     truth = mt.truth_displacement_mm(world, mt.world_time(left, 0.0, d["time_s"].to_numpy()))
