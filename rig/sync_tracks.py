@@ -11,8 +11,8 @@ time). The 3-D track is then given at the reference camera's instants by one of 
 - ``trajectory`` — ours, the default: a cubic B-spline 3-D trajectory fitted to all observations of all
   cameras at their exact row-corrected instants (:func:`rig.stereo.trajectory.fit_spline_trajectory`,
   knots every ``knot_spacing_frames`` frame periods), evaluated at the reference instants. Nothing is
-  interpolated in the images, so there is no |H(α)| loss (≈ 0.5 % amplitude bias of the spline at 20 Hz
-  and 60 fps, well under 0.1 % at 5 Hz).
+  interpolated in the images, so there is no |H(α)| loss (the spline's own amplitude bias at 60 fps:
+  ≤ 0.4 % up to 22 Hz, ≈ 1.4 % at 28 Hz; ``benchmarks/analysis.py``).
 
 Interpolation methods triangulate with reprojection-error refinement (observed, distorted pixels); the
 trajectory is fitted in undistorted pixels. Instants outside the span of every partner track are left out
@@ -38,6 +38,10 @@ from rig.stereo.triangulate import as_camera, triangulate
 from rig.tracks2d import check_observations, segment_keys, tracks_2d
 
 SYNC_METHODS = ("trajectory", "bandlimited", "cubic", "linear")
+#: Second-difference penalty of the trajectory spline (relative to the pixel-scaled equations). Smaller is
+#: less amplitude bias and more noise; at 1e-4 (twin, 30 s sweep, σ = 0.1 px) the bias is ≤ 0.4 % up to
+#: 22 Hz and ≈ 0.5 % at 26 Hz, and a still marker's noise is 2 % above that at 1e-3 (bias −1.8 % at 26 Hz).
+TRAJECTORY_PENALTY = 1e-4
 TRACK_COLUMNS = ["segment", "time_s", "track_id", "x_mm", "y_mm", "z_mm", "reprojection_px", "n_cameras"]
 
 
@@ -143,6 +147,7 @@ def triangulate_tracks(
     reference: str | None = None,
     pairs: pd.DataFrame | None = None,
     knot_spacing_frames: float = 0.75,
+    trajectory_penalty: float = TRAJECTORY_PENALTY,
     track_options: Mapping[str, Any] | None = None,
     pair_options: Mapping[str, Any] | None = None,
 ) -> pd.DataFrame:
@@ -182,7 +187,8 @@ def triangulate_tracks(
     arrays = {c: _track_arrays(o) for c, o in obs.items()}
     for key, (comp_seg, comp) in enumerate(_components(usable, obs[ref])):
         part, more = _triangulate_component(comp, arrays, cams, ref, sync=sync,
-                                            knot_spacing_frames=knot_spacing_frames)
+                                            knot_spacing_frames=knot_spacing_frames,
+                                            penalty=trajectory_penalty)
         notes += more
         if len(part):
             part.insert(0, "segment", comp_seg)
@@ -247,7 +253,7 @@ def _track(arrays: dict[int, tuple[np.ndarray, np.ndarray]], ids: set[int]) -> l
     return [arrays[tid] for tid in sorted(ids) if tid in arrays]
 
 
-def _triangulate_component(comp, arrays, cams, ref, *, sync, knot_spacing_frames):
+def _triangulate_component(comp, arrays, cams, ref, *, sync, knot_spacing_frames, penalty):
     notes: list[str] = []
     others = [c for c in cams if c != ref and c in comp]
     parts = []
@@ -256,7 +262,7 @@ def _triangulate_component(comp, arrays, cams, ref, *, sync, knot_spacing_frames
         try:
             if sync == "trajectory":
                 part = _by_trajectory(t_a, uv_a, pieces, cams, ref=ref, others=others,
-                                      knot_spacing_frames=knot_spacing_frames)
+                                      knot_spacing_frames=knot_spacing_frames, penalty=penalty)
             else:
                 part = _by_interpolation(t_a, uv_a, pieces, cams, ref=ref, others=others, sync=sync)
         except StereoError as exc:
@@ -295,7 +301,7 @@ def _ideal(cam: DLTCamera, t: np.ndarray, uv: np.ndarray) -> tuple[np.ndarray, n
     return t[ok], u[ok]
 
 
-def _by_trajectory(t_a, uv_a, pieces, cams, *, ref, others, knot_spacing_frames):
+def _by_trajectory(t_a, uv_a, pieces, cams, *, ref, others, knot_spacing_frames, penalty):
     period = float(np.median(np.diff(t_a))) if t_a.size > 1 else 1.0 / 60.0
     covered = np.zeros((t_a.size, len(others)), dtype=bool)
     data_t = {c: [] for c in others}
@@ -325,7 +331,7 @@ def _by_trajectory(t_a, uv_a, pieces, cams, *, ref, others, knot_spacing_frames)
     if len(names) < 2 or names[0] != ref:
         return None
     traj = fit_spline_trajectory([cams[c].P for c in names], ts, uvs,
-                                 knot_spacing_s=knot_spacing_frames * period)
+                                 knot_spacing_s=knot_spacing_frames * period, penalty=penalty)
     t_out = t_a[seen]
     xyz = traj.position(t_out)
     sq = np.full((t_out.size, len(names)), np.nan)

@@ -11,7 +11,13 @@ from scipy import sparse
 
 from rig.stereo.trajectory import SplineBasis, _system
 from rig.stereo.triangulate import triangulate
-from rig.sync_tracks import SYNC_METHODS, TRACK_COLUMNS, prepare_observations, triangulate_tracks
+from rig.sync_tracks import (
+    SYNC_METHODS,
+    TRACK_COLUMNS,
+    TRAJECTORY_PENALTY,
+    prepare_observations,
+    triangulate_tracks,
+)
 
 SIGMA_PX = 0.1
 
@@ -74,7 +80,7 @@ def _trajectory_covariance(tw, m, t_eval_ref, sigma_px):
         uvs.append(o[["u_px", "v_px"]].to_numpy())
         Ps.append(tw.cameras[c].P)
     period = float(np.median(np.diff(ts[0])))
-    basis = SplineBasis(min(t[0] for t in ts), max(t[-1] for t in ts), 0.75 * period, 1e-3)
+    basis = SplineBasis(min(t[0] for t in ts), max(t[-1] for t in ts), 0.75 * period, TRAJECTORY_PENALTY)
     truth_C = np.linalg.lstsq(basis.design(ts[0]).toarray(),
                               tw.world.positions([m], tw.world_time(ts[0]))[0], rcond=None)[0]
     A, _ = _system(Ps, ts, uvs, basis, truth_C)
