@@ -160,8 +160,10 @@ def _fits_display(t: ReportTables) -> pd.DataFrame:
             rows.append({"sync method": method, "c0 (%)": t.fit_notes.get(method, "no sweep data")})
             continue
         h0, h2 = fit.t_factor * fit.u_c0, fit.t_factor * fit.u_c2  # 95 % half-widths
-        if lim.reached:
+        if lim.reached and lim.source == "fit":
             usable = f"{lim.limit_hz:.2f} ± {fit.t_factor * lim.u_limit_hz:.2g}"
+        elif lim.reached:
+            usable = f"{lim.limit_hz:.2f} (last bin within tolerance beyond the fit)"
         else:
             usable = f"≥ {lim.limit_hz:.2f} (not reached)"
         rows.append(

@@ -142,6 +142,7 @@ class UsableLimit:
     u_limit_hz: float
     reached: bool
     f_max_tested_hz: float
+    source: str = "fit"  # "fit" | "bins beyond the fit" | "tested range"
 
 
 def usable_limit(fit: QuadraticFit, tolerance: float, f_max_tested_hz: float | None = None) -> UsableLimit:
@@ -167,4 +168,51 @@ def usable_limit(fit: QuadraticFit, tolerance: float, f_max_tested_hz: float | N
         u_limit_hz=u_cross if reached else float("nan"),
         reached=bool(reached),
         f_max_tested_hz=f_max,
+    )
+
+
+def usable_limit_with_bins(
+    fit: QuadraticFit, f_bins_hz: np.ndarray, e_bins: np.ndarray, tolerance: float
+) -> UsableLimit:
+    """The usable limit over the whole tested range: the fit inside its range, the bins beyond it.
+
+    Inside the fitted range the crossing of the fit is used (:func:`usable_limit`). Beyond it (the fit
+    stops short of Nyquist on purpose) the quadratic model is not trusted: the limit is the last bin
+    frequency before the first bin whose mean |e| exceeds the tolerance (``source`` "bins beyond the
+    fit", no uncertainty: bin resolution), else the highest tested frequency ("tested range").
+    """
+    f = np.asarray(f_bins_hz, float)
+    e = np.asarray(e_bins, float)
+    ok = np.isfinite(f) & np.isfinite(e)
+    f, e = f[ok], e[ok]
+    f_max_tested = float(f.max()) if len(f) else fit.f_max_hz
+    inside = usable_limit(fit, tolerance, fit.f_max_hz)
+    if inside.reached:
+        return UsableLimit(
+            tolerance, inside.limit_hz, inside.crossing_hz, inside.u_limit_hz, True, f_max_tested
+        )
+    order = np.argsort(f)
+    last_ok = fit.f_max_hz
+    for fi, ei in zip(f[order], e[order], strict=True):
+        if fi <= fit.f_max_hz:
+            continue
+        if abs(ei) > tolerance:
+            return UsableLimit(
+                tolerance,
+                last_ok,
+                float("nan"),
+                float("nan"),
+                True,
+                f_max_tested,
+                source="bins beyond the fit",
+            )
+        last_ok = float(fi)
+    return UsableLimit(
+        tolerance,
+        max(f_max_tested, fit.f_max_hz),
+        inside.crossing_hz,
+        float("nan"),
+        False,
+        max(f_max_tested, fit.f_max_hz),
+        source="tested range",
     )

@@ -19,7 +19,7 @@ from reports import frequency, motion, position
 from reports.certificate import Measured
 from reports.errors import FitError
 from reports.load import RunData, accuracy_poses, calibration_residuals, camera_centres_mm, stream_events
-from reports.quadfit import QuadraticFit, UsableLimit, fit_quadratic, usable_limit
+from reports.quadfit import QuadraticFit, UsableLimit, fit_quadratic, usable_limit_with_bins
 from reports.select import event_window
 
 DEFAULT_FPS = 60.0
@@ -155,8 +155,13 @@ def compute_tables(
             out.fit_notes[method] = str(exc)
             continue
         out.fits[method] = fit
-        f_max = float(bins.loc[bins["sync_method"] == method, "frequency_hz"].max())
-        out.limits[method] = usable_limit(fit, float(acceptance["amplitude_error_pct"]), f_max)
+        per_bin = b.groupby("bin", sort=True)[["frequency_hz", "amplitude_error_pct"]].mean()
+        out.limits[method] = usable_limit_with_bins(
+            fit,
+            per_bin["frequency_hz"].to_numpy(),
+            per_bin["amplitude_error_pct"].to_numpy(),
+            float(acceptance["amplitude_error_pct"]),
+        )
 
     plates = stream_events(run.events, "plate")
     if plates:
@@ -294,7 +299,14 @@ def measured_values(t: ReportTables, acceptance: dict[str, Any]) -> dict[str, Me
             note=note,
         )
         lim = t.limits[t.primary_sync]
-        if lim.reached:
+        if lim.reached and lim.source != "fit":
+            m["min_usable_frequency_hz"] = Measured(
+                lim.limit_hz,
+                0.0,
+                note=f"last bin beyond the fitted range with |e| ≤ {lim.tolerance:g} %; "
+                "the next bin exceeds it (a lower bound at bin resolution)",
+            )
+        elif lim.reached:
             m["min_usable_frequency_hz"] = Measured.from_budget(
                 lim.limit_hz,
                 [("quadratic fit (delta method)", "A", lim.u_limit_hz)],

@@ -132,3 +132,22 @@ def test_fit_is_invariant_to_a_common_uncertainty_scale(scale: float, shift_c0: 
     c = fit_quadratic(F_HZ, e + shift_c0, SIGMA)
     assert c.c0 == pytest.approx(a.c0 + shift_c0, abs=1e-9)
     assert c.c2 == pytest.approx(a.c2, abs=1e-12)
+
+
+def test_usable_limit_beyond_the_fit_comes_from_the_bins() -> None:
+    from reports.quadfit import usable_limit_with_bins
+
+    fit = fit_quadratic(F_HZ, 0.1 - 0.001 * F_HZ**2, SIGMA)  # |e| ≤ 0.5 % up to 20 Hz
+    f_bins = np.arange(1.0, 30.0)
+    e_bins = np.where(f_bins <= 24.0, -1.0, -7.0)  # beyond the fit, bins exceed 5 % from 25 Hz
+    lim = usable_limit_with_bins(fit, f_bins, e_bins, 5.0)
+    assert lim.reached and lim.source == "bins beyond the fit"
+    assert lim.limit_hz == 24.0 and lim.f_max_tested_hz == 29.0
+    # every bin within tolerance: the whole tested range, not reached
+    lim = usable_limit_with_bins(fit, f_bins, np.full_like(f_bins, -1.0), 5.0)
+    assert not lim.reached and lim.limit_hz == 29.0 and lim.source == "tested range"
+    # a crossing inside the fitted range wins, with the fit's uncertainty
+    steep = fit_quadratic(F_HZ, C0 + C2 * F_HZ**2, SIGMA)
+    lim = usable_limit_with_bins(steep, f_bins, e_bins, 5.0)
+    assert lim.source == "fit" and lim.limit_hz == pytest.approx(np.sqrt(5.3 / 0.08))
+    assert np.isfinite(lim.u_limit_hz)
