@@ -99,6 +99,7 @@ def twin_record(
     sigma_px: float = 0.1,
     seed: int = 0,
     right_start_offset_s: float | None = None,
+    right_overrides: dict | None = None,
     setup=None,
 ) -> TwinRecord:
     """Observations of ``marker_id`` in ``scene`` from t = 1 s for ``duration_s``; ``setup(world)`` sets
@@ -111,6 +112,7 @@ def twin_record(
     zero = (0.0, 0.0, 0.0, 0.0)
     left = make_camera(left_spec, world, distortion=zero)
     extra = {} if right_start_offset_s is None else {"start_offset_s": right_start_offset_s}
+    extra.update(right_overrides or {})
     right = make_camera(right_spec, world, distortion=zero, **extra)
     rng = np.random.default_rng(seed + 1000)
     out = []

@@ -43,6 +43,7 @@ from rig.stereo.timing import TimingResult, projection_matrix
 
 MIN_OBSERVATIONS = 30
 CHI2_DISTINCT = 25.0  # Δχ² (5 σ) that separates a real minimum from an equally good one
+GAP_GUARD = 32  # frames of B either side of a dropped frame whose reconstruction is not trusted
 
 
 def fundamental_matrix(P_a: np.ndarray, P_b: np.ndarray) -> np.ndarray:
@@ -129,10 +130,21 @@ class _Problem:
         self.F, self.epoch_b = F, epoch_b
         self.line_a, self.line_b = line_a, line_b  # None → the common estimated line time
         self.data = []
+        self.n_near_gaps = 0
         for ta, ua, tb, ub in tracks:
             lo = tb[0] + guess_s + half_width_s + margin_s
             hi = tb[-1] + guess_s - half_width_s - margin_s
             sel = (ta >= lo) & (ta <= hi)
+            # A dropped frame of B cannot be reconstructed; its error reaches the band-limited values through
+            # the sinc's 1/d tail, so A's instants within the kernel half-width of a gap are left out.
+            steps = np.diff(tb)
+            period = float(np.median(steps))
+            for k in np.flatnonzero(steps > 1.5 * period):
+                near = (ta >= tb[k] + guess_s - half_width_s - GAP_GUARD * period) & (
+                    ta <= tb[k + 1] + guess_s + half_width_s + GAP_GUARD * period
+                )
+                self.n_near_gaps += int(np.count_nonzero(sel & near))
+                sel &= ~near
             if np.count_nonzero(sel) >= 4:
                 self.data.append((ta[sel], ua[sel], tb, ub))
         self.n = sum(len(d[0]) for d in self.data)
@@ -306,7 +318,10 @@ def estimate_joint(
             "drift_ppm": {a: 0.0, b: std_full[2]},
         },
         epoch_s={a: 0.0, b: epoch_b},
-        details=_details(r, s2, cov, free, grid=grid, cost=cost),
+        details={
+            **_details(r, s2, cov, free, grid=grid, cost=cost),
+            "n_left_out_near_gaps": prob.n_near_gaps,
+        },
     )
 
 
