@@ -13,14 +13,11 @@ import numpy as np
 from rig.config import load_config
 
 SIM_TOML = resources.files("rig").joinpath("data/sim.toml").read_text()
-# the VP-6242 reach model of the mock controller: the plate's flange must stay ≤ ~500 mm from the base
-REACHABLE_SLIDES = "slide_positions_mm = [-120.0, -80.0, -40.0, 0.0, 40.0, 80.0]"
 
 
 def write_config(tmp_path: Path) -> Path:
-    """The built-in simulated rig with runs in ``tmp_path/runs`` (and reachable calibration slides)."""
+    """The built-in simulated rig with runs in ``tmp_path/runs``."""
     text = re.sub(r'^runs_dir = .*$', f'runs_dir = "{(tmp_path / "runs").as_posix()}"', SIM_TOML, flags=re.M)
-    text = re.sub(r"^slide_positions_mm = .*$", REACHABLE_SLIDES, text, flags=re.M)
     path = tmp_path / "rig.toml"
     path.write_text(text)
     return path

@@ -97,8 +97,6 @@ def test_accuracy_plan_fills_the_volume_and_puts_the_marker_on_target() -> None:
         assert vp6242.solve(pose).violation is None
 
 
-@pytest.mark.xfail(strict=True, reason="rig/data/sim.toml: the slide of +100 mm puts the flange at "
-                                        "x = 520 mm, beyond the mock VP-6242's reach (≈ 503 mm there)")
 def test_builtin_calibration_slides_are_within_the_mock_arms_reach() -> None:
     plate_cfg = default_config().targets.calibration_plate
     for pose in calibrate.plate_poses(plate_cfg, plate_cfg.slide_positions_mm):
