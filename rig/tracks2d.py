@@ -113,15 +113,6 @@ HISTORY = 10  # positions kept per track for the prediction
 AR_MIN = 5  # consecutive frames needed before the periodic (AR(2)) prediction is used
 
 
-def _simple_predictions(slots: list[float], pos: list[np.ndarray], s_now: float) -> np.ndarray:
-    """The last position and the constant-velocity extrapolation (k, 2)."""
-    last = pos[-1]
-    if len(pos) < 2:
-        return last[None, :]
-    gap = s_now - slots[-1]
-    return np.stack([last, last + (pos[-1] - pos[-2]) * gap / max(slots[-1] - slots[-2], 1e-9)])
-
-
 def _periodic_prediction(slots: list[float], pos: list[np.ndarray], s_now: float) -> np.ndarray | None:
     """After ``AR_MIN`` consecutive frames, the linear recurrence of a sinusoid (or of a straight line):
     x_{k+1} + x_{k−1} = λ·x_k + d, λ = 2 cos(2πf/fs) and d fitted to the track's recent frames; else None."""
@@ -178,19 +169,21 @@ def _track_group(obs: pd.DataFrame, gate: float, max_gap: int, min_length: int,
         det = uv[rows]
         assigned = np.full(len(rows), -1)
         if ids:
-            cost = np.empty((len(ids), len(rows)))
-            for ti in range(len(ids)):
-                cands = _simple_predictions(slots[ti], hist[ti], s_now)
-                cost[ti] = np.min(np.linalg.norm(det[None, :, :] - cands[:, None, :], axis=2), axis=0)
-                if cost[ti].min() > 0.2 * gate:  # the simple predictions miss: try the periodic one
-                    periodic = _periodic_prediction(slots[ti], hist[ti], s_now)
-                    if periodic is not None:
-                        cost[ti] = np.minimum(cost[ti], np.linalg.norm(det - periodic, axis=1))
-            gap = s_now - np.array([sl[-1] for sl in slots])
+            last = np.array([h[-1] for h in hist])
+            prev = np.array([h[-2] if len(h) > 1 else h[-1] for h in hist])
+            s_last = np.array([sl[-1] for sl in slots])
+            s_prev = np.array([sl[-2] if len(sl) > 1 else sl[-1] - 1.0 for sl in slots])
+            gap = s_now - s_last
+            velocity = (last - prev) / np.maximum(s_last - s_prev, 1e-9)[:, None]  # px per frame period
+            d_last = np.linalg.norm(det[None, :, :] - last[:, None, :], axis=2)
+            d_cv = np.linalg.norm(det[None, :, :] - (last + velocity * gap[:, None])[:, None, :], axis=2)
+            cost = np.minimum(d_last, d_cv)
+            for ti in np.flatnonzero(cost.min(axis=1) > 0.2 * gate):  # simple predictions miss: periodic?
+                periodic = _periodic_prediction(slots[ti], hist[ti], s_now)
+                if periodic is not None:
+                    cost[ti] = np.minimum(cost[ti], np.linalg.norm(det - periodic, axis=1))
             feasible = cost <= gate * np.maximum(gap, 1.0)[:, None]  # the prediction error grows with the gap
             if acquire_gate > gate:  # a lone marker and a lone track within the acquisition gate: together
-                last = np.array([h[-1] for h in hist])
-                d_last = np.linalg.norm(det[None, :, :] - last[:, None, :], axis=2)
                 near = d_last <= acquire_gate
                 lone = near & (near.sum(axis=1) == 1)[:, None] & (near.sum(axis=0) == 1)[None, :]
                 lone &= ~feasible.any(axis=1)[:, None]
