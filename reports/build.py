@@ -20,11 +20,11 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from reports import figures, html
+from reports import figures, html, summaries
 from reports.certificate import acceptance_from_config, build_certificate, evaluate
 from reports.errors import AnalysisFailedError, ReportError
 from reports.load import load_record
-from reports.tables import ReportTables, compute_tables, measured_values
+from reports.tables import compute_tables, measured_values
 
 DEFAULT_SYNC = "trajectory"
 COMPARISON_SYNC = "linear"
@@ -83,131 +83,6 @@ def _default_analyse() -> Analyse:
             f"rig.analysis is not available ({exc}); pass analysis=... to build_report"
         ) from exc
     return analyse
-
-
-def _fits_frame(t: ReportTables) -> pd.DataFrame:
-    rows = []
-    for method in t.sync_methods:
-        fit, lim = t.fits.get(method), t.limits.get(method)
-        if fit is None:
-            rows.append({"sync_method": method, "note": t.fit_notes.get(method, "no sweep data")})
-            continue
-        d = fit.to_dict()
-        rows.append(
-            {
-                "sync_method": method,
-                "c0_pct": d["c0"],
-                "c0_ci_low_pct": d["c0_ci"][0],
-                "c0_ci_high_pct": d["c0_ci"][1],
-                "c2_pct_per_hz2": d["c2"],
-                "c2_ci_low_pct_per_hz2": d["c2_ci"][0],
-                "c2_ci_high_pct_per_hz2": d["c2_ci"][1],
-                "confidence": d["confidence"],
-                "r2": d["r2"],
-                "chi2_reduced": d["chi2_reduced"],
-                "n_points": d["n_points"],
-                "fit_max_hz": fit.f_max_hz,
-                "tolerance_pct": lim.tolerance,
-                "usable_limit_hz": lim.limit_hz,
-                "u_usable_limit_hz": lim.u_limit_hz,
-                "tolerance_reached": lim.reached,
-                "f_max_tested_hz": lim.f_max_tested_hz,
-                "track_delay_ms": t.track_delay_ms.get(method, float("nan")),
-            }
-        )
-    return pd.DataFrame(rows)
-
-
-def _measurands(t: ReportTables, rig: dict[str, Any]) -> dict[str, Any]:
-    """What was measured and under which conditions (GUM §10): cameras, volume, sweep, plate, rotor."""
-    cams = rig.get("cameras") if isinstance(rig.get("cameras"), dict) else {}
-    out: dict[str, Any] = {
-        "cameras": {
-            n: {k: c.get(k) for k in ("fps", "exposure_s", "resolution_px", "driver") if k in c}
-            for n, c in sorted(cams.items())
-            if isinstance(c, dict)
-        },
-    }
-    p = t.poses
-    if len(p):
-        out["static_poses"] = {
-            "n_marker_poses": len(p),
-            "n_targets": int(p["target"].nunique()),
-            "n_cycles": int(p["cycle"].nunique()),
-            "distance_from_cameras_mm": [float(p["distance_mm"].min()), float(p["distance_mm"].max())],
-        }
-    if t.sweep is not None:
-        prof = np.asarray(t.sweep["profile"], float)
-        out["sweep"] = {
-            "amplitude_mm": float(t.sweep["amplitude_mm"]),
-            "frequency_hz": [float(prof[:, 1].min()), float(prof[:, 1].max())],
-            "duration_s": float(t.sweep["t_stop_s"] - t.sweep["t_start_s"]),
-            "axis": list(map(float, t.sweep["axis"])),
-        }
-    if t.plate_event is not None:
-        out["plate"] = {k: t.plate_event.get(k) for k in ("frequency_hz", "amplitude_mm")}
-    if t.rotation is not None:
-        out["rotor"] = {k: t.rotation.get(k) for k in ("frequency_hz", "radius_mm")}
-    return out
-
-
-def _fits_display(t: ReportTables) -> pd.DataFrame:
-    """The fit table for the page: coefficients with their intervals as text, the usable limit with U."""
-    rows = []
-    for method in t.sync_methods:
-        fit, lim = t.fits.get(method), t.limits.get(method)
-        if fit is None:
-            rows.append({"sync method": method, "c0 (%)": t.fit_notes.get(method, "no sweep data")})
-            continue
-        h0, h2 = fit.t_factor * fit.u_c0, fit.t_factor * fit.u_c2  # 95 % half-widths
-        if lim.reached and lim.source == "fit":
-            usable = f"{lim.limit_hz:.2f} ± {fit.t_factor * lim.u_limit_hz:.2g}"
-        elif lim.reached:
-            usable = f"{lim.limit_hz:.2f} (last bin within tolerance beyond the fit)"
-        else:
-            usable = f"≥ {lim.limit_hz:.2f} (not reached)"
-        rows.append(
-            {
-                "sync method": method,
-                "c0 (%)": f"{fit.c0:.3g} ± {h0:.2g}",
-                "c2 (%/Hz²)": f"{fit.c2:.3g} ± {h2:.2g}",
-                "R²": fit.r2,
-                "bins": fit.n_points,
-                "fitted (Hz)": f"{fit.f_min_hz:.1f}–{fit.f_max_hz:.1f}",
-                f"usable limit at ±{lim.tolerance:g} % (Hz)": usable,
-                "track delay (ms)": t.track_delay_ms.get(method, float("nan")),
-            }
-        )
-    return pd.DataFrame(rows)
-
-
-def _length_summary(lengths: pd.DataFrame) -> pd.DataFrame:
-    if lengths.empty:
-        return lengths
-    g = lengths.groupby(["marker_a", "marker_b"], sort=True)
-    return g.agg(
-        n=("length_error_mm", "size"),
-        length_cal_mm=("length_cal_mm", "mean"),
-        length_error_mean_mm=("length_error_mm", "mean"),
-        length_error_max_abs_mm=("length_error_mm", lambda s: float(s.abs().max())),
-    ).reset_index()
-
-
-def _timing_frame(timing: dict[str, Any] | None) -> pd.DataFrame:
-    timing = timing or {}
-    cams = sorted(set((timing.get("offset_s") or {}) | (timing.get("line_time_s") or {})))
-    return pd.DataFrame(
-        [
-            {
-                "camera": c,
-                "offset_s": (timing.get("offset_s") or {}).get(c),
-                "line_time_s": (timing.get("line_time_s") or {}).get(c),
-                "drift_ppm": (timing.get("drift_ppm") or {}).get(c),
-            }
-            for c in cams
-        ],
-        columns=["camera", "offset_s", "line_time_s", "drift_ppm"],
-    ).astype({"offset_s": float, "line_time_s": float, "drift_ppm": float})
 
 
 def build_report(
@@ -279,7 +154,7 @@ def build_report(
         "timing_method": (t.timing or {}).get("method"),
         "report_software": _software_version(),
         "versions": run.start.get("versions"),
-        "measurands": _measurands(t, run.rig),
+        "measurands": summaries.measurands(t, run.rig),
         "rig": run.rig,
         "notes": notes,
     }
@@ -319,12 +194,12 @@ def build_report(
         "position_errors": t.poses,
         "iso9283": t.iso9283,
         "length_errors": t.lengths,
-        "length_summary": _length_summary(t.lengths),
+        "length_summary": summaries.length_summary(t.lengths),
         "sweep_bins": t.sweep_bins,
         "sweep_means": t.sweep_means,
-        "quadratic_fit": _fits_frame(t),
+        "quadratic_fit": summaries.fits_frame(t),
         "calibration_residuals": t.calibration,
-        "timing": _timing_frame(t.timing),
+        "timing": summaries.timing_frame(t.timing),
         "criteria": criteria,
         "position_summary": pd.DataFrame([t.position_summary]),
     }
@@ -375,7 +250,7 @@ def build_report(
         "iso9283": t.iso9283[t.iso9283["n_cycles"] >= 2].drop(columns=["x_cmd_mm", "y_cmd_mm", "z_cmd_mm"]),
         "length_summary": frames["length_summary"],
         "poses": t.poses[pose_cols],
-        "fits": _fits_display(t),
+        "fits": summaries.fits_display(t),
         "sweep_means": t.sweep_means,
         "plate": t.plate,
         "calibration": t.calibration,
