@@ -103,14 +103,16 @@ def twin(
 
 def write_run(runs_dir, tw: Twin, segments: list[tuple[str, float, float]], *, rig: dict | None = None,
               calibration: bool = True, timing: bool = True, camera_events: bool = True,
-              blind: tuple[tuple[str, str], ...] = (), event_style: str = "acquire"):
+              blind: tuple[tuple[str, str], ...] = (), event_style: str = "acquire",
+              resume_before: str | None = None):
     """A run folder written by the real record writer: per recording (name, t_start_s, t_stop_s) — consecutive
     recordings of one name in one step, like the accuracy procedure's poses — ``camera`` start events and
     the twin's noisy observations; ``calibration.json`` / ``timing.json`` from the true cameras and timing;
     ``blind`` (segment, camera) pairs record nothing. ``event_style``:
     "acquire" writes the events after the recording with ``t_s`` = start time and ``segment`` in the data
     (as procedures/_acquire.py does); "contract" writes them at the start with the contract's fields only.
-    Returns the run folder."""
+    ``resume_before``: the session stops (abort) before that recording and a resumed session records the
+    rest. Returns the run folder."""
     import json
 
     from rig.record import RunRecord
@@ -122,6 +124,10 @@ def write_run(runs_dir, tw: Twin, segments: list[tuple[str, float, float]], *, r
     rng = np.random.default_rng(99)
     for k, (name, t0, t1) in enumerate(segments):
         world.clock.advance_to(t0)
+        if name == resume_before and (k == 0 or segments[k - 1][0] != name):
+            rec.stop("abort", "test: interrupted")
+            rec.close()
+            rec = RunRecord.resume(rec.run_dir, world.clock, rig_snapshot=snapshot, versions={})
         if k == 0 or segments[k - 1][0] != name:  # consecutive recordings of one name share a step
             rec.step_begin(name)
         starts = []

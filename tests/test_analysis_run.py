@@ -202,3 +202,13 @@ def test_short_still_recordings_at_several_arm_poses(tmp_path):
     assert arm_tracks == len(poses)
     assert len(a.clock) == 1 and "3 camera" not in a.clock["source"].iloc[0]
     assert a.clock["source"].iloc[0].startswith("fit of all 6 camera start events")
+
+
+def test_a_resumed_run_analyses_both_sessions(tmp_path):
+    tw = _moving()
+    run_dir = write_run(tmp_path, tw, SEGMENTS, rig=RIG, resume_before="shake")
+    a = analyse(run_dir, sync="linear")
+    assert list(a.clock["session"]) == [1, 0] and list(a.clock["segment"]) == ["shake", "still"]
+    assert set(a.tracks["segment"]) == {"still", "shake"}
+    for seg in ("still", "shake"):
+        assert a.tracks.loc[a.tracks["segment"] == seg, "track_id"].nunique() == 9
