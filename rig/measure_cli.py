@@ -77,7 +77,7 @@ def cmd_measure(args: argparse.Namespace) -> int:
     detect = {"polarity": args.polarity} if args.polarity else {}
     window = tuple(args.window) if args.window else None
     options = MeasureOptions(sync=args.sync, reference_markers=refs, window_s=window,
-                             line_time_s=args.line_time_s,
+                             line_time_s=args.line_time_s, static_mm=args.static_mm,
                              extract=ExtractOptions(window_px=args.window_px, detect=detect,
                                                     duplicate_policy=args.duplicate_policy))
     try:
@@ -129,6 +129,8 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
                        help="estimate the timing from the videos' motion (the default without --timing)")
     p.add_argument("--reference-markers", nargs="+", metavar="X,Y,Z",
                    help="'auto' (static tracks, default), 'none', or ≥ 3 positions in mm")
+    p.add_argument("--static-mm", type=float, default=0.1,
+                   help="'auto' reference markers move less than this RMS, mm (default 0.1)")
     p.add_argument("--out", required=True, metavar="DIR")
     p.add_argument("--names", nargs=2, metavar=("LEFT_NAME", "RIGHT_NAME"), help="camera names (left right)")
     p.add_argument("--sync", choices=SYNC_METHODS, default="trajectory")
