@@ -281,9 +281,10 @@ def _by_interpolation(t_a, uv_a, pieces, cams, *, ref, others, sync):
     for c in others:
         acc = np.full_like(uv_a, np.nan)
         for t_b, uv_b in pieces[c]:
-            if t_b.size < (2 if sync == "linear" else 4):
+            if t_b.size < 2:
                 continue
-            val = resample(t_b, uv_b, t_a, sync)
+            # a piece too short for a cubic or sinc reconstruction (a few still frames) is joined linearly
+            val = resample(t_b, uv_b, t_a, sync if t_b.size >= 4 else "linear")
             acc = np.where(np.isfinite(acc), acc, val)
         uvs.append(acc)
     seen = np.column_stack([np.isfinite(u).all(axis=1) for u in uvs[1:]]).any(axis=1)
