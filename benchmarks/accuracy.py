@@ -225,7 +225,7 @@ def section_beyond_nyquist(timing):
         "  Δχ²(alias): cost of the 20 Hz alias minus that of 40 Hz, in σ²; the fit rejects the alias when it"
     )
     print("  exceeds 25. Rule of thumb: one camera's residual 2·A_px·sin(πα) over N frames,")
-    print("  Δχ² ≈ N·2·(A_px/σ)²·sin²(πα) — an upper bound: the alias absorbs part of it (measured ≈ 0.4×).")
+    print("  Δχ² ≈ N·2·(A_px/σ)²·sin²(πα) — upper bound: the alias absorbs part of it (measured 0.4–0.9×).")
     print(
         f"  {'α':>6s} {'outcome':>24s} {'amplitude err':>14s} {'Δχ² alias meas.':>16s} {'Δχ² predicted':>14s}"
     )

@@ -26,7 +26,7 @@ Beyond one camera's Nyquist limit (fs/2), where it holds and where it fails: a t
 fs − f fit one camera's samples identically; across the two cameras they differ only through the cameras'
 time offset α (fraction of a frame, mod 1): at the second camera the alias is off by a residual of about
 2·A_px·sin(πα) (A_px the image amplitude). The frequency search rejects the alias when its cost exceeds the
-best by Δχ² > 25; the separation grows as N·(A_px/σ)²·sin²(πα) (measured ≈ 0.8·N·(A_px/σ)²·sin²(πα)
+best by Δχ² > 25; the separation grows as N·(A_px/σ)²·sin²(πα) (N frames; measured 0.8–1.8 times that
 for the benchmark geometry), so it **fails as α → 0 (or 1)**: with identical instants the alias is exactly
 as good and AmbiguousFrequencyError is raised rather than a wrong frequency returned. In
 ``benchmarks/accuracy.py`` (60 fps, 40 Hz, 10 s, A ≈ 3 px, σ = 0.1 px) the alias is rejected from
