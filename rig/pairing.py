@@ -85,6 +85,8 @@ def _tracks(obs: pd.DataFrame, cam: DLTCamera, what: str) -> dict[int, _Track]:
     uv_all = cam.undistort_px(sel[["u_px", "v_px"]].to_numpy(float), strict=False)
     cuts = np.flatnonzero(np.diff(tid)) + 1
     out: dict[int, _Track] = {}
+    if tid.size == 0:
+        return out
     for lo, hi in zip(np.r_[0, cuts], np.r_[cuts, len(tid)], strict=True):
         t, uv = t_all[lo:hi], uv_all[lo:hi]
         ok = np.isfinite(uv).all(axis=1)

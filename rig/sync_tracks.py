@@ -199,8 +199,8 @@ def triangulate_tracks(
         out = out.sort_values(["segment", "time_s"], kind="stable", ignore_index=True)
         out = _number_tracks(out)
     else:
-        out = pd.DataFrame({c: pd.Series(dtype="object" if c == "segment" else "float64")
-                            for c in TRACK_COLUMNS})
+        kinds = {"segment": "object", "track_id": "int64", "n_cameras": "int64"}
+        out = pd.DataFrame({c: pd.Series(dtype=kinds.get(c, "float64")) for c in TRACK_COLUMNS})
     out = out[TRACK_COLUMNS]
     out.attrs["notes"] = notes
     return out
@@ -240,7 +240,9 @@ def _track_arrays(obs: pd.DataFrame) -> dict[int, tuple[np.ndarray, np.ndarray]]
     t_all = sel["time_s"].to_numpy(float)
     uv_all = sel[["u_px", "v_px"]].to_numpy(float)
     cuts = np.flatnonzero(np.diff(tid)) + 1
-    out = {}
+    out: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+    if tid.size == 0:
+        return out
     for lo, hi in zip(np.r_[0, cuts], np.r_[cuts, len(tid)], strict=True):
         t, uv = t_all[lo:hi], uv_all[lo:hi]
         keep = np.r_[True, np.diff(t) > 0]

@@ -11,7 +11,7 @@ from analysis_twin import twin
 
 from rig.analysis_errors import AnalysisError
 from rig.pairing import pair_tracks
-from rig.sync_tracks import prepare_observations, triangulate_tracks
+from rig.sync_tracks import TRACK_COLUMNS, prepare_observations, triangulate_tracks
 
 VOLUME = ((0.0, 800.0), (-500.0, 500.0), (-100.0, 800.0))  # the twin's robot envelope and references, grown
 
@@ -169,3 +169,13 @@ def test_rows_of_the_calibration_plate_are_resolved_by_order():
     ordered = pair_tracks(obs["left"], obs["right"], *cams, volume_mm=VOLUME)
     assert len(ordered.pairs) == 39 and not ordered.pairs["ambiguous"].any()
     _check_correct(ordered, obs)
+
+
+def test_a_camera_without_observations_gives_no_pairs_and_an_empty_tracks_frame(column):
+    obs = _prepared(column)
+    none = obs["right"].iloc[:0]
+    res = pair_tracks(obs["left"], none, column.cameras["left"], column.cameras["right"])
+    assert res.pairs.empty and len(res.unpaired_a) == 9 and res.unpaired_b == []
+    tracks = triangulate_tracks({"left": obs["left"], "right": none}, column.cameras, column.timing)
+    assert tracks.empty and list(tracks.columns) == TRACK_COLUMNS
+    assert tracks["track_id"].dtype == np.int64 and tracks["n_cameras"].dtype == np.int64
