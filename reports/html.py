@@ -274,7 +274,8 @@ def render(
         f"over bins up to {t.fit_max_hz:.1f} Hz (default fs/3, away from Nyquist; fs = {t.fs_hz:g} fps). "
         "The dashed and dotted "
         "curves are the exact amplitude loss of linear interpolation of one camera's image coordinates; "
-        "in 3D only a geometry-weighted share of it appears.</p>"
+        "in 3D only a geometry-weighted share of it appears — about half for a symmetric pair and motion "
+        "across the lines of sight (dash-dotted).</p>"
         + _figure(
             pngs,
             "amplitude_error_vs_frequency",

@@ -172,19 +172,30 @@ def usable_limit(fit: QuadraticFit, tolerance: float, f_max_tested_hz: float | N
 
 
 def usable_limit_with_bins(
-    fit: QuadraticFit, f_bins_hz: np.ndarray, e_bins: np.ndarray, tolerance: float
+    fit: QuadraticFit,
+    f_bins_hz: np.ndarray,
+    e_bins: np.ndarray,
+    tolerance: float,
+    *,
+    u_bins: np.ndarray | None = None,
+    guard_k: float = 0.0,
 ) -> UsableLimit:
     """The usable limit over the whole tested range: the fit inside its range, the bins beyond it.
 
     Inside the fitted range the crossing of the fit is used (:func:`usable_limit`). Beyond it (the fit
     stops short of Nyquist on purpose) the quadratic model is not trusted: the limit is the last bin
-    frequency before the first bin whose mean |e| exceeds the tolerance (``source`` "bins beyond the
-    fit", no uncertainty: bin resolution), else the highest tested frequency ("tested range").
+    frequency before the first bin whose |e| + ``guard_k``·u exceeds the tolerance (``source`` "bins
+    beyond the fit", no uncertainty: bin resolution), else the highest tested frequency ("tested range").
+    ``guard_k`` = 2 applies the guarded decision rule to the bins (standard uncertainties ``u_bins``);
+    0 is simple acceptance.
     """
     f = np.asarray(f_bins_hz, float)
     e = np.asarray(e_bins, float)
+    u = np.zeros_like(f) if u_bins is None else np.nan_to_num(np.asarray(u_bins, float))
+    if not f.shape == e.shape == u.shape:
+        raise FitError(f"f_bins_hz, e_bins and u_bins need equal shapes, got {f.shape}, {e.shape}, {u.shape}")
     ok = np.isfinite(f) & np.isfinite(e)
-    f, e = f[ok], e[ok]
+    f, e, u = f[ok], e[ok], u[ok]
     f_max_tested = float(f.max()) if len(f) else fit.f_max_hz
     inside = usable_limit(fit, tolerance, fit.f_max_hz)
     if inside.reached:
@@ -193,10 +204,10 @@ def usable_limit_with_bins(
         )
     order = np.argsort(f)
     last_ok = fit.f_max_hz
-    for fi, ei in zip(f[order], e[order], strict=True):
+    for fi, ei, ui in zip(f[order], e[order], u[order], strict=True):
         if fi <= fit.f_max_hz:
             continue
-        if abs(ei) > tolerance:
+        if abs(ei) + guard_k * ui > tolerance:
             return UsableLimit(
                 tolerance,
                 last_ok,

@@ -155,12 +155,16 @@ def compute_tables(
             out.fit_notes[method] = str(exc)
             continue
         out.fits[method] = fit
-        per_bin = b.groupby("bin", sort=True)[["frequency_hz", "amplitude_error_pct"]].mean()
+        # per bin: mean over tracks; u = the tracks' mean u (they share the timing errors: not averaged down)
+        cols = ["frequency_hz", "amplitude_error_pct", "u_amplitude_error_pct"]
+        per_bin = b.groupby("bin", sort=True)[cols].mean()
         out.limits[method] = usable_limit_with_bins(
             fit,
             per_bin["frequency_hz"].to_numpy(),
             per_bin["amplitude_error_pct"].to_numpy(),
             float(acceptance["amplitude_error_pct"]),
+            u_bins=per_bin["u_amplitude_error_pct"].to_numpy(),
+            guard_k=2.0 if acceptance.get("decision_rule", "guarded") == "guarded" else 0.0,
         )
 
     plates = stream_events(run.events, "plate")

@@ -151,3 +151,16 @@ def test_usable_limit_beyond_the_fit_comes_from_the_bins() -> None:
     lim = usable_limit_with_bins(steep, f_bins, e_bins, 5.0)
     assert lim.source == "fit" and lim.limit_hz == pytest.approx(np.sqrt(5.3 / 0.08))
     assert np.isfinite(lim.u_limit_hz)
+
+
+def test_guarded_bins_beyond_the_fit_count_their_uncertainty() -> None:
+    from reports.quadfit import usable_limit_with_bins
+
+    fit = fit_quadratic(F_HZ, 0.1 - 0.001 * F_HZ**2, SIGMA)
+    f_bins = np.array([21.0, 22.0, 23.0])
+    e_bins = np.array([-2.0, -3.0, -4.0])
+    u_bins = np.array([1.0, 1.0, 1.0])  # |e| + 2u: 4, 5, 6 → the 23 Hz bin fails when guarded
+    assert usable_limit_with_bins(fit, f_bins, e_bins, 5.0, u_bins=u_bins, guard_k=2.0).limit_hz == 22.0
+    assert not usable_limit_with_bins(fit, f_bins, e_bins, 5.0, u_bins=u_bins, guard_k=0.0).reached
+    with pytest.raises(FitError, match="equal shapes"):
+        usable_limit_with_bins(fit, f_bins, e_bins, 5.0, u_bins=u_bins[:2])
