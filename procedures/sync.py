@@ -83,19 +83,21 @@ def estimate_timing(calibration: dict[str, Any], rec: Any, camera_events: list[d
     names = list(calibration["cameras"])[:2]
     ref, other = names
     cams = {n: DLTCamera.from_dict(calibration["cameras"][n]) for n in names}
-    series = {}
+    series, rows = {}, {}  # undistorted centres for the geometry; observed rows for the rolling shutter
     for n in names:
         t, uv = moving_marker(rec.observations[n])
         if len(t) < 12:
             raise TimingError(f"camera {n!r}: the rotor marker was identified in only {len(t)} frames "
                               "(need ≥ 12); is the rotor target mounted and turning?")
-        series[n] = (t, cams[n].undistort_px(uv, strict=False))
-        ok = np.all(np.isfinite(series[n][1]), axis=1)
-        series[n] = (series[n][0][ok], series[n][1][ok])
+        undistorted = cams[n].undistort_px(uv, strict=False)
+        ok = np.all(np.isfinite(undistorted), axis=1)
+        series[n] = (t[ok], undistorted[ok])
+        rows[n] = uv[ok, 1]
     guess = offset_guess_s(camera_events, ref, other)
     half = params.search_frames / fps
-    joint = estimate_offset(cams[ref], cams[other], series[ref], series[other], method="joint",
-                            names=(ref, other), offset_guess_s=guess, search_half_width_s=half)
+    joint = estimate_offset(cams[ref], cams[other], (*series[ref], rows[ref]), (*series[other], rows[other]),
+                            method="joint", names=(ref, other), offset_guess_s=guess,
+                            search_half_width_s=half)
     timing = joint.to_dict()
     timing["search"] = {"offset_guess_s": guess, "half_width_s": half, "source": "camera start events"}
     if params.compare_rotor_method:

@@ -101,19 +101,22 @@ def twin_record(
     right_start_offset_s: float | None = None,
     right_overrides: dict | None = None,
     setup=None,
+    lens_distortion: bool = False,
 ) -> TwinRecord:
     """Observations of ``marker_id`` in ``scene`` from t = 1 s for ``duration_s``; ``setup(world)`` sets
-    the bodies in motion (e.g. ``world.rotor.set_frequency(0.0, 10.0)``)."""
+    the bodies in motion (e.g. ``world.rotor.set_frequency(0.0, 10.0)``). ``lens_distortion=True`` keeps the
+    default pair's lens distortion: ``uv`` are then the observed (distorted) centres."""
     world = World(seed=seed)
     world.set_scene(scene, 0.0)
     if setup is not None:
         setup(world)
     left_spec, right_spec = default_camera_specs()
     zero = (0.0, 0.0, 0.0, 0.0)
-    left = make_camera(left_spec, world, distortion=zero)
+    lens = {} if lens_distortion else {"distortion": zero}
+    left = make_camera(left_spec, world, **lens)
     extra = {} if right_start_offset_s is None else {"start_offset_s": right_start_offset_s}
     extra.update(right_overrides or {})
-    right = make_camera(right_spec, world, distortion=zero, **extra)
+    right = make_camera(right_spec, world, **lens, **extra)
     rng = np.random.default_rng(seed + 1000)
     out = []
     for cam in (left, right):

@@ -167,7 +167,9 @@ def estimate_offset(
     ``camera_a``/``camera_b``: 3×4 projection matrices or objects with ``.P``. ``observations_a``/``_b``:
     a pair ``(timestamp_s (N,), uv_px (N, 2))`` of one marker track — frame time stamps on the camera's own
     clock (s, strictly increasing) and marker centres (px, lens distortion removed) — or, for several
-    markers, a list of such pairs in the same order for both cameras.
+    markers, a list of such pairs in the same order for both cameras. With lens distortion, give the joint
+    method triples ``(timestamp_s, uv_px, rows_px)`` where ``rows_px`` (N,) are the *observed* image rows:
+    the sensor row sets the rolling-shutter instant, and the undistorted v differs from it.
     ``method="joint"`` → :func:`rig.stereo.timing_joint.estimate_joint` (keyword options documented there);
     ``method="rotor"`` → :func:`rig.stereo.timing_rotor.estimate_rotor` (needs ``rotor_centre_mm`` and
     ``rotor_axis``).

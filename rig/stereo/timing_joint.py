@@ -87,38 +87,52 @@ def sampson_px(
     return num / np.sqrt(var)
 
 
-def _pairs(observations: object, name: str) -> list[tuple[object, object]]:
-    """One (t, uv) pair or a list of pairs → list of pairs."""
+def _pairs(observations: object, name: str) -> list[tuple[object, ...]]:
+    """One (t, uv[, rows]) track or a list of them → list of tracks."""
     if isinstance(observations, list):
         pairs = observations
-    elif isinstance(observations, tuple) and len(observations) == 2:
+    elif isinstance(observations, tuple) and len(observations) in (2, 3):
         pairs = [observations]
     else:
-        raise InputArrayError(f"{name} must be a pair (timestamp_s, uv_px) or a list of such pairs")
+        raise InputArrayError(
+            f"{name} must be a pair (timestamp_s, uv_px), a triple (timestamp_s, uv_px, rows_px) "
+            "or a list of them"
+        )
     for i, pair in enumerate(pairs):
-        if not (isinstance(pair, tuple | list) and len(pair) == 2):
-            raise InputArrayError(f"{name}[{i}] must be a pair (timestamp_s, uv_px)")
+        if not (isinstance(pair, tuple | list) and len(pair) in (2, 3)):
+            raise InputArrayError(
+                f"{name}[{i}] must be a pair (timestamp_s, uv_px) or a triple (timestamp_s, uv_px, rows_px)"
+            )
     return [tuple(p) for p in pairs]
 
 
 def as_tracks(observations_a: object, observations_b: object) -> list[tuple[np.ndarray, ...]]:
-    """Validate both cameras' tracks → [(tau_a, uv_a, tau_b, uv_b), ...]."""
+    """Validate both cameras' tracks → [(tau_a, uv_a, rows_a, tau_b, uv_b, rows_b), ...].
+
+    ``rows`` are the image rows (px) at which the sensor exposed each observation — the *observed*, lens-
+    distorted v — which set the rolling-shutter instant; ``uv`` are the undistorted centres for the epipolar
+    geometry. A track given as ``(t, uv)`` uses ``uv[:, 1]`` as its rows (exact without lens distortion)."""
     pa, pb = _pairs(observations_a, "observations_a"), _pairs(observations_b, "observations_b")
     if len(pa) != len(pb) or not pa:
         raise InputArrayError(
             f"observations_a has {len(pa)} tracks, observations_b {len(pb)}; they must match"
         )
     tracks = []
-    for i, ((ta, ua), (tb, ub)) in enumerate(zip(pa, pb, strict=True)):
+    for i, (track_a, track_b) in enumerate(zip(pa, pb, strict=True)):
         out: list[np.ndarray] = []
-        for name, t, uv in ((f"observations_a[{i}]", ta, ua), (f"observations_b[{i}]", tb, ub)):
-            tt = as_times(t, f"{name} timestamp_s", min_count=MIN_OBSERVATIONS)
-            uu = np.asarray(uv, dtype=float)
+        for name, track in ((f"observations_a[{i}]", track_a), (f"observations_b[{i}]", track_b)):
+            tt = as_times(track[0], f"{name} timestamp_s", min_count=MIN_OBSERVATIONS)
+            uu = np.asarray(track[1], dtype=float)
             if uu.shape != (tt.size, 2) or not np.all(np.isfinite(uu)):
                 raise InputArrayError(
                     f"{name} uv_px must be finite with shape ({tt.size}, 2), got {uu.shape}"
                 )
-            out += [tt, uu]
+            rows = uu[:, 1] if len(track) == 2 else np.asarray(track[2], dtype=float)
+            if rows.shape != (tt.size,) or not np.all(np.isfinite(rows)):
+                raise InputArrayError(
+                    f"{name} rows_px must be finite with shape ({tt.size},), got {rows.shape}"
+                )
+            out += [tt, uu, rows]
         tracks.append(tuple(out))
     return tracks
 
@@ -131,7 +145,7 @@ class _Problem:
         self.line_a, self.line_b = line_a, line_b  # None → the common estimated line time
         self.data = []
         self.n_near_gaps = 0
-        for ta, ua, tb, ub in tracks:
+        for ta, ua, ra, tb, ub, rb in tracks:
             lo = tb[0] + guess_s + half_width_s + margin_s
             hi = tb[-1] + guess_s - half_width_s - margin_s
             sel = (ta >= lo) & (ta <= hi)
@@ -146,7 +160,7 @@ class _Problem:
                 self.n_near_gaps += int(np.count_nonzero(sel & near))
                 sel &= ~near
             if np.count_nonzero(sel) >= 4:
-                self.data.append((ta[sel], ua[sel], tb, ub))
+                self.data.append((ta[sel], ua[sel], ra[sel], tb, ub, rb))
         self.n = sum(len(d[0]) for d in self.data)
 
     def residuals(
@@ -156,9 +170,9 @@ class _Problem:
         la = line_s if self.line_a is None else self.line_a
         lb = line_s if self.line_b is None else self.line_b
         out = []
-        for ta, ua, tb, ub in self.data:
-            t_dst = ta + la * ua[:, 1]
-            t_src = tb + delta_s + drift_ppm * 1e-6 * (tb - self.epoch_b) + lb * ub[:, 1]
+        for ta, ua, ra, tb, ub, rb in self.data:
+            t_dst = ta + la * ra
+            t_src = tb + delta_s + drift_ppm * 1e-6 * (tb - self.epoch_b) + lb * rb
             if not weighted:
                 out.append(sampson_px(self.F, ua, bandlimited(t_src, ub, t_dst)))
                 continue
@@ -199,11 +213,11 @@ def estimate_joint(
     """
     P_a, P_b = projection_matrix(camera_a), projection_matrix(camera_b)
     tracks = as_tracks(observations_a, observations_b)
-    period_b = float(np.median(np.concatenate([np.diff(tr[2]) for tr in tracks])))
+    period_b = float(np.median(np.concatenate([np.diff(tr[3]) for tr in tracks])))
     half = 1.5 * period_b if search_half_width_s is None else float(search_half_width_s)
     if not half > 0:
         raise InputArrayError(f"search_half_width_s must be positive, got {search_half_width_s!r}")
-    all_tb = np.concatenate([tr[2] for tr in tracks])
+    all_tb = np.concatenate([tr[3] for tr in tracks])
     epoch_b = 0.5 * (all_tb.min() + all_tb.max())
     duration = all_tb.max() - all_tb.min()
     margin = 34 * period_b + max_drift_ppm * 1e-6 * duration  # kernel half-width 32 + line-time spread
@@ -267,7 +281,7 @@ def estimate_joint(
 
     # Bounds keep every evaluation valid: the row-time spread must stay below half a frame for the
     # band-limited reconstruction, the offset inside the searched range, the drift inside its limit.
-    v_span = max(float(np.ptp(np.concatenate([tr[1][:, 1], tr[3][:, 1]]))) for tr in tracks)
+    v_span = max(float(np.ptp(np.concatenate([tr[2], tr[5]]))) for tr in tracks)
     line_max_us = 0.4 * period_b / max(v_span, 1.0) * 1e6
     lower = np.array([(grid[0] - step) * 1e3, -line_max_us, -max_drift_ppm])[np.array(free)]
     upper = np.array([(grid[-1] + step) * 1e3, line_max_us, max_drift_ppm])[np.array(free)]
