@@ -226,11 +226,13 @@ def fig_amplitude_error(t: ReportTables, tolerance_pct: float) -> Figure | None:
         lim = t.limits.get(method)
         if lim is not None and lim.reached:
             ax.axvline(lim.limit_hz, color=color, lw=1, ls="-.")
+            near_right = lim.limit_hz > 0.8 * f_max
             ax.annotate(
                 f"{lim.limit_hz:.1f} Hz",
                 (lim.limit_hz, tolerance_pct),
-                xytext=(3, 4),
+                xytext=(-3 if near_right else 3, 4),
                 textcoords="offset points",
+                ha="right" if near_right else "left",
                 color=color,
                 fontsize=8.5,
             )
