@@ -20,6 +20,7 @@ later read (or a resynchronising decoder) still sees them.
 
 from __future__ import annotations
 
+import abc
 import contextlib
 import logging
 import math
@@ -83,7 +84,7 @@ def _check_timeout(timeout_s: float) -> float:
     return float(timeout_s)
 
 
-class _BufferedTransport:
+class _BufferedTransport(abc.ABC):
     """Shared reading logic; subclasses provide ``_recv_some``, ``_send`` and ``_close``."""
 
     def __init__(self, url: str, timeout_s: float) -> None:
@@ -93,14 +94,17 @@ class _BufferedTransport:
         self._closed = False
 
     # subclass hooks -------------------------------------------------------------------------------
-    def _recv_some(self, max_bytes: int, timeout_s: float) -> bytes:  # b"" on timeout
-        raise NotImplementedError
+    @abc.abstractmethod
+    def _recv_some(self, max_bytes: int, timeout_s: float) -> bytes:
+        """Up to ``max_bytes`` bytes that arrive within ``timeout_s``; b"" on timeout."""
 
+    @abc.abstractmethod
     def _send(self, data: bytes) -> None:
-        raise NotImplementedError
+        """Write all of ``data``."""
 
+    @abc.abstractmethod
     def _close(self) -> None:
-        raise NotImplementedError
+        """Release the port or socket."""
 
     # public API ---------------------------------------------------------------------------------
     def _ensure_open(self) -> None:

@@ -100,7 +100,7 @@ class ScriptedTransport:
         return data
 
     def read_until(self, terminator: bytes, timeout_s: float | None = None, max_bytes: int = 65536) -> bytes:
-        raise NotImplementedError
+        raise AssertionError("b-CAP frames by length: the client never reads up to a terminator")
 
     def close(self) -> None:
         pass
