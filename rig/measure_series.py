@@ -11,7 +11,7 @@ Pure functions on DataFrames (``rig measure`` step 4–5; mm, s, Hz):
 - :func:`summarise` — per track: principal direction of motion (first singular vector), spectrum along it
   on a uniform grid of one median sample period (gaps from dropped frames filled linearly, counted), the
   dominant frequency (interpolated spectral peak) and a four-parameter sine fit (amplitude, frequency and
-  their standard uncertainties); half the peak-to-peak and the RMS as model-free measures.
+  their standard uncertainties) for targets; half the peak-to-peak and the RMS (model-free) for every track.
 """
 
 from __future__ import annotations
@@ -138,6 +138,9 @@ def summarise(displacement: pd.DataFrame, refs: list[int], *, window_s: tuple[fl
         row.update({"direction_x": axis[0], "direction_y": axis[1], "direction_z": axis[2],
                     "rms_mm": float(np.sqrt(np.mean(d**2))),
                     "half_peak_to_peak_mm": float(0.5 * (d.max() - d.min())), "filled_samples": filled})
+        if tid in refs:  # a reference marker's motion is noise and shake: no tone to fit
+            rows.append(row)
+            continue
         try:
             sp = spectrum(grid, dg)
             fit = fit_sine(t, d)

@@ -20,9 +20,11 @@ from camera_mkv import write_mkv
 from scipy.spatial.distance import pdist
 
 from drivers.sim.clock import VirtualClock
+from drivers.sim.targets import ReferenceMarkers
 from rig.analysis import load_cameras
 from rig.cli import main
 from rig.measure import MeasureError, MeasureOptions, measure_videos
+from rig.measure_series import SeriesError, reference_tracks
 from rig.record import RunRecord
 from rig.stereo import triangulate
 
@@ -141,9 +143,13 @@ def test_duplicated_and_dropped_frames_are_reported_and_the_result_holds(site: d
     _mkv(right, 0.15, 2.65, tmp_path / "right.mkv")
     timing = tmp_path / "timing.json"
     timing.write_text(json.dumps(mt.truth_timing(left, right, 0.0, 0.15)))
+    refs = ReferenceMarkers().positions_mm  # given positions this time (mm, the calibration's frame)
     res = measure_videos({"left": tmp_path / "left.mkv", "right": tmp_path / "right.mkv"},
                          site["calibration"], tmp_path / "out", timing=timing,
-                         options=MeasureOptions(window_s=WINDOW))
+                         options=MeasureOptions(window_s=WINDOW, reference_markers=refs))
+    assert any("given positions" in n for n in res.notes)
+    with pytest.raises(SeriesError, match=r"nearest track is .* mm away \(allowed 20 mm\)"):
+        reference_tracks(res.tracks, [*refs[:2], (0.0, 0.0, 0.0)])
     frames = json.loads((tmp_path / "out" / "frames.json").read_text())
     assert [d["index"] for d in frames["left"]["duplicated"]] == [31, 102]  # delivered indices
     assert all(d["pts_repeated"] and d["image_repeated"] for d in frames["left"]["duplicated"])
