@@ -95,7 +95,8 @@ def _load_json(path: Path | None, what: str, how: str) -> dict[str, Any]:
     return data
 
 
-def check_inputs(videos: dict[str, Path], calibration_path: Path) -> dict[str, DLTCamera]:
+def check_inputs(videos: dict[str, Path], calibration_path: Path,
+                 fps: float | None = None) -> dict[str, DLTCamera]:
     """Calibration present and matching the videos (names, image sizes) — before any decoding."""
     how = "make one with `rig calibrate LEFT RIGHT --target target.toml --out calibration.json`"
     calibration = _load_json(calibration_path, "calibration", how)
@@ -108,7 +109,7 @@ def check_inputs(videos: dict[str, Path], calibration_path: Path) -> dict[str, D
         raise MeasureError(f"{calibration_path}: no calibration for camera(s) {missing} (it has "
                            f"{sorted(cameras)}); name the videos' cameras with --names")
     for name, path in videos.items():
-        size = VideoFile(path, name=name)
+        size = VideoFile(path, name=name, fps=fps)
         want = tuple(cameras[name].image_size)
         if (size.width_px, size.height_px) != want:
             raise MeasureError(f"{path}: camera {name!r} video is {size.width_px}×{size.height_px} px but "
@@ -182,7 +183,7 @@ def measure_videos(videos: dict[str, str | Path], calibration: str | Path, out_d
     if len(videos) != 2:
         raise MeasureError(f"{len(videos)} video(s) given; rig measure takes exactly 2 (LEFT RIGHT)")
     paths = {n: Path(p) for n, p in videos.items()}
-    cameras = check_inputs(paths, Path(calibration))
+    cameras = check_inputs(paths, Path(calibration), opts.extract.fps)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     notes: list[str] = []

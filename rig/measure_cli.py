@@ -78,7 +78,7 @@ def cmd_measure(args: argparse.Namespace) -> int:
     window = tuple(args.window) if args.window else None
     options = MeasureOptions(sync=args.sync, reference_markers=refs, window_s=window,
                              line_time_s=args.line_time_s, static_mm=args.static_mm,
-                             extract=ExtractOptions(window_px=args.window_px, detect=detect,
+                             extract=ExtractOptions(window_px=args.window_px, detect=detect, fps=args.fps,
                                                     duplicate_policy=args.duplicate_policy))
     try:
         result = measure_videos({names[0]: args.left, names[1]: args.right}, args.calibration, args.out,
@@ -141,6 +141,8 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--record", metavar="RUN", help="run folder of the procedure the videos show: relate the "
                    "video clock to the controller's (controller_time_s columns, clock.json)")
     p.add_argument("--window-px", type=int, default=41, help="marker tracking window, px")
+    p.add_argument("--fps", type=float, help="the cameras' nominal frame rate, Hz, when the container's is "
+                   "wrong (drops are gaps longer than 1.5 nominal periods)")
     p.add_argument("--polarity", choices=("bright", "dark"), help="markers brighter or darker than around")
     p.add_argument("--duplicate-policy", choices=("replace", "insert"), default="replace",
                    help="a duplicated frame with an advancing time stamp replaced a missed frame (default) "
