@@ -99,6 +99,17 @@ def _length_line(lengths: pd.DataFrame) -> str:
     )
 
 
+def _timing_details(timing: dict[str, Any]) -> str:
+    """The scalar diagnostics of the sync fit (``details`` of timing.json), as one short line."""
+    details = timing.get("details") if isinstance(timing.get("details"), dict) else {}
+    items = [
+        f"{html.escape(str(k))} = {_fmt(v)}"
+        for k, v in sorted(details.items())
+        if isinstance(v, (int, float)) and not isinstance(v, bool)
+    ]
+    return ("Fit: " + ", ".join(items) + ".") if items else ""
+
+
 def _vertical(values: dict[str, Any]) -> str:
     """A one-row summary as a two-column table (quantity, value): readable without scrolling."""
     frame = pd.DataFrame({"quantity": list(values), "value": [_fmt(v, 6) for v in values.values()]})
@@ -318,8 +329,8 @@ def render(
         + "<h3>Synchronization</h3>"
         + table(tables_html["timing"], digits=6, text_cols=("camera",))
         + f"<p class='note'>method: {html.escape(str(timing.get('method', '—')))}; reference camera: "
-        f"{html.escape(str(timing.get('reference_camera', '—')))}; uncertainty: "
-        f"{html.escape(json.dumps(timing.get('uncertainty', {}), sort_keys=True))}</p></section>"
+        f"{html.escape(str(timing.get('reference_camera', '—')))}; u_…: standard uncertainties. "
+        f"{_timing_details(timing)}</p></section>"
     )
     notes = "".join(f"<li>{html.escape(n)}</li>" for n in cond.get("notes", []))
     parts.append(

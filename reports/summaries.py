@@ -125,18 +125,24 @@ def length_summary(lengths: pd.DataFrame) -> pd.DataFrame:
 
 
 def timing_frame(timing: dict[str, Any] | None) -> pd.DataFrame:
-    """Per camera: offset (s), line time (s) and clock drift (ppm) of timing.json."""
+    """Per camera: offset (s), line time (s) and clock drift (ppm) of timing.json, each with its standard
+    uncertainty (``uncertainty.<quantity>`` as {camera: value}, or one value for all; NaN where absent)."""
     timing = timing or {}
+    unc = timing.get("uncertainty") if isinstance(timing.get("uncertainty"), dict) else {}
     cams = sorted(set((timing.get("offset_s") or {}) | (timing.get("line_time_s") or {})))
-    return pd.DataFrame(
-        [
-            {
-                "camera": c,
-                "offset_s": (timing.get("offset_s") or {}).get(c),
-                "line_time_s": (timing.get("line_time_s") or {}).get(c),
-                "drift_ppm": (timing.get("drift_ppm") or {}).get(c),
-            }
-            for c in cams
-        ],
-        columns=["camera", "offset_s", "line_time_s", "drift_ppm"],
-    ).astype({"offset_s": float, "line_time_s": float, "drift_ppm": float})
+    quantities = ("offset_s", "line_time_s", "drift_ppm")
+
+    def num(value: Any) -> float:
+        return (
+            float(value) if isinstance(value, (int, float)) and not isinstance(value, bool) else float("nan")
+        )
+
+    rows = []
+    for c in cams:
+        row: dict[str, Any] = {"camera": c}
+        for q in quantities:
+            row[q] = num((timing.get(q) or {}).get(c))
+            u = unc.get(q)
+            row[f"u_{q}"] = num(u.get(c) if isinstance(u, dict) else u)
+        rows.append(row)
+    return pd.DataFrame(rows, columns=["camera", *[c for q in quantities for c in (q, f"u_{q}")]])

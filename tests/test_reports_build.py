@@ -215,3 +215,11 @@ def test_report_built_before_the_stop_document_follows_the_criteria(tmp_path: Pa
     res = build_report(run, analysis=synth.fake_analyse, make_figures=False)
     assert res.result == "PASS"
     assert any("no stop document" in n for n in res.notes)
+
+
+def test_timing_table_has_values_with_uncertainties(built) -> None:
+    timing = pd.read_csv(built.tables["timing"]).set_index("camera")
+    assert timing.loc["right", "offset_s"] == pytest.approx(0.0041)
+    assert timing.loc["right", "u_offset_s"] == pytest.approx(2.0e-5)
+    assert np.isnan(timing.loc["left", "u_offset_s"]) and np.isnan(timing.loc["right", "u_drift_ppm"])
+    assert timing.loc["right", "drift_ppm"] == pytest.approx(3.0)
