@@ -280,7 +280,8 @@ def measured_values(t: ReportTables, acceptance: dict[str, Any]) -> dict[str, Me
             float(dl[k]),
             [
                 ("means of the two endpoints", "A", float(t.lengths["u_length_mm"].iloc[k])),
-                ("reference positions of the two endpoints", "B", math.sqrt(2) * u_ref),
+                # a rigid artefact carries robot pose errors along: only its marker coordinates count
+                ("marker coordinates on the artefact (two endpoints)", "B", math.sqrt(2) * u_ref),
             ],
             note=f"{len(dl)} test lengths; worst {t.lengths['marker_a'].iloc[k]}–"
             f"{t.lengths['marker_b'].iloc[k]} in pose {t.lengths['index'].iloc[k]}",
@@ -298,7 +299,10 @@ def measured_values(t: ReportTables, acceptance: dict[str, Any]) -> dict[str, Me
             note += "; extrapolated beyond the fitted range"
         m["amplitude_error_pct"] = Measured.from_budget(
             float(abs(fit.predict(f_worst))),
-            [("quadratic fit (scaled covariance)", "A", float(fit.u_predict(f_worst)))],
+            [
+                ("quadratic fit (scaled covariance)", "A", float(fit.u_predict(f_worst))),
+                ("reference amplitude (crank radius)", "B", 100 * u_ref / float(t.sweep["amplitude_mm"])),
+            ],
             k=fit.t_factor,
             note=note,
         )
