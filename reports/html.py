@@ -152,10 +152,10 @@ def _verdict(cert: dict[str, Any], t: ReportTables, tolerance_pct: float) -> str
     else:
         lines.append("<b>No usable frequency limit</b>: the run has no sweep that could be fitted")
     reasons = [
-        f"<li>{html.escape(c['description'])}: {_fmt(c['value'])} {html.escape(c['unit'])} "
-        f"(U = {_fmt(c['expanded_uncertainty'], 2)}) against the limit "
-        f"{_SYMBOL[c['comparison']]} {_fmt(c['limit'])} "
-        f"— {html.escape(c['zone'])}</li>"
+        f"<li>{html.escape(c['description'])}: {_fmt(c['value'], 3)} {html.escape(c['unit'])} "
+        f"(U = {_fmt(c['expanded_uncertainty'], 2)} {html.escape(c['unit'])}); required "
+        f"{_SYMBOL[c['comparison']]} {_fmt(c['limit'])} {html.escape(c['unit'])} — "
+        f"{html.escape(c['zone'])}</li>"
         for c in failed
     ]
     if missing:
