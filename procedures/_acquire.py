@@ -34,7 +34,7 @@ import numpy as np
 import pandas as pd
 from scipy.optimize import linear_sum_assignment
 
-from rig.stereo import FLAG_LOST, MARKER_DTYPE, detect_markers, track_markers
+from rig.stereo import FLAG_LOST, detect_markers, track_markers
 
 __all__ = ["Acquirer", "MarkerReducer", "Recording", "ReduceOptions"]
 
@@ -133,7 +133,7 @@ def _rows_frame(parts: list[tuple[int, float, np.ndarray, np.ndarray]]) -> pd.Da
         cols.update(flags=np.empty(0, np.uint8), track_2d=np.empty(0, np.int64))
         return pd.DataFrame(cols)
     counts = [len(p[2]) for p in parts]
-    rec = np.concatenate([p[2] for p in parts]) if parts else np.empty(0, MARKER_DTYPE)
+    rec = np.concatenate([p[2] for p in parts])
     out = {"frame_index": np.repeat([p[0] for p in parts], counts).astype(np.int64),
            "timestamp_s": np.repeat([p[1] for p in parts], counts).astype(float)}
     out.update({k: rec[k].astype(float) for k in _FIELDS})
@@ -223,15 +223,11 @@ class Acquirer:
             self._writers[name].append(frame, segment=segment)
             observations[name] = frame.assign(segment=segment)
             self.frames_processed += len(parts)
-            first = parts[0] if parts else None
-            last = parts[-1] if parts else None
+            first, last = (parts[0], parts[-1]) if parts else ((None, None), (None, None))
             ctx.event("camera", {"camera": name, "action": "start", "segment": segment, "t_s": t_start,
-                                 "first_index": None if first is None else first[0],
-                                 "first_timestamp_s": None if first is None else first[1]})
+                                 "first_index": first[0], "first_timestamp_s": first[1]})
             ctx.event("camera", {"camera": name, "action": "stop", "segment": segment, "t_s": t_stop,
-                                 "last_index": None if last is None else last[0],
-                                 "last_timestamp_s": None if last is None else last[1],
-                                 "n_frames": len(parts)})
+                                 "last_index": last[0], "last_timestamp_s": last[1], "n_frames": len(parts)})
         return Recording(segment, result, t_start, t_stop, observations)
 
 

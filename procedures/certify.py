@@ -22,7 +22,7 @@ from typing import Any
 
 from procedures import accuracy, calibrate, sweep, sync
 from procedures._report import report_step
-from rig.procedure import param
+from rig.procedure import ParameterError, param
 
 NAME = "certify"
 DESCRIPTION = "The whole certification: calibrate, sync, accuracy, sweep, report, certificate."
@@ -78,8 +78,6 @@ def sub_parameters(params: Parameters) -> dict[str, Any]:
         try:
             out[name] = module.Parameters(**chosen[name])
         except ValueError as exc:
-            from rig.procedure import ParameterError
-
             raise ParameterError(f"certify.{name}", str(exc)) from exc
     return out
 
