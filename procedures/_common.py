@@ -9,16 +9,19 @@ from __future__ import annotations
 
 import json
 import sys
-from collections.abc import Sequence
-from typing import Any
+from collections.abc import Callable, Sequence
+from typing import Any, TypeVar
 
 import numpy as np
 
 from drivers.denso.pose import rotation_matrix
 from rig.procedure import ParameterError
 
-__all__ = ["arm_marker_positions", "load_calibration", "mount", "move_arm", "plate_offsets_tool_mm",
-           "poll_event", "require_target"]
+__all__ = ["arm_marker_positions", "check_poses", "drive_of", "fastest_fps", "hold_polling",
+           "load_calibration", "mount", "move_arm", "plate_offsets_tool_mm", "poll_event", "read_run_json",
+           "record_still", "require_target", "run_alone", "stop_polled"]
+
+T = TypeVar("T")
 
 
 def require_target(ctx: Any, name: str) -> Any:
@@ -28,6 +31,16 @@ def require_target(ctx: Any, name: str) -> Any:
         raise ParameterError(f"targets.{name}", f"the procedure needs [targets.{name}] in the rig "
                                                 "configuration, which has none")
     return target
+
+
+def drive_of(ctx: Any, target: Any) -> Any:
+    """The device moving a target's ``body``: the exciter or rotor drive, or the generator for the shaker."""
+    return ctx.device(target.body if target.body != "shaker" else "generator")
+
+
+def fastest_fps(ctx: Any) -> float:
+    """The highest frame rate (frames/s) of the configured cameras."""
+    return max(c.fps for c in ctx.config.cameras.values())
 
 
 def mount(ctx: Any, scene: str) -> None:
@@ -86,10 +99,65 @@ def poll_event(ctx: Any, stream: str, sample: Any) -> None:
     ctx.checkpoint()
 
 
+def hold_polling(ctx: Any, device: Any, stream: str, *, record_s: float,
+                 poll_interval_s: float) -> list[Any]:
+    """Hold for ``record_s`` s of rig time, polling ``device`` every ``poll_interval_s`` s (one ``stream``
+    event per sample, the first at once, the last at the end); return the samples."""
+    samples: list[Any] = []
+    end = ctx.clock.now_s() + record_s
+    while True:
+        samples.append(device.read_sample())
+        poll_event(ctx, stream, samples[-1])
+        remaining = end - ctx.clock.now_s()
+        if remaining <= 0:
+            return samples
+        ctx.sleep_s(min(poll_interval_s, remaining))
+
+
+def stop_polled(ctx: Any, device: Any, stream: str) -> None:
+    """Stop ``device`` (waiting for standstill); record the sample it returns, if any, as ``stream``."""
+    stopped = device.stop(wait=True)
+    if stopped is not None:
+        poll_event(ctx, stream, stopped)
+
+
+def record_still(ctx: Any, acq: Any, arm: Any, pose: Sequence[float], segment: str, *, frames: int,
+                 settle_s: float, speed_mm_s: float | None) -> Any:
+    """Move the arm to ``pose``, wait ``settle_s`` s, record ``frames`` still frames (plus 1.5 frame periods
+    of margin at the fastest camera's rate) as ``segment``; return the recording."""
+    move_arm(ctx, arm, pose, speed_mm_s)
+    ctx.sleep_s(settle_s)
+    return acq.record(segment, (frames + 1.5) / fastest_fps(ctx))
+
+
+def read_run_json(ctx: Any, name: str) -> Any:
+    """A JSON file of the run folder (written by an earlier step of this run)."""
+    return json.loads(ctx.path(name).read_text(encoding="utf-8"))
+
+
 def load_calibration(ctx: Any) -> dict[str, Any]:
     """The run's ``calibration.json`` (written by the calibrate step of this run)."""
     path = ctx.path("calibration.json")
     if not path.is_file():
         raise ParameterError("calibration.json", f"{path} is missing: run the calibrate step first "
                                                  "(rig certify runs it)")
-    return json.loads(path.read_text(encoding="utf-8"))
+    return read_run_json(ctx, "calibration.json")
+
+
+def run_alone(ctx: Any, params: Any, check_plan: Callable[[Any, Any], Any],
+              run_steps: Callable[[Any, Any], T]) -> tuple[T, dict[str, Any]]:
+    """A measurement procedure run on its own (``rig run NAME``): every plan (calibrate, sync, this one)
+    checked against the limits before anything moves, then calibrate and sync in the same run folder,
+    the procedure's own steps and the report. Returns what ``run_steps`` returned and the procedure's
+    result (``summary`` of the criteria evaluated, ``report`` path)."""
+    from procedures import calibrate, sync
+    from procedures._report import evaluated_summary, report_step
+
+    calibrate.check_plan(ctx, calibrate.Parameters())
+    sync.check_plan(ctx, sync.Parameters())
+    check_plan(ctx, params)
+    calibrate.run_step(ctx, calibrate.Parameters())
+    sync.run_step(ctx, sync.Parameters())
+    done = run_steps(ctx, params)
+    result = report_step(ctx)
+    return done, {"summary": evaluated_summary(result), "report": result["report"]}

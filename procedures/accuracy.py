@@ -26,13 +26,22 @@ from typing import Any
 import numpy as np
 
 from procedures._acquire import Acquirer, ReduceOptions
-from procedures._common import arm_marker_positions, check_poses, mount, move_arm, require_target
+from procedures._common import (
+    arm_marker_positions,
+    check_poses,
+    mount,
+    record_still,
+    require_target,
+    run_alone,
+)
 from rig.procedure import param
 
 NAME = "accuracy"
 DESCRIPTION = "Known marker poses over the volume, ISO 9283 cycles, marker frame → error versus position."
 ISO_ORDER = ("P1", "P5", "P4", "P3", "P2")
 ISO_CORNERS = {"P2": (1, 1, 1), "P3": (1, -1, 1), "P4": (-1, -1, -1), "P5": (-1, 1, -1)}
+SCENES = {"accuracy_grid": "single_marker", "accuracy_iso9283": "single_marker",
+          "accuracy_frame": "marker_frame"}  # step -> target mounted (and whose markers are recorded)
 
 
 @dataclass(frozen=True)
@@ -89,23 +98,11 @@ def frame_flange_poses(volume: Any, offsets: np.ndarray, orientation: np.ndarray
     return [flange_pose_for(c + shifts[k % len(shifts)], centroid, orientation) for k in range(n)]
 
 
-def _visit(ctx: Any, acq: Acquirer, arm: Any, pose: list, *, offsets: dict[str, Any], params: Parameters,
-           index: int, cycle: int, target: str, segment: str) -> None:
-    fps = max(c.fps for c in ctx.config.cameras.values())
-    move_arm(ctx, arm, pose, params.speed_mm_s)
-    ctx.sleep_s(params.settle_s)
-    rec = acq.record(segment, (params.frames_per_pose + 1.5) / fps)
-    ctx.event("accuracy_pose", {"index": index, "cycle": cycle, "target": target, "t_start_s": rec.t_start_s,
-                                "t_stop_s": rec.t_stop_s, "pose": pose, "segment": segment,
-                                "markers": arm_marker_positions(pose, offsets)})
-
-
 def plan(ctx: Any, params: Parameters) -> dict[str, list[tuple[list, str, int]]]:
     """Every pose of the three steps as (flange pose, target name, cycle), checked later as a whole."""
     volume = require_target(ctx, "volume")
     orient = _orientation(ctx)
-    out: dict[str, list[tuple[list, str, int]]] = {"accuracy_grid": [], "accuracy_iso9283": [],
-                                                   "accuracy_frame": []}
+    out: dict[str, list[tuple[list, str, int]]] = {step: [] for step in SCENES}
     if params.grid_points or params.cycles:
         single = np.asarray(require_target(ctx, "single_marker").offset_tool_mm, float)
         for k, m in enumerate(grid_targets(volume, params.grid_points, params.grid_fraction)):
@@ -129,46 +126,42 @@ def check_plan(ctx: Any, params: Parameters) -> dict[str, list[tuple[list, str, 
     return steps
 
 
+def _marker_offsets(targets: Any) -> dict[str, dict[str, list[float]]]:
+    """Per mounted target, its markers' tool-frame offsets (mm) by marker id (none if not configured)."""
+    single, frame = targets.single_marker, targets.marker_frame
+    return {"single_marker": {"arm": list(single.offset_tool_mm)} if single is not None else {},
+            "marker_frame": {f"frame{k}": list(o) for k, o in enumerate(frame.offsets_mm)}
+            if frame is not None else {}}
+
+
 def run_steps(ctx: Any, params: Parameters) -> int:
     """The three accuracy steps (each skipped on --resume when done); returns the number of visits."""
     arm = ctx.device("robot")
     steps = check_plan(ctx, params)
-    single = {"arm": list(ctx.config.targets.single_marker.offset_tool_mm)} \
-        if ctx.config.targets.single_marker is not None else {}
-    frame = {f"frame{k}": list(o) for k, o in enumerate(ctx.config.targets.marker_frame.offsets_mm)} \
-        if ctx.config.targets.marker_frame is not None else {}
+    offsets = _marker_offsets(ctx.config.targets)
     total = sum(len(v) for v in steps.values())
-    done = index = 0
+    index = 0  # of the visit over all steps (done ones included)
     for step_name, visits in steps.items():
         if not visits:
             continue
         with ctx.step(step_name) as step:
             if step.skipped:
-                done += len(visits)
                 index += len(visits)
                 continue
-            is_frame = step_name == "accuracy_frame"
-            scene, offsets = ("marker_frame", frame) if is_frame else ("single_marker", single)
-            mount(ctx, scene)
+            mount(ctx, SCENES[step_name])
             with Acquirer(ctx, ReduceOptions(mode="track", window_px=31)) as acq:
                 for pose, target, cycle in visits:
-                    ctx.progress(done / total, f"{step_name}: {target} (cycle {cycle})")
-                    _visit(ctx, acq, arm, pose, offsets=offsets, params=params, index=index, cycle=cycle,
-                           target=target, segment=step_name)
-                    done += 1
+                    ctx.progress(index / total, f"{step_name}: {target} (cycle {cycle})")
+                    rec = record_still(ctx, acq, arm, pose, step_name, frames=params.frames_per_pose,
+                                       settle_s=params.settle_s, speed_mm_s=params.speed_mm_s)
+                    ctx.event("accuracy_pose", {
+                        "index": index, "cycle": cycle, "target": target, "t_start_s": rec.t_start_s,
+                        "t_stop_s": rec.t_stop_s, "pose": pose, "segment": step_name,
+                        "markers": arm_marker_positions(pose, offsets[SCENES[step_name]])})
                     index += 1
     return total
 
 
 def run(ctx: Any, params: Parameters) -> dict[str, Any]:
-    from procedures import calibrate, sync
-    from procedures._report import evaluated_summary, report_step
-
-    calibrate.check_plan(ctx, calibrate.Parameters())
-    sync.check_plan(ctx, sync.Parameters())
-    check_plan(ctx, params)
-    calibrate.run_step(ctx, calibrate.Parameters())
-    sync.run_step(ctx, sync.Parameters())
-    n = run_steps(ctx, params)
-    result = report_step(ctx)
-    return {"summary": f"{n} poses visited; " + evaluated_summary(result), "report": result["report"]}
+    n, result = run_alone(ctx, params, check_plan, run_steps)
+    return {**result, "summary": f"{n} poses visited; {result['summary']}"}

@@ -22,8 +22,9 @@ from procedures._common import (
     arm_marker_positions,
     check_poses,
     mount,
-    move_arm,
     plate_offsets_tool_mm,
+    read_run_json,
+    record_still,
     require_target,
 )
 from rig.plate_grid import GridError, moving_points, order_grid
@@ -97,15 +98,12 @@ def calibrate_cameras(ctx: Any, params: Parameters) -> dict[str, Any]:
     slides, poses = check_plan(ctx, params)
     mount(ctx, "calibration_plate")
     offsets = plate_offsets_tool_mm(plate)
-    fps = max(c.fps for c in ctx.config.cameras.values())
-    still_s = (params.frames_per_position + 1.5) / fps
     positions = []
     with Acquirer(ctx, ReduceOptions(mode="track", window_px=31)) as acq:
         for i, pose in enumerate(poses):
             ctx.progress(i / len(poses), f"calibrate: plate position {i + 1}/{len(poses)}")
-            move_arm(ctx, arm, pose, params.speed_mm_s)
-            ctx.sleep_s(params.settle_s)
-            rec = acq.record("calibrate", still_s)
+            rec = record_still(ctx, acq, arm, pose, "calibrate", frames=params.frames_per_position,
+                               settle_s=params.settle_s, speed_mm_s=params.speed_mm_s)
             points = arm_marker_positions(pose, offsets)
             ctx.event("calibration_position", {"index": i, "t_start_s": rec.t_start_s,
                                                "t_stop_s": rec.t_stop_s,
@@ -139,12 +137,10 @@ def calibration_summary(calibration: dict[str, Any]) -> tuple[float, str]:
 
 def run_step(ctx: Any, params: Parameters) -> dict[str, Any]:
     """The ``calibrate`` step (skipped on --resume when done); returns the calibration."""
-    import json
-
     with ctx.step("calibrate") as step:
         if not step.skipped:
             step.output(ctx.write_json("calibration.json", calibrate_cameras(ctx, params)))
-    return json.loads(ctx.path("calibration.json").read_text(encoding="utf-8"))
+    return read_run_json(ctx, "calibration.json")
 
 
 def run(ctx: Any, params: Parameters) -> dict[str, Any]:

@@ -18,7 +18,15 @@ from typing import Any
 import numpy as np
 
 from procedures._acquire import Acquirer, ReduceOptions
-from procedures._common import mount, poll_event, require_target
+from procedures._common import (
+    drive_of,
+    hold_polling,
+    mount,
+    poll_event,
+    require_target,
+    run_alone,
+    stop_polled,
+)
 from rig.procedure import param
 
 NAME = "plate"
@@ -43,57 +51,34 @@ def marker_amplitudes_mm(plate: Any, tip_mm: float) -> dict[str, float]:
     return out
 
 
-def check_plan(ctx: Any, params: Parameters) -> None:
-    plate = require_target(ctx, "plate")
-    ctx.device(plate.body if plate.body != "shaker" else "generator").check_frequency(params.frequency_hz)
+def check_plan(ctx: Any, params: Parameters) -> Any:
+    """The exciter's limits at ``frequency_hz`` (nothing is sent); returns the exciter."""
+    exciter = drive_of(ctx, require_target(ctx, "plate"))
+    exciter.check_frequency(params.frequency_hz)
+    return exciter
 
 
 def run_step(ctx: Any, params: Parameters, *, step_name: str = "plate") -> None:
     with ctx.step(step_name) as step:
         if step.skipped:
             return
-        check_plan(ctx, params)
+        exciter = check_plan(ctx, params)
         plate = require_target(ctx, "plate")
-        exciter = ctx.device(plate.body if plate.body != "shaker" else "generator")
         mount(ctx, "plate")
         poll_event(ctx, "exciter", exciter.set_frequency(params.frequency_hz, wait=True))
-        samples: list[Any] = []
-
-        def hold() -> None:
-            end = ctx.clock.now_s() + params.record_s
-            while True:
-                s = exciter.read_sample()
-                samples.append(s)
-                poll_event(ctx, "exciter", s)
-                remaining = end - ctx.clock.now_s()
-                if remaining <= 0:
-                    return
-                ctx.sleep_s(min(params.poll_interval_s, remaining))
-
         with Acquirer(ctx, ReduceOptions(mode="track", window_px=41)) as acq:
-            rec = acq.record(step_name, hold)
+            rec = acq.record(step_name, lambda: hold_polling(
+                ctx, exciter, "exciter", record_s=params.record_s, poll_interval_s=params.poll_interval_s))
         axis = plate.axis if plate.axis is not None else plate.normal
         amplitudes = marker_amplitudes_mm(plate, exciter.amplitude_mm)
         ctx.event("plate", {"t_start_s": rec.t_start_s, "t_stop_s": rec.t_stop_s,
-                            "frequency_hz": float(np.mean([s.frequency_hz for s in samples])),
+                            "frequency_hz": float(np.mean([s.frequency_hz for s in rec.result])),
                             "setpoint_hz": params.frequency_hz, "amplitude_mm": exciter.amplitude_mm,
                             "axis": [float(v) / float(np.linalg.norm(axis)) for v in axis],
                             "marker_ids": list(amplitudes), "marker_amplitudes_mm": amplitudes,
                             "segment": step_name})
-        stopped = exciter.stop(wait=True)
-        if stopped is not None:
-            poll_event(ctx, "exciter", stopped)
+        stop_polled(ctx, exciter, "exciter")
 
 
 def run(ctx: Any, params: Parameters) -> dict[str, Any]:
-    from procedures import calibrate, sync
-    from procedures._report import evaluated_summary, report_step
-
-    calibrate.check_plan(ctx, calibrate.Parameters())
-    sync.check_plan(ctx, sync.Parameters())
-    check_plan(ctx, params)
-    calibrate.run_step(ctx, calibrate.Parameters())
-    sync.run_step(ctx, sync.Parameters())
-    run_step(ctx, params)
-    result = report_step(ctx)
-    return {"summary": evaluated_summary(result), "report": result["report"]}
+    return run_alone(ctx, params, check_plan, run_step)[1]

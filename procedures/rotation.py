@@ -14,6 +14,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from procedures._acquire import Acquirer, ReduceOptions
+from procedures._common import run_alone
 from procedures.sync import spin_and_record
 from rig.procedure import param
 
@@ -42,14 +43,4 @@ def run_step(ctx: Any, params: Parameters, *, step_name: str = "rotation") -> No
 
 
 def run(ctx: Any, params: Parameters) -> dict[str, Any]:
-    from procedures import calibrate, sync
-    from procedures._report import evaluated_summary, report_step
-
-    calibrate.check_plan(ctx, calibrate.Parameters())
-    sync.check_plan(ctx, sync.Parameters())
-    check_plan(ctx, params)
-    calibrate.run_step(ctx, calibrate.Parameters())
-    sync.run_step(ctx, sync.Parameters())
-    run_step(ctx, params)
-    result = report_step(ctx)
-    return {"summary": evaluated_summary(result), "report": result["report"]}
+    return run_alone(ctx, params, check_plan, run_step)[1]

@@ -18,7 +18,7 @@ from typing import Any
 
 from drivers.exciter.sweep import LogSweep, PointsSweep, SweepProfile
 from procedures._acquire import Acquirer, ReduceOptions
-from procedures._common import mount, poll_event, require_target
+from procedures._common import drive_of, mount, poll_event, require_target, run_alone, stop_polled
 from rig.procedure import param
 
 NAME = "sweep"
@@ -75,7 +75,7 @@ def run_step(ctx: Any, params: Parameters, *, step_name: str = "sweep") -> None:
             return
         profile = check_plan(ctx, params)
         column = require_target(ctx, "sweep_column")
-        exciter = ctx.device(column.body if column.body != "shaker" else "generator")
+        exciter = drive_of(ctx, column)
         mount(ctx, "sweep_column")
         ctx.progress(None, f"sweep: exciter to {profile.start_hz:g} Hz")
         poll_event(ctx, "exciter", exciter.set_frequency(profile.start_hz, wait=True))
@@ -94,21 +94,8 @@ def run_step(ctx: Any, params: Parameters, *, step_name: str = "sweep") -> None:
                             "marker_ids": [f"col{k}" for k in range(column.count)],
                             "profile": [list(p) for p in result.profile], "segment": step_name,
                             "recording": [rec.t_start_s, rec.t_stop_s]})
-        stopped = exciter.stop(wait=True)
-        if stopped is not None:
-            poll_event(ctx, "exciter", stopped)
+        stop_polled(ctx, exciter, "exciter")
 
 
 def run(ctx: Any, params: Parameters) -> dict[str, Any]:
-    from procedures import calibrate, sync
-    from procedures._report import evaluated_summary, report_step
-
-    calibrate.check_plan(ctx, calibrate.Parameters())
-    sync.check_plan(ctx, sync.Parameters())
-    check_plan(ctx, params)
-    calibrate.run_step(ctx, calibrate.Parameters())
-    sync.run_step(ctx, sync.Parameters())
-    run_step(ctx, params)
-    result = report_step(ctx)
-    return {"summary": evaluated_summary(result), "report": result["report"]}
-
+    return run_alone(ctx, params, check_plan, run_step)[1]

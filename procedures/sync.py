@@ -13,7 +13,6 @@ radius and frequency checks of the report). Needs ``calibration.json`` (the cali
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -21,7 +20,16 @@ import numpy as np
 import pandas as pd
 
 from procedures._acquire import Acquirer, ReduceOptions
-from procedures._common import load_calibration, mount, require_target
+from procedures._common import (
+    fastest_fps,
+    hold_polling,
+    load_calibration,
+    mount,
+    poll_event,
+    read_run_json,
+    require_target,
+    stop_polled,
+)
 from rig.procedure import param
 from rig.stereo import DLTCamera, TimingError
 from rig.stereo.timing import estimate_offset
@@ -118,30 +126,15 @@ def spin_and_record(ctx: Any, acq: Acquirer, segment: str, *, rotation_hz: float
     rotor = ctx.device("rotor")
     rotor.check_frequency(rotation_hz)  # limits before anything moves
     mount(ctx, "rotor")
-    reached = rotor.set_rotation_hz(rotation_hz, wait=True)
-    ctx.event("rotor", reached.as_event())
-    samples: list[Any] = []
-
-    def hold() -> None:
-        end = ctx.clock.now_s() + record_s
-        while True:
-            s = rotor.read_sample()
-            samples.append(s)
-            ctx.event("rotor", s.as_event())
-            remaining = end - ctx.clock.now_s()
-            if remaining <= 0:
-                return
-            ctx.sleep_s(min(poll_interval_s, remaining))
-
-    rec = acq.record(segment, hold)
-    freq = float(np.mean([s.frequency_hz for s in samples]))
+    poll_event(ctx, "rotor", rotor.set_rotation_hz(rotation_hz, wait=True))
+    rec = acq.record(segment, lambda: hold_polling(ctx, rotor, "rotor", record_s=record_s,
+                                                   poll_interval_s=poll_interval_s))
+    freq = float(np.mean([s.frequency_hz for s in rec.result]))
     ctx.event("rotation", {"t_start_s": rec.t_start_s, "t_stop_s": rec.t_stop_s, "frequency_hz": freq,
                            "setpoint_hz": rotation_hz, "radius_mm": rotor_cfg.radius_mm,
                            "centre_mm": list(rotor_cfg.centre_mm), "axis": list(rotor_cfg.axis),
                            "marker_ids": ["rotor"], "segment": segment})
-    stopped = rotor.stop(wait=True)
-    if stopped is not None:
-        ctx.event("rotor", stopped.as_event())
+    stop_polled(ctx, rotor, "rotor")
     events = [{"camera": n, "action": "start", "first_timestamp_s": float(o["timestamp_s"].min())}
               for n, o in rec.observations.items() if len(o)]
     return rec, events
@@ -158,7 +151,7 @@ def run_step(ctx: Any, params: Parameters) -> dict[str, Any]:
     with ctx.step("sync") as step:
         if not step.skipped:
             calibration = load_calibration(ctx)
-            fps = max(c.fps for c in ctx.config.cameras.values())
+            fps = fastest_fps(ctx)
             with Acquirer(ctx, ReduceOptions(mode="detect")) as acq:
                 rec, events = spin_and_record(ctx, acq, "sync", rotation_hz=params.rotation_hz,
                                               record_s=params.record_s,
@@ -166,7 +159,7 @@ def run_step(ctx: Any, params: Parameters) -> dict[str, Any]:
             timing = estimate_timing(calibration, rec, events, params=params,
                                      rotor=require_target(ctx, "rotor"), fps=fps)
             step.output(ctx.write_json("timing.json", timing))
-    return json.loads(ctx.path("timing.json").read_text(encoding="utf-8"))
+    return read_run_json(ctx, "timing.json")
 
 
 def run(ctx: Any, params: Parameters) -> dict[str, Any]:
