@@ -19,7 +19,6 @@ Run on its own (own world, paced clock at real time)::
 
 from __future__ import annotations
 
-import argparse
 import logging
 import socket
 import threading
@@ -32,6 +31,7 @@ from typing import Any
 from drivers.denso import hresult as hr
 from drivers.denso.bcap import Packet, PacketDecoder, encode_packet
 from drivers.denso.variant import EMPTY, Variant
+from drivers.mock._serve import accept_loop, standalone_parser, start_standalone, wait_for_interrupt
 from drivers.mock.bcap_args import VALUE_RETURNING
 from drivers.mock.bcap_channels import Channel, PtyChannel, TcpChannel, UdpChannel
 from drivers.mock.bcap_state import ControllerState, RobotBodyLike
@@ -240,9 +240,9 @@ class BcapMockServer:
     def serve_tcp(self, host: str = "127.0.0.1", port: int = 0) -> int:
         """Listen on ``host:port`` (0 = ephemeral); return the bound port."""
         self._listener = socket.create_server((host, port))
-        self._listener.settimeout(0.1)
         self.port = self._listener.getsockname()[1]
-        threading.Thread(target=self._accept_loop, name="bcap-accept", daemon=True).start()
+        threading.Thread(target=accept_loop, args=(self._listener, self._closing, self._on_connection),
+                         kwargs={"poll_s": 0.1}, name="bcap-accept", daemon=True).start()
         log.info("b-CAP mock listening on tcp://%s:%d", host, self.port)
         return self.port
 
@@ -258,17 +258,9 @@ class BcapMockServer:
         self._start_session(channel)
         return channel.slave_name
 
-    def _accept_loop(self) -> None:
-        assert self._listener is not None
-        while not self._closing.is_set():
-            try:
-                sock, _ = self._listener.accept()
-            except TimeoutError:
-                continue
-            except OSError:
-                return
-            sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-            self._start_session(TcpChannel(sock))
+    def _on_connection(self, sock: socket.socket) -> None:
+        sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        self._start_session(TcpChannel(sock))
 
     def _start_session(self, channel: Channel) -> None:
         with self.lock:
@@ -301,39 +293,18 @@ class BcapMockServer:
         self.close()
 
 
-def _standalone_robot(rate: float) -> tuple[Any, Any]:
-    from drivers.sim.clock import VirtualClock
-
-    clock = VirtualClock(rate=rate)
-    try:
-        from drivers.sim.world import World
-    except ImportError:
-        from drivers.sim.bodies import RobotBody
-
-        return RobotBody(), clock
-    world = World(clock)
-    return world.robot, world.clock
-
-
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description="Mock DENSO RC8 controller (b-CAP) on the simulated robot.")
+    parser = standalone_parser("bcap_server", "Mock DENSO RC8 controller (b-CAP) on the simulated robot.",
+                               default_port=5007)
     parser.add_argument("--host", default="127.0.0.1", help="address to bind (default 127.0.0.1)")
-    parser.add_argument("--port", type=int, default=5007, help="TCP port (0 = any free port)")
     parser.add_argument("--pty", action="store_true", help="also serve a pty serial line (CRC framing)")
-    parser.add_argument("--rate", type=float, default=1.0, help="virtual seconds per wall second")
-    options = parser.parse_args(argv)
-    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(message)s")
-    robot, clock = _standalone_robot(options.rate)
-    with BcapMockServer(robot, clock) as server:
+    options, world = start_standalone(parser, argv)
+    with BcapMockServer(world.robot, world.clock) as server:
         port = server.serve_tcp(options.host, options.port)
         print(f"b-CAP mock RC8 on tcp://{options.host}:{port}", flush=True)
         if options.pty:
             print(f"b-CAP mock RC8 on serial://{server.serve_pty()} (CRC framing)", flush=True)
-        try:
-            while True:
-                time.sleep(1.0)
-        except KeyboardInterrupt:
-            pass
+        wait_for_interrupt()
     return 0
 
 

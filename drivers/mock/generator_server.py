@@ -20,17 +20,16 @@ Run standalone (its own world with a paced clock)::
 
 from __future__ import annotations
 
-import argparse
 import contextlib
 import logging
 import os
 import select
-import signal
 import socket
 import threading
 from types import TracebackType
 from typing import Any
 
+from drivers.mock._serve import accept_loop, standalone_parser, start_standalone, wait_for_interrupt
 from drivers.mock.generator_instrument import GeneratorInstrument
 from drivers.mock.pty_link import PtyLink
 
@@ -78,7 +77,7 @@ class GeneratorServer:
         if self.mode == "tcp":
             self._listener = socket.create_server((self.host, self.port))
             self.port = self._listener.getsockname()[1]
-            self._spawn(self._accept_loop)
+            self._spawn(accept_loop, self._listener, self._stop, self._on_connection)
         else:
             self.link = PtyLink()
             self._fd = os.open(self.link.device_port, os.O_RDWR | os.O_NOCTTY)
@@ -152,21 +151,12 @@ class GeneratorServer:
             return b""
         return reply.encode("ascii") + b"\n"
 
-    def _accept_loop(self) -> None:
-        assert self._listener is not None
-        self._listener.settimeout(0.05)
-        while not self._stop.is_set():
-            try:
-                conn, _ = self._listener.accept()
-            except TimeoutError:
-                continue
-            except OSError:
-                return
-            if self.fault == "disconnect":
-                conn.close()
-                continue
-            self._conns.append(conn)
-            self._spawn(self._conn_loop, conn)
+    def _on_connection(self, conn: socket.socket) -> None:
+        if self.fault == "disconnect":
+            conn.close()
+            return
+        self._conns.append(conn)
+        self._spawn(self._conn_loop, conn)
 
     def _conn_loop(self, conn: socket.socket) -> None:
         buffer = bytearray()
@@ -212,33 +202,16 @@ class GeneratorServer:
             self.instrument.advance(self.instrument.clock.now_s())
 
 
-def _interrupt(signum: int, frame: object) -> None:
-    raise KeyboardInterrupt
-
-
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m drivers.mock.generator_server",
-                                     description="Mock SCPI function generator driving the twin's shaker.")
-    parser.add_argument("--port", type=int, default=5025, help="TCP port on 127.0.0.1 (default 5025)")
+    parser = standalone_parser("generator_server", "Mock SCPI function generator driving the twin's shaker.",
+                               default_port=5025)
     parser.add_argument("--pty", action="store_true", help="serve on a new pty pair instead of TCP")
-    parser.add_argument("--rate", type=float, default=1.0, help="virtual seconds per wall second")
-    args = parser.parse_args(argv)
-    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(message)s")
-    from drivers.sim.clock import VirtualClock
-    from drivers.sim.world import World
-
-    world = World(VirtualClock(rate=args.rate), seed=0)
+    args, world = start_standalone(parser, argv)
     instrument = GeneratorInstrument(world.shaker, world.clock)
-    server = GeneratorServer(instrument, mode="pty" if args.pty else "tcp", port=args.port).start()
-    print(f"mock SCPI generator serving at {server.url} (socket://127.0.0.1:{server.port} for pyserial)"
-          if server.mode == "tcp" else f"mock SCPI generator serving on {server.url}", flush=True)
-    signal.signal(signal.SIGTERM, _interrupt)  # `kill` stops it as cleanly as Ctrl-C
-    try:
-        threading.Event().wait()
-    except KeyboardInterrupt:
-        pass
-    finally:
-        server.stop()
+    with GeneratorServer(instrument, mode="pty" if args.pty else "tcp", port=args.port) as server:
+        print(f"mock SCPI generator serving at {server.url} (socket://127.0.0.1:{server.port} for pyserial)"
+              if server.mode == "tcp" else f"mock SCPI generator serving on {server.url}", flush=True)
+        wait_for_interrupt()
     return 0
 
 

@@ -28,19 +28,17 @@ Run standalone (its own world with a paced clock)::
 
 from __future__ import annotations
 
-import argparse
 import asyncio
 import contextlib
 import logging
-import signal
 import threading
 from types import TracebackType
-from typing import Any
 
 from pymodbus.constants import ExcCodes
 from pymodbus.framer import FramerType
 from pymodbus.server import ModbusSerialServer, ModbusTcpServer
 
+from drivers.mock._serve import standalone_parser, start_standalone, wait_for_interrupt
 from drivers.mock.pty_link import PtyLink
 from drivers.mock.vfd_drive import DriveModel
 
@@ -223,44 +221,22 @@ class VfdServer:
         return data
 
 
-def _build_standalone(body_name: str, rate: float) -> tuple[Any, Any]:
-    from drivers.sim.clock import VirtualClock
-    from drivers.sim.world import World
-
-    world = World(VirtualClock(rate=rate), seed=0)
-    return getattr(world, body_name), world.clock
-
-
-def _interrupt(signum: int, frame: object) -> None:
-    raise KeyboardInterrupt
-
-
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m drivers.mock.vfd_server",
-                                     description="Mock VFD (Delta-style register map) on Modbus TCP or RTU.")
-    parser.add_argument("--port", type=int, default=5020, help="TCP port on 127.0.0.1 (default 5020)")
+    parser = standalone_parser("vfd_server", "Mock VFD (Delta-style register map) on Modbus TCP or RTU.",
+                               default_port=5020)
     parser.add_argument("--rtu", action="store_true", help="Modbus RTU on a new pty pair, not TCP")
     parser.add_argument("--serial", default=None, help="RTU on this serial device instead of a pty")
     parser.add_argument("--body", choices=("exciter", "rotor"), default="exciter", help="twin body to move")
     parser.add_argument("--gear-ratio", type=float, default=1.0, help="drive Hz per body Hz")
     parser.add_argument("--max-output-hz", type=float, default=50.0)
     parser.add_argument("--watchdog-s", type=float, default=None)
-    parser.add_argument("--rate", type=float, default=1.0, help="virtual seconds per wall second")
-    args = parser.parse_args(argv)
-    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(message)s")
-    body, clock = _build_standalone(args.body, args.rate)
-    drive = DriveModel(body, clock, gear_ratio=args.gear_ratio, max_output_hz=args.max_output_hz,
-                       watchdog_s=args.watchdog_s)
+    args, world = start_standalone(parser, argv)
+    drive = DriveModel(getattr(world, args.body), world.clock, gear_ratio=args.gear_ratio,
+                       max_output_hz=args.max_output_hz, watchdog_s=args.watchdog_s)
     mode = "rtu" if (args.rtu or args.serial) else "tcp"
-    server = VfdServer(drive, mode=mode, port=args.port, serial_port=args.serial).start()
-    print(f"mock VFD ({args.body}) serving Modbus {mode.upper()} at {server.url}", flush=True)
-    signal.signal(signal.SIGTERM, _interrupt)  # `kill` stops it as cleanly as Ctrl-C
-    try:
-        threading.Event().wait()
-    except KeyboardInterrupt:
-        pass
-    finally:
-        server.stop()
+    with VfdServer(drive, mode=mode, port=args.port, serial_port=args.serial) as server:
+        print(f"mock VFD ({args.body}) serving Modbus {mode.upper()} at {server.url}", flush=True)
+        wait_for_interrupt()
     return 0
 
 

@@ -1,0 +1,69 @@
+"""Scaffolding shared by the mock servers: the TCP accept loop and the stand-alone command line.
+
+* :func:`accept_loop` — accept connections on a listening socket until a stop event is set, handing
+  each to a callback (the b-CAP and SCPI mocks; the VFD mock's TCP side is pymodbus's);
+* :func:`standalone_parser`, :func:`start_standalone`, :func:`wait_for_interrupt` — what every
+  ``python -m drivers.mock.<server>`` needs: ``--port``/``--rate`` options, logging, its own simulated
+  world on a paced virtual clock, and serving until Ctrl-C or ``kill`` (SIGTERM), both a clean stop.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import logging
+import signal
+import socket
+import threading
+from collections.abc import Callable
+from typing import Any
+
+__all__ = ["accept_loop", "standalone_parser", "start_standalone", "wait_for_interrupt"]
+
+
+def accept_loop(listener: socket.socket, stopped: threading.Event,
+                on_connection: Callable[[socket.socket], None], *, poll_s: float = 0.05) -> None:
+    """Accept connections on ``listener`` and pass each to ``on_connection`` until ``stopped`` is set or
+    the listener is closed; ``poll_s`` (s) is how often ``stopped`` is looked at."""
+    listener.settimeout(poll_s)
+    while not stopped.is_set():
+        try:
+            conn, _ = listener.accept()
+        except TimeoutError:
+            continue
+        except OSError:  # the listener was closed
+            return
+        on_connection(conn)
+
+
+def standalone_parser(module: str, description: str, *, default_port: int) -> argparse.ArgumentParser:
+    """Command line of ``python -m drivers.mock.<module>`` with ``--port`` (TCP on 127.0.0.1; 0 = any free
+    port) and ``--rate`` (virtual seconds per wall second); callers add their own options."""
+    parser = argparse.ArgumentParser(prog=f"python -m drivers.mock.{module}", description=description)
+    parser.add_argument("--port", type=int, default=default_port,
+                        help=f"TCP port (default {default_port}; 0 = any free port)")
+    parser.add_argument("--rate", type=float, default=1.0, help="virtual seconds per wall second")
+    return parser
+
+
+def start_standalone(parser: argparse.ArgumentParser,
+                     argv: list[str] | None) -> tuple[argparse.Namespace, Any]:
+    """Parse ``argv``, log INFO to stderr, and build the server's own simulated world (seed 0) on a virtual
+    clock paced at ``--rate``; return (options, world)."""
+    from drivers.sim.clock import VirtualClock
+    from drivers.sim.world import World
+
+    options = parser.parse_args(argv)
+    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(message)s")
+    return options, World(VirtualClock(rate=options.rate), seed=0)
+
+
+def _interrupt(signum: int, frame: object) -> None:
+    raise KeyboardInterrupt
+
+
+def wait_for_interrupt() -> None:
+    """Block until Ctrl-C or SIGTERM (``kill`` stops a server as cleanly as Ctrl-C) and return."""
+    signal.signal(signal.SIGTERM, _interrupt)
+    with contextlib.suppress(KeyboardInterrupt):
+        threading.Event().wait()
