@@ -173,12 +173,16 @@ class ControllerState:
         self._handle(args[0], "controller")
         return Outcome(hr.S_OK, [self._new_handle("task", _text(args[1], "task name"))])
 
-    def _f9(self, args: list[Variant]) -> Outcome:  # Controller_GetVariable
-        self._handle(args[0], "controller")
+    def _get_variable(self, args: list[Variant], owner: str, kind: str) -> Outcome:
+        """Controller_/Robot_GetVariable: a ``kind`` handle on a variable of the ``owner`` handle args[0]."""
+        self._handle(args[0], owner)
         name = _text(args[1], "variable name")
-        if name.upper() not in self._variables("controller"):
-            raise CallFailed(hr.E_CAO_OBJECT_NOTFOUND, f"controller variable {name!r}")
-        return Outcome(hr.S_OK, [self._new_handle("cvar", name.upper())])
+        if name.upper() not in self._variables(owner):
+            raise CallFailed(hr.E_CAO_OBJECT_NOTFOUND, f"{owner} variable {name!r}")
+        return Outcome(hr.S_OK, [self._new_handle(kind, name.upper())])
+
+    def _f9(self, args: list[Variant]) -> Outcome:  # Controller_GetVariable
+        return self._get_variable(args, "controller", "cvar")
 
     def _f13(self, args: list[Variant]) -> Outcome:  # Controller_GetRobotNames
         self._handle(args[0], "controller")
@@ -206,11 +210,7 @@ class ControllerState:
 
     # -------------------------------------------------------------------------------------- robot
     def _f62(self, args: list[Variant]) -> Outcome:  # Robot_GetVariable
-        self._handle(args[0], "robot")
-        name = _text(args[1], "variable name")
-        if name.upper() not in self._variables("robot"):
-            raise CallFailed(hr.E_CAO_OBJECT_NOTFOUND, f"robot variable {name!r}")
-        return Outcome(hr.S_OK, [self._new_handle("rvar", name.upper())])
+        return self._get_variable(args, "robot", "rvar")
 
     def cur_pos(self) -> list[float]:
         return [*(float(v) for v in self.robot.pose_at(self.clock.now_s())), float(self.fig)]
