@@ -170,6 +170,8 @@ def cmd_check(args: argparse.Namespace) -> int:
         for row in describe(RigConfig):
             allowed = f"  [{row['allowed']}]" if row["allowed"] else ""
             print(f"{row['field']}: {row['type']} = {row['default']!r}{allowed}")
+            if row["doc"]:
+                print(f"    {row['doc']}")
         return 0
     config = load_config(args.config)
     devices = [n for n in ("robot", "exciter", "rotor", "generator") if getattr(config.devices, n)]

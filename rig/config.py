@@ -104,6 +104,10 @@ class StationConfig:
     simulated: bool = False
     runs_dir: str = "runs"
     clock: str = field(default="wall", metadata=spec(choices=("wall", "virtual")))
+    heartbeat_timeout_s: float = field(default=2.0, metadata=spec(lo=0.5, hi=60.0, doc=(
+        "Wall seconds without any reply from a device (b-CAP keep-alives count) before the watchdog trips "
+        "the interlock (exit 3); an idle device is probed after a quarter of it. Above the b-CAP WDT "
+        "(0.4 s).")))
 
 
 @dataclass(frozen=True)

@@ -268,6 +268,7 @@ class Runner:
             finally:
                 self._control.in_cleanup = True
                 watchdog.stop()
+            error = self._lost_device_check(watchdog, error)
             if error is not None and not isinstance(error, Abort | KeyboardInterrupt):
                 log.error("procedure raised:\n%s", format_exception(error))
             return self._finish(record, devices, error, result)
@@ -276,6 +277,26 @@ class Runner:
             root.setLevel(old_level)
             handler.close()
             self._record = None
+
+    def _lost_device_check(self, watchdog: Watchdog, error: BaseException | None) -> BaseException | None:
+        """A procedure that failed on a device error before the watchdog's next round: if a heartbeat now
+        says a device is lost (its link closed, or silent past the limit), that is the interlock."""
+        if error is None or isinstance(error, Abort | KeyboardInterrupt):
+            return error
+        if self._control.interlock is not None:
+            return error
+        try:
+            lost = watchdog.poll_once()
+        except Exception as exc:
+            log.error("final heartbeat check failed: %s", exc)
+            return error
+        if lost is None:
+            return error
+        self.trip(*lost)
+        tripped = InterlockTripped(*lost)
+        tripped.__cause__ = error
+        log.error("procedure error caused by the lost device:\n%s", format_exception(error))
+        return tripped
 
     def _finish(self, record: RunRecord, devices: dict[str, Any], error: BaseException | None,
                 result: Any) -> RunOutcome:

@@ -9,7 +9,8 @@
 - ``world``: the twin (:class:`drivers.sim.world.World`) on a simulated station, else None — procedures
   must not use it for truth (truth is what they command, from the configuration); it exists for scene
   changes a human would do on a real bench (mounting a target: ``station.mount(scene)``);
-- ``snapshot()`` for the run record and ``check_interlocks()`` for the runner's watchdog.
+- ``snapshot()`` for the run record and ``check_interlocks()`` for the runner's watchdog (which also
+  calls each device's ``heartbeat()``; ``station.heartbeat_timeout_s`` reaches every driver).
 
 The simulated rig is not a special code path for the drivers: for each device whose address is
 ``mock://tcp`` or ``mock://pty`` the station starts the protocol-true mock server (b-CAP controller,
@@ -170,7 +171,8 @@ def _build_robot(st: Station, cfg: RigConfig) -> None:
                         rc7m=rc.controller == "rc7m")
     arm = DensoArm(client, envelope=BoxEnvelope(lim.envelope_x_mm, lim.envelope_y_mm, lim.envelope_z_mm),
                    max_speed_mm_s=lim.max_speed_mm_s, position_tolerance_mm=rc.position_tolerance_mm,
-                   clock=st.clock, full_speed_mm_s=rc.full_speed_mm_s)
+                   clock=st.clock, full_speed_mm_s=rc.full_speed_mm_s,
+                   heartbeat_timeout_s=cfg.station.heartbeat_timeout_s)
     arm.open()
     st._closers.append(("robot session", arm.close))
     st.devices["robot"], st.addresses["robot"] = arm, url
@@ -225,7 +227,8 @@ def _build_vfd(st: Station, cfg: RigConfig, name: str) -> None:
     st._closers.append((f"{name} Modbus client", client.close))
     vfd = VfdDriver(client, regs, max_output_hz=dc.max_output_hz)
     common = {"clock": st.clock, "limits": lim.motion_limits(), "gear_ratio": dc.gear_ratio,
-              "ramp_rate_hz_per_s": dc.ramp_rate_hz_per_s}
+              "ramp_rate_hz_per_s": dc.ramp_rate_hz_per_s,
+              "heartbeat_timeout_s": cfg.station.heartbeat_timeout_s}
     if name == "exciter":
         axis: Any = Exciter(vfd, crank_radius_mm=dc.crank_radius_mm, **common)
     else:
@@ -269,7 +272,8 @@ def _build_generator(st: Station, cfg: RigConfig) -> None:
     shaker = Shaker(generator, clock=st.clock, limits=lim.motion_limits(),
                     sensitivity=SensitivityTable(gc.sensitivity_mm_per_v),
                     max_amplitude_vpp=gc.max_amplitude_vpp,
-                    amplitude_step_vpp=gc.amplitude_step_vpp, step_interval_s=gc.step_interval_s)
+                    amplitude_step_vpp=gc.amplitude_step_vpp, step_interval_s=gc.step_interval_s,
+                    heartbeat_timeout_s=cfg.station.heartbeat_timeout_s)
     st._closers.append(("generator output off", shaker.close))
     st.devices["generator"], st.addresses["generator"] = shaker, url
     st._liveness.append(("generator", lambda: "SCPI link closed" if getattr(transport, "closed", False)

@@ -14,6 +14,7 @@ Tolerances are derived, not tuned:
 from __future__ import annotations
 
 import math
+import time
 
 import numpy as np
 import pytest
@@ -25,6 +26,7 @@ from drivers.exciter.register_map import DELTA_MAP, RegisterMap
 from drivers.exciter.rotor import Rotor
 from drivers.exciter.sweep import FrequencySample, LinearSweep, LogSweep, PointsSweep, SweepProfile
 from drivers.exciter.vfd import VfdDriver
+from drivers.heartbeat import HeartbeatError
 from drivers.mock.vfd_drive import DriveModel
 from drivers.mock.vfd_server import VfdServer
 from drivers.sim.clock import VirtualClock
@@ -154,7 +156,12 @@ def test_safe_state_brings_the_twin_to_rest_and_heartbeat_reports_faults(mode: s
         assert rig.drive.regs[DELTA_MAP.freq_set] == 0 and not rig.drive.running
         rig.exciter.set_frequency(12.0)
         rig.drive.trip(0x41)  # the drive trips on its own (overspeed sensor)
-        assert rig.exciter.heartbeat() is False
+        # the heartbeat's idle probe (STATUS + FAULT) finds it; the watchdog then sees HeartbeatError
+        with pytest.raises(HeartbeatError, match=r"exciter: drive reports fault code 65"):
+            deadline = time.monotonic() + 10.0
+            while time.monotonic() < deadline:
+                rig.exciter.heartbeat()
+                time.sleep(0.05)
 
 
 def test_exciter_and_rotor_share_one_rs485_line() -> None:

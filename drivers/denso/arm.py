@@ -24,9 +24,11 @@ from typing import Any
 import numpy as np
 
 from drivers.clock import Clock
+from drivers.denso import bcap
 from drivers.denso.client import BcapClient
 from drivers.denso.hresult import BcapError, BcapProtocolError
 from drivers.denso.pose import check_pose, orientation_error_deg
+from drivers.heartbeat import Heartbeat, HeartbeatError
 from drivers.transport import TransportError
 
 log = logging.getLogger(__name__)
@@ -166,11 +168,14 @@ class DensoArm:
         full_speed_mm_s: the controller's 100 % speed (SPEED percent = speed_mm_s / full_speed_mm_s).
         clock: the rig clock (times of each move).
         linear: linear (MOVE L) moves by default, else PTP (MOVE P).
+        heartbeat_timeout_s: :meth:`heartbeat` reports the controller lost after this many wall seconds
+            without any packet from it (keep-alives count); must exceed the WDT keep-alive period.
     """
 
     def __init__(self, client: BcapClient, *, envelope: Envelope, max_speed_mm_s: float,
                  position_tolerance_mm: float, clock: Clock, orientation_tolerance_deg: float = 0.1,
-                 full_speed_mm_s: float = 1000.0, linear: bool = True) -> None:
+                 full_speed_mm_s: float = 1000.0, linear: bool = True,
+                 heartbeat_timeout_s: float = 2.0) -> None:
         if not (0 < max_speed_mm_s <= full_speed_mm_s and math.isfinite(max_speed_mm_s)):
             raise ValueError(f"max_speed_mm_s={max_speed_mm_s}: must be in (0, full_speed_mm_s="
                              f"{full_speed_mm_s}]")
@@ -188,10 +193,15 @@ class DensoArm:
         self.linear = linear
         self.last_move: MoveResult | None = None
         self.fig: int = -1
+        self.heartbeat_monitor = Heartbeat("robot", client.link.contact, self._probe,
+                                           timeout_s=heartbeat_timeout_s)
 
     # ------------------------------------------------------------------------------------ session
     def open(self, *, wdt_ms: int | None = 400) -> None:
         """Service_Start … TakeArm, Motor on, ExtSpeed 100 %."""
+        if wdt_ms is not None and wdt_ms / 1000.0 >= self.heartbeat_monitor.timeout_s:
+            raise ValueError(f"wdt_ms={wdt_ms}: the keep-alive period must be shorter than the heartbeat "
+                             f"timeout {self.heartbeat_monitor.timeout_s:g} s")
         self.client.open_robot(wdt_ms=wdt_ms, ext_speed_percent=100.0)
 
     def close(self) -> None:
@@ -266,6 +276,29 @@ class DensoArm:
     def halt(self) -> None:
         """Stop the arm now (Robot_Halt)."""
         self.client.halt()
+
+    # ---------------------------------------------------------------------------------- heartbeat
+    def heartbeat(self) -> bool:
+        """Watchdog probe (thread-safe, no I/O in the caller's thread, returns at once).
+
+        Raises :class:`~drivers.heartbeat.DeviceLostError` naming the device, the age of the last packet
+        from the controller and the limit, when the link was closed or nothing (not even an S_EXECUTING
+        keep-alive of a running Move) arrived for ``heartbeat_timeout_s``. When the link has been idle
+        for a quarter of that, one ``CurPos`` is sent from a helper thread — only while no call is in
+        flight (a request during a blocking Move would get E_BUSY_PROC, bcap.md §10).
+        """
+        return self.heartbeat_monitor.check()
+
+    def _probe(self) -> None:
+        client, link = self.client, self.client.link
+        timeout_s = min(link.timeout_s, self.heartbeat_monitor.timeout_s / 2.0)
+        if client.h_robot is not None:
+            link.call(bcap.ROBOT_EXECUTE, [client.h_robot, "CurPos", None], timeout_s=timeout_s, attempts=1)
+        elif client.h_ctrl is not None:
+            link.call(bcap.CONTROLLER_EXECUTE, [client.h_ctrl, "GetCurErrorCount", None],
+                      timeout_s=timeout_s, attempts=1)
+        else:
+            raise HeartbeatError("robot", "no b-CAP session to probe (open() not called or closed)")
 
     def _try_halt(self) -> None:
         try:

@@ -137,6 +137,8 @@ class BcapClient:
                              "1.5 × WDT so keep-alives can arrive")
         self.call(bcap.SERVICE_START, [service_option(wdt_ms, invoke_timeout_ms)])
         self.service_started = True
+        # without WDT a blocking call is silent until it ends: the heartbeat must not count that as lost
+        self.link.contact.silent_calls = wdt_ms is None
 
     def service_stop(self) -> None:
         self.call(bcap.SERVICE_STOP)

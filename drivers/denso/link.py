@@ -11,7 +11,6 @@ executing twice.
 from __future__ import annotations
 
 import logging
-import threading
 import time
 from collections.abc import Sequence
 from typing import Any
@@ -32,6 +31,7 @@ from drivers.denso.hresult import (
     is_failure,
 )
 from drivers.denso.variant import Variant
+from drivers.heartbeat import ContactRecord
 from drivers.transport import Transport, TransportClosed, TransportError, TransportTimeout
 
 log = logging.getLogger(__name__)
@@ -40,7 +40,11 @@ MAX_ATTEMPTS = 7
 
 
 class BcapLink:
-    """Request/reply engine. Thread-safe: one call at a time.
+    """Request/reply engine. Thread-safe: one call at a time (``contact.lock``).
+
+    ``contact`` (:class:`drivers.heartbeat.ContactRecord`) records the wall time of every packet received
+    — replies, keep-alives, even discarded replies prove the controller alive — and latches a closed or
+    broken link; the arm's heartbeat reads it without touching the line.
 
     Args:
         transport: an open :class:`drivers.transport.Transport`.
@@ -69,7 +73,8 @@ class BcapLink:
         self.max_length = SERIAL_MAX_PACKET if self.may_retry else TCP_MAX_PACKET
         self._decoder = PacketDecoder(serial_line=serial_line, max_length=self.max_length)
         self._serial = 0
-        self._lock = threading.Lock()
+        self.contact = ContactRecord()
+        self._lock = self.contact.lock
         self.keepalives_seen = 0
         self.discarded_replies = 0
 
@@ -78,14 +83,16 @@ class BcapLink:
         return self._serial
 
     def call(self, function_id: int, args: Sequence[Any] = (), *,
-             timeout_s: float | None = None) -> list[Variant]:
-        """Send one request and return the reply's arguments; a failure HRESULT raises :class:`BcapError`."""
+             timeout_s: float | None = None, attempts: int | None = None) -> list[Variant]:
+        """Send one request and return the reply's arguments; a failure HRESULT raises :class:`BcapError`.
+        ``attempts`` (1..``retries``) caps the attempts of this call (the heartbeat probe makes one)."""
         name = function_name(function_id)
         timeout = self.timeout_s if timeout_s is None else float(timeout_s)
-        with self._lock:
+        n_attempts = self.attempts if attempts is None else max(1, min(int(attempts), self.attempts))
+        with self.contact.exchange():
             sent: set[int] = set()
             first = 0
-            for attempt in range(self.attempts):
+            for attempt in range(n_attempts):
                 self._serial = next_serial(self._serial)
                 serial = self._serial
                 first = first or serial
@@ -98,17 +105,18 @@ class BcapLink:
                     reply = self._await(sent, timeout, name)
                 except TransportTimeout:
                     log.warning("%s: no reply to serial %d (attempt %d of %d)", name, serial, attempt + 1,
-                                self.attempts)
+                                n_attempts)
                     self._decoder.drop_stalled_frame()
                     continue
                 except TransportError as exc:
                     kind = "closed" if isinstance(exc, TransportClosed) else "failed"
+                    self.contact.fail(f"b-CAP link {kind} during {name}: {exc}")
                     raise BcapConnectionError(f"link {kind} during the call: {exc}", function=name) from exc
                 if is_failure(reply.code):
                     raise BcapError(reply.code, function=name)
                 return list(reply.args)
             raise BcapTimeoutError(
-                f"no reply within {timeout:g} s after {self.attempts} attempt(s)", function=name)
+                f"no reply within {timeout:g} s after {n_attempts} attempt(s)", function=name)
 
     def _await(self, serials: set[int], timeout_s: float, name: str) -> Packet:
         """Read packets until the reply to one of ``serials``; keep-alives restart the timeout."""
@@ -126,6 +134,7 @@ class BcapLink:
                 self._decoder.feed(self.transport.read_exact(1, remaining))
                 self._decoder.feed(self.transport.read_available())
                 continue
+            self.contact.touch()
             if packet.serial not in serials:
                 self.discarded_replies += 1
                 log.debug("%s: discarded a reply with serial %d", name, packet.serial)

@@ -20,6 +20,7 @@ from typing import Any
 from drivers.exciter.limits import MotionLimits
 from drivers.exciter.sweep import FrequencySample, SweepProfile, SweepResult, run_sweep
 from drivers.exciter.vfd import VfdDriver, VfdError
+from drivers.heartbeat import Heartbeat
 
 __all__ = ["VfdAxis", "VfdTimeoutError"]
 
@@ -40,6 +41,8 @@ class VfdAxis:
     between polls. settle_margin_s: extra time allowed beyond the ideal ramp time.
     fixed_drive_ramp_rate_hz_per_s: for a map without ramp-time registers, the drive's own fixed ramp
     rate in drive Hz/s (it must then be given). reset_faults: reset a latched fault before starting.
+    heartbeat_timeout_s: wall seconds without a reply from the drive after which :meth:`heartbeat`
+    reports it lost.
     """
 
     kind = "axis"
@@ -47,7 +50,8 @@ class VfdAxis:
     def __init__(self, vfd: VfdDriver, *, clock: Any, limits: MotionLimits, gear_ratio: float = 1.0,
                  amplitude_mm: float, ramp_rate_hz_per_s: float, direction: str = "forward",
                  tolerance_hz: float = 0.02, poll_interval_s: float = 0.05, settle_margin_s: float = 2.0,
-                 fixed_drive_ramp_rate_hz_per_s: float | None = None, reset_faults: bool = False) -> None:
+                 fixed_drive_ramp_rate_hz_per_s: float | None = None, reset_faults: bool = False,
+                 heartbeat_timeout_s: float = 2.0) -> None:
         if not (math.isfinite(gear_ratio) and gear_ratio > 0):
             raise ValueError(f"gear_ratio={gear_ratio!r}: must be a finite number > 0 "
                              f"(drive Hz per {self.kind} Hz)")
@@ -78,6 +82,7 @@ class VfdAxis:
         self.settle_margin_s = float(settle_margin_s)
         self.fixed_drive_ramp_rate = fixed_drive_ramp_rate_hz_per_s
         self.reset_faults = reset_faults
+        self.heartbeat_monitor = Heartbeat(self.kind, vfd.contact, vfd.probe, timeout_s=heartbeat_timeout_s)
         self._rate_written: float | None = None  # mechanical Hz/s the drive ramps at (after rounding)
         self._rate_requested: float | None = None  # what was asked for it
         self._setpoint_hz = 0.0
@@ -212,9 +217,15 @@ class VfdAxis:
         self.wait_until_reached(0.0, fault_is_error=False)
 
     def heartbeat(self) -> bool:
-        """Watchdog probe (thread-safe: one Modbus request): False if the drive reports a fault.
-        A lost link raises (and the driver attempts a stop)."""
-        return self.vfd.read_fault_code() == 0
+        """Watchdog probe (thread-safe, no I/O in the caller's thread, returns at once).
+
+        Raises :class:`~drivers.heartbeat.DeviceLostError` naming the device, the age of the drive's last
+        reply and the limit when nothing came back for ``heartbeat_timeout_s`` (every reply to the
+        procedure's own polls counts), and :class:`~drivers.heartbeat.HeartbeatError` when the last
+        probe found a drive fault. After a quarter of the timeout without traffic, one STATUS read
+        (FAULT + STATUS, 0x2100..0x2101 on Delta) is sent from a helper thread under the line lock.
+        The stop after a loss is the runner's (it makes every device safe at once)."""
+        return self.heartbeat_monitor.check()
 
     def _stop_quietly(self) -> None:
         with contextlib.suppress(VfdError):

@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import logging
 import math
-import threading
 from typing import Any
 
 from drivers.exciter.scpi import (
@@ -25,6 +24,8 @@ from drivers.exciter.scpi import (
     parse_identity,
     parse_number,
 )
+from drivers.heartbeat import ContactRecord
+from drivers.transport import TransportClosed
 
 __all__ = ["GeneratorError", "ScpiError", "ScpiGenerator"]
 
@@ -58,6 +59,10 @@ class ScpiGenerator:
     transport: a connected :class:`drivers.transport.Transport`. channel: 1 or 2. timeout_s: reply
     timeout per line. check_errors: query ``SYST:ERR?`` after every command (default; turning it off is
     for speed-critical loops only).
+
+    Thread-safe: a command and its error check are one exchange under ``contact.lock``; ``contact``
+    (:class:`drivers.heartbeat.ContactRecord`) records the wall time of every reply line and latches a
+    closed link, for the shaker's heartbeat.
     """
 
     def __init__(self, transport: Any, *, channel: int = 1, timeout_s: float = 1.0,
@@ -71,7 +76,7 @@ class ScpiGenerator:
         self.timeout_s = timeout_s
         self.check_errors = check_errors
         self.source = f"SOUR{channel}"
-        self._lock = threading.RLock()  # a command and its error check are one exchange
+        self.contact = ContactRecord()
         self.output_node = f"OUTP{channel}"
 
     # line level ------------------------------------------------------------------------------------------
@@ -79,13 +84,19 @@ class ScpiGenerator:
         try:
             self.transport.write(message.encode("ascii") + b"\n")
         except OSError as exc:
+            if isinstance(exc, TransportClosed):
+                self.contact.fail(f"SCPI link closed sending {message!r}: {exc}")
             raise GeneratorError(f"{message!r}: cannot send: {exc}") from exc
 
-    def _readline(self, what: str) -> str:
+    def _readline(self, what: str, timeout_s: float | None = None) -> str:
+        timeout = self.timeout_s if timeout_s is None else timeout_s
         try:
-            line = self.transport.read_until(b"\n", timeout_s=self.timeout_s)
+            line = self.transport.read_until(b"\n", timeout_s=timeout)
         except OSError as exc:  # TransportError / TransportTimeout derive from OSError
-            raise GeneratorError(f"{what}: no reply within {self.timeout_s:g} s ({exc})") from exc
+            if isinstance(exc, TransportClosed):
+                self.contact.fail(f"SCPI link closed awaiting the reply to {what}: {exc}")
+            raise GeneratorError(f"{what}: no reply within {timeout:g} s ({exc})") from exc
+        self.contact.touch()
         return line.decode("ascii", errors="replace").rstrip("\r\n")
 
     def drain_errors(self, command: str = "") -> list[tuple[int, str]]:
@@ -111,7 +122,7 @@ class ScpiGenerator:
     def write(self, header: str, *args: float | str) -> None:
         """Send one command, then check the error queue."""
         command = format_command(header, *args)
-        with self._lock:
+        with self.contact.exchange():
             self._send(command)
             self._check(command)
 
@@ -120,7 +131,7 @@ class ScpiGenerator:
         if not header.endswith("?"):
             raise ValueError(f"header={header!r}: a query ends with '?'")
         command = format_command(header)
-        with self._lock:
+        with self.contact.exchange():
             self._send(command)
             try:
                 reply = self._readline(command)
@@ -146,7 +157,7 @@ class ScpiGenerator:
 
     def clear_status(self) -> None:
         """``*CLS``: empty the error queue and the status registers."""
-        with self._lock:
+        with self.contact.exchange():
             self._send("*CLS")
             self._check("*CLS")
 
@@ -155,6 +166,25 @@ class ScpiGenerator:
         reply = self.query("*OPC?")
         if reply.strip() != "1":
             raise GeneratorError(f"*OPC? answered {reply!r}, expected 1")
+
+    def probe(self, timeout_s: float | None = None) -> None:
+        """Heartbeat probe: one ``*OPC?`` exchange under the link lock (no error-queue read, so no error
+        meant for the procedure is consumed). Bytes left over from an earlier timed-out exchange are
+        discarded first. Raises :class:`GeneratorError` on no reply or a reply other than 1."""
+        with self.contact.exchange():
+            try:
+                stale = self.transport.read_available()
+            except OSError as exc:
+                if isinstance(exc, TransportClosed):
+                    self.contact.fail(f"SCPI link closed: {exc}")
+                raise GeneratorError(f"*OPC? (heartbeat): link failed: {exc}") from exc
+            if stale:
+                log.warning("generator: discarded %d stale byte(s) %r before the heartbeat",
+                            len(stale), stale)
+            self._send("*OPC?")
+            reply = self._readline("*OPC? (heartbeat)", timeout_s)
+        if reply.strip() != "1":
+            raise GeneratorError(f"*OPC? (heartbeat) answered {reply!r}, expected 1")
 
     def set_sine(self) -> None:
         self.write(f"{self.source}:FUNC", "SIN")

@@ -26,6 +26,7 @@ from typing import Any
 
 from drivers.exciter.generator import GeneratorError, ScpiGenerator
 from drivers.exciter.limits import LimitError, MotionLimits
+from drivers.heartbeat import Heartbeat
 
 __all__ = ["SensitivityTable", "Shaker", "ShakerSweep"]
 
@@ -101,12 +102,15 @@ class Shaker:
     generator: the SCPI generator. clock: rig clock. limits: shaker limits. sensitivity: the table.
     max_amplitude_vpp: the amplifier's input limit (V peak-to-peak). min_amplitude_vpp: the level used
     while switching the output. amplitude_step_vpp / step_interval_s: amplitude ramp (strict steps).
+    heartbeat_timeout_s: wall seconds without a reply line from the generator after which
+    :meth:`heartbeat` reports it lost.
     """
 
     def __init__(self, generator: ScpiGenerator, *, clock: Any, limits: MotionLimits,
                  sensitivity: SensitivityTable, max_amplitude_vpp: float = 10.0,
                  min_amplitude_vpp: float = 0.01,
-                 amplitude_step_vpp: float = 0.5, step_interval_s: float = 0.1) -> None:
+                 amplitude_step_vpp: float = 0.5, step_interval_s: float = 0.1,
+                 heartbeat_timeout_s: float = 2.0) -> None:
         for name, value in (("max_amplitude_vpp", max_amplitude_vpp),
                             ("min_amplitude_vpp", min_amplitude_vpp),
                             ("amplitude_step_vpp", amplitude_step_vpp), ("step_interval_s", step_interval_s)):
@@ -124,6 +128,8 @@ class Shaker:
         self.step_interval_s = step_interval_s
         self._amplitude_vpp = 0.0
         self._output_on = False
+        self.heartbeat_monitor = Heartbeat("generator", generator.contact, self._probe,
+                                           timeout_s=heartbeat_timeout_s)
 
     # conversions and checks (no I/O) -----------------------------------------------------------------------
     def displacement_mm(self, frequency_hz: float, amplitude_vpp: float) -> float:
@@ -275,9 +281,16 @@ class Shaker:
             self.abort()
 
     def heartbeat(self) -> bool:
-        """Watchdog probe: ``*OPC?`` answered (the generator serialises it with other commands)."""
-        self.generator.wait_complete()
-        return True
+        """Watchdog probe (thread-safe, no I/O in the caller's thread, returns at once).
+
+        Raises :class:`~drivers.heartbeat.DeviceLostError` naming the device, the age of the generator's
+        last reply line and the limit when the link closed or nothing came back for
+        ``heartbeat_timeout_s`` (every reply to the procedure's commands counts). After a quarter of
+        that without traffic, one ``*OPC?`` is sent from a helper thread under the generator's lock."""
+        return self.heartbeat_monitor.check()
+
+    def _probe(self) -> None:
+        self.generator.probe(min(self.generator.timeout_s, self.heartbeat_monitor.timeout_s / 2.0))
 
     def abort(self) -> None:
         """Abort path: minimum amplitude at once, output OFF (tries both even if the first fails)."""

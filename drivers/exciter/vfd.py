@@ -18,12 +18,16 @@ from __future__ import annotations
 
 import logging
 import math
+import threading
+import weakref
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
 from pymodbus.exceptions import ModbusException
 
 from drivers.exciter.register_map import DELTA_MAP, RegisterMap
+from drivers.heartbeat import ContactRecord
 
 __all__ = ["DriveStatus", "VfdCommunicationError", "VfdDriver", "VfdError", "VfdExceptionResponseError",
            "VfdFaultError", "VfdProtocolError"]
@@ -37,6 +41,20 @@ EXCEPTION_NAMES = {1: "illegal function", 2: "illegal data address", 3: "illegal
 # Fault codes the mock drive uses (docs/exciter.md). A real drive has its own table: pass ``fault_names``.
 MOCK_FAULT_NAMES = {5: "oL: drive overload", 0x41: "oSPd: overspeed",
                     0x42: "CE10: Modbus communication time-out (watchdog)"}
+
+
+# one lock per Modbus client (= per line): drives sharing an RS-485 bus are serialised on it
+_LINE_LOCKS: weakref.WeakKeyDictionary[Any, threading.RLock] = weakref.WeakKeyDictionary()
+_LINE_LOCKS_GUARD = threading.Lock()
+
+
+def line_lock(client: Any) -> threading.RLock:
+    """The lock every request on ``client``'s line takes (pymodbus sync clients are not thread-safe)."""
+    with _LINE_LOCKS_GUARD:
+        lock = _LINE_LOCKS.get(client)
+        if lock is None:
+            lock = _LINE_LOCKS[client] = threading.RLock()
+        return lock
 
 
 class VfdError(RuntimeError):
@@ -97,6 +115,9 @@ class VfdDriver:
     max_output_hz: the drive's maximum output frequency (its parameter, e.g. Delta 01-00); setpoints
         above it raise, and ramp times are defined as the time from 0 Hz to it.
     fault_names: fault code → text for messages.
+
+    Thread-safe: every request holds the line's lock (:func:`line_lock`); ``contact`` records the wall
+    time of the drive's last reply (an exception response counts: the drive answered) for the heartbeat.
     """
 
     def __init__(self, client: Any, register_map: RegisterMap = DELTA_MAP, *, max_output_hz: float = 50.0,
@@ -109,6 +130,7 @@ class VfdDriver:
         self.max_output_hz = float(max_output_hz)
         self.fault_names = dict(MOCK_FAULT_NAMES if fault_names is None else fault_names)
         self._stopping = False
+        self.contact = ContactRecord(line_lock(client))
 
     # low level ---------------------------------------------------------------------------------------
     def _fail(self, exc: VfdError) -> VfdError:
@@ -139,13 +161,22 @@ class VfdDriver:
             name = EXCEPTION_NAMES.get(code, "unknown exception")
             raise VfdExceptionResponseError(f"{what}: drive answered Modbus exception {code} ({name})", code)
 
+    def _request(self, call: Callable[[], Any], what: str) -> Any:
+        """One request under the line lock; any reply object is a contact with the drive."""
+        with self.contact.exchange():
+            try:
+                reply = call()
+            except ModbusException as exc:
+                raise VfdCommunicationError(f"{what}: {type(exc).__name__}: {exc}") from exc
+            if reply is not None:
+                self.contact.touch()
+            return reply
+
     def _read(self, address: int, count: int, what: str) -> list[int]:
         what = f"{what}: read {count} register(s) at {self._describe(address)} (unit {self.map.unit_id})"
         try:
-            try:
-                reply = self.client.read_holding_registers(address, count=count, device_id=self.map.unit_id)
-            except ModbusException as exc:
-                raise VfdCommunicationError(f"{what}: {type(exc).__name__}: {exc}") from exc
+            reply = self._request(lambda: self.client.read_holding_registers(
+                address, count=count, device_id=self.map.unit_id), what)
             self._check_reply(reply, what)
             regs = list(reply.registers)
             if len(regs) != count:
@@ -157,10 +188,8 @@ class VfdDriver:
     def _write(self, address: int, value: int, what: str, *, stop_on_error: bool = True) -> None:
         what = f"{what}: write 0x{value:04X} to {self._describe(address)} (unit {self.map.unit_id})"
         try:
-            try:
-                reply = self.client.write_register(address, value, device_id=self.map.unit_id)
-            except ModbusException as exc:
-                raise VfdCommunicationError(f"{what}: {type(exc).__name__}: {exc}") from exc
+            reply = self._request(lambda: self.client.write_register(
+                address, value, device_id=self.map.unit_id), what)
             self._check_reply(reply, what)
             echo = (getattr(reply, "address", None), list(getattr(reply, "registers", []) or []))
             if echo != (address, [value]):
@@ -266,6 +295,26 @@ class VfdDriver:
             freq_out_hz=m.register_to_freq(values[m.freq_out]),
             current_a=None if m.current is None else values[m.current] * m.current_unit_a,
             status_word=values[m.status])
+
+    def probe(self) -> str | None:
+        """Heartbeat probe: one FC03 of STATUS (with FAULT when adjacent, Delta 0x2100..0x2101), no stop
+        attempt on failure (the runner makes every device safe). Returns the fault text if the drive
+        reports one, else None; raises :class:`VfdError` when it does not answer."""
+        m = self.map
+        lo = min(m.fault, m.status) if abs(m.fault - m.status) == 1 else m.status
+        count = 2 if abs(m.fault - m.status) == 1 else 1
+        what = f"heartbeat: read {count} register(s) at {self._describe(lo)} (unit {m.unit_id})"
+        reply = self._request(lambda: self.client.read_holding_registers(lo, count=count,
+                                                                         device_id=m.unit_id), what)
+        self._check_reply(reply, what)
+        regs = list(reply.registers)
+        if len(regs) != count:
+            raise VfdProtocolError(f"{what}: got {len(regs)} registers, expected {count}")
+        if count == 2:
+            fault = regs[m.fault - lo] & m.fault_code_mask
+            if fault:
+                return f"drive reports {self.fault_text(fault)}"
+        return None
 
     def decode_state(self, status_word: int) -> str:
         m = self.map

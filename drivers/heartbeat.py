@@ -1,0 +1,200 @@
+"""Device heartbeat shared by the b-CAP, Modbus and SCPI drivers: is the device still answering?
+
+Two parts, so the watchdog never disturbs the protocol:
+
+* :class:`ContactRecord` — **passive**, kept by the link itself: the link lock (every request/reply
+  exchange of the procedure holds it), the wall time (``time.monotonic``) of the last byte-level proof
+  of life (every reply, including b-CAP ``S_EXECUTING`` keep-alives and Modbus exception responses), and
+  a latched failure when the link was closed or broke.
+* :class:`Heartbeat` — **active**, driven by the runner's watchdog thread through the device's
+  ``heartbeat()``: it raises :class:`DeviceLostError` when the link failed or a request (the procedure's
+  or a probe's) has been waiting for a reply for more than ``timeout_s`` — an idle link nobody asked is
+  not lost, it gets probed; when the link has been idle for ``interval_s`` it starts one cheap probe (b-CAP
+  ``CurPos``, Modbus STATUS read, SCPI ``*OPC?``) in a short-lived thread, **only if the link lock is
+  free** (never beside a call in flight: a b-CAP request during a blocking Move would get E_BUSY_PROC).
+  ``check()`` itself does no I/O and returns at once, so one dead device never delays the checks of the
+  others. A device that goes silent is reported at most ``interval_s`` + ``timeout_s`` + one watchdog
+  period after its last reply (at once when its link closes).
+
+A call in flight whose protocol sends no keep-alives (b-CAP without WDT) is bounded by the link's own
+receive timeout instead: ``ContactRecord.silent_calls`` is then True and the wait is not checked while
+the lock is held.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import math
+import threading
+import time
+from collections.abc import Callable, Iterator
+
+__all__ = ["ContactRecord", "DeviceLostError", "Heartbeat", "HeartbeatError", "check_heartbeat_timing"]
+
+log = logging.getLogger(__name__)
+
+
+class HeartbeatError(RuntimeError):
+    """The watchdog's probe found the device unusable. ``device`` names it."""
+
+    def __init__(self, device: str, message: str) -> None:
+        self.device = device
+        super().__init__(f"{device}: {message}")
+
+
+class DeviceLostError(HeartbeatError):
+    """``device`` asked but silent for ``unanswered_s`` s (> ``limit_s``), or its link failed (``cause``);
+    ``age_s``: wall seconds since its last reply."""
+
+    def __init__(self, device: str, age_s: float, limit_s: float, cause: str | None = None, *,
+                 unanswered_s: float | None = None, detail: str | None = None) -> None:
+        self.age_s, self.limit_s, self.cause, self.unanswered_s = age_s, limit_s, cause, unanswered_s
+        waited = f" for {unanswered_s:.2f} s" if unanswered_s is not None else ""
+        what = f"link failed ({cause})" if cause else f"no reply{waited}"
+        more = f" ({detail})" if detail else ""
+        super().__init__(device, f"lost: {what}; last contact {age_s:.2f} s ago (limit {limit_s:g} s){more}")
+
+
+def check_heartbeat_timing(timeout_s: float, interval_s: float | None) -> tuple[float, float]:
+    """Validate ``timeout_s`` (> 0 s) and ``interval_s`` (None → timeout/4; 0 < interval < timeout)."""
+    if not (math.isfinite(timeout_s) and timeout_s > 0):
+        raise ValueError(f"heartbeat timeout_s={timeout_s!r}: must be a finite number of seconds > 0")
+    interval = timeout_s / 4.0 if interval_s is None else float(interval_s)
+    if not (math.isfinite(interval) and 0 < interval < timeout_s):
+        raise ValueError(f"heartbeat interval_s={interval_s!r}: must be > 0 s and below "
+                         f"timeout_s={timeout_s:g}")
+    return float(timeout_s), interval
+
+
+class ContactRecord:
+    """The link-level record (thread-safe), one per device. Devices sharing one line (several drives on
+    one RS-485 bus) pass the same ``lock`` but keep their own contact times.
+
+    ``lock`` is re-entrant: the probe holds it around a driver call that takes it again.
+    """
+
+    def __init__(self, lock: threading.RLock | None = None) -> None:
+        self.lock = lock if lock is not None else threading.RLock()  # devices on one bus share it
+        self._last_contact = time.monotonic()
+        self._waiting_since: float | None = None  # start of the oldest request not answered yet
+        self._busy = 0
+        self._failure: str | None = None
+        self.silent_calls = False  # True when a call in flight legitimately sends nothing for long
+        self.contacts = 0
+
+    @contextlib.contextmanager
+    def exchange(self) -> Iterator[None]:
+        """Hold the link for one request/reply exchange (marks a call in flight). An exchange that ends
+        in an exception leaves the request counted as unanswered until the next reply."""
+        with self.lock:
+            self._busy += 1
+            if self._waiting_since is None:
+                self._waiting_since = time.monotonic()
+            ok = False
+            try:
+                yield
+                ok = True
+            finally:
+                self._busy -= 1
+                if ok and self._busy == 0:
+                    self._waiting_since = None
+
+    def touch(self) -> None:
+        """A reply (or a keep-alive) arrived: the device is alive now (a call still in flight waits anew
+        from now, e.g. for the next keep-alive)."""
+        now = time.monotonic()
+        self._last_contact = now
+        self._waiting_since = now if self._busy else None
+        self.contacts += 1
+
+    def fail(self, reason: str) -> None:
+        """The link was closed or broke; latched (a closed transport does not come back)."""
+        if self._failure is None:
+            self._failure = reason
+
+    @property
+    def failure(self) -> str | None:
+        return self._failure
+
+    @property
+    def busy(self) -> bool:
+        return self._busy > 0
+
+    def age_s(self) -> float:
+        """Wall seconds since the last reply."""
+        return time.monotonic() - self._last_contact
+
+    def unanswered_s(self) -> float:
+        """Wall seconds the device has been asked without answering (0 when nothing is pending): an
+        idle link is not a lost device until someone asks."""
+        since = self._waiting_since
+        return 0.0 if since is None else max(0.0, time.monotonic() - since)
+
+
+class Heartbeat:
+    """The active part (see the module docstring).
+
+    Args:
+        device: name used in errors ("robot", "exciter", ...).
+        record: the link's :class:`ContactRecord`.
+        probe: one cheap exchange through the driver (it takes ``record.lock`` itself); raises on failure;
+            may return a text describing a device-reported fault (then ``check`` raises
+            :class:`HeartbeatError` with it: the device answers but is not fit to run).
+        timeout_s: a device silent for longer is lost (wall seconds).
+        interval_s: idle time after which a probe is sent (default ``timeout_s / 4``).
+
+    Making the device safe after a loss is the runner's job (it stops every device at once after an
+    interlock); the heartbeat only reports.
+    """
+
+    def __init__(self, device: str, record: ContactRecord, probe: Callable[[], object], *,
+                 timeout_s: float = 2.0, interval_s: float | None = None) -> None:
+        self.device = device
+        self.record = record
+        self.probe = probe
+        self.timeout_s, self.interval_s = check_heartbeat_timing(timeout_s, interval_s)
+        self._probing = threading.Lock()
+        self.probes_sent = 0
+        self.probe_errors: list[str] = []
+        self.device_problem: str | None = None
+
+    def configure(self, timeout_s: float, interval_s: float | None = None) -> None:
+        self.timeout_s, self.interval_s = check_heartbeat_timing(timeout_s, interval_s)
+
+    def check(self) -> bool:
+        """Raise :class:`DeviceLostError` if the device is lost (:class:`HeartbeatError` if its last probe
+        found a device fault); else maybe start a probe; return True."""
+        rec = self.record
+        age = rec.age_s()
+        if rec.failure is not None:
+            raise DeviceLostError(self.device, age, self.timeout_s, rec.failure)
+        if self.device_problem is not None:
+            raise HeartbeatError(self.device, self.device_problem)
+        if rec.busy and rec.silent_calls:
+            return True  # a call without keep-alives in flight: bounded by the link's own timeout
+        unanswered = rec.unanswered_s()
+        if unanswered > self.timeout_s:
+            detail = f"last probe: {self.probe_errors[-1]}" if self.probe_errors else None
+            raise DeviceLostError(self.device, age, self.timeout_s, unanswered_s=unanswered, detail=detail)
+        if age > self.interval_s and not rec.busy and self._probing.acquire(blocking=False):
+            threading.Thread(target=self._probe, name=f"heartbeat-{self.device}", daemon=True).start()
+        return True
+
+    def _probe(self) -> None:
+        try:
+            if not self.record.lock.acquire(blocking=False):
+                return  # the procedure is talking to the device: its reply is the proof of life
+            try:
+                self.probes_sent += 1
+                problem = self.probe()
+                if isinstance(problem, str) and problem:
+                    self.device_problem = problem
+            except Exception as exc:  # the age (or the latched failure) decides; keep the reason
+                self.probe_errors.append(f"{type(exc).__name__}: {exc}")
+                del self.probe_errors[:-5]
+                log.warning("%s heartbeat probe failed: %s: %s", self.device, type(exc).__name__, exc)
+            finally:
+                self.record.lock.release()
+        finally:
+            self._probing.release()

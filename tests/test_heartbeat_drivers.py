@@ -1,0 +1,173 @@
+"""Device heartbeats against the protocol mocks (b-CAP over TCP, Modbus RTU over a pty and Modbus TCP,
+SCPI over TCP), on the simulated station with a paced clock: healthy devices keep beating through a long
+move and a sweep without a request beside a call in flight; a mock that stops answering or closes the
+connection is reported lost, naming the device, the age of the last contact and the limit."""
+
+from __future__ import annotations
+
+import threading
+import time
+
+import pytest
+from heartbeat_support import HEARTBEAT_TIMEOUT_S, BeatWatcher, sim_station, wait_until
+
+from drivers.denso import bcap
+from drivers.exciter.sweep import LinearSweep
+from drivers.heartbeat import ContactRecord, DeviceLostError, Heartbeat, HeartbeatError
+
+LIMIT = HEARTBEAT_TIMEOUT_S
+MOVE_TARGET = [420.0, 0.0, 300.0, 90.0, 0.0, 90.0]  # 70 mm from home
+
+
+def test_arm_keeps_beating_through_a_long_paced_move_and_probes_only_when_idle() -> None:
+    with sim_station(rate=2.0) as (st, servers):
+        arm, server = st.devices["robot"], servers["robot"]
+        monitor = arm.heartbeat_monitor
+        with BeatWatcher(arm) as watcher:
+            probes_before = monitor.probes_sent
+            keepalives_before = arm.client.link.keepalives_seen
+            t0 = time.monotonic()
+            arm.move_to(MOVE_TARGET, speed_mm_s=17.5)  # 4 s virtual = 2 s wall at rate 2
+            move_wall_s = time.monotonic() - t0
+            probes_during_move = monitor.probes_sent - probes_before
+            assert wait_until(lambda: monitor.probes_sent >= probes_before + 2, 3.0)  # idle → CurPos probes
+        assert watcher.error is None and watcher.beats > 10
+        assert move_wall_s > LIMIT  # longer than the limit: only the keep-alives kept it alive
+        assert arm.client.link.keepalives_seen - keepalives_before >= 3
+        assert probes_during_move == 0  # never a request beside the blocking Move (it would get E_BUSY_PROC)
+        assert monitor.probe_errors == []
+        curpos = [a for a in server.requests if a[2] == bcap.ROBOT_EXECUTE]
+        assert len(curpos) >= 3  # the move's own CurPos and the idle probes, all answered
+
+
+def test_arm_that_stops_answering_is_lost_after_the_limit() -> None:
+    with sim_station() as (st, servers):
+        arm = st.devices["robot"]
+        servers["robot"].faults.drop_replies = 10**6  # executes requests, never replies
+        with BeatWatcher(arm) as watcher:
+            err = watcher.wait_for_error(6 * LIMIT)
+        assert isinstance(err, DeviceLostError), err
+        assert err.device == "robot" and err.limit_s == LIMIT and err.age_s > LIMIT and err.cause is None
+        assert err.unanswered_s is not None and err.unanswered_s > LIMIT
+        assert (f"robot: lost: no reply for {err.unanswered_s:.2f} s; last contact {err.age_s:.2f} s ago "
+                f"(limit {LIMIT:g} s)") in str(err)
+        assert "BcapTimeoutError" in str(err)  # the last probe's error is named
+        assert watcher.error_after_s is not None and watcher.error_after_s < 4 * LIMIT
+
+
+def test_arm_whose_connection_closes_mid_move_is_lost_at_once() -> None:
+    with sim_station() as (st, servers):
+        arm = st.devices["robot"]
+        servers["robot"].faults.close_mid_move = True
+        with BeatWatcher(arm) as watcher:
+            with pytest.raises(Exception, match="link closed"):
+                arm.move_to(MOVE_TARGET, speed_mm_s=17.5)
+            err = watcher.wait_for_error(2.0)
+        assert isinstance(err, DeviceLostError) and err.device == "robot"
+        assert "link failed (b-CAP link closed during Robot_Move" in str(err)
+        assert err.age_s < LIMIT  # reported from the latched failure, not from the age
+
+
+@pytest.mark.parametrize("name", ["exciter", "rotor"])  # Modbus RTU over a pty / Modbus TCP
+def test_vfd_keeps_beating_through_a_sweep_and_is_lost_when_it_stops_answering(name: str) -> None:
+    with sim_station(rate=8.0) as (st, servers):
+        axis = st.devices[name]  # left running after the sweep
+        with BeatWatcher(axis) as watcher:
+            result = axis.sweep(LinearSweep(2.0, 4.0, 12.0), update_interval_s=0.5)  # 1.5 s wall
+            assert len(result.samples) > 10
+            idle_probes = axis.heartbeat_monitor.probes_sent
+            assert wait_until(lambda: axis.heartbeat_monitor.probes_sent > idle_probes, 3.0)  # STATUS read
+            assert watcher.error is None and watcher.beats > 20
+            servers[name].inject("no_reply", count=None)
+            err = watcher.wait_for_error(6 * LIMIT)
+        assert isinstance(err, DeviceLostError), err
+        assert err.device == name and err.age_s > LIMIT
+        assert f"{name}: lost: no reply for " in str(err) and f"(limit {LIMIT:g} s)" in str(err)
+        servers[name].clear_faults()
+
+
+def test_vfd_probe_reports_a_drive_fault() -> None:
+    with sim_station(rate=4.0) as (st, servers):
+        rotor = st.devices["rotor"]
+        rotor.set_rotation_hz(1.0)
+        servers["rotor"].drive.trip(0x05)  # overload
+        with BeatWatcher(rotor) as watcher:
+            err = watcher.wait_for_error(6 * LIMIT)
+        assert isinstance(err, HeartbeatError) and not isinstance(err, DeviceLostError)
+        assert str(err) == "rotor: drive reports fault code 5 (oL: drive overload)"
+
+
+def test_generator_keeps_beating_through_a_sweep_and_is_lost_when_disconnected() -> None:
+    with sim_station(rate=4.0) as (st, servers):
+        shaker = st.devices["generator"]
+        with BeatWatcher(shaker) as watcher:
+            probes_before = shaker.heartbeat_monitor.probes_sent
+            shaker.sweep(5.0, 10.0, 8.0, amplitude_mm=0.5)  # the driver sleeps 2 s wall while it sweeps
+            assert shaker.heartbeat_monitor.probes_sent > probes_before  # *OPC? while the link was idle
+            assert shaker.heartbeat_monitor.probe_errors == []
+            assert watcher.error is None
+            servers["generator"].inject("disconnect")
+            err = watcher.wait_for_error(6 * LIMIT)
+        assert isinstance(err, DeviceLostError) and err.device == "generator"
+        assert "link failed (SCPI link closed" in str(err)
+
+
+def test_generator_that_stops_answering_is_lost_after_the_limit() -> None:
+    with sim_station(rate=4.0) as (st, servers):
+        shaker = st.devices["generator"]
+        servers["generator"].inject("no_reply")
+        with BeatWatcher(shaker) as watcher:
+            err = watcher.wait_for_error(6 * LIMIT)
+        assert isinstance(err, DeviceLostError) and err.device == "generator" and err.age_s > LIMIT
+        assert "GeneratorError: *OPC? (heartbeat): no reply" in str(err)
+
+
+def test_probe_is_never_sent_while_the_link_is_held() -> None:
+    record = ContactRecord()
+    sent: list[float] = []
+    beat = Heartbeat("dev", record, lambda: sent.append(time.monotonic()), timeout_s=0.4)
+    release = threading.Event()
+
+    def procedure_call() -> None:
+        with record.exchange():
+            release.wait(5.0)
+            record.touch()
+
+    caller = threading.Thread(target=procedure_call)
+    caller.start()
+    assert wait_until(lambda: record.busy, 2.0)
+    time.sleep(0.15)  # idle longer than the probe interval (0.1 s), but a call is in flight
+    assert beat.check() is True
+    time.sleep(0.05)
+    assert sent == [] and beat.probes_sent == 0
+    release.set()
+    caller.join()
+    time.sleep(0.15)
+    assert beat.check() is True and wait_until(lambda: len(sent) == 1, 2.0)  # idle and free: one probe
+
+
+def test_idle_link_is_probed_not_lost_silent_calls_are_not_counted_and_bad_timing_is_refused() -> None:
+    record = ContactRecord()
+    beat = Heartbeat("robot", record, lambda: None, timeout_s=0.1)
+    time.sleep(0.15)  # nobody asked for longer than the limit: not lost, a probe is due
+    assert beat.check() is True and wait_until(lambda: beat.probes_sent == 1, 2.0)
+    record.silent_calls = True  # b-CAP without WDT: a blocking call sends nothing until it ends
+    with record.exchange():
+        time.sleep(0.15)
+        assert beat.check() is True
+    record.silent_calls = False
+    with pytest.raises(ZeroDivisionError), record.exchange():
+        1 / 0  # noqa: B018 — a request that got no answer
+    time.sleep(0.15)
+    with pytest.raises(DeviceLostError, match=r"robot: lost: no reply for 0\.\d\d s; last contact "
+                                              r"0\.\d\d s ago \(limit 0\.1 s\)"):
+        beat.check()
+    record.touch()
+    assert beat.check() is True
+    record.fail("closed by the peer")
+    with pytest.raises(DeviceLostError, match=r"link failed \(closed by the peer\)"):
+        beat.check()
+    with pytest.raises(ValueError, match="heartbeat timeout_s=0: must be"):
+        Heartbeat("x", record, lambda: None, timeout_s=0)
+    with pytest.raises(ValueError, match=r"heartbeat interval_s=2\.0: must be > 0 s and below timeout_s=1"):
+        Heartbeat("x", record, lambda: None, timeout_s=1.0, interval_s=2.0)
