@@ -119,8 +119,8 @@ def run(folder: Path, paths: tuple[Path, Path], calibration: Path, seconds: floa
     print(f"  decoding (thread time)    {decode:7.2f} s = {decode / wall:5.1%} of wall "
           f"(2 threads; {decode / thread_s:5.1%} of the reading threads' time)")
     print(f"  marker extraction         {extract:7.2f} s = {extract / decode:5.2f} × decoding")
-    reading = max(res.timings_s["left_total"], res.timings_s["right_total"])
-    print(f"  after reading (timing, 3-D, spectra, report) {wall - reading:.2f} s")
+    steps = {k[5:]: v for k, v in res.timings_s.items() if k.startswith("step_")}
+    print("  steps: " + ", ".join(f"{k} {v:.2f} s" for k, v in steps.items()))
     targets = res.summary[res.summary["role"] == "target"]
     print(f"  amplitudes {targets['amplitude_mm'].round(4).tolist()} mm (truth {mt.CRANK_MM}), "
           f"frequencies {targets['frequency_hz'].round(4).tolist()} Hz (truth {mt.FREQUENCY_HZ})")

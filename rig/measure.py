@@ -27,6 +27,7 @@ A truncated or corrupt video does not stop the measurement: the frames read are 
 from __future__ import annotations
 
 import json
+import time
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -80,7 +81,7 @@ class MeasureResult:
     files: dict[str, Path]
     notes: list[str]
     problems: list[str]
-    timings_s: dict[str, float]
+    timings_s: dict[str, float]  # per camera (decode, extract, total) and per step ("step_*"), s
 
 
 def _load_json(path: Path | None, what: str, how: str) -> dict[str, Any]:
@@ -188,6 +189,7 @@ def measure_videos(videos: dict[str, str | Path], calibration: str | Path, out_d
     out.mkdir(parents=True, exist_ok=True)
     notes: list[str] = []
     problems: list[str] = []
+    stamps = [("start", time.perf_counter())]
     with ThreadPoolExecutor(max_workers=2, thread_name_prefix="measure-video") as pool:
         futures = {n: pool.submit(extract_video, p, n, opts.extract) for n, p in paths.items()}
         vos = {n: f.result() for n, f in futures.items()}
@@ -210,10 +212,12 @@ def measure_videos(videos: dict[str, str | Path], calibration: str | Path, out_d
                                "detection options (polarity, min_contrast) and the video")
     reference = next(iter(paths))
     fps = {n: vo.fps for n, vo in vos.items()}
+    stamps.append(("read_videos", time.perf_counter()))
     timing_dict = _timing({"timing": timing, "line_time_s": opts.line_time_s}, obs, cameras, fps=fps,
                           reference=reference, notes=notes)
     files["timing"] = out / "timing.json"
     files["timing"].write_text(json.dumps(timing_dict, indent=1), encoding="utf-8")
+    stamps.append(("timing", time.perf_counter()))
     try:
         prepared = {n: prepare_observations(o, timing_dict, n) for n, o in obs.items()}
         pairs, more = pair_all(prepared, cameras, reference, gate_px=opts.gate_px)
@@ -226,6 +230,7 @@ def measure_videos(videos: dict[str, str | Path], calibration: str | Path, out_d
     if tracks.empty:
         raise MeasureError("no marker track could be paired between the two videos; check that the "
                            "calibration belongs to these cameras and the timing (--timing/--estimate-timing)")
+    stamps.append(("tracks_3d", time.perf_counter()))
     clock = None
     if record is not None:
         clock = _controller_clock(record, obs[reference], 1.0 / fps[reference], notes)
@@ -249,13 +254,17 @@ def measure_videos(videos: dict[str, str | Path], calibration: str | Path, out_d
                         ("spectra", spectra)):
         files[name] = tables / f"{name}.csv"
         frame.to_csv(files[name], index=False)
+    stamps.append(("series_tables", time.perf_counter()))
     timings = {f"{n}_{k}": v for n, vo in vos.items() for k, v in vo.timings_s.items()}
+    timings.update({f"step_{name}": t - stamps[i][1] for i, (name, t) in enumerate(stamps[1:])})
     result = MeasureResult(out, tracks, displacement, summary, spectra, timing_dict, reports, files, notes,
                            problems, timings)
     if opts.make_figures:
         from rig.measure_report import write_report
 
+        t_report = time.perf_counter()
         files.update(write_report(result, {n: str(p) for n, p in paths.items()}, str(calibration)))
+        timings["step_report"] = time.perf_counter() - t_report
     meta = {"videos": {n: str(p) for n, p in paths.items()}, "calibration": str(calibration),
             "timing": str(timing) if timing else "estimated", "sync": opts.sync,
             "reference_camera": reference,

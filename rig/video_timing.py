@@ -121,8 +121,8 @@ def coarse_offset(obs_a: pd.DataFrame, obs_b: pd.DataFrame, pairs: pd.DataFrame,
 
 def estimate_video_timing(obs: dict[str, pd.DataFrame], cameras: dict[str, DLTCamera], fps: dict[str, float],
                           *, reference: str, gate_px: float = 8.0, max_offset_s: float = 600.0,
-                          min_motion_px: float = 0.5, track_gate_px: float = 25.0, max_pairs: int = 3,
-                          window_s: float = 3.0, line_time_s: float | None = None) -> TimingResult:
+                          min_motion_px: float = 0.5, track_gate_px: float = 25.0, max_pairs: int = 2,
+                          window_s: float = 1.5, line_time_s: float | None = None) -> TimingResult:
     """Timing of the other camera relative to ``reference`` from the videos' observations (module doc).
 
     ``obs``: camera → observations (``frame_index``, ``timestamp_s``, ``u_px``, ``v_px``; duplicates already
