@@ -8,7 +8,7 @@ product for all the moments — no per-pixel and (except the optional ellipse fi
 Per window, in "polarity space" (bright markers as they are, dark markers as 255 − I):
 
 * background ``bg`` = a plane fitted to the outer 2-pixel ring (pixels more than 4 robust spreads from
-  its median left out), noise ``σ`` = RMS residual of that fit;
+  its median left out), noise ``σ`` = RMS residual of that fit (:mod:`rig.stereo.markers_background`);
 * signal ``d = I − bg``; support = the 8-connected region of ``d > 3σ`` holding the marker (the centre
   pixel's region, else the strong region nearest the centre), so a neighbouring marker is ignored;
 * centroid weights ``w = d − 3σ`` on the support (background-subtracted intensity with a noise floor:
@@ -24,23 +24,23 @@ Per window, in "polarity space" (bright markers as they are, dark markers as 255
   piece missing;
 * optionally, sub-pixel edge points where ``d`` crosses contrast/2 (linear interpolation between pixel
   centres) fitted with an ellipse (``cv2.fitEllipseDirect``): its centre, and the RMS distance of the
-  points from it (a few hundredths of a pixel for a whole disc).
+  points from it (a few hundredths of a pixel for a whole disc) (:mod:`rig.stereo.markers_outline`).
 
 Coordinates: pixel centres are integers, the centre of the top-left pixel is (0, 0); u = column, v = row.
 """
 
 from __future__ import annotations
 
-import functools
-import warnings
 from dataclasses import dataclass
 
 import cv2
 import numpy as np
 
+from rig.stereo.markers_background import RING_PX, ring_background
+from rig.stereo.markers_outline import edge_points, fit_ellipses
+
 NOISE_FLOOR_K = 3.0  # support and weight threshold, in units of the window's background noise σ
-MIN_SIGMA_DN = 0.5  # floor of σ: a flat 8-bit background has zero spread but ±0.5 DN quantization
-RING_PX = 2  # width of the background ring at the window's edge
+PLATEAU_LEVEL = 0.85  # contrast = mean signal of the support pixels above this fraction of the peak
 
 
 @dataclass
@@ -71,10 +71,6 @@ class _Geometry:
 
     moments: np.ndarray  # (W², 11) float32: 1, x, y, x², xy, y², x³, x²y, xy², y³, ring's inner edge
     plane: np.ndarray  # (3, W²) float32: 1, x, y
-    ring_idx: np.ndarray  # flat indices of the background ring
-    ring_design: np.ndarray  # (P, 3): 1, x, y on the ring
-    ring_fit: np.ndarray  # (P, 3): transposed pseudo-inverse of ring_design (plain least squares)
-    ring_outer: np.ndarray  # (P, 9): the outer products of the design rows, for batched normal equations
     dist2: np.ndarray  # (W, W) squared distance from the centre
 
 
@@ -86,22 +82,15 @@ def _geometry(half_px: int) -> _Geometry:
         w = 2 * half_px + 1
         y, x = np.mgrid[-half_px : half_px + 1, -half_px : half_px + 1].astype(np.float64)
         x, y = x.ravel(), y.ravel()
-        ring = np.ones((w, w), dtype=bool)
-        ring[RING_PX:-RING_PX, RING_PX:-RING_PX] = False
         # the ring's inner edge: a marker's support, connected to the centre, reaches the ring only here
         edge = np.zeros((w, w))
         edge[[RING_PX - 1, w - RING_PX], RING_PX - 1 : w - RING_PX + 1] = 1.0
         edge[RING_PX - 1 : w - RING_PX + 1, [RING_PX - 1, w - RING_PX]] = 1.0
         moments = np.stack([np.ones_like(x), x, y, x * x, x * y, y * y, x**3, x * x * y, x * y * y, y**3,
                             edge.ravel()], 1)
-        ring_idx = np.flatnonzero(ring)
-        design = np.column_stack([np.ones(len(ring_idx)), x[ring_idx], y[ring_idx]])
-        _GEOMETRY[half_px] = _Geometry(
-            moments=moments.astype(np.float32), plane=moments[:, :3].T.astype(np.float32),
-            ring_idx=ring_idx, ring_design=design, ring_fit=np.linalg.pinv(design).T,
-            ring_outer=(design[:, :, None] * design[:, None, :]).reshape(-1, 9),
-            dist2=(x * x + y * y).reshape(w, w),
-        )
+        _GEOMETRY[half_px] = _Geometry(moments=moments.astype(np.float32),
+                                       plane=moments[:, :3].T.astype(np.float32),
+                                       dist2=(x * x + y * y).reshape(w, w))
     return _GEOMETRY[half_px]
 
 
@@ -115,9 +104,13 @@ def gather_windows(image: np.ndarray, rows: np.ndarray, cols: np.ndarray, half_p
     w = 2 * half_px + 1
     fits = height >= w and width >= w
     if fits:
-        views = np.lib.stride_tricks.as_strided(
-            image, (height - w + 1, width - w + 1, w, w), image.strides * 2, writeable=False
-        )
+        # every w×w window of the image, indexed by its top-left pixel (a read-only view, no copy)
+        shape = (height - w + 1, width - w + 1, w, w)
+        if image.flags.c_contiguous:  # the direct constructor costs a tenth of as_strided's overhead
+            views = np.ndarray(shape, np.uint8, image, 0, image.strides * 2)
+            views.flags.writeable = False
+        else:
+            views = np.lib.stride_tricks.as_strided(image, shape, image.strides * 2, writeable=False)
         if (len(rows) and rows.min() >= half_px and rows.max() < height - half_px
                 and cols.min() >= half_px and cols.max() < width - half_px):
             return views[rows - half_px, cols - half_px], None  # the usual case: all inside
@@ -135,58 +128,6 @@ def gather_windows(image: np.ndarray, rows: np.ndarray, cols: np.ndarray, half_p
     valid = np.ones(stack.shape, dtype=bool)
     valid[out] = ((r >= 0) & (r < height))[:, :, None] & ((c >= 0) & (c < width))[:, None, :]
     return stack, valid
-
-
-@functools.lru_cache(maxsize=64)
-def _rank_tables(n_win: int, n_ring: int) -> tuple[np.ndarray, np.ndarray]:
-    """Histogram offsets (K, 1) = 256·k and the running-sum ranks of the 16/50/84 % points (3K,)."""
-    win = np.arange(n_win, dtype=np.intp)[:, None]
-    ranks = (np.array([0.16, 0.5, 0.84]) * (n_ring - 1) + win * n_ring).ravel()
-    return win * 256, ranks
-
-
-def _background(ring_vals: np.ndarray, ring_valid: np.ndarray | None, geo: _Geometry):
-    """Background plane and noise of each window from its ring values (K, P).
-
-    Robust to whatever else crosses the ring (a neighbouring marker, the edge of a plate) on up to about
-    a third of it: the spread is taken from the quieter side of the median (min of p50 − p16 and
-    p84 − p50, ≈ σ for Gaussian noise), ring pixels farther than 4 such spreads from the median are left
-    out, and a plane a + b·x + c·y is fitted to the rest by least squares; σ is the RMS residual of the
-    fit. A plane, not a constant, so that a background gradient (vignetting, uneven lighting) does not
-    pull the centroid uphill. Returns (coefficients float32 (K, 3), σ float32 (K,)).
-    """
-    n_win, n_ring = ring_vals.shape
-    if ring_valid is not None:  # out-of-image ring pixels: NaN, ignored by nanpercentile (rare path)
-        vals = np.where(ring_valid, ring_vals.astype(np.float32), np.nan)
-        with warnings.catch_warnings():  # a ring wholly outside the frame: NaN, replaced just below
-            warnings.simplefilter("ignore", RuntimeWarning)
-            p16, p50, p84 = np.nanpercentile(vals, [16, 50, 84], axis=1, method="lower")
-        p16, p50, p84 = (np.nan_to_num(p, nan=0.0) for p in (p16, p50, p84))
-    else:
-        # percentiles of uint8 values from one histogram per window (faster than sorting): the windows'
-        # histograms laid end to end have one running sum, in which window k starts at k·P counts
-        offsets, ranks = _rank_tables(n_win, n_ring)
-        cum = np.bincount((ring_vals + offsets).ravel(), minlength=256 * n_win).cumsum()
-        p16, p50, p84 = (np.searchsorted(cum, ranks, side="right").reshape(n_win, 3) - offsets).T
-    reach = 4.0 * np.maximum(np.minimum(p50 - p16, p84 - p50), 1.0)
-    values = ring_vals.astype(np.float64)
-    inlier = np.abs(values - p50[:, None]) <= reach[:, None]
-    if ring_valid is not None:
-        inlier &= ring_valid
-    design = geo.ring_design
-    coef = values @ geo.ring_fit  # plain least squares, right for every window with a clean ring
-    n_inlier = inlier.sum(axis=1)
-    partial = np.nonzero(n_inlier < n_ring)[0]
-    if len(partial):
-        # weighted normal equations for the others, batched: (AᵀMA) coef = AᵀMy, M the inlier mask
-        mask = inlier[partial].astype(np.float64)
-        normal = (mask @ geo.ring_outer).reshape(len(partial), 3, 3)
-        rhs = (mask * values[partial]) @ design
-        coef[partial] = np.linalg.solve(normal + 1e-9 * np.eye(3), rhs[:, :, None])[:, :, 0]
-    resid = (values - coef @ design.T) * inlier
-    dof = np.maximum(n_inlier - 3.0, 1.0)
-    sigma = np.maximum(np.sqrt(np.einsum("ij,ij->i", resid, resid) / dof), MIN_SIGMA_DN)
-    return coef.astype(np.float32), sigma.astype(np.float32)
 
 
 def _select_support(strong: np.ndarray, d: np.ndarray, half_px: int, dist2: np.ndarray) -> np.ndarray:
@@ -241,60 +182,6 @@ def _moment_shape(raw_m: np.ndarray):
     return mx, my, roundness, skew
 
 
-def _edge_points(d: np.ndarray, level: np.ndarray):
-    """Sub-pixel crossings of ``d`` (K, W, W) through ``level`` (K,): (window index, x, y) in window px."""
-    a = d - level[:, None, None]
-    below = a < 0
-    kh, ih, jh = np.nonzero(below[:, :, :-1] != below[:, :, 1:])
-    a0, a1 = a[kh, ih, jh], a[kh, ih, jh + 1]
-    kv, iv, jv = np.nonzero(below[:, :-1, :] != below[:, 1:, :])
-    b0, b1 = a[kv, iv, jv], a[kv, iv + 1, jv]
-    k_all = np.concatenate([kh, kv])
-    x_all = np.concatenate([jh + a0 / (a0 - a1), jv.astype(np.float32)])
-    y_all = np.concatenate([ih.astype(np.float32), iv + b0 / (b0 - b1)])
-    step = np.abs(np.concatenate([a0 - a1, b0 - b1]))  # intensity step across the crossing, DN
-    order = np.argsort(k_all, kind="stable")
-    return k_all[order], x_all[order], y_all[order], step[order]
-
-
-def _fit_ellipses(k_idx: np.ndarray, x: np.ndarray, y: np.ndarray, step: np.ndarray, n: int):
-    """Ellipse fitted to each window's edge points: centre (n, 2), RMS point distance (n,), NaN if < 6
-    points, and the RMS distance that pixel noise of σ = 1 DN alone would give (n,).
-
-    A crossing interpolated between two pixels whose values differ by ``step`` moves by ≈ σ·√2/step
-    when both carry independent noise σ: mean(2/step²) is the noise term per DN² of σ.
-    """
-    centre = np.full((n, 2), np.nan)
-    axes = np.full((n, 2), np.nan)
-    angle = np.full(n, np.nan)
-    bounds = np.searchsorted(k_idx, np.arange(n + 1))
-    pts = np.stack([x, y], axis=1).astype(np.float32)
-    for i in range(n):
-        lo, hi = bounds[i], bounds[i + 1]
-        if hi - lo < 6:
-            continue
-        (cx, cy), (full_w, full_h), ang_deg = cv2.fitEllipseDirect(pts[lo:hi])
-        if np.isfinite(cx) and full_w > 0 and full_h > 0:
-            centre[i] = cx, cy
-            axes[i] = 0.5 * full_w, 0.5 * full_h
-            angle[i] = np.deg2rad(ang_deg)
-    # radial distance of every edge point from its window's ellipse, vectorized over all points
-    ok = np.isfinite(angle[k_idx])
-    kk = k_idx[ok]
-    dx, dy = x[ok] - centre[kk, 0], y[ok] - centre[kk, 1]
-    cos_a, sin_a = np.cos(angle[kk]), np.sin(angle[kk])
-    rho = np.hypot((dx * cos_a + dy * sin_a) / axes[kk, 0], (-dx * sin_a + dy * cos_a) / axes[kk, 1])
-    dist = (rho - 1.0) * np.hypot(dx, dy) / np.maximum(rho, 1e-9)
-    counts = np.bincount(kk, minlength=n)
-    sq = np.bincount(kk, weights=dist * dist, minlength=n)
-    noise = np.bincount(kk, weights=2.0 / np.maximum(step[ok], 1e-3) ** 2, minlength=n)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        fitted = np.isfinite(angle) & (counts > 0)
-        rms = np.where(fitted, np.sqrt(sq / np.maximum(counts, 1)), np.nan)
-        noise_rms = np.where(fitted, np.sqrt(noise / np.maximum(counts, 1)), np.nan)
-    return centre, rms, noise_rms
-
-
 @np.errstate(invalid="ignore", divide="ignore")
 def measure_windows(image: np.ndarray, rows: np.ndarray, cols: np.ndarray, half_px: int, *,
                     dark: bool, fit_ellipse: bool = False) -> Measured:
@@ -311,13 +198,13 @@ def measure_windows(image: np.ndarray, rows: np.ndarray, cols: np.ndarray, half_
     if dark:
         raw = np.subtract(255, raw, dtype=np.uint8)
     flat = raw.reshape(n, w * w)
-    ring_valid = None if valid is None else valid.reshape(n, -1)[:, geo.ring_idx]
-    coef, sigma = _background(flat[:, geo.ring_idx], ring_valid, geo)
-    floor = (NOISE_FLOOR_K * sigma)[:, None]
-    coef[:, :1] += floor
+    coef, sigma = ring_background(flat, None if valid is None else valid.reshape(n, -1), half_px)
+    floor = NOISE_FLOOR_K * sigma
+    shifted = coef.copy()
+    shifted[:, 0] += floor
     # signal above background plane + noise floor: > 0 on the marker's support
-    weights = np.subtract(flat, coef @ geo.plane, dtype=np.float32)
-    coef[:, :1] -= floor
+    weights = shifted @ geo.plane
+    np.subtract(flat, weights, out=weights)
     if valid is not None:
         weights *= valid.reshape(n, -1)
     grid = weights.reshape(n, w, w)
@@ -332,9 +219,9 @@ def measure_windows(image: np.ndarray, rows: np.ndarray, cols: np.ndarray, half_
     # a maximum of N noisy pixels, would be biased up by ≈ σ·√(2 ln N)); area: the integrated signal
     # above the floor over the plateau above it (exact for a flat disc, nearly so for a blurred one:
     # only its skirt below the floor, 3σ ≪ contrast, is left out)
-    top = (weights >= (0.85 * weights.max(axis=1))[:, None]).astype(np.float32)
+    top = (weights >= (PLATEAU_LEVEL * weights.max(axis=1))[:, None]).astype(np.float32)
     peak = (np.einsum("ij,ij->i", weights, top) / (top @ geo.moments[:, 0])).astype(np.float64)
-    contrast = peak + floor[:, 0]
+    contrast = peak + floor
     area = raw_m[:, 0] / peak
     contrast[empty] = np.nan
     saturated = (support & (flat == 255)).any(axis=1) if raw.max() == 255 else np.zeros(n, bool)
@@ -349,8 +236,8 @@ def measure_windows(image: np.ndarray, rows: np.ndarray, cols: np.ndarray, half_
     edge_noise = np.full(n, np.nan)
     if fit_ellipse and n:
         level = np.where(np.isfinite(contrast), 0.5 * contrast, np.inf).astype(np.float32)
-        signal = (weights + floor * support).reshape(n, w, w)  # d on the support, 0 elsewhere
-        centre, edge_rms, edge_noise = _fit_ellipses(*_edge_points(signal, level), n)
+        signal = (weights + floor[:, None] * support).reshape(n, w, w)  # d on the support, 0 elsewhere
+        centre, edge_rms, edge_noise = fit_ellipses(*edge_points(signal, level), n)
         edge_noise *= sigma
         u_e = cols + centre[:, 0] - half_px
         v_e = rows + centre[:, 1] - half_px

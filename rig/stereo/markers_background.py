@@ -1,0 +1,126 @@
+"""Background plane and noise of marker windows, fitted to each window's outer ring of pixels.
+
+The ring is the outer ``RING_PX`` pixels of a square window of ``W = 2·half_px + 1`` pixels; coordinates
+are offsets in px from the window's centre pixel. For every window the ring gives a plane
+``a + b·x + c·y`` (DN, polarity space) and the noise ``σ`` (DN), the RMS residual of the fit.
+
+Robust to whatever else crosses the ring (a neighbouring marker, the edge of a plate) on up to about a
+third of it: the spread is taken from the quieter side of the median (min of p50 − p16 and p84 − p50,
+≈ σ for Gaussian noise), ring pixels farther than 4 such spreads from the median are left out, and the
+plane is fitted to the rest by least squares. A plane, not a constant, so that a background gradient
+(vignetting, uneven lighting) does not pull the centroid uphill.
+
+Speed: the usual ring holds no outlier (its extremes lie within the 4 spreads), so the percentiles come
+from one radix sort of the uint8 ring values (min, p16, p50, p84 and max in one go) and the plain fit
+and its residual from the ring's moments (closed form, no residual pass). Only windows with outliers
+take the weighted fit, batched.
+"""
+
+from __future__ import annotations
+
+import functools
+import warnings
+from dataclasses import dataclass
+
+import numpy as np
+
+MIN_SIGMA_DN = 0.5  # floor of σ: a flat 8-bit background has zero spread but ±0.5 DN quantization
+RING_PX = 2  # width of the background ring at the window's edge
+OUTLIER_SPREADS = 4.0  # ring pixels farther than this many spreads from the median are left out
+
+
+@dataclass(frozen=True)
+class Ring:
+    """Constant arrays of the ring of one window size (cached)."""
+
+    idx: np.ndarray  # flat indices of the ring pixels in the W² window
+    design: np.ndarray  # (P, 3): 1, x, y on the ring
+    normal_inv: np.ndarray  # (3, 3): inverse of designᵀ·design (plain least squares)
+    outer: np.ndarray  # (P, 9): outer products of the design rows, for batched weighted normal equations
+    kth: np.ndarray  # ranks in the sorted ring of min, p16, p50, p84, max ("lower" percentiles)
+
+
+@functools.lru_cache(maxsize=32)
+def ring_geometry(half_px: int) -> Ring:
+    """The :class:`Ring` of windows of half size ``half_px`` (px, ≥ RING_PX + 1)."""
+    w = 2 * half_px + 1
+    y, x = np.mgrid[-half_px : half_px + 1, -half_px : half_px + 1].astype(np.float64)
+    ring = np.ones((w, w), dtype=bool)
+    ring[RING_PX:-RING_PX, RING_PX:-RING_PX] = False
+    idx = np.flatnonzero(ring)
+    design = np.column_stack([np.ones(len(idx)), x.ravel()[idx], y.ravel()[idx]])
+    n = len(idx)
+    kth = np.array([0, int(0.16 * (n - 1)), int(0.5 * (n - 1)), int(0.84 * (n - 1)), n - 1])
+    return Ring(idx=idx, design=design, normal_inv=np.linalg.inv(design.T @ design),
+                outer=(design[:, :, None] * design[:, None, :]).reshape(-1, 9), kth=kth)
+
+
+def ring_background(flat: np.ndarray, valid: np.ndarray | None, half_px: int):
+    """Background plane and noise of each window (K, W²) uint8 (``valid``: bool (K, W²) or None).
+
+    Returns (coefficients float32 (K, 3) of a + b·x + c·y in DN, DN/px, DN/px; σ float32 (K,) in DN,
+    at least MIN_SIGMA_DN). Pixels with ``valid`` False (outside the image) are ignored.
+    """
+    geo = ring_geometry(half_px)
+    vals = flat[:, geo.idx]
+    if valid is not None:
+        return _robust(vals, valid[:, geo.idx], geo)
+    lo, p16, p50, p84, hi = np.sort(vals, axis=1, kind="stable")[:, geo.kth].T.astype(np.float64)
+    reach = OUTLIER_SPREADS * np.maximum(np.minimum(p50 - p16, p84 - p50), 1.0)
+    # plain least squares from the moments of the ring values about their median: with m = Aᵀ(y − p50),
+    # coef = N⁻¹m (+ p50 on the constant) and the residual sum of squares is |y − p50|² − coef·m
+    centred = vals - p50[:, None]
+    moments = centred @ geo.design
+    coef = moments @ geo.normal_inv
+    rss = np.einsum("ij,ij->i", centred, centred) - np.einsum("ij,ij->i", coef, moments)
+    coef[:, 0] += p50
+    sigma = np.maximum(np.sqrt(np.maximum(rss, 0.0) / (len(geo.idx) - 3.0)), MIN_SIGMA_DN)
+    coef, sigma = coef.astype(np.float32), sigma.astype(np.float32)
+    outliers = np.nonzero((hi - p50 > reach) | (p50 - lo > reach))[0]
+    if len(outliers):
+        coef[outliers], sigma[outliers] = _robust(vals[outliers], None, geo)
+    return coef, sigma
+
+
+@functools.lru_cache(maxsize=64)
+def _rank_tables(n_win: int, n_ring: int) -> tuple[np.ndarray, np.ndarray]:
+    """Histogram offsets (K, 1) = 256·k and the running-sum ranks of the 16/50/84 % points (3K,)."""
+    win = np.arange(n_win, dtype=np.intp)[:, None]
+    ranks = (np.array([0.16, 0.5, 0.84]) * (n_ring - 1) + win * n_ring).ravel()
+    return win * 256, ranks
+
+
+def _robust(ring_vals: np.ndarray, ring_valid: np.ndarray | None, geo: Ring):
+    """The general fit (outliers left out, invalid pixels ignored) of ring values (K, P) uint8."""
+    n_win, n_ring = ring_vals.shape
+    if ring_valid is not None:  # out-of-image ring pixels: NaN, ignored by nanpercentile (rare path)
+        vals = np.where(ring_valid, ring_vals.astype(np.float32), np.nan)
+        with warnings.catch_warnings():  # a ring wholly outside the frame: NaN, replaced just below
+            warnings.simplefilter("ignore", RuntimeWarning)
+            p16, p50, p84 = np.nanpercentile(vals, [16, 50, 84], axis=1, method="lower")
+        p16, p50, p84 = (np.nan_to_num(p, nan=0.0) for p in (p16, p50, p84))
+    else:
+        # percentiles of uint8 values from one histogram per window: the windows' histograms laid end
+        # to end have one running sum, in which window k starts at k·P counts
+        offsets, ranks = _rank_tables(n_win, n_ring)
+        cum = np.bincount((ring_vals + offsets).ravel(), minlength=256 * n_win).cumsum()
+        p16, p50, p84 = (np.searchsorted(cum, ranks, side="right").reshape(n_win, 3) - offsets).T
+    reach = OUTLIER_SPREADS * np.maximum(np.minimum(p50 - p16, p84 - p50), 1.0)
+    values = ring_vals.astype(np.float64)
+    inlier = np.abs(values - p50[:, None]) <= reach[:, None]
+    if ring_valid is not None:
+        inlier &= ring_valid
+    design = geo.design
+    coef = values @ (design @ geo.normal_inv)  # plain least squares, right for a clean ring
+    n_inlier = inlier.sum(axis=1)
+    partial = np.nonzero(n_inlier < n_ring)[0]
+    if len(partial):
+        # weighted normal equations for the others, batched: (AᵀMA) coef = AᵀMy, M the inlier mask
+        mask = inlier[partial].astype(np.float64)
+        normal = (mask @ geo.outer).reshape(len(partial), 3, 3)
+        rhs = (mask * values[partial]) @ design
+        coef[partial] = np.linalg.solve(normal + 1e-9 * np.eye(3), rhs[:, :, None])[:, :, 0]
+    resid = (values - coef @ design.T) * inlier
+    dof = np.maximum(n_inlier - 3.0, 1.0)
+    sigma = np.maximum(np.sqrt(np.einsum("ij,ij->i", resid, resid) / dof), MIN_SIGMA_DN)
+    return coef.astype(np.float32), sigma.astype(np.float32)
