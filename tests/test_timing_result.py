@@ -75,5 +75,10 @@ def test_from_dict_names_what_is_missing():
         TimingResult.from_dict(
             {"reference_camera": "l", "offset_s": {"l": 0.0}, "method": "x", "drift_ppm": {"l": "fast"}}
         )
+    with pytest.raises(InputArrayError, match=r"uncertainty must map quantity → \{camera"):
+        TimingResult.from_dict(
+            {"reference_camera": "l", "offset_s": {"l": 0.0}, "method": "x",
+             "uncertainty": {"offset_s": 2e-5}}
+        )
     with pytest.raises(InputArrayError, match="same shape"):
         corrected_times(np.zeros(3), np.zeros(4))

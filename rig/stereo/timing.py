@@ -127,7 +127,13 @@ class TimingResult:
         unc_raw = d.get("uncertainty") or {}
         if not isinstance(unc_raw, dict):
             raise InputArrayError(f"timing dict: uncertainty must be a dict, got {type(unc_raw).__name__}")
-        unc = {str(k): {str(c): float(x) for c, x in v.items()} for k, v in unc_raw.items()}
+        try:
+            unc = {str(k): {str(c): float(x) for c, x in v.items()} for k, v in unc_raw.items()}
+        except (TypeError, ValueError, AttributeError) as exc:
+            raise InputArrayError(
+                "timing dict: uncertainty must map quantity → {camera: standard uncertainty}, e.g. "
+                f'{{"offset_s": {{"right": 2e-5}}}}: {exc!r}'
+            ) from exc
         return cls(
             ref,
             offset,
