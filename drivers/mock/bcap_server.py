@@ -168,6 +168,7 @@ class _Session:
                     next_keepalive += wdt_s or 0.0
                 if self._stop.wait(min(0.01, max(0.0, next_keepalive - now))):
                     return
+            self._executing = None  # before the reply: the client may send its next request at once
             self._reply(packet, code, args)
         except EOFError:
             self.stop()

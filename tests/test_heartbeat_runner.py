@@ -1,0 +1,143 @@
+"""The runner's watchdog with the real device heartbeats, on the simulated station (real drivers over
+loopback/ptys to the protocol mocks, paced clock): a healthy run keeps beating through a long move; a mock
+that stops answering or closes its connection trips the interlock → ``interlock`` document naming the
+device and the reason, exit 3, and the safe state of every other device attempted."""
+
+from __future__ import annotations
+
+import contextlib
+import re
+import sys
+import threading
+import time
+import types
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from heartbeat_support import HEARTBEAT_TIMEOUT_S, heartbeat_config, mock_servers
+
+from rig.record import load_run
+from rig.runner import Runner
+from rig.station import open_station
+
+MOVE_TARGET = [420.0, 0.0, 300.0, 90.0, 0.0, 90.0]
+
+
+def _run(tmp_path: Path, body: Callable[[Any, dict[str, Any]], None],
+         **settings: Any) -> tuple[Any, Any, dict[str, Any]]:
+    """Run ``body(ctx, servers)`` as the one step of a procedure on the simulated station."""
+    seen: dict[str, Any] = {}
+
+    @contextlib.contextmanager
+    def factory(config: Any, clock: Any):
+        with open_station(config, clock) as station:
+            seen["station"], seen["servers"] = station, mock_servers(station)
+            yield station
+
+    mod = types.ModuleType("heartbeat_probe")
+    mod.NAME = "heartbeat_probe"
+
+    @dataclass(frozen=True)
+    class Parameters:
+        pass
+
+    def run(ctx: Any, params: Any) -> dict[str, Any]:
+        with ctx.step("work"):
+            body(ctx, seen["servers"])
+        return {"passed": True, "summary": "done"}
+
+    mod.Parameters, mod.run = Parameters, run
+    runner = Runner(mod, config=heartbeat_config(**settings), station_factory=factory,
+                    runs_dir=tmp_path / "runs", watchdog_period_s=0.05)
+    out = runner.run({})
+    return out, load_run(out.run_dir), seen
+
+
+def _hold(ctx: Any, seconds: float) -> None:
+    """Wait with checkpoints (wall time), as a procedure holding a vibration does."""
+    end = time.monotonic() + seconds
+    while time.monotonic() < end:
+        ctx.checkpoint()
+        time.sleep(0.02)
+
+
+def _done(run: Any) -> set[str]:
+    done = (m for m in run.logs["message"] if re.fullmatch(r"\w+: (safe_state|halt)\(\) done", m))
+    return {m.split(":")[0] for m in done}
+
+
+def test_healthy_run_keeps_beating_through_a_long_move_and_an_idle_hold(tmp_path: Path) -> None:
+    def body(ctx: Any, servers: dict[str, Any]) -> None:
+        ctx.device("robot").move_to(MOVE_TARGET, speed_mm_s=17.5)  # 2 s wall: only keep-alives for it
+        ctx.device("exciter").set_frequency(2.0)
+        _hold(ctx, 2.5 * HEARTBEAT_TIMEOUT_S)  # every device idle: probed, answering
+
+    out, run, seen = _run(tmp_path, body)
+    assert out.exit_code == 0, out.reason
+    assert run.interlocks.empty and run.exit_status == "success"
+    devices = seen["station"].devices
+    for name in ("robot", "exciter", "rotor", "generator"):
+        monitor = devices[name].heartbeat_monitor
+        assert monitor.probes_sent >= 2 and monitor.probe_errors == [], name
+    assert devices["robot"].client.link.keepalives_seen >= 3
+
+
+def test_exciter_that_stops_answering_trips_the_interlock_and_the_rest_is_made_safe(tmp_path: Path) -> None:
+    def body(ctx: Any, servers: dict[str, Any]) -> None:
+        ctx.device("exciter").set_frequency(2.0)
+        servers["exciter"].inject("no_reply", count=None)  # executes every request, answers none
+        _hold(ctx, 20.0)
+
+    t0 = time.monotonic()
+    out, run, seen = _run(tmp_path, body)
+    assert out.exit_code == 3 and out.outcome == "interlock", out.reason
+    assert time.monotonic() - t0 < 30.0
+    assert run.interlocks["device"].tolist() == ["exciter"]
+    reason = run.interlocks["reason"].iloc[0]
+    assert reason.startswith("lost heartbeat: DeviceLostError: exciter: lost: no reply for ")
+    assert f"(limit {HEARTBEAT_TIMEOUT_S:g} s)" in reason and "last contact" in reason
+    assert run.exit_status == "abort" and "interlock on exciter" in run.stop["reason"]
+    assert "work" not in run.steps_completed
+    assert {"robot", "rotor", "generator"} <= _done(run)  # every other device made safe
+    failures = run.stop["safe_state_failures"]
+    assert [f["device"] for f in failures] == ["exciter"]  # attempted, but nothing answers
+    world, clock = seen["station"].world, seen["station"].clock
+    assert world.exciter.frequency_hz(clock.now_s() + 60.0) == 0.0  # the unanswered stop still reached it
+
+
+def test_arm_connection_closed_mid_move_is_the_interlock(tmp_path: Path) -> None:
+    def body(ctx: Any, servers: dict[str, Any]) -> None:
+        ctx.device("exciter").set_frequency(2.0)
+        servers["robot"].faults.close_mid_move = True
+        ctx.device("robot").move_to(MOVE_TARGET, speed_mm_s=17.5)
+
+    out, run, seen = _run(tmp_path, body)
+    assert out.exit_code == 3 and out.outcome == "interlock", out.reason
+    assert run.interlocks["device"].tolist() == ["robot"]
+    reason = run.interlocks["reason"].iloc[0]
+    assert "robot: lost: link failed (b-CAP link closed during Robot_Move" in reason
+    assert {"exciter", "rotor", "generator"} <= _done(run)
+    world, clock = seen["station"].world, seen["station"].clock
+    assert world.exciter.frequency_hz(clock.now_s() + 60.0) == 0.0
+
+
+def test_generator_disconnected_mid_sweep_is_the_interlock(tmp_path: Path) -> None:
+    def body(ctx: Any, servers: dict[str, Any]) -> None:
+        timer = threading.Timer(0.5, servers["generator"].inject, args=("disconnect",))
+        timer.start()
+        try:
+            ctx.device("generator").sweep(5.0, 10.0, 40.0, amplitude_mm=0.5)  # 10 s wall at rate 4
+        finally:
+            timer.cancel()
+
+    t0 = time.monotonic()
+    out, run, _ = _run(tmp_path, body, rate=4.0)
+    assert out.exit_code == 3 and out.outcome == "interlock", out.reason
+    assert time.monotonic() - t0 < 9.0  # interrupted, not waited out
+    assert run.interlocks["device"].tolist() == ["generator"]
+    assert "generator: lost: link failed (SCPI link closed" in run.interlocks["reason"].iloc[0]
+    assert {"robot", "exciter", "rotor"} <= _done(run)
