@@ -1,6 +1,6 @@
 """Render a few frames of every target of the simulated rig to PNG files under examples/out/.
 
-    .venv/bin/python examples/render_targets.py
+    .venv/bin/python examples/render_targets.py [OUT_DIR]
 
 For each scene: the full left-camera frame (markers moving as the procedures move them) and a zoomed
 crop around the mounted target. Extra files show the rolling shutter (a large disc on the 10 Hz rotor,
@@ -9,6 +9,7 @@ rolling vs near-global shutter: the rolling one is sheared) and exposure blur (1
 
 from __future__ import annotations
 
+import sys
 from pathlib import Path
 
 import cv2
@@ -29,10 +30,11 @@ def _crop(img: np.ndarray, centre_uv: np.ndarray, half_px: int, zoom: int) -> np
     return cv2.resize(patch, None, fx=zoom, fy=zoom, interpolation=cv2.INTER_NEAREST)
 
 
-def _save(name: str, img: np.ndarray) -> None:
-    OUT.mkdir(parents=True, exist_ok=True)
-    cv2.imwrite(str(OUT / f"{name}.png"), img)
-    print(f"wrote {OUT / name}.png")
+def _save(out: Path, name: str, img: np.ndarray) -> None:
+    out.mkdir(parents=True, exist_ok=True)
+    if not cv2.imwrite(str(out / f"{name}.png"), img):
+        raise OSError(f"could not write {out / name}.png")
+    print(f"wrote {out / name}.png")
 
 
 def _world() -> World:
@@ -51,7 +53,7 @@ def _world() -> World:
     return world
 
 
-def main() -> None:
+def main(out: Path = OUT) -> None:
     world = _world()
     spec = default_camera_specs()[0]
     cam = make_camera(spec, world)
@@ -61,11 +63,11 @@ def main() -> None:
         for n in range(2):
             i = cam.first_frame_index_at_or_after(t) + n
             img = cam.render(i)
-            _save(f"{scene}_frame{n}", img)
+            _save(out, f"{scene}_frame{n}", img)
             ids = world.marker_ids_at(cam.frame_start_true_s(i))
             target = [m for m in ids if not m.startswith("ref")]
             uv = cam.project(world.positions(target, [cam.row_time_true_s(i, 540)])[:, 0])
-            _save(f"{scene}_frame{n}_zoom", _crop(img, uv.mean(axis=0), 200 if len(target) > 1 else 60,
+            _save(out, f"{scene}_frame{n}_zoom", _crop(img, uv.mean(axis=0), 200 if len(target) > 1 else 60,
                                                   2 if len(target) > 1 else 6))
     # rolling shutter: a large (50 mm) disc on the rotor at 10 Hz, rows read over 90 % of the frame period
     # (default) vs an (almost) global shutter: the rolling-shutter disc is sheared, as in the paper's Fig. 1
@@ -77,14 +79,14 @@ def main() -> None:
         i = c.first_frame_index_at_or_after(0.5)
         img = c.render(i)
         uv = c.project(big.positions(["rotor"], [c.row_time_true_s(i, 540)])[:, 0])[0]
-        _save(f"rotor_big_disc_{label}_zoom", _crop(img, uv, 60, 6))
+        _save(out, f"rotor_big_disc_{label}_zoom", _crop(img, uv, 60, 6))
     # exposure blur: the 10 Hz rotor marker at 1/250 s (an arc) vs the default 1/6000 s
     for label, exposure_s in (("1_250s", 1 / 250), ("1_6000s", 1 / 6000)):
         c = make_camera(spec, world, exposure_s=exposure_s)
         i = c.first_frame_index_at_or_after(10.5)
         centre = c.project(np.array([[420.0, 0.0, 300.0]]))[0]
-        _save(f"rotor_exposure_{label}_zoom", _crop(c.render(i), centre, 130, 3))
+        _save(out, f"rotor_exposure_{label}_zoom", _crop(c.render(i), centre, 130, 3))
 
 
 if __name__ == "__main__":
-    main()
+    main(Path(sys.argv[1]) if len(sys.argv) > 1 else OUT)

@@ -18,7 +18,8 @@ FORBIDDEN: dict[str, tuple[str, ...]] = {
     "procedures": ("rig.cli",),
     "rig": ("procedures", "reports"),  # orchestration is below procedures and reports (cli excepted)
 }
-EXEMPT = {"rig/cli.py"}  # the command layer sits on top of everything
+EXEMPT = {"rig/cli.py"}
+PROJECT_PACKAGES = {"rig", "drivers", "procedures", "reports"}  # the command layer sits on top of everything
 
 
 def _imported_modules(path: Path) -> set[str]:
@@ -30,6 +31,17 @@ def _imported_modules(path: Path) -> set[str]:
         elif isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
             names.add(node.module)
     return names
+
+
+def test_stereo_core_imports_nothing_of_the_project_but_itself() -> None:
+    """rig.stereo is the math layer: pure functions on arrays, no import of any other project module."""
+    found = []
+    for path in sorted((ROOT / "rig" / "stereo").rglob("*.py")):
+        for name in _imported_modules(path):
+            top = name.split(".")[0]
+            if top in PROJECT_PACKAGES and not (name == "rig.stereo" or name.startswith("rig.stereo.")):
+                found.append(f"{path.relative_to(ROOT).as_posix()} imports {name}")
+    assert found == []
 
 
 def _violations(prefix: str, forbidden: tuple[str, ...]) -> list[str]:
