@@ -58,7 +58,7 @@ def plate_poses(plate: Any, slides_mm: tuple[float, ...]) -> list[list[float]]:
     return [np.r_[start[:3] + s * z_tool, start[3:]].tolist() for s in slides_mm]
 
 
-def _control_points(ctx: Any, positions: list[dict[str, Any]], camera: str, plate: Any,
+def _control_points(positions: list[dict[str, Any]], camera: str, plate: Any,
                     min_frames: int) -> tuple[np.ndarray, np.ndarray, list[float]]:
     """(xyz_mm, uv_px, grid residual per position) of one camera over all positions."""
     means = [mean_positions(p["observations"][camera], min_frames=min_frames) for p in positions]
@@ -113,7 +113,7 @@ def calibrate_cameras(ctx: Any, params: Parameters) -> dict[str, Any]:
     cameras, grid = {}, {}
     min_frames = max(1, params.frames_per_position // 2)
     for name in ctx.station.cameras:
-        xyz, uv, resid = _control_points(ctx, positions, name, plate, min_frames)
+        xyz, uv, resid = _control_points(positions, name, plate, min_frames)
         cam = calibrate_dlt(xyz, uv, refine=params.refine, distortion=DISTORTION[params.distortion],
                             image_size=tuple(ctx.config.cameras[name].resolution_px))
         cameras[name] = cam.to_dict()
