@@ -184,9 +184,13 @@ def cmd_check(args: argparse.Namespace) -> int:
 
     clock = make_clock(config.station.clock == "virtual", rate=config.sim.rate if config.sim else None)
     failures = 0
-    with open_station(config, clock) as station:
-        for name, device in station.devices.items():
-            beat = getattr(device, "heartbeat", None)
+    with open_station(config, clock, keep_going=True) as station:  # each device tried on its own
+        for name in [*devices, *(n for n in station.unreachable if n not in devices)]:
+            if name in station.unreachable:
+                print(f"  {name:10s} NOT REACHABLE: {station.unreachable[name]}")
+                failures += 1
+                continue
+            beat = getattr(station.devices[name], "heartbeat", None)
             try:
                 ok = beat() if callable(beat) else True
                 print(f"  {name:10s} {'reachable' if ok is not False else 'NOT REACHABLE'}")

@@ -56,6 +56,7 @@ class Station:
     devices: dict[str, Any] = field(default_factory=dict)
     cameras: dict[str, Any] = field(default_factory=dict)
     addresses: dict[str, str] = field(default_factory=dict)  # device → address actually connected
+    unreachable: dict[str, str] = field(default_factory=dict)  # device → why (``keep_going`` only)
     _closers: list[tuple[str, Callable[[], None]]] = field(default_factory=list, repr=False)
     _liveness: list[tuple[str, Callable[[], str | None]]] = field(default_factory=list, repr=False)
 
@@ -305,8 +306,12 @@ def _build_cameras(st: Station, cfg: RigConfig) -> None:
 
 
 @contextlib.contextmanager
-def open_station(config: RigConfig, clock: Any) -> Iterator[Station]:
-    """Build every configured device (starting mock servers on a simulated station); always tear down."""
+def open_station(config: RigConfig, clock: Any, *, keep_going: bool = False) -> Iterator[Station]:
+    """Build every configured device (starting mock servers on a simulated station); always tear down.
+
+    A device that cannot be built or reached raises :class:`StationError`, unless ``keep_going`` (what
+    ``rig check`` uses): then every device is tried independently, and those that failed are left out of
+    ``devices`` and listed in ``unreachable`` (name → the reason, naming the address)."""
     station = Station(config, clock)
     try:
         if config.station.simulated:
@@ -322,13 +327,23 @@ def open_station(config: RigConfig, clock: Any) -> Iterator[Station]:
             if getattr(config.devices, name) is None:
                 continue
             try:
-                build(station, config)
-            except (ConfigError, StationError):
+                try:
+                    build(station, config)
+                except (ConfigError, StationError):
+                    raise
+                except Exception as exc:
+                    raise StationError(f"{name} at {getattr(config.devices, name).address}: "
+                                       f"{type(exc).__name__}: {exc}") from exc
+            except StationError as exc:
+                if not keep_going:
+                    raise
+                station.unreachable[name] = str(exc)
+        try:
+            _build_cameras(station, config)
+        except StationError as exc:
+            if not keep_going:
                 raise
-            except Exception as exc:
-                raise StationError(f"{name} at {getattr(config.devices, name).address}: "
-                                   f"{type(exc).__name__}: {exc}") from exc
-        _build_cameras(station, config)
+            station.unreachable["cameras"] = str(exc)
         yield station
     finally:
         station.close()
