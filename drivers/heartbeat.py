@@ -181,6 +181,19 @@ class Heartbeat:
             threading.Thread(target=self._probe, name=f"heartbeat-{self.device}", daemon=True).start()
         return True
 
+    def verify(self) -> bool:
+        """One probe now, in the caller's thread (waiting for the link lock): for ``rig check``, which
+        must know the device answers rather than that nothing is pending. Raises like :meth:`check`."""
+        with self.record.lock:
+            try:
+                problem = self.probe()
+            except Exception as exc:
+                raise DeviceLostError(self.device, self.record.age_s(), self.timeout_s, self.record.failure,
+                                      detail=f"probe failed: {type(exc).__name__}: {exc}") from exc
+        if isinstance(problem, str) and problem:
+            raise HeartbeatError(self.device, problem)
+        return self.check()
+
     def _probe(self) -> None:
         try:
             if not self.record.lock.acquire(blocking=False):

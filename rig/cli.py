@@ -19,6 +19,7 @@ from __future__ import annotations
 import argparse
 import importlib
 import importlib.util
+import inspect
 import logging
 import pkgutil
 import sys
@@ -192,7 +193,9 @@ def cmd_check(args: argparse.Namespace) -> int:
                 continue
             beat = getattr(station.devices[name], "heartbeat", None)
             try:
-                ok = beat() if callable(beat) else True
+                # the drivers' heartbeat(wait=True) probes now (their plain heartbeat() only reports)
+                waits = callable(beat) and "wait" in inspect.signature(beat).parameters
+                ok = (beat(wait=True) if waits else beat()) if callable(beat) else True
                 print(f"  {name:10s} {'reachable' if ok is not False else 'NOT REACHABLE'}")
                 failures += ok is False
             except Exception as exc:

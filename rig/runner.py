@@ -17,7 +17,8 @@
    then the rest; each attempted; each failure recorded), then write **stop** (``exit_status`` success /
    abort / fail, ``reason``, ``outcome``, ``exit_code``, ``verdict``) and close the record and station.
 
-An interlock trip (watchdog, or a driver refusing a command beyond a limit) writes an ``interlock``
+Heartbeats and the station's interlock checks run at every checkpoint and in the watchdog. An
+interlock trip (watchdog, checkpoint, or a driver refusing a command beyond a limit) writes an ``interlock``
 document, interrupts the procedure at once (SIGUSR1 → :class:`InterlockTripped` in the main thread when
 the runner runs there; else at the next checkpoint) and ends the run with exit code 3. Motion is never
 resumed after a trip. Logs go to ``<run_dir>/rig.log``.
@@ -46,6 +47,7 @@ from rig.safety import (
     EXIT_BAD_INPUT,
     EXIT_FAULT,
     Watchdog,
+    check_heartbeats,
     classify,
     format_exception,
     make_safe,
@@ -135,6 +137,10 @@ class Runner:
         c = self._control
         if c.interlock is not None:
             raise InterlockTripped(*c.interlock)
+        lost = check_heartbeats(dict(getattr(station, "devices", {})))
+        if lost is not None:
+            self.trip(*lost)
+            raise InterlockTripped(*lost)
         check = getattr(station, "check_interlocks", None)
         if callable(check):
             trips = check()

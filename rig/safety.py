@@ -10,8 +10,9 @@ Device duck-typing (what the runner calls, when present):
 - ``safe_state()`` — the device's own "make safe" (exciter/rotor: output off, frequency 0; generator:
   output off; arm: halt and release). Preferred.
 - ``stop()`` / ``halt()`` — used when there is no ``safe_state()``.
-- ``heartbeat()`` — called by the watchdog thread every ``period_s``; must be thread-safe and return
-  within about a second; returns False or raises when the device is lost.
+- ``heartbeat()`` — called by the watchdog thread every ``period_s`` and at every checkpoint; must be
+  thread-safe and return within about a second; returns False or raises when the device is lost (the
+  drivers' heartbeats return at once: see ``drivers/heartbeat.py``).
 
 The shutdown order is: vibration sources (exciter, rotor, generator/shaker) first, then the arm, then
 everything else (cameras…). Every device is attempted even if an earlier one fails; each failure is
@@ -121,6 +122,22 @@ def format_exception(exc: BaseException) -> str:
     return "".join(traceback.format_exception(type(exc), exc, exc.__traceback__))
 
 
+def check_heartbeats(devices: dict[str, Any]) -> tuple[str, str] | None:
+    """Call every device's ``heartbeat()``; the first (device, reason) lost, or None. The drivers' own
+    heartbeats do no I/O in the caller (``drivers/heartbeat.py``), so checkpoints may call this too."""
+    for name, dev in devices.items():
+        beat = getattr(dev, "heartbeat", None)
+        if not callable(beat):
+            continue
+        try:
+            ok = beat()
+        except Exception as exc:
+            return name, f"lost heartbeat: {type(exc).__name__}: {exc}"
+        if ok is False:
+            return name, "lost heartbeat: device reports the link is down"
+    return None
+
+
 class Watchdog:
     """Background thread: every ``period_s`` wall seconds, call each device's ``heartbeat()`` and the
     ``extra_checks`` (returning ``[(device, reason)]``). The first failure calls ``on_trip(device, reason)``
@@ -149,13 +166,9 @@ class Watchdog:
 
     def poll_once(self) -> tuple[str, str] | None:
         """One round of checks; returns the first (device, reason) that failed, or None."""
-        for name, dev in self._devices.items():
-            try:
-                ok = dev.heartbeat()
-            except Exception as exc:
-                return name, f"lost heartbeat: {type(exc).__name__}: {exc}"
-            if ok is False:
-                return name, "lost heartbeat: device reports the link is down"
+        lost = check_heartbeats(self._devices)
+        if lost is not None:
+            return lost
         if self._extra is not None:
             trips = self._extra()
             if trips:

@@ -171,3 +171,14 @@ def test_idle_link_is_probed_not_lost_silent_calls_are_not_counted_and_bad_timin
         Heartbeat("x", record, lambda: None, timeout_s=0)
     with pytest.raises(ValueError, match=r"heartbeat interval_s=2\.0: must be > 0 s and below timeout_s=1"):
         Heartbeat("x", record, lambda: None, timeout_s=1.0, interval_s=2.0)
+
+
+def test_wait_probes_now_for_rig_check() -> None:
+    with sim_station(rate=8.0) as (st, servers):
+        for name in ("robot", "exciter", "rotor", "generator"):
+            assert st.devices[name].heartbeat(wait=True) is True
+        servers["rotor"].inject("no_reply", count=None)
+        with pytest.raises(DeviceLostError, match=r"rotor: lost: no reply; last contact .* \(limit 1 s\) "
+                                                  r"\(probe failed: VfdCommunicationError: heartbeat"):
+            st.devices["rotor"].heartbeat(wait=True)
+        servers["rotor"].clear_faults()

@@ -18,8 +18,12 @@ from typing import Any
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
+import pytest
 from heartbeat_support import HEARTBEAT_TIMEOUT_S, heartbeat_config, mock_servers
+from runner_dummy import station_factory
 
+from rig.cli import main as cli_main
+from rig.config import ConfigError, default_config, override
 from rig.record import load_run
 from rig.runner import Runner
 from rig.station import open_station
@@ -141,3 +145,41 @@ def test_generator_disconnected_mid_sweep_is_the_interlock(tmp_path: Path) -> No
     assert run.interlocks["device"].tolist() == ["generator"]
     assert "generator: lost: link failed (SCPI link closed" in run.interlocks["reason"].iloc[0]
     assert {"robot", "exciter", "rotor"} <= _done(run)
+
+
+def test_every_checkpoint_checks_the_heartbeats_not_only_the_watchdog(tmp_path: Path) -> None:
+    calls = tmp_path / "calls.txt"
+
+    def body(ctx: Any, servers: dict[str, Any]) -> None:
+        ctx.station.devices["rotor"].alive = False
+        ctx.checkpoint()
+        raise AssertionError("the checkpoint did not trip")
+
+    mod = types.ModuleType("checkpoint_probe")
+    mod.NAME = "checkpoint_probe"
+
+    @dataclass(frozen=True)
+    class Parameters:
+        pass
+
+    mod.Parameters = Parameters
+    mod.run = lambda ctx, params: body(ctx, {})
+    runner = Runner(mod, config=default_config(), station_factory=station_factory(calls),
+                    runs_dir=tmp_path / "runs", watchdog_period_s=600.0)  # the watchdog never polls
+    out = runner.run({})
+    assert out.exit_code == 3 and out.outcome == "interlock"
+    run = load_run(out.run_dir)
+    assert run.interlocks["device"].tolist() == ["rotor"]
+    assert run.interlocks["reason"].iloc[0] == "lost heartbeat: device reports the link is down"
+
+
+def test_heartbeat_timeout_is_validated_and_documented(capsys: Any) -> None:
+    with pytest.raises(ConfigError, match=r"station\.heartbeat_timeout_s: 0\.1 is out of range; "
+                                          r"allowed: 0\.5 ≤ value ≤ 60"):
+        override(default_config(), "station.heartbeat_timeout_s", 0.1)
+    with pytest.raises(ConfigError, match=r"station\.heartbeat_timeout_s: 'fast' has the wrong type"):
+        override(default_config(), "station.heartbeat_timeout_s", "fast")
+    assert default_config().station.heartbeat_timeout_s == 2.0
+    assert cli_main(["check", "--schema"]) == 0
+    out = capsys.readouterr().out
+    assert "station.heartbeat_timeout_s: a number = 2.0  [0.5 ≤ value ≤ 60]\n    Wall seconds without" in out

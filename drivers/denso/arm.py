@@ -278,8 +278,9 @@ class DensoArm:
         self.client.halt()
 
     # ---------------------------------------------------------------------------------- heartbeat
-    def heartbeat(self) -> bool:
-        """Watchdog probe (thread-safe, no I/O in the caller's thread, returns at once).
+    def heartbeat(self, *, wait: bool = False) -> bool:
+        """Watchdog probe (thread-safe, no I/O in the caller's thread, returns at once; ``wait=True``
+        probes now in the caller's thread instead, for ``rig check``).
 
         Raises :class:`~drivers.heartbeat.DeviceLostError` naming the device, the age of the last packet
         from the controller and the limit, when the link was closed or nothing (not even an S_EXECUTING
@@ -287,7 +288,7 @@ class DensoArm:
         for a quarter of that, one ``CurPos`` is sent from a helper thread — only while no call is in
         flight (a request during a blocking Move would get E_BUSY_PROC, bcap.md §10).
         """
-        return self.heartbeat_monitor.check()
+        return self.heartbeat_monitor.verify() if wait else self.heartbeat_monitor.check()
 
     def _probe(self) -> None:
         client, link = self.client, self.client.link

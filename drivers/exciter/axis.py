@@ -216,8 +216,9 @@ class VfdAxis:
         self._setpoint_hz = 0.0
         self.wait_until_reached(0.0, fault_is_error=False)
 
-    def heartbeat(self) -> bool:
-        """Watchdog probe (thread-safe, no I/O in the caller's thread, returns at once).
+    def heartbeat(self, *, wait: bool = False) -> bool:
+        """Watchdog probe (thread-safe, no I/O in the caller's thread, returns at once; ``wait=True``
+        probes now in the caller's thread instead, for ``rig check``).
 
         Raises :class:`~drivers.heartbeat.DeviceLostError` naming the device, the age of the drive's last
         reply and the limit when nothing came back for ``heartbeat_timeout_s`` (every reply to the
@@ -225,7 +226,7 @@ class VfdAxis:
         probe found a drive fault. After a quarter of the timeout without traffic, one STATUS read
         (FAULT + STATUS, 0x2100..0x2101 on Delta) is sent from a helper thread under the line lock.
         The stop after a loss is the runner's (it makes every device safe at once)."""
-        return self.heartbeat_monitor.check()
+        return self.heartbeat_monitor.verify() if wait else self.heartbeat_monitor.check()
 
     def _stop_quietly(self) -> None:
         with contextlib.suppress(VfdError):

@@ -280,14 +280,15 @@ class Shaker:
         except GeneratorError:
             self.abort()
 
-    def heartbeat(self) -> bool:
-        """Watchdog probe (thread-safe, no I/O in the caller's thread, returns at once).
+    def heartbeat(self, *, wait: bool = False) -> bool:
+        """Watchdog probe (thread-safe, no I/O in the caller's thread, returns at once; ``wait=True``
+        probes now in the caller's thread instead, for ``rig check``).
 
         Raises :class:`~drivers.heartbeat.DeviceLostError` naming the device, the age of the generator's
         last reply line and the limit when the link closed or nothing came back for
         ``heartbeat_timeout_s`` (every reply to the procedure's commands counts). After a quarter of
         that without traffic, one ``*OPC?`` is sent from a helper thread under the generator's lock."""
-        return self.heartbeat_monitor.check()
+        return self.heartbeat_monitor.verify() if wait else self.heartbeat_monitor.check()
 
     def _probe(self) -> None:
         self.generator.probe(min(self.generator.timeout_s, self.heartbeat_monitor.timeout_s / 2.0))
