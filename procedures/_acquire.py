@@ -9,11 +9,12 @@
 
 :meth:`Acquirer.record` starts every camera (``FrameSource.start``), runs the motion (a callable, or waits
 a duration with checkpoints), stops the cameras, then reads each camera's frames — in parallel, one worker
-thread per camera — and reduces each frame to marker rows at once (the image is dropped): the first frame
-of a segment is searched whole (:func:`rig.stereo.detect_markers`), later frames only near the markers'
-last positions (:func:`rig.stereo.track_markers`), with a whole-frame detection again when a marker is
-lost and every ``redetect_every`` frames (to pick up markers that entered the view). ``mode="detect"``
-searches every frame whole (for fast motion such as the rotor, ≈ 100 px per frame).
+thread per camera — and reduces each frame to marker rows at once (the image is dropped) with
+:class:`rig.frame_reduction.MarkerReducer`: the first frame of a segment is searched whole
+(:func:`rig.stereo.detect_markers`), later frames only near the markers' last positions
+(:func:`rig.stereo.track_markers`), with a whole-frame detection again when a marker is lost and every
+``redetect_every`` frames (to pick up markers that entered the view). ``mode="detect"`` searches every
+frame whole (for fast motion such as the rotor, ≈ 100 px per frame).
 
 Rows go to the run folder's observations (``segment`` = the name given to ``record``) with an extra
 column ``track_2d`` (int: the same marker in consecutive frames of one camera and segment keeps its
@@ -27,92 +28,19 @@ from __future__ import annotations
 import threading
 from collections.abc import Callable
 from concurrent.futures import FIRST_EXCEPTION, Future, ThreadPoolExecutor, wait
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any, Generic, TypeVar
 
 import numpy as np
 import pandas as pd
-from scipy.optimize import linear_sum_assignment
 
-from rig.stereo import FLAG_LOST, detect_markers, track_markers
+from rig.frame_reduction import MarkerReducer, ReduceOptions
+from rig.stereo import FLAG_LOST
 
 __all__ = ["Acquirer", "MarkerReducer", "Recording", "ReduceOptions"]
 
 T = TypeVar("T")
 _FIELDS = ("u_px", "v_px", "area_px", "roundness", "contrast")
-
-
-@dataclass(frozen=True)
-class ReduceOptions:
-    """How frames become marker rows.
-
-    mode: "track" (detect once, then track; re-detect on loss) or "detect" (whole frame every time).
-    window_px: tracking window side (px): twice the largest frame-to-frame motion plus a marker diameter.
-    redetect_every: frames between whole-frame detections in "track" mode (≥ 1).
-    detect: keyword options of :func:`rig.stereo.detect_markers` / :func:`track_markers` (polarity,
-    min_area_px, max_area_px, min_roundness, min_contrast, centre).
-    """
-
-    mode: str = "track"
-    window_px: int = 51
-    redetect_every: int = 30
-    detect: dict[str, Any] = field(default_factory=dict)
-
-    def __post_init__(self) -> None:
-        if self.mode not in ("track", "detect"):
-            raise ValueError(f"mode={self.mode!r} not allowed; allowed: 'track' or 'detect'")
-        if int(self.window_px) != self.window_px or self.window_px < 7:
-            raise ValueError(f"window_px={self.window_px!r}: allowed: an integer ≥ 7")
-        if self.redetect_every < 1:
-            raise ValueError(f"redetect_every={self.redetect_every!r}: allowed: an integer ≥ 1")
-
-
-class MarkerReducer:
-    """Per camera and segment: frame → marker rows (``MARKER_DTYPE``) and their ``track_2d`` numbers."""
-
-    def __init__(self, options: ReduceOptions, first_id: int = 0) -> None:
-        self.options = options
-        self._uv = np.empty((0, 2))
-        self._ids = np.empty(0, dtype=np.int64)
-        self._next_id = int(first_id)
-        self._since_detect = 0
-
-    @property
-    def next_id(self) -> int:
-        """The number the next new marker gets (continue from it in a later recording of the segment)."""
-        return self._next_id
-
-    def _associate(self, found: np.ndarray) -> np.ndarray:
-        """Track numbers for whole-frame detections: the previous marker within half a window, else new."""
-        ids = np.full(len(found), -1, dtype=np.int64)
-        uv = np.c_[found["u_px"], found["v_px"]]
-        if len(self._uv) and len(uv):
-            cost = np.linalg.norm(uv[:, None, :] - self._uv[None, :, :], axis=2)
-            r, c = linear_sum_assignment(cost)
-            ok = cost[r, c] <= self.options.window_px / 2
-            ids[r[ok]] = self._ids[c[ok]]
-        new = ids < 0
-        ids[new] = np.arange(self._next_id, self._next_id + int(new.sum()))
-        self._next_id += int(new.sum())
-        return ids
-
-    def reduce(self, image: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        opts = self.options
-        found: np.ndarray | None = None
-        ids: np.ndarray | None = None
-        if opts.mode == "track" and len(self._uv) and self._since_detect < opts.redetect_every:
-            tracked = track_markers(image, self._uv, window_px=opts.window_px, **opts.detect)
-            if not np.any(tracked["flags"] & FLAG_LOST):
-                found, ids = tracked, self._ids
-                self._since_detect += 1
-        if found is None:
-            found = detect_markers(image, **opts.detect)
-            ids = self._associate(found)
-            self._since_detect = 1
-        assert ids is not None
-        self._uv = np.c_[found["u_px"], found["v_px"]]
-        self._ids = ids
-        return found, ids
 
 
 @dataclass

@@ -2,10 +2,11 @@
 
 Frames are decoded in order by :class:`drivers.camera.video_file.VideoFile` (container time stamps,
 duplicated and dropped frames reported, never shifted silently). Each frame is reduced at once to marker
-rows and its image dropped: the first frame is searched whole (:func:`rig.stereo.detect_markers`), later
-frames only in a window around each marker's last position (:func:`rig.stereo.track_markers`), with a
-whole-frame search again when a marker is lost and every ``redetect_every`` frames (markers entering the
-view). ``mode="detect"`` searches every frame whole.
+rows and its image dropped, by :class:`rig.frame_reduction.MarkerReducer` (the reduction the rig's own
+recordings use): the first frame is searched whole (:func:`rig.stereo.detect_markers`), later frames only
+in a window around each marker's last position (:func:`rig.stereo.track_markers`), with a whole-frame
+search again when a marker is lost and every ``redetect_every`` frames (markers entering the view).
+``mode="detect"`` searches every frame whole.
 
 Duplicated frames carry no new instant: their rows are kept with ``duplicate = True`` so that what was
 seen stays inspectable, and the analysis leaves them out. Columns (contracts.md, run-folder observations):
@@ -25,7 +26,8 @@ import pandas as pd
 from scipy.optimize import linear_sum_assignment
 
 from drivers.camera.video_file import FrameTimeReport, VideoFile, VideoTruncatedError
-from rig.stereo import FLAG_LOST, MARKER_DTYPE, detect_markers, track_markers
+from rig.frame_reduction import MarkerReducer, ReduceOptions
+from rig.stereo import MARKER_DTYPE
 
 __all__ = ["ExtractOptions", "VideoObservations", "extract_video"]
 
@@ -39,8 +41,9 @@ class ExtractOptions:
     ``mode``: "track" (search whole once, then near the last positions) or "detect" (whole frame every time).
     ``window_px``: tracking window side (px): marker diameter + 8 px + twice the largest motion per frame.
     ``redetect_every``: frames between whole-frame searches in "track" mode. ``detect``: keyword options of
-    :func:`rig.stereo.detect_markers` (polarity, min_area_px, min_contrast, …). ``duplicate_policy`` and
-    ``fps`` go to :class:`VideoFile`.
+    :func:`rig.stereo.detect_markers` (polarity, min_area_px, min_contrast, …; the tracker gets only those
+    it takes, see :class:`rig.frame_reduction.ReduceOptions`). ``duplicate_policy`` and ``fps`` go to
+    :class:`VideoFile`.
     """
 
     mode: str = "track"
@@ -57,6 +60,12 @@ class ExtractOptions:
             raise ValueError(f"window_px={self.window_px!r}; allowed: an integer ≥ 7")
         if int(self.redetect_every) != self.redetect_every or self.redetect_every < 1:
             raise ValueError(f"redetect_every={self.redetect_every!r}; allowed: an integer ≥ 1")
+        self.reduce_options()  # checks the detect options
+
+    def reduce_options(self) -> ReduceOptions:
+        """The frame-reduction part of these options."""
+        return ReduceOptions(mode=self.mode, window_px=self.window_px, redetect_every=self.redetect_every,
+                             detect=dict(self.detect))
 
 
 @dataclass
@@ -71,12 +80,6 @@ class VideoObservations:
     fps: float
     timings_s: dict[str, float]
     error: str | None = None  # set when decoding stopped early (the rows read so far are kept)
-
-
-def _track_options(detect: dict[str, Any]) -> dict[str, Any]:
-    allowed = ("polarity", "min_area_px", "max_area_px", "min_roundness", "min_contrast", "centre",
-               "max_skewness", "outline_check", "max_edge_rms_px")
-    return {k: v for k, v in detect.items() if k in allowed}
 
 
 def _frame(parts: list[tuple[int, float, bool, np.ndarray]]) -> pd.DataFrame:
@@ -102,10 +105,8 @@ def extract_video(path: str | Path, camera: str | None = None,
     """
     opts = options or ExtractOptions()
     video = VideoFile(path, name=camera, fps=opts.fps, duplicate_policy=opts.duplicate_policy)
-    track_kw = _track_options(opts.detect)
+    reducer = MarkerReducer(opts.reduce_options())
     parts: list[tuple[int, float, bool, np.ndarray]] = []
-    uv = np.empty((0, 2))
-    since_detect = 0
     t_extract = 0.0
     error = None
     t_all = time.perf_counter()
@@ -113,16 +114,7 @@ def extract_video(path: str | Path, camera: str | None = None,
     try:
         for frame in frames:
             t0 = time.perf_counter()
-            found = None
-            if opts.mode == "track" and len(uv) and since_detect < opts.redetect_every:
-                tracked = track_markers(frame.image, uv, window_px=opts.window_px, **track_kw)
-                if not np.any(tracked["flags"] & FLAG_LOST):
-                    found = tracked
-                    since_detect += 1
-            if found is None:
-                found = detect_markers(frame.image, **opts.detect)
-                since_detect = 1
-            uv = np.c_[found["u_px"], found["v_px"]]
+            found, _ = reducer.reduce(frame.image)
             parts.append((frame.index, frame.timestamp_s, frame.index in video.duplicate_indices, found))
             t_extract += time.perf_counter() - t0
     except VideoTruncatedError as exc:
