@@ -4,12 +4,15 @@
 
 1. **validate** the parameters (defaults + ``--set`` overrides; nothing is built or moved on bad input →
    exit 4, no run folder);
-2. build the **station** (``station_factory(config, clock)``, a context manager yielding an object with
+2. write **start** before any device is reached (``rig`` = the configuration snapshot, the parameters,
+   the versions; ``devices`` = ``{"connected": false}``): a new run folder, or the same folder with a
+   ``resume`` start when ``resume=RUN_DIR`` (completed steps are then skipped, see
+   :class:`rig.procedure.Step`); ``rig.log`` in the run folder from here on;
+3. build the **station** (``station_factory(config, clock)``, a context manager yielding an object with
    ``devices: dict[str, device]`` and optionally ``snapshot() -> dict`` and
-   ``check_interlocks() -> [(device, reason)]``); a failure to connect → exit 3, no run folder;
-3. **snapshot** and write **start** (``rig`` = the configuration snapshot, ``devices`` = the station's
-   snapshot): a new run folder, or the same folder with a ``resume`` start when ``resume=RUN_DIR``
-   (completed steps are then skipped, see :class:`rig.procedure.Step`);
+   ``check_interlocks() -> [(device, reason)]``) and record its snapshot as the ``devices`` event. When it
+   cannot be built: a **stop** ``fail`` with the reason (exit 3; 4 for a configuration error; Ctrl-C:
+   ``abort``, exit 2), the traceback in ``rig.log`` only;
 4. run ``module.run(ctx, params)`` with a watchdog thread polling every device's ``heartbeat()`` and the
    station's interlock checks, and SIGINT handled (first Ctrl-C: abort at the next checkpoint; second:
    ``KeyboardInterrupt`` at once);
@@ -195,23 +198,57 @@ class Runner:
                            rate=self.config.sim.rate if self.config.sim is not None else None)
         with self._signals():
             try:
-                station_cm = self.station_factory(self.config, clock)
-                station = station_cm.__enter__()
+                record = self._open_record(clock, params, resume_dir)
             except KeyboardInterrupt:
-                return RunOutcome(EXIT_ABORTED, None, "aborted", "aborted while building the station")
+                return RunOutcome(EXIT_ABORTED, None, "aborted", "aborted before the run folder was created")
             except Exception as exc:
-                log.error("could not build the station: %s", exc, exc_info=True)
-                code = EXIT_BAD_INPUT if isinstance(exc, ConfigError) else EXIT_FAULT
-                return RunOutcome(code, None, "bad_input" if code == EXIT_BAD_INPUT else "fault",
-                                  f"could not build the station: {type(exc).__name__}: {exc}")
-            try:
-                return self._run_with_station(station, clock, params, resume_dir)
-            finally:
-                self._control.in_cleanup = True
+                return RunOutcome(EXIT_FAULT, None, "fault",
+                                  f"could not create the run record: {type(exc).__name__}: {exc}")
+            self._record = record
+            with _run_log(record, self.log_level) as file_only:
+                log.info("run %s: procedure %s, session %d", record.run_id, self.module.NAME, record.session)
                 try:
-                    station_cm.__exit__(None, None, None)
-                except Exception as exc:
-                    log.error("closing the station failed: %s", exc, exc_info=True)
+                    try:
+                        station_cm = self.station_factory(self.config, clock)
+                        station = station_cm.__enter__()
+                    except (KeyboardInterrupt, Exception) as exc:
+                        return self._station_failed(record, exc, file_only)
+                    try:
+                        return self._run_with_station(record, station, clock, params)
+                    finally:
+                        self._control.in_cleanup = True
+                        try:
+                            station_cm.__exit__(None, None, None)
+                        except Exception as exc:
+                            log.error("closing the station failed: %s", exc, exc_info=True)
+                finally:
+                    self._record = None
+                    record.close()
+
+    def _open_record(self, clock: Any, params: Any, resume_dir: Path | None) -> RunRecord:
+        """The run folder and its start document, written before any device is reached."""
+        snapshot = self.config.snapshot()
+        devices = {"connected": False}  # the station's snapshot follows as the ``devices`` event
+        if resume_dir is None:
+            return RunRecord.create(self.runs_dir, self.module.NAME, to_dict(params), snapshot, clock,
+                                    devices=devices)
+        return RunRecord.resume(resume_dir, clock, rig_snapshot=snapshot, devices=devices)
+
+    def _station_failed(self, record: RunRecord, exc: BaseException,
+                        file_only: Callable[[str, BaseException], None]) -> RunOutcome:
+        """The station could not be built (nothing moved): stop ``fail`` (``abort`` on Ctrl-C) and why."""
+        self._control.in_cleanup = True
+        if isinstance(exc, KeyboardInterrupt):
+            code, status, outcome = EXIT_ABORTED, "abort", "aborted"
+            reason = "aborted by the operator (Ctrl-C) while connecting to the devices"
+        else:
+            code = EXIT_BAD_INPUT if isinstance(exc, ConfigError) else EXIT_FAULT
+            status, outcome = "fail", "bad_input" if code == EXIT_BAD_INPUT else "fault"
+            reason = f"could not build the station: {type(exc).__name__}: {exc}"
+            file_only(reason, exc)  # the traceback goes to rig.log, not to the console
+        record.stop(status, reason, outcome=outcome, exit_code=code, safe_state_failures=[], verdict=None)
+        log.info("run %s ended: %s (exit %d): %s", record.run_id, outcome, code, reason)
+        return RunOutcome(code, status, outcome, reason, record.run_dir)
 
     def _validate(self, overrides: dict[str, Any] | None,
                   resume: str | Path | None) -> tuple[Any, Path | None]:
@@ -228,8 +265,7 @@ class Runner:
             raise RecordError(f"{resume_dir} is a {start.get('procedure')!r} run, not {self.module.NAME!r}")
         return validate_parameters(self.module, start.get("parameters") or {}), resume_dir
 
-    def _run_with_station(self, station: Any, clock: Any, params: Any, resume_dir: Path | None) -> RunOutcome:
-        snapshot = self.config.snapshot()
+    def _run_with_station(self, record: RunRecord, station: Any, clock: Any, params: Any) -> RunOutcome:
         station_snapshot: dict[str, Any] = {}
         snap = getattr(station, "snapshot", None)
         if callable(snap):
@@ -239,24 +275,9 @@ class Runner:
                 station_snapshot = {"error": f"{type(exc).__name__}: {exc}"}
         devices: dict[str, Any] = dict(getattr(station, "devices", {}))
         try:
-            if resume_dir is None:
-                record = RunRecord.create(self.runs_dir, self.module.NAME, to_dict(params), snapshot, clock,
-                                          devices=station_snapshot)
-            else:
-                record = RunRecord.resume(resume_dir, clock, rig_snapshot=snapshot, devices=station_snapshot)
-        except Exception as exc:
-            results = make_safe(devices)
-            return RunOutcome(EXIT_FAULT, None, "fault", f"could not create the run record: {exc}; "
-                              f"safe state: {[r.device for r in results if r.error is None]}")
-        self._record = record
-        handler = logging.FileHandler(record.run_dir / "rig.log", encoding="utf-8")
-        handler.setLevel(self.log_level)
-        handler.setFormatter(logging.Formatter("%(asctime)s %(levelname)s %(name)s: %(message)s"))
-        root = logging.getLogger()
-        old_level = root.level
-        root.addHandler(handler)
-        root.setLevel(min(old_level or logging.WARNING, self.log_level))
-        log.info("run %s: procedure %s, session %d", record.run_id, self.module.NAME, record.session)
+            record.event("devices", station_snapshot)
+        except Exception as exc:  # e.g. a snapshot not recordable as JSON: say so, carry on
+            record.log("warning", f"station snapshot not recordable: {type(exc).__name__}: {exc}")
         watchdog = Watchdog(devices, self.trip, period_s=self.watchdog_period_s,
                             extra_checks=getattr(station, "check_interlocks", None))
         ctx = Context(station=station, config=self.config, clock=clock, record=record, params=params,
@@ -265,24 +286,18 @@ class Runner:
         error: BaseException | None = None
         result: Any = None
         try:
-            try:
-                watchdog.start()
-                self._checkpoint(station)
-                result = self.module.run(ctx, params)
-            except BaseException as exc:
-                error = exc
-            finally:
-                self._control.in_cleanup = True
-                watchdog.stop()
-            error = self._lost_device_check(watchdog, error)
-            if error is not None and not isinstance(error, Abort | KeyboardInterrupt):
-                log.error("procedure raised:\n%s", format_exception(error))
-            return self._finish(record, devices, error, result)
+            watchdog.start()
+            self._checkpoint(station)
+            result = self.module.run(ctx, params)
+        except BaseException as exc:
+            error = exc
         finally:
-            root.removeHandler(handler)
-            root.setLevel(old_level)
-            handler.close()
-            self._record = None
+            self._control.in_cleanup = True
+            watchdog.stop()
+        error = self._lost_device_check(watchdog, error)
+        if error is not None and not isinstance(error, Abort | KeyboardInterrupt):
+            log.error("procedure raised:\n%s", format_exception(error))
+        return self._finish(record, devices, error, result)
 
     def _lost_device_check(self, watchdog: Watchdog, error: BaseException | None) -> BaseException | None:
         """A procedure that failed on a device error before the watchdog's next round: if a heartbeat now
@@ -337,6 +352,30 @@ class Runner:
         record.close()
         log.info("run %s ended: %s (exit %d): %s", record.run_id, outcome, exit_code, reason)
         return RunOutcome(exit_code, status, outcome, reason, record.run_dir, result)
+
+
+@contextlib.contextmanager
+def _run_log(record: RunRecord, level: int) -> Iterator[Callable[[str, BaseException], None]]:
+    """Log to ``<run_dir>/rig.log`` while the run lasts; yields ``file_only(message, exc)``, which writes
+    an error with its traceback to that file and not to the console."""
+    handler = logging.FileHandler(record.run_dir / "rig.log", encoding="utf-8")
+    handler.setLevel(level)
+    handler.setFormatter(logging.Formatter("%(asctime)s %(levelname)s %(name)s: %(message)s"))
+    root = logging.getLogger()
+    old_level = root.level
+    root.addHandler(handler)
+    root.setLevel(min(old_level or logging.WARNING, level))
+
+    def file_only(message: str, exc: BaseException) -> None:
+        handler.handle(log.makeRecord(log.name, logging.ERROR, __file__, 0, "%s", (message,),
+                                      (type(exc), exc, exc.__traceback__)))
+
+    try:
+        yield file_only
+    finally:
+        root.removeHandler(handler)
+        root.setLevel(old_level)
+        handler.close()
 
 
 def _verdict(result: Any) -> tuple[bool | None, str]:

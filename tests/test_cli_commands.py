@@ -113,7 +113,8 @@ def test_run_on_the_simulated_rig_passes(tmp_path: Path) -> None:
     (run_dir,) = (tmp_path / "runs").iterdir()
     run = load_run(run_dir)
     assert run.exit_status == "success" and run.steps_completed.keys() == {"move", "vibrate"}
-    assert run.start["clock"] == "virtual" and run.start["devices"]["simulated"]
+    assert run.start["clock"] == "virtual" and run.start["devices"] == {"connected": False}
+    assert run.event_documents("devices")[0]["data"]["simulated"]  # the station's snapshot, once connected
     assert run.events["arm"]["commanded_pose"][0] == [420.0, 0.0, 300.0, 90.0, 0.0, 90.0]
     assert any(re.fullmatch(r"exciter: (safe_state|stop)\(\) done", m) for m in run.logs["message"])
     assert (run_dir / "rig.log").stat().st_size > 0

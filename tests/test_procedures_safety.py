@@ -52,7 +52,8 @@ def test_sweep_above_the_frequency_limit_sends_nothing(tmp_path: Path) -> None:
     assert interlocks and "exceeds the limit 32 Hz" in interlocks[0]["reason"]
     assert "nothing was sent" in interlocks[0]["reason"]
     assert not [d for d in docs if d["type"] == "step"]
-    assert not [d for d in docs if d["type"] == "event"]  # no move, no exciter command, no recording
+    # no move, no exciter command, no recording (only the station's snapshot, recorded on connecting)
+    assert [d["stream"] for d in docs if d["type"] == "event"] == ["devices"]
     stop = docs[-1]
     assert stop["type"] == "stop" and stop["outcome"] == "interlock" and stop["exit_code"] == 3
 
@@ -63,7 +64,7 @@ def test_plate_slide_outside_the_envelope_sends_nothing(tmp_path: Path) -> None:
     docs = _documents(_only_run(tmp_path))
     reason = next(d for d in docs if d["type"] == "interlock")["reason"]
     assert "x_mm=720" in reason and "[150, 650]" in reason
-    assert not [d for d in docs if d["type"] in ("step", "event")]
+    assert not [d for d in docs if d["type"] == "step" or (d["type"] == "event" and d["stream"] != "devices")]
 
 
 def test_ctrl_c_mid_sweep_aborts_with_exciter_stopped_and_arm_halted(tmp_path: Path) -> None:

@@ -55,7 +55,8 @@ def test_success_records_everything_and_makes_every_device_safe(tmp_path: Path) 
     run = load_run(out.run_dir)
     assert run.stop["exit_code"] == 0 and run.stop["verdict"] == "pass" and run.stop["result"]["summary"]
     assert run.start["parameters"] == {"ticks": 3, "tick_s": 0.0}
-    assert run.start["devices"] == {"devices": ["exciter", "left", "robot", "rotor"]}
+    assert run.start["devices"] == {"connected": False}  # start is written before the station is built
+    assert run.event_documents("devices")[0]["data"] == {"devices": ["exciter", "left", "robot", "rotor"]}
     assert run.start["rig"]["criteria"]["position_max_mm"] == 1.5
     assert run.steps_completed == {"a": ["a.json"], "b": []}
     assert run.events["tick"]["i"].tolist() == [0, 1, 2] and set(run.events["tick"]["step"]) == {"b"}
@@ -185,7 +186,7 @@ def test_every_device_is_attempted_when_one_fails_to_stop(tmp_path: Path) -> Non
     assert any("safe state of exciter" in m for m in run.logs["message"])
 
 
-def test_station_that_cannot_be_built_exits_3_without_a_folder(tmp_path: Path) -> None:
+def test_station_that_cannot_be_built_exits_3_and_records_why(tmp_path: Path) -> None:
     @contextlib.contextmanager
     def factory(config: Any, clock: Any):
         raise ConnectionRefusedError("tcp://10.0.0.5:5007 refused")
@@ -193,7 +194,15 @@ def test_station_that_cannot_be_built_exits_3_without_a_folder(tmp_path: Path) -
 
     runner, _ = _runner(tmp_path, make_module("normal"), factory=factory)
     out = runner.run()
-    assert out.exit_code == 3 and out.run_dir is None and "refused" in out.reason
+    assert out.exit_code == 3 and out.outcome == "fault" and "refused" in out.reason
+    run = load_run(out.run_dir)  # the run folder exists: start (no device snapshot), then stop with why
+    assert run.start["devices"] == {"connected": False} and run.start["parameters"]["ticks"] == 30
+    assert run.stop["exit_status"] == "fail" and run.stop["exit_code"] == 3
+    assert run.stop["reason"] == ("could not build the station: ConnectionRefusedError: "
+                                  "tcp://10.0.0.5:5007 refused")
+    assert "devices" not in run.events and not run.steps_completed
+    log_text = (out.run_dir / "rig.log").read_text()
+    assert "Traceback" in log_text and "ConnectionRefusedError" in log_text  # the traceback, in the run's log
 
 
 def test_request_abort_stops_at_the_next_checkpoint(tmp_path: Path) -> None:

@@ -1,0 +1,69 @@
+"""A station that cannot be built (a device unreachable): the run folder exists with its start document
+(configuration, parameters, versions; no device snapshot) and a stop ``fail`` saying why; the console
+shows one line (the reason and the run folder) and the traceback is only in the run's ``rig.log``."""
+
+from __future__ import annotations
+
+import os
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+from rig.record import load_run
+from tests.certify_support import write_config
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _unreachable_robot(tmp_path: Path) -> Path:
+    config = write_config(tmp_path)
+    text = config.read_text()
+    robot = text.index("[devices.robot]")
+    line = re.compile(r"^address = .*$", re.M).search(text, robot)
+    assert line is not None
+    config.write_text(text[:line.start()] + 'address = "tcp://127.0.0.1:1"' + text[line.end():])
+    return config
+
+
+def _rig(tmp_path: Path, *args: str) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "rig.cli", *args], cwd=tmp_path,
+                          env={**os.environ, "PYTHONPATH": str(ROOT)}, capture_output=True, text=True,
+                          timeout=120, check=False)
+
+
+def test_run_with_an_unreachable_robot_records_why_in_the_run_folder(tmp_path: Path) -> None:
+    config = _unreachable_robot(tmp_path)
+    proc = _rig(tmp_path, "run", "plate", "--config", str(config), "--set", "record_s=1.5")
+    assert proc.returncode == 3, proc.stderr
+    (run_dir,) = (tmp_path / "runs").iterdir()
+
+    # the console: one line with the reason and the run folder, no traceback
+    assert proc.stdout == ""
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1, proc.stderr
+    assert "could not build the station" in lines[0] and "tcp://127.0.0.1:1" in lines[0]
+    assert lines[0].endswith(str(run_dir)) and "Traceback" not in proc.stderr
+
+    run = load_run(run_dir)
+    assert [d["type"] for d in run.documents] == ["start", "stop"]
+    start, stop = run.start, run.stop
+    assert start["procedure"] == "plate" and start["parameters"]["record_s"] == 1.5
+    assert start["rig"]["devices"]["robot"]["address"] == "tcp://127.0.0.1:1"  # the configuration snapshot
+    assert start["versions"]["python"] and start["devices"] == {"connected": False}
+    assert stop["exit_status"] == "fail" and stop["exit_code"] == 3 and stop["outcome"] == "fault"
+    assert stop["reason"].startswith("could not build the station: StationError: robot at tcp://127.0.0.1:1")
+    assert "refused" in stop["reason"].lower()
+
+    log_text = (run_dir / "rig.log").read_text()
+    assert "Traceback (most recent call last)" in log_text and "ConnectionRefusedError" in log_text
+
+
+def test_certify_with_an_unreachable_robot_also_leaves_a_run_folder(tmp_path: Path) -> None:
+    config = _unreachable_robot(tmp_path)
+    proc = _rig(tmp_path, "certify", "--config", str(config), "--set", 'preset="fast"')
+    assert proc.returncode == 3 and "Traceback" not in proc.stderr, proc.stderr
+    (run_dir,) = (tmp_path / "runs").iterdir()
+    run = load_run(run_dir)
+    assert run.start["procedure"] == "certify" and run.stop["exit_status"] == "fail"
+    assert "robot at tcp://127.0.0.1:1" in run.stop["reason"]
