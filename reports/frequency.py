@@ -1,7 +1,12 @@
 """Error versus frequency along the sweep, per synchronization method.
 
 The ``sweep`` truth event gives the reference: displacement along ``axis`` = ``amplitude_mm``·sin φ(t),
-with f(t) the piecewise-linear ``profile`` [[t_s, f_hz], …] and φ its exact integral. The sweep is cut
+with f(t) piecewise linear through [[t_s, f_hz], …] and φ its exact integral. f(t) is the drive's
+**actual** frequency polled during the sweep (the ``exciter`` events, :func:`reference_sweep`), not the
+commanded ``profile``: the sweep driver sets each segment's ramp rate 2 % above the segment's slope
+(drivers/exciter/sweep.py), so the crank reaches every segment end early and its phase runs ahead of the
+commanded profile by an equivalent ≈ ½·update_interval·margin/(1+margin) (≈ 5 ms at 0.5 s, 2 %) — taken as
+the reference it would show up as a spurious "track delay" that no camera clock causes. The sweep is cut
 into frequency bins (``bin_hz`` wide); in each bin the measured displacement of every oscillating track
 is fitted by linear least squares with the reference phase, x = a·cos φ + b·sin φ + c (IEEE 1057
 three-parameter fit with the frequency known from the truth), so a slowly changing frequency costs
@@ -81,6 +86,90 @@ def sweep_phase_rad(sweep: dict, t_s: np.ndarray) -> np.ndarray:
     after = t > tp[-1]
     cycles = np.where(after, knot_cycles[-1] + fp[-1] * (t - tp[-1]), cycles)
     return 2 * np.pi * cycles
+
+
+ARRIVED_TOL_HZ = 0.006  # polled frequency within this of the setpoint = arrived (drives report 0.01 Hz)
+
+
+def reference_sweep(sweep: dict, polled: list[dict]) -> tuple[dict, str]:
+    """The sweep event with ``profile`` replaced by the polled actual frequency, and where f(t) came from.
+
+    ``polled``: ``exciter`` event payloads (``t_s`` rig clock, ``frequency_hz`` actual, ``setpoint_hz``).
+    The samples inside [t_start_s, t_stop_s] are used when they cover the window (no gap at either end
+    longer than their own spacing) at least as densely as the commanded profile's points; the instant the
+    drive reached each setpoint between two polls is put back (:func:`ramp_knots`). Otherwise the
+    commanded profile is kept (it leads the motion by the drive's ramp margin, see the module docstring)
+    and the returned source says so.
+    """
+    t0, t1 = float(sweep["t_start_s"]), float(sweep["t_stop_s"])
+    rows = sorted(
+        (float(p["t_s"]), float(p["frequency_hz"]), _setpoint(p))
+        for p in polled
+        if _is_number(p.get("t_s")) and _is_number(p.get("frequency_hz")) and t0 <= float(p["t_s"]) <= t1
+    )
+    prof_t = _profile(sweep)[0]
+    if len(rows) >= 2:
+        arr = np.array(rows, dtype=float)
+        keep = np.r_[True, np.diff(arr[:, 0]) > 0]
+        t, f, sp = arr[keep, 0], arr[keep, 1], arr[keep, 2]
+        gap = float(np.median(np.diff(t))) if t.size > 1 else np.inf
+        dense = 0 < gap <= float(np.median(np.diff(prof_t)))
+        if dense and t[0] - t0 <= gap * 1.01 and t1 - t[-1] <= gap * 1.01:
+            tk, fk = ramp_knots(t, f, sp)
+            prof = np.column_stack([tk, fk]).tolist()
+            return dict(sweep, profile=prof), (
+                f"polled actual frequency ({t.size} samples every {gap:.3g} s, "
+                f"{tk.size - t.size} setpoint arrivals between polls restored)")
+    return dict(sweep), (
+        f"commanded profile ({len(rows)} polled samples in the sweep window do not cover it densely): the "
+        "phase reference leads the crank by the drive's ramp margin"
+    )
+
+
+def ramp_knots(t_s: np.ndarray, f_hz: np.ndarray, setpoint_hz: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Polled (t, f) of a ramping drive plus the instants it reached its setpoint between two polls.
+
+    A drive ramps linearly toward each new setpoint and then holds it, so f(t) has a corner where it
+    arrives. Joining the polls with straight lines cuts that corner and loses phase in every segment
+    (≈ s·δt²/8 cycles, a systematic lag ∝ the frequency): the corner is placed where the line through the
+    ramp's own polls (from the last poll of the previous setpoint) reaches the arrived value. NaN
+    setpoints leave the polls as they are.
+    """
+    t, f, sp = (np.asarray(a, float) for a in (t_s, f_hz, setpoint_hz))
+    knots_t, knots_f = [t], [f]
+    if t.size < 3 or not np.isfinite(sp).all():
+        return t, f
+    change = np.flatnonzero(np.diff(sp) != 0) + 1  # first poll with a new setpoint
+    rate: float | None = None
+    for i0, i_end in zip(change, np.r_[change[1:], t.size], strict=True):
+        target = sp[i0]
+        arrived = np.flatnonzero(np.abs(f[i0:i_end] - target) <= ARRIVED_TOL_HZ)
+        if not arrived.size:
+            continue
+        k1 = i0 + int(arrived[0])  # first poll at the setpoint; the ramp runs from poll i0 − 1 to k1 − 1
+        ramp = slice(i0 - 1, k1)
+        if k1 - (i0 - 1) >= 2:
+            slope, icpt = np.polyfit(t[ramp], f[ramp], 1)
+            rate = abs(float(slope))
+        if not rate:
+            continue
+        t_prev = t[k1 - 1]
+        t_hit = t_prev + abs(f[k1] - f[k1 - 1]) / rate if k1 - (i0 - 1) < 2 else (f[k1] - icpt) / slope
+        if t_prev < t_hit < t[k1]:
+            knots_t.append(np.array([t_hit]))
+            knots_f.append(np.array([f[k1]]))
+    tt, ff = np.concatenate(knots_t), np.concatenate(knots_f)
+    order = np.argsort(tt, kind="stable")
+    return tt[order], ff[order]
+
+
+def _setpoint(p: dict) -> float:
+    v = p.get("setpoint_hz")
+    return float(v) if _is_number(v) else float("nan")
+
+
+def _is_number(v: object) -> bool:
+    return isinstance(v, int | float) and not isinstance(v, bool) and bool(np.isfinite(v))
 
 
 def sweep_samples(tracks: pd.DataFrame, sweep: dict) -> pd.DataFrame:

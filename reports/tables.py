@@ -112,11 +112,15 @@ def compute_tables(
     sweeps = stream_events(run.events, "sweep")
     sweep = sweeps[0] if sweeps else None
     parts = []
+    reference_note = ""
     if sweep is not None:
+        # the phase reference is the crank's polled actual frequency, not the commanded profile it leads
+        reference, source = frequency.reference_sweep(sweep, stream_events(run.events, "exciter"))
+        reference_note = f"sweep phase reference: {source}"
         for method, tr in tracks_by_method.items():
             parts.append(
                 frequency.amplitude_by_bin(
-                    frequency.sweep_samples(tr, sweep), sweep, sync_method=method, bin_hz=bin_hz
+                    frequency.sweep_samples(tr, reference), reference, sync_method=method, bin_hz=bin_hz
                 )
             )
     bins = pd.concat(parts, ignore_index=True) if parts else pd.DataFrame(columns=frequency.BIN_COLUMNS)
@@ -139,6 +143,8 @@ def compute_tables(
         timing=timing,
         centres_mm=centres,
     )
+    if reference_note:
+        out.notes.append(reference_note)
     for method in methods:
         b = bins[bins["sync_method"] == method]
         if b["frequency_hz"].nunique() >= 2:
