@@ -8,13 +8,25 @@
     acq.close()
 
 :meth:`Acquirer.record` starts every camera (``FrameSource.start``), runs the motion (a callable, or waits
-a duration with checkpoints), stops the cameras, then reads each camera's frames — in parallel, one worker
-thread per camera — and reduces each frame to marker rows at once (the image is dropped) with
-:class:`rig.frame_reduction.MarkerReducer`: the first frame of a segment is searched whole
-(:func:`rig.stereo.detect_markers`), later frames only near the markers' last positions
-(:func:`rig.stereo.track_markers`), with a whole-frame detection again when a marker is lost and every
-``redetect_every`` frames (to pick up markers that entered the view). ``mode="detect"`` searches every
-frame whole (for fast motion such as the rotor, ≈ 100 px per frame).
+a duration with checkpoints), stops the cameras, and reduces each camera's frames in its own reader thread
+to marker rows as they are read (the image is dropped) with :class:`rig.frame_reduction.MarkerReducer`:
+the first frame of a segment is searched whole (:func:`rig.stereo.detect_markers`), later frames only near
+the markers' last positions (:func:`rig.stereo.track_markers`), with a whole-frame detection again when a
+marker is lost and every ``redetect_every`` frames (to pick up markers that entered the view).
+``mode="detect"`` searches every frame whole (for fast motion such as the rotor, ≈ 100 px per frame).
+
+When a camera is read depends on the source (its optional attribute ``live``):
+
+- a **live** device (``live = True``, e.g. :class:`drivers.camera.opencv_device.OpenCVCamera`) streams
+  into a bounded queue (120 frames = 2 s at 60 fps) that overflows when nobody reads it; its reader starts
+  right after its ``start()`` and reduces frames *during* the motion, so a recording of any length loses
+  nothing as long as the reduction keeps up with the frame rate (what it cannot keep up with the device
+  counts in ``stats.overflow``). An error of the stream (device unplugged) is raised when the motion ends.
+- any other source (``live`` absent or False: the simulated camera, which renders its recording after
+  ``stop()``, or a video file) is read after ``stop()``, by the same kind of reader, all cameras in parallel.
+
+While the readers finish after ``stop()``, the procedure's checkpoint is polled (every 0.2 s); an abort, or
+an error of any reader, stops all of them (frames not yet reduced are dropped, nothing is written).
 
 Rows go to the run folder's observations (``segment`` = the name given to ``record``) with an extra
 column ``track_2d`` (int: the same marker in consecutive frames of one camera and segment keeps its
@@ -27,7 +39,6 @@ from __future__ import annotations
 
 import threading
 from collections.abc import Callable
-from concurrent.futures import FIRST_EXCEPTION, Future, ThreadPoolExecutor, wait
 from dataclasses import dataclass
 from typing import Any, Generic, TypeVar
 
@@ -80,14 +91,12 @@ class Acquirer:
         if len(self.cameras) < 2:
             raise RuntimeError(f"the station has {len(self.cameras)} camera(s); a stereo recording needs 2")
         self._writers = {name: ctx.observation_writer(name) for name in self.cameras}
-        self._pool = ThreadPoolExecutor(max_workers=len(self.cameras), thread_name_prefix="acquire")
         self._next_ids: dict[tuple[str, str], int] = {}
         self.frames_processed = 0
 
     def close(self) -> None:
         for writer in self._writers.values():
             writer.close()
-        self._pool.shutdown(wait=True)
 
     def __enter__(self) -> Acquirer:
         return self
@@ -95,35 +104,52 @@ class Acquirer:
     def __exit__(self, *exc: object) -> None:
         self.close()
 
-    def _reduce(self, name: str, segment: str,
-                cancel: threading.Event) -> list[tuple[int, float, np.ndarray, np.ndarray]]:
+    def _reader(self, name: str, segment: str, cancel: threading.Event) -> _Reader:
         # track numbers continue over the recordings of one segment (a stopped camera may see a moved scene,
         # so every recording starts with a whole-frame detection)
         reducer = MarkerReducer(self.options, self._next_ids.get((name, segment), 0))
-        parts = []
-        for frame in self.cameras[name].frames():
-            if cancel.is_set():
-                break
-            found, ids = reducer.reduce(frame.image)
-            keep = ~(found["flags"] & FLAG_LOST).astype(bool)
-            parts.append((int(frame.index), float(frame.timestamp_s), found[keep], ids[keep]))
-        self._next_ids[(name, segment)] = reducer.next_id
-        return parts
+        reader = _Reader(self.cameras[name], reducer, cancel)
+        reader.thread.start()
+        return reader
+
+    def _finish(self, readers: dict[str, _Reader], cancel: threading.Event) -> None:
+        """Wait for the readers, checkpointing; a reader's error or an abort stops all of them and raises."""
+        try:
+            while True:
+                for reader in readers.values():
+                    if reader.error is not None:
+                        raise reader.error
+                alive = [r for r in readers.values() if r.thread.is_alive()]
+                if not alive:
+                    return
+                alive[0].thread.join(timeout=0.2)
+                self.ctx.checkpoint()
+        except BaseException:
+            cancel.set()
+            for reader in readers.values():
+                reader.thread.join(timeout=2.0)
+            raise
 
     def record(self, segment: str, motion: Callable[[], T] | float) -> Recording[T]:
-        """Record all cameras while ``motion()`` runs (or for ``motion`` seconds), then reduce and write."""
+        """Record all cameras while ``motion()`` runs (or for ``motion`` seconds), reduce and write."""
         if "#" in segment:
             raise ValueError(f"segment {segment!r}: '#' is not allowed in a segment name")
         ctx, clock = self.ctx, self.ctx.clock
         ctx.checkpoint()
         started: list[Any] = []
+        cancel = threading.Event()
+        readers: dict[str, _Reader] = {}
         t_start = clock.now_s()
         result: Any = None
+        completed = False
         try:
-            for cam in self.cameras.values():
+            for name, cam in self.cameras.items():
                 cam.start()
                 started.append(cam)
+                if getattr(cam, "live", False):  # its bounded queue must be read while it records
+                    readers[name] = self._reader(name, segment, cancel)
             result = ctx.sleep_s(float(motion)) if not callable(motion) else motion()
+            completed = True
         finally:
             t_stop = clock.now_s()
             for cam in started:
@@ -131,22 +157,18 @@ class Acquirer:
                     cam.stop()
                 except Exception as exc:  # keep the original error; a camera stop must not hide it
                     ctx.log.warning("stopping camera %s failed: %s", cam.name, exc)
-        cancel = threading.Event()
-        futures: dict[str, Future] = {n: self._pool.submit(self._reduce, n, segment, cancel)
-                                      for n in self.cameras}
-        try:
-            pending = set(futures.values())
-            while pending:
-                done, pending = wait(pending, timeout=0.2, return_when=FIRST_EXCEPTION)
-                for f in done:
-                    f.result()  # re-raise a worker's error
-                ctx.checkpoint()
-        except BaseException:
-            cancel.set()
-            raise
+            if not completed:
+                cancel.set()
+                for reader in readers.values():
+                    reader.thread.join(timeout=2.0)
+        for name in self.cameras:
+            if name not in readers:
+                readers[name] = self._reader(name, segment, cancel)
+        self._finish(readers, cancel)
         observations = {}
-        for name, fut in futures.items():
-            parts = fut.result()
+        for name in self.cameras:
+            parts = readers[name].parts
+            self._next_ids[(name, segment)] = readers[name].reducer.next_id
             frame = _rows_frame(parts)
             self._writers[name].append(frame, segment=segment)
             observations[name] = frame.assign(segment=segment)
@@ -157,6 +179,27 @@ class Acquirer:
             ctx.event("camera", {"camera": name, "action": "stop", "segment": segment, "t_s": t_stop,
                                  "last_index": last[0], "last_timestamp_s": last[1], "n_frames": len(parts)})
         return Recording(segment, result, t_start, t_stop, observations)
+
+
+class _Reader:
+    """One camera's ``frames()`` reduced to rows in a daemon thread (a hung device cannot block the exit)."""
+
+    def __init__(self, camera: Any, reducer: MarkerReducer, cancel: threading.Event) -> None:
+        self.camera, self.reducer, self.cancel = camera, reducer, cancel
+        self.parts: list[tuple[int, float, np.ndarray, np.ndarray]] = []
+        self.error: BaseException | None = None
+        self.thread = threading.Thread(target=self._run, name=f"acquire-{camera.name}", daemon=True)
+
+    def _run(self) -> None:
+        try:
+            for frame in self.camera.frames():
+                if self.cancel.is_set():
+                    return
+                found, ids = self.reducer.reduce(frame.image)
+                keep = ~(found["flags"] & FLAG_LOST).astype(bool)
+                self.parts.append((int(frame.index), float(frame.timestamp_s), found[keep], ids[keep]))
+        except BaseException as exc:  # handed to the recording's thread, which raises it
+            self.error = exc
 
 
 def mean_positions(obs: pd.DataFrame, *, min_frames: int = 1) -> pd.DataFrame:

@@ -76,7 +76,12 @@ class OpenCVCamera:
     (what it grants is read back). ``queue_frames``: queue bound (frames held in memory; 2 MB each at
     1080p). ``clock``: host clock in seconds (monotonic). ``capture_factory``: builds the capture object
     from (source, api) — ``cv2.VideoCapture`` by default.
+
+    ``live = True``: frames stream while recording and must be consumed then (the queue is bounded);
+    consumers such as ``procedures._acquire.Acquirer`` read a live source during the recording.
     """
+
+    live = True
 
     def __init__(self, name: str, source: str | int, *, fps: float = 60.0, width_px: int = 1920,
                  height_px: int = 1080, queue_frames: int = 120, gap_tolerance: float = 0.5,

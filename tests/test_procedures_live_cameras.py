@@ -1,0 +1,164 @@
+"""Acquirer with live cameras: frames are reduced while recording, so a bounded device queue never overflows.
+
+No camera is attached here, so the device is the real :class:`OpenCVCamera` (grabbing thread, host time
+stamps, bounded queue that discards the oldest frame when full) over an injected capture object that
+delivers frames in real time at its frame rate, as a USB camera does: ``grab()`` returns at the next frame
+instant. The queue is made small (30 frames) so that a recording of 2 s (200 frames at 100 fps) would lose
+170 frames per camera if the frames were read only after ``stop()``.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import threading
+import time
+from types import SimpleNamespace
+from typing import Any
+
+import cv2
+import numpy as np
+import pytest
+
+from drivers.camera.opencv_device import OpenCVCamera
+from drivers.clock import WallClock
+from procedures._acquire import Acquirer, ReduceOptions
+
+FPS = 100.0
+WIDTH_PX, HEIGHT_PX = 160, 120
+QUEUE_FRAMES = 30
+
+
+def centre_px(index: int) -> tuple[float, float]:
+    """Truth: the marker centre in frame ``index`` (a 1 Hz sine of ±20 px along u)."""
+    return 80.0 + 20.0 * math.sin(2 * math.pi * index / FPS), 60.0 + 0.25 * (index % 8)
+
+
+class RealTimeCapture:
+    """A ``cv2.VideoCapture`` stand-in: a frame every 1/FPS s of wall time, the marker at ``centre_px``."""
+
+    def __init__(self, source: Any, api: int) -> None:
+        self.props = {cv2.CAP_PROP_FRAME_WIDTH: WIDTH_PX, cv2.CAP_PROP_FRAME_HEIGHT: HEIGHT_PX,
+                      cv2.CAP_PROP_FPS: FPS}
+        self.t0 = time.monotonic()
+        self.index = -1
+
+    def isOpened(self) -> bool:  # noqa: N802 — cv2's name
+        return True
+
+    def set(self, prop: int, value: float) -> bool:
+        self.props[prop] = value
+        return True
+
+    def get(self, prop: int) -> float:
+        return float(self.props.get(prop, 0.0))
+
+    def grab(self) -> bool:
+        self.index += 1
+        delay = self.t0 + self.index / FPS - time.monotonic()
+        if delay > 0:
+            time.sleep(delay)
+        return True
+
+    def retrieve(self) -> tuple[bool, np.ndarray]:
+        img = np.full((HEIGHT_PX, WIDTH_PX), 30, np.uint8)
+        u, v = centre_px(self.index)
+        cv2.circle(img, (round(u * 16), round(v * 16)), 6 * 16, 220, -1, lineType=cv2.LINE_AA, shift=4)
+        return True, cv2.cvtColor(img, cv2.COLOR_GRAY2BGR)
+
+    def release(self) -> None:
+        pass
+
+
+class Writer:
+    def __init__(self) -> None:
+        self.appended: list[Any] = []
+
+    def append(self, frame: Any, *, segment: str) -> None:
+        self.appended.append((segment, frame))
+
+    def close(self) -> None:
+        pass
+
+
+class Ctx:
+    """The part of a procedure context the Acquirer uses (station cameras, clock, events, writers)."""
+
+    def __init__(self, cameras: dict[str, Any]) -> None:
+        self.station = SimpleNamespace(cameras=cameras)
+        self.clock = WallClock()
+        self.log = logging.getLogger("test")
+        self.events: list[dict[str, Any]] = []
+        self.writers: dict[str, Writer] = {}
+
+    def checkpoint(self) -> None:
+        pass
+
+    def sleep_s(self, duration_s: float) -> None:
+        time.sleep(duration_s)
+
+    def event(self, stream: str, data: dict[str, Any]) -> int:
+        self.events.append({"stream": stream, **data})
+        return len(self.events)
+
+    def observation_writer(self, camera: str) -> Writer:
+        return self.writers.setdefault(camera, Writer())
+
+
+def cameras(cls: type[OpenCVCamera] = OpenCVCamera) -> dict[str, OpenCVCamera]:
+    return {name: cls(name, 0, fps=FPS, width_px=WIDTH_PX, height_px=HEIGHT_PX, queue_frames=QUEUE_FRAMES,
+                      capture_factory=RealTimeCapture) for name in ("left", "right")}
+
+
+def test_a_recording_longer_than_the_queue_loses_no_frame() -> None:
+    cams = cameras()
+    assert all(cam.live for cam in cams.values())
+    ctx = Ctx(cams)
+    duration_s = 2.0
+    with Acquirer(ctx, ReduceOptions(mode="track", window_px=25)) as acq:
+        rec = acq.record("sweep", duration_s)
+    expected = duration_s * FPS
+    for name, cam in cams.items():
+        obs = rec.observations[name]
+        assert cam.stats.overflow == [], f"{name}: frames discarded by the full queue"
+        # every delivered frame reduced once, in order, one marker each
+        assert list(obs["frame_index"]) == list(range(cam.stats.delivered))
+        assert cam.stats.delivered > QUEUE_FRAMES + 0.8 * expected
+        truth = np.array([centre_px(i) for i in obs["frame_index"]])
+        # noise-free antialiased disc drawn at 1/16 px: centre error ≤ 1/32 px per axis from the drawing,
+        # plus the centroid's edge bias of a few hundredths of a px
+        assert np.max(np.abs(obs[["u_px", "v_px"]].to_numpy() - truth)) < 0.1
+        assert obs["track_2d"].nunique() == 1
+        stop = next(e for e in ctx.events if e["camera"] == name and e["action"] == "stop")
+        assert stop["n_frames"] == cam.stats.delivered
+        assert ctx.writers[name].appended[0][0] == "sweep"
+    assert acq.frames_processed == sum(cam.stats.delivered for cam in cams.values())
+
+
+class ReadAfterStop(OpenCVCamera):
+    live = False  # the Acquirer then reads the frames only after stop(): what the old Acquirer did
+
+
+def test_control_reading_after_stop_overflows_the_queue() -> None:
+    # the same device read only after stop(): the test above would fail on it
+    cams = cameras(ReadAfterStop)
+    with Acquirer(Ctx(cams), ReduceOptions(mode="track", window_px=25)) as acq:
+        rec = acq.record("sweep", 1.0)
+    for name, cam in cams.items():
+        assert len(cam.stats.overflow) > 0.5 * FPS
+        assert len(rec.observations[name]) == QUEUE_FRAMES
+
+
+def test_a_failing_motion_stops_cameras_and_readers_and_writes_nothing() -> None:
+    cams = cameras()
+    ctx = Ctx(cams)
+
+    def motion() -> None:
+        time.sleep(0.3)
+        raise RuntimeError("exciter fault")
+
+    with Acquirer(ctx, ReduceOptions()) as acq, pytest.raises(RuntimeError, match="exciter fault"):
+        acq.record("sweep", motion)
+    assert not any(cam.recording for cam in cams.values())
+    assert all(not w.appended for w in ctx.writers.values()) and ctx.events == []
+    assert not [t for t in threading.enumerate() if t.name.startswith("acquire-")]
