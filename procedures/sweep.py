@@ -5,7 +5,11 @@ radius) while its frequency follows a monotone profile from ``start_hz`` to ``ma
 (then holds ``hold_s`` at ``max_hz``). ``shape="fig17"`` rises slowly first and faster later, like the
 time–frequency characteristic of the paper's Fig. 17 (slopes 0.4, 1.0, 1.2 and 1.4 × the mean slope over
 the four quarters); ``"linear"`` and ``"log"`` are the plain alternatives. Every profile point and the
-steepest slope are checked against the exciter's limits before anything moves (exit 3, nothing sent).
+steepest slope are checked before anything moves (exit 3, nothing sent) against the limits of the device
+that drives the column's ``body``: ``[limits.exciter]`` for the crank exciter, ``[limits.generator]`` for
+the shaker (fed by the generator). The sweep itself follows a setpoint profile, which only the VFD exciter
+takes: a column on the shaker is refused after the limits check (exit 4, nothing sent) — the shaker sweeps
+at constant volts, so its displacement follows its sensitivity table, not a constant amplitude.
 
 Truth: the ``sweep`` event (commanded profile in rig time, amplitude, axis, marker ids) and the polled
 actual frequencies as ``exciter`` events. The cameras record the whole sweep.
@@ -19,7 +23,7 @@ from typing import Any
 from drivers.exciter.sweep import LogSweep, PointsSweep, SweepProfile
 from procedures._acquire import Acquirer, ReduceOptions
 from procedures._common import drive_of, mount, poll_event, require_target, run_alone, stop_polled
-from rig.procedure import param
+from rig.procedure import ParameterError, param
 
 NAME = "sweep"
 DESCRIPTION = "Constant amplitude, frequency rising monotonically to 30 Hz (Fig. 17): error vs frequency."
@@ -58,13 +62,24 @@ def profile_of(params: Parameters) -> SweepProfile:
 
 
 def check_plan(ctx: Any, params: Parameters) -> SweepProfile:
-    """Limits of every profile point and of the steepest slope, before anything moves."""
-    exciter = ctx.device("exciter")
-    require_target(ctx, "sweep_column")
+    """Limits of every profile point and of the steepest slope, before anything moves, for the device
+    that drives ``targets.sweep_column.body`` (LimitError, exit 3); a shaker column is then refused
+    (ParameterError, exit 4: the profile sweep needs the VFD exciter)."""
+    column = require_target(ctx, "sweep_column")
+    drive = drive_of(ctx, column)
     profile = profile_of(params)
-    for t_s, f_hz in profile.points(params.update_interval_s):
-        exciter.check_frequency(f_hz, f"exciter sweep at t = {t_s:g} s")
-    exciter.limits.check_ramp_rate(profile.max_slope_hz_per_s(), "exciter sweep slope")
+    points = profile.points(params.update_interval_s)
+    if column.body == "shaker":
+        # no fixed amplitude: frequency and slope against [limits.generator] (the shaker's limits)
+        for t_s, f_hz in points:
+            drive.limits.check_frequency(f_hz, f"shaker sweep at t = {t_s:g} s")
+        drive.limits.check_ramp_rate(profile.max_slope_hz_per_s(), "shaker sweep slope")
+        raise ParameterError("targets.sweep_column.body", "the sweep procedure follows a frequency "
+                             "profile at the crank's constant amplitude, which only body = \"exciter\" "
+                             "takes; the shaker (body = \"shaker\") is not supported here")
+    for t_s, f_hz in points:
+        drive.check_frequency(f_hz, f"{column.body} sweep at t = {t_s:g} s")
+    drive.limits.check_ramp_rate(profile.max_slope_hz_per_s(), f"{column.body} sweep slope")
     return profile
 
 

@@ -1,0 +1,61 @@
+"""The sweep's plan is checked against the limits of the device that drives the sweep column.
+
+On the simulated rig, through the real ``rig`` command, with ``targets.sweep_column.body = "shaker"``:
+the generator's (shaker's) limits apply, not the exciter's; a plan above them exits 3 before anything is
+sent. A plan within them is refused (exit 4, nothing sent): the profile sweep needs the VFD exciter.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+from tests.certify_support import write_config
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _shaker_config(tmp_path: Path, generator_max_hz: float) -> Path:
+    path = write_config(tmp_path)
+    text = path.read_text()
+    text, n_body = re.subn(r'(\[targets\.sweep_column\]\nbody = )"exciter"', r'\1"shaker"', text)
+    text, n_lim = re.subn(r'(\[limits\.generator\][^\n]*\nmax_frequency_hz = )[0-9.]+',
+                          rf"\g<1>{generator_max_hz}", text)
+    assert n_body == 1 and n_lim == 1
+    path.write_text(text)
+    return path
+
+
+def _run_sweep(tmp_path: Path, config: Path) -> tuple[subprocess.CompletedProcess, list[dict]]:
+    proc = subprocess.run([sys.executable, "-m", "rig.cli", "run", "sweep", "--config", str(config)],
+                          cwd=tmp_path, env={**os.environ, "PYTHONPATH": str(ROOT)}, capture_output=True,
+                          text=True, timeout=240, check=False)
+    (run_dir,) = sorted((tmp_path / "runs").iterdir())
+    lines = (run_dir / "record.jsonl").read_text().splitlines()
+    return proc, [json.loads(line) for line in lines if line.strip()]
+
+
+def _nothing_sent(docs: list[dict]) -> None:
+    assert not [d for d in docs if d["type"] == "step"]
+    assert [d["stream"] for d in docs if d["type"] == "event"] == ["devices"]
+
+
+def test_shaker_column_is_checked_against_the_generator_limits(tmp_path: Path) -> None:
+    # 30 Hz is within the exciter's 32 Hz but above the 20 Hz given to the shaker
+    proc, docs = _run_sweep(tmp_path, _shaker_config(tmp_path, 20.0))
+    assert proc.returncode == 3, proc.stderr
+    reason = next(d for d in docs if d["type"] == "interlock")["reason"]
+    assert "shaker sweep" in reason and "exceeds the limit 20 Hz" in reason
+    _nothing_sent(docs)
+    assert docs[-1]["type"] == "stop" and docs[-1]["exit_code"] == 3
+
+
+def test_shaker_column_within_limits_is_refused_before_motion(tmp_path: Path) -> None:
+    proc, docs = _run_sweep(tmp_path, _shaker_config(tmp_path, 100.0))
+    assert proc.returncode == 4, proc.stderr
+    assert "targets.sweep_column.body" in docs[-1]["reason"]
+    _nothing_sent(docs)
