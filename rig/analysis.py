@@ -14,9 +14,11 @@ observations, per session) and puts the tracks on the **controller clock** (cont
 - the timing model puts every observation on the reference camera's clock;
 - each ``camera`` event with ``action = "start"`` (contracts.md) relates a camera clock to the controller
   clock: the controller time of the event and the camera time stamp of the first frame recorded after it.
-  That frame's exposure started within one frame period after the event, so its row-0 instant is taken as
-  event time + ½ frame period (uniform error ±T/2, standard uncertainty T/√12 ≈ 4.8 ms at 60 fps per event;
-  it shifts whole tracks in time, never their shape). When all start events of a session (every camera,
+  That frame's exposure started within one frame period after the event, so its row-0 exposure start is
+  taken as event time + ½ frame period (uniform error ±T/2, standard uncertainty T/√12 ≈ 4.8 ms at 60 fps
+  per event; it shifts whole tracks in time, never their shape), and the instant the timing model gives
+  that row (the middle of its exposure) as that + ½ exposure (``rig["cameras"][name]["exposure_s"]``,
+  0 when the snapshot has none). When all start events of a session (every camera,
   through the timing model) agree within the ±T/2 band about one constant or straight line — clocks
   continuous, drifting linearly — that fit gives every segment's offset (uncertainty T/√(12·n));
   otherwise each segment uses the mean of its own events, and a segment without any the median of the
@@ -63,6 +65,9 @@ from rig.sync_tracks import (
 )
 from rig.tracks2d import tracks_2d
 
+# bound (ppm, rectangular) of a camera clock's rate error against the controller when the start events
+# cannot resolve it (consumer camera crystals: ±50 ppm); enters the offset's uncertainty away from t_mid
+UNRESOLVED_DRIFT_PPM = 50.0
 CALIBRATION_FILE = "calibration.json"
 TIMING_FILE = "timing.json"
 
@@ -143,14 +148,22 @@ def _frame_period_s(rig: dict[str, Any], camera: str, obs: pd.DataFrame) -> floa
     return float(np.median(steps)) if steps.size else 1.0 / 60.0
 
 
+def _exposure_s(rig: dict[str, Any], camera: str) -> float:
+    """The camera's exposure time (s) from the configuration snapshot; 0 when absent or not a number."""
+    e = ((rig.get("cameras") or {}).get(camera) or {}).get("exposure_s")
+    return float(e) if isinstance(e, int | float) and not isinstance(e, bool) and 0 <= e < 1 else 0.0
+
+
 def controller_offsets(camera_events: pd.DataFrame | None, timing: TimingResult,
-                       frame_period_s: dict[str, float]) -> pd.DataFrame:
+                       frame_period_s: dict[str, float],
+                       exposure_s: dict[str, float] | None = None) -> pd.DataFrame:
     """One row per usable ``camera`` start event: segment, session, camera, offset_s (controller − reference).
 
     ``camera_events``: the ``camera`` stream of :func:`rig.record.load_run` (columns time_s, step, session,
     camera, action, first_timestamp_s; optional ``t_s`` = controller time of the start when the event is
-    written later, and ``segment`` when a step records several segments). See the module docstring for the
-    ½-frame convention.
+    written later, and ``segment`` when a step records several segments). ``exposure_s``: camera →
+    exposure time (s, default 0): the timing model's instants are mid-exposure. See the module docstring
+    for the ½-frame convention.
     """
     cols = ["segment", "session", "camera", "offset_s", "t_s", "period_s"]
     if camera_events is None or camera_events.empty or "action" not in camera_events.columns:
@@ -166,8 +179,9 @@ def controller_offsets(camera_events: pd.DataFrame | None, timing: TimingResult,
         period = frame_period_s.get(cam, 1.0 / 60.0)
         segment = r.get("segment") if isinstance(r.get("segment"), str) else r.get("step")
         session = _number(r.get("session"))
-        rows.append((segment, 0 if session is None else int(session), cam, t_start + 0.5 * period - t_ref,
-                     t_start, period))
+        mid_exposure = 0.5 * (exposure_s or {}).get(cam, 0.0)
+        rows.append((segment, 0 if session is None else int(session), cam,
+                     t_start + 0.5 * period + mid_exposure - t_ref, t_start, period))
     return pd.DataFrame(rows, columns=cols)
 
 
@@ -186,8 +200,8 @@ def _offset_for(offsets: pd.DataFrame, segment: str, session: int) -> tuple[floa
     Each start event's offset carries a uniform error of ±T/2 (standard uncertainty T/√12). When all start
     events of the session agree with one relation (a constant, or a straight line in controller time when
     they span long enough to resolve a drift of 20 ppm; residuals within a range of T) it is used — the
-    error averages over all of them; otherwise (a camera clock restarted) the mean of the segment's own
-    events.
+    error averages over all of them (an unresolved drift adds ±``UNRESOLVED_DRIFT_PPM``·|t − t_mid| to the
+    uncertainty); otherwise (a camera clock restarted) the mean of the segment's own events.
     """
     here = offsets[(offsets["segment"] == segment) & (offsets["session"] == session)]
     same = offsets[offsets["session"] == session]
@@ -205,6 +219,8 @@ def _offset_for(offsets: pd.DataFrame, segment: str, session: int) -> tuple[floa
             drift = float(coef[1]) if with_drift else 0.0
             t_seg = float(here["t_s"].mean()) if len(here) else t_mid
             u = period / math.sqrt(12.0 * len(same))
+            if not with_drift:  # an unresolved clock rate error shifts a segment by drift·(t_seg − t_mid)
+                u = math.hypot(u, UNRESOLVED_DRIFT_PPM * 1e-6 * abs(t_seg - t_mid) / math.sqrt(3.0))
             return (float(coef[0] + drift * (t_seg - t_mid)), u,
                     f"fit of all {len(same)} camera start events of session {session} (drift "
                     f"{'%+.1f ppm' % (drift * 1e6) if with_drift else 'not resolved, 0'}, residuals "
@@ -269,7 +285,8 @@ def analyse(
         raise AnalysisError(f"{run_dir / TIMING_FILE}: reference camera {timing.reference_camera!r} is not "
                             f"calibrated (calibration.json has {sorted(cameras)})")
     periods = {c: _frame_period_s(rig, c, run.observations[c]) for c in cameras}
-    offsets = controller_offsets(run.events.get("camera"), timing, periods)
+    offsets = controller_offsets(run.events.get("camera"), timing, periods,
+                                 {c: _exposure_s(rig, c) for c in cameras})
     volume = pairing_volume(rig, volume_margin_mm) if isinstance(rig, dict) else None
     obs = {}
     notes: list[str] = []
