@@ -132,6 +132,13 @@ def _measure(gray: np.ndarray, rows: np.ndarray, cols: np.ndarray, half: np.ndar
             sel = np.nonzero(sizes == size)[0]
             part = measure_windows(gray, rows[sel], cols[sel], int(size), dark=dark, fit_ellipse=fit_ellipse)
             result = _scatter(result, len(rows), sel, part)
+    return _retry_cramped(gray, rows, cols, sizes, result, dark=dark, fit_ellipse=fit_ellipse,
+                          retries=retries)
+
+
+def _retry_cramped(gray: np.ndarray, rows: np.ndarray, cols: np.ndarray, sizes: np.ndarray, result: Measured,
+                   *, dark: bool, fit_ellipse: bool, retries: int) -> Measured:
+    """Measure the windows of ``result`` whose marker reaches the ring again, one ladder step larger."""
     if retries > 0 and len(rows) and result.cramped.any():
         again = np.nonzero(result.cramped & (sizes < _HALF_LADDER[-1]))[0]
         if len(again):
@@ -153,9 +160,10 @@ def _scatter(dst: Measured | None, n: int, sel: np.ndarray, src: Measured) -> Me
 
 
 @np.errstate(invalid="ignore")
-def _rows_from(m: Measured, centre: str, max_edge_rms_px: float, max_skewness: float) -> np.ndarray:
+def _rows_from(m: Measured, centre: str, max_edge_rms_px: float, max_skewness: float,
+               fitted: bool) -> np.ndarray:
+    """Output rows from measurements; ``fitted``: the outline was fitted (else its fields are all NaN)."""
     out = np.empty(len(m.u_px), dtype=MARKER_DTYPE)
-    fitted = bool(np.isfinite(m.u_ellipse_px).any())
     if centre == "ellipse" and fitted:
         use_ellipse = np.isfinite(m.u_ellipse_px)
         out["u_px"] = np.where(use_ellipse, m.u_ellipse_px, m.u_px)
@@ -170,14 +178,14 @@ def _rows_from(m: Measured, centre: str, max_edge_rms_px: float, max_skewness: f
     if fitted:
         edge_limit2 = max_edge_rms_px**2 + (EDGE_NOISE_FACTOR * m.edge_noise_px) ** 2
         occluded |= m.edge_rms_px**2 > edge_limit2
-    out["flags"] = (m.border * np.uint8(FLAG_BORDER)) | (occluded * np.uint8(FLAG_OCCLUDED)) | (
-        m.saturated * np.uint8(FLAG_SATURATED))
+    out["flags"] = (m.border.view(np.uint8) * np.uint8(FLAG_BORDER) + occluded.view(np.uint8) * np.uint8(
+        FLAG_OCCLUDED) + m.saturated.view(np.uint8) * np.uint8(FLAG_SATURATED))
     return out
 
 
 @np.errstate(invalid="ignore")
 def _passes(rec: np.ndarray, min_area_px, max_area_px, min_roundness, min_contrast) -> np.ndarray:
-    return (np.isfinite(rec["u_px"]) & np.isfinite(rec["v_px"])
+    return (np.isfinite(rec["u_px"] + rec["v_px"])
             & (rec["area_px"] >= min_area_px) & (rec["area_px"] <= max_area_px)
             & (rec["roundness"] >= min_roundness) & (rec["contrast"] >= min_contrast))
 
@@ -274,7 +282,7 @@ def detect_markers(
         n_first, n_total = len(rows), len(rows) + len(sel)
         grown = _scatter(None, n_total, np.arange(n_first), measured)
         measured = _scatter(grown, n_total, np.concatenate([sel, n_first + np.arange(len(sel))]), again)
-    rec = _rows_from(measured, centre, max_edge_rms_px, max_skewness)
+    rec = _rows_from(measured, centre, max_edge_rms_px, max_skewness, fit)
     rec = rec[_passes(rec, min_area_px, max_area_px, min_roundness, min_contrast)]
     if regions is not None and len(rec):
         rec = rec[inside_any(rec["u_px"], rec["v_px"], regions)]
@@ -353,17 +361,22 @@ def track_markers(
         raise InputArrayError(f"window_px={window_px}; give an integer side of at least 7 px")
     dark = polarity == "dark"
     height, width = gray.shape
-    with np.errstate(invalid="ignore"):
-        usable = (np.isfinite(pred).all(axis=1) & (pred[:, 0] > -0.5) & (pred[:, 0] < width - 0.5)
-                  & (pred[:, 1] > -0.5) & (pred[:, 1] < height - 0.5))
-    all_usable = bool(usable.all())
-    idx = np.arange(len(pred)) if all_usable else np.nonzero(usable)[0]
+    # usable predictions: inside the frame (NaN compares False, so it is unusable too); the usual case,
+    # all usable, is decided from the extremes (NaN propagates through min and max)
+    low, high = pred.min(axis=0), pred.max(axis=0)
+    all_usable = bool(low[0] > -0.5 and low[1] > -0.5 and high[0] < width - 0.5 and high[1] < height - 0.5)
+    usable = None
+    if not all_usable:
+        usable = ((pred > -0.5) & (pred < (width - 0.5, height - 0.5))).all(axis=1)
+    centre_px = np.rint(pred if all_usable else pred[usable]).astype(np.int64)
+    cols, rows = centre_px[:, 0], centre_px[:, 1]
     half = int(window_px) // 2
-    rows = np.rint(pred[idx, 1]).astype(np.int64)
-    cols = np.rint(pred[idx, 0]).astype(np.int64)
     fit = centre == "ellipse" or outline_check
-    measured = _measure(gray, rows, cols, np.full(len(idx), half), dark=dark, fit_ellipse=fit, exact=True)
-    rec = _rows_from(measured, centre, max_edge_rms_px, max_skewness)
+    measured = measure_windows(gray, rows, cols, half, dark=dark, fit_ellipse=fit)
+    if measured.cramped.any():
+        measured = _retry_cramped(gray, rows, cols, np.full(len(rows), half), measured, dark=dark,
+                                  fit_ellipse=fit, retries=2)
+    rec = _rows_from(measured, centre, max_edge_rms_px, max_skewness, fit)
     passed = _passes(rec, min_area_px, max_area_px, min_roundness, min_contrast)
     if not passed.all():
         lost = ~passed
@@ -376,5 +389,5 @@ def track_markers(
     for field in ("u_px", "v_px", "area_px", "roundness", "contrast"):
         out[field] = np.nan
     out["flags"] = FLAG_LOST
-    out[idx] = rec
+    out[usable] = rec
     return out

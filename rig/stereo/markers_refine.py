@@ -138,8 +138,8 @@ def _select_support(strong: np.ndarray, d: np.ndarray, half_px: int, dist2: np.n
     a marker's region reaches only when its window is too small (then it is measured again, larger).
     """
     k, w, _ = strong.shape
-    _, labels = cv2.connectedComponents(strong.view(np.uint8).reshape(k * w, w), connectivity=8,
-                                        ltype=cv2.CV_32S)
+    _, labels = cv2.connectedComponentsWithAlgorithm(strong.view(np.uint8).reshape(k * w, w), 8, cv2.CV_32S,
+                                                     cv2.CCL_BBDT)
     labels = labels.reshape(k, w, w)
     own = labels[:, half_px, half_px].copy()
     missing = np.nonzero(own == 0)[0]
@@ -156,30 +156,47 @@ def _select_support(strong: np.ndarray, d: np.ndarray, half_px: int, dist2: np.n
     return labels == own[:, None, None]
 
 
+def _constants() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Matrices turning products of the centroid (a, b) and the covariances into central moments.
+
+    With m = (a, b): cov (xx, xy, yy) = E2 − (m⊗m)·C2, and the third central moments (μ30, μ21, μ12, μ03)
+    = E3 − (m⊗cov)·C3 − (m⊗m⊗m)·C3m, ⊗ the flattened outer product (μ30 = Exxx − 3a·cxx − a³,
+    μ21 = Exxy − b·cxx − 2a·cxy − a²b, and the mirror images).
+    """
+    c2 = np.zeros((4, 3))  # m⊗m = (aa, ab, ba, bb)
+    c2[[0, 1, 3], [0, 1, 2]] = 1.0
+    c3 = np.zeros((6, 4))  # m⊗cov = (a·cxx, a·cxy, a·cyy, b·cxx, b·cxy, b·cyy)
+    c3[[0, 3, 1, 2, 4, 5], [0, 1, 1, 2, 2, 3]] = [3.0, 1.0, 2.0, 1.0, 2.0, 3.0]
+    c3m = np.zeros((8, 4))  # m⊗m⊗m, index 4i + 2j + k of a (0) and b (1)
+    c3m[[0, 1, 3, 7], [0, 1, 2, 3]] = 1.0
+    return c2, c3, c3m
+
+
+_C2, _C3, _C3M = _constants()
+_SKEW_WEIGHTS = np.array([1.0, 3.0, 3.0, 1.0])
+
+
 def _moment_shape(raw_m: np.ndarray):
     """Centroid offsets, roundness and skewness from raw moments (K, 10) of (1, x, y, xx, xy, yy, xxx, ...).
 
     skewness = (μ30² + 3μ21² + 3μ12² + μ03²) / det(Σ)^(3/2) from the central moments: Mardia's b1 for a
     round blob, 0 for every centrally symmetric one. Called under measure_windows' np.errstate (empty
-    windows give NaN).
+    windows give NaN). Batched over the windows in a fixed number of small array operations.
     """
+    k = len(raw_m)
     e = raw_m[:, 1:] / raw_m[:, :1]
-    mx, my, exx, exy, eyy, exxx, exxy, exyy, eyyy = e.T
-    cxx = exx - mx * mx
-    cxy = exy - mx * my
-    cyy = eyy - my * my
+    m = e[:, :2]
+    mm = (m[:, :, None] * m[:, None, :]).reshape(k, 4)
+    cov = e[:, 2:5] - mm @ _C2
+    cxx, cxy, cyy = cov.T
     det = cxx * cyy - cxy * cxy
     half_trace = 0.5 * (cxx + cyy)
     root = np.sqrt(np.maximum(half_trace * half_trace - det, 0.0))
     roundness = np.sqrt(np.maximum(half_trace - root, 0.0) / (half_trace + root))
-    mx2 = 2 * mx * mx
-    my2 = 2 * my * my
-    c30 = exxx - mx * (3 * exx - mx2)
-    c03 = eyyy - my * (3 * eyy - my2)
-    c21 = exxy - 2 * mx * exy - my * (exx - mx2)
-    c12 = exyy - 2 * my * exy - mx * (eyy - my2)
-    skew = (c30 * c30 + 3 * c21 * c21 + 3 * c12 * c12 + c03 * c03) / det**1.5
-    return mx, my, roundness, skew
+    central3 = (e[:, 5:] - (m[:, :, None] * cov[:, None, :]).reshape(k, 6) @ _C3
+                - (mm[:, :, None] * m[:, None, :]).reshape(k, 8) @ _C3M)
+    skew = (central3 * central3) @ _SKEW_WEIGHTS / det**1.5
+    return m[:, 0], m[:, 1], roundness, skew
 
 
 @np.errstate(invalid="ignore", divide="ignore")
@@ -211,10 +228,7 @@ def measure_windows(image: np.ndarray, rows: np.ndarray, cols: np.ndarray, half_
     support = _select_support(grid > 0, grid, half_px, geo.dist2).reshape(n, -1)
     weights *= support
     raw_m = (weights @ geo.moments).astype(np.float64)
-    du, dv, roundness, skew = _moment_shape(raw_m[:, :10])
-    empty = ~(raw_m[:, 0] > 0)
-    du[empty] = np.nan
-    dv[empty] = np.nan
+    du, dv, roundness, skew = _moment_shape(raw_m[:, :10])  # NaN for empty windows (0/0)
     # contrast: the plateau, i.e. the mean signal of the pixels above 85 % of the peak (the peak alone,
     # a maximum of N noisy pixels, would be biased up by ≈ σ·√(2 ln N)); area: the integrated signal
     # above the floor over the plateau above it (exact for a flat disc, nearly so for a blurred one:
@@ -223,17 +237,12 @@ def measure_windows(image: np.ndarray, rows: np.ndarray, cols: np.ndarray, half_
     peak = (np.einsum("ij,ij->i", weights, top) / (top @ geo.moments[:, 0])).astype(np.float64)
     contrast = peak + floor
     area = raw_m[:, 0] / peak
-    contrast[empty] = np.nan
+    contrast[~(raw_m[:, 0] > 0)] = np.nan
     saturated = (support & (flat == 255)).any(axis=1) if raw.max() == 255 else np.zeros(n, bool)
     cramped = raw_m[:, 10] > 0  # weight on the ring's inner edge: the marker reaches the ring
     border = np.zeros(n, dtype=bool) if valid is None else ~valid.all(axis=(1, 2))
-    bg = coef[:, 0]
-    signal = None
 
-    u_e = np.full(n, np.nan)
-    v_e = np.full(n, np.nan)
-    edge_rms = np.full(n, np.nan)
-    edge_noise = np.full(n, np.nan)
+    u_e, v_e, edge_rms, edge_noise = np.full((4, n), np.nan)
     if fit_ellipse and n:
         level = np.where(np.isfinite(contrast), 0.5 * contrast, np.inf).astype(np.float32)
         signal = (weights + floor[:, None] * support).reshape(n, w, w)  # d on the support, 0 elsewhere
@@ -244,7 +253,7 @@ def measure_windows(image: np.ndarray, rows: np.ndarray, cols: np.ndarray, half_
 
     return Measured(
         u_px=cols + du, v_px=rows + dv, area_px=area, roundness=roundness, contrast=contrast,
-        background=bg.astype(np.float64), sigma=sigma.astype(np.float64), skewness=skew,
+        background=coef[:, 0].astype(np.float64), sigma=sigma.astype(np.float64), skewness=skew,
         u_ellipse_px=u_e, v_ellipse_px=v_e, edge_rms_px=edge_rms,
         edge_noise_px=edge_noise, skewness_noise=8.0 * sigma.astype(np.float64) ** 2 / (contrast**2 * area),
         border=border, saturated=saturated, cramped=cramped,
