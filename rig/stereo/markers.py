@@ -363,8 +363,11 @@ def track_markers(
     height, width = gray.shape
     # usable predictions: inside the frame (NaN compares False, so it is unusable too); the usual case,
     # all usable, is decided from the extremes (NaN propagates through min and max)
-    low, high = pred.min(axis=0), pred.max(axis=0)
-    all_usable = bool(low[0] > -0.5 and low[1] > -0.5 and high[0] < width - 0.5 and high[1] < height - 0.5)
+    all_usable = True
+    if len(pred):
+        low, high = pred.min(axis=0), pred.max(axis=0)
+        all_usable = bool(low[0] > -0.5 and low[1] > -0.5 and high[0] < width - 0.5
+                          and high[1] < height - 0.5)
     usable = None
     if not all_usable:
         usable = ((pred > -0.5) & (pred < (width - 0.5, height - 0.5))).all(axis=1)
