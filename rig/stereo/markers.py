@@ -121,9 +121,7 @@ def _measure(gray: np.ndarray, rows: np.ndarray, cols: np.ndarray, half: np.ndar
     sizes = np.asarray(half, dtype=np.int64).copy() if exact else _merge_sizes(_ladder(half))
     groups = np.unique(sizes)
     if len(groups) == 0:
-        flags = ("border", "saturated", "cramped")
-        return Measured(**{key: np.zeros(0, dtype=bool if key in flags else float)
-                           for key in Measured.__dataclass_fields__})
+        return Measured.empty()
     if len(groups) == 1:  # the usual case: one batch
         result = measure_windows(gray, rows, cols, int(groups[0]), dark=dark, fit_ellipse=fit_ellipse)
     else:
@@ -363,11 +361,10 @@ def track_markers(
     height, width = gray.shape
     # usable predictions: inside the frame (NaN compares False, so it is unusable too); the usual case,
     # all usable, is decided from the extremes (NaN propagates through min and max)
-    all_usable = True
-    if len(pred):
-        low, high = pred.min(axis=0), pred.max(axis=0)
-        all_usable = bool(low[0] > -0.5 and low[1] > -0.5 and high[0] < width - 0.5
-                          and high[1] < height - 0.5)
+    if len(pred) == 0:
+        return np.empty(0, dtype=MARKER_DTYPE)
+    low, high = pred.min(axis=0), pred.max(axis=0)
+    all_usable = bool(low[0] > -0.5 and low[1] > -0.5 and high[0] < width - 0.5 and high[1] < height - 0.5)
     usable = None
     if not all_usable:
         usable = ((pred > -0.5) & (pred < (width - 0.5, height - 0.5))).all(axis=1)

@@ -64,6 +64,13 @@ class Measured:
     saturated: np.ndarray  # bool: a support pixel is clipped (255 bright / 0 dark)
     cramped: np.ndarray  # bool: the support reaches the background ring (the window is too small)
 
+    @classmethod
+    def empty(cls) -> Measured:
+        """Measurements of no window (all arrays of length 0)."""
+        flags = ("border", "saturated", "cramped")
+        return cls(**{key: np.zeros(0, dtype=bool if key in flags else float)
+                      for key in cls.__dataclass_fields__})
+
 
 @dataclass(frozen=True)
 class _Geometry:
@@ -209,6 +216,8 @@ def measure_windows(image: np.ndarray, rows: np.ndarray, cols: np.ndarray, half_
     support above the noise floor give NaN measurements.
     """
     n = len(rows)
+    if n == 0:
+        return Measured.empty()
     w = 2 * half_px + 1
     geo = _geometry(half_px)
     raw, valid = gather_windows(image, rows, cols, half_px)
