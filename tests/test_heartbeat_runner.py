@@ -77,8 +77,7 @@ def _done(run: Any) -> set[str]:
 def test_healthy_run_keeps_beating_through_a_long_move_and_an_idle_hold(tmp_path: Path) -> None:
     def body(ctx: Any, servers: dict[str, Any]) -> None:
         ctx.device("robot").move_to(MOVE_TARGET, speed_mm_s=17.5)  # 2 s wall: only keep-alives for it
-        ctx.device("exciter").set_frequency(2.0)
-        _hold(ctx, 2.5 * HEARTBEAT_TIMEOUT_S)  # every device idle: probed, answering
+        _hold(ctx, 2.0 * HEARTBEAT_TIMEOUT_S)  # every device idle: probed, answering
 
     out, run, seen = _run(tmp_path, body)
     assert out.exit_code == 0, out.reason
@@ -111,6 +110,24 @@ def test_exciter_that_stops_answering_trips_the_interlock_and_the_rest_is_made_s
     assert [f["device"] for f in failures] == ["exciter"]  # attempted, but nothing answers
     world, clock = seen["station"].world, seen["station"].clock
     assert world.exciter.frequency_hz(clock.now_s() + 60.0) == 0.0  # the unanswered stop still reached it
+
+
+def test_interlock_during_a_move_stops_the_arm_though_the_halt_gets_e_busy_proc(tmp_path: Path) -> None:
+    """The trip interrupts the procedure while it waits for a blocking Move: the controller still
+    executes it and refuses Robot_Halt (E_BUSY_PROC), so the arm's safe state closes the connection and
+    the controller ends the session, stopping the arm short of its target."""
+    def body(ctx: Any, servers: dict[str, Any]) -> None:
+        threading.Timer(0.3, servers["exciter"].inject, args=("no_reply",), kwargs={"count": None}).start()
+        ctx.device("robot").move_to(MOVE_TARGET, speed_mm_s=7.0)  # 10 s virtual = 5 s wall
+
+    out, run, seen = _run(tmp_path, body)
+    assert out.exit_code == 3 and run.interlocks["device"].tolist() == ["exciter"], out.reason
+    robot_failure = [f for f in run.stop["safe_state_failures"] if f["device"] == "robot"]
+    assert robot_failure and "ArmHaltError: Robot_Halt refused with E_BUSY_PROC" in robot_failure[0]["error"]
+    assert {"rotor", "generator"} <= _done(run)
+    world, clock = seen["station"].world, seen["station"].clock
+    assert not world.robot.is_moving(clock.now_s())
+    assert world.robot.pose_at(clock.now_s())[0] < MOVE_TARGET[0] - 5.0  # stopped, not arrived
 
 
 def test_arm_connection_closed_mid_move_is_the_interlock(tmp_path: Path) -> None:

@@ -26,7 +26,7 @@ import numpy as np
 from drivers.clock import Clock
 from drivers.denso import bcap
 from drivers.denso.client import BcapClient
-from drivers.denso.hresult import BcapError, BcapProtocolError
+from drivers.denso.hresult import E_BUSY_PROC, BcapError, BcapProtocolError
 from drivers.denso.pose import check_pose, orientation_error_deg
 from drivers.heartbeat import Heartbeat, HeartbeatError
 from drivers.transport import TransportError
@@ -40,6 +40,10 @@ class LimitError(ValueError):
     def __init__(self, axis: str, value: float, allowed: tuple[float, float]) -> None:
         self.axis, self.value, self.allowed = axis, value, allowed
         super().__init__(f"{axis}={value:g} outside the allowed range [{allowed[0]:g}, {allowed[1]:g}]")
+
+
+class ArmHaltError(RuntimeError):
+    """The arm could not be halted by a Robot_Halt; the message says what was done instead."""
 
 
 class PositionMismatchError(RuntimeError):
@@ -300,6 +304,24 @@ class DensoArm:
                       timeout_s=timeout_s, attempts=1)
         else:
             raise HeartbeatError("robot", "no b-CAP session to probe (open() not called or closed)")
+
+    def safe_state(self) -> None:
+        """The runner's "make safe": Robot_Halt. If the controller refuses it with E_BUSY_PROC — a
+        blocking Move is still executing on this connection because the procedure was interrupted
+        (interlock, second Ctrl-C) while waiting for it, and b-CAP accepts no other request meanwhile
+        (bcap.md §10) — the connection is closed so the controller ends the session and stops the arm
+        (what the mock RC8 does; **UNVERIFIED** on a real RC8), and :class:`ArmHaltError` says so."""
+        try:
+            self.halt()
+        except BcapError as exc:
+            if exc.hresult != E_BUSY_PROC:
+                raise
+            self.client.link.transport.close()
+            self.client.link.contact.fail("closed by safe_state: Robot_Halt refused with E_BUSY_PROC")
+            raise ArmHaltError(
+                "Robot_Halt refused with E_BUSY_PROC (an interrupted Move is still executing on this "
+                "connection); the b-CAP connection was closed so the controller ends the session and "
+                "stops the arm — check the arm is at rest") from exc
 
     def _try_halt(self) -> None:
         try:
