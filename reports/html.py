@@ -298,7 +298,8 @@ def render(
         + "<p class='note'>The phase of every bin is taken relative to the track's first bin: it grows as "
         "−360°·f·τ when the tracks' time stamps are offset by τ from the rig clock (the camera-to-controller "
         "clock mapping); 'track delay' is that τ from the slope. It shifts the motion in time and does not "
-        "change the amplitude.</p>"
+        "change the amplitude. The reference phase is the crank's polled actual frequency (the drive ramps "
+        "ahead of the commanded profile); the notes say when only the commanded profile was available.</p>"
         + "<p class='note'>± on c0 and c2: 95 % confidence half-widths (Student's t); on the limit: its"
         " expanded uncertainty from the fit covariance.</p>"
         + _figure(pngs, "sweep_time_frequency", "Frequency of the sweep over time (paper Fig. 17)")
