@@ -2,6 +2,9 @@
 
 * :func:`accept_loop` — accept connections on a listening socket until a stop event is set, handing
   each to a callback (the b-CAP and SCPI mocks; the VFD mock's TCP side is pymodbus's);
+* :func:`require_loopback` — every mock binds a loopback address only: it speaks a real controller's
+  protocol with no authentication and moves nothing real, so it must never be reachable from the network
+  (where a program looking for the real device could find it);
 * :func:`standalone_parser`, :func:`start_standalone`, :func:`wait_for_interrupt` — what every
   ``python -m drivers.mock.<server>`` needs: ``--port``/``--rate`` options, logging, its own simulated
   world on a paced virtual clock, and serving until Ctrl-C or ``kill`` (SIGTERM), both a clean stop.
@@ -11,6 +14,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import ipaddress
 import logging
 import signal
 import socket
@@ -18,7 +22,32 @@ import threading
 from collections.abc import Callable
 from typing import Any
 
-__all__ = ["accept_loop", "standalone_parser", "start_standalone", "wait_for_interrupt"]
+__all__ = ["accept_loop", "loopback_host", "require_loopback", "standalone_parser", "start_standalone",
+           "wait_for_interrupt"]
+
+
+def require_loopback(host: str, what: str = "host") -> str:
+    """``host`` if it is an IPv4 loopback address (127.0.0.0/8; ``"localhost"`` → ``"127.0.0.1"``), else
+    ``ValueError`` naming it: mock servers bind 127.0.0.1 only, never an address reachable from outside."""
+    text = str(host).strip()
+    if text.lower() == "localhost":
+        return "127.0.0.1"
+    try:
+        address = ipaddress.ip_address(text)
+    except ValueError:
+        address = None
+    if address is None or address.version != 4 or not address.is_loopback:
+        raise ValueError(f"{what}={host!r} is not allowed: a mock server binds a loopback address only "
+                         "(127.0.0.1, or 127.x.y.z), so that it is never reachable from the network")
+    return text
+
+
+def loopback_host(text: str) -> str:
+    """argparse ``type`` for ``--host``: :func:`require_loopback` with argparse's error."""
+    try:
+        return require_loopback(text, "--host")
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from exc
 
 
 def accept_loop(listener: socket.socket, stopped: threading.Event,

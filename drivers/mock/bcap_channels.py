@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import abc
 import contextlib
 import os
 import pty
@@ -10,20 +11,24 @@ import socket
 import tty
 
 
-class Channel:
-    """A byte pipe to one client: a TCP socket or a pty master."""
+class Channel(abc.ABC):
+    """A byte pipe to one client: a TCP socket, a pty master or a UDP socket. ``name`` says which."""
 
+    name: str
     serial_line = False  # CRC framing
     may_retry = False    # clients may re-send (serial line, UDP): keep a reply cache
 
-    def recv(self, timeout_s: float) -> bytes:  # b"" on timeout; EOFError when closed
-        raise NotImplementedError
+    @abc.abstractmethod
+    def recv(self, timeout_s: float) -> bytes:
+        """What arrived within ``timeout_s`` (s): b"" on timeout; EOFError when the channel is closed."""
 
+    @abc.abstractmethod
     def send(self, data: bytes) -> None:
-        raise NotImplementedError
+        """Write all of ``data``; EOFError when the client is gone."""
 
+    @abc.abstractmethod
     def close(self) -> None:
-        raise NotImplementedError
+        """Release the channel (idempotent)."""
 
 
 class TcpChannel(Channel):

@@ -8,13 +8,24 @@ until the move ends in (scaled) wall time, with S_EXECUTING keep-alives every WD
 Protocol behaviour (``../shared/notes/bcap.md`` §15): each reply is one write; handles are returned as
 VT_UI4 and accepted as VT_I4 or VT_UI4; a request arriving while a Move executes gets E_BUSY_PROC; on a
 serial line a retry (reserved field = first attempt's serial) is answered from the reply cache and
-bad-CRC packets are dropped silently; a second TCP client gets E_MAX_CONNECT. Fault switches are in
-:class:`Faults`.
+bad-CRC packets are dropped silently. Fault switches are in :class:`Faults`.
+
+**One client at a time**, over all channels: the controller state is one arm whose cleanup when a client
+goes away halts the robot, switches the motor off and drops *every* handle — two concurrent clients
+(say one on TCP, one on the serial line) would pull the arm from under each other, so the mock does not
+serve one client per channel. A client holds the controller from its first request until its connection
+ends or it sends Service_Stop (a serial line has no connection to close: Service_Stop, which the driver
+sends last, ends its session); a request of any other client meanwhile gets E_MAX_CONNECT. An open but
+silent channel holds nothing, so serving ``--pty`` beside TCP does not lock TCP clients out. (A serial
+client that dies without Service_Stop keeps the controller until the mock restarts.)
+
+The mock binds loopback addresses only (127.0.0.1 by default): ``ValueError`` / a usage error otherwise.
 
 Run on its own (own world, paced clock at real time)::
 
     python -m drivers.mock.bcap_server --port 5007          # tcp://127.0.0.1:5007
-    python -m drivers.mock.bcap_server --pty                # prints the pty slave to open
+    python -m drivers.mock.bcap_server --port 0             # any free port; the first line printed says which
+    python -m drivers.mock.bcap_server --pty                # also prints the pty slave to open
 """
 
 from __future__ import annotations
@@ -29,9 +40,16 @@ from types import TracebackType
 from typing import Any
 
 from drivers.denso import hresult as hr
-from drivers.denso.bcap import Packet, PacketDecoder, encode_packet
+from drivers.denso.bcap import SERVICE_STOP, Packet, PacketDecoder, encode_packet
 from drivers.denso.variant import EMPTY, Variant
-from drivers.mock._serve import accept_loop, standalone_parser, start_standalone, wait_for_interrupt
+from drivers.mock._serve import (
+    accept_loop,
+    loopback_host,
+    require_loopback,
+    standalone_parser,
+    start_standalone,
+    wait_for_interrupt,
+)
 from drivers.mock.bcap_args import VALUE_RETURNING
 from drivers.mock.bcap_channels import Channel, PtyChannel, TcpChannel, UdpChannel
 from drivers.mock.bcap_state import ControllerState, RobotBodyLike
@@ -64,10 +82,9 @@ class Faults:
 class _Session:
     """One client connection: reads requests, executes them on the shared state, writes replies."""
 
-    def __init__(self, server: BcapMockServer, channel: Channel, *, refuse: bool = False) -> None:
+    def __init__(self, server: BcapMockServer, channel: Channel) -> None:
         self.server = server
         self.channel = channel
-        self.refuse = refuse
         self._write_lock = threading.Lock()
         self._cache: OrderedDict[int, tuple[int, int, list[Variant]]] = OrderedDict()
         self._executing: tuple[int, int] | None = None  # (original serial, function) of a running Move
@@ -93,10 +110,7 @@ class _Session:
             log.info("%s: client gone", self.channel.name)
         finally:
             self._stop.set()
-            if not self.refuse:
-                with self.server.lock:
-                    self.server.state.release_all()
-                self.server._session_ended(self)
+            self.server._session_ended(self)
             self.channel.close()
 
     def stop(self) -> None:
@@ -113,8 +127,8 @@ class _Session:
         faults, function = self.server.faults, packet.code
         self.server.requests.append((packet.serial, packet.reserved, function))
         original = packet.reserved if self.channel.may_retry and packet.reserved else packet.serial
-        if self.refuse:
-            self._reply(packet, hr.E_MAX_CONNECT, [EMPTY] if function in VALUE_RETURNING else [])
+        if not self.server._claim(self):  # another client holds the controller
+            self._reply(packet, hr.E_MAX_CONNECT, [EMPTY] if function in VALUE_RETURNING else [], cache=False)
             return
         if original != packet.serial:
             if original in self._cache:  # a retry of an answered request: re-send the same reply
@@ -134,6 +148,8 @@ class _Session:
             outcome = self.server.state.execute(function, list(packet.args))
         if outcome.motion_end_s is None or hr.is_failure(outcome.hresult):
             self._reply(packet, outcome.hresult, outcome.args)
+            if function == SERVICE_STOP:  # the client is done (all a serial line can say): controller free
+                self.server._release(self)
             return
         if self.server.instant:
             if faults.close_mid_move:
@@ -239,7 +255,8 @@ class BcapMockServer:
         self.requests: list[tuple[int, int, int]] = []  # (serial, reserved, function ID) as received
 
     def serve_tcp(self, host: str = "127.0.0.1", port: int = 0) -> int:
-        """Listen on ``host:port`` (0 = ephemeral); return the bound port."""
+        """Listen on ``host:port`` (a loopback address; port 0 = ephemeral); return the bound port."""
+        host = require_loopback(host)
         self._listener = socket.create_server((host, port))
         self.port = self._listener.getsockname()[1]
         threading.Thread(target=accept_loop, args=(self._listener, self._closing, self._on_connection),
@@ -248,8 +265,8 @@ class BcapMockServer:
         return self.port
 
     def serve_udp(self, host: str = "127.0.0.1", port: int = 0) -> int:
-        """Serve b-CAP over UDP (503-byte packets, retry cache); return the bound port."""
-        channel = UdpChannel(host, port)
+        """Serve b-CAP over UDP (503-byte packets, retry cache) on loopback ``host``; return the port."""
+        channel = UdpChannel(require_loopback(host), port)
         self._start_session(channel)
         return channel.port
 
@@ -264,18 +281,36 @@ class BcapMockServer:
         self._start_session(TcpChannel(sock))
 
     def _start_session(self, channel: Channel) -> None:
+        session = _Session(self, channel)
         with self.lock:
-            refuse = self._active is not None
-            session = _Session(self, channel, refuse=refuse)
-            if not refuse:
-                self._active = session
             self._sessions.append(session)
         session.thread.start()
 
+    def _claim(self, session: _Session) -> bool:
+        """True if ``session`` holds the controller (taking it when free); False if another client does."""
+        with self.lock:
+            if self._active is None:
+                self._active = session
+                log.info("%s: holds the controller", session.channel.name)
+            return self._active is session
+
+    def _release(self, session: _Session) -> bool:
+        """Free the controller if ``session`` held it; True if it did."""
+        with self.lock:
+            if self._active is not session:
+                return False
+            self._active = None
+        log.info("%s: controller free", session.channel.name)
+        return True
+
     def _session_ended(self, session: _Session) -> None:
+        """A client went away: if it held the controller, the arm is stopped and its handles dropped."""
         with self.lock:
             if self._active is session:
+                self.state.release_all()
                 self._active = None
+            if session in self._sessions:
+                self._sessions.remove(session)
 
     def close(self) -> None:
         self._closing.set()
@@ -297,7 +332,8 @@ class BcapMockServer:
 def main(argv: list[str] | None = None) -> int:
     parser = standalone_parser("bcap_server", "Mock DENSO RC8 controller (b-CAP) on the simulated robot.",
                                default_port=5007)
-    parser.add_argument("--host", default="127.0.0.1", help="address to bind (default 127.0.0.1)")
+    parser.add_argument("--host", default="127.0.0.1", type=loopback_host,
+                        help="loopback address to bind (default 127.0.0.1; other addresses are refused)")
     parser.add_argument("--pty", action="store_true", help="also serve a pty serial line (CRC framing)")
     options, world = start_standalone(parser, argv)
     with BcapMockServer(world.robot, world.clock) as server:

@@ -29,7 +29,13 @@ import threading
 from types import TracebackType
 from typing import Any
 
-from drivers.mock._serve import accept_loop, standalone_parser, start_standalone, wait_for_interrupt
+from drivers.mock._serve import (
+    accept_loop,
+    require_loopback,
+    standalone_parser,
+    start_standalone,
+    wait_for_interrupt,
+)
 from drivers.mock.generator_instrument import GeneratorInstrument
 from drivers.mock.pty_link import PtyLink
 
@@ -41,7 +47,8 @@ MAX_LINE = 4096
 
 
 class GeneratorServer:
-    """Serve a :class:`GeneratorInstrument` in background threads. mode: "tcp" or "pty"."""
+    """Serve a :class:`GeneratorInstrument` in background threads. mode: "tcp" or "pty". host: a loopback
+    address only (ValueError otherwise: a mock is never reachable from the network)."""
 
     def __init__(self, instrument: GeneratorInstrument, *, mode: str = "tcp", host: str = "127.0.0.1",
                  port: int = 0) -> None:
@@ -49,7 +56,7 @@ class GeneratorServer:
             raise ValueError(f"mode={mode!r}: must be 'tcp' or 'pty'")
         self.instrument = instrument
         self.mode = mode
-        self.host = host
+        self.host = require_loopback(host)
         self.port = port
         self.link: PtyLink | None = None
         self.fault: str | None = None

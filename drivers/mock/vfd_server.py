@@ -38,7 +38,7 @@ from pymodbus.constants import ExcCodes
 from pymodbus.framer import FramerType
 from pymodbus.server import ModbusSerialServer, ModbusTcpServer
 
-from drivers.mock._serve import standalone_parser, start_standalone, wait_for_interrupt
+from drivers.mock._serve import require_loopback, standalone_parser, start_standalone, wait_for_interrupt
 from drivers.mock.pty_link import PtyLink
 from drivers.mock.vfd_drive import DriveModel
 
@@ -54,7 +54,8 @@ class VfdServer:
     """Serve one :class:`DriveModel`, or several with distinct unit ids sharing one line (an RS-485
     bus with the exciter and the rotor drives), in a background thread (its own asyncio loop).
 
-    mode: "tcp" or "rtu". host/port: TCP bind address (127.0.0.1 only by default; port 0 picks one).
+    mode: "tcp" or "rtu". host/port: TCP bind address (a loopback address only, ValueError otherwise;
+    port 0 picks one).
     serial_port: RTU device path to open; None creates a pty pair (see :attr:`client_port`).
     baudrate: RTU line speed (a pty ignores it, but pymodbus times frames with it).
     """
@@ -70,7 +71,7 @@ class VfdServer:
             raise ValueError(f"drives need distinct unit ids on one line, got {units}")
         self.drive = self.drives[0]
         self.mode = mode
-        self.host = host
+        self.host = require_loopback(host)
         self.port = port
         self.baudrate = baudrate
         self.link: PtyLink | None = None
