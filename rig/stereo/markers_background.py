@@ -63,7 +63,7 @@ def ring_background(flat: np.ndarray, valid: np.ndarray | None, half_px: int):
     """
     geo = ring_geometry(half_px)
     vals = flat[:, geo.idx]
-    if valid is not None:
+    if valid is not None:  # windows reaching outside the image (rare)
         return _robust(vals, valid[:, geo.idx], geo)
     lo, p16, p50, p84, hi = np.sort(vals, axis=1, kind="stable")[:, geo.kth].T.astype(np.float64)
     reach = OUTLIER_SPREADS * np.maximum(np.minimum(p50 - p16, p84 - p50), 1.0)
@@ -77,50 +77,37 @@ def ring_background(flat: np.ndarray, valid: np.ndarray | None, half_px: int):
     sigma = np.maximum(np.sqrt(np.maximum(rss, 0.0) / (len(geo.idx) - 3.0)), MIN_SIGMA_DN)
     coef, sigma = coef.astype(np.float32), sigma.astype(np.float32)
     outliers = np.nonzero((hi - p50 > reach) | (p50 - lo > reach))[0]
-    if len(outliers):
-        coef[outliers], sigma[outliers] = _robust(vals[outliers], None, geo)
+    if len(outliers):  # a few per cent of the rings (noise tails, a neighbour): refit without outliers
+        values = vals[outliers].astype(np.float64)
+        inlier = np.abs(values - p50[outliers, None]) <= reach[outliers, None]
+        coef[outliers], sigma[outliers] = _weighted_fit(values, inlier, geo)
     return coef, sigma
 
 
-@functools.lru_cache(maxsize=64)
-def _rank_tables(n_win: int, n_ring: int) -> tuple[np.ndarray, np.ndarray]:
-    """Histogram offsets (K, 1) = 256·k and the running-sum ranks of the 16/50/84 % points (3K,)."""
-    win = np.arange(n_win, dtype=np.intp)[:, None]
-    ranks = (np.array([0.16, 0.5, 0.84]) * (n_ring - 1) + win * n_ring).ravel()
-    return win * 256, ranks
-
-
-def _robust(ring_vals: np.ndarray, ring_valid: np.ndarray | None, geo: Ring):
-    """The general fit (outliers left out, invalid pixels ignored) of ring values (K, P) uint8."""
-    n_win, n_ring = ring_vals.shape
-    if ring_valid is not None:  # out-of-image ring pixels: NaN, ignored by nanpercentile (rare path)
-        vals = np.where(ring_valid, ring_vals.astype(np.float32), np.nan)
-        with warnings.catch_warnings():  # a ring wholly outside the frame: NaN, replaced just below
-            warnings.simplefilter("ignore", RuntimeWarning)
-            p16, p50, p84 = np.nanpercentile(vals, [16, 50, 84], axis=1, method="lower")
-        p16, p50, p84 = (np.nan_to_num(p, nan=0.0) for p in (p16, p50, p84))
-    else:
-        # percentiles of uint8 values from one histogram per window: the windows' histograms laid end
-        # to end have one running sum, in which window k starts at k·P counts
-        offsets, ranks = _rank_tables(n_win, n_ring)
-        cum = np.bincount((ring_vals + offsets).ravel(), minlength=256 * n_win).cumsum()
-        p16, p50, p84 = (np.searchsorted(cum, ranks, side="right").reshape(n_win, 3) - offsets).T
+def _robust(ring_vals: np.ndarray, ring_valid: np.ndarray, geo: Ring):
+    """The fit of windows reaching outside the image: ring values (K, P) uint8, invalid pixels ignored."""
+    vals = np.where(ring_valid, ring_vals.astype(np.float32), np.nan)
+    with warnings.catch_warnings():  # a ring wholly outside the frame: NaN, replaced just below
+        warnings.simplefilter("ignore", RuntimeWarning)
+        p16, p50, p84 = np.nanpercentile(vals, [16, 50, 84], axis=1, method="lower")
+    p16, p50, p84 = (np.nan_to_num(p, nan=0.0) for p in (p16, p50, p84))
     reach = OUTLIER_SPREADS * np.maximum(np.minimum(p50 - p16, p84 - p50), 1.0)
     values = ring_vals.astype(np.float64)
-    inlier = np.abs(values - p50[:, None]) <= reach[:, None]
-    if ring_valid is not None:
-        inlier &= ring_valid
-    design = geo.design
-    coef = values @ (design @ geo.normal_inv)  # plain least squares, right for a clean ring
-    n_inlier = inlier.sum(axis=1)
-    partial = np.nonzero(n_inlier < n_ring)[0]
-    if len(partial):
-        # weighted normal equations for the others, batched: (AᵀMA) coef = AᵀMy, M the inlier mask
-        mask = inlier[partial].astype(np.float64)
-        normal = (mask @ geo.outer).reshape(len(partial), 3, 3)
-        rhs = (mask * values[partial]) @ design
-        coef[partial] = np.linalg.solve(normal + 1e-9 * np.eye(3), rhs[:, :, None])[:, :, 0]
-    resid = (values - coef @ design.T) * inlier
-    dof = np.maximum(n_inlier - 3.0, 1.0)
-    sigma = np.maximum(np.sqrt(np.einsum("ij,ij->i", resid, resid) / dof), MIN_SIGMA_DN)
+    inlier = (np.abs(values - p50[:, None]) <= reach[:, None]) & ring_valid
+    coef, sigma = _weighted_fit(values, inlier, geo)
     return coef.astype(np.float32), sigma.astype(np.float32)
+
+
+def _weighted_fit(values: np.ndarray, inlier: np.ndarray, geo: Ring):
+    """Plane fitted to the inlier ring values of each window: (coef (K, 3), σ (K,)), float64.
+
+    Batched weighted normal equations (AᵀMA) coef = AᵀMy, M the inlier mask; σ is the RMS residual of
+    the inliers (with K − 3 degrees of freedom), at least MIN_SIGMA_DN.
+    """
+    mask = inlier.astype(np.float64)
+    normal = (mask @ geo.outer).reshape(len(values), 3, 3)
+    rhs = (mask * values) @ geo.design
+    coef = np.linalg.solve(normal + 1e-9 * np.eye(3), rhs[:, :, None])[:, :, 0]
+    resid = (values - coef @ geo.design.T) * mask
+    dof = np.maximum(mask.sum(axis=1) - 3.0, 1.0)
+    return coef, np.maximum(np.sqrt(np.einsum("ij,ij->i", resid, resid) / dof), MIN_SIGMA_DN)
