@@ -159,9 +159,6 @@ class Heartbeat:
         self.probe_errors: list[str] = []
         self.device_problem: str | None = None
 
-    def configure(self, timeout_s: float, interval_s: float | None = None) -> None:
-        self.timeout_s, self.interval_s = check_heartbeat_timing(timeout_s, interval_s)
-
     def check(self) -> bool:
         """Raise :class:`DeviceLostError` if the device is lost (:class:`HeartbeatError` if its last probe
         found a device fault); else maybe start a probe; return True."""
@@ -201,8 +198,8 @@ class Heartbeat:
             try:
                 self.probes_sent += 1
                 problem = self.probe()
-                if isinstance(problem, str) and problem:
-                    self.device_problem = problem
+                # a fault the drive reports now; cleared by a later clean probe (after a fault reset)
+                self.device_problem = problem if isinstance(problem, str) and problem else None
             except Exception as exc:  # the age (or the latched failure) decides; keep the reason
                 self.probe_errors.append(f"{type(exc).__name__}: {exc}")
                 del self.probe_errors[:-5]

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import threading
 import time
+from collections.abc import Callable
 
 import pytest
 from heartbeat_support import HEARTBEAT_TIMEOUT_S, BeatWatcher, sim_station, wait_until
@@ -182,3 +183,72 @@ def test_wait_probes_now_for_rig_check() -> None:
                                                   r"\(probe failed: VfdCommunicationError: heartbeat"):
             st.devices["rotor"].heartbeat(wait=True)
         servers["rotor"].clear_faults()
+
+
+def test_aggressive_probing_interleaves_safely_with_the_procedures_own_calls() -> None:
+    """Probes every 5 ms of idle line, from another thread, while the procedure talks to every device:
+    the link locks keep each request/reply exchange whole (no mixed-up Modbus transactions, no SCPI
+    reply read by the wrong caller, no b-CAP request beside a call in flight)."""
+    with sim_station(rate=10.0) as (st, _servers):
+        devices = st.devices
+        for name in ("robot", "exciter", "rotor", "generator"):
+            dev = devices[name]
+            old = dev.heartbeat_monitor
+            dev.heartbeat_monitor = Heartbeat(name, old.record, old.probe, timeout_s=LIMIT, interval_s=0.005)
+        names = ("robot", "exciter", "rotor", "generator")
+        watchers = [BeatWatcher(devices[n], period_s=0.002) for n in names]
+        for w in watchers:
+            w.__enter__()
+        try:
+            for x_mm in (380.0, 400.0, 360.0):
+                devices["robot"].move_to([x_mm, 0.0, 300.0, 90.0, 0.0, 90.0], speed_mm_s=200.0)
+            devices["exciter"].set_frequency(3.0)
+            devices["rotor"].set_rotation_hz(2.0)
+            devices["generator"].start(10.0, 0.5)
+            devices["generator"].stop()
+            devices["exciter"].stop()
+        finally:
+            for w in watchers:
+                w.__exit__()
+        for w in watchers:
+            assert w.error is None, w.error
+            monitor = w.device.heartbeat_monitor
+            assert monitor.probes_sent > 0 and monitor.probe_errors == [], monitor.probe_errors
+
+
+def _hammer(calls: list[Callable[[], object]], n: int) -> list[BaseException]:
+    """Run each call ``n`` times in its own thread, all at once; return the errors."""
+    errors: list[BaseException] = []
+    start = threading.Barrier(len(calls))
+
+    def loop(call: Callable[[], object]) -> None:
+        start.wait()
+        try:
+            for _ in range(n):
+                call()
+        except BaseException as exc:
+            errors.append(exc)
+
+    threads = [threading.Thread(target=loop, args=(c,)) for c in calls]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join(60.0)
+    return errors
+
+
+def test_probe_and_procedure_calls_from_two_threads_never_mix_replies() -> None:
+    with sim_station(rate=8.0) as (st, _servers):
+        shaker, arm = st.devices["generator"], st.devices["robot"]
+        shaker.generator.set_frequency_hz(12.5)
+        pose = arm.position()
+
+        def read_frequency() -> None:
+            assert shaker.generator.frequency_hz() == 12.5
+
+        def read_pose() -> None:
+            assert (arm.position() == pose).all()
+
+        errors = _hammer([read_frequency, shaker.heartbeat_monitor.probe, read_pose,
+                          arm.heartbeat_monitor.probe], 150)
+        assert errors == []
