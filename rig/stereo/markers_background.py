@@ -101,13 +101,26 @@ def _robust(ring_vals: np.ndarray, ring_valid: np.ndarray, geo: Ring):
 def _weighted_fit(values: np.ndarray, inlier: np.ndarray, geo: Ring):
     """Plane fitted to the inlier ring values of each window: (coef (K, 3), σ (K,)), float64.
 
-    Batched weighted normal equations (AᵀMA) coef = AᵀMy, M the inlier mask; σ is the RMS residual of
-    the inliers (with K − 3 degrees of freedom), at least MIN_SIGMA_DN.
+    Batched weighted normal equations (AᵀMA) coef = AᵀMy, M the inlier mask, solved in closed form
+    (symmetric 3×3: adjugate over determinant; a LAPACK call per batch costs more than the whole fit);
+    σ is the RMS residual of the inliers (with K − 3 degrees of freedom), at least MIN_SIGMA_DN.
     """
     mask = inlier.astype(np.float64)
-    normal = (mask @ geo.outer).reshape(len(values), 3, 3)
+    normal = mask @ geo.outer  # (K, 9): row-major symmetric 3×3 [[a, b, c], [b, d, e], [c, e, f]]
+    normal[:, ::4] += 1e-9  # keeps a ring with (almost) no inliers finite
+    cof = normal[:, _COF_A] * normal[:, _COF_B] - normal[:, _COF_C] * normal[:, _COF_D]
+    det = np.einsum("ij,ij->i", normal[:, :3], cof[:, :3])
     rhs = (mask * values) @ geo.design
-    coef = np.linalg.solve(normal + 1e-9 * np.eye(3), rhs[:, :, None])[:, :, 0]
+    coef = np.einsum("kij,kj->ki", cof[:, _COF_FULL].reshape(-1, 3, 3), rhs) / det[:, None]
     resid = (values - coef @ geo.design.T) * mask
     dof = np.maximum(mask.sum(axis=1) - 3.0, 1.0)
     return coef, np.maximum(np.sqrt(np.einsum("ij,ij->i", resid, resid) / dof), MIN_SIGMA_DN)
+
+
+# cofactors of a symmetric 3×3 matrix flattened row-major (a=0, b=1, c=2, d=4, e=5, f=8), in the order
+# C00 = df − e², C01 = ce − bf, C02 = be − cd, C11 = af − c², C12 = bc − ae, C22 = ad − b²
+_COF_A = np.array([4, 2, 1, 0, 1, 0])
+_COF_B = np.array([8, 5, 5, 8, 2, 4])
+_COF_C = np.array([5, 1, 2, 2, 0, 1])
+_COF_D = np.array([5, 8, 4, 2, 5, 1])
+_COF_FULL = np.array([0, 1, 2, 1, 3, 4, 2, 4, 5])  # the symmetric adjugate from the six cofactors
