@@ -194,14 +194,30 @@ def _number(value: Any) -> float | None:
     return v if math.isfinite(v) else None
 
 
+def _mean_phase_u_s(events: pd.DataFrame, period: float) -> float:
+    """Standard uncertainty (s) of the equal-weight mean of the events' offsets.
+
+    Each offset errs by a uniform ±T/2, but the cameras of one recording share its start instant: their
+    errors are sawtooth functions of one uniform phase, with covariance T²/12·(1 − 6a(1 − a)) for frame
+    grids a·T apart (a from the offsets themselves) — in step (a = 0) they count as one event.
+    """
+    total = 0.0
+    for _, g in events.groupby(["segment", "session", "t_s"], sort=False, dropna=False):
+        off = g["offset_s"].to_numpy(float)
+        a = np.mod((off[:, None] - off[None, :]) / period, 1.0)
+        total += float(np.sum(1.0 - 6.0 * a * (1.0 - a)))
+    return period / math.sqrt(12.0) * math.sqrt(max(total, 0.0)) / len(events)
+
+
 def _offset_for(offsets: pd.DataFrame, segment: str, session: int) -> tuple[float, float, str]:
     """(offset_s, standard uncertainty s, source) of controller − reference clock for one segment.
 
     Each start event's offset carries a uniform error of ±T/2 (standard uncertainty T/√12). When all start
     events of the session agree with one relation (a constant, or a straight line in controller time when
     they span long enough to resolve a drift of 20 ppm; residuals within a range of T) it is used — the
-    error averages over all of them (an unresolved drift adds ±``UNRESOLVED_DRIFT_PPM``·|t − t_mid| to the
-    uncertainty); otherwise (a camera clock restarted) the mean of the segment's own events.
+    error averages over all of them (:func:`_mean_phase_u_s`: the cameras of one recording share its start
+    phase; an unresolved drift adds ±``UNRESOLVED_DRIFT_PPM``·|t − t_mid|); otherwise (a camera clock
+    restarted) the mean of the segment's own events.
     """
     here = offsets[(offsets["segment"] == segment) & (offsets["session"] == session)]
     same = offsets[offsets["session"] == session]
@@ -218,15 +234,18 @@ def _offset_for(offsets: pd.DataFrame, segment: str, session: int) -> tuple[floa
         if np.ptp(resid) <= period * 1.02 + 1e-7:  # uniform errors of width T: one consistent clock relation
             drift = float(coef[1]) if with_drift else 0.0
             t_seg = float(here["t_s"].mean()) if len(here) else t_mid
-            u = period / math.sqrt(12.0 * len(same))
-            if not with_drift:  # an unresolved clock rate error shifts a segment by drift·(t_seg − t_mid)
-                u = math.hypot(u, UNRESOLVED_DRIFT_PPM * 1e-6 * abs(t_seg - t_mid) / math.sqrt(3.0))
+            u = _mean_phase_u_s(same, period)
+            # the drift's own uncertainty, or (unresolved) a rate error of up to ±UNRESOLVED_DRIFT_PPM,
+            # shifts a segment by drift·(t_seg − t_mid)
+            u_rate = (period / math.sqrt(12.0 * spread) if with_drift
+                      else UNRESOLVED_DRIFT_PPM * 1e-6 / math.sqrt(3.0))
+            u = math.hypot(u, u_rate * abs(t_seg - t_mid))
             return (float(coef[0] + drift * (t_seg - t_mid)), u,
                     f"fit of all {len(same)} camera start events of session {session} (drift "
                     f"{'%+.1f ppm' % (drift * 1e6) if with_drift else 'not resolved, 0'}, residuals "
                     f"within {1e3 * np.ptp(resid):.2f} ms)")
     if len(here):
-        u = float(here["period_s"].max()) / math.sqrt(12.0 * len(here))
+        u = _mean_phase_u_s(here, float(here["period_s"].max()))
         return float(here["offset_s"].mean()), u, f"{len(here)} camera start event(s) of the segment"
     if len(offsets):
         u = float(offsets["period_s"].max()) / math.sqrt(12.0)
