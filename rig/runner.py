@@ -17,8 +17,9 @@
    station's interlock checks, and SIGINT handled (first Ctrl-C: abort at the next checkpoint; second:
    ``KeyboardInterrupt`` at once);
 5. **always**, whatever happened: put every device in its safe state (vibration sources, then the arm,
-   then the rest; each attempted; each failure recorded), then write **stop** (``exit_status`` success /
-   abort / fail, ``reason``, ``outcome``, ``exit_code``, ``verdict``) and close the record and station.
+   then the rest; each attempted; each failure recorded), read back what the devices then report
+   (:mod:`rig.readback`), and write **stop** (``exit_status`` success / abort / fail, ``reason``,
+   ``outcome``, ``exit_code``, ``verdict``, ``safe_state``) and close the record and station.
 
 Heartbeats and the station's interlock checks run at every checkpoint and in the watchdog. An
 interlock trip (watchdog, checkpoint, or a driver refusing a command beyond a limit) writes an ``interlock``
@@ -44,6 +45,7 @@ from rig.clock import make_clock
 from rig.config_schema import ConfigError, to_dict
 from rig.jsonenc import dumps
 from rig.procedure import Abort, Context, InterlockTripped, ParameterError, validate_parameters
+from rig.readback import read_back
 from rig.record import RecordError, RunRecord, parse_record
 from rig.safety import (
     EXIT_ABORTED,
@@ -297,7 +299,7 @@ class Runner:
         error = self._lost_device_check(watchdog, error)
         if error is not None and not isinstance(error, Abort | KeyboardInterrupt):
             log.error("procedure raised:\n%s", format_exception(error))
-        return self._finish(record, devices, error, result)
+        return self._finish(record, devices, error, result, clock)
 
     def _lost_device_check(self, watchdog: Watchdog, error: BaseException | None) -> BaseException | None:
         """A procedure that failed on a device error before the watchdog's next round: if a heartbeat now
@@ -320,7 +322,7 @@ class Runner:
         return tripped
 
     def _finish(self, record: RunRecord, devices: dict[str, Any], error: BaseException | None,
-                result: Any) -> RunOutcome:
+                result: Any, clock: Any) -> RunOutcome:
         # a late interlock (tripped after the procedure returned) still counts
         if error is None and self._control.interlock is not None:
             error = InterlockTripped(*self._control.interlock)
@@ -342,6 +344,7 @@ class Runner:
             reason = f"{reason}; then making a device safe failed: " + "; ".join(
                 f"{f['device']}: {f['error']}" for f in failures)
         stop_fields = {"outcome": outcome, "exit_code": exit_code, "safe_state_failures": failures,
+                       "safe_state": read_back(devices, safe, clock),  # what the devices now report
                        "verdict": None if passed is None else ("pass" if passed else "fail")}
         try:
             dumps({"result": result})

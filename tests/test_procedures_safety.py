@@ -108,6 +108,16 @@ def test_ctrl_c_mid_sweep_aborts_with_exciter_stopped_and_arm_halted(tmp_path: P
     # the exciter was running when interrupted (its last polled frequency was not zero)
     polled = [d["data"]["frequency_hz"] for d in steps if d["type"] == "event" and d["stream"] == "exciter"]
     assert polled[-1] > 0
+    # ... and after the runner made it safe, the devices themselves say so (read back over their protocols
+    # after the safe-state actions): the drives commanded to 0 Hz with their output at rest (within the
+    # driver's 0.02 Hz "reached" tolerance: the crank drive may still report its last 0.01 Hz of
+    # deceleration), the arm still, the generator's output off
+    state = run.stop["safe_state"]
+    for axis in ("exciter", "rotor"):
+        assert state[axis]["setpoint_hz"] == 0.0 and abs(state[axis]["frequency_hz"]) <= 0.02, state
+        assert state[axis]["status"] in ("stopped", "decelerating"), state
+    assert state["robot"]["moved_mm"] == 0.0 and state["robot"]["settle_s"] > 0, state
+    assert state["generator"] == {"output_on": False}, state
 
 
 @pytest.mark.slow
