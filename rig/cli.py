@@ -214,7 +214,12 @@ def cmd_mock(args: argparse.Namespace) -> int:
     except ImportError as exc:
         print(f"rig mock {args.device}: the mock server is not available ({exc})", file=sys.stderr)
         return EXIT_FAULT
-    return int(module.main([*fixed, *args.options]) or 0)
+    argv = [*fixed, *args.options]
+    # the mock's own --help/usage/errors name it as typed here (``rig mock robot``), where its main() takes
+    # a prog; otherwise they show the stand-alone ``python -m drivers.mock.…`` name
+    if "prog" in inspect.signature(module.main).parameters:
+        return int(module.main(argv, prog=f"rig mock {args.device}") or 0)
+    return int(module.main(argv) or 0)
 
 
 def cmd_list(args: argparse.Namespace) -> int:

@@ -1,0 +1,48 @@
+"""`rig mock DEVICE` names itself ``rig mock DEVICE`` in the mock's --help, usage and errors."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import types
+from pathlib import Path
+
+import pytest
+
+from rig import cli
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def test_rig_mock_passes_its_own_name_and_the_options_to_the_mock(monkeypatch: pytest.MonkeyPatch) -> None:
+    calls = []
+    fake = types.ModuleType("fake_mock_server")
+
+    def main(argv: list[str] | None = None, prog: str | None = None) -> int:
+        calls.append((argv, prog))
+        return 0
+
+    fake.main = main  # type: ignore[attr-defined]
+    monkeypatch.setitem(sys.modules, "fake_mock_server", fake)
+    monkeypatch.setitem(cli.MOCK_MODULES, "rotor", ("fake_mock_server", ["--body", "rotor"]))
+    assert cli.main(["mock", "rotor", "--port", "0", "--rate", "2"]) == 0
+    assert calls == [(["--body", "rotor", "--port", "0", "--rate", "2"], "rig mock rotor")]
+
+
+def test_rig_mock_help_lists_the_devices(capsys: pytest.CaptureFixture[str]) -> None:
+    with pytest.raises(SystemExit) as exit_info:
+        cli.main(["mock", "--help"])
+    assert exit_info.value.code == 0
+    out = capsys.readouterr().out
+    assert out.startswith("usage: rig mock ") and "{exciter,generator,robot,rotor}" in out
+
+
+@pytest.mark.xfail(strict=True, reason="drivers/mock/*_server.main() take no prog yet (requested: "
+                                       "main(argv, prog=None) → standalone_parser(..., prog=prog))")
+@pytest.mark.parametrize("device", ["robot", "exciter", "generator"])
+def test_mock_help_usage_names_rig_mock_device(device: str) -> None:
+    proc = subprocess.run([sys.executable, "-m", "rig.cli", "mock", device, "--help"], capture_output=True,
+                          text=True, timeout=60, env={**os.environ, "PYTHONPATH": str(ROOT)}, check=False)
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stdout.startswith(f"usage: rig mock {device} "), proc.stdout[:200]
