@@ -51,6 +51,7 @@ EDGE_NOISE_FACTOR = 3.0
 _HALF_LADDER = np.array([6, 8, 10, 12, 14, 16, 20, 24, 28, 32, 40, 48, 56, 64, 80, 96, 112, 128,
                          160, 192, 224, 256])
 _CENTRES = ("centroid", "ellipse")
+_UINT8 = np.dtype(np.uint8)
 _POLARITIES = ("bright", "dark")
 
 
@@ -58,7 +59,7 @@ def check_gray(gray: object, name: str = "gray") -> np.ndarray:
     """Return ``gray`` if it is a non-empty 2-D uint8 array, else raise InputArrayError saying why."""
     if not isinstance(gray, np.ndarray):
         raise InputArrayError(f"{name} must be a numpy array (2-D uint8 grayscale frame), got {type(gray)!r}")
-    if gray.dtype != np.uint8:
+    if gray.dtype != _UINT8:
         raise InputArrayError(
             f"{name} has dtype {gray.dtype}; markers are found in 8-bit grayscale frames: convert with "
             f"e.g. cv2.cvtColor(frame, cv2.COLOR_BGR2GRAY) or np.clip(x, 0, 255).astype(np.uint8)"
@@ -359,15 +360,14 @@ def track_markers(
         raise InputArrayError(f"window_px={window_px}; give an integer side of at least 7 px")
     dark = polarity == "dark"
     height, width = gray.shape
-    # usable predictions: inside the frame (NaN compares False, so it is unusable too); the usual case,
-    # all usable, is decided from the extremes (NaN propagates through min and max)
+    # usable predictions: inside the frame (NaN compares False, so it is unusable too)
     if len(pred) == 0:
         return np.empty(0, dtype=MARKER_DTYPE)
-    low, high = pred.min(axis=0), pred.max(axis=0)
-    all_usable = bool(low[0] > -0.5 and low[1] > -0.5 and high[0] < width - 0.5 and high[1] < height - 0.5)
+    limit = np.array([width - 0.5, height - 0.5])
+    all_usable = bool((pred > -0.5).all() and (pred < limit).all())
     usable = None
     if not all_usable:
-        usable = ((pred > -0.5) & (pred < (width - 0.5, height - 0.5))).all(axis=1)
+        usable = ((pred > -0.5) & (pred < limit)).all(axis=1)
     centre_px = np.rint(pred if all_usable else pred[usable]).astype(np.int64)
     cols, rows = centre_px[:, 0], centre_px[:, 1]
     half = int(window_px) // 2

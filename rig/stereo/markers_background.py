@@ -38,6 +38,8 @@ class Ring:
     normal_inv: np.ndarray  # (3, 3): inverse of designᵀ·design (plain least squares)
     outer: np.ndarray  # (P, 9): outer products of the design rows, for batched weighted normal equations
     kth: np.ndarray  # ranks in the sorted ring of min, p16, p50, p84, max ("lower" percentiles)
+    dtype: type  # float32 when sums of squared uint8 ring values are exact in it, else float64
+    design_t: np.ndarray  # (3, P) design transposed, contiguous, in ``dtype``
 
 
 @functools.lru_cache(maxsize=32)
@@ -51,8 +53,10 @@ def ring_geometry(half_px: int) -> Ring:
     design = np.column_stack([np.ones(len(idx)), x.ravel()[idx], y.ravel()[idx]])
     n = len(idx)
     kth = np.array([0, int(0.16 * (n - 1)), int(0.5 * (n - 1)), int(0.84 * (n - 1)), n - 1])
+    dtype = np.float32 if n * 255**2 < 2**24 else np.float64
     return Ring(idx=idx, design=design, normal_inv=np.linalg.inv(design.T @ design),
-                outer=(design[:, :, None] * design[:, None, :]).reshape(-1, 9), kth=kth)
+                outer=(design[:, :, None] * design[:, None, :]).reshape(-1, 9), kth=kth, dtype=dtype,
+                design_t=np.ascontiguousarray(design.T, dtype=dtype))
 
 
 def ring_background(flat: np.ndarray, valid: np.ndarray | None, half_px: int):
@@ -67,13 +71,13 @@ def ring_background(flat: np.ndarray, valid: np.ndarray | None, half_px: int):
         return _robust(vals, valid[:, geo.idx], geo)
     lo, p16, p50, p84, hi = np.sort(vals, axis=1, kind="stable")[:, geo.kth].T.astype(np.float64)
     reach = OUTLIER_SPREADS * np.maximum(np.minimum(p50 - p16, p84 - p50), 1.0)
-    # plain least squares from the moments of the ring values about their median: with m = Aᵀ(y − p50),
-    # coef = N⁻¹m (+ p50 on the constant) and the residual sum of squares is |y − p50|² − coef·m
-    centred = vals - p50[:, None]
-    moments = centred @ geo.design
+    # plain least squares from the ring's moments m = Aᵀy and Σy²: coef = N⁻¹m, and the residual sum of
+    # squares is Σy² − coef·m; uint8 values make every product and sum an integer, exact in float32
+    # while P·255² < 2²⁴ (rings of windows up to 33 px), else computed in float64
+    values = vals.astype(geo.dtype)
+    moments = (values @ geo.design_t.T).astype(np.float64)
     coef = moments @ geo.normal_inv
-    rss = np.einsum("ij,ij->i", centred, centred) - np.einsum("ij,ij->i", coef, moments)
-    coef[:, 0] += p50
+    rss = np.einsum("ij,ij->i", values, values).astype(np.float64) - np.einsum("ij,ij->i", coef, moments)
     sigma = np.maximum(np.sqrt(np.maximum(rss, 0.0) / (len(geo.idx) - 3.0)), MIN_SIGMA_DN)
     coef, sigma = coef.astype(np.float32), sigma.astype(np.float32)
     outliers = np.nonzero((hi - p50 > reach) | (p50 - lo > reach))[0]

@@ -163,47 +163,29 @@ def _select_support(strong: np.ndarray, d: np.ndarray, half_px: int, dist2: np.n
     return labels == own[:, None, None]
 
 
-def _constants() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Matrices turning products of the centroid (a, b) and the covariances into central moments.
-
-    With m = (a, b): cov (xx, xy, yy) = E2 − (m⊗m)·C2, and the third central moments (μ30, μ21, μ12, μ03)
-    = E3 − (m⊗cov)·C3 − (m⊗m⊗m)·C3m, ⊗ the flattened outer product (μ30 = Exxx − 3a·cxx − a³,
-    μ21 = Exxy − b·cxx − 2a·cxy − a²b, and the mirror images).
-    """
-    c2 = np.zeros((4, 3))  # m⊗m = (aa, ab, ba, bb)
-    c2[[0, 1, 3], [0, 1, 2]] = 1.0
-    c3 = np.zeros((6, 4))  # m⊗cov = (a·cxx, a·cxy, a·cyy, b·cxx, b·cxy, b·cyy)
-    c3[[0, 3, 1, 2, 4, 5], [0, 1, 1, 2, 2, 3]] = [3.0, 1.0, 2.0, 1.0, 2.0, 3.0]
-    c3m = np.zeros((8, 4))  # m⊗m⊗m, index 4i + 2j + k of a (0) and b (1)
-    c3m[[0, 1, 3, 7], [0, 1, 2, 3]] = 1.0
-    return c2, c3, c3m
-
-
-_C2, _C3, _C3M = _constants()
-_SKEW_WEIGHTS = np.array([1.0, 3.0, 3.0, 1.0])
-
-
 def _moment_shape(raw_m: np.ndarray):
     """Centroid offsets, roundness and skewness from raw moments (K, 10) of (1, x, y, xx, xy, yy, xxx, ...).
 
     skewness = (μ30² + 3μ21² + 3μ12² + μ03²) / det(Σ)^(3/2) from the central moments: Mardia's b1 for a
     round blob, 0 for every centrally symmetric one. Called under measure_windows' np.errstate (empty
-    windows give NaN). Batched over the windows in a fixed number of small array operations.
+    windows give NaN). Works on contiguous rows (one per moment), the cheapest layout for short arrays.
     """
-    k = len(raw_m)
-    e = raw_m[:, 1:] / raw_m[:, :1]
-    m = e[:, :2]
-    mm = (m[:, :, None] * m[:, None, :]).reshape(k, 4)
-    cov = e[:, 2:5] - mm @ _C2
-    cxx, cxy, cyy = cov.T
+    mx, my, exx, exy, eyy, exxx, exxy, exyy, eyyy = (raw_m[:, 1:10] / raw_m[:, :1]).T.copy()
+    mx2, my2 = mx * mx, my * my
+    cxx = exx - mx2
+    cxy = exy - mx * my
+    cyy = eyy - my2
     det = cxx * cyy - cxy * cxy
     half_trace = 0.5 * (cxx + cyy)
     root = np.sqrt(np.maximum(half_trace * half_trace - det, 0.0))
     roundness = np.sqrt(np.maximum(half_trace - root, 0.0) / (half_trace + root))
-    central3 = (e[:, 5:] - (m[:, :, None] * cov[:, None, :]).reshape(k, 6) @ _C3
-                - (mm[:, :, None] * m[:, None, :]).reshape(k, 8) @ _C3M)
-    skew = (central3 * central3) @ _SKEW_WEIGHTS / det**1.5
-    return m[:, 0], m[:, 1], roundness, skew
+    # third central moments: μ30 = E[x³] − a(3·cxx + a²), μ21 = E[x²y] − b(cxx + a²) − 2a·cxy, ...
+    c30 = exxx - mx * (3.0 * cxx + mx2)
+    c03 = eyyy - my * (3.0 * cyy + my2)
+    c21 = exxy - my * (cxx + mx2) - 2.0 * mx * cxy
+    c12 = exyy - mx * (cyy + my2) - 2.0 * my * cxy
+    skew = (c30 * c30 + c03 * c03 + 3.0 * (c21 * c21 + c12 * c12)) / det**1.5
+    return mx, my, roundness, skew
 
 
 @np.errstate(invalid="ignore", divide="ignore")
