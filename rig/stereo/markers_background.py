@@ -77,7 +77,7 @@ def ring_background(flat: np.ndarray, valid: np.ndarray | None, half_px: int):
     values = vals.astype(geo.dtype)
     moments = (values @ geo.design_t.T).astype(np.float64)
     coef = moments @ geo.normal_inv
-    rss = np.einsum("ij,ij->i", values, values).astype(np.float64) - np.einsum("ij,ij->i", coef, moments)
+    rss = np.vecdot(values, values).astype(np.float64) - np.vecdot(coef, moments)
     sigma = np.maximum(np.sqrt(np.maximum(rss, 0.0) / (len(geo.idx) - 3.0)), MIN_SIGMA_DN)
     coef, sigma = coef.astype(np.float32), sigma.astype(np.float32)
     outliers = np.nonzero((hi - p50 > reach) | (p50 - lo > reach))[0]
@@ -113,12 +113,12 @@ def _weighted_fit(values: np.ndarray, inlier: np.ndarray, geo: Ring):
     normal = mask @ geo.outer  # (K, 9): row-major symmetric 3×3 [[a, b, c], [b, d, e], [c, e, f]]
     normal[:, ::4] += 1e-9  # keeps a ring with (almost) no inliers finite
     cof = normal[:, _COF_A] * normal[:, _COF_B] - normal[:, _COF_C] * normal[:, _COF_D]
-    det = np.einsum("ij,ij->i", normal[:, :3], cof[:, :3])
+    det = np.vecdot(normal[:, :3], cof[:, :3])
     rhs = (mask * values) @ geo.design
-    coef = np.einsum("kij,kj->ki", cof[:, _COF_FULL].reshape(-1, 3, 3), rhs) / det[:, None]
+    coef = np.vecdot(cof[:, _COF_FULL].reshape(-1, 3, 3), rhs[:, None, :]) / det[:, None]
     resid = (values - coef @ geo.design.T) * mask
     dof = np.maximum(mask.sum(axis=1) - 3.0, 1.0)
-    return coef, np.maximum(np.sqrt(np.einsum("ij,ij->i", resid, resid) / dof), MIN_SIGMA_DN)
+    return coef, np.maximum(np.sqrt(np.vecdot(resid, resid) / dof), MIN_SIGMA_DN)
 
 
 # cofactors of a symmetric 3×3 matrix flattened row-major (a=0, b=1, c=2, d=4, e=5, f=8), in the order

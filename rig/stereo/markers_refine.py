@@ -78,6 +78,7 @@ class _Geometry:
 
     moments: np.ndarray  # (W², 11) float32: 1, x, y, x², xy, y², x³, x²y, xy², y³, ring's inner edge
     plane: np.ndarray  # (3, W²) float32: 1, x, y
+    ones: np.ndarray  # (W²,) float32 ones (row sums as a matrix product)
     dist2: np.ndarray  # (W, W) squared distance from the centre
 
 
@@ -97,6 +98,7 @@ def _geometry(half_px: int) -> _Geometry:
                             edge.ravel()], 1)
         _GEOMETRY[half_px] = _Geometry(moments=moments.astype(np.float32),
                                        plane=moments[:, :3].T.astype(np.float32),
+                                       ones=np.ones(w * w, dtype=np.float32),
                                        dist2=(x * x + y * y).reshape(w, w))
     return _GEOMETRY[half_px]
 
@@ -225,7 +227,7 @@ def measure_windows(image: np.ndarray, rows: np.ndarray, cols: np.ndarray, half_
     # above the floor over the plateau above it (exact for a flat disc, nearly so for a blurred one:
     # only its skirt below the floor, 3σ ≪ contrast, is left out)
     top = (weights >= (PLATEAU_LEVEL * weights.max(axis=1))[:, None]).astype(np.float32)
-    peak = (np.einsum("ij,ij->i", weights, top) / (top @ geo.moments[:, 0])).astype(np.float64)
+    peak = (np.vecdot(weights, top) / (top @ geo.ones)).astype(np.float64)
     contrast = peak + floor
     area = raw_m[:, 0] / peak
     contrast[~(raw_m[:, 0] > 0)] = np.nan
