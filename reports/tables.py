@@ -110,7 +110,7 @@ def compute_tables(
     )
 
     sweeps = stream_events(run.events, "sweep")
-    sweep = sweeps[0] if sweeps else None
+    sweep = sweeps[-1] if sweeps else None  # the last: a procedure's own step follows its preparation
     parts = []
     reference_note = ""
     if sweep is not None:
@@ -188,12 +188,12 @@ def compute_tables(
     if len(sweeps) > 1 or len(rotations) > 1:
         out.notes.append(
             f"{len(sweeps)} sweep and {len(rotations)} rotation events recorded; "
-            "the report analyses the first of each"
+            "the report analyses the last of each (the procedure's own step; earlier ones prepared it)"
         )
     if rotations:
-        out.rotation = rotations[0]
-        out.rotation_samples = motion.rotation_samples(tracks, rotations[0])
-        out.rotation_summary = motion.rotation_summary(out.rotation_samples, rotations[0])
+        out.rotation = rotations[-1]  # `rig run rotation`: its own step, not the sync step's rotor run
+        out.rotation_samples = motion.rotation_samples(tracks, out.rotation)
+        out.rotation_summary = motion.rotation_summary(out.rotation_samples, out.rotation)
         if len(out.rotation_samples) >= 8:
             out.spectrum = motion.amplitude_spectrum(
                 out.rotation_samples["time_s"], out.rotation_samples["z_mm"]

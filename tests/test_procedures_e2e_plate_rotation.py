@@ -122,5 +122,6 @@ def test_run_rotation_measures_the_rotor_radius_and_frequency(tmp_path: Path) ->
 
     # the report's rotor table exists and agrees with the truth too
     reported = pd.read_csv(run_dir / "tables" / "rotation_summary.csv").iloc[0]
+    assert reported["n_samples"] == summary["n_samples"]  # the rotation step's recording, not the sync step's
     assert abs(reported["radius_mean_mm"] - rotor.radius_mm) <= 20 * unit_mm
     assert abs(reported["frequency_meas_hz"] - ROTOR_HZ) <= 5 * reported["u_frequency_hz"] + clock_hz
