@@ -13,7 +13,10 @@ offset between the files can be seconds. :func:`estimate_video_timing`:
    peak (more than 2 frames away) reaches 95 % of the best, the offset is reported ambiguous (amplitudes and
    frequencies of a steady vibration are unaffected; absolute timing is) — film the start of the motion;
 3. the **joint estimate** (:func:`rig.stereo.estimate_offset`, method "joint": offset, rolling-shutter line
-   time, drift) from the coarse offset, on the moving pairs (undistorted pixels).
+   time, drift) from the coarse offset, on the moving pairs (undistorted pixels). When the motion cannot
+   reveal the line time (the estimator raises :class:`rig.stereo.errors.LineTimeNotObservableError`, e.g.
+   markers moving along their rows; or its estimate lies outside 0 … frame period / image height) it is
+   taken as 0 (global shutter) and the estimate repeated, with a note in ``details["line_time_note"]``.
 
 Units: s, px. Pure functions of observation frames (no I/O).
 """
@@ -30,7 +33,7 @@ from scipy.signal import correlate
 from rig.stereo import estimate_offset, fundamental_from_projections
 from rig.stereo.dlt import DLTCamera
 from rig.stereo.epipolar import epipolar_distance_px
-from rig.stereo.errors import StereoError
+from rig.stereo.errors import LineTimeNotObservableError, StereoError
 from rig.stereo.timing import TimingResult
 from rig.tracks2d import tracks_2d
 
@@ -129,8 +132,8 @@ def estimate_video_timing(obs: dict[str, pd.DataFrame], cameras: dict[str, DLTCa
     left out). At most ``max_pairs`` pairs (the most moving) go to the joint estimate, and of records longer
     than 2 × ``window_s`` only a window of ``window_s`` at each end. ``line_time_s``: the cameras' known
     rolling-shutter line time (s), else estimated — and taken as 0 with a note in ``details`` when the motion
-    cannot identify it (an estimate outside 0 … frame period / image height). ``details`` hold the coarse
-    step.
+    cannot identify it (the estimator reports it not observable, or an estimate outside 0 … frame period /
+    image height). ``details`` hold the coarse step.
     """
     names = list(obs)
     if len(names) != 2 or reference not in names:
@@ -170,16 +173,23 @@ def estimate_video_timing(obs: dict[str, pd.DataFrame], cameras: dict[str, DLTCa
                 dest.append((t[sel], cam.undistort_px(tr[["u_px", "v_px"]].to_numpy(float)[sel])))
     line_max_s = 1.0 / (max(fps.values()) * max(c.image_size[1] for c in cameras.values()))
     note = None
+    fallback = " assumed 0 (global shutter) — give --line-time-s for a rolling-shutter camera"
     try:
-        result = estimate_offset(cameras[reference], cameras[other], tracks_a, tracks_b, method="joint",
-                                 names=(reference, other), offset_guess_s=coarse["offset_s"],
-                                 line_time_s=line_time_s, line_time_guess_s=0.5 * line_max_s)
-        lt = result.line_time_s.get(other, 0.0)
-        if line_time_s is None and not -0.05 * line_max_s <= lt <= 1.05 * line_max_s:
-            note = (f"line time not identifiable from this motion (estimate {lt * 1e6:.2f} µs outside "
-                    f"0…{line_max_s * 1e6:.2f} µs = frame period / image height); assumed 0 "
-                    "(global shutter) — "
-                    "give --line-time-s for a rolling-shutter camera")
+        try:
+            result = estimate_offset(cameras[reference], cameras[other], tracks_a, tracks_b, method="joint",
+                                     names=(reference, other), offset_guess_s=coarse["offset_s"],
+                                     line_time_s=line_time_s, line_time_guess_s=0.5 * line_max_s)
+        except LineTimeNotObservableError as exc:
+            note = (f"line time not observable from this motion (estimate {exc.estimate_s * 1e6:+.2f} ± "
+                    f"{exc.uncertainty_s * 1e6:.2f} µs{', at the bound of the fit' if exc.at_bound else ''}; "
+                    f"rows differ by {exc.row_difference_spread_px:.2f} px std between the cameras);"
+                    + fallback)
+        else:
+            lt = result.line_time_s.get(other, 0.0)
+            if line_time_s is None and not -0.05 * line_max_s <= lt <= 1.05 * line_max_s:
+                note = (f"line time not identifiable from this motion (estimate {lt * 1e6:.2f} µs outside "
+                        f"0…{line_max_s * 1e6:.2f} µs = frame period / image height);" + fallback)
+        if note:
             result = estimate_offset(cameras[reference], cameras[other], tracks_a, tracks_b, method="joint",
                                      names=(reference, other), offset_guess_s=coarse["offset_s"],
                                      line_time_s=0.0)

@@ -63,6 +63,21 @@ class DelayOutOfRangeError(TimingError):
     """The best time offset lies at the edge of (or beyond) the search range."""
 
 
+class LineTimeNotObservableError(TimingError):
+    """The rolling-shutter line time cannot be estimated from this motion (the rows of the two cameras barely
+    change relative to each other, e.g. markers moving along their rows, so the line time trades against the
+    offset): the fit ran to its bound or its uncertainty exceeds every physical line time. Fix it instead
+    (the cameras' known line time, 0 for a global shutter). Attributes: ``estimate_s``, ``uncertainty_s``,
+    ``limit_s`` (the largest physical line time: frame period / largest row), ``at_bound``,
+    ``row_difference_spread_px``."""
+
+    def __init__(self, message: str, *, estimate_s: float, uncertainty_s: float, limit_s: float,
+                 at_bound: bool, row_difference_spread_px: float) -> None:
+        super().__init__(message)
+        self.estimate_s, self.uncertainty_s, self.limit_s = estimate_s, uncertainty_s, limit_s
+        self.at_bound, self.row_difference_spread_px = at_bound, row_difference_spread_px
+
+
 class AmbiguousOffsetError(TimingError):
     """Several offsets (or frequencies) explain the data equally well, e.g. a periodic motion whose period is
     shorter than the search range, or an alias that the sampling instants cannot separate."""

@@ -20,6 +20,13 @@ fits as well (Δχ² < 25 + 10·√n, n residuals: the fluctuation of the cost b
 different noise samples), AmbiguousOffsetError is raised instead of picking one; a cost curve flatter than
 that over the whole range raises NoCommonMotionError.
 
+**Line time not observable** (estimated, but the two cameras' rows barely change relative to each other, e.g.
+markers moving along their rows: ℓ·(v_B − v_A) is then a near-constant delay the offset absorbs): when the
+solution lies on the line-time bound, or its standard uncertainty exceeds the largest physical line time
+(frame period / largest observed row), LineTimeNotObservableError is raised. The estimator does not fix ℓ
+itself: the offset then shifts by (true − assumed ℓ) × row difference, so the caller, who knows the cameras
+(datasheet, an earlier rotor sync, 0 for a global shutter), must pass ``line_time_s``.
+
 Units: seconds, pixels; drift in ppm (1e-6 s/s) of camera B's clock relative to camera A's.
 """
 
@@ -35,6 +42,7 @@ from rig.stereo.errors import (
     AmbiguousOffsetError,
     DelayOutOfRangeError,
     InputArrayError,
+    LineTimeNotObservableError,
     NoCommonMotionError,
     TooFewSamplesError,
 )
@@ -209,7 +217,8 @@ def estimate_joint(
     ``estimate_drift``: fit B's clock rate error (ppm, |d| ≤ ``max_drift_ppm`` enters only the record margin).
     Errors: TooFewSamplesError, NonMonotonicTimestampsError, NoCommonMotionError (no overlap, or the offset
     does not change the residual), DelayOutOfRangeError (best offset at the edge of the range),
-    AmbiguousOffsetError (another offset in the range fits equally well).
+    AmbiguousOffsetError (another offset in the range fits equally well), LineTimeNotObservableError
+    (estimated line time on its bound or less certain than its physical range: pass ``line_time_s``).
     """
     P_a, P_b = projection_matrix(camera_a), projection_matrix(camera_b)
     tracks = as_tracks(observations_a, observations_b)
@@ -309,6 +318,10 @@ def estimate_joint(
     std_full = np.zeros(3)
     std_full[np.array(free)] = np.sqrt(np.clip(np.diag(cov), 0, None))
 
+    if estimate_line:
+        _check_line_time(tracks, line, std_full[1] * 1e-6, bound_s=line_max_us * 1e-6,
+                         at_bound=bool(res.active_mask[1] != 0) or abs(line) >= 0.999 * line_max_us * 1e-6,
+                         period_s=period_b, offset_s=delta)
     if not (grid[0] <= delta <= grid[-1]):
         raise DelayOutOfRangeError(
             f"the best offset {delta:+.6f} s lies beyond the search range "
@@ -337,6 +350,27 @@ def estimate_joint(
             "n_left_out_near_gaps": prob.n_near_gaps,
         },
     )
+
+
+def _check_line_time(tracks, line_s, std_s, *, bound_s, at_bound, period_s, offset_s) -> None:
+    """Raise LineTimeNotObservableError when the estimated line time is on its bound or less certain than
+    the largest physical line time (frame period / largest observed row); see the module doc."""
+    max_row = max(float(np.max(np.concatenate([tr[2], tr[5]]))) for tr in tracks)
+    limit_s = period_s / max(max_row, 1.0)
+    if not at_bound and std_s <= limit_s:
+        return
+    diff = np.concatenate([np.interp(ta, tb + offset_s, rb) - ra for ta, _, ra, tb, _, rb in tracks])
+    spread = float(np.std(diff))
+    why = (f"it ran to the bound ±{bound_s * 1e6:.1f} µs of the fit" if at_bound else
+           f"its uncertainty exceeds the largest physical line time {limit_s * 1e6:.2f} µs "
+           "(frame period / largest row)")
+    raise LineTimeNotObservableError(
+        f"the rolling-shutter line time is not observable from this motion: estimate {line_s * 1e6:+.2f} ± "
+        f"{std_s * 1e6:.2f} µs, and {why}; the two cameras' rows change by only {spread:.2f} px (std) "
+        "relative to each other (markers moving along their rows), so the line time trades against the "
+        "offset. Pass line_time_s (the cameras' known line time, or 0 for a global shutter)",
+        estimate_s=float(line_s), uncertainty_s=float(std_s), limit_s=limit_s, at_bound=at_bound,
+        row_difference_spread_px=spread)
 
 
 def _check_ambiguity(prob, grid, cost, k, *, line, drift, best_cost, s2, threshold) -> None:
