@@ -147,9 +147,9 @@ class _Session:
             self.server.state.move_error = faults.move_error
             outcome = self.server.state.execute(function, list(packet.args))
         if outcome.motion_end_s is None or hr.is_failure(outcome.hresult):
+            if function == SERVICE_STOP:  # the client is done (all a serial line can say): controller free,
+                self.server._release(self)  # before the reply, on which the next client may connect at once
             self._reply(packet, outcome.hresult, outcome.args)
-            if function == SERVICE_STOP:  # the client is done (all a serial line can say): controller free
-                self.server._release(self)
             return
         if self.server.instant:
             if faults.close_mid_move:
