@@ -38,8 +38,6 @@ def test_rig_mock_help_lists_the_devices(capsys: pytest.CaptureFixture[str]) -> 
     assert out.startswith("usage: rig mock ") and "{exciter,generator,robot,rotor}" in out
 
 
-@pytest.mark.xfail(strict=True, reason="drivers/mock/*_server.main() take no prog yet (requested: "
-                                       "main(argv, prog=None) → standalone_parser(..., prog=prog))")
 @pytest.mark.parametrize("device", ["robot", "exciter", "generator"])
 def test_mock_help_usage_names_rig_mock_device(device: str) -> None:
     proc = subprocess.run([sys.executable, "-m", "rig.cli", "mock", device, "--help"], capture_output=True,

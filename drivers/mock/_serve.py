@@ -65,10 +65,12 @@ def accept_loop(listener: socket.socket, stopped: threading.Event,
         on_connection(conn)
 
 
-def standalone_parser(module: str, description: str, *, default_port: int) -> argparse.ArgumentParser:
-    """Command line of ``python -m drivers.mock.<module>`` with ``--port`` (TCP on 127.0.0.1; 0 = any free
-    port) and ``--rate`` (virtual seconds per wall second); callers add their own options."""
-    parser = argparse.ArgumentParser(prog=f"python -m drivers.mock.{module}", description=description)
+def standalone_parser(module: str, description: str, *, default_port: int,
+                      prog: str | None = None) -> argparse.ArgumentParser:
+    """Command line of ``python -m drivers.mock.<module>`` (or ``prog``, e.g. ``rig mock robot``) with
+    ``--port`` (TCP on 127.0.0.1; 0 = any free port) and ``--rate`` (virtual seconds per wall second);
+    callers add their own options."""
+    parser = argparse.ArgumentParser(prog=prog or f"python -m drivers.mock.{module}", description=description)
     parser.add_argument("--port", type=int, default=default_port,
                         help=f"TCP port (default {default_port}; 0 = any free port)")
     parser.add_argument("--rate", type=float, default=1.0, help="virtual seconds per wall second")

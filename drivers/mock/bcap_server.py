@@ -329,9 +329,10 @@ class BcapMockServer:
         self.close()
 
 
-def main(argv: list[str] | None = None) -> int:
+def main(argv: list[str] | None = None, prog: str | None = None) -> int:
+    """Serve until Ctrl-C or SIGTERM; ``prog`` names the command in help and errors."""
     parser = standalone_parser("bcap_server", "Mock DENSO RC8 controller (b-CAP) on the simulated robot.",
-                               default_port=5007)
+                               default_port=5007, prog=prog)
     parser.add_argument("--host", default="127.0.0.1", type=loopback_host,
                         help="loopback address to bind (default 127.0.0.1; other addresses are refused)")
     parser.add_argument("--pty", action="store_true", help="also serve a pty serial line (CRC framing)")

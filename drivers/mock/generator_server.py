@@ -209,9 +209,10 @@ class GeneratorServer:
             self.instrument.advance(self.instrument.clock.now_s())
 
 
-def main(argv: list[str] | None = None) -> int:
+def main(argv: list[str] | None = None, prog: str | None = None) -> int:
+    """Serve until Ctrl-C or SIGTERM; ``prog`` names the command in help and errors."""
     parser = standalone_parser("generator_server", "Mock SCPI function generator driving the twin's shaker.",
-                               default_port=5025)
+                               default_port=5025, prog=prog)
     parser.add_argument("--pty", action="store_true", help="serve on a new pty pair instead of TCP")
     args, world = start_standalone(parser, argv)
     instrument = GeneratorInstrument(world.shaker, world.clock)

@@ -222,9 +222,10 @@ class VfdServer:
         return data
 
 
-def main(argv: list[str] | None = None) -> int:
+def main(argv: list[str] | None = None, prog: str | None = None) -> int:
+    """Serve until Ctrl-C or SIGTERM; ``prog`` names the command in help and errors."""
     parser = standalone_parser("vfd_server", "Mock VFD (Delta-style register map) on Modbus TCP or RTU.",
-                               default_port=5020)
+                               default_port=5020, prog=prog)
     parser.add_argument("--rtu", action="store_true", help="Modbus RTU on a new pty pair, not TCP")
     parser.add_argument("--serial", default=None, help="RTU on this serial device instead of a pty")
     parser.add_argument("--body", choices=("exciter", "rotor"), default="exciter", help="twin body to move")
