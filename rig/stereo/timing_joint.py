@@ -32,22 +32,19 @@ Units: seconds, pixels; drift in ppm (1e-6 s/s) of camera B's clock relative to 
 
 from __future__ import annotations
 
-from typing import Any
-
 import numpy as np
 from scipy import optimize
 
 from rig.stereo._series import as_times
 from rig.stereo.errors import (
-    AmbiguousOffsetError,
     DelayOutOfRangeError,
     InputArrayError,
-    LineTimeNotObservableError,
     NoCommonMotionError,
     TooFewSamplesError,
 )
 from rig.stereo.resample import bandlimited
 from rig.stereo.timing import TimingResult, projection_matrix
+from rig.stereo.timing_joint_checks import check_ambiguity, check_line_time, fit_details
 
 MIN_OBSERVATIONS = 30
 CHI2_DISTINCT = 25.0  # Δχ² (5 σ) that separates a real minimum from an equally good one
@@ -319,7 +316,7 @@ def estimate_joint(
     std_full[np.array(free)] = np.sqrt(np.clip(np.diag(cov), 0, None))
 
     if estimate_line:
-        _check_line_time(tracks, line, std_full[1] * 1e-6, bound_s=line_max_us * 1e-6,
+        check_line_time(tracks, line, std_full[1] * 1e-6, bound_s=line_max_us * 1e-6,
                          at_bound=bool(res.active_mask[1] != 0) or abs(line) >= 0.999 * line_max_us * 1e-6,
                          period_s=period_b, offset_s=delta)
     if not (grid[0] <= delta <= grid[-1]):
@@ -328,7 +325,7 @@ def estimate_joint(
             f"{grid[0]:+.6f} … {grid[-1]:+.6f} s; widen search_half_width_s or correct offset_guess_s"
         )
     best_unweighted = float(np.sum(prob.residuals(delta, line, drift, weighted=False) ** 2))
-    _check_ambiguity(
+    check_ambiguity(
         prob, grid, cost, k, line=line, drift=drift, best_cost=best_unweighted, s2=s2, threshold=chi2_distinct
     )
 
@@ -346,63 +343,7 @@ def estimate_joint(
         },
         epoch_s={a: 0.0, b: epoch_b},
         details={
-            **_details(r, s2, cov, free, grid=grid, cost=cost),
+            **fit_details(r, s2, cov, free, grid=grid, cost=cost),
             "n_left_out_near_gaps": prob.n_near_gaps,
         },
     )
-
-
-def _check_line_time(tracks, line_s, std_s, *, bound_s, at_bound, period_s, offset_s) -> None:
-    """Raise LineTimeNotObservableError when the estimated line time is on its bound or less certain than
-    the largest physical line time (frame period / largest observed row); see the module doc."""
-    max_row = max(float(np.max(np.concatenate([tr[2], tr[5]]))) for tr in tracks)
-    limit_s = period_s / max(max_row, 1.0)
-    if not at_bound and std_s <= limit_s:
-        return
-    diff = np.concatenate([np.interp(ta, tb + offset_s, rb) - ra for ta, _, ra, tb, _, rb in tracks])
-    spread = float(np.std(diff))
-    why = (f"it ran to the bound ±{bound_s * 1e6:.1f} µs of the fit" if at_bound else
-           f"its uncertainty exceeds the largest physical line time {limit_s * 1e6:.2f} µs "
-           "(frame period / largest row)")
-    raise LineTimeNotObservableError(
-        f"the rolling-shutter line time is not observable from this motion: estimate {line_s * 1e6:+.2f} ± "
-        f"{std_s * 1e6:.2f} µs, and {why}; the two cameras' rows change by only {spread:.2f} px (std) "
-        "relative to each other (markers moving along their rows), so the line time trades against the "
-        "offset. Pass line_time_s (the cameras' known line time, or 0 for a global shutter)",
-        estimate_s=float(line_s), uncertainty_s=float(std_s), limit_s=limit_s, at_bound=at_bound,
-        row_difference_spread_px=spread)
-
-
-def _check_ambiguity(prob, grid, cost, k, *, line, drift, best_cost, s2, threshold) -> None:
-    """Raise AmbiguousOffsetError if a separate local minimum of the cost fits as well as the best."""
-    step = grid[1] - grid[0]
-    is_min = np.r_[False, (cost[1:-1] <= cost[:-2]) & (cost[1:-1] <= cost[2:]), False]
-    for j in np.flatnonzero(is_min):
-        if abs(j - k) <= 3:
-            continue
-        refined = optimize.minimize_scalar(
-            lambda d: float(np.sum(prob.residuals(d, line, drift, weighted=False) ** 2)),
-            bounds=(grid[j] - step, grid[j] + step),
-            method="bounded",
-        )
-        if (refined.fun - best_cost) / s2 < threshold:
-            raise AmbiguousOffsetError(
-                f"offsets {grid[k]:+.6f} s and {refined.x:+.6f} s fit equally well "
-                f"(Δχ² = {(refined.fun - best_cost) / s2:.1f}); the motion repeats within the search range: "
-                "narrow search_half_width_s around a better offset_guess_s, or use a non-periodic motion"
-            )
-
-
-def _details(r, s2, cov, free, *, grid, cost) -> dict[str, Any]:
-    names = [n for n, f in zip(("offset", "line_time", "drift"), free, strict=True) if f]
-    sd = np.sqrt(np.clip(np.diag(cov), 1e-300, None))
-    corr = cov / np.outer(sd, sd)
-    return {
-        "residual_rms_px": float(np.sqrt(np.mean(r**2))),
-        "n_residuals": int(r.size),
-        "sigma_px": float(np.sqrt(s2)),
-        "parameters": names,
-        "correlation": corr.tolist(),
-        "coarse_offset_s": grid.tolist(),
-        "coarse_cost_px2": cost.tolist(),
-    }
