@@ -158,10 +158,11 @@ def _scatter(dst: Measured | None, n: int, sel: np.ndarray, src: Measured) -> Me
     return dst
 
 
-@np.errstate(invalid="ignore")
 def _rows_from(m: Measured, centre: str, max_edge_rms_px: float, max_skewness: float,
                fitted: bool) -> np.ndarray:
-    """Output rows from measurements; ``fitted``: the outline was fitted (else its fields are all NaN)."""
+    """Output rows from measurements; ``fitted``: the outline was fitted (else its fields are all NaN).
+
+    Called under np.errstate(invalid="ignore") (NaN measurements compare False)."""
     out = np.empty(len(m.u_px), dtype=MARKER_DTYPE)
     if centre == "ellipse" and fitted:
         use_ellipse = np.isfinite(m.u_ellipse_px)
@@ -182,7 +183,6 @@ def _rows_from(m: Measured, centre: str, max_edge_rms_px: float, max_skewness: f
     return out
 
 
-@np.errstate(invalid="ignore")
 def _passes(rec: np.ndarray, min_area_px, max_area_px, min_roundness, min_contrast) -> np.ndarray:
     return (np.isfinite(rec["u_px"] + rec["v_px"])
             & (rec["area_px"] >= min_area_px) & (rec["area_px"] <= max_area_px)
@@ -281,8 +281,9 @@ def detect_markers(
         n_first, n_total = len(rows), len(rows) + len(sel)
         grown = _scatter(None, n_total, np.arange(n_first), measured)
         measured = _scatter(grown, n_total, np.concatenate([sel, n_first + np.arange(len(sel))]), again)
-    rec = _rows_from(measured, centre, max_edge_rms_px, max_skewness, fit)
-    rec = rec[_passes(rec, min_area_px, max_area_px, min_roundness, min_contrast)]
+    with np.errstate(invalid="ignore"):
+        rec = _rows_from(measured, centre, max_edge_rms_px, max_skewness, fit)
+        rec = rec[_passes(rec, min_area_px, max_area_px, min_roundness, min_contrast)]
     if regions is not None and len(rec):
         rec = rec[inside_any(rec["u_px"], rec["v_px"], regions)]
     if len(rec) == 0:
@@ -376,8 +377,9 @@ def track_markers(
     if measured.cramped.any():
         measured = _retry_cramped(gray, rows, cols, np.full(len(rows), half), measured, dark=dark,
                                   fit_ellipse=fit, retries=2)
-    rec = _rows_from(measured, centre, max_edge_rms_px, max_skewness, fit)
-    passed = _passes(rec, min_area_px, max_area_px, min_roundness, min_contrast)
+    with np.errstate(invalid="ignore"):
+        rec = _rows_from(measured, centre, max_edge_rms_px, max_skewness, fit)
+        passed = _passes(rec, min_area_px, max_area_px, min_roundness, min_contrast)
     if not passed.all():
         lost = ~passed
         rec["u_px"][lost] = np.nan

@@ -80,7 +80,7 @@ def ring_background(flat: np.ndarray, valid: np.ndarray | None, half_px: int):
     rss = np.vecdot(values, values).astype(np.float64) - np.vecdot(coef, moments)
     sigma = np.maximum(np.sqrt(np.maximum(rss, 0.0) / (len(geo.idx) - 3.0)), MIN_SIGMA_DN)
     coef, sigma = coef.astype(np.float32), sigma.astype(np.float32)
-    outliers = np.nonzero((hi - p50 > reach) | (p50 - lo > reach))[0]
+    outliers = np.nonzero(np.maximum(hi - p50, p50 - lo) > reach)[0]
     if len(outliers):  # a few per cent of the rings (noise tails, a neighbour): refit without outliers
         values = vals[outliers].astype(np.float64)
         inlier = np.abs(values - p50[outliers, None]) <= reach[outliers, None]

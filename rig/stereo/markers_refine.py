@@ -231,9 +231,8 @@ def measure_windows(image: np.ndarray, rows: np.ndarray, cols: np.ndarray, half_
     # only its skirt below the floor, 3σ ≪ contrast, is left out)
     top = (weights >= (PLATEAU_LEVEL * weights.max(axis=1))[:, None]).astype(np.float32)
     peak = (np.vecdot(weights, top) / (top @ geo.ones)).astype(np.float64)
-    contrast = peak + floor
+    contrast = np.where(raw_m[:, 0] > 0, peak + floor, np.nan)
     area = raw_m[:, 0] / peak
-    contrast[~(raw_m[:, 0] > 0)] = np.nan
     saturated = (support & (flat == 255)).any(axis=1) if raw.max() == 255 else np.zeros(n, bool)
     cramped = raw_m[:, 10] > 0  # weight on the ring's inner edge: the marker reaches the ring
     border = np.zeros(n, dtype=bool) if valid is None else ~valid.all(axis=(1, 2))
@@ -247,10 +246,11 @@ def measure_windows(image: np.ndarray, rows: np.ndarray, cols: np.ndarray, half_
         u_e = cols + centre[:, 0] - half_px
         v_e = rows + centre[:, 1] - half_px
 
+    sigma = sigma.astype(np.float64)
     return Measured(
         u_px=cols + du, v_px=rows + dv, area_px=area, roundness=roundness, contrast=contrast,
-        background=coef[:, 0].astype(np.float64), sigma=sigma.astype(np.float64), skewness=skew,
+        background=coef[:, 0].astype(np.float64), sigma=sigma, skewness=skew,
         u_ellipse_px=u_e, v_ellipse_px=v_e, edge_rms_px=edge_rms,
-        edge_noise_px=edge_noise, skewness_noise=8.0 * sigma.astype(np.float64) ** 2 / (contrast**2 * area),
+        edge_noise_px=edge_noise, skewness_noise=8.0 * sigma**2 / (contrast**2 * area),
         border=border, saturated=saturated, cramped=cramped,
     )
