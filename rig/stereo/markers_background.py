@@ -35,7 +35,7 @@ class Ring:
 
     idx: np.ndarray  # flat indices of the ring pixels in the W² window
     design: np.ndarray  # (P, 3): 1, x, y on the ring
-    normal_inv: np.ndarray  # (3, 3): inverse of designᵀ·design (plain least squares)
+    normal_inv: np.ndarray  # (3,): inverse of designᵀ·design, diagonal for the symmetric ring
     outer: np.ndarray  # (P, 9): outer products of the design rows, for batched weighted normal equations
     kth: np.ndarray  # ranks in the sorted ring of min, p16, p50, p84, max ("lower" percentiles)
     dtype: type  # float32 when sums of squared uint8 ring values are exact in it, else float64
@@ -54,7 +54,9 @@ def ring_geometry(half_px: int) -> Ring:
     n = len(idx)
     kth = np.array([0, int(0.16 * (n - 1)), int(0.5 * (n - 1)), int(0.84 * (n - 1)), n - 1])
     dtype = np.float32 if n * 255**2 < 2**24 else np.float64
-    return Ring(idx=idx, design=design, normal_inv=np.linalg.inv(design.T @ design),
+    normal = design.T @ design  # diagonal: the ring is symmetric about the centre (Σx = Σy = Σxy = 0)
+    assert not normal[~np.eye(3, dtype=bool)].any(), "ring normal matrix must be diagonal"
+    return Ring(idx=idx, design=design, normal_inv=1.0 / np.diag(normal),
                 outer=(design[:, :, None] * design[:, None, :]).reshape(-1, 9), kth=kth, dtype=dtype,
                 design_t=np.ascontiguousarray(design.T, dtype=dtype))
 
@@ -71,12 +73,12 @@ def ring_background(flat: np.ndarray, valid: np.ndarray | None, half_px: int):
         return _robust(vals, valid[:, geo.idx], geo)
     lo, p16, p50, p84, hi = np.sort(vals, axis=1, kind="stable")[:, geo.kth].T.astype(np.float64)
     reach = OUTLIER_SPREADS * np.maximum(np.minimum(p50 - p16, p84 - p50), 1.0)
-    # plain least squares from the ring's moments m = Aᵀy and Σy²: coef = N⁻¹m, and the residual sum of
-    # squares is Σy² − coef·m; uint8 values make every product and sum an integer, exact in float32
-    # while P·255² < 2²⁴ (rings of windows up to 33 px), else computed in float64
+    # plain least squares from the ring's moments m = Aᵀy and Σy²: coef = N⁻¹m (N diagonal), and the
+    # residual sum of squares is Σy² − coef·m; uint8 values make every product and sum an integer,
+    # exact in float32 while P·255² < 2²⁴ (rings of windows up to 33 px), else computed in float64
     values = vals.astype(geo.dtype)
     moments = (values @ geo.design_t.T).astype(np.float64)
-    coef = moments @ geo.normal_inv
+    coef = moments * geo.normal_inv
     rss = np.vecdot(values, values).astype(np.float64) - np.vecdot(coef, moments)
     sigma = np.maximum(np.sqrt(np.maximum(rss, 0.0) / (len(geo.idx) - 3.0)), MIN_SIGMA_DN)
     coef, sigma = coef.astype(np.float32), sigma.astype(np.float32)
