@@ -22,20 +22,22 @@ Run: .venv/bin/python benchmarks/markers.py [--rounds N] [--frames N] [--threads
 On a busy machine, --threads 1 --clock cpu measures each method's CPU time on this thread, which other
 processes barely change; the wall-clock figures of a quiet machine are the reference.
 
-Figures (2-core shared VM, --threads 1 --clock cpu, 3 runs of 7 rounds each, other helpers' load 1.1–1.3;
-ms/frame is the best-round median, × the speed-up over sbd/tuned; the range is over the runs):
+Figures (2-core shared VM, --threads 1 --clock cpu, 7 rounds; before and after run alternately, three
+times each, other helpers' load 1.7–2.1; ms/frame is the best-round median, × the speed-up over sbd/tuned;
+ranges are over the runs):
 
   markers  method       before (53a2641)               after (this version)           target
-  12       ours/full    1.58–1.67 ms   3.7–3.9×        1.48–1.55 ms   4.0–4.1×        ≥ 4×
-  12       ours/track   0.49 ms        12.4–12.6×      0.33–0.35 ms   17.3–18.3×      ≥ 20×
-  30       ours/full    1.80–1.89 ms   3.8×            1.61–1.70 ms   4.0–4.4×        ≥ 4×
-  30       ours/track   0.67–0.70 ms   9.8–10.4×       0.47–0.52 ms   13.2–13.9×      ≥ 20×
-  sbd/tuned: 6.3–6.5 ms (12), 7.0–7.3 ms (30). Centroid RMS (unchanged): ours 0.0069 px (track, 12),
+  12       ours/full    1.53–1.63 ms   3.9–4.0×        1.47–1.53 ms   4.1–4.3×        ≥ 4×
+  12       ours/track   0.49 ms        12.4–12.7×      0.35–0.36 ms   15.9–17.9×      ≥ 20×
+  30       ours/full    1.81–1.97 ms   3.6–4.0×        1.63–1.69 ms   4.2–4.5×        ≥ 4×
+  30       ours/track   0.72–0.76 ms   9.2–9.6×        0.47–0.50 ms   13.4–14.0×      ≥ 20×
+  sbd/tuned: 6.2–6.4 ms (12), 6.9–7.3 ms (30). Centroid RMS (unchanged): ours 0.0069 px (track, 12),
   0.0065 px (track, 30), 0.0073 / 0.0068 px (full); sbd 0.0098 / 0.0113 px; thr+cc 0.061 / 0.050 px.
 
-Where tracking's time goes (30 windows of 33×33 px): about 0.2 ms of fixed cost (~120 small numpy calls,
-each paying for the caches the other methods evicted) plus ~9 µs per window (gather, ring sort and fit,
-background plane, connected components, moments, plateau); the 20× target would need ~0.36 ms.
+Where tracking's time goes: about 0.25 ms of fixed cost (~120 small numpy calls, each paying for the
+caches the other methods evicted: the same calls run 2–4× faster back to back) plus ~7 µs per 33×33 window
+(gather, ring sort and fit, background plane, connected components, moments, plateau). 20× would need
+≤ 0.32 ms (12) and ≤ 0.36 ms (30).
 """
 
 from __future__ import annotations
