@@ -100,13 +100,15 @@ def poll_event(ctx: Any, stream: str, sample: Any) -> None:
 
 
 def hold_polling(ctx: Any, device: Any, stream: str, *, record_s: float,
-                 poll_interval_s: float) -> list[Any]:
+                 poll_interval_s: float, read: Callable[[], Any] | None = None) -> list[Any]:
     """Hold for ``record_s`` s of rig time, polling ``device`` every ``poll_interval_s`` s (one ``stream``
-    event per sample, the first at once, the last at the end); return the samples."""
+    event per sample, the first at once, the last at the end); return the samples. ``read`` replaces
+    ``device.read_sample`` (e.g. the shaker's ``read_state``)."""
     samples: list[Any] = []
     end = ctx.clock.now_s() + record_s
+    poll = device.read_sample if read is None else read
     while True:
-        samples.append(device.read_sample())
+        samples.append(poll())
         poll_event(ctx, stream, samples[-1])
         remaining = end - ctx.clock.now_s()
         if remaining <= 0:

@@ -6,6 +6,12 @@ the cantilever shape (3ξ² − ξ³)/2, ξ = s / length. The cameras record ``r
 oscillation. Truth: the ``plate`` event (frequency actually polled, tip amplitude, the displacement axis,
 the marker ids and each marker's amplitude) and the polled ``exciter`` events.
 
+With ``targets.plate.body = "shaker"`` the generator drives the electrodynamic shaker at ``frequency_hz``
+with peak displacement ``shaker_amplitude_mm`` (volts from the sensitivity table; the limits — frequency,
+displacement, (2πf)²·x, velocity, the amplifier's volts — checked before anything is sent, exit 3). The
+generator's reported CW frequency, volts and output state are polled as ``generator`` events; the event's
+``frequency_hz`` is their mean and ``amplitude_mm`` the displacement of the reported volts.
+
 Run alone (``rig run plate``) it first calibrates and synchronizes the cameras in the same run folder,
 then builds the report (trajectories, amplitude and frequency per marker).
 """
@@ -27,7 +33,7 @@ from procedures._common import (
     run_alone,
     stop_polled,
 )
-from rig.procedure import param
+from rig.procedure import ParameterError, param
 
 NAME = "plate"
 DESCRIPTION = "Oscillating plate at about 3.5 Hz: trajectories of every marker (Figs. 4-8)."
@@ -39,6 +45,8 @@ class Parameters:
                                                             doc="oscillation frequency, Hz"))
     record_s: float = field(default=6.0, metadata=param(lo=0.5, hi=3600.0, doc="recording length, s"))
     poll_interval_s: float = field(default=0.25, metadata=param(lo=0.01, hi=10.0, doc="exciter polls, s"))
+    shaker_amplitude_mm: float = field(default=2.0, metadata=param(
+        lo=0.001, hi=50.0, doc="tip displacement with body = \"shaker\", mm (the exciter's: its crank)"))
 
 
 def marker_amplitudes_mm(plate: Any, tip_mm: float) -> dict[str, float]:
@@ -52,32 +60,57 @@ def marker_amplitudes_mm(plate: Any, tip_mm: float) -> dict[str, float]:
 
 
 def check_plan(ctx: Any, params: Parameters) -> Any:
-    """The exciter's limits at ``frequency_hz`` (nothing is sent); returns the exciter."""
-    exciter = drive_of(ctx, require_target(ctx, "plate"))
-    exciter.check_frequency(params.frequency_hz)
-    return exciter
+    """The driving device's limits at ``frequency_hz`` (nothing is sent); returns the device."""
+    plate = require_target(ctx, "plate")
+    drive = drive_of(ctx, plate)
+    if plate.body == "shaker":
+        f, table = params.frequency_hz, drive.sensitivity
+        drive.limits.check_point(f, params.shaker_amplitude_mm, "shaker plate")
+        if not table.f_min_hz <= f <= table.f_max_hz:
+            raise ParameterError("frequency_hz", f"{f:g} Hz is outside the shaker's sensitivity table "
+                                                 f"{table.f_min_hz:g}..{table.f_max_hz:g} Hz "
+                                                 "(devices.generator.sensitivity_mm_per_v; no extrapolation)")
+        drive.check_point(f, drive.amplitude_vpp_for(f, params.shaker_amplitude_mm))
+    else:
+        drive.check_frequency(params.frequency_hz)
+    return drive
 
 
 def run_step(ctx: Any, params: Parameters, *, step_name: str = "plate") -> None:
     with ctx.step(step_name) as step:
         if step.skipped:
             return
-        exciter = check_plan(ctx, params)
+        drive = check_plan(ctx, params)
         plate = require_target(ctx, "plate")
+        shaker = plate.body == "shaker"
+        stream = "generator" if shaker else "exciter"
         mount(ctx, "plate")
-        poll_event(ctx, "exciter", exciter.set_frequency(params.frequency_hz, wait=True))
+        if shaker:
+            drive.start(params.frequency_hz, params.shaker_amplitude_mm)
+            poll_event(ctx, stream, drive.read_state())
+        else:
+            poll_event(ctx, stream, drive.set_frequency(params.frequency_hz, wait=True))
         with Acquirer(ctx, ReduceOptions(mode="track", window_px=41)) as acq:
             rec = acq.record(step_name, lambda: hold_polling(
-                ctx, exciter, "exciter", record_s=params.record_s, poll_interval_s=params.poll_interval_s))
+                ctx, drive, stream, record_s=params.record_s, poll_interval_s=params.poll_interval_s,
+                read=drive.read_state if shaker else None))
+        # shaker: the displacement of the volts the generator reports at the frequency it reports
+        tip_mm = float(np.mean([s.displacement_mm for s in rec.result])) if shaker else drive.amplitude_mm
         axis = plate.axis if plate.axis is not None else plate.normal
-        amplitudes = marker_amplitudes_mm(plate, exciter.amplitude_mm)
+        amplitudes = marker_amplitudes_mm(plate, tip_mm)
+        extra = {"body": "shaker", "amplitude_vpp": float(np.mean([s.amplitude_vpp for s in rec.result]))} \
+            if shaker else {}
         ctx.event("plate", {"t_start_s": rec.t_start_s, "t_stop_s": rec.t_stop_s,
                             "frequency_hz": float(np.mean([s.frequency_hz for s in rec.result])),
-                            "setpoint_hz": params.frequency_hz, "amplitude_mm": exciter.amplitude_mm,
+                            "setpoint_hz": params.frequency_hz, "amplitude_mm": tip_mm,
                             "axis": [float(v) / float(np.linalg.norm(axis)) for v in axis],
                             "marker_ids": list(amplitudes), "marker_amplitudes_mm": amplitudes,
-                            "segment": step_name})
-        stop_polled(ctx, exciter, "exciter")
+                            "segment": step_name, **extra})
+        if shaker:
+            drive.stop()  # amplitude ramped down, output OFF
+            poll_event(ctx, stream, drive.read_state())
+        else:
+            stop_polled(ctx, drive, stream)
 
 
 def run(ctx: Any, params: Parameters) -> dict[str, Any]:

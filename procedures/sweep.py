@@ -7,12 +7,22 @@ time–frequency characteristic of the paper's Fig. 17 (slopes 0.4, 1.0, 1.2 and
 the four quarters); ``"linear"`` and ``"log"`` are the plain alternatives. Every profile point and the
 steepest slope are checked before anything moves (exit 3, nothing sent) against the limits of the device
 that drives the column's ``body``: ``[limits.exciter]`` for the crank exciter, ``[limits.generator]`` for
-the shaker (fed by the generator). The sweep itself follows a setpoint profile, which only the VFD exciter
-takes: a column on the shaker is refused after the limits check (exit 4, nothing sent) — the shaker sweeps
-at constant volts, so its displacement follows its sensitivity table, not a constant amplitude.
+the shaker (fed by the generator).
+
+Exciter (``body = "exciter"``): timed setpoint updates follow the profile at the crank's amplitude.
+Shaker (``body = "shaker"``): the generator's own phase-continuous linear or log sweep (``shape = "linear"``
+or ``"log"``) at the constant volts that give ``shaker_amplitude_mm`` (the shaker has no crank), then
+``hold_s`` at ``max_hz`` with the sweep off. The built-in sweep runs at constant volts, so the displacement
+is constant only where the sensitivity table is flat: a table varying by more than
+``FLAT_SENSITIVITY_TOLERANCE`` over the sweep's range is refused (ParameterError naming
+``devices.generator.sensitivity_mm_per_v``, exit 4), as is ``shape = "fig17"`` (a points profile the
+generator's sweep cannot follow; exit 4) — both after the limits check (frequency, displacement, (2πf)²·x,
+velocity, slope and the amplifier's volts: exit 3), nothing sent.
 
 Truth: the ``sweep`` event (commanded profile in rig time, amplitude, axis, marker ids) and the polled
-actual frequencies as ``exciter`` events. The cameras record the whole sweep.
+actual frequencies as ``exciter`` events; for the shaker, the generator cannot report its instantaneous
+sweep frequency, so the profile is the commanded one (``profile_source`` says so) and the generator's
+reported state and sweep settings are polled as ``generator`` events. The cameras record the whole sweep.
 """
 
 from __future__ import annotations
@@ -25,6 +35,7 @@ from procedures._acquire import Acquirer, ReduceOptions
 from procedures._common import drive_of, mount, poll_event, require_target, run_alone, stop_polled
 from rig.procedure import ParameterError, param
 
+FLAT_SENSITIVITY_TOLERANCE = 0.005  # max (s_max − s_min)/s_min of the shaker table over a sweep (0.5 %)
 NAME = "sweep"
 DESCRIPTION = "Constant amplitude, frequency rising monotonically to 30 Hz (Fig. 17): error vs frequency."
 FIG17 = ((0.0, 0.0), (0.25, 0.10), (0.5, 0.35), (0.75, 0.65), (1.0, 1.0))  # (t/T, (f − f0)/(f1 − f0))
@@ -40,6 +51,8 @@ class Parameters:
                                                        doc="profile of the rise"))
     update_interval_s: float = field(default=0.5, metadata=param(lo=0.05, hi=10.0,
                                                                  doc="setpoint update interval, s"))
+    shaker_amplitude_mm: float = field(default=2.0, metadata=param(
+        lo=0.001, hi=50.0, doc="peak displacement with body = \"shaker\", mm (the exciter's: its crank)"))
 
     def __post_init__(self) -> None:
         if self.max_hz <= self.start_hz:
@@ -63,24 +76,49 @@ def profile_of(params: Parameters) -> SweepProfile:
 
 def check_plan(ctx: Any, params: Parameters) -> SweepProfile:
     """Limits of every profile point and of the steepest slope, before anything moves, for the device
-    that drives ``targets.sweep_column.body`` (LimitError, exit 3); a shaker column is then refused
-    (ParameterError, exit 4: the profile sweep needs the VFD exciter)."""
+    that drives ``targets.sweep_column.body`` (LimitError, exit 3); for the shaker also the amplifier's
+    volts over the whole sweep, then what its built-in sweep cannot do (ParameterError, exit 4)."""
     column = require_target(ctx, "sweep_column")
     drive = drive_of(ctx, column)
     profile = profile_of(params)
     points = profile.points(params.update_interval_s)
     if column.body == "shaker":
-        # no fixed amplitude: frequency and slope against [limits.generator] (the shaker's limits)
-        for t_s, f_hz in points:
-            drive.limits.check_frequency(f_hz, f"shaker sweep at t = {t_s:g} s")
-        drive.limits.check_ramp_rate(profile.max_slope_hz_per_s(), "shaker sweep slope")
-        raise ParameterError("targets.sweep_column.body", "the sweep procedure follows a frequency "
-                             "profile at the crank's constant amplitude, which only body = \"exciter\" "
-                             "takes; the shaker (body = \"shaker\") is not supported here")
+        _check_shaker_plan(drive, params, profile, points)
+        return profile
     for t_s, f_hz in points:
         drive.check_frequency(f_hz, f"{column.body} sweep at t = {t_s:g} s")
     drive.limits.check_ramp_rate(profile.max_slope_hz_per_s(), f"{column.body} sweep slope")
     return profile
+
+
+def _check_shaker_plan(shaker: Any, params: Parameters, profile: SweepProfile,
+                       points: list[tuple[float, float]]) -> None:
+    amp = params.shaker_amplitude_mm
+    for t_s, f_hz in points:
+        shaker.limits.check_point(f_hz, amp, f"shaker sweep at t = {t_s:g} s")
+    shaker.limits.check_ramp_rate(profile.max_slope_hz_per_s(), "shaker sweep slope")
+    table = shaker.sensitivity
+    f0, f1 = params.start_hz, params.max_hz
+    if not (table.f_min_hz <= f0 and f1 <= table.f_max_hz):
+        raise ParameterError("devices.generator.sensitivity_mm_per_v",
+                             f"the shaker sweep {f0:g}..{f1:g} Hz leaves the sensitivity table "
+                             f"{table.f_min_hz:g}..{table.f_max_hz:g} Hz (no extrapolation)")
+    vpp = shaker.amplitude_vpp_for(f0, amp)
+    # volts, displacement, (2πf)²·x and velocity at every frequency of [f0, f1] (exit 3)
+    shaker.check_sweep(f0, f1, params.duration_s, "log" if params.shape == "log" else "linear", vpp)
+    if params.shape == "fig17":
+        raise ParameterError("shape", "shape = \"fig17\" is a points profile, which the generator's built-in "
+                                      "sweep cannot follow; with targets.sweep_column.body = \"shaker\" "
+                                      "use shape = \"linear\" or \"log\"")
+    knots = [f0, f1, *(f for f, _ in table.points if f0 < f < f1)]
+    s = [table.mm_per_v(f) for f in knots]
+    spread = (max(s) - min(s)) / min(s)
+    if spread > FLAT_SENSITIVITY_TOLERANCE:
+        raise ParameterError("devices.generator.sensitivity_mm_per_v",
+                             f"the sensitivity varies by {100 * spread:.3g} % over {f0:g}..{f1:g} Hz; the "
+                             "generator sweeps at constant volts, so the displacement would not be "
+                             f"constant: at most {100 * FLAT_SENSITIVITY_TOLERANCE:g} % is allowed (narrow "
+                             "the sweep or use the crank exciter)")
 
 
 def run_step(ctx: Any, params: Parameters, *, step_name: str = "sweep") -> None:
@@ -90,6 +128,9 @@ def run_step(ctx: Any, params: Parameters, *, step_name: str = "sweep") -> None:
             return
         profile = check_plan(ctx, params)
         column = require_target(ctx, "sweep_column")
+        if column.body == "shaker":
+            _run_shaker(ctx, params, column, step_name)
+            return
         exciter = drive_of(ctx, column)
         mount(ctx, "sweep_column")
         ctx.progress(None, f"sweep: exciter to {profile.start_hz:g} Hz")
@@ -110,6 +151,37 @@ def run_step(ctx: Any, params: Parameters, *, step_name: str = "sweep") -> None:
                             "profile": [list(p) for p in result.profile], "segment": step_name,
                             "recording": [rec.t_start_s, rec.t_stop_s]})
         stop_polled(ctx, exciter, "exciter")
+
+
+def _run_shaker(ctx: Any, params: Parameters, column: Any, step_name: str) -> None:
+    """The generator's own sweep at constant displacement; ``generator`` events polled throughout."""
+    shaker = drive_of(ctx, column)
+    mount(ctx, "sweep_column")
+    f0, f1, T = params.start_hz, params.max_hz, params.duration_s
+
+    def on_poll() -> None:
+        poll_event(ctx, "generator", shaker.read_state())
+
+    ctx.progress(None, f"sweep: shaker {params.shape} sweep {f0:g} → {f1:g} Hz in {T:g} s")
+    with Acquirer(ctx, ReduceOptions(mode="track", window_px=51)) as acq:
+        rec = acq.record(step_name, lambda: shaker.sweep(
+            f0, f1, T, spacing=params.shape, amplitude_mm=params.shaker_amplitude_mm, hold_s=params.hold_s,
+            poll_interval_s=params.update_interval_s, on_poll=on_poll))
+    result = rec.result
+    t0 = result.t_start_s
+    # the generator's sweep law, sampled densely enough that straight lines between points follow it
+    law = LogSweep(f0, f1, T).points(0.05) if params.shape == "log" else [(0.0, f0), (T, f1)]
+    profile = [[t0 + t, f] for t, f in law] + [list(p) for p in result.profile if p[0] > t0 + T]
+    ctx.event("sweep", {"t_start_s": t0, "t_stop_s": result.t_stop_s,
+                        "amplitude_mm": params.shaker_amplitude_mm, "axis": list(column.axis),
+                        "marker_ids": [f"col{k}" for k in range(column.count)],
+                        "profile": profile, "segment": step_name, "recording": [rec.t_start_s, rec.t_stop_s],
+                        "body": "shaker", "amplitude_vpp": result.amplitude_vpp, "spacing": result.spacing,
+                        "profile_source": "commanded: the generator's built-in sweep (start, stop, time, "
+                                          "spacing; phase-continuous), which it does not report "
+                                          "instant by instant; its reported settings and state are the "
+                                          "generator events"})
+    poll_event(ctx, "generator", shaker.read_state())  # the sweep ended with amplitude down, output OFF
 
 
 def run(ctx: Any, params: Parameters) -> dict[str, Any]:

@@ -2,7 +2,8 @@
 
 On the simulated rig, through the real ``rig`` command, with ``targets.sweep_column.body = "shaker"``:
 the generator's (shaker's) limits apply, not the exciter's; a plan above them exits 3 before anything is
-sent. A plan within them is refused (exit 4, nothing sent): the profile sweep needs the VFD exciter.
+sent. A Fig. 17 (points) plan within them is refused (exit 4, nothing sent): the generator's built-in
+sweep is linear or log only. Shaker sweeps that run are in ``tests/test_procedures_shaker.py``.
 """
 
 from __future__ import annotations
@@ -54,8 +55,9 @@ def test_shaker_column_is_checked_against_the_generator_limits(tmp_path: Path) -
     assert docs[-1]["type"] == "stop" and docs[-1]["exit_code"] == 3
 
 
-def test_shaker_column_within_limits_is_refused_before_motion(tmp_path: Path) -> None:
-    proc, docs = _run_sweep(tmp_path, _shaker_config(tmp_path, 100.0))
+def test_shaker_column_with_a_points_profile_is_refused_before_motion(tmp_path: Path) -> None:
+    proc, docs = _run_sweep(tmp_path, _shaker_config(tmp_path, 100.0))  # default shape: fig17
     assert proc.returncode == 4, proc.stderr
-    assert "targets.sweep_column.body" in docs[-1]["reason"]
+    reason = docs[-1]["reason"]
+    assert "shape" in reason and "fig17" in reason and '"linear" or "log"' in reason, reason
     _nothing_sent(docs)

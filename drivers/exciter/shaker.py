@@ -20,15 +20,16 @@ import bisect
 import contextlib
 import itertools
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
 from drivers.exciter.generator import GeneratorError, ScpiGenerator
 from drivers.exciter.limits import LimitError, MotionLimits
+from drivers.exciter.scpi import parse_bool
 from drivers.heartbeat import Heartbeat
 
-__all__ = ["SensitivityTable", "Shaker", "ShakerSweep"]
+__all__ = ["GeneratorSample", "SensitivityTable", "Shaker", "ShakerSweep"]
 
 
 class SensitivityTable:
@@ -94,6 +95,32 @@ class ShakerSweep:
     spacing: str
     amplitude_vpp: float
     profile: list[tuple[float, float]]
+
+
+@dataclass(frozen=True)
+class GeneratorSample:
+    """What the generator reports when polled (the ``generator`` event stream), rig time ``t_s``.
+
+    ``frequency_hz`` is its CW frequency setting (``FREQ?``): the output frequency when no sweep runs.
+    During a sweep a generator does not report its instantaneous frequency; ``sweep`` then holds the
+    sweep settings it reports (``start_hz``, ``stop_hz``, ``time_s``, ``spacing``). ``displacement_mm`` is
+    s(f)·Vpp/2 at ``frequency_hz`` (the sensitivity table), 0 with the output OFF."""
+
+    t_s: float
+    frequency_hz: float
+    amplitude_vpp: float
+    output_on: bool
+    sweep_on: bool
+    displacement_mm: float
+    sweep: dict[str, Any] | None = None
+
+    def as_event(self) -> dict[str, Any]:
+        out = {"t_s": self.t_s, "frequency_hz": self.frequency_hz, "amplitude_vpp": self.amplitude_vpp,
+               "output_on": self.output_on, "sweep_on": self.sweep_on,
+               "displacement_mm": self.displacement_mm}
+        if self.sweep is not None:
+            out["sweep"] = dict(self.sweep)
+        return out
 
 
 class Shaker:
@@ -231,13 +258,51 @@ class Shaker:
         self._guarded(run)
         return vpp
 
+    def read_state(self) -> GeneratorSample:
+        """Poll the generator: output state, CW frequency, Vpp, sweep state (and its settings when on)."""
+        g = self.generator
+        t_before = self.clock.now_s()
+        output_on = g.output()
+        frequency_hz = g.frequency_hz()
+        vpp = g.amplitude_vpp()
+        sweep_on = parse_bool(g.query(f"{g.source}:SWE:STAT?"))
+        sweep = None
+        if sweep_on:
+            sweep = {"start_hz": g._number(f"{g.source}:FREQ:STAR?"),
+                     "stop_hz": g._number(f"{g.source}:FREQ:STOP?"),
+                     "time_s": g._number(f"{g.source}:SWE:TIME?"),
+                     "spacing": {"LIN": "linear", "LOG": "log"}.get(
+                         g.query(f"{g.source}:SWE:SPAC?").strip().upper()[:3], "unknown")}
+        t_after = self.clock.now_s()
+        inside = self.sensitivity.f_min_hz <= frequency_hz <= self.sensitivity.f_max_hz
+        disp = self.displacement_mm(frequency_hz, vpp) if output_on and inside else (
+            0.0 if not output_on else math.nan)
+        return GeneratorSample(0.5 * (t_before + t_after), frequency_hz, vpp, output_on, sweep_on, disp,
+                               sweep)
+
+    def _wait_until(self, t_end_s: float, poll_interval_s: float | None,
+                    on_poll: Callable[[], None] | None) -> None:
+        while (remaining := t_end_s - self.clock.now_s()) > 0:
+            step = remaining if on_poll is None or poll_interval_s is None else \
+                min(poll_interval_s, remaining)
+            self.clock.sleep_s(step)
+            if on_poll is not None and t_end_s - self.clock.now_s() > 0:
+                on_poll()
+
     def sweep(self, start_hz: float, stop_hz: float, duration_s: float, *, spacing: str = "linear",
-              amplitude_mm: float, reference_hz: float | None = None) -> ShakerSweep:
+              amplitude_mm: float, reference_hz: float | None = None, hold_s: float = 0.0,
+              poll_interval_s: float | None = None, on_poll: Callable[[], None] | None = None) -> ShakerSweep:
         """One generator sweep at constant volts (giving ``amplitude_mm`` at ``reference_hz``, default the
-        start frequency), then ramp down and output OFF. Waits through the injected clock."""
+        start frequency), then ``hold_s`` s at ``stop_hz`` (sweep OFF, CW), then ramp down and output OFF.
+        Waits through the injected clock; ``on_poll()`` is called every ``poll_interval_s`` s of the sweep
+        and the hold (e.g. to record :meth:`read_state`). The returned profile covers sweep and hold."""
         ref = start_hz if reference_hz is None else reference_hz
         vpp = self.amplitude_vpp_for(ref, amplitude_mm)
         self.check_sweep(start_hz, stop_hz, duration_s, spacing, vpp)
+        if not (math.isfinite(hold_s) and hold_s >= 0):
+            raise ValueError(f"hold_s={hold_s!r}: must be a finite number >= 0 s")
+        if poll_interval_s is not None and not (math.isfinite(poll_interval_s) and poll_interval_s > 0):
+            raise ValueError(f"poll_interval_s={poll_interval_s!r}: must be > 0 s")
 
         def run() -> ShakerSweep:
             g = self.generator
@@ -249,16 +314,26 @@ class Shaker:
             self._ramp_amplitude(vpp)
             t0 = self.clock.now_s()
             g.set_sweep(True)
-            self.clock.sleep_s(duration_s)
+            if on_poll is not None:
+                on_poll()
+            self._wait_until(t0 + duration_s, poll_interval_s, on_poll)
             t1 = self.clock.now_s()
             g.set_frequency_hz(stop_hz)
             g.set_sweep(False)
+            hold: list[tuple[float, float]] = []
+            if hold_s > 0:
+                t_hold = self.clock.now_s()
+                if on_poll is not None:
+                    on_poll()
+                self._wait_until(t_hold + hold_s, poll_interval_s, on_poll)
+                t1 = self.clock.now_s()
+                hold = [(t_hold, stop_hz), (t1, stop_hz)]
             n = 50
             if spacing == "linear":
                 freqs = [start_hz + (stop_hz - start_hz) * i / n for i in range(n + 1)]
             else:
                 freqs = [start_hz * (stop_hz / start_hz) ** (i / n) for i in range(n + 1)]
-            prof = [(t0 + duration_s * i / n, f) for i, f in enumerate(freqs)]
+            prof = [(t0 + duration_s * i / n, f) for i, f in enumerate(freqs)] + hold
             return ShakerSweep(t0, t1, start_hz, stop_hz, spacing, vpp, prof)
         result: ShakerSweep = self._guarded(run)
         self.stop()
