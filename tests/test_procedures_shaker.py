@@ -1,0 +1,198 @@
+"""``rig run sweep`` and ``rig run plate`` with the electrodynamic shaker (``body = "shaker"``) on the
+simulated rig, through the real command, checked against the twin's truth.
+
+The twin's shaker moves by s(f)·V_peak (the mock generator's physics, given the configuration's
+sensitivity table); with the flat tables used here that is exactly the commanded ``shaker_amplitude_mm``.
+Tolerances come from the run's measured noise as in ``tests/test_procedures_e2e_plate_rotation.py``:
+σ (px) is the single-frame centroid noise of the still calibration plate. The sweep column moves along
+base z, across the cameras' view (lateral: one sample's noise σ·Z/f); the plate along its normal, towards
+the cameras (depth: σ·(Z/f)·(Z/B)). A sine fit over n samples has amplitude uncertainty σ_x·√(2/n); the
+floor for calibration and rolling-shutter residuals is 3·σ·Z/f (the certify test's). Frequencies: the
+Cramér–Rao bound √12·σ_x / (2π·A·T·√n) plus the cameras' clock tolerance (50 ppm).
+
+Limits: a plan above the generator's (volts at the amplifier, displacement, (2πf)²·x) exits 3 with
+nothing recorded after the device snapshot; what the generator's built-in sweep cannot do (a
+sensitivity table that is not flat over the sweep) exits 4, also before anything is sent.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from rig.cli import main
+from rig.config import load_config
+from rig.record import load_run, read_observations
+from rig.station import world_layout
+from tests.certify_support import depth_scale, read_json, still_pixel_noise_px, write_config
+
+CLOCK_PPM = 50e-6
+
+
+def _config(tmp_path: Path, target: str, *, sensitivity: str | None = None) -> Path:
+    """The simulated rig with ``targets.<target>.body = "shaker"`` (and another sensitivity table)."""
+    path = write_config(tmp_path)
+    text = path.read_text()
+    text, n = re.subn(rf'(\[targets\.{target}\]\nbody = )"exciter"', r'\1"shaker"', text)
+    assert n == 1
+    if sensitivity is not None:
+        text, n = re.subn(r"^sensitivity_mm_per_v = .*$", f"sensitivity_mm_per_v = {sensitivity}", text,
+                          flags=re.M)
+        assert n == 1
+    path.write_text(text)
+    return path
+
+
+def _run(tmp_path: Path, config: Path, procedure: str, *settings: str) -> tuple[int, Path]:
+    args = ["run", procedure, "--config", str(config)]
+    for s in settings:
+        args += ["--set", s]
+    code = main(args)
+    (run_dir,) = (tmp_path / "runs").iterdir()
+    return code, run_dir
+
+
+def _assert_passed(code: int, run_dir: Path, procedure: str) -> None:
+    run = load_run(run_dir)
+    assert code == 0, run.stop
+    assert run.stop["exit_status"] == "success"
+    assert set(run.steps_completed) >= {"calibrate", "sync", procedure, "report"}
+    criteria = pd.read_csv(run_dir / "tables" / "criteria.csv")
+    evaluated = criteria[criteria["status"] != "NOT EVALUATED"]
+    assert (evaluated["status"] == "PASS").all(), evaluated[["id", "value", "status"]]
+
+
+def _noise(run_dir: Path, centre_mm: tuple[float, ...]) -> tuple[float, float, float]:
+    sigma_px = float(np.median([still_pixel_noise_px(o[o["segment"] == "calibrate"])
+                                for o in (read_observations(run_dir, c) for c in ("left", "right"))]))
+    assert 0 < sigma_px < 0.5, sigma_px
+    mm_per_px, z_over_b = depth_scale(read_json(run_dir / "calibration.json"), centre_mm)
+    return sigma_px, mm_per_px, z_over_b
+
+
+def _refused_before_motion(code: int, run_dir: Path, exit_code: int) -> dict:
+    run = load_run(run_dir)
+    assert code == exit_code, run.stop
+    assert run.stop["exit_code"] == exit_code
+    assert not run.steps_completed
+    docs = [json.loads(line) for line in (run_dir / "record.jsonl").read_text().splitlines() if line.strip()]
+    assert not [d for d in docs if d["type"] == "step"]
+    # nothing but the station snapshot: no motion, no recording, no generator poll
+    assert [d["stream"] for d in docs if d["type"] == "event"] == ["devices"]
+    return run.stop
+
+
+@pytest.mark.slow
+def test_shaker_sweep_runs_the_generator_sweep_at_constant_amplitude(tmp_path: Path) -> None:
+    # log: every 1 Hz bin from 2 to 12 Hz lasts ≥ 3 cycles (the report's minimum) in 6 s
+    amp_mm, f0, f1, sweep_s = 2.0, 2.0, 12.0, 6.0
+    config = _config(tmp_path, "sweep_column")
+    code, run_dir = _run(tmp_path, config, "sweep", "shape=log", f"start_hz={f0}", f"max_hz={f1}",
+                         f"duration_s={sweep_s}", "hold_s=0.5", f"shaker_amplitude_mm={amp_mm}")
+    _assert_passed(code, run_dir, "sweep")
+    run = load_run(run_dir)
+    (event,) = [d["data"] for d in run.event_documents("sweep")]
+    assert event["body"] == "shaker" and event["amplitude_mm"] == amp_mm
+    assert event["amplitude_vpp"] == pytest.approx(2 * amp_mm / 0.5)
+    prof = np.asarray(event["profile"], float)
+    assert prof[0, 1] == f0 and prof[-1, 1] == f1 and np.all(np.diff(prof[:, 1]) >= 0)
+    law = f0 * (f1 / f0) ** ((prof[:, 0] - prof[0, 0]) / sweep_s)  # the generator's log law, then the hold
+    assert np.allclose(prof[:, 1], np.minimum(law, f1), rtol=1e-9)
+    assert prof[-1, 0] - prof[0, 0] == pytest.approx(sweep_s + 0.5)
+
+    # what the generator reported while sweeping: its sweep settings, output on, the commanded volts
+    gen = [d["data"] for d in run.event_documents("generator")]
+    sweeping = [g for g in gen if event["t_start_s"] <= g["t_s"] < event["t_start_s"] + sweep_s]
+    assert len(sweeping) >= sweep_s / 0.5 - 1
+    for g in sweeping:
+        assert g["output_on"] and g["sweep_on"] and g["amplitude_vpp"] == pytest.approx(8.0)
+        assert g["sweep"] == {"start_hz": f0, "stop_hz": f1, "time_s": sweep_s, "spacing": "log"}
+    assert not gen[-1]["output_on"]  # ramped down and switched off after the sweep
+
+    # the cameras' amplitude in every 1 Hz bin agrees with the twin's (flat table: the commanded mm)
+    cfg = load_config(config)
+    centre = tuple(world_layout(cfg).targets.sweep_column.centre_mm)
+    sigma_px, mm_per_px, _ = _noise(run_dir, centre)
+    sigma_x_mm = sigma_px * mm_per_px  # motion along z: across the view
+    bins = pd.read_csv(run_dir / "tables" / "sweep_bins.csv")
+    # the primary sync (the "linear" comparison shows the interpolation error that grows with f, by design)
+    bins = bins[bins["sync_method"] == "trajectory"]
+    assert bins["frequency_hz"].min() < f0 + 1 and bins["frequency_hz"].max() > f1 - 1
+    assert bins["track"].nunique() >= 5  # the column's five markers
+    n = bins["n_samples"].to_numpy(float)
+    err = bins["amplitude_meas_mm"].to_numpy(float) - amp_mm
+    bound = 5 * sigma_x_mm * np.sqrt(2 / n) + 3 * sigma_px * mm_per_px
+    assert (np.abs(err) <= bound).all(), bins.assign(err_mm=err, bound_mm=bound)[
+        ["track", "frequency_hz", "err_mm", "bound_mm"]]
+
+
+@pytest.mark.slow
+def test_shaker_plate_matches_the_twin(tmp_path: Path) -> None:
+    plate_hz, tip_mm, record_s = 3.5, 4.0, 1.5
+    # 1 mm per volt: the crank's 4 mm at 8 Vpp (the sim table's 0.5 mm/V allows at most 2.5 mm at 10 Vpp)
+    config = _config(tmp_path, "plate", sensitivity="[[1.0, 1.0], [100.0, 1.0]]")
+    code, run_dir = _run(tmp_path, config, "plate", f"record_s={record_s}", f"frequency_hz={plate_hz}",
+                         f"shaker_amplitude_mm={tip_mm}")
+    _assert_passed(code, run_dir, "plate")
+    run = load_run(run_dir)
+    (event,) = [d["data"] for d in run.event_documents("plate")]
+    assert event["body"] == "shaker" and event["amplitude_mm"] == pytest.approx(tip_mm)
+    gen = [d["data"] for d in run.event_documents("generator")]
+    during = [g for g in gen if event["t_start_s"] <= g["t_s"] <= event["t_stop_s"]]
+    assert len(during) >= 3
+    assert all(g["output_on"] and not g["sweep_on"] and g["frequency_hz"] == plate_hz for g in during)
+    assert not gen[-1]["output_on"]
+
+    plate = world_layout(load_config(config)).targets.plate
+    rest = plate.rest_positions_mm()
+    truth_mm = {marker: weight * tip_mm for marker, (_, weight) in rest.items()}
+    centre = tuple(np.mean([p for p, _ in rest.values()], axis=0))
+    sigma_px, mm_per_px, z_over_b = _noise(run_dir, centre)
+    sigma_z_mm = sigma_px * mm_per_px * z_over_b
+
+    table = pd.read_csv(run_dir / "tables" / "plate.csv")
+    assert sorted(table["marker_id"]) == sorted(truth_mm)
+    n = table["n_samples"].to_numpy(float)
+    assert (n >= 0.9 * record_s * 60).all()
+    truth = table["marker_id"].map(truth_mm).to_numpy(float)
+    amp_err = table["amplitude_meas_mm"].to_numpy(float) - truth
+    assert (np.abs(amp_err) <= 5 * sigma_z_mm * np.sqrt(2 / n) + 3 * sigma_px * mm_per_px).all(), \
+        pd.DataFrame({"marker": table["marker_id"], "err_mm": amp_err})
+    u_f = np.sqrt(12) * sigma_z_mm / (2 * np.pi * truth * (n / 60.0) * np.sqrt(n))
+    f_err = table["frequency_meas_hz"].to_numpy(float) - plate_hz
+    assert (np.abs(f_err) <= 5 * u_f + plate_hz * CLOCK_PPM).all(), \
+        pd.DataFrame({"marker": table["marker_id"], "err_hz": f_err, "u_hz": u_f})
+
+
+@pytest.mark.parametrize(("settings", "quantity"), [
+    # 3 mm at 0.5 mm/V needs 12 Vpp: above the amplifier's 10 Vpp
+    (("shaker_amplitude_mm=3.0", "max_hz=12"), "generator amplitude"),
+    # 2 mm at 80 Hz: (2π·80)²·2 mm = 505 m/s² > 500 m/s²
+    (("shaker_amplitude_mm=2.0", "max_hz=80"), "acceleration"),
+    # above the shaker's 5 mm stroke
+    (("shaker_amplitude_mm=6.0", "max_hz=12"), "displacement"),
+])
+def test_shaker_sweep_above_the_limits_exits_3_with_nothing_sent(tmp_path: Path, settings: tuple[str, ...],
+                                                                  quantity: str) -> None:
+    code, run_dir = _run(tmp_path, _config(tmp_path, "sweep_column"), "sweep", "shape=linear", *settings)
+    stop = _refused_before_motion(code, run_dir, 3)
+    assert quantity in stop["reason"] and "nothing was sent" in stop["reason"], stop["reason"]
+
+
+def test_shaker_plate_above_the_amplifier_limit_exits_3_with_nothing_sent(tmp_path: Path) -> None:
+    code, run_dir = _run(tmp_path, _config(tmp_path, "plate"), "plate", "shaker_amplitude_mm=3.0")
+    stop = _refused_before_motion(code, run_dir, 3)
+    assert "generator amplitude" in stop["reason"] and "10 Vpp" in stop["reason"], stop["reason"]
+
+
+def test_shaker_sweep_needs_a_flat_sensitivity_table(tmp_path: Path) -> None:
+    # 0.5 → 0.6 mm/V over 1..100 Hz: 2 % over 2..12 Hz, more than the 0.5 % the constant-volts sweep allows
+    config = _config(tmp_path, "sweep_column", sensitivity="[[1.0, 0.5], [100.0, 0.6]]")
+    code, run_dir = _run(tmp_path, config, "sweep", "shape=linear", "start_hz=2", "max_hz=12")
+    stop = _refused_before_motion(code, run_dir, 4)
+    assert "devices.generator.sensitivity_mm_per_v" in stop["reason"] and "0.5 %" in stop["reason"]
