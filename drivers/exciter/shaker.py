@@ -104,7 +104,9 @@ class GeneratorSample:
     ``frequency_hz`` is its CW frequency setting (``FREQ?``): the output frequency when no sweep runs.
     During a sweep a generator does not report its instantaneous frequency; ``sweep`` then holds the
     sweep settings it reports (``start_hz``, ``stop_hz``, ``time_s``, ``spacing``). ``displacement_mm`` is
-    s(f)·Vpp/2 at ``frequency_hz`` (the sensitivity table), 0 with the output OFF."""
+    s(f)·Vpp/2 (the sensitivity table) at ``frequency_hz``, or at the sweep's start frequency during a sweep
+    (constant volts: the same at every frequency only where the table is flat); 0 with the output OFF, NaN
+    outside the table."""
 
     t_s: float
     frequency_hz: float
@@ -274,8 +276,9 @@ class Shaker:
                      "spacing": {"LIN": "linear", "LOG": "log"}.get(
                          g.query(f"{g.source}:SWE:SPAC?").strip().upper()[:3], "unknown")}
         t_after = self.clock.now_s()
-        inside = self.sensitivity.f_min_hz <= frequency_hz <= self.sensitivity.f_max_hz
-        disp = self.displacement_mm(frequency_hz, vpp) if output_on and inside else (
+        f_ref = sweep["start_hz"] if sweep is not None else frequency_hz  # what the volts were set for
+        inside = self.sensitivity.f_min_hz <= f_ref <= self.sensitivity.f_max_hz
+        disp = self.displacement_mm(f_ref, vpp) if output_on and inside else (
             0.0 if not output_on else math.nan)
         return GeneratorSample(0.5 * (t_before + t_after), frequency_hz, vpp, output_on, sweep_on, disp,
                                sweep)
