@@ -10,19 +10,21 @@ that drives the column's ``body``: ``[limits.exciter]`` for the crank exciter, `
 the shaker (fed by the generator).
 
 Exciter (``body = "exciter"``): timed setpoint updates follow the profile at the crank's amplitude.
-Shaker (``body = "shaker"``): the generator's own phase-continuous linear or log sweep (``shape = "linear"``
-or ``"log"``) at the constant volts that give ``shaker_amplitude_mm`` (the shaker has no crank), then
-``hold_s`` at ``max_hz`` with the sweep off. The built-in sweep runs at constant volts, so the displacement
-is constant only where the sensitivity table is flat: a table varying by more than
-``FLAT_SENSITIVITY_TOLERANCE`` over the sweep's range is refused (ParameterError naming
-``devices.generator.sensitivity_mm_per_v``, exit 4), as is ``shape = "fig17"`` (a points profile the
-generator's sweep cannot follow; exit 4) — both after the limits check (frequency, displacement, (2πf)²·x,
-velocity, slope and the amplifier's volts: exit 3), nothing sent.
+Shaker (``body = "shaker"``), at the constant displacement ``shaker_amplitude_mm`` (it has no crank):
+``shape = "linear"`` or ``"log"`` is the generator's own phase-continuous sweep at constant volts, then
+``hold_s`` at ``max_hz`` with the sweep off — constant displacement only where the sensitivity table is
+flat, so a table varying by more than ``FLAT_SENSITIVITY_TOLERANCE`` over the sweep is refused
+(ParameterError naming ``devices.generator.sensitivity_mm_per_v``, exit 4); ``shape = "fig17"`` (a points
+profile the built-in sweep cannot follow) runs as phase-continuous CW frequency steps every
+``update_interval_s`` (:mod:`procedures._shaker`: each step at the profile's mean frequency over it, volts
+per step from the table). A sweep outside the sensitivity table is refused (exit 4). Before anything is
+sent: frequency, displacement, (2πf)²·x, velocity, slope and the amplifier's volts (exit 3).
 
 Truth: the ``sweep`` event (commanded profile in rig time, amplitude, axis, marker ids) and the polled
 actual frequencies as ``exciter`` events; for the shaker, the generator cannot report its instantaneous
-sweep frequency, so the profile is the commanded one (``profile_source`` says so) and the generator's
-reported state and sweep settings are polled as ``generator`` events. The cameras record the whole sweep.
+sweep frequency, so the profile is the commanded law or staircase (``profile_source`` says so) and the
+generator's reported state, CW frequency and sweep settings are polled as ``generator`` events. The
+cameras record the whole sweep.
 """
 
 from __future__ import annotations
@@ -33,6 +35,7 @@ from typing import Any
 from drivers.exciter.sweep import LogSweep, PointsSweep, SweepProfile
 from procedures._acquire import Acquirer, ReduceOptions
 from procedures._common import drive_of, mount, poll_event, require_target, run_alone, stop_polled
+from procedures._shaker import follow_staircase, staircase_plan
 from rig.procedure import ParameterError, param
 
 FLAT_SENSITIVITY_TOLERANCE = 0.005  # max (s_max − s_min)/s_min of the shaker table over a sweep (0.5 %)
@@ -77,7 +80,7 @@ def profile_of(params: Parameters) -> SweepProfile:
 def check_plan(ctx: Any, params: Parameters) -> SweepProfile:
     """Limits of every profile point and of the steepest slope, before anything moves, for the device
     that drives ``targets.sweep_column.body`` (LimitError, exit 3); for the shaker also the amplifier's
-    volts over the whole sweep, then what its built-in sweep cannot do (ParameterError, exit 4)."""
+    volts over the whole sweep (or every step), and what it cannot do (ParameterError, exit 4)."""
     column = require_target(ctx, "sweep_column")
     drive = drive_of(ctx, column)
     profile = profile_of(params)
@@ -103,13 +106,14 @@ def _check_shaker_plan(shaker: Any, params: Parameters, profile: SweepProfile,
         raise ParameterError("devices.generator.sensitivity_mm_per_v",
                              f"the shaker sweep {f0:g}..{f1:g} Hz leaves the sensitivity table "
                              f"{table.f_min_hz:g}..{table.f_max_hz:g} Hz (no extrapolation)")
+    if params.shape == "fig17":
+        # stepped: every step's frequency with the volts for the amplitude there (exit 3)
+        for _, f_hz in staircase_plan(points, params.update_interval_s):
+            shaker.check_point(f_hz, shaker.amplitude_vpp_for(f_hz, amp))
+        return
     vpp = shaker.amplitude_vpp_for(f0, amp)
     # volts, displacement, (2πf)²·x and velocity at every frequency of [f0, f1] (exit 3)
-    shaker.check_sweep(f0, f1, params.duration_s, "log" if params.shape == "log" else "linear", vpp)
-    if params.shape == "fig17":
-        raise ParameterError("shape", "shape = \"fig17\" is a points profile, which the generator's built-in "
-                                      "sweep cannot follow; with targets.sweep_column.body = \"shaker\" "
-                                      "use shape = \"linear\" or \"log\"")
+    shaker.check_sweep(f0, f1, params.duration_s, params.shape, vpp)
     knots = [f0, f1, *(f for f, _ in table.points if f0 < f < f1)]
     s = [table.mm_per_v(f) for f in knots]
     spread = (max(s) - min(s)) / min(s)
@@ -118,7 +122,7 @@ def _check_shaker_plan(shaker: Any, params: Parameters, profile: SweepProfile,
                              f"the sensitivity varies by {100 * spread:.3g} % over {f0:g}..{f1:g} Hz; the "
                              "generator sweeps at constant volts, so the displacement would not be "
                              f"constant: at most {100 * FLAT_SENSITIVITY_TOLERANCE:g} % is allowed (narrow "
-                             "the sweep or use the crank exciter)")
+                             "the sweep, use shape = \"fig17\" — stepped, volts per step — or the exciter)")
 
 
 def run_step(ctx: Any, params: Parameters, *, step_name: str = "sweep") -> None:
@@ -163,6 +167,9 @@ def _run_shaker(ctx: Any, params: Parameters, column: Any, step_name: str) -> No
         poll_event(ctx, "generator", shaker.read_state())
 
     ctx.progress(None, f"sweep: shaker {params.shape} sweep {f0:g} → {f1:g} Hz in {T:g} s")
+    if params.shape == "fig17":
+        _run_shaker_steps(ctx, params, column, shaker, step_name=step_name, on_poll=on_poll)
+        return
     with Acquirer(ctx, ReduceOptions(mode="track", window_px=51)) as acq:
         rec = acq.record(step_name, lambda: shaker.sweep(
             f0, f1, T, spacing=params.shape, amplitude_mm=params.shaker_amplitude_mm, hold_s=params.hold_s,
@@ -182,6 +189,30 @@ def _run_shaker(ctx: Any, params: Parameters, column: Any, step_name: str) -> No
                                           "instant by instant; its reported settings and state are the "
                                           "generator events"})
     poll_event(ctx, "generator", shaker.read_state())  # the sweep ended with amplitude down, output OFF
+
+
+def _run_shaker_steps(ctx: Any, params: Parameters, column: Any, shaker: Any, *, step_name: str,
+                      on_poll: Any) -> None:
+    """The Fig. 17 points profile as timed frequency steps (:mod:`procedures._shaker`)."""
+    profile = profile_of(params)
+    points = profile.points(params.update_interval_s)
+    plan = staircase_plan(points, params.update_interval_s)
+    with Acquirer(ctx, ReduceOptions(mode="track", window_px=51)) as acq:
+        rec = acq.record(step_name, lambda: follow_staircase(
+            ctx, shaker, plan, total_s=points[-1][0], amplitude_mm=params.shaker_amplitude_mm,
+            on_step=on_poll))
+    result = rec.result
+    ctx.event("sweep", {"t_start_s": result.t_start_s, "t_stop_s": result.t_stop_s,
+                        "amplitude_mm": params.shaker_amplitude_mm, "axis": list(column.axis),
+                        "marker_ids": [f"col{k}" for k in range(column.count)],
+                        "profile": [list(p) for p in result.profile], "segment": step_name,
+                        "recording": [rec.t_start_s, rec.t_stop_s], "body": "shaker",
+                        "amplitude_vpp": result.amplitude_vpp, "spacing": "steps",
+                        "profile_source": f"commanded staircase: phase-continuous CW frequency steps every "
+                                          f"{params.update_interval_s:g} s, each at the Fig. 17 profile's "
+                                          "mean frequency over its step (volts per step from the "
+                                          "sensitivity table), at the times the commands were sent"})
+    poll_event(ctx, "generator", shaker.read_state())  # after the stop: amplitude down, output OFF
 
 
 def run(ctx: Any, params: Parameters) -> dict[str, Any]:

@@ -12,11 +12,14 @@ Cramér–Rao bound √12·σ_x / (2π·A·T·√n) plus the cameras' clock tole
 
 Limits: a plan above the generator's (volts at the amplifier, displacement, (2πf)²·x) exits 3 with
 nothing recorded after the device snapshot; what the generator's built-in sweep cannot do (a
-sensitivity table that is not flat over the sweep) exits 4, also before anything is sent.
+sensitivity table that is not flat over the sweep) exits 4, also before anything is sent. The Fig. 17
+points profile runs as phase-continuous CW frequency steps (``procedures/_shaker.py``): each step at the
+profile's mean frequency over it, so the staircase's phase equals the profile's at every step's end.
 """
 
 from __future__ import annotations
 
+import itertools
 import json
 import re
 from pathlib import Path
@@ -24,7 +27,12 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
+from procedures._shaker import staircase_plan
+from procedures.sweep import Parameters, profile_of
+from reports.frequency import sweep_phase_rad
 from rig.cli import main
 from rig.config import load_config
 from rig.record import load_run, read_observations
@@ -196,3 +204,66 @@ def test_shaker_sweep_needs_a_flat_sensitivity_table(tmp_path: Path) -> None:
     code, run_dir = _run(tmp_path, config, "sweep", "shape=linear", "start_hz=2", "max_hz=12")
     stop = _refused_before_motion(code, run_dir, 4)
     assert "devices.generator.sensitivity_mm_per_v" in stop["reason"] and "0.5 %" in stop["reason"]
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.lists(st.tuples(st.floats(0.05, 5.0), st.floats(0.0, 3.0)), min_size=1, max_size=6),
+       st.floats(0.5, 5.0), st.floats(0.02, 2.0))
+def test_staircase_has_the_profiles_phase_at_every_step_end(segments: list[tuple[float, float]],
+                                                            f0_hz: float, step_s: float) -> None:
+    t, f, points = 0.0, f0_hz, [(0.0, f0_hz)]
+    for dt, df in segments:  # a monotone piecewise-linear profile
+        t, f = t + dt, f + df
+        points.append((t, f))
+    plan = staircase_plan(points, step_s)
+    ends = [p[0] for p in plan[1:]] + [t]
+    assert plan[0][0] == 0 and all(b > a for a, b in itertools.pairwise(ends))
+    freqs = np.array([p[1] for p in plan])
+    assert np.all(np.diff(freqs) >= -1e-9) and freqs.min() >= f0_hz - 1e-9 and freqs.max() <= f + 1e-9
+    stair = [(0.0, freqs[0])]
+    for (t_k, f_k), (_, f_prev) in zip(plan[1:], plan[:-1], strict=True):
+        stair += [(t_k, f_prev), (t_k, f_k)]
+    stair.append((t, freqs[-1]))
+    prof_phase = sweep_phase_rad({"profile": points}, np.array(ends))
+    stair_phase = sweep_phase_rad({"profile": stair}, np.array(ends))
+    assert np.allclose(stair_phase, prof_phase, rtol=1e-9, atol=1e-9)
+
+
+@pytest.mark.slow
+def test_shaker_fig17_sweep_runs_as_phase_continuous_steps(tmp_path: Path) -> None:
+    amp_mm, f0, f1, rise_s, step_s = 2.0, 2.0, 12.0, 8.0, 0.25
+    config = _config(tmp_path, "sweep_column")
+    code, run_dir = _run(tmp_path, config, "sweep", f"start_hz={f0}", f"max_hz={f1}", f"duration_s={rise_s}",
+                         "hold_s=0.5", f"update_interval_s={step_s}", f"shaker_amplitude_mm={amp_mm}")
+    _assert_passed(code, run_dir, "sweep")
+    run = load_run(run_dir)
+    (event,) = [d["data"] for d in run.event_documents("sweep")]
+    assert event["spacing"] == "steps" and event["amplitude_mm"] == amp_mm
+    stair = np.asarray(event["profile"], float)
+    assert np.all(np.diff(stair[:, 0]) >= 0) and np.all(np.diff(stair[:, 1]) >= 0)
+    assert stair[-1, 0] - stair[0, 0] == pytest.approx(rise_s + 0.5)
+    # the phase at every step's end is the Fig. 17 profile's (points from the procedure's own law)
+    law = profile_of(Parameters(start_hz=f0, max_hz=f1, duration_s=rise_s, hold_s=0.5)).points(step_s)
+    law = [(stair[0, 0] + t, f) for t, f in law]
+    ends = np.unique(stair[1:, 0])
+    assert np.allclose(sweep_phase_rad(event, ends), sweep_phase_rad({"profile": law}, ends), atol=1e-6)
+
+    # the generator reported, after every step, the CW frequency of the staircase at that instant
+    gen = [d["data"] for d in run.event_documents("generator")]
+    polled = [g for g in gen if event["t_start_s"] <= g["t_s"] < event["t_stop_s"]]
+    assert len(polled) >= rise_s / step_s
+    for g in polled:
+        current = stair[stair[:, 0] <= g["t_s"]][-1, 1]
+        assert g["output_on"] and not g["sweep_on"] and g["frequency_hz"] == pytest.approx(current, abs=1e-9)
+    assert not gen[-1]["output_on"]
+
+    cfg = load_config(config)
+    sigma_px, mm_per_px, _ = _noise(run_dir, tuple(world_layout(cfg).targets.sweep_column.centre_mm))
+    bins = pd.read_csv(run_dir / "tables" / "sweep_bins.csv")
+    bins = bins[bins["sync_method"] == "trajectory"]
+    assert bins["frequency_hz"].min() < f0 + 1 and bins["frequency_hz"].max() > f1 - 1
+    n = bins["n_samples"].to_numpy(float)
+    err = bins["amplitude_meas_mm"].to_numpy(float) - amp_mm
+    bound = 5 * sigma_px * mm_per_px * np.sqrt(2 / n) + 3 * sigma_px * mm_per_px
+    assert (np.abs(err) <= bound).all(), bins.assign(err_mm=err, bound_mm=bound)[
+        ["track", "frequency_hz", "err_mm", "bound_mm"]]

@@ -2,8 +2,8 @@
 
 On the simulated rig, through the real ``rig`` command, with ``targets.sweep_column.body = "shaker"``:
 the generator's (shaker's) limits apply, not the exciter's; a plan above them exits 3 before anything is
-sent. A Fig. 17 (points) plan within them is refused (exit 4, nothing sent): the generator's built-in
-sweep is linear or log only. Shaker sweeps that run are in ``tests/test_procedures_shaker.py``.
+sent; a plan beyond the shaker's sensitivity table is refused (exit 4, nothing sent: no extrapolation).
+Shaker sweeps that run are in ``tests/test_procedures_shaker.py``.
 """
 
 from __future__ import annotations
@@ -55,9 +55,14 @@ def test_shaker_column_is_checked_against_the_generator_limits(tmp_path: Path) -
     assert docs[-1]["type"] == "stop" and docs[-1]["exit_code"] == 3
 
 
-def test_shaker_column_with_a_points_profile_is_refused_before_motion(tmp_path: Path) -> None:
-    proc, docs = _run_sweep(tmp_path, _shaker_config(tmp_path, 100.0))  # default shape: fig17
+def test_shaker_sweep_beyond_the_sensitivity_table_is_refused_before_motion(tmp_path: Path) -> None:
+    config = _shaker_config(tmp_path, 100.0)
+    text, n = re.subn(r"^sensitivity_mm_per_v = .*$", "sensitivity_mm_per_v = [[1.0, 0.5], [20.0, 0.5]]",
+                      config.read_text(), flags=re.M)
+    assert n == 1
+    config.write_text(text)
+    proc, docs = _run_sweep(tmp_path, config)  # to 30 Hz: the table stops at 20 Hz (no extrapolation)
     assert proc.returncode == 4, proc.stderr
     reason = docs[-1]["reason"]
-    assert "shape" in reason and "fig17" in reason and '"linear" or "log"' in reason, reason
+    assert "devices.generator.sensitivity_mm_per_v" in reason and "1..20 Hz" in reason, reason
     _nothing_sent(docs)

@@ -260,6 +260,21 @@ class Shaker:
         self._guarded(run)
         return vpp
 
+    def retune(self, frequency_hz: float, amplitude_mm: float) -> float:
+        """While running: CW frequency to ``frequency_hz`` (phase-continuous on the instrument), then the
+        volts for ``amplitude_mm`` there (in amplitude steps); limits checked first. Returns the Vpp."""
+        vpp = self.amplitude_vpp_for(frequency_hz, amplitude_mm)
+        self.check_point(frequency_hz, vpp)
+        if not self._output_on:
+            raise GeneratorError("retune: the output is OFF (call start first); nothing was sent")
+
+        def run() -> None:
+            self.generator.set_frequency_hz(frequency_hz)
+            if vpp != self._amplitude_vpp:
+                self._ramp_amplitude(vpp)
+        self._guarded(run)
+        return vpp
+
     def read_state(self) -> GeneratorSample:
         """Poll the generator: output state, CW frequency, Vpp, sweep state (and its settings when on)."""
         g = self.generator
