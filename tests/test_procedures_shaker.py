@@ -267,3 +267,46 @@ def test_shaker_fig17_sweep_runs_as_phase_continuous_steps(tmp_path: Path) -> No
     bound = 5 * sigma_px * mm_per_px * np.sqrt(2 / n) + 3 * sigma_px * mm_per_px
     assert (np.abs(err) <= bound).all(), bins.assign(err_mm=err, bound_mm=bound)[
         ["track", "frequency_hz", "err_mm", "bound_mm"]]
+
+
+def test_retune_keeps_the_displacement_and_the_phase_and_checks_limits_first() -> None:
+    from drivers.exciter.generator import GeneratorError, ScpiGenerator
+    from drivers.exciter.limits import LimitError, MotionLimits
+    from drivers.exciter.shaker import SensitivityTable, Shaker
+    from drivers.mock.generator_instrument import GeneratorInstrument
+    from drivers.mock.generator_server import GeneratorServer
+    from drivers.sim.clock import VirtualClock
+    from drivers.sim.world import World
+    from drivers.transport import open_transport
+
+    table = [(1.0, 0.80), (20.0, 0.50), (100.0, 0.20)]  # not flat: the volts must follow it
+    limits = MotionLimits(max_frequency_hz=100.0, max_displacement_mm=5.0, max_acceleration_m_s2=200.0,
+                          max_ramp_rate_hz_per_s=10.0)
+    world = World(VirtualClock(), seed=5)
+    instrument = GeneratorInstrument(world.shaker, world.clock, sensitivity_mm_per_v=table)
+    with GeneratorServer(instrument, mode="tcp") as server:
+        transport = open_transport(server.url, timeout_s=0.5)
+        try:
+            shaker = Shaker(ScpiGenerator(transport, timeout_s=0.5), clock=world.clock, limits=limits,
+                            sensitivity=SensitivityTable(table))
+            with pytest.raises(GeneratorError, match="output is OFF"):
+                shaker.retune(5.0, 1.0)
+            shaker.start(4.0, 1.0)
+            t_step = world.clock.now_s()
+            phase_before = world.shaker.phase_rad(t_step)
+            shaker.retune(6.0, 1.0)
+            t = world.clock.now_s()
+            assert world.shaker.frequency_hz(t) == 6.0
+            assert world.shaker.amplitude_at_mm(t) == pytest.approx(1.0, rel=1e-9)
+            assert world.shaker.phase_rad(t_step) == pytest.approx(phase_before, abs=1e-12)  # no jump
+            state = shaker.read_state()
+            assert state.output_on and not state.sweep_on and state.frequency_hz == 6.0
+            assert state.displacement_mm == pytest.approx(1.0, rel=1e-9)
+            seen = len(server.instrument.commands_seen)
+            with pytest.raises(LimitError, match="acceleration"):
+                shaker.retune(80.0, 1.0)  # (2π·80)²·1 mm = 253 m/s² > 200 m/s²
+            assert len(server.instrument.commands_seen) == seen  # nothing was sent
+            shaker.stop()
+            assert not shaker.read_state().output_on
+        finally:
+            transport.close()

@@ -21,7 +21,7 @@ import contextlib
 import itertools
 import math
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 from typing import Any
 
 from drivers.exciter.generator import GeneratorError, ScpiGenerator
@@ -117,12 +117,7 @@ class GeneratorSample:
     sweep: dict[str, Any] | None = None
 
     def as_event(self) -> dict[str, Any]:
-        out = {"t_s": self.t_s, "frequency_hz": self.frequency_hz, "amplitude_vpp": self.amplitude_vpp,
-               "output_on": self.output_on, "sweep_on": self.sweep_on,
-               "displacement_mm": self.displacement_mm}
-        if self.sweep is not None:
-            out["sweep"] = dict(self.sweep)
-        return out
+        return {k: v for k, v in asdict(self).items() if v is not None}
 
 
 class Shaker:
@@ -279,9 +274,7 @@ class Shaker:
         """Poll the generator: output state, CW frequency, Vpp, sweep state (and its settings when on)."""
         g = self.generator
         t_before = self.clock.now_s()
-        output_on = g.output()
-        frequency_hz = g.frequency_hz()
-        vpp = g.amplitude_vpp()
+        output_on, frequency_hz, vpp = g.output(), g.frequency_hz(), g.amplitude_vpp()
         sweep_on = parse_bool(g.query(f"{g.source}:SWE:STAT?"))
         sweep = None
         if sweep_on:
