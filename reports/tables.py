@@ -366,7 +366,11 @@ def _frequency_errors(t: ReportTables) -> list[tuple[str, float, float]]:
     """(what, error %, standard uncertainty %) of every steady measured frequency (plate tracks, rotor)."""
     out = []
     if t.plate is not None:
-        for _, r in t.plate.iterrows():
+        plate = t.plate
+        identified = plate["marker_id"].astype(str) != ""
+        if identified.any():  # tracks not identified as plate markers (a still reference) say nothing of it
+            plate = plate[identified]
+        for _, r in plate.iterrows():
             if _finite(r["frequency_error_pct"]):
                 out.append(
                     (

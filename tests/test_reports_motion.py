@@ -167,3 +167,21 @@ def test_amplitude_spectrum_of_an_on_bin_sine() -> None:
     assert peak["amplitude_mm"] == pytest.approx(3.0, rel=2e-3)  # Hann, coherent gain normalised
     with pytest.raises(ReportError, match="≥ 8 samples"):
         motion.amplitude_spectrum(t[:5], t[:5])
+
+
+def test_plate_frequency_criterion_counts_identified_plate_markers_only() -> None:
+    """A still reference marker that slipped into the plate table (tiny amplitude, noise frequency) must not
+    make the steady-frequency criterion fail; without any identification every track still counts."""
+    from types import SimpleNamespace
+
+    from reports.tables import _frequency_errors
+
+    rows = pd.DataFrame({
+        "track": ["t0", "t1", "t2"], "marker_id": ["plate_r0c5", "plate_r0c4", ""],
+        "frequency_ref_hz": 3.5, "frequency_meas_hz": [3.5001, 3.4999, 5.0], "u_frequency_hz": 1e-4,
+        "frequency_error_pct": [100 * 1e-4 / 3.5, -100 * 1e-4 / 3.5, 100 * 1.5 / 3.5],
+    })
+    errors = _frequency_errors(SimpleNamespace(plate=rows, rotation_summary=None))
+    assert [what for what, _, _ in errors] == ["plate t0", "plate t1"]
+    unidentified = rows.assign(marker_id="")
+    assert len(_frequency_errors(SimpleNamespace(plate=unidentified, rotation_summary=None))) == 3
