@@ -120,6 +120,10 @@ def reference_sweep(sweep: dict, polled: list[dict]) -> tuple[dict, str]:
             return dict(sweep, profile=prof), (
                 f"polled actual frequency ({t.size} samples every {gap:.3g} s, "
                 f"{tk.size - t.size} setpoint arrivals between polls restored)")
+    if sweep.get("body", "exciter") != "exciter":  # a generator's frequency law is exact, no drive ramp
+        return dict(sweep), (
+            f"commanded profile of the {sweep['body']} ({sweep.get('profile_source') or 'generator sweep'})"
+        )
     return dict(sweep), (
         f"commanded profile ({len(rows)} polled samples in the sweep window do not cover it densely): the "
         "phase reference leads the crank by the drive's ramp margin"

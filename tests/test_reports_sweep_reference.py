@@ -93,3 +93,13 @@ def test_ramp_knots_puts_the_arrival_on_the_ramp_line() -> None:
     tk, fk = ramp_knots(t, f, sp)
     assert tk.tolist() == pytest.approx([0.0, 0.05, 0.1, 0.15, 0.2, 0.25])
     assert fk.tolist() == pytest.approx([5.0, 5.1, 5.2, 5.3, 5.3, 5.3])
+
+
+def test_a_shaker_sweep_keeps_its_exact_commanded_law_without_a_ramp_note() -> None:
+    from reports.frequency import reference_sweep
+
+    sweep = {"t_start_s": 0.0, "t_stop_s": 10.0, "profile": [[0.0, 2.0], [10.0, 12.0]], "body": "shaker",
+             "profile_source": "commanded generator sweep"}
+    ref, source = reference_sweep(sweep, [])
+    assert ref["profile"] == sweep["profile"]
+    assert "shaker" in source and "ramp margin" not in source
