@@ -28,6 +28,8 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
+from drivers.denso.arm import LimitError as ArmLimitError
+from drivers.exciter.limits import LimitError as ExciterLimitError
 from rig.config_schema import ConfigError
 from rig.procedure import Abort, InterlockTripped
 
@@ -70,23 +72,8 @@ def make_safe(devices: dict[str, Any]) -> list[SafeStateResult]:
     return results
 
 
-def _interlock_error_types() -> tuple[type[BaseException], ...]:
-    """Driver exceptions that mean "a limit/envelope check refused a command" (nothing was sent)."""
-    types_: list[type[BaseException]] = [InterlockTripped]
-    try:
-        from drivers.exciter.limits import LimitError
-
-        types_.append(LimitError)
-    except ImportError:  # pragma: no cover — drivers always ship with the rig
-        pass
-    try:
-        from drivers.denso import arm as _arm  # the arm driver's envelope/speed refusal
-
-        if isinstance(getattr(_arm, "LimitError", None), type):
-            types_.append(_arm.LimitError)
-    except ImportError:
-        pass
-    return tuple(types_)
+# Driver exceptions that mean "a limit/envelope check refused a command" (nothing was sent).
+INTERLOCK_ERROR_TYPES: tuple[type[BaseException], ...] = (InterlockTripped, ArmLimitError, ExciterLimitError)
 
 
 @dataclass
@@ -105,7 +92,7 @@ def classify(exc: BaseException | None, verdict_passed: bool | None, verdict_sum
             return Classified(EXIT_CERTIFICATE_FAILED, "success", "certificate_failed",
                               verdict_summary or "certificate failed")
         return Classified(EXIT_PASS, "success", "pass", verdict_summary or "completed")
-    if isinstance(exc, _interlock_error_types()):
+    if isinstance(exc, INTERLOCK_ERROR_TYPES):
         device = next((getattr(exc, a) for a in ("device", "quantity", "axis") if getattr(exc, a, None)),
                       "limits")
         return Classified(EXIT_FAULT, "abort", "interlock", f"interlock: {exc}", str(device))
