@@ -27,6 +27,13 @@ from drivers.clock import Clock
 from drivers.denso import bcap
 from drivers.denso.client import BcapClient
 from drivers.denso.hresult import E_BUSY_PROC, BcapError, BcapProtocolError
+from drivers.denso.motion import (
+    MoveHaltedError,
+    MoveTimeoutError,
+    WaitSettings,
+    move_timeout_s,
+    wait_for_rest,
+)
 from drivers.denso.pose import check_pose, orientation_error_deg
 from drivers.heartbeat import Heartbeat, HeartbeatError
 from drivers.transport import TransportError
@@ -174,12 +181,16 @@ class DensoArm:
         linear: linear (MOVE L) moves by default, else PTP (MOVE P).
         heartbeat_timeout_s: :meth:`heartbeat` reports the controller lost after this many wall seconds
             without any packet from it (keep-alives count); must exceed the WDT keep-alive period.
+        wait: how a move waits for the end of motion (:class:`~drivers.denso.motion.WaitSettings`):
+            by default Robot_Move with NEXT and ``@BUSY_STATUS`` polls every 0.05 s of ``clock``, so
+            :meth:`halt` from another thread is accepted mid-move; ``WaitSettings(wait_mode="blocking")``
+            for controllers without NEXT (a halt mid-move is then refused with E_BUSY_PROC).
     """
 
     def __init__(self, client: BcapClient, *, envelope: Envelope, max_speed_mm_s: float,
                  position_tolerance_mm: float, clock: Clock, orientation_tolerance_deg: float = 0.1,
                  full_speed_mm_s: float = 1000.0, linear: bool = True,
-                 heartbeat_timeout_s: float = 2.0) -> None:
+                 heartbeat_timeout_s: float = 2.0, wait: WaitSettings | None = None) -> None:
         if not (0 < max_speed_mm_s <= full_speed_mm_s and math.isfinite(max_speed_mm_s)):
             raise ValueError(f"max_speed_mm_s={max_speed_mm_s}: must be in (0, full_speed_mm_s="
                              f"{full_speed_mm_s}]")
@@ -197,6 +208,9 @@ class DensoArm:
         self.linear = linear
         self.last_move: MoveResult | None = None
         self.fig: int = -1
+        self.wait = wait if wait is not None else WaitSettings()
+        self._pose_known: np.ndarray | None = None  # last pose read from CurPos (None after a failed move)
+        self.halts_sent = 0  # Robot_Halt requests sent (any thread); a move halted under way sees it change
         self.heartbeat_monitor = Heartbeat("robot", client.link.contact, self._probe,
                                            timeout_s=heartbeat_timeout_s)
 
@@ -207,6 +221,7 @@ class DensoArm:
             raise ValueError(f"wdt_ms={wdt_ms}: the keep-alive period must be shorter than the heartbeat "
                              f"timeout {self.heartbeat_monitor.timeout_s:g} s")
         self.client.open_robot(wdt_ms=wdt_ms, ext_speed_percent=100.0)
+        self._pose_known = np.asarray(self.client.cur_pos()[:6], dtype=float)  # the first move starts here
 
     def close(self) -> None:
         """Motor off, GiveArm, releases, Service_Stop (every step attempted)."""
@@ -242,23 +257,51 @@ class DensoArm:
     # ------------------------------------------------------------------------------------- motion
     def move_to(self, pose: Sequence[float] | np.ndarray, speed_mm_s: float | None = None, *,
                 linear: bool | None = None) -> MoveResult:
-        """Move the flange to ``pose`` and verify the reported pose; blocks until the arm is at rest."""
+        """Move the flange to ``pose`` and verify the reported pose; returns when the arm is at rest.
+
+        In ``"next"`` wait mode the move is bounded in clock time (``motion.move_timeout_s`` of the
+        distance from the current pose): :class:`MoveTimeoutError` after a halt on expiry;
+        :class:`MoveHaltedError` when a :meth:`halt` (e.g. from the runner's safe state) stopped it."""
         target = self.check_pose(pose)
         speed = self.check_speed(self.speed_mm_s if speed_mm_s is None else speed_mm_s)
         linear = self.linear if linear is None else linear
+        polling = self.wait.wait_mode == "next"
+        start: np.ndarray | None = None
+        if polling:  # the start of the move's time bound (and of the path check below)
+            start = self._pose_known if self._pose_known is not None else self.position()
         if linear and isinstance(self.envelope, CylinderEnvelope) and self.envelope.inner_radius_mm > 0:
-            start = np.asarray(self.last_move.reported_pose) if self.last_move else self.position()
+            if start is None:
+                start = np.asarray(self.last_move.reported_pose) if self.last_move else self.position()
             self.envelope.check_path(start, target)  # (may read the position; never moves before the check)
         percent = speed / self.full_speed_mm_s * 100.0
+        halts_before = self.halts_sent
         t_start = self.clock.now_s()
         try:
-            self.client.move(target.tolist(), linear=linear, speed_percent=percent, fig=self.fig)
+            self.client.move(target.tolist(), linear=linear, speed_percent=percent, fig=self.fig,
+                             next_=polling)
+            if polling and start is not None:
+                timeout_s = move_timeout_s(float(np.linalg.norm(target[:3] - start[:3])),
+                                           orientation_error_deg(start, target), speed, percent, self.wait)
+                wait_for_rest(self.client, self.clock, self.wait, timeout_s=timeout_s, t_start_s=t_start,
+                              halt=self.halt, what=f"move to {target.tolist()} at {speed:g} mm/s")
             t_end = self.clock.now_s()
             reported = self.position()
         except (BcapError, BcapProtocolError, TransportError, OSError) as exc:
+            self._pose_known = None
             log.error("move to %s failed (%s); attempting a halt", target.tolist(), exc)
             self._try_halt()
             raise
+        except MoveTimeoutError:
+            self._pose_known = None
+            raise  # wait_for_rest has attempted the halt
+        except BaseException:
+            self._pose_known = None
+            if polling:  # interrupted (interlock, Ctrl-C) while the arm moves on its own: stop it
+                self._try_halt()
+            raise
+        if self.halts_sent != halts_before:
+            raise MoveHaltedError(f"the move to {target.tolist()} was halted under way; the controller "
+                                  f"reports the arm at rest at {reported.tolist()}")
         position_error = float(np.linalg.norm(reported[:3] - target[:3]))
         angle_error = orientation_error_deg(reported, target)
         result = MoveResult(target.tolist(), reported.tolist(), t_start, t_end, position_error, angle_error)
@@ -275,10 +318,13 @@ class DensoArm:
         values = self.client.cur_pos()
         if len(values) > 6:
             self.fig = int(values[6])
-        return np.asarray(values[:6], dtype=float)
+        self._pose_known = np.asarray(values[:6], dtype=float)
+        return self._pose_known.copy()
 
     def halt(self) -> None:
-        """Stop the arm now (Robot_Halt)."""
+        """Stop the arm now (Robot_Halt). Thread-safe; in ``"next"`` wait mode it is accepted mid-move
+        (the moving thread holds the link only for each ``@BUSY_STATUS`` poll)."""
+        self.halts_sent += 1
         self.client.halt()
 
     # ---------------------------------------------------------------------------------- heartbeat
@@ -306,7 +352,8 @@ class DensoArm:
             raise HeartbeatError("robot", "no b-CAP session to probe (open() not called or closed)")
 
     def safe_state(self) -> None:
-        """The runner's "make safe": Robot_Halt. If the controller refuses it with E_BUSY_PROC — a
+        """The runner's "make safe": Robot_Halt — accepted mid-move in ``"next"`` wait mode. If the
+        controller refuses it with E_BUSY_PROC (``"blocking"`` wait mode) — a
         blocking Move is still executing on this connection because the procedure was interrupted
         (interlock, second Ctrl-C) while waiting for it, and b-CAP accepts no other request meanwhile
         (bcap.md §10) — the connection is closed so the controller ends the session and stops the arm
@@ -344,5 +391,6 @@ class DensoArm:
             "position_tolerance_mm": self.position_tolerance_mm,
             "orientation_tolerance_deg": self.orientation_tolerance_deg,
             "linear": self.linear,
+            "wait": asdict(self.wait),
             "last_move": asdict(self.last_move) if self.last_move else None,
         }

@@ -97,6 +97,7 @@ class BcapClient:
         self.service_started = False
         self.arm_taken = False
         self.motor_on = False
+        self.h_busy: Variant | None = None  # Robot_GetVariable "@BUSY_STATUS" handle (cached per session)
         self._describing = False
 
     # low level ------------------------------------------------------------------------------------
@@ -157,6 +158,7 @@ class BcapClient:
             self.call(bcap.CONTROLLER_DISCONNECT, [handle])
 
     def controller_get_robot(self, name: str = "Arm", option: str = "") -> Variant:
+        self.h_busy = None  # belongs to the previous robot handle, if any
         self.h_robot = self._handle(self.call(bcap.CONTROLLER_GET_ROBOT, [self._ctrl(), name, option]),
                                     "Controller_GetRobot")
         return self.h_robot
@@ -222,14 +224,40 @@ class BcapClient:
         self.call(bcap.ROBOT_MOVE, [self._robot(), Variant(VT_I4, comp), text, option], timeout_s=timeout_s)
 
     def move(self, pose: Sequence[float], *, linear: bool = False, speed_percent: float | None = None,
-             fig: int = -1, timeout_s: float | None = None) -> None:
-        """Move to ``pose`` (x, y, z mm, rx, ry, rz deg): PTP or linear, with an optional SPEED option."""
-        option = ""
+             fig: int = -1, timeout_s: float | None = None, next_: bool = False) -> None:
+        """Move to ``pose`` (x, y, z mm, rx, ry, rz deg): PTP or linear, with an optional SPEED option.
+
+        ``next_=True`` adds the ``NEXT`` option: the controller answers as soon as the motion has started
+        (bcap.md §8) and the caller polls :meth:`busy_status` for its end; otherwise the call blocks until
+        the arm is at rest (the controller refuses any other request meanwhile with E_BUSY_PROC, §10)."""
+        parts = []
         if speed_percent is not None:
             if not 0 < speed_percent <= 100:
                 raise ValueError(f"speed_percent={speed_percent}: must be in (0, 100]")
-            option = f"SPEED={_number(speed_percent)}"
-        self.robot_move(MOVE_LINEAR if linear else MOVE_PTP, pose, option, fig=fig, timeout_s=timeout_s)
+            parts.append(f"SPEED={_number(speed_percent)}")
+        if next_:
+            parts.append("NEXT")
+        self.robot_move(MOVE_LINEAR if linear else MOVE_PTP, pose, ",".join(parts), fig=fig,
+                        timeout_s=timeout_s)
+
+    def busy_status(self) -> bool:
+        """The robot's ``@BUSY_STATUS`` variable: True while a motion is under way.
+
+        The variable handle (Robot_GetVariable) is taken on first use and kept until :meth:`close`
+        (Variable_Release); each call is then one Variable_GetValue."""
+        if self.h_busy is None:
+            reply = self.call(bcap.ROBOT_GET_VARIABLE, [self._robot(), "@BUSY_STATUS", ""])
+            self.h_busy = self._handle(reply, "Robot_GetVariable @BUSY_STATUS")
+        reply = self.call(bcap.VARIABLE_GET_VALUE, [self.h_busy])
+        value = reply.value
+        if isinstance(value, bool):
+            return value
+        if isinstance(value, int | float) and not isinstance(value, bool):
+            return value != 0  # a controller answering with a number instead of VT_BOOL
+        raise BcapError(0x80004005, description=f"@BUSY_STATUS returned {reply!r}; expected a boolean")
+
+    def variable_release(self, handle: Variant) -> None:
+        self.call(bcap.VARIABLE_RELEASE, [handle])
 
     def robot_speed(self, speed_percent: float, axis: int = -1) -> None:
         self.call(bcap.ROBOT_SPEED,
@@ -241,6 +269,7 @@ class BcapClient:
     def robot_release(self) -> None:
         if self.h_robot is not None:
             handle, self.h_robot = self.h_robot, None
+            self.h_busy = None  # a variable of the released robot
             self.call(bcap.ROBOT_RELEASE, [handle])
 
     # sessions ---------------------------------------------------------------------------------------
@@ -264,6 +293,9 @@ class BcapClient:
         A dead link (closed or unresponsive) stops the sequence early: further calls could only time out.
         """
         steps = []
+        if self.h_busy is not None:
+            handle, self.h_busy = self.h_busy, None
+            steps.append(("Variable_Release @BUSY_STATUS", lambda: self.variable_release(handle)))
         if self.h_robot is not None:
             if self.motor_on:
                 steps.append(("Motor off", lambda: self.motor(False)))
@@ -282,7 +314,7 @@ class BcapClient:
                 break
             except BcapError as exc:
                 log.error("cleanup %s failed: %s", label, exc)
-        self.h_robot = self.h_ctrl = None
+        self.h_robot = self.h_ctrl = self.h_busy = None
         self.service_started = self.arm_taken = self.motor_on = False
 
     def __enter__(self) -> BcapClient:

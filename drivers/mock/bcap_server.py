@@ -40,7 +40,7 @@ from types import TracebackType
 from typing import Any
 
 from drivers.denso import hresult as hr
-from drivers.denso.bcap import SERVICE_STOP, Packet, PacketDecoder, encode_packet
+from drivers.denso.bcap import ROBOT_MOVE, SERVICE_STOP, Packet, PacketDecoder, encode_packet
 from drivers.denso.variant import EMPTY, Variant
 from drivers.mock._serve import (
     accept_loop,
@@ -67,7 +67,7 @@ class Faults:
     delay_reply_s: float = 0.0       # wall delay before replies to delay_function
     delay_function: int | None = None
     corrupt_crc: int = 0             # serial line: replies sent with a broken CRC
-    close_mid_move: bool = False     # close the connection once a blocking Move has started
+    close_mid_move: bool = False     # close the connection once a Move has started (blocking or NEXT)
     move_error: int | None = None    # HRESULT every Move fails with
     busy_replies: int = 0            # requests answered E_BUSY_PROC without executing
     busy_function: int | None = None
@@ -146,6 +146,10 @@ class _Session:
         with self.server.lock:
             self.server.state.move_error = faults.move_error
             outcome = self.server.state.execute(function, list(packet.args))
+        if faults.close_mid_move and function == ROBOT_MOVE and not hr.is_failure(outcome.hresult) \
+                and outcome.motion_end_s is None:  # a NEXT move has started: go away before the reply
+            self._drop_connection()
+            return
         if outcome.motion_end_s is None or hr.is_failure(outcome.hresult):
             if function == SERVICE_STOP:  # the client is done (all a serial line can say): controller free,
                 self.server._release(self)  # before the reply, on which the next client may connect at once
