@@ -210,7 +210,7 @@ class DensoArm:
         self.fig: int = -1
         self.wait = wait if wait is not None else WaitSettings()
         self._pose_known: np.ndarray | None = None  # last pose read from CurPos (None after a failed move)
-        self.halts_sent = 0  # Robot_Halt requests sent (any thread); a move halted under way sees it change
+        self.halts_sent = 0  # Robot_Halts accepted or unanswered, any thread (a move halted under way)
         self.heartbeat_monitor = Heartbeat("robot", client.link.contact, self._probe,
                                            timeout_s=heartbeat_timeout_s)
 
@@ -324,8 +324,13 @@ class DensoArm:
     def halt(self) -> None:
         """Stop the arm now (Robot_Halt). Thread-safe; in ``"next"`` wait mode it is accepted mid-move
         (the moving thread holds the link only for each ``@BUSY_STATUS`` poll)."""
-        self.halts_sent += 1
-        self.client.halt()
+        with self.client.link.contact.lock:  # (re-entrant) a polling mover sees the count with the result
+            self.halts_sent += 1
+            try:
+                self.client.halt()
+            except BcapError:
+                self.halts_sent -= 1  # refused (e.g. E_BUSY_PROC): it stopped nothing
+                raise
 
     # ---------------------------------------------------------------------------------- heartbeat
     def heartbeat(self, *, wait: bool = False) -> bool:
