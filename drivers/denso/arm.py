@@ -3,7 +3,8 @@
 Safety (DESIGN.md): the workspace envelope and the speed cap are checked **before any byte is sent**;
 a violation raises :class:`LimitError` naming the axis, the value and the allowed range. After each
 move the pose reported by ``CurPos`` must match the target within the tolerances, else
-:class:`PositionMismatchError`. Any failure during a move attempts a halt before re-raising.
+:class:`PositionMismatchError`. Any failure during a move attempts a halt before re-raising. Moves
+are sent with NEXT and their end polled (``motion.py``), so :meth:`DensoArm.halt` works mid-move.
 
 Speeds: ``speed_mm_s`` is converted to the controller's SPEED percent with ``full_speed_mm_s`` (what
 100 % means on the controller; ExtSpeed is set to 100 % at :meth:`DensoArm.open`). **UNVERIFIED** on a
@@ -266,13 +267,12 @@ class DensoArm:
         speed = self.check_speed(self.speed_mm_s if speed_mm_s is None else speed_mm_s)
         linear = self.linear if linear is None else linear
         polling = self.wait.wait_mode == "next"
-        start: np.ndarray | None = None
-        if polling:  # the start of the move's time bound (and of the path check below)
-            start = self._pose_known if self._pose_known is not None else self.position()
-        if linear and isinstance(self.envelope, CylinderEnvelope) and self.envelope.inner_radius_mm > 0:
-            if start is None:
-                start = np.asarray(self.last_move.reported_pose) if self.last_move else self.position()
-            self.envelope.check_path(start, target)  # (may read the position; never moves before the check)
+        annulus = isinstance(self.envelope, CylinderEnvelope) and self.envelope.inner_radius_mm > 0
+        start = self._pose_known  # the start of the move's time bound and of the path check
+        if start is None and (polling or (linear and annulus)):
+            start = self.position()
+        if linear and annulus and start is not None:
+            self.envelope.check_path(start, target)  # never moves before the check
         percent = speed / self.full_speed_mm_s * 100.0
         halts_before = self.halts_sent
         t_start = self.clock.now_s()
@@ -291,12 +291,9 @@ class DensoArm:
             log.error("move to %s failed (%s); attempting a halt", target.tolist(), exc)
             self._try_halt()
             raise
-        except MoveTimeoutError:
+        except BaseException as exc:  # interrupted (interlock, Ctrl-C) while the arm moves on its own
             self._pose_known = None
-            raise  # wait_for_rest has attempted the halt
-        except BaseException:
-            self._pose_known = None
-            if polling:  # interrupted (interlock, Ctrl-C) while the arm moves on its own: stop it
+            if polling and not isinstance(exc, MoveTimeoutError):  # (the timeout has sent its halt)
                 self._try_halt()
             raise
         if self.halts_sent != halts_before:
@@ -357,12 +354,11 @@ class DensoArm:
             raise HeartbeatError("robot", "no b-CAP session to probe (open() not called or closed)")
 
     def safe_state(self) -> None:
-        """The runner's "make safe": Robot_Halt — accepted mid-move in ``"next"`` wait mode. If the
-        controller refuses it with E_BUSY_PROC (``"blocking"`` wait mode) — a
-        blocking Move is still executing on this connection because the procedure was interrupted
-        (interlock, second Ctrl-C) while waiting for it, and b-CAP accepts no other request meanwhile
-        (bcap.md §10) — the connection is closed so the controller ends the session and stops the arm
-        (what the mock RC8 does; **UNVERIFIED** on a real RC8), and :class:`ArmHaltError` says so."""
+        """The runner's "make safe": Robot_Halt, accepted mid-move in ``"next"`` wait mode. In
+        ``"blocking"`` mode an interrupted Move still executes on this connection and b-CAP refuses the
+        halt with E_BUSY_PROC (bcap.md §10): the connection is then closed so the controller ends the
+        session and stops the arm (the mock RC8 does; **UNVERIFIED** on a real RC8): :class:`ArmHaltError`.
+        """
         try:
             self.halt()
         except BcapError as exc:
