@@ -80,7 +80,7 @@ def test_polling_move_completes_and_agrees_with_the_twin() -> None:
 
 
 def test_halt_from_another_thread_during_a_long_next_move_is_accepted() -> None:
-    world = World(VirtualClock(rate=10.0))  # paced: 100 mm at 20 mm/s = 5 s virtual = 0.5 s wall
+    world = World(VirtualClock(rate=5.0))  # paced: 100 mm at 20 mm/s = 5 s virtual = 1 s wall
     speed = 20.0
     with _rig(world) as (server, arm):
         home = world.robot.pose_at(world.clock.now_s())
@@ -254,3 +254,15 @@ def test_runner_interlock_mid_move_halts_over_the_protocol(tmp_path: Path) -> No
     world, clock = seen["station"].world, seen["station"].clock
     assert not world.robot.is_moving(clock.now_s())
     assert world.robot.pose_at(clock.now_s())[0] < target[0] - 5.0  # stopped, not arrived
+
+
+def test_rc7m_client_waits_blocking_by_default_and_rc8_polls() -> None:
+    world = World(VirtualClock())
+    server = BcapMockServer(world.robot, world.clock)
+    with server, open_transport(f"tcp://127.0.0.1:{server.serve_tcp()}", 1.0) as transport:
+        options = {"envelope": ENVELOPE, "max_speed_mm_s": 100.0, "position_tolerance_mm": 0.01,
+                   "clock": world.clock}
+        assert DensoArm(BcapClient(transport, rc7m=True), **options).wait.wait_mode == "blocking"
+        assert DensoArm(BcapClient(transport), **options).wait.wait_mode == "next"
+        custom = WaitSettings(poll_interval_s=0.2)
+        assert DensoArm(BcapClient(transport, rc7m=True), wait=custom, **options).wait is custom

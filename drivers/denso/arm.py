@@ -185,7 +185,8 @@ class DensoArm:
         wait: how a move waits for the end of motion (:class:`~drivers.denso.motion.WaitSettings`):
             by default Robot_Move with NEXT and ``@BUSY_STATUS`` polls every 0.05 s of ``clock``, so
             :meth:`halt` from another thread is accepted mid-move; ``WaitSettings(wait_mode="blocking")``
-            for controllers without NEXT (a halt mid-move is then refused with E_BUSY_PROC).
+            for controllers without NEXT (a halt mid-move is then refused with E_BUSY_PROC; the default
+            for an RC7M client).
     """
 
     def __init__(self, client: BcapClient, *, envelope: Envelope, max_speed_mm_s: float,
@@ -209,7 +210,8 @@ class DensoArm:
         self.linear = linear
         self.last_move: MoveResult | None = None
         self.fig: int = -1
-        self.wait = wait if wait is not None else WaitSettings()
+        # RC7M: NEXT + @BUSY_STATUS is documented for RC8 only (bcap.md §12): blocking by default
+        self.wait = wait or WaitSettings(wait_mode="blocking" if client.rc7m else "next")
         self._pose_known: np.ndarray | None = None  # last pose read from CurPos (None after a failed move)
         self.halts_sent = 0  # Robot_Halts accepted or unanswered, any thread (a move halted under way)
         self.heartbeat_monitor = Heartbeat("robot", client.link.contact, self._probe,
