@@ -13,6 +13,7 @@ from drivers.denso import hresult as hr
 from drivers.denso.arm import BoxEnvelope, DensoArm, LimitError, OrientationLimits
 from drivers.denso.bcap import PacketDecoder, encode_packet
 from drivers.denso.client import BcapClient
+from drivers.denso.motion import WaitSettings
 from drivers.denso.variant import VT_I4, VT_UI4, Variant
 from drivers.mock.bcap_args import JOINT_LIMIT, OUT_OF_REACH
 from drivers.mock.bcap_server import BcapMockServer
@@ -99,7 +100,8 @@ def _arm(client: BcapClient, world: World, **kwargs) -> DensoArm:
 def test_session_moves_through_poses_and_agrees_with_the_twin(world: World, server: BcapMockServer,
                                                                kind: str) -> None:
     link, client = _connect(server, kind)
-    with link, _arm(client, world, linear=True) as arm:
+    # blocking Moves: the reply is the end of motion, so t_end_s is exact (NEXT: test_bcap_next_moves.py)
+    with link, _arm(client, world, linear=True, wait=WaitSettings(wait_mode="blocking")) as arm:
         assert server.state.arm_taken and server.state.motor_on
         for index, pose in enumerate(POSES):
             speed = 100.0 + 40.0 * index
@@ -198,7 +200,7 @@ def test_paced_move_sends_keepalives_and_restarts_the_timeout() -> None:
     world = World(VirtualClock(rate=1.0))
     with BcapMockServer(world.robot, world.clock) as server:
         link, client = _connect(server, "tcp", timeout_s=0.25)
-        arm = _arm(client, world)
+        arm = _arm(client, world, wait=WaitSettings(wait_mode="blocking"))  # keep-alives: blocking Move only
         arm.open(wdt_ms=80)
         with link, arm:
             start = world.robot.pose_at(world.clock.now_s())

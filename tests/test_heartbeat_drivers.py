@@ -13,6 +13,7 @@ import pytest
 from heartbeat_support import HEARTBEAT_TIMEOUT_S, BeatWatcher, sim_station, wait_until
 
 from drivers.denso import bcap
+from drivers.denso.motion import WaitSettings
 from drivers.exciter.sweep import LinearSweep
 from drivers.heartbeat import ContactRecord, DeviceLostError, Heartbeat, HeartbeatError
 
@@ -23,6 +24,7 @@ MOVE_TARGET = [420.0, 0.0, 300.0, 90.0, 0.0, 90.0]  # 70 mm from home
 def test_arm_keeps_beating_through_a_long_paced_move_and_probes_only_when_idle() -> None:
     with sim_station(rate=2.0) as (st, servers):
         arm, server = st.devices["robot"], servers["robot"]
+        arm.wait = WaitSettings(wait_mode="blocking")  # this test is about a blocking Move's keep-alives
         monitor = arm.heartbeat_monitor
         with BeatWatcher(arm) as watcher:
             probes_before = monitor.probes_sent

@@ -22,6 +22,7 @@ import pytest
 from heartbeat_support import HEARTBEAT_TIMEOUT_S, heartbeat_config, mock_servers
 from runner_dummy import station_factory
 
+from drivers.denso.motion import WaitSettings
 from rig.cli import main as cli_main
 from rig.config import ConfigError, default_config, override
 from rig.record import load_run
@@ -76,6 +77,7 @@ def _done(run: Any) -> set[str]:
 
 def test_healthy_run_keeps_beating_through_a_long_move_and_an_idle_hold(tmp_path: Path) -> None:
     def body(ctx: Any, servers: dict[str, Any]) -> None:
+        ctx.device("robot").wait = WaitSettings(wait_mode="blocking")  # a blocking Move: keep-alives only
         ctx.device("robot").move_to(MOVE_TARGET, speed_mm_s=17.5)  # 2 s wall: only keep-alives for it
         _hold(ctx, 2.0 * HEARTBEAT_TIMEOUT_S)  # every device idle: probed, answering
 
@@ -117,6 +119,7 @@ def test_interlock_during_a_move_stops_the_arm_though_the_halt_gets_e_busy_proc(
     executes it and refuses Robot_Halt (E_BUSY_PROC), so the arm's safe state closes the connection and
     the controller ends the session, stopping the arm short of its target."""
     def body(ctx: Any, servers: dict[str, Any]) -> None:
+        ctx.device("robot").wait = WaitSettings(wait_mode="blocking")  # fallback for controllers without NEXT
         threading.Timer(0.3, servers["exciter"].inject, args=("no_reply",), kwargs={"count": None}).start()
         ctx.device("robot").move_to(MOVE_TARGET, speed_mm_s=7.0)  # 10 s virtual = 5 s wall
 

@@ -54,7 +54,10 @@ def accept_loop(listener: socket.socket, stopped: threading.Event,
                 on_connection: Callable[[socket.socket], None], *, poll_s: float = 0.05) -> None:
     """Accept connections on ``listener`` and pass each to ``on_connection`` until ``stopped`` is set or
     the listener is closed; ``poll_s`` (s) is how often ``stopped`` is looked at."""
-    listener.settimeout(poll_s)
+    try:
+        listener.settimeout(poll_s)
+    except OSError:  # closed before this thread got to run: nothing to serve
+        return
     while not stopped.is_set():
         try:
             conn, _ = listener.accept()
