@@ -92,3 +92,39 @@ def wait_until(predicate: Callable[[], bool], timeout_s: float) -> bool:
             return True
         time.sleep(0.02)
     return predicate()
+
+
+def run_body_on_sim_station(tmp_path: Any, body: Callable[[Any, dict[str, Any]], None],
+                            **settings: Any) -> tuple[Any, Any, dict[str, Any]]:
+    """Run ``body(ctx, servers)`` as the one step of a procedure on the simulated station (paced clock,
+    watchdog every 0.05 s); returns (outcome, loaded record, {"station", "servers"})."""
+    import types
+
+    from rig.record import load_run
+    from rig.runner import Runner
+
+    seen: dict[str, Any] = {}
+
+    @contextlib.contextmanager
+    def factory(config: Any, clock: Any) -> Iterator[Station]:
+        with open_station(config, clock) as station:
+            seen["station"], seen["servers"] = station, mock_servers(station)
+            yield station
+
+    mod = types.ModuleType("sim_station_probe")
+    mod.NAME = "sim_station_probe"
+
+    @dataclass(frozen=True)
+    class Parameters:
+        pass
+
+    def run(ctx: Any, params: Any) -> dict[str, Any]:
+        with ctx.step("work"):
+            body(ctx, seen["servers"])
+        return {"passed": True, "summary": "done"}
+
+    mod.Parameters, mod.run = Parameters, run
+    runner = Runner(mod, config=heartbeat_config(**settings), station_factory=factory,
+                    runs_dir=tmp_path / "runs", watchdog_period_s=0.05)
+    out = runner.run({})
+    return out, load_run(out.run_dir), seen

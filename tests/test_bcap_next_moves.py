@@ -8,8 +8,6 @@ from __future__ import annotations
 import contextlib
 import sys
 import threading
-import types
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -212,39 +210,15 @@ def test_bad_wait_settings_name_the_field(field: str, value: Any, allowed: str) 
 
 
 def test_runner_interlock_mid_move_halts_over_the_protocol(tmp_path: Path) -> None:
-    from heartbeat_support import heartbeat_config, mock_servers
-
-    from rig.record import load_run
-    from rig.runner import Runner
-    from rig.station import open_station
+    from heartbeat_support import run_body_on_sim_station
 
     target = [420.0, 0.0, 300.0, 90.0, 0.0, 90.0]
-    seen: dict[str, Any] = {}
 
-    @contextlib.contextmanager
-    def factory(config: Any, clock: Any):
-        with open_station(config, clock) as station:
-            seen["station"], seen["servers"] = station, mock_servers(station)
-            yield station
+    def body(ctx: Any, servers: dict[str, Any]) -> None:
+        threading.Timer(0.3, servers["exciter"].inject, args=("no_reply",), kwargs={"count": None}).start()
+        ctx.device("robot").move_to(target, speed_mm_s=7.0)  # 10 s virtual = 5 s wall
 
-    mod = types.ModuleType("next_move_probe")
-    mod.NAME = "next_move_probe"
-
-    @dataclass(frozen=True)
-    class Parameters:
-        pass
-
-    def run(ctx: Any, params: Any) -> dict[str, Any]:
-        with ctx.step("work"):
-            threading.Timer(0.3, seen["servers"]["exciter"].inject, args=("no_reply",),
-                            kwargs={"count": None}).start()
-            ctx.device("robot").move_to(target, speed_mm_s=7.0)  # 10 s virtual = 5 s wall
-        return {"passed": True, "summary": "done"}
-
-    mod.Parameters, mod.run = Parameters, run
-    out = Runner(mod, config=heartbeat_config(), station_factory=factory, runs_dir=tmp_path / "runs",
-                 watchdog_period_s=0.05).run({})
-    record = load_run(out.run_dir)
+    out, record, seen = run_body_on_sim_station(tmp_path, body)
     assert out.exit_code == 3 and record.interlocks["device"].tolist() == ["exciter"], out.reason
     failures = {f["device"]: f["error"] for f in record.stop["safe_state_failures"]}
     assert "robot" not in failures, failures["robot"]  # Robot_Halt accepted: no ArmHaltError

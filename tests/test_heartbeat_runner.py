@@ -5,7 +5,6 @@ device and the reason, exit 3, and the safe state of every other device attempte
 
 from __future__ import annotations
 
-import contextlib
 import re
 import sys
 import threading
@@ -19,7 +18,7 @@ from typing import Any
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 import pytest
-from heartbeat_support import HEARTBEAT_TIMEOUT_S, heartbeat_config, mock_servers
+from heartbeat_support import HEARTBEAT_TIMEOUT_S, run_body_on_sim_station
 from runner_dummy import station_factory
 
 from drivers.denso.motion import WaitSettings
@@ -27,7 +26,6 @@ from rig.cli import main as cli_main
 from rig.config import ConfigError, default_config, override
 from rig.record import load_run
 from rig.runner import Runner
-from rig.station import open_station
 
 MOVE_TARGET = [420.0, 0.0, 300.0, 90.0, 0.0, 90.0]
 
@@ -35,31 +33,7 @@ MOVE_TARGET = [420.0, 0.0, 300.0, 90.0, 0.0, 90.0]
 def _run(tmp_path: Path, body: Callable[[Any, dict[str, Any]], None],
          **settings: Any) -> tuple[Any, Any, dict[str, Any]]:
     """Run ``body(ctx, servers)`` as the one step of a procedure on the simulated station."""
-    seen: dict[str, Any] = {}
-
-    @contextlib.contextmanager
-    def factory(config: Any, clock: Any):
-        with open_station(config, clock) as station:
-            seen["station"], seen["servers"] = station, mock_servers(station)
-            yield station
-
-    mod = types.ModuleType("heartbeat_probe")
-    mod.NAME = "heartbeat_probe"
-
-    @dataclass(frozen=True)
-    class Parameters:
-        pass
-
-    def run(ctx: Any, params: Any) -> dict[str, Any]:
-        with ctx.step("work"):
-            body(ctx, seen["servers"])
-        return {"passed": True, "summary": "done"}
-
-    mod.Parameters, mod.run = Parameters, run
-    runner = Runner(mod, config=heartbeat_config(**settings), station_factory=factory,
-                    runs_dir=tmp_path / "runs", watchdog_period_s=0.05)
-    out = runner.run({})
-    return out, load_run(out.run_dir), seen
+    return run_body_on_sim_station(tmp_path, body, **settings)
 
 
 def _hold(ctx: Any, seconds: float) -> None:
