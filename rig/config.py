@@ -32,6 +32,7 @@ Addresses: ``tcp://HOST:PORT``, ``serial:///dev/ttyUSB0?baud=115200`` or, on a s
 
 from __future__ import annotations
 
+import dataclasses
 import tomllib
 from dataclasses import dataclass, field
 from importlib import resources
@@ -119,6 +120,9 @@ class RobotConfig:
     home_pose: tuple[float, ...] | None = field(default=None, metadata=spec(length=6))
     full_speed_mm_s: float = field(default=1000.0, metadata=spec(lo=1.0, hi=10000.0))
     position_tolerance_mm: float = field(default=0.5, metadata=spec(lo=0.0, lo_open=True, hi=100.0))
+    wait_mode: str | None = field(default=None, metadata=spec(choices=("next", "blocking"), doc="move end: "
+                                  "NEXT + @BUSY_STATUS polls, halt works mid-move (rc8) or blocking (rc7m)"))
+    busy_poll_interval_s: float = field(default=0.05, metadata=spec(lo=0.0, lo_open=True, hi=5.0))
 
 
 @dataclass(frozen=True)
@@ -137,14 +141,12 @@ class VfdConfig:
     def resolved_register_map(self) -> Any:
         """The :class:`drivers.exciter.register_map.RegisterMap`: the named map, overridden by ``registers``
         and with ``unit_id``."""
-        import dataclasses as _dc
-
         from drivers.exciter.register_map import DELTA_MAP, load_register_map, register_map_from_dict
 
         builtin = self.register_map in BUILTIN_REGISTER_MAPS
         base = DELTA_MAP if builtin else load_register_map(self.register_map)
         regs = register_map_from_dict(dict(self.registers), base) if self.registers else base
-        return _dc.replace(regs, unit_id=self.unit_id)
+        return dataclasses.replace(regs, unit_id=self.unit_id)
 
 
 @dataclass(frozen=True)

@@ -150,6 +150,7 @@ def camera_specs(config: RigConfig) -> list[Any]:
 def _build_robot(st: Station, cfg: RigConfig) -> None:
     from drivers.denso.arm import BoxEnvelope, DensoArm
     from drivers.denso.client import BcapClient
+    from drivers.denso.motion import WaitSettings
     from drivers.transport import open_transport
 
     rc, lim = cfg.devices.robot, cfg.limits.robot
@@ -170,10 +171,12 @@ def _build_robot(st: Station, cfg: RigConfig) -> None:
     st._closers.append(("robot transport", transport.close))
     client = BcapClient(transport, serial_line=serial_line, timeout_s=rc.timeout_s,
                         rc7m=rc.controller == "rc7m")
+    wait_mode = rc.wait_mode or ("blocking" if rc.controller == "rc7m" else "next")
     arm = DensoArm(client, envelope=BoxEnvelope(lim.envelope_x_mm, lim.envelope_y_mm, lim.envelope_z_mm),
                    max_speed_mm_s=lim.max_speed_mm_s, position_tolerance_mm=rc.position_tolerance_mm,
                    clock=st.clock, full_speed_mm_s=rc.full_speed_mm_s,
-                   heartbeat_timeout_s=cfg.station.heartbeat_timeout_s)
+                   heartbeat_timeout_s=cfg.station.heartbeat_timeout_s,
+                   wait=WaitSettings(wait_mode=wait_mode, poll_interval_s=rc.busy_poll_interval_s))
     arm.open()
     st._closers.append(("robot session", arm.close))
     st.devices["robot"], st.addresses["robot"] = arm, url
