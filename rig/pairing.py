@@ -39,6 +39,7 @@ from scipy.interpolate import CubicSpline
 from scipy.optimize import linear_sum_assignment
 
 from rig.analysis_errors import AnalysisError
+from rig.disjoint_set import DisjointSet
 from rig.stereo.dlt import DLTCamera
 from rig.stereo.epipolar import epipolar_distance_px, fundamental_from_projections
 from rig.stereo.triangulate import as_camera, linear_triangulation
@@ -279,15 +280,7 @@ def _resolve_by_order(pairs: pd.DataFrame, cand: pd.DataFrame, ta: dict[int, _Tr
              for r in feas.itertuples()}
     amb = pairs[pairs["ambiguous"]]
     # clusters: connected components of the feasible-candidate graph, seeded by ambiguous pairs
-    parent: dict[tuple[str, int], tuple[str, int]] = {}
-
-    def find(x: tuple[str, int]) -> tuple[str, int]:
-        parent.setdefault(x, x)
-        while parent[x] != x:
-            parent[x] = parent[parent[x]]
-            x = parent[x]
-        return x
-
+    sets = DisjointSet()
     members_a = set(amb["track_a"].astype(int))
     members_b = set(amb["track_b"].astype(int))
     changed = True
@@ -300,12 +293,12 @@ def _resolve_by_order(pairs: pd.DataFrame, cand: pd.DataFrame, ta: dict[int, _Tr
                 changed = True
     for a, b in edges:
         if a in members_a and b in members_b:
-            parent[find(("a", a))] = find(("b", b))
+            sets.union(("a", a), ("b", b))
     clusters: dict[tuple[str, int], tuple[list[int], list[int]]] = {}
     for a in members_a:
-        clusters.setdefault(find(("a", a)), ([], []))[0].append(a)
+        clusters.setdefault(sets.find(("a", a)), ([], []))[0].append(a)
     for b in members_b:
-        clusters.setdefault(find(("b", b)), ([], []))[1].append(b)
+        clusters.setdefault(sets.find(("b", b)), ([], []))[1].append(b)
     resolved_rows = []
     drop_a: set[int] = set()
     drop_b: set[int] = set()

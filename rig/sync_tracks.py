@@ -28,6 +28,7 @@ import numpy as np
 import pandas as pd
 
 from rig.analysis_errors import AnalysisError
+from rig.disjoint_set import DisjointSet
 from rig.pairing import pair_tracks
 from rig.stereo.dlt import DLTCamera
 from rig.stereo.errors import StereoError
@@ -208,20 +209,12 @@ def triangulate_tracks(
 
 def _components(pairs: pd.DataFrame, ref_obs: pd.DataFrame) -> list[tuple[str, dict[str, set[int]]]]:
     """Connected components of the pair graph: (segment, {camera or "": track ids}) — "" = reference."""
-    parent: dict[tuple[str, int], tuple[str, int]] = {}
-
-    def find(x: tuple[str, int]) -> tuple[str, int]:
-        parent.setdefault(x, x)
-        while parent[x] != x:
-            parent[x] = parent[parent[x]]
-            x = parent[x]
-        return x
-
+    sets = DisjointSet()
     for r in pairs.itertuples():
-        parent[find(("", int(r.track_a)))] = find((str(r.camera), int(r.track_b)))
-    comps: dict[tuple[str, int], dict[str, set[int]]] = {}
-    for node in list(parent):
-        comps.setdefault(find(node), {}).setdefault(node[0], set()).add(node[1])
+        sets.union(("", int(r.track_a)), (str(r.camera), int(r.track_b)))
+    comps: dict[object, dict[str, set[int]]] = {}
+    for node in sets.nodes():
+        comps.setdefault(sets.find(node), {}).setdefault(node[0], set()).add(node[1])
     seg_of = {}
     if "segment" in ref_obs.columns:
         firsts = ref_obs.drop_duplicates("track_id")
