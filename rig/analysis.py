@@ -19,10 +19,13 @@ observations, per session) and puts the tracks on the **controller clock** (cont
   per event; it shifts whole tracks in time, never their shape), and the instant the timing model gives
   that row (the middle of its exposure) as that + ½ exposure (``rig["cameras"][name]["exposure_s"]``,
   0 when the snapshot has none). When all start events of a session (every camera,
-  through the timing model) agree within the ±T/2 band about one constant or straight line — clocks
-  continuous, drifting linearly — that fit gives every segment's offset (uncertainty T/√(12·n));
-  otherwise each segment uses the mean of its own events, and a segment without any the median of the
-  run's; without any event, :class:`ClockMappingError`. ``Analysis.clock`` says which, with the standard
+  through the timing model) admit one constant or straight line — clocks continuous, drifting
+  linearly — within the ±T/2 band, each segment's offset is the midpoint of the interval those
+  relations allow there, with uncertainty width/√12 (a bound: averaging would assume the events'
+  phases against the frame grid random, which start events on a controller grid commensurate with the
+  frame period are not — a bias of ≈ 3 ms on the simulated certify run); otherwise each segment uses
+  its own events' interval, and a segment without any the median of the run's; without any event,
+  :class:`ClockMappingError`. ``Analysis.clock`` says which, with the standard
   uncertainty;
 - pairing is restricted to a **volume**: the robot envelope box of the configuration snapshot
   (``rig["limits"]["robot"]["envelope_*_mm"]``) joined with the reference markers' positions
@@ -43,6 +46,7 @@ from typing import Any
 
 import numpy as np
 import pandas as pd
+from scipy.optimize import linprog
 
 from rig.analysis_errors import (
     AnalysisError,
@@ -194,30 +198,37 @@ def _number(value: Any) -> float | None:
     return v if math.isfinite(v) else None
 
 
-def _mean_phase_u_s(events: pd.DataFrame, period: float) -> float:
-    """Standard uncertainty (s) of the equal-weight mean of the events' offsets.
-
-    Each offset errs by a uniform ±T/2, but the cameras of one recording share its start instant: their
-    errors are sawtooth functions of one uniform phase, with covariance T²/12·(1 − 6a(1 − a)) for frame
-    grids a·T apart (a from the offsets themselves) — in step (a = 0) they count as one event.
-    """
-    total = 0.0
-    for _, g in events.groupby(["segment", "session", "t_s"], sort=False, dropna=False):
-        off = g["offset_s"].to_numpy(float)
-        a = np.mod((off[:, None] - off[None, :]) / period, 1.0)
-        total += float(np.sum(1.0 - 6.0 * a * (1.0 - a)))
-    return period / math.sqrt(12.0) * math.sqrt(max(total, 0.0)) / len(events)
+def _feasible_interval_s(t_s: np.ndarray, offset_s: np.ndarray, half_s: float, t_eval_s: float, *,
+                         t_mid_s: float, with_drift: bool) -> tuple[float, float] | None:
+    """[lo, hi] (s) of the offset at ``t_eval_s`` over every relation c (+ d·(t − t_mid)) that keeps all
+    events' offsets within ±``half_s`` of it; None when no relation does (the events disagree)."""
+    if not with_drift:
+        lo, hi = float(offset_s.max()) - half_s, float(offset_s.min()) + half_s
+        return (lo, hi) if lo <= hi else None
+    A = np.column_stack([np.ones_like(t_s), t_s - t_mid_s])
+    a_ub, b_ub = np.r_[-A, A], np.r_[half_s - offset_s, half_s + offset_s]
+    objective = np.array([1.0, t_eval_s - t_mid_s])
+    ends = []
+    for sign in (1.0, -1.0):
+        res = linprog(sign * objective, A_ub=a_ub, b_ub=b_ub, bounds=[(None, None)] * 2, method="highs")
+        if res.status != 0:
+            return None
+        ends.append(sign * float(res.fun))
+    return ends[0], ends[1]
 
 
 def _offset_for(offsets: pd.DataFrame, segment: str, session: int) -> tuple[float, float, str]:
     """(offset_s, standard uncertainty s, source) of controller − reference clock for one segment.
 
-    Each start event's offset carries a uniform error of ±T/2 (standard uncertainty T/√12). When all start
-    events of the session agree with one relation (a constant, or a straight line in controller time when
-    they span long enough to resolve a drift of 20 ppm; residuals within a range of T) it is used — the
-    error averages over all of them (:func:`_mean_phase_u_s`: the cameras of one recording share its start
-    phase; an unresolved drift adds ±``UNRESOLVED_DRIFT_PPM``·|t − t_mid|); otherwise (a camera clock
-    restarted) the mean of the segment's own events.
+    Each start event's offset errs by at most ±T/2 (the first frame's exposure began within one period
+    after the event). When all start events of the session admit one relation (a constant, or a straight
+    line in controller time when they span long enough to resolve a drift of 20 ppm) within that band,
+    the offset at the segment is known to lie in the interval of every such relation's value there (a
+    set-membership bound, exact for bounded errors whatever the events' phases against the frame grid:
+    start events on a controller grid commensurate with the frame period, as on the simulated rig, do
+    not average their errors out); its midpoint is the estimate and (hi − lo)/√12 the standard
+    uncertainty (an unresolved drift adds ±``UNRESOLVED_DRIFT_PPM``·|t − t_mid|). Otherwise (a camera
+    clock restarted) the midpoint of the segment's own events' interval, else the median of the run's.
     """
     here = offsets[(offsets["segment"] == segment) & (offsets["session"] == session)]
     same = offsets[offsets["session"] == session]
@@ -228,25 +239,27 @@ def _offset_for(offsets: pd.DataFrame, segment: str, session: int) -> tuple[floa
         spread = float(np.sum((t - t_mid) ** 2))
         # the drift is fitted only when the events span enough time to pin it to ≤ 20 ppm (1 σ)
         with_drift = spread > 0 and period / math.sqrt(12.0 * spread) <= 20e-6
-        A = np.column_stack([np.ones_like(t), t - t_mid]) if with_drift else np.ones((len(t), 1))
-        coef, *_ = np.linalg.lstsq(A, same["offset_s"].to_numpy(float), rcond=None)
-        resid = same["offset_s"].to_numpy(float) - A @ coef
-        if np.ptp(resid) <= period * 1.02 + 1e-7:  # uniform errors of width T: one consistent clock relation
-            drift = float(coef[1]) if with_drift else 0.0
-            t_seg = float(here["t_s"].mean()) if len(here) else t_mid
-            u = _mean_phase_u_s(same, period)
-            # the drift's own uncertainty, or (unresolved) a rate error of up to ±UNRESOLVED_DRIFT_PPM,
-            # shifts a segment by drift·(t_seg − t_mid)
-            u_rate = (period / math.sqrt(12.0 * spread) if with_drift
-                      else UNRESOLVED_DRIFT_PPM * 1e-6 / math.sqrt(3.0))
-            u = math.hypot(u, u_rate * abs(t_seg - t_mid))
-            return (float(coef[0] + drift * (t_seg - t_mid)), u,
-                    f"fit of all {len(same)} camera start events of session {session} (drift "
-                    f"{'%+.1f ppm' % (drift * 1e6) if with_drift else 'not resolved, 0'}, residuals "
-                    f"within {1e3 * np.ptp(resid):.2f} ms)")
+        t_seg = float(here["t_s"].mean()) if len(here) else t_mid
+        half = 0.5 * period * 1.02 + 1e-7  # ±T/2, 2 % for the nominal period against the camera's own
+        ends = _feasible_interval_s(t, same["offset_s"].to_numpy(float), half, t_seg,
+                                    t_mid_s=t_mid, with_drift=with_drift)
+        if ends is not None:
+            lo, hi = ends
+            u = (hi - lo) / math.sqrt(12.0)
+            if not with_drift:  # an unresolved rate error of up to ±UNRESOLVED_DRIFT_PPM away from t_mid
+                u = math.hypot(u, UNRESOLVED_DRIFT_PPM * 1e-6 / math.sqrt(3.0) * abs(t_seg - t_mid))
+            return (0.5 * (lo + hi), u,
+                    f"fit of all {len(same)} camera start events of session {session} (interval bound, "
+                    f"{'drift fitted' if with_drift else 'drift not resolved, 0'}; offset within "
+                    f"{1e3 * (lo - 0.5 * (lo + hi)):+.2f}/{1e3 * (hi - 0.5 * (lo + hi)):+.2f} ms)")
     if len(here):
-        u = _mean_phase_u_s(here, float(here["period_s"].max()))
-        return float(here["offset_s"].mean()), u, f"{len(here)} camera start event(s) of the segment"
+        half = 0.5 * float(here["period_s"].max())
+        off = here["offset_s"].to_numpy(float)
+        lo, hi = float(off.max()) - half, float(off.min()) + half
+        source = f"{len(here)} camera start event(s) of the segment"
+        if lo > hi:  # the segment's own events disagree too: their mean, ±T/√12
+            return float(off.mean()), half / math.sqrt(3.0), source
+        return 0.5 * (lo + hi), (hi - lo) / math.sqrt(12.0), source
     if len(offsets):
         u = float(offsets["period_s"].max()) / math.sqrt(12.0)
         return (float(offsets["offset_s"].median()), u,
