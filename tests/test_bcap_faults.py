@@ -6,10 +6,10 @@ from __future__ import annotations
 import time
 
 import pytest
+from bcap_support import RecordingTransport
 
 from drivers.denso import hresult as hr
 from drivers.denso.arm import BoxEnvelope, DensoArm
-from drivers.denso.bcap import PacketDecoder
 from drivers.denso.client import BcapClient
 from drivers.mock.bcap_server import BcapMockServer, Faults
 from drivers.sim.clock import VirtualClock
@@ -19,35 +19,6 @@ from drivers.transport import open_transport
 TIMEOUT_S = 0.15
 ROBOT_HALT, ROBOT_MOVE = 70, 72
 TARGET = [300.0, 50.0, 320.0, 180.0, 0.0, 180.0]
-
-
-class Recorder:
-    """Transport wrapper that remembers the function IDs of the packets the driver wrote."""
-
-    def __init__(self, inner, serial_line: bool) -> None:
-        self.inner, self.url, self.serial_line = inner, inner.url, serial_line
-        self.written = bytearray()
-
-    def write(self, data: bytes) -> None:
-        self.written += data
-        self.inner.write(data)
-
-    def functions(self) -> list[int]:
-        decoder = PacketDecoder(serial_line=self.serial_line)
-        decoder.feed(bytes(self.written))
-        return [p.code for p in decoder.packets()]
-
-    def read_exact(self, n, timeout_s=None):
-        return self.inner.read_exact(n, timeout_s)
-
-    def read_until(self, terminator, timeout_s=None, max_bytes=65536):
-        return self.inner.read_until(terminator, timeout_s, max_bytes)
-
-    def read_available(self):
-        return self.inner.read_available()
-
-    def close(self) -> None:
-        self.inner.close()
 
 
 @pytest.fixture(params=["tcp", "pty"])
@@ -60,7 +31,7 @@ def rig(request):
         url = f"serial://{server.serve_pty()}?baud=115200"
     else:
         url = f"tcp://127.0.0.1:{server.serve_tcp()}"
-    recorder = Recorder(open_transport(url, TIMEOUT_S), serial_line)
+    recorder = RecordingTransport(open_transport(url, TIMEOUT_S), serial_line)
     client = BcapClient(recorder, serial_line=serial_line, retries=2, timeout_s=TIMEOUT_S)
     arm = DensoArm(client, envelope=BoxEnvelope((100, 500), (-300, 300), (50, 600)), max_speed_mm_s=200,
                    position_tolerance_mm=0.01, clock=world.clock)
@@ -76,7 +47,7 @@ def _attempts(arm: DensoArm) -> int:
     return arm.client.link.attempts
 
 
-def _expect_failure(arm: DensoArm, recorder: Recorder, error: type[Exception]) -> Exception:
+def _expect_failure(arm: DensoArm, recorder: RecordingTransport, error: type[Exception]) -> Exception:
     budget_s = _attempts(arm) * TIMEOUT_S * 2 + 1.0  # move + halt, each at most every attempt's timeout
     before = len(recorder.functions())
     start = time.monotonic()

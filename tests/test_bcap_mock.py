@@ -8,6 +8,7 @@ import time
 
 import numpy as np
 import pytest
+from bcap_support import RecordingTransport
 
 from drivers.denso import hresult as hr
 from drivers.denso.arm import BoxEnvelope, DensoArm, LimitError, OrientationLimits
@@ -29,43 +30,6 @@ POSES = [
     [250.0, -150.0, 400.0, 170.0, -5.0, -170.0],
     [380.0, 50.25, 250.0, 180.0, 0.0, 180.0],
 ]
-
-
-class RecordingTransport:
-    """Wraps a real transport and keeps every written packet (decoded), to see what left the driver."""
-
-    def __init__(self, inner, serial_line: bool = False) -> None:
-        self.inner = inner
-        self.url = inner.url
-        self.written: list[bytes] = []
-        self._decoder = PacketDecoder(serial_line=serial_line)
-
-    def write(self, data: bytes) -> None:
-        self.written.append(bytes(data))
-        self.inner.write(data)
-
-    def functions(self) -> list[int]:
-        decoder = PacketDecoder(serial_line=self._decoder.serial_line)
-        decoder.feed(b"".join(self.written))
-        return [p.code for p in decoder.packets()]
-
-    def read_exact(self, n, timeout_s=None):
-        return self.inner.read_exact(n, timeout_s)
-
-    def read_until(self, terminator, timeout_s=None, max_bytes=65536):
-        return self.inner.read_until(terminator, timeout_s, max_bytes)
-
-    def read_available(self):
-        return self.inner.read_available()
-
-    def close(self) -> None:
-        self.inner.close()
-
-    def __enter__(self):
-        return self
-
-    def __exit__(self, *exc) -> None:
-        self.close()
 
 
 @pytest.fixture
