@@ -230,6 +230,22 @@ def overall_result(rows: list[dict[str, Any]], exit_status: str | None) -> str:
     return "PASS"
 
 
+SIMULATED_NOTE = "simulated rig — not a certificate of hardware"
+
+
+def is_simulated(rig: dict[str, Any] | None) -> bool:
+    """True when the run's rig snapshot is a simulated station or films with simulated cameras.
+
+    A station that reaches standalone mock servers (``rig mock …``) through ordinary addresses cannot be
+    told from a bench by its configuration; its ``station.simulated`` is false, and so is this.
+    """
+    rig = rig or {}
+    station = rig.get("station") if isinstance(rig.get("station"), dict) else {}
+    cameras = rig.get("cameras") if isinstance(rig.get("cameras"), dict) else {}
+    sim_camera = any(isinstance(c, dict) and c.get("driver") == "sim" for c in cameras.values())
+    return bool(station.get("simulated")) or sim_camera
+
+
 def build_certificate(
     measured: dict[str, Measured | None],
     acceptance: dict[str, Any],
@@ -239,9 +255,12 @@ def build_certificate(
     """The certificate document (plain JSON types; NaN left as float, turned into null when written)."""
     rows = evaluate(measured, acceptance)
     rule = acceptance["decision_rule"]
+    simulated = is_simulated(conditions.get("rig"))
     return {
         "certificate_version": 1,
         "result": overall_result(rows, conditions.get("exit_status")),
+        "simulated": simulated,
+        **({"simulated_note": SIMULATED_NOTE} if simulated else {}),
         "run_id": conditions.get("run_id"),
         "date_utc": conditions.get("date_utc"),
         "decision_rule": {"name": rule, "text": DECISION_RULES[rule], "coverage_factor_default": 2.0},

@@ -13,6 +13,7 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
+import pandas as pd
 from matplotlib.figure import Figure
 
 from reports import frequency
@@ -97,17 +98,42 @@ def fig_error_vectors(t: ReportTables) -> Figure | None:
     return fig
 
 
+MAX_DISTINCT_COLOURS = 10  # matplotlib's default cycle: an 11th series would repeat a colour
+
+
+def _legend_groups(targets: pd.Series) -> tuple[pd.Series, str]:
+    """One legend entry per target when the colours can tell them apart, else per kind of target.
+
+    A kind is the target's name without a trailing index (``frame_3`` → ``frame``); when even the kinds
+    are too many, every pose shares one colour. Returns the group of each row and the legend's title.
+    """
+    names = targets.astype(str)
+    if names.nunique() <= MAX_DISTINCT_COLOURS:
+        return names, "target"
+    kinds = names.str.replace(r"[_\-\s]*\d+$", "", regex=True)
+    if kinds.nunique() <= MAX_DISTINCT_COLOURS:
+        per_kind = names.groupby(kinds).nunique()
+        labels = {kind: f"{kind} ({n} target{'s' * (n > 1)})" for kind, n in per_kind.items()}
+        return kinds.map(labels), "kind of target"
+    return pd.Series(f"all {names.nunique()} targets", index=names.index), "targets"
+
+
 def fig_error_vs_position(t: ReportTables, limit_mm: float | None = None) -> Figure | None:
-    """|error| against distance from the cameras and distance off the viewing axis, per target."""
+    """|error| against distance from the cameras and distance off the viewing axis, per target.
+
+    Every colour has a legend entry: per target, or per kind of target when there are more targets
+    than distinct colours (:func:`_legend_groups`).
+    """
     p = t.poses.dropna(subset=["error_mm"])
     if p.empty:
         return None
+    groups, legend_title = _legend_groups(p["target"])
     fig, axes = _new(1, 2, size=(8.5, 3.6), sharey=True)
     for ax, col, label in (
         (axes[0, 0], "distance_mm", "distance from the cameras (mm)"),
         (axes[0, 1], "off_axis_mm", "distance off the viewing axis (mm)"),
     ):
-        for target, g in p.groupby("target", sort=True):
+        for group, g in p.groupby(groups, sort=True):
             ax.errorbar(
                 g[col],
                 g["error_mm"],
@@ -115,7 +141,7 @@ def fig_error_vs_position(t: ReportTables, limit_mm: float | None = None) -> Fig
                 fmt="o",
                 ms=4,
                 capsize=2,
-                label=str(target),
+                label=str(group),
             )
         ax.set_xlabel(label)
     top = 1.15 * float((p["error_mm"] + 2 * p["u_error_mm"].fillna(0)).max())
@@ -144,8 +170,7 @@ def fig_error_vs_position(t: ReportTables, limit_mm: float | None = None) -> Fig
         )
     axes[0, 0].set_ylim(0, top)
     axes[0, 0].set_ylabel("|error| (mm), bars ±2u")
-    if p["target"].nunique() <= 12:
-        axes[0, 1].legend(title="target", ncols=2)
+    axes[0, 1].legend(title=legend_title, ncols=2 if groups.nunique() > 5 else 1)
     fig.suptitle("Error versus position", fontweight="bold", fontsize=10.5)
     return fig
 
@@ -311,7 +336,7 @@ def fig_spectrum(t: ReportTables) -> Figure | None:
         ax.legend()
     ax.set_xlabel("frequency (Hz)")
     ax.set_ylabel("amplitude (mm)")
-    ax.set_title("Spectrum of the rotor marker's height z(t) (Hann window)")
+    ax.set_title("Spectrum of the rotor marker's height z(t) (flat-top window: peak heights are amplitudes)")
     return fig
 
 

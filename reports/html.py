@@ -49,6 +49,8 @@ figcaption{color:var(--muted);font-size:13px;text-align:center}
 pre{background:#f0f3f6;padding:10px;border-radius:6px;overflow:auto;font-size:12px}
 .budget{font-size:12px;color:#7a8591}
 nav a{margin-right:14px;color:#1f5fa8;text-decoration:none;font-size:13.5px}
+.simulated{background:repeating-linear-gradient(135deg,#fff4d6 0 14px,#ffe9ad 14px 28px);
+border:2px solid var(--inc);border-radius:10px;padding:10px 18px;margin:14px 0;font-weight:700;color:#5c3d00}
 """
 
 
@@ -177,6 +179,13 @@ def _verdict(cert: dict[str, Any], t: ReportTables, tolerance_pct: float) -> str
     )
 
 
+def _simulated_banner(cert: dict[str, Any]) -> str:
+    """The banner over the verdict of a run on the simulated rig: its PASS says nothing of hardware."""
+    note = html.escape(str(cert.get("simulated_note", "simulated rig")))
+    return (f"<div class='simulated' id='simulated'>{note[0].upper() + note[1:]}: every device was a mock "
+            "server and every camera frame was rendered by the digital twin.</div>")
+
+
 def _cards(cert: dict[str, Any]) -> str:
     cards = []
     for c in cert["criteria"]:
@@ -235,14 +244,17 @@ def render(
     """The whole page as a string (deterministic for the same inputs)."""
     cond = cert["conditions"]
     tol = float(acceptance["amplitude_error_pct"])
+    simulated = bool(cert.get("simulated"))
+    title = "Certification report (simulated rig)" if simulated else "Certification report"
     parts = [
-        f"<header><h1>Certification report — {html.escape(str(cond.get('run_id')))}</h1>"
+        f"<header><h1>{title} — {html.escape(str(cond.get('run_id')))}</h1>"
         f"<div class='sub'>procedure {html.escape(str(cond.get('procedure')))} · run started "
         f"{html.escape(str(cond.get('date_utc')))} · sync method '{html.escape(t.primary_sync)}' · "
         f"software {html.escape(str(cond.get('report_software')))}</div></header>",
         "<nav><a href='#cert'>Certificate</a><a href='#pos'>Position</a><a href='#freq'>Frequency</a>"
         "<a href='#motion'>Steady motion</a><a href='#cal'>Calibration &amp; sync</a>"
         "<a href='#cond'>Conditions</a></nav>",
+        _simulated_banner(cert) if simulated else "",
         _verdict(cert, t, tol),
         "<section>" + _cards(cert) + "</section>",
     ]

@@ -149,6 +149,18 @@ def test_sync_option_changes_the_primary_method(tmp_path: Path) -> None:
     assert res.certificate["conditions"]["compared_sync_methods"] == []
 
 
+def test_a_simulated_run_is_labelled_in_the_certificate_and_the_report(tmp_path: Path, built) -> None:
+    run = synth.write_run(tmp_path / "run_sim", rig={**synth.RIG, "station": {"simulated": True}})
+    res = build_report(run, analysis=synth.fake_analyse, make_figures=False)
+    assert res.certificate["simulated"] is True
+    page = res.report_html.read_text()
+    assert "id='simulated'" in page and "not a certificate of hardware" in page
+    assert "(simulated rig)" in page.split("</h1>")[0]
+    # the bench run of the module fixture is not labelled
+    assert json.loads(built.certificate_json.read_text())["simulated"] is False
+    assert "id='simulated'" not in built.report_html.read_text()
+
+
 def test_failing_comparison_method_is_a_visible_note(tmp_path: Path) -> None:
     run = synth.write_run(tmp_path / "run_note")
 
@@ -223,3 +235,20 @@ def test_timing_table_has_values_with_uncertainties(built) -> None:
     assert timing.loc["right", "u_offset_s"] == pytest.approx(2.0e-5)
     assert np.isnan(timing.loc["left", "u_offset_s"]) and np.isnan(timing.loc["right", "u_drift_ppm"])
     assert timing.loc["right", "drift_ppm"] == pytest.approx(3.0)
+
+
+@pytest.mark.parametrize(
+    ("targets", "title", "entries"),
+    [
+        (["arm", "frame_0", "frame_1"], "target", {"arm", "frame_0", "frame_1"}),
+        (["arm", *(f"frame_{i}" for i in range(12))], "kind of target",
+         {"arm (1 target)", "frame (12 targets)"}),
+        ([f"t{i}x" for i in range(14)], "targets", {"all 14 targets"}),
+    ],
+)
+def test_every_colour_of_the_error_figure_has_a_legend_entry(targets, title, entries) -> None:
+    from reports.figures import MAX_DISTINCT_COLOURS, _legend_groups
+
+    groups, legend_title = _legend_groups(pd.Series(targets))
+    assert legend_title == title and set(groups) == entries
+    assert groups.nunique() <= MAX_DISTINCT_COLOURS

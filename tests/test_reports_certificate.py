@@ -14,6 +14,7 @@ from reports.certificate import (
     build_certificate,
     decide,
     evaluate,
+    is_simulated,
     overall_result,
 )
 from reports.errors import CriteriaError
@@ -148,6 +149,24 @@ def test_certificate_states_rule_and_conditions() -> None:
     assert "ILAC-G8" in cert["decision_rule"]["text"]
     assert [r["id"] for r in cert["criteria"]] == list(CRITERION_IDS)
     assert cert["result"] == "INCOMPLETE"
+
+
+@pytest.mark.parametrize(
+    ("rig", "simulated"),
+    [
+        ({"station": {"simulated": True}}, True),
+        ({"station": {"simulated": False}, "cameras": {"left": {"driver": "sim"}}}, True),
+        ({"station": {"simulated": False}, "cameras": {"left": {"driver": "opencv"}}}, False),
+        (None, False),
+    ],
+)
+def test_a_simulated_run_says_so_at_the_top_of_its_certificate(rig: dict | None, simulated: bool) -> None:
+    cert = build_certificate({}, acceptance_from_config({}), {"run_id": "r1", "rig": rig})
+    assert is_simulated(rig) is simulated
+    assert cert["simulated"] is simulated
+    assert ("simulated_note" in cert) is simulated
+    if simulated:
+        assert "not a certificate of hardware" in cert["simulated_note"]
 
 
 def test_unknown_measured_id_raises() -> None:
