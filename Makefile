@@ -4,7 +4,7 @@ PYTHON ?= $(shell command -v python3.11 || command -v python3)
 VENV := .venv
 STAMP := $(VENV)/.installed
 
-.PHONY: certify test lint bench
+.PHONY: certify test lint bench browser
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -15,9 +15,21 @@ $(STAMP): pyproject.toml
 certify: $(STAMP)
 	$(VENV)/bin/rig certify
 
-test: $(STAMP)
+test: $(STAMP) browser
 	$(VENV)/bin/ruff check .
 	$(VENV)/bin/python -m pytest -q
 
 bench: $(STAMP)
 	for b in benchmarks/*.py; do $(VENV)/bin/python $$b || exit 1; done
+
+# The report's browser test (tests/test_reports_html_chromium.py) needs a headless Chromium. It is
+# installed here, in its own announced step, when missing and this user may install Debian packages;
+# otherwise the test skips and says why. No test installs anything itself.
+browser:
+	@if command -v chromium >/dev/null 2>&1 || command -v chromium-browser >/dev/null 2>&1; then :; \
+	elif [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1; then \
+	  echo "make test: installing Chromium (Debian package 'chromium') for the report's browser test"; \
+	  export DEBIAN_FRONTEND=noninteractive; \
+	  { apt-get update -qq && apt-get install -y -qq --no-install-recommends chromium fonts-dejavu-core \
+	    >/dev/null; } || echo "make test: Chromium could not be installed; the browser test will skip"; \
+	else echo "make test: no Chromium and no root to install it; the browser test will skip"; fi
