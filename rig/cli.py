@@ -222,6 +222,21 @@ def cmd_mock(args: argparse.Namespace) -> int:
     return int(module.main(argv) or 0)
 
 
+def cmd_demo(args: argparse.Namespace) -> int:
+    """Write the twin's sample videos and print the commands that calibrate and measure them."""
+    from rig.demo import next_commands, write_demo
+
+    folder = Path(args.dir)
+    if folder.exists() and any(folder.iterdir()):
+        raise ParameterError("DIR", f"{args.dir!r} is not empty; give a new or empty folder for the demo")
+    files = write_demo(folder)
+    print(f"rig demo: sample videos from the digital twin in {folder} (what they show: {files.truth_txt})")
+    print("calibrate the camera pair from the plate videos, then measure the vibrating column:")
+    for command in next_commands(files, folder):
+        print(f"  {command}")
+    return 0
+
+
 def cmd_list(args: argparse.Namespace) -> int:
     procedures = discover_procedures()
     if not procedures:
@@ -281,6 +296,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("options", nargs=argparse.REMAINDER, help="options of the mock server")
     sub.add_parser("list", help="list the procedures and their parameters",
                    description="List the procedures with their parameters, defaults and ranges.")
+    p = sub.add_parser("demo", help="write sample stereo videos to try calibrate and measure",
+                       description="Write a short stereo video pair of the slid calibration plate, its "
+                                   "target.toml, and a pair of a vibrating marker column, all rendered by "
+                                   "the digital twin; print the commands that calibrate and measure them.")
+    p.add_argument("dir", metavar="DIR", help="a new or empty folder for the demo files")
     from rig.measure_cli import add_parsers
 
     add_parsers(sub)  # calibrate (on site, from videos) and measure
@@ -303,7 +323,7 @@ def main(argv: list[str] | None = None) -> int:
     from rig.measure_cli import COMMANDS as DEPLOYMENT_COMMANDS
 
     commands = {"run": cmd_run, "certify": cmd_certify, "report": cmd_report, "check": cmd_check,
-                "list": cmd_list, "mock": cmd_mock, **DEPLOYMENT_COMMANDS}
+                "list": cmd_list, "mock": cmd_mock, "demo": cmd_demo, **DEPLOYMENT_COMMANDS}
     try:
         return commands[args.command](args)
     except (ConfigError, ParameterError, RecordError) as exc:
