@@ -36,9 +36,10 @@ STYLE = {
 }
 
 
-def _new(
+def new_figure(
     nrows: int = 1, ncols: int = 1, size: tuple[float, float] = (7.5, 4.0), **kw
 ) -> tuple[Figure, np.ndarray]:
+    """A figure in the reports' style with an (nrows, ncols) array of axes; ``size`` in inches."""
     with plt.rc_context(STYLE):
         fig = Figure(figsize=size, layout="constrained")
         axes = fig.subplots(nrows, ncols, squeeze=False, **kw)
@@ -128,7 +129,7 @@ def fig_error_vs_position(t: ReportTables, limit_mm: float | None = None) -> Fig
     if p.empty:
         return None
     groups, legend_title = _legend_groups(p["target"])
-    fig, axes = _new(1, 2, size=(8.5, 3.6), sharey=True)
+    fig, axes = new_figure(1, 2, size=(8.5, 3.6), sharey=True)
     for ax, col, label in (
         (axes[0, 0], "distance_mm", "distance from the cameras (mm)"),
         (axes[0, 1], "off_axis_mm", "distance off the viewing axis (mm)"),
@@ -179,7 +180,7 @@ def fig_amplitude_error(t: ReportTables, tolerance_pct: float) -> Figure | None:
     """Amplitude error and phase versus frequency per sync method, with the quadratic fit and the theory."""
     if t.sweep_bins.empty:
         return None
-    fig, axes = _new(2, 1, size=(10.0, 6.2), sharex=True, height_ratios=[2.2, 1])
+    fig, axes = new_figure(2, 1, size=(10.0, 6.2), sharex=True, height_ratios=[2.2, 1])
     ax, axp = axes[0, 0], axes[1, 0]
     f_max = float(t.sweep_bins["frequency_hz"].max())
     f = np.linspace(0, f_max, 300)
@@ -280,7 +281,7 @@ def fig_time_frequency(t: ReportTables) -> Figure | None:
     """The sweep's frequency over time: the commanded profile and the measured frequency per bin (Fig. 17)."""
     if t.sweep is None:
         return None
-    fig, axes = _new(size=(7.5, 3.4))
+    fig, axes = new_figure(size=(7.5, 3.4))
     ax = axes[0, 0]
     prof = np.asarray(t.sweep["profile"], float)
     ax.plot(prof[:, 0] - prof[0, 0], prof[:, 1], color="#333333", lw=1.4, label="commanded profile")
@@ -306,7 +307,7 @@ def fig_trajectory(t: ReportTables) -> Figure | None:
     tr = t.trajectory
     if tr is None or tr.empty:
         return None
-    fig, axes = _new(4, 1, size=(8.0, 7.6))
+    fig, axes = new_figure(4, 1, size=(8.0, 7.6))
     time = tr["time_s"].to_numpy(float) - float(tr["time_s"].iloc[0])
     for ax, col in zip(axes[:3, 0], ("x_mm", "y_mm", "z_mm"), strict=True):
         ax.plot(time, tr[col], lw=0.7, color=COLORS["primary"])
@@ -326,7 +327,7 @@ def fig_spectrum(t: ReportTables) -> Figure | None:
     """Amplitude spectrum of the rotor marker's height (Fig. 15)."""
     if t.spectrum is None or t.spectrum.empty:
         return None
-    fig, axes = _new(size=(7.5, 3.2))
+    fig, axes = new_figure(size=(7.5, 3.2))
     ax = axes[0, 0]
     ax.plot(t.spectrum["frequency_hz"], t.spectrum["amplitude_mm"], lw=1, color=COLORS["primary"])
     if t.rotation is not None:
@@ -345,7 +346,7 @@ def fig_rotation_radius(t: ReportTables) -> Figure | None:
     rs = t.rotation_samples
     if rs is None or rs.empty:
         return None
-    fig, axes = _new(size=(7.5, 3.2))
+    fig, axes = new_figure(size=(7.5, 3.2))
     ax = axes[0, 0]
     time = rs["time_s"].to_numpy(float) - float(rs["time_s"].iloc[0])
     ax.plot(time, rs["radius_mm"], lw=0.8, color=COLORS["primary"], label="measured")

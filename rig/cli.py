@@ -121,10 +121,25 @@ def _run_procedure(module: types.ModuleType, args: argparse.Namespace) -> int:
         outcome = runner.run(overrides, resume=args.resume)
     finally:
         bar.close()
+    if outcome.run_dir:
+        _index_in_catalogue(Path(outcome.run_dir))
     where = f" — {outcome.run_dir}" if outcome.run_dir else ""
     print(f"rig: {module.NAME}: {outcome.outcome} (exit {outcome.exit_code}): {outcome.reason}{where}",
           file=sys.stderr if outcome.exit_code else sys.stdout, flush=True)
     return outcome.exit_code
+
+
+def _index_in_catalogue(run_dir: Path) -> None:
+    """Add the finished run to its runs folder's catalogue; a failure only warns (the folder is the record,
+    and `rig runs` indexes it later)."""
+    import sqlite3
+
+    from rig.catalogue import index_run
+
+    try:
+        index_run(run_dir)
+    except (RecordError, OSError, sqlite3.Error) as exc:
+        log.warning("the run was not added to the catalogue of runs (rig runs will add it): %s", exc)
 
 
 def cmd_run(args: argparse.Namespace) -> int:
@@ -237,6 +252,74 @@ def cmd_demo(args: argparse.Namespace) -> int:
     return 0
 
 
+def _runs_dir(args: argparse.Namespace) -> Path:
+    return Path(args.runs_dir or load_config(args.config).station.runs_dir)
+
+
+def cmd_runs(args: argparse.Namespace) -> int:
+    """List the run folders (catalogue synced with them first), show one run, or a setup's trend."""
+    from rig import catalogue
+
+    if args.action in ("show", "trend") and not args.target:
+        raise ParameterError("RUN|SETUP", f"`rig runs {args.action}` needs "
+                                          f"{'a run' if args.action == 'show' else 'a setup name'}")
+    runs_dir = _runs_dir(args)
+    synced = catalogue.sync(runs_dir)
+    for run_id, why in sorted(synced.unreadable.items()):
+        print(f"rig runs: {run_id} not indexed: {why}", file=sys.stderr)
+    if args.action == "show":
+        return _show_run(runs_dir, args.target)
+    if args.action == "trend":
+        return _show_trend(runs_dir, args.target, Path(args.out) if args.out else runs_dir)
+    entries = catalogue.list_runs(runs_dir, setup=args.setup)
+    if not entries:
+        print(f"no runs in {runs_dir}" + (f" of setup {args.setup!r}" if args.setup else ""))
+        return 0
+    print(f"{'run':44s} {'setup':18s} {'procedure':10s} {'started (UTC)':20s} {'exit':8s} {'result':10s} "
+          "criteria passed")
+    for e in entries:
+        passed = sum(c.status == "PASS" for c in e.criteria)
+        result = (e.result or "-") + (" (sim)" if e.simulated and e.result else "")
+        print(f"{e.run_id:44s} {(e.setup or '-')[:18]:18s} {(e.procedure or '-')[:10]:10s} "
+              f"{(e.started_utc or '-')[:19]:20s} {e.exit_status or 'running?':8s} {result:10s} "
+              f"{f'{passed}/{len(e.criteria)}' if e.criteria else '-'}")
+    return 0
+
+
+def _show_run(runs_dir: Path, run: str) -> int:
+    from rig.catalogue import find_run
+
+    entry = find_run(runs_dir, run)
+    if entry is None:
+        raise ParameterError("RUN", f"{run!r} is not a run folder in {runs_dir} (see `rig runs`)")
+    print(f"run {entry.run_id} — {entry.folder}")
+    print(f"  setup {entry.setup!r}, procedure {entry.procedure}, simulated {entry.simulated}")
+    print(f"  started {entry.started_utc}, stopped {entry.stopped_utc or '(no stop document)'}: "
+          f"{entry.exit_status or '-'} {entry.stop_reason or ''}".rstrip())
+    print(f"  certificate: {entry.result or 'none issued'}")
+    for c in entry.criteria:
+        value = "-" if c.value is None else f"{c.value:.4g}"
+        u = "" if c.expanded_uncertainty is None else f" ± {c.expanded_uncertainty:.2g}"
+        limit = "-" if c.limit_value is None else f"{c.comparison} {c.limit_value:g}"
+        print(f"    {c.criterion:26s} {value:>10s}{u:10s} {c.unit:4s} limit {limit:10s} {c.status}")
+    return 0
+
+
+def _show_trend(runs_dir: Path, setup: str, out_dir: Path) -> int:
+    from reports.trend import trend_frame, write_trend
+    from rig.catalogue import list_runs
+
+    frame = trend_frame(list_runs(runs_dir, setup=setup))
+    if frame.empty:
+        raise ParameterError("SETUP", f"no certificate of setup {setup!r} in {runs_dir} (see `rig runs`)")
+    table = frame.pivot_table(index=["started_utc", "run_id"], columns="criterion", values="value",
+                              aggfunc="first", sort=False)
+    print(table.to_string(float_format=lambda v: f"{v:.4g}"))
+    csv_path, png_path = write_trend(frame, setup, out_dir)
+    print(f"rig runs trend: {csv_path}" + (f", {png_path}" if png_path else ""))
+    return 0
+
+
 def cmd_list(args: argparse.Namespace) -> int:
     procedures = discover_procedures()
     if not procedures:
@@ -296,6 +379,16 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("options", nargs=argparse.REMAINDER, help="options of the mock server")
     sub.add_parser("list", help="list the procedures and their parameters",
                    description="List the procedures with their parameters, defaults and ranges.")
+    p = sub.add_parser("runs", help="the catalogue of runs: list, show one, a setup's trend",
+                       description="List the run folders (from an SQLite index synced with the folders "
+                                   "first), show one run's certificate, or a setup's criteria over time.")
+    p.add_argument("action", nargs="?", choices=("list", "show", "trend"), default="list",
+                   help="list (default), show RUN, or trend SETUP")
+    p.add_argument("target", nargs="?", metavar="RUN|SETUP", help="the run (show) or the setup name (trend)")
+    p.add_argument("--setup", help="list only the runs of this setup (station.name)")
+    p.add_argument("--out", metavar="DIR", help="trend: where the CSV and PNG go (default: the runs folder)")
+    p.add_argument("--runs-dir", metavar="DIR", help="the runs folder (default: station.runs_dir)")
+    p.add_argument("--config", metavar="RIG.TOML", help="rig configuration naming station.runs_dir")
     p = sub.add_parser("demo", help="write sample stereo videos to try calibrate and measure",
                        description="Write a short stereo video pair of the slid calibration plate, its "
                                    "target.toml, and a pair of a vibrating marker column, all rendered by "
@@ -323,7 +416,8 @@ def main(argv: list[str] | None = None) -> int:
     from rig.measure_cli import COMMANDS as DEPLOYMENT_COMMANDS
 
     commands = {"run": cmd_run, "certify": cmd_certify, "report": cmd_report, "check": cmd_check,
-                "list": cmd_list, "mock": cmd_mock, "demo": cmd_demo, **DEPLOYMENT_COMMANDS}
+                "list": cmd_list, "mock": cmd_mock, "demo": cmd_demo, "runs": cmd_runs,
+                **DEPLOYMENT_COMMANDS}
     try:
         return commands[args.command](args)
     except (ConfigError, ParameterError, RecordError) as exc:
