@@ -16,6 +16,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
+from rig.catalogue import run_folders
 from rig.cli import main
 from rig.record import load_run, read_observations
 from tests.certify_support import (
@@ -33,7 +34,7 @@ VOLUME_CENTRE_MM = (420.0, 0.0, 300.0)
 def _certify(tmp_path: Path, *extra: str) -> tuple[int, Path]:
     config = write_config(tmp_path)
     code = main(["certify", "--config", str(config), *extra])
-    runs = sorted((tmp_path / "runs").iterdir())
+    runs = run_folders(tmp_path / "runs")
     assert len(runs) == 1
     return code, runs[0]
 

@@ -15,6 +15,7 @@ from pathlib import Path
 
 import pytest
 
+from rig.catalogue import run_folders
 from rig.cli import ProgressBar, main
 from rig.record import load_run
 
@@ -110,7 +111,7 @@ def test_bad_parameter_and_unknown_procedure_exit_4(tmp_path: Path,
 def test_run_on_the_simulated_rig_passes(tmp_path: Path) -> None:
     proc = _write(tmp_path, "probe.py", PROCEDURE)
     assert main(["run", str(proc), "--runs-dir", str(tmp_path / "runs")]) == 0
-    (run_dir,) = (tmp_path / "runs").iterdir()
+    (run_dir,) = run_folders(tmp_path / "runs")
     run = load_run(run_dir)
     assert run.exit_status == "success" and run.steps_completed.keys() == {"move", "vibrate"}
     assert run.start["clock"] == "virtual" and run.start["devices"] == {"connected": False}
@@ -128,7 +129,7 @@ def test_out_of_envelope_or_over_limit_exits_3_with_nothing_sent(tmp_path: Path,
                                                                  reason: str) -> None:
     proc = _write(tmp_path, "probe.py", PROCEDURE)
     assert main(["run", str(proc), "--set", setting, "--runs-dir", str(tmp_path / "runs")]) == 3
-    (run_dir,) = (tmp_path / "runs").iterdir()
+    (run_dir,) = run_folders(tmp_path / "runs")
     run = load_run(run_dir)
     assert run.exit_status == "abort" and run.stop["outcome"] == "interlock" and reason in run.stop["reason"]
     assert reason in run.interlocks["reason"].iloc[0]
@@ -149,7 +150,7 @@ def test_ctrl_c_mid_run_stops_the_exciter_and_exits_2(tmp_path: Path) -> None:
     proc.send_signal(signal.SIGINT)
     _, err = proc.communicate(timeout=60)
     assert proc.returncode == 2, err
-    (run_dir,) = (tmp_path / "runs").iterdir()
+    (run_dir,) = run_folders(tmp_path / "runs")
     run = load_run(run_dir)
     assert run.exit_status == "abort" and run.stop["reason"] == "aborted by the operator (Ctrl-C)"
     messages = list(run.logs["message"])

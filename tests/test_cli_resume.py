@@ -11,6 +11,7 @@ from pathlib import Path
 
 import pytest
 
+from rig.catalogue import run_folders
 from rig.cli import main
 from rig.record import TruncatedRecordWarning, load_run
 
@@ -58,7 +59,7 @@ def test_kill_9_then_resume_on_the_simulated_rig(tmp_path: Path, monkeypatch: py
     assert proc.stdout.readline().strip() == "HOLDING", proc.stderr.read() if proc.poll() else ""
     proc.kill()
     proc.communicate(timeout=30)
-    (run_dir,) = (tmp_path / "runs").iterdir()
+    (run_dir,) = run_folders(tmp_path / "runs")
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", TruncatedRecordWarning)
         crashed = load_run(run_dir)
@@ -73,4 +74,4 @@ def test_kill_9_then_resume_on_the_simulated_rig(tmp_path: Path, monkeypatch: py
     assert len(run.starts) == 2 and run.starts[1]["resume"] is True
     assert len(run.events["arm"]) == 1  # the move was not repeated
     assert "tick" not in run.events  # the interrupted attempt at "vibrate" was superseded
-    assert (tmp_path / "runs").exists() and len(list((tmp_path / "runs").iterdir())) == 1
+    assert (tmp_path / "runs").exists() and len(run_folders(tmp_path / "runs")) == 1

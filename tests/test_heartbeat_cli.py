@@ -8,6 +8,7 @@ import textwrap
 from importlib import resources
 from pathlib import Path
 
+from rig.catalogue import run_folders
 from rig.cli import main
 from rig.record import load_run
 
@@ -47,7 +48,7 @@ def test_rig_run_exits_3_when_a_drive_stops_answering(tmp_path: Path, capsys) ->
     code = main(["run", str(tmp_path / "silent_rotor.py"), "--config", str(tmp_path / "rig.toml"),
                  "--runs-dir", str(tmp_path / "runs")])
     assert code == 3, capsys.readouterr().err
-    (run_dir,) = (tmp_path / "runs").iterdir()
+    (run_dir,) = run_folders(tmp_path / "runs")
     run = load_run(run_dir)
     assert run.stop["outcome"] == "interlock" and run.stop["exit_code"] == 3
     assert run.interlocks["device"].tolist() == ["rotor"]

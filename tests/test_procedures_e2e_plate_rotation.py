@@ -23,6 +23,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
+from rig.catalogue import run_folders
 from rig.cli import main
 from rig.config import load_config
 from rig.record import load_run, read_observations
@@ -39,7 +40,7 @@ def _run(tmp_path: Path, procedure: str, *settings: str) -> tuple[Path, Path]:
     for s in settings:
         args += ["--set", s]
     code = main(args)
-    (run_dir,) = (tmp_path / "runs").iterdir()
+    (run_dir,) = run_folders(tmp_path / "runs")
     run = load_run(run_dir)
     assert code == 0, run.stop
     assert run.stop["exit_status"] == "success"

@@ -18,6 +18,7 @@ from pathlib import Path
 
 import pytest
 
+from rig.catalogue import run_folders
 from rig.record import load_run
 from tests.certify_support import write_config
 
@@ -35,7 +36,7 @@ def _rig(tmp_path: Path, *args: str) -> subprocess.CompletedProcess:
 
 
 def _only_run(tmp_path: Path) -> Path:
-    runs = sorted((tmp_path / "runs").iterdir())
+    runs = run_folders(tmp_path / "runs")
     assert len(runs) == 1
     return runs[0]
 

@@ -33,6 +33,7 @@ from hypothesis import strategies as st
 from procedures._shaker import staircase_plan
 from procedures.sweep import Parameters, profile_of
 from reports.frequency import sweep_phase_rad
+from rig.catalogue import run_folders
 from rig.cli import main
 from rig.config import load_config
 from rig.record import load_run, read_observations
@@ -61,7 +62,7 @@ def _run(tmp_path: Path, config: Path, procedure: str, *settings: str) -> tuple[
     for s in settings:
         args += ["--set", s]
     code = main(args)
-    (run_dir,) = (tmp_path / "runs").iterdir()
+    (run_dir,) = run_folders(tmp_path / "runs")
     return code, run_dir
 
 

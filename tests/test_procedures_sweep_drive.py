@@ -15,6 +15,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+from rig.catalogue import run_folders
 from tests.certify_support import write_config
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -35,7 +36,7 @@ def _run_sweep(tmp_path: Path, config: Path) -> tuple[subprocess.CompletedProces
     proc = subprocess.run([sys.executable, "-m", "rig.cli", "run", "sweep", "--config", str(config)],
                           cwd=tmp_path, env={**os.environ, "PYTHONPATH": str(ROOT)}, capture_output=True,
                           text=True, timeout=240, check=False)
-    (run_dir,) = sorted((tmp_path / "runs").iterdir())
+    (run_dir,) = run_folders(tmp_path / "runs")
     lines = (run_dir / "record.jsonl").read_text().splitlines()
     return proc, [json.loads(line) for line in lines if line.strip()]
 

@@ -10,6 +10,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+from rig.catalogue import run_folders
 from rig.record import load_run
 from tests.certify_support import write_config
 
@@ -36,7 +37,7 @@ def test_run_with_an_unreachable_robot_records_why_in_the_run_folder(tmp_path: P
     config = _unreachable_robot(tmp_path)
     proc = _rig(tmp_path, "run", "plate", "--config", str(config), "--set", "record_s=1.5")
     assert proc.returncode == 3, proc.stderr
-    (run_dir,) = (tmp_path / "runs").iterdir()
+    (run_dir,) = run_folders(tmp_path / "runs")
 
     # the console: one line with the reason and the run folder, no traceback
     assert proc.stdout == ""
@@ -63,7 +64,7 @@ def test_certify_with_an_unreachable_robot_also_leaves_a_run_folder(tmp_path: Pa
     config = _unreachable_robot(tmp_path)
     proc = _rig(tmp_path, "certify", "--config", str(config), "--set", 'preset="fast"')
     assert proc.returncode == 3 and "Traceback" not in proc.stderr, proc.stderr
-    (run_dir,) = (tmp_path / "runs").iterdir()
+    (run_dir,) = run_folders(tmp_path / "runs")
     run = load_run(run_dir)
     assert run.start["procedure"] == "certify" and run.stop["exit_status"] == "fail"
     assert "robot at tcp://127.0.0.1:1" in run.stop["reason"]
