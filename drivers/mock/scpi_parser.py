@@ -140,7 +140,8 @@ class Pattern:
             if m and m.group(1).upper() in (node.short, node.long) and (node.suffix or not m.group(2)):
                 found = dict(suffixes)
                 if node.suffix:
-                    found[node.long] = int(m.group(2)) if m.group(2) else 1
+                    digits = m.group(2)  # a suffix too long for int() is simply out of range
+                    found[node.long] = int(digits) if 0 < len(digits) < 10 else (1 if not digits else 10**10)
                 result = self._match(i + 1, given[1:], found)
                 if result is not None:
                     return result

@@ -1,9 +1,15 @@
 """Oscillator bodies of the simulated rig: exciter (crank), shaker (generator) and rotor.
 
 Frequency f(t) ≥ 0 Hz follows piecewise constant, linear (ramp, linear sweep) and exponential (log sweep)
-segments; the phase φ(t) = φ0 + ∫ 2π f dt is evaluated in closed form, so it is exact and continuous across
-commands. Same command rule and thread safety as :mod:`drivers.sim.bodies` (commands at t ≥ the previous
-command time replace only the planned future; readers use immutable snapshots).
+segments; a sweep segment may repeat with its period (a generator's free-running sweep), so a repeating
+sweep is one segment however long it runs. The phase φ(t) = φ0 + ∫ 2π f dt is evaluated in closed form,
+so it is exact and continuous across commands and across sweep restarts. Same command rule and thread
+safety as :mod:`drivers.sim.bodies` (commands at t ≥ the previous command time replace only the planned
+future; readers use immutable snapshots).
+
+The history is bounded: at most ``max_segments`` frequency segments and amplitude steps are kept (the
+oldest are dropped); asking about a time before the oldest kept one raises :class:`SimCommandError`
+instead of answering from a history that is gone.
 """
 
 from __future__ import annotations
@@ -16,43 +22,95 @@ import numpy as np
 
 from drivers.sim.errors import SimCommandError, _finite
 
-__all__ = ["OscillatorBody"]
+__all__ = ["DEFAULT_MAX_SEGMENTS", "OscillatorBody"]
 
 _CONST, _LINEAR, _LOG = 0, 1, 2
-_Seg = tuple[float, float, int, float, float]
+# (t0, φ0, kind, f0, c, period_s): period_s > 0 repeats the segment's first period_s seconds forever
+_Seg = tuple[float, float, int, float, float, float]
+DEFAULT_MAX_SEGMENTS = 4096
+
+
+def _integral(kind: int, f0: float, c: float, tau: float) -> tuple[float, float]:
+    """(f, ∫0^τ f) of one non-repeating segment at τ ≥ 0 s (scalar)."""
+    if kind == _LINEAR:
+        return f0 + c * tau, f0 * tau + 0.5 * c * tau * tau
+    if kind == _LOG:
+        return f0 * math.exp(c * tau), f0 * math.expm1(c * tau) / c
+    return f0, f0 * tau
+
+
+def _eval_one(seg: _Seg, t: float) -> tuple[float, float]:
+    """(f(t) Hz, φ(t) rad) on one segment (scalar)."""
+    t0, phi0, kind, f0, c, period = seg
+    tau = t - t0
+    cycles = 0.0
+    if period > 0.0 and tau >= period:
+        cycles = math.floor(tau / period)
+        tau -= cycles * period
+    f, integral = _integral(kind, f0, c, tau)
+    full = _integral(kind, f0, c, period)[1] if cycles else 0.0
+    return f, phi0 + 2.0 * math.pi * (cycles * full + integral)
 
 
 class OscillatorBody:
     """Frequency f(t) ≥ 0 Hz, phase φ(t) rad (exact integral of 2π f) and amplitude A(t) mm of a driven body.
 
-    Segments are (t0, φ0, kind, f0, c): constant f0; linear f0 + c·τ; log f0·exp(c·τ) (τ = t − t0).
-    ``initial_hz`` and ``amplitude_mm`` hold from ``t_origin_s`` (earlier times extrapolate the constant).
+    Segments are (t0, φ0, kind, f0, c, period): constant f0; linear f0 + c·τ; log f0·exp(c·τ) (τ = t − t0,
+    taken modulo ``period`` when it is > 0). ``initial_hz`` and ``amplitude_mm`` hold from ``t_origin_s``
+    (earlier times extrapolate the constant while no history has been dropped). ``max_segments`` bounds
+    the kept history (≥ 2).
     """
 
     def __init__(self, name: str = "oscillator", *, amplitude_mm: float = 0.0, initial_hz: float = 0.0,
-                 t_origin_s: float = 0.0) -> None:
+                 t_origin_s: float = 0.0, max_segments: int = DEFAULT_MAX_SEGMENTS) -> None:
+        if int(max_segments) < 2:
+            raise SimCommandError(f"max_segments must be >= 2, got {max_segments!r}")
         self.name = name
+        self.max_segments = int(max_segments)
         f = _finite(initial_hz, "initial_hz", nonneg=True)
-        self._segs: tuple[_Seg, ...] = ((float(t_origin_s), 0.0, _CONST, f, 0.0),)
+        self._segs: tuple[_Seg, ...] = ((float(t_origin_s), 0.0, _CONST, f, 0.0, 0.0),)
         self._amps: tuple[tuple[float, float], ...] = (
             (-math.inf, _finite(amplitude_mm, "amplitude_mm", nonneg=True)),)
+        self._history_start_s = -math.inf  # earliest time still answerable
         self._last_command_s = -math.inf
         self._lock = threading.Lock()
-        self._table_cache: tuple[tuple[_Seg, ...] | None, np.ndarray] = (None, np.zeros((0, 5)))
+        self._table_cache: tuple[tuple[_Seg, ...] | None, np.ndarray] = (None, np.zeros((0, 6)))
 
     # -- evaluation
-    def _eval(self, segs: tuple[_Seg, ...], t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def _table(self, segs: tuple[_Seg, ...]) -> np.ndarray:
         cached = self._table_cache  # (segments, their array): rebuilt only when the segments change
         if cached[0] is segs:
-            arr = cached[1]
-        else:
-            arr = np.array(segs)
-            self._table_cache = (segs, arr)
+            return cached[1]
+        arr = np.array(segs, dtype=float)
+        self._table_cache = (segs, arr)
+        return arr
+
+    def _check_history(self, t: np.ndarray) -> None:
+        if t.size and float(np.min(t)) < self._history_start_s:
+            raise SimCommandError(f"{self.name}: t_s={float(np.min(t))!r} is before the kept history "
+                                  f"(from {self._history_start_s!r} s; at most {self.max_segments} segments)")
+
+    def _eval(self, segs: tuple[_Seg, ...], t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        self._check_history(t)
+        arr = self._table(segs)
         k = np.clip(np.searchsorted(arr[:, 0], t, side="right") - 1, 0, len(segs) - 1)
-        t0, phi0, kind, f0, c = (arr[k, j] for j in range(5))
+        t0, phi0, kind, f0, c, period = (arr[k, j] for j in range(6))
         tau = t - t0
-        if not np.any(kind):  # all constant-frequency segments
+        if not np.any(kind) and not np.any(period):  # constant-frequency segments only
             return f0, phi0 + 2.0 * np.pi * f0 * tau
+        repeats = period > 0.0
+        cycles = np.where(repeats, np.floor(tau / np.where(repeats, period, 1.0)), 0.0)
+        cycles = np.maximum(cycles, 0.0)
+        tau = tau - cycles * np.where(repeats, period, 0.0)
+        f, integral = self._integrals(kind, f0, c, tau)
+        if np.any(repeats):
+            full = self._integrals(kind, f0, c, np.where(repeats, period, 0.0))[1]
+            integral = integral + cycles * full
+        return f, phi0 + 2.0 * np.pi * integral
+
+    @staticmethod
+    def _integrals(kind: np.ndarray, f0: np.ndarray, c: np.ndarray,
+                   tau: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         f = np.where(kind == _LINEAR, f0 + c * tau, f0)
         integral = np.where(kind == _LINEAR, f0 * tau + 0.5 * c * tau * tau, f0 * tau)
         log = kind == _LOG
@@ -60,8 +118,8 @@ class OscillatorBody:
             cl = np.where(log, c, 1.0)
             growth = np.exp(np.where(log, cl * tau, 0.0))
             f = np.where(log, f0 * growth, f)
-            integral = np.where(log, f0 * np.expm1(cl * tau) / cl, integral)
-        return f, phi0 + 2.0 * np.pi * integral
+            integral = np.where(log, f0 * np.expm1(np.where(log, cl * tau, 0.0)) / cl, integral)
+        return f, integral
 
     def frequency_hz(self, t_s: float | np.ndarray) -> float | np.ndarray:
         t = np.asarray(t_s, dtype=float)
@@ -75,10 +133,11 @@ class OscillatorBody:
 
     def amplitude_at_mm(self, t_s: float | np.ndarray) -> float | np.ndarray:
         t = np.asarray(t_s, dtype=float)
+        self._check_history(t)
         amps = self._amps
         starts = np.array([a[0] for a in amps])
         vals = np.array([a[1] for a in amps])
-        out = vals[np.searchsorted(starts, t, side="right") - 1]
+        out = vals[np.maximum(np.searchsorted(starts, t, side="right") - 1, 0)]
         return float(out) if t.ndim == 0 else out
 
     def displacement_mm(self, t_s: float | np.ndarray) -> float | np.ndarray:
@@ -94,32 +153,50 @@ class OscillatorBody:
         return float(out) if t.ndim == 0 else out
 
     def profile_breakpoints(self) -> list[tuple[float, float]]:
-        """(t_s, f_hz) at the start of every segment, for reports and tests."""
+        """(t_s, f_hz) at the start of every kept segment, for reports and tests (a repeating sweep is one
+        segment: its restarts are not listed)."""
         return [(s[0], s[3]) for s in self._segs]
 
+    @property
+    def segment_count(self) -> int:
+        """Frequency segments plus amplitude steps kept (bounded by 2 × ``max_segments``)."""
+        return len(self._segs) + len(self._amps)
+
     # -- commands
+    def _at(self, t: float) -> tuple[float, float]:
+        """(f, φ) at a command time t ≥ the previous command (O(log n), no array rebuild)."""
+        segs = self._segs
+        i = len(segs) - 1
+        while i > 0 and segs[i][0] > t:  # commands land at or near the end: a short walk back
+            i -= 1
+        return _eval_one(segs[i], t)
+
     def _begin(self, t_s: float) -> tuple[float, float, float]:
         t = _finite(t_s, "t_s")
         if t < self._last_command_s:
             raise SimCommandError(f"{self.name}: t_s={t!r} is before the previous command at "
                                   f"{self._last_command_s!r}; commands must not go back in time")
-        f, phi = self._eval(self._segs, np.array(t))
-        return t, float(f), float(phi)
+        f, phi = self._at(t)
+        return t, f, phi
 
     def _replace_future(self, t: float, new: list[_Seg]) -> None:
-        kept = tuple(s for s in self._segs if s[0] < t) or self._segs[:1]
-        self._segs = kept + tuple(new)
+        old = self._segs
+        i = len(old)
+        while i > 0 and old[i - 1][0] >= t:  # only the planned future (a few segments) is replaced
+            i -= 1
+        segs = (old[:i] or old[:1]) + tuple(new)
+        if len(segs) > self.max_segments:
+            segs = segs[len(segs) - self.max_segments:]
+            self._history_start_s = max(self._history_start_s, segs[0][0])
+        self._segs = segs
         self._last_command_s = t
-
-    def _phase_after(self, seg: _Seg, t: float) -> float:
-        return float(self._eval((seg,), np.array(t))[1])
 
     def set_frequency(self, t_s: float, hz: float) -> None:
         """Step the frequency to ``hz`` (≥ 0) at ``t_s`` (phase stays continuous)."""
         f_new = _finite(hz, "hz", nonneg=True)
         with self._lock:
             t, _, phi = self._begin(t_s)
-            self._replace_future(t, [(t, phi, _CONST, f_new, 0.0)])
+            self._replace_future(t, [(t, phi, _CONST, f_new, 0.0, 0.0)])
 
     def ramp_to(self, t_s: float, target_hz: float, rate_hz_per_s: float) -> float:
         """Ramp linearly from f(t_s) to ``target_hz`` at ``rate_hz_per_s`` (> 0), then hold.
@@ -130,19 +207,19 @@ class OscillatorBody:
         with self._lock:
             t, f, phi = self._begin(t_s)
             if target == f:
-                self._replace_future(t, [(t, phi, _CONST, f, 0.0)])
+                self._replace_future(t, [(t, phi, _CONST, f, 0.0, 0.0)])
                 return t
             slope = rate if target > f else -rate
-            duration = (target - f) / slope
-            ramp = (t, phi, _LINEAR, f, slope)
-            t_end = t + duration
-            self._replace_future(t, [ramp, (t_end, self._phase_after(ramp, t_end), _CONST, target, 0.0)])
+            ramp: _Seg = (t, phi, _LINEAR, f, slope, 0.0)
+            t_end = t + (target - f) / slope
+            self._replace_future(t, [ramp, (t_end, _eval_one(ramp, t_end)[1], _CONST, target, 0.0, 0.0)])
             return t_end
 
     def sweep(self, t_s: float, start_hz: float, stop_hz: float, duration_s: float,
-              spacing: Literal["linear", "log"] = "linear") -> float:
-        """Generator sweep: jump to ``start_hz`` at ``t_s``, sweep to ``stop_hz`` over ``duration_s``, then
-        hold ``stop_hz`` (one sweep; a repeating generator is a new ``sweep`` call). Returns the end time."""
+              spacing: Literal["linear", "log"] = "linear", *, repeat: bool = False) -> float:
+        """Generator sweep: jump to ``start_hz`` at ``t_s`` and sweep to ``stop_hz`` over ``duration_s``;
+        then hold ``stop_hz``, or with ``repeat`` start over from ``start_hz`` at every end (a free-running
+        generator sweep; one segment however many restarts). Returns the end time of the first sweep."""
         f0 = _finite(start_hz, "start_hz", nonneg=True)
         f1 = _finite(stop_hz, "stop_hz", nonneg=True)
         dur = _finite(duration_s, "duration_s", positive=True)
@@ -152,12 +229,17 @@ class OscillatorBody:
             raise SimCommandError(f"a log sweep needs start_hz > 0 and stop_hz > 0, got {f0!r}, {f1!r}")
         with self._lock:
             t, _, phi = self._begin(t_s)
-            seg = ((t, phi, _LINEAR, f0, (f1 - f0) / dur) if spacing == "linear"
-                   else (t, phi, _LOG, f0, math.log(f1 / f0) / dur))
             if f0 == f1:
-                seg = (t, phi, _CONST, f0, 0.0)
+                seg: _Seg = (t, phi, _CONST, f0, 0.0, 0.0)
+            elif spacing == "linear":
+                seg = (t, phi, _LINEAR, f0, (f1 - f0) / dur, dur if repeat else 0.0)
+            else:
+                seg = (t, phi, _LOG, f0, math.log(f1 / f0) / dur, dur if repeat else 0.0)
             t_end = t + dur
-            self._replace_future(t, [seg, (t_end, self._phase_after(seg, t_end), _CONST, f1, 0.0)])
+            if repeat or f0 == f1:
+                self._replace_future(t, [seg])
+            else:
+                self._replace_future(t, [seg, (t_end, _eval_one(seg, t_end)[1], _CONST, f1, 0.0, 0.0)])
             return t_end
 
     def set_amplitude(self, t_s: float, amplitude_mm: float) -> None:
@@ -165,7 +247,11 @@ class OscillatorBody:
         amp = _finite(amplitude_mm, "amplitude_mm", nonneg=True)
         with self._lock:
             t, _, _ = self._begin(t_s)
-            self._amps = (*(a for a in self._amps if a[0] < t), (t, amp))
+            amps = (*(a for a in self._amps if a[0] < t), (t, amp))
+            if len(amps) > self.max_segments:
+                amps = amps[len(amps) - self.max_segments:]
+                self._history_start_s = max(self._history_start_s, amps[0][0])
+            self._amps = amps
             self._last_command_s = t
 
     def halt(self, t_s: float, rate_hz_per_s: float | None = None) -> float:
