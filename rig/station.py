@@ -254,7 +254,7 @@ def _build_vfd(st: Station, cfg: RigConfig, name: str) -> None:
 def _build_generator(st: Station, cfg: RigConfig) -> None:
     from drivers.exciter.generator import ScpiGenerator
     from drivers.exciter.shaker import SensitivityTable, Shaker
-    from drivers.transport import open_transport
+    from drivers.transport import Transport, open_transport
 
     gc, lim = cfg.devices.generator, cfg.limits.generator
     assert gc is not None and lim is not None
@@ -269,9 +269,11 @@ def _build_generator(st: Station, cfg: RigConfig) -> None:
         server = GeneratorServer(instrument, mode=addr["link"]).start()
         st._closers.append(("generator mock server", server.stop))
         url = server.url if addr["link"] == "tcp" else f"serial://{server.client_port}?baud=115200"
-    transport = open_transport(url, timeout_s=gc.timeout_s)
-    st._closers.append(("generator transport", transport.close))
-    generator = ScpiGenerator(transport, channel=gc.channel, timeout_s=gc.timeout_s)
+    def reopen() -> Transport:
+        return open_transport(url, timeout_s=gc.timeout_s)
+
+    generator = ScpiGenerator(reopen(), channel=gc.channel, timeout_s=gc.timeout_s, reopen=reopen)
+    st._closers.append(("generator transport", generator.close))
     generator.identify()
     shaker = Shaker(generator, clock=st.clock, limits=lim.motion_limits(),
                     sensitivity=SensitivityTable(gc.sensitivity_mm_per_v),
@@ -280,8 +282,8 @@ def _build_generator(st: Station, cfg: RigConfig) -> None:
                     heartbeat_timeout_s=cfg.station.heartbeat_timeout_s)
     st._closers.append(("generator output off", shaker.close))
     st.devices["generator"], st.addresses["generator"] = shaker, url
-    st._liveness.append(("generator", lambda: "SCPI link closed" if getattr(transport, "closed", False)
-                         else None))
+    st._liveness.append(("generator", lambda: "SCPI link closed"
+                         if getattr(generator.transport, "closed", False) else None))
 
 
 def _build_cameras(st: Station, cfg: RigConfig) -> None:

@@ -122,7 +122,7 @@ def test_generator_that_stops_answering_is_lost_after_the_limit() -> None:
         with BeatWatcher(shaker) as watcher:
             err = watcher.wait_for_error(6 * LIMIT)
         assert isinstance(err, DeviceLostError) and err.device == "generator" and err.age_s > LIMIT
-        assert "GeneratorError: *OPC? (heartbeat): no reply" in str(err)
+        assert "LinkError: *OPC? (heartbeat): no reply" in str(err)
 
 
 def test_probe_is_never_sent_while_the_link_is_held() -> None:

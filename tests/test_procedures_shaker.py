@@ -303,10 +303,10 @@ def test_retune_keeps_the_displacement_and_the_phase_and_checks_limits_first() -
             state = shaker.read_state()
             assert state.output_on and not state.sweep_on and state.frequency_hz == 6.0
             assert state.displacement_mm == pytest.approx(1.0, rel=1e-9)
-            seen = len(server.instrument.commands_seen)
+            seen = server.instrument.lines_received
             with pytest.raises(LimitError, match="acceleration"):
                 shaker.retune(80.0, 1.0)  # (2π·80)²·1 mm = 253 m/s² > 200 m/s²
-            assert len(server.instrument.commands_seen) == seen  # nothing was sent
+            assert server.instrument.lines_received == seen  # nothing was sent
             shaker.stop()
             assert not shaker.read_state().output_on
         finally:

@@ -24,9 +24,8 @@ from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass
 from typing import Any
 
-from drivers.exciter.generator import GeneratorError, ScpiGenerator
+from drivers.exciter.generator import GeneratorError, SafeOffOutcome, ScpiGenerator
 from drivers.exciter.limits import LimitError, MotionLimits
-from drivers.exciter.scpi import parse_bool
 from drivers.heartbeat import Heartbeat
 
 __all__ = ["GeneratorSample", "SensitivityTable", "Shaker", "ShakerSweep"]
@@ -134,8 +133,8 @@ class Shaker:
                  sensitivity: SensitivityTable, max_amplitude_vpp: float = 10.0,
                  min_amplitude_vpp: float = 0.01,
                  amplitude_step_vpp: float = 0.5, step_interval_s: float = 0.1,
-                 heartbeat_timeout_s: float = 2.0) -> None:
-        for name, value in (("max_amplitude_vpp", max_amplitude_vpp),
+                 heartbeat_timeout_s: float = 2.0, safe_deadline_s: float = 5.0) -> None:
+        for name, value in (("max_amplitude_vpp", max_amplitude_vpp), ("safe_deadline_s", safe_deadline_s),
                             ("min_amplitude_vpp", min_amplitude_vpp),
                             ("amplitude_step_vpp", amplitude_step_vpp), ("step_interval_s", step_interval_s)):
             if not (math.isfinite(value) and value > 0):
@@ -150,6 +149,8 @@ class Shaker:
         self.min_amplitude_vpp = min_amplitude_vpp
         self.amplitude_step_vpp = amplitude_step_vpp
         self.step_interval_s = step_interval_s
+        self.safe_deadline_s = safe_deadline_s
+        self.last_safe_outcome: SafeOffOutcome | None = None
         self._amplitude_vpp = 0.0
         self._output_on = False
         self.heartbeat_monitor = Heartbeat("generator", generator.contact, self._probe,
@@ -210,7 +211,8 @@ class Shaker:
             self.abort()
         except GeneratorError as abort_exc:
             return f"abort (minimum amplitude, output OFF) attempted but failed: {abort_exc}"
-        return "abort sent: minimum amplitude, output OFF"
+        assert self.last_safe_outcome is not None
+        return f"abort: minimum amplitude, {self.last_safe_outcome.describe()}"
 
     def prepare(self) -> None:
         """Output OFF, clear errors, sine into a high-Z amplifier at minimum amplitude (no motion)."""
@@ -275,14 +277,8 @@ class Shaker:
         g = self.generator
         t_before = self.clock.now_s()
         output_on, frequency_hz, vpp = g.output(), g.frequency_hz(), g.amplitude_vpp()
-        sweep_on = parse_bool(g.query(f"{g.source}:SWE:STAT?"))
-        sweep = None
-        if sweep_on:
-            sweep = {"start_hz": g._number(f"{g.source}:FREQ:STAR?"),
-                     "stop_hz": g._number(f"{g.source}:FREQ:STOP?"),
-                     "time_s": g._number(f"{g.source}:SWE:TIME?"),
-                     "spacing": {"LIN": "linear", "LOG": "log"}.get(
-                         g.query(f"{g.source}:SWE:SPAC?").strip().upper()[:3], "unknown")}
+        sweep_on = g.sweep_enabled()
+        sweep = asdict(g.sweep_settings()) if sweep_on else None
         t_after = self.clock.now_s()
         f_ref = sweep["start_hz"] if sweep is not None else frequency_hz  # what the volts were set for
         inside = self.sensitivity.f_min_hz <= f_ref <= self.sensitivity.f_max_hz
@@ -380,18 +376,16 @@ class Shaker:
         self.generator.probe(min(self.generator.timeout_s, self.heartbeat_monitor.timeout_s / 2.0))
 
     def abort(self) -> None:
-        """Abort path: minimum amplitude at once, output OFF (tries both even if the first fails)."""
-        g = self.generator
-        first: GeneratorError | None = None
-        for action in (lambda: g.set_amplitude_vpp(self.min_amplitude_vpp), lambda: g.set_output(False)):
-            try:
-                action()
-            except GeneratorError as exc:
-                first = first or exc
+        """Abort path: minimum amplitude at once, output OFF, read back OFF; repeated on a fresh link until
+        ``safe_deadline_s`` (see :meth:`ScpiGenerator.output_off`). The outcome is kept in
+        :attr:`last_safe_outcome`; :class:`GeneratorError` describing it if OFF was not confirmed."""
+        outcome = self.generator.output_off(min_amplitude_vpp=self.min_amplitude_vpp,
+                                            deadline_s=self.safe_deadline_s)
+        self.last_safe_outcome = outcome
         self._output_on = False
         self._amplitude_vpp = self.min_amplitude_vpp
-        if first is not None:
-            raise first
+        if not outcome.output_off:
+            raise GeneratorError(f"make safe: {outcome.describe()}")
 
     def close(self) -> None:
         """Abort without raising (cleanup path)."""
