@@ -135,7 +135,9 @@ class GeneratorInstrument:
         if unit == "VRMS":
             value *= pp_per_rms
         elif unit == "DBM":
-            value = math.sqrt(1e-3 * self.load_ohm * 10.0 ** (value / 10.0)) * pp_per_rms
+            # Vrms = √(R · 1 mW) · 10^(dBm/20); the exponent is capped so that absurd levels give inf, not
+            # an overflow (they are then out of range)
+            value = math.sqrt(1e-3 * self.load_ohm) * 10.0 ** min(value / 20.0, 308.0) * pp_per_rms
         return value / self._display_ratio()
 
     def _from_emf_vpp(self, emf_vpp: float, unit: str) -> float:
