@@ -6,9 +6,13 @@ loopback sockets or a pty; waits are bounded by events or generous timeouts, nev
 from __future__ import annotations
 
 import contextlib
+import os
 import socket
+import subprocess
+import sys
 import time
 from collections.abc import Iterator
+from pathlib import Path
 
 import pytest
 from test_generator_mock import Line
@@ -232,3 +236,25 @@ def test_output_off_reports_failure_at_its_deadline() -> None:
         assert not outcome.output_off and outcome.attempts >= 2 and outcome.reconnects >= 1
         assert "NOT confirmed" in outcome.describe() and "no reply" in outcome.describe()
         assert server.instrument.output is False  # OFF was executed; only the read-back was lost
+
+
+def test_rig_mock_generator_passes_faults_to_the_mock() -> None:
+    root = Path(__file__).resolve().parents[1]
+    proc = subprocess.Popen([sys.executable, "-m", "rig.cli", "mock", "generator", "--port", "0",
+                             "--fault", "twice", "--fault", "error:-222"], cwd=root, stdout=subprocess.PIPE,
+                            stderr=subprocess.DEVNULL, text=True,
+                            env={**os.environ, "PYTHONUNBUFFERED": "1", "PYTHONPATH": str(root)})
+    try:
+        assert proc.stdout is not None
+        banner = [proc.stdout.readline() for _ in range(3)]
+        port = int(banner[0].split("tcp://127.0.0.1:")[1].split()[0])
+        assert banner[1:] == ["fault injected: twice\n", "fault injected: error:-222\n"]
+        with socket.create_connection(("127.0.0.1", port), timeout=10.0) as sock:
+            stream = sock.makefile("rb")
+            sock.sendall(b"*OPC?\n")
+            assert [stream.readline(), stream.readline()] == [b"1\n", b"1\n"]
+            sock.sendall(b"SYST:ERR?\n")
+            assert stream.readline() == b'-222,"Data out of range"\n'
+    finally:
+        proc.terminate()
+        proc.wait(10.0)
