@@ -185,3 +185,17 @@ def test_safe_state_and_heartbeat() -> None:
         shaker.safe_state()
         assert server.instrument.output is False
         assert world.shaker.amplitude_at_mm(world.clock.now_s()) == 0.0
+
+
+def test_make_safe_goes_through_a_late_reply_and_a_dropped_connection() -> None:
+    with shaker_rig("tcp", timeout_s=0.3) as (shaker, world, server):
+        shaker.start(10.0, 1.0)
+        server.inject("late", 0.6, count=1)  # the ramp-down's first error check answers late
+        shaker.safe_state()
+        assert server.instrument.output is False and shaker.generator.resyncs >= 1
+        shaker.start(10.0, 1.0)
+        server.inject("disconnect")  # the connection drops; the instrument stays reachable
+        server.clear_faults()
+        shaker.safe_state()  # the link is replaced, then the ramp-down goes on
+        assert server.instrument.output is False
+        assert world.shaker.amplitude_at_mm(world.clock.now_s()) == 0.0

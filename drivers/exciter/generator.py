@@ -1,9 +1,15 @@
 """SCPI function generator (Keysight 33500-style command set, channel 1..2) over a byte transport.
 
 The driver receives a :class:`drivers.transport.Transport` (serial line, ``socket://``, TCP) and never
-opens a port. Every command is followed by ``SYST:ERR?``, read until ``+0,"No error"``; any error found
-raises :class:`ScpiError` carrying every queued error and the command that provoked it. Queries are
-checked the same way after their reply is read.
+opens a port itself (a ``reopen`` callable may give it a fresh one). Every command is followed by
+``SYST:ERR?``, read until ``+0,"No error"``; any error found raises :class:`ScpiError` carrying every
+queued error and the command that provoked it. Queries are checked the same way after their reply is read.
+
+A text line has no transaction id, so a late reply would be taken for the next one. A timeout, a reply
+that does not parse as what was asked, or bytes waiting before a request mark the link out of step: the
+driver drains it, resynchronises on a marker query and repeats the exchange (:meth:`ScpiGenerator.
+resynchronise`); a closed link is replaced. :meth:`ScpiGenerator.output_off` (make safe) goes on, on
+fresh links, until its deadline and reports what it achieved.
 
 Only the generator is here; what the volts do to a shaker (displacement sensitivity, limits, safe
 ramping) is :mod:`drivers.exciter.shaker`.

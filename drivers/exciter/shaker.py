@@ -356,11 +356,14 @@ class Shaker:
         self._guarded(run)
 
     def safe_state(self) -> None:
-        """The runner's "make safe": ramp down and output OFF; the abort path if that fails."""
+        """The runner's "make safe": ramp down and output OFF; a failure runs the abort path (once).
+        Raises :class:`GeneratorError` only when the output could not be confirmed OFF."""
+        self.last_safe_outcome = None
         try:
             self.stop()
         except GeneratorError:
-            self.abort()
+            if self.last_safe_outcome is None or not self.last_safe_outcome.output_off:
+                raise
 
     def heartbeat(self, *, wait: bool = False) -> bool:
         """Watchdog probe (thread-safe, no I/O in the caller's thread, returns at once; ``wait=True``
