@@ -75,6 +75,8 @@ class OscillatorBody:
         self._last_command_s = -math.inf
         self._lock = threading.Lock()
         self._table_cache: tuple[tuple[_Seg, ...] | None, np.ndarray] = (None, np.zeros((0, 6)))
+        self._amp_cache: tuple[tuple[tuple[float, float], ...] | None, np.ndarray, np.ndarray] = (
+            None, np.zeros(0), np.zeros(0))
 
     # -- evaluation
     def _table(self, segs: tuple[_Seg, ...]) -> np.ndarray:
@@ -135,8 +137,11 @@ class OscillatorBody:
         t = np.asarray(t_s, dtype=float)
         self._check_history(t)
         amps = self._amps
-        starts = np.array([a[0] for a in amps])
-        vals = np.array([a[1] for a in amps])
+        cached = self._amp_cache  # (steps, their start times, their values): rebuilt when they change
+        if cached[0] is not amps:
+            cached = (amps, np.array([a[0] for a in amps]), np.array([a[1] for a in amps]))
+            self._amp_cache = cached
+        _, starts, vals = cached
         out = vals[np.maximum(np.searchsorted(starts, t, side="right") - 1, 0)]
         return float(out) if t.ndim == 0 else out
 
