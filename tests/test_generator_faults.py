@@ -195,10 +195,16 @@ def test_driver_recovers_from_dropped_bytes() -> None:
 
 def test_stale_bytes_before_a_request_trigger_a_resynchronisation() -> None:
     with served() as server, driver(server) as g:
-        g.transport.write(b"*IDN?\n")  # a reply nobody waits for
-        time.sleep(0.2)
-        g.set_frequency_hz(15.0)
+        g.transport.write(b"*IDN?\n")  # a reply nobody waits for: stale before the next request, or
+        g.set_frequency_hz(15.0)  # read by its SYST:ERR? (out of step): resynchronised either way
         assert g.resyncs == 1 and g.frequency_hz() == 15.0
+        assert server.instrument.status.ese == 0  # the marker leaves the enable mask as it was
+        g.transport.write(b"*IDN?\n")
+        # the heartbeat probe finds the stale reply (and resynchronises) or reads it as its own answer
+        # (and says so); either way the next exchange is in step
+        with contextlib.suppress(LinkError):
+            g.probe()
+        assert g.frequency_hz() == 15.0 and g.output() is False
 
 
 def test_instrument_errors_are_not_retried() -> None:
