@@ -126,14 +126,15 @@ class Shaker:
     max_amplitude_vpp: the amplifier's input limit (V peak-to-peak). min_amplitude_vpp: the level used
     while switching the output. amplitude_step_vpp / step_interval_s: amplitude ramp (strict steps).
     heartbeat_timeout_s: wall seconds without a reply line from the generator after which
-    :meth:`heartbeat` reports it lost.
+    :meth:`heartbeat` reports it lost. safe_deadline_s: wall seconds the abort path keeps trying (on fresh
+    links) to confirm the output OFF.
     """
 
     def __init__(self, generator: ScpiGenerator, *, clock: Any, limits: MotionLimits,
                  sensitivity: SensitivityTable, max_amplitude_vpp: float = 10.0,
                  min_amplitude_vpp: float = 0.01,
                  amplitude_step_vpp: float = 0.5, step_interval_s: float = 0.1,
-                 heartbeat_timeout_s: float = 2.0, safe_deadline_s: float = 5.0) -> None:
+                 heartbeat_timeout_s: float = 2.0, safe_deadline_s: float = 3.0) -> None:
         for name, value in (("max_amplitude_vpp", max_amplitude_vpp), ("safe_deadline_s", safe_deadline_s),
                             ("min_amplitude_vpp", min_amplitude_vpp),
                             ("amplitude_step_vpp", amplitude_step_vpp), ("step_interval_s", step_interval_s)):
@@ -378,12 +379,13 @@ class Shaker:
     def _probe(self) -> None:
         self.generator.probe(min(self.generator.timeout_s, self.heartbeat_monitor.timeout_s / 2.0))
 
-    def abort(self) -> None:
+    def abort(self, deadline_s: float | None = None) -> None:
         """Abort path: minimum amplitude at once, output OFF, read back OFF; repeated on a fresh link until
-        ``safe_deadline_s`` (see :meth:`ScpiGenerator.output_off`). The outcome is kept in
-        :attr:`last_safe_outcome`; :class:`GeneratorError` describing it if OFF was not confirmed."""
-        outcome = self.generator.output_off(min_amplitude_vpp=self.min_amplitude_vpp,
-                                            deadline_s=self.safe_deadline_s)
+        ``deadline_s`` (default ``safe_deadline_s``; see :meth:`ScpiGenerator.output_off`). The outcome is
+        kept in :attr:`last_safe_outcome`; :class:`GeneratorError` describing it if OFF was not confirmed."""
+        outcome = self.generator.output_off(
+            min_amplitude_vpp=self.min_amplitude_vpp,
+            deadline_s=self.safe_deadline_s if deadline_s is None else deadline_s)
         self.last_safe_outcome = outcome
         self._output_on = False
         self._amplitude_vpp = self.min_amplitude_vpp
@@ -391,6 +393,8 @@ class Shaker:
             raise GeneratorError(f"make safe: {outcome.describe()}")
 
     def close(self) -> None:
-        """Abort without raising (cleanup path)."""
+        """Abort without raising (cleanup path). When a make-safe already ran out of its deadline, one
+        more round is tried, not another deadline's worth."""
+        failed_before = self.last_safe_outcome is not None and not self.last_safe_outcome.output_off
         with contextlib.suppress(GeneratorError):
-            self.abort()
+            self.abort(deadline_s=0.0 if failed_before else None)
