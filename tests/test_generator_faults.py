@@ -55,7 +55,7 @@ def test_fault_specs_parse_with_defaults_and_refuse_nonsense() -> None:
     assert parse_fault("late:1.5") == Fault("late", 1.5)
     assert parse_fault("no-reply") == Fault("no_reply", None)
     assert parse_fault("disconnect") == Fault("disconnect", 0.0)
-    assert parse_fault("error:-222") == Fault("error", -222.0)
+    assert parse_fault("error:-222") == Fault("error", -222.0, count=1)
     for bad, message in [("slow:1", "KIND must be one of"), ("late:x", "PARAM must be a number"),
                          ("twice:2", "takes no parameter"), ("busy:-1", "must be >= 0")]:
         with pytest.raises(ValueError, match=message):
@@ -261,6 +261,9 @@ def test_rig_mock_generator_passes_faults_to_the_mock() -> None:
             assert [stream.readline(), stream.readline()] == [b"1\n", b"1\n"]
             sock.sendall(b"SYST:ERR?\n")
             assert stream.readline() == b'-222,"Data out of range"\n'
+            stream.readline()  # its copy
+            sock.sendall(b"SYST:ERR?\n")
+            assert stream.readline() == b'+0,"No error"\n'  # pushed once, not after every message
     finally:
         proc.terminate()
         proc.wait(10.0)

@@ -75,7 +75,7 @@ FAULT_KINDS: dict[str, float | None] = {"late": 2.0, "no_reply": None, "busy": 1
 @dataclass
 class Fault:
     """One injected fault: ``kind`` (a key of :data:`FAULT_KINDS`), its parameter, and how many more
-    replies/messages it affects (``None``: until cleared)."""
+    replies/messages it affects (``None``: until cleared; ``error`` defaults to once)."""
 
     kind: str
     param: float | None = None
@@ -90,6 +90,8 @@ class Fault:
             raise ValueError(f"fault {self.kind}:{self.param!r}: the parameter must be >= 0")
         if self.count is not None and self.count < 1:
             raise ValueError(f"fault count={self.count!r}: must be >= 1 or None")
+        if self.kind == "error" and self.count is None:
+            self.count = 1  # an error is pushed once (inject again for another)
 
 
 def parse_fault(text: str) -> Fault:
