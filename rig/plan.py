@@ -193,7 +193,8 @@ def robot_envelope(config: Any) -> BoxEnvelope:
     if lim is None:
         raise ParameterError("limits.robot", "the plan moves the arm, but the configuration has no "
                                              "[limits.robot]")
-    return BoxEnvelope(lim.envelope_x_mm, lim.envelope_y_mm, lim.envelope_z_mm)
+    envelope: BoxEnvelope = lim.envelope()
+    return envelope
 
 
 def _motion_limits(config: Any, device: str) -> MotionLimits:

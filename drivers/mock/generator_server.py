@@ -60,6 +60,7 @@ class GeneratorServer:
         self.port = port
         self.link: PtyLink | None = None
         self.fault: str | None = None
+        self.requests_received = 0  # command lines received
         self._stop = threading.Event()
         self._threads: list[threading.Thread] = []
         self._listener: socket.socket | None = None
@@ -153,6 +154,7 @@ class GeneratorServer:
         return lines
 
     def _respond(self, line: str) -> bytes:
+        self.requests_received += 1
         reply = self.instrument.handle_line(line)
         if reply is None or self.fault is not None:
             return b""
@@ -220,6 +222,7 @@ def main(argv: list[str] | None = None, prog: str | None = None) -> int:
         print(f"mock SCPI generator serving at {server.url} (socket://127.0.0.1:{server.port} for pyserial)"
               if server.mode == "tcp" else f"mock SCPI generator serving on {server.url}", flush=True)
         wait_for_interrupt()
+        print(f"mock SCPI generator stopped; requests received: {server.requests_received}", flush=True)
     return 0
 
 
