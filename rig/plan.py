@@ -28,6 +28,7 @@ from drivers.denso.arm import LimitError as ArmLimitError
 from drivers.denso.pose import check_pose
 from drivers.exciter.limits import LimitCheck, LimitError, MotionLimits
 from drivers.exciter.shaker import SensitivityTable, ShakerLimits
+from drivers.exciter.vfd import check_output_hz
 from rig.procedure import ParameterError
 
 __all__ = ["ArmMoves", "GeneratorSweep", "Plan", "PlanCheck", "PlanRefused", "PlanStep", "Vibration",
@@ -301,6 +302,8 @@ def _vibration_checks(step: str, vib: Vibration, config: Any) -> list[PlanCheck]
         c = limits.evaluate_ramp_rate(vib.max_slope_hz_per_s)
         rows.append(PlanCheck(step, vib.device, c.quantity, c.value, c.limit, c.unit, _field(vib.device, c),
                               vib.slope_from, c.passed))
+    if vib.device != "generator":
+        rows.append(_drive_output_check(step, vib, config))
     if vib.generator_sweep is not None and all(r.passed for r in rows):
         g = vib.generator_sweep  # the exact maxima between the planned points (the table's pieces)
         try:
@@ -310,6 +313,21 @@ def _vibration_checks(step: str, vib: Vibration, config: Any) -> list[PlanCheck]
                                   _field(vib.device, exc), _origin(vib, exc.quantity), False,
                                   where=f"within the {g.spacing} sweep {g.start_hz:g}..{g.stop_hz:g} Hz"))
     return rows
+
+
+def _drive_output_check(step: str, vib: Vibration, config: Any) -> PlanCheck:
+    """The VFD's output at the highest planned frequency (× gear ratio) against its ``max_output_hz``."""
+    dev = getattr(config.devices, vib.device)
+    output_hz = vib.frequency_range_hz[1] * dev.gear_ratio
+    try:
+        check_output_hz(output_hz, dev.max_output_hz)
+        passed = True
+    except ValueError:
+        passed = False
+    return PlanCheck(step, vib.device, "drive output", output_hz, dev.max_output_hz, "Hz",
+                     f"devices.{vib.device}.max_output_hz",
+                     f"{vib.frequency_from} with devices.{vib.device}.gear_ratio = {dev.gear_ratio:g}",
+                     passed)
 
 
 def check_plan(plan: Plan, config: Any) -> list[PlanCheck]:

@@ -2,7 +2,8 @@
 naming exactly the limits it breaks, their rig.toml fields and the parameters behind each value.
 
 The expectations are computed here, independently of the drivers' rules the checker uses: the limits of
-the built-in rig (``[limits.exciter]``: 32 Hz, 10 mm, 250 m/s², 2 Hz/s; ``[limits.robot]``: x 150..650,
+the built-in rig (``[limits.exciter]``: 32 Hz, 10 mm, 250 m/s², 2 Hz/s; the drive's 50 Hz output, gear ratio
+1; ``[limits.robot]``: x 150..650,
 y −350..350, z 50..650 mm, 500 mm/s).
 """
 
@@ -19,7 +20,7 @@ from rig.plan import ArmMoves, Plan, PlanRefused, PlanStep, Vibration, check_pla
 
 CONFIG = default_config()
 EXCITER = {"max_frequency_hz": 32.0, "max_displacement_mm": 10.0, "max_acceleration_m_s2": 250.0,
-           "max_ramp_rate_hz_per_s": 2.0}
+           "max_ramp_rate_hz_per_s": 2.0, "max_output_hz": 50.0}  # the last: devices.exciter (its drive)
 ENVELOPE = {"x": (150.0, 650.0), "y": (-350.0, 350.0), "z": (50.0, 650.0)}
 
 
@@ -28,8 +29,10 @@ def _away_from(value: float, limit: float) -> bool:
 
 
 def test_the_limits_assumed_here_are_the_built_in_rigs() -> None:
-    lim = CONFIG.limits.exciter
-    assert {k: getattr(lim, k) for k in EXCITER} == EXCITER
+    lim, drive = CONFIG.limits.exciter, CONFIG.devices.exciter
+    assert {k: getattr(lim, k) for k in EXCITER if k != "max_output_hz"} == {
+        k: v for k, v in EXCITER.items() if k != "max_output_hz"}
+    assert (drive.max_output_hz, drive.gear_ratio) == (50.0, 1.0)
     r = CONFIG.limits.robot
     assert (r.envelope_x_mm, r.envelope_y_mm, r.envelope_z_mm) == tuple(ENVELOPE.values())
     assert r.max_speed_mm_s == 500.0
@@ -45,7 +48,7 @@ def test_a_frequency_profile_is_refused_exactly_for_the_limits_it_breaks(f0: flo
     slope = rise_hz / duration_s
     acceleration = (2 * math.pi * f1) ** 2 * amplitude_mm / 1000.0
     values = {"max_frequency_hz": f1, "max_displacement_mm": amplitude_mm,
-              "max_acceleration_m_s2": acceleration}
+              "max_acceleration_m_s2": acceleration, "max_output_hz": f1}  # gear ratio 1
     if slope > 0:
         values["max_ramp_rate_hz_per_s"] = slope
     assume(all(_away_from(v, EXCITER[k]) for k, v in values.items()))
@@ -55,12 +58,16 @@ def test_a_frequency_profile_is_refused_exactly_for_the_limits_it_breaks(f0: flo
                           slope_from="p.duration_s")
     plan = Plan("p", (PlanStep("sweep", duration_s, vibration=vibration),))
     checks = check_plan(plan, CONFIG)
-    assert {c.field for c in checks if not c.passed} == {f"limits.exciter.{k}" for k in broken}
+    def field(name: str) -> str:
+        return f"devices.exciter.{name}" if name == "max_output_hz" else f"limits.exciter.{name}"
+
+    assert {c.field for c in checks if not c.passed} == {field(k) for k in broken}
     origins = {"max_frequency_hz": "p.max_hz", "max_displacement_mm": "p.amplitude_mm",
                "max_acceleration_m_s2": "p.max_hz with p.amplitude_mm",
-               "max_ramp_rate_hz_per_s": "p.duration_s"}
+               "max_ramp_rate_hz_per_s": "p.duration_s",
+               "max_output_hz": "p.max_hz with devices.exciter.gear_ratio = 1"}
     for c in checks:
-        name = c.field.removeprefix("limits.exciter.")
+        name = c.field.rsplit(".", 1)[1]
         assert c.origin == origins[name]
         assert c.value == pytest.approx(values[name], rel=1e-12)  # the most demanding value of the profile
         assert c.limit == EXCITER[name] and (c.margin < 0) == (not c.passed)

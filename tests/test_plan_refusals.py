@@ -111,7 +111,7 @@ def test_dry_run_prints_the_whole_certification_plan_and_passes(capsys: pytest.C
     assert "exciter 2 → 12 Hz at 4 mm" in out and "arm 8 poses" in out  # the fast preset: 2³ grid, 2–12 Hz
     assert re.search(r"^  PASS  sweep\s+exciter\s+acceleration\s+22.74 m/s²\s+≤ 250 m/s²\s+margin \+227.3",
                      out, re.M), out
-    assert "FAIL" not in out and "all 24 checks pass; nothing was connected" in out
+    assert "FAIL" not in out and "all 26 checks pass; nothing was connected" in out
 
 
 def test_dry_run_of_a_plan_beyond_the_limits_fails_with_exit_4(capsys: pytest.CaptureFixture[str]) -> None:
