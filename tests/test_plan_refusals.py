@@ -225,3 +225,22 @@ def test_the_mock_servers_count_the_requests_they_receive() -> None:
             sock.sendall(b"*IDN?\n")
             assert sock.makefile().readline()
         assert server.requests_received == 1
+
+
+def test_calibrate_carries_out_the_plan_that_was_checked(tmp_path: Path) -> None:
+    """What the runner checked is what runs: the commanded arm poses are the plan's, in order."""
+    from procedures import calibrate
+    from rig.config import load_config
+    from rig.procedure import validate_parameters
+    from rig.record import load_run
+
+    config = write_config(tmp_path)
+    settings = {"frames_per_position": 2, "settle_s": 0.0}
+    code = main(["run", "calibrate", "--config", str(config), *(a for k, v in settings.items()
+                                                                for a in ("--set", f"{k}={v}"))])
+    (run_dir,) = (tmp_path / "runs").iterdir()
+    run = load_run(run_dir)
+    assert code in (0, 1), run.stop  # a verdict either way: the procedure ran to its end
+    planned = calibrate.plan(validate_parameters(calibrate, settings), load_config(config))
+    commanded = [tuple(p) for p in run.events["arm"]["commanded_pose"]]
+    assert commanded == list(planned.moves("calibrate").poses) and len(commanded) == 6
