@@ -219,7 +219,7 @@ def _worst(rows: Iterable[PlanCheck]) -> PlanCheck:
 
 
 def _pose_text(pose: tuple[float, ...]) -> str:
-    return "[" + ", ".join(f"{round(v, 9):.6g}" for v in pose) + "]"
+    return "[" + ", ".join(f"{round(v, 9) + 0.0:.6g}" for v in pose) + "]"  # + 0.0: no "-0"
 
 
 def _arm_checks(step: str, arm: ArmMoves, config: Any) -> list[PlanCheck]:
@@ -238,7 +238,8 @@ def _arm_checks(step: str, arm: ArmMoves, config: Any) -> list[PlanCheck]:
                 passed = True
             except ArmLimitError:
                 passed = False
-            per_pose.append(PlanCheck(step, "arm", f"pose {axis[0]}", round(float(pose[k]), 9), hi, "mm",
+            value = round(float(pose[k]), 9) + 0.0
+            per_pose.append(PlanCheck(step, "arm", f"pose {axis[0]}", value, hi, "mm",
                                       f"limits.robot.envelope_{axis}", arm.poses_from, passed,
                                       where=f"pose {i + 1} of {n} {_pose_text(pose)}", lower=lo))
         if per_pose:
@@ -280,14 +281,15 @@ def _origin(vib: Vibration, quantity: str) -> str:
 
 def _vibration_checks(step: str, vib: Vibration, config: Any) -> list[PlanCheck]:
     limits = _motion_limits(config, vib.device)
+    shaker = shaker_limits(config) if vib.amplitude_vpp else None
     by_quantity: dict[str, list[PlanCheck]] = {}
     for i, (t_s, f_hz) in enumerate(vib.profile):
         for c in limits.evaluate(f_hz, vib.amplitude_mm):
             by_quantity.setdefault(c.quantity, []).append(PlanCheck(
                 step, vib.device, c.quantity, c.value, c.limit, c.unit, _field(vib.device, c),
                 _origin(vib, c.quantity), c.passed, where=f"t = {t_s:.4g} s", formula=c.formula))
-        if vib.amplitude_vpp:
-            shaker, vpp = shaker_limits(config), vib.amplitude_vpp[i]
+        if shaker is not None:
+            vpp = vib.amplitude_vpp[i]
             try:
                 shaker.check_volts(vpp)
                 passed = True
