@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import math
 import types
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from typing import Any
 
@@ -218,6 +218,15 @@ def _worst(rows: Iterable[PlanCheck]) -> PlanCheck:
     return min(rows, key=lambda r: (r.passed, r.margin / abs(r.limit) if r.limit else r.margin))
 
 
+def _passes(check: Callable[..., Any], *args: Any) -> bool:
+    """Whether a driver's check accepts ``args`` (its LimitError, a ValueError, means no)."""
+    try:
+        check(*args)
+    except ValueError:
+        return False
+    return True
+
+
 def _pose_text(pose: tuple[float, ...]) -> str:
     return "[" + ", ".join(f"{round(v, 9) + 0.0:.6g}" for v in pose) + "]"  # + 0.0: no "-0"
 
@@ -233,11 +242,7 @@ def _arm_checks(step: str, arm: ArmMoves, config: Any) -> list[PlanCheck]:
         for i, pose in enumerate(arm.poses):
             probe = [*centre, 0.0, 0.0, 0.0]  # this axis alone, by the driver's own check
             probe[k] = float(check_pose(pose)[k])
-            try:
-                envelope.check(check_pose(probe))
-                passed = True
-            except ArmLimitError:
-                passed = False
+            passed = _passes(envelope.check, check_pose(probe))
             value = round(float(pose[k]), 9) + 0.0
             per_pose.append(PlanCheck(step, "arm", f"pose {axis[0]}", value, hi, "mm",
                                       f"limits.robot.envelope_{axis}", arm.poses_from, passed,
@@ -253,13 +258,8 @@ def _arm_checks(step: str, arm: ArmMoves, config: Any) -> list[PlanCheck]:
                                   where=f"pose {i + 1} of {n} {_pose_text(pose)}", lower=exc.allowed[0]))
     limit = config.limits.robot.max_speed_mm_s
     speed = limit if arm.speed_mm_s is None else arm.speed_mm_s
-    try:
-        check_speed(speed, limit)
-        passed = True
-    except ArmLimitError:
-        passed = False
     rows.append(PlanCheck(step, "arm", "speed", speed, limit, "mm/s", "limits.robot.max_speed_mm_s",
-                          arm.speed_from, passed))
+                          arm.speed_from, _passes(check_speed, speed, limit)))
     return rows
 
 
@@ -290,14 +290,10 @@ def _vibration_checks(step: str, vib: Vibration, config: Any) -> list[PlanCheck]
                 _origin(vib, c.quantity), c.passed, where=f"t = {t_s:.4g} s", formula=c.formula))
         if shaker is not None:
             vpp = vib.amplitude_vpp[i]
-            try:
-                shaker.check_volts(vpp)
-                passed = True
-            except LimitError:
-                passed = False
             by_quantity.setdefault("generator amplitude", []).append(PlanCheck(
                 step, vib.device, "generator amplitude", vpp, shaker.max_amplitude_vpp, "Vpp",
-                "devices.generator.max_amplitude_vpp", f"{vib.amplitude_from} at {f_hz:g} Hz", passed,
+                "devices.generator.max_amplitude_vpp", f"{vib.amplitude_from} at {f_hz:g} Hz",
+                _passes(shaker.check_volts, vpp),
                 where=f"t = {t_s:.4g} s"))
     rows = [_worst(v) for v in by_quantity.values()]
     if vib.max_slope_hz_per_s is not None and vib.max_slope_hz_per_s > 0:
@@ -321,11 +317,7 @@ def _drive_output_check(step: str, vib: Vibration, config: Any) -> PlanCheck:
     """The VFD's output at the highest planned frequency (× gear ratio) against its ``max_output_hz``."""
     dev = getattr(config.devices, vib.device)
     output_hz = vib.frequency_range_hz[1] * dev.gear_ratio
-    try:
-        check_output_hz(output_hz, dev.max_output_hz)
-        passed = True
-    except ValueError:
-        passed = False
+    passed = _passes(check_output_hz, output_hz, dev.max_output_hz)
     return PlanCheck(step, vib.device, "drive output", output_hz, dev.max_output_hz, "Hz",
                      f"devices.{vib.device}.max_output_hz",
                      f"{vib.frequency_from} with devices.{vib.device}.gear_ratio = {dev.gear_ratio:g}",
