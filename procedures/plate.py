@@ -9,9 +9,8 @@ the marker ids and each marker's amplitude) and the polled ``exciter`` events.
 With ``targets.plate.body = "shaker"`` the generator drives the electrodynamic shaker at ``frequency_hz``
 with peak displacement ``shaker_amplitude_mm`` (volts from the sensitivity table; the limits — frequency,
 displacement, (2πf)²·x, velocity, the amplifier's volts — checked before any device is connected,
-exit 4). The
-generator's reported CW frequency, volts and output state are polled as ``generator`` events; the event's
-``frequency_hz`` is their mean and ``amplitude_mm`` the displacement of the reported volts.
+exit 4). The generator's reported CW frequency, volts and output state are polled as ``generator`` events;
+the event's ``frequency_hz`` is their mean and ``amplitude_mm`` the displacement of the reported volts.
 
 Run alone (``rig run plate``) it first calibrates and synchronizes the cameras in the same run folder,
 then builds the report (trajectories, amplitude and frequency per marker).
