@@ -339,7 +339,15 @@ def plan_of(module: types.ModuleType, params: Any, config: Any) -> Plan | None:
     """The procedure's plan (its ``plan(params, config)``), or None for a module without one (a user's
     procedure file: then only the drivers' checks at each command guard it)."""
     make = getattr(module, "plan", None)
-    return make(params, config) if callable(make) else None
+    if not callable(make):
+        return None
+    try:
+        plan: Plan = make(params, config)
+    except ParameterError:
+        raise
+    except ValueError as exc:  # e.g. a profile the parameters make impossible: bad input, not a crash
+        raise ParameterError(module.NAME, f"its plan cannot be made from these parameters: {exc}") from exc
+    return plan
 
 
 def validate_procedure(module: types.ModuleType, params: Any, config: Any) -> list[PlanCheck]:
