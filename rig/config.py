@@ -208,12 +208,6 @@ class RobotLimits:
 
         return BoxEnvelope(self.envelope_x_mm, self.envelope_y_mm, self.envelope_z_mm)
 
-    def contains(self, xyz_mm: Any) -> bool:
-        """True when the point (x, y, z) mm is inside the envelope box (boundary included)."""
-        x, y, z = (float(v) for v in list(xyz_mm)[:3])
-        return all(lo <= v <= hi for v, (lo, hi) in
-                   zip((x, y, z), (self.envelope_x_mm, self.envelope_y_mm, self.envelope_z_mm), strict=True))
-
 
 @dataclass(frozen=True)
 class VibrationLimits:
