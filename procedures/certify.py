@@ -64,6 +64,14 @@ class Parameters:
         doc="also analyse with the paper's linear interpolation (default: full yes, fast no)"))
 
 
+# the steps' parameters that certify sets (as in --set sweep_max_hz=…), named so in its plan's checks
+PARAMETER_NAMES = {"sweep.start_hz": "certify.sweep_start_hz", "sweep.max_hz": "certify.sweep_max_hz",
+                   "sweep.duration_s": "certify.sweep_duration_s",
+                   "accuracy.grid_points": "certify.accuracy_grid_points",
+                   "accuracy.cycles": "certify.accuracy_cycles",
+                   "calibrate.slide_positions_mm": "certify.calibrate_slide_positions_mm"}
+
+
 def sub_parameters(params: Parameters) -> dict[str, Any]:
     """The four procedures' parameters: the preset, then the explicit overrides."""
     chosen = {k: dict(v) for k, v in PRESETS[params.preset].items()}
@@ -89,7 +97,7 @@ def plan(params: Parameters, config: Any) -> Plan:
     sub = sub_parameters(params)
     steps = (calibrate.plan(sub["calibrate"], config).steps + sync.plan(sub["sync"], config).steps
              + accuracy.own_plan(sub["accuracy"], config).steps + sweep.own_plan(sub["sweep"], config).steps)
-    return Plan(NAME, steps)
+    return Plan(NAME, steps).renamed(PARAMETER_NAMES)
 
 
 def run(ctx: Any, params: Parameters) -> dict[str, Any]:

@@ -17,7 +17,9 @@ The rules are the drivers' own, never written twice: :meth:`MotionLimits.evaluat
 
 from __future__ import annotations
 
+import dataclasses
 import math
+import re
 import types
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
@@ -135,6 +137,23 @@ class Plan:
 
     def __add__(self, other: Plan) -> Plan:
         return Plan(self.procedure, self.steps + other.steps)
+
+    def renamed(self, names: dict[str, str]) -> Plan:
+        """The same plan with parameter names replaced in every ``*_from`` text (``{"sweep.max_hz":
+        "certify.sweep_max_hz"}``: a procedure naming the parameters it sets for the steps it runs)."""
+        pattern = re.compile("|".join(rf"\b{re.escape(k)}\b" for k in names)) if names else None
+
+        def text(value: str) -> str:
+            return pattern.sub(lambda m: names[m.group(0)], value) if pattern else value
+
+        def fix(part: Any) -> Any:
+            if part is None:
+                return None
+            origins = [f.name for f in dataclasses.fields(part) if f.name.endswith("_from")]
+            return dataclasses.replace(part, **{name: text(getattr(part, name)) for name in origins})
+
+        return Plan(self.procedure, tuple(dataclasses.replace(s, arm=fix(s.arm), vibration=fix(s.vibration))
+                                          for s in self.steps))
 
 
 @dataclass(frozen=True)

@@ -51,7 +51,7 @@ CASES = {
                         ["rotation.rotation_hz = 20 Hz: frequency 20 Hz", "exceeds the rotor's limit 12 Hz",
                          "(limits.rotor.max_frequency_hz)"]),
     "certify, its last step": ("certify", ['preset="fast"', "sweep_max_hz=40"],
-                               ["step sweep: sweep.max_hz = 40 Hz: frequency 40 Hz",
+                               ["step sweep: certify.sweep_max_hz = 40 Hz: frequency 40 Hz",
                                 "(limits.exciter.max_frequency_hz)"]),
 }
 HOME_POSE = "[700.0, 0.0, 300.0, 90.0, 0.0, 90.0]"

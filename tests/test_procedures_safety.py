@@ -42,7 +42,7 @@ def test_sweep_above_the_frequency_limit_is_refused_before_connecting(tmp_path: 
     # certify checks the plan of all its steps: the sweep (its last motion) is refused before calibrate runs
     proc = _rig(tmp_path, "certify", "--set", 'preset="fast"', "--set", "sweep_max_hz=40")
     assert proc.returncode == 4, proc.stderr
-    assert "sweep.max_hz = 40 Hz: frequency 40 Hz" in proc.stderr, proc.stderr
+    assert "certify.sweep_max_hz = 40 Hz: frequency 40 Hz" in proc.stderr, proc.stderr
     assert "exceeds the exciter's limit 32 Hz (limits.exciter.max_frequency_hz)" in proc.stderr
     assert "Traceback" not in proc.stderr
     assert not (tmp_path / "runs").exists()  # no run folder, no station: nothing was connected
