@@ -238,8 +238,8 @@ def test_calibrate_carries_out_the_plan_that_was_checked(tmp_path: Path) -> None
     settings = {"frames_per_position": 2, "settle_s": 0.0}
     code = main(["run", "calibrate", "--config", str(config), *(a for k, v in settings.items()
                                                                 for a in ("--set", f"{k}={v}"))])
-    (run_dir,) = (tmp_path / "runs").iterdir()
-    run = load_run(run_dir)
+    (record,) = (tmp_path / "runs").glob("*/record.jsonl")  # (beside the runs' catalogue)
+    run = load_run(record.parent)
     assert code in (0, 1), run.stop  # a verdict either way: the procedure ran to its end
     planned = calibrate.plan(validate_parameters(calibrate, settings), load_config(config))
     commanded = [tuple(p) for p in run.events["arm"]["commanded_pose"]]
