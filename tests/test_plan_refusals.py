@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import os
 import re
+import select
 import signal
 import subprocess
 import sys
@@ -162,7 +163,9 @@ def standalone_mocks() -> dict[str, subprocess.Popen]:
 
 
 def _port(proc: subprocess.Popen) -> int:
-    line = proc.stdout.readline()  # the serving line (blocks until the mock is up)
+    ready, _, _ = select.select([proc.stdout], [], [], 300.0)  # a loaded machine starts a mock slowly
+    assert ready, "the mock server printed nothing in 300 s"
+    line = proc.stdout.readline()  # the serving line
     match = re.search(r"tcp://127\.0\.0\.1:(\d+)", line)
     assert match, line
     return int(match.group(1))
