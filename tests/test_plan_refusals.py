@@ -233,6 +233,7 @@ def test_the_mock_servers_count_the_requests_they_receive() -> None:
 def test_calibrate_carries_out_the_plan_that_was_checked(tmp_path: Path) -> None:
     """What the runner checked is what runs: the commanded arm poses are the plan's, in order."""
     from procedures import calibrate
+    from rig.catalogue import run_folders
     from rig.config import load_config
     from rig.procedure import validate_parameters
     from rig.record import load_run
@@ -241,8 +242,8 @@ def test_calibrate_carries_out_the_plan_that_was_checked(tmp_path: Path) -> None
     settings = {"frames_per_position": 2, "settle_s": 0.0}
     code = main(["run", "calibrate", "--config", str(config), *(a for k, v in settings.items()
                                                                 for a in ("--set", f"{k}={v}"))])
-    (record,) = (tmp_path / "runs").glob("*/record.jsonl")  # (beside the runs' catalogue)
-    run = load_run(record.parent)
+    (run_dir,) = run_folders(tmp_path / "runs")
+    run = load_run(run_dir)
     assert code in (0, 1), run.stop  # a verdict either way: the procedure ran to its end
     planned = calibrate.plan(validate_parameters(calibrate, settings), load_config(config))
     commanded = [tuple(p) for p in run.events["arm"]["commanded_pose"]]
