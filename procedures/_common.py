@@ -15,22 +15,69 @@ from typing import Any, TypeVar
 import numpy as np
 
 from drivers.denso.pose import rotation_matrix
+from rig.plan import ArmMoves, Plan, PlanStep
 from rig.procedure import ParameterError
 
-__all__ = ["arm_marker_positions", "check_poses", "drive_of", "fastest_fps", "hold_polling",
-           "load_calibration", "mount", "move_arm", "plate_offsets_tool_mm", "poll_event", "read_run_json",
-           "record_still", "require_target", "run_alone", "stop_polled"]
+__all__ = ["alone_plan", "amplitude_of", "arm_marker_positions", "arm_step", "drive_of", "fastest_fps",
+           "hold_polling", "load_calibration", "mount", "move_arm", "plate_offsets_tool_mm", "poll_event",
+           "read_run_json", "record_still", "require_target", "run_alone", "speed_from", "stop_polled",
+           "target_of", "vfd_config"]
 
 T = TypeVar("T")
 
 
-def require_target(ctx: Any, name: str) -> Any:
-    """The ``[targets.<name>]`` section, or ParameterError naming it (exit 4)."""
-    target = getattr(ctx.config.targets, name, None)
+def target_of(config: Any, name: str) -> Any:
+    """The ``[targets.<name>]`` section of ``config``, or ParameterError naming it (exit 4)."""
+    target = getattr(config.targets, name, None)
     if target is None:
         raise ParameterError(f"targets.{name}", f"the procedure needs [targets.{name}] in the rig "
                                                 "configuration, which has none")
     return target
+
+
+def require_target(ctx: Any, name: str) -> Any:
+    """The ``[targets.<name>]`` section, or ParameterError naming it (exit 4)."""
+    return target_of(ctx.config, name)
+
+
+def vfd_config(config: Any, device: str) -> Any:
+    """``[devices.exciter]`` / ``[devices.rotor]``, or ParameterError naming it (exit 4)."""
+    dev = getattr(config.devices, device)
+    if dev is None:
+        raise ParameterError(f"devices.{device}", f"the procedure needs [devices.{device}], which this rig "
+                                                  "configuration lacks")
+    return dev
+
+
+def amplitude_of(config: Any, device: str) -> tuple[float, str]:
+    """Peak displacement (mm) of a VFD-driven body, as the station gives it to the driver, and its field:
+    the exciter's crank radius, the rotor marker's radius."""
+    if device == "exciter":
+        radius = vfd_config(config, "exciter").crank_radius_mm
+        return radius, f"devices.exciter.crank_radius_mm = {radius:g} mm"
+    vfd_config(config, "rotor")
+    rotor = config.targets.rotor
+    radius = rotor.radius_mm if rotor is not None else 0.0
+    return radius, f"targets.rotor.radius_mm = {radius:g} mm"
+
+
+def speed_from(procedure: str, speed_mm_s: float | None) -> str:
+    """What an arm speed parameter says, for the plan's checks."""
+    if speed_mm_s is None:
+        return f"{procedure}.speed_mm_s unset (the limit)"
+    return f"{procedure}.speed_mm_s = {speed_mm_s:g} mm/s"
+
+
+def arm_step(name: str, moves: ArmMoves, config: Any) -> PlanStep:
+    """A step of arm moves with its duration estimate: the straight path from the home pose (else the
+    first pose) through every pose at the planned speed, plus the hold at each."""
+    robot, lim = config.devices.robot, config.limits.robot
+    speed = moves.speed_mm_s or (lim.max_speed_mm_s if lim is not None else 1.0)
+    start = robot.home_pose if robot is not None and robot.home_pose is not None else \
+        (moves.poses[0] if moves.poses else (0.0, 0.0, 0.0))
+    path = np.asarray([start[:3], *(p[:3] for p in moves.poses)], float)
+    travel_mm = float(np.linalg.norm(np.diff(path, axis=0), axis=1).sum())
+    return PlanStep(name, travel_mm / speed + moves.hold_s * len(moves.poses), arm=moves)
 
 
 def drive_of(ctx: Any, target: Any) -> Any:
@@ -38,9 +85,9 @@ def drive_of(ctx: Any, target: Any) -> Any:
     return ctx.device(target.body if target.body != "shaker" else "generator")
 
 
-def fastest_fps(ctx: Any) -> float:
+def fastest_fps(config: Any) -> float:
     """The highest frame rate (frames/s) of the configured cameras."""
-    return max(c.fps for c in ctx.config.cameras.values())
+    return max(c.fps for c in config.cameras.values())
 
 
 def mount(ctx: Any, scene: str) -> None:
@@ -87,12 +134,6 @@ def move_arm(ctx: Any, arm: Any, pose: Sequence[float], speed_mm_s: float | None
     return result
 
 
-def check_poses(arm: Any, poses: Sequence[Sequence[float]]) -> None:
-    """Check every pose against the envelope before the first motion (LimitError names the axis)."""
-    for pose in poses:
-        arm.check_pose(list(pose))
-
-
 def poll_event(ctx: Any, stream: str, sample: Any) -> None:
     """Record one polled frequency sample of the exciter or rotor and checkpoint (abort point)."""
     ctx.event(stream, sample.as_event())
@@ -129,7 +170,7 @@ def record_still(ctx: Any, acq: Any, arm: Any, pose: Sequence[float], segment: s
     of margin at the fastest camera's rate) as ``segment``; return the recording."""
     move_arm(ctx, arm, pose, speed_mm_s)
     ctx.sleep_s(settle_s)
-    return acq.record(segment, (frames + 1.5) / fastest_fps(ctx))
+    return acq.record(segment, (frames + 1.5) / fastest_fps(ctx.config))
 
 
 def read_run_json(ctx: Any, name: str) -> Any:
@@ -146,18 +187,23 @@ def load_calibration(ctx: Any) -> dict[str, Any]:
     return read_run_json(ctx, "calibration.json")
 
 
-def run_alone(ctx: Any, params: Any, check_plan: Callable[[Any, Any], Any],
-              run_steps: Callable[[Any, Any], T]) -> tuple[T, dict[str, Any]]:
-    """A measurement procedure run on its own (``rig run NAME``): every plan (calibrate, sync, this one)
-    checked against the limits before anything moves, then calibrate and sync in the same run folder,
+def alone_plan(procedure: str, own: Plan, config: Any) -> Plan:
+    """The plan of a measurement procedure run on its own: calibrate and sync (their defaults), then its
+    own steps."""
+    from procedures import calibrate, sync
+
+    return Plan(procedure, calibrate.plan(calibrate.Parameters(), config).steps
+                + sync.plan(sync.Parameters(), config).steps + own.steps)
+
+
+def run_alone(ctx: Any, params: Any, run_steps: Callable[[Any, Any], T]) -> tuple[T, dict[str, Any]]:
+    """A measurement procedure run on its own (``rig run NAME``; its whole plan, :func:`alone_plan`, was
+    checked against the limits before the station was opened): calibrate and sync in the same run folder,
     the procedure's own steps and the report. Returns what ``run_steps`` returned and the procedure's
     result (``summary`` of the criteria evaluated, ``report`` path)."""
     from procedures import calibrate, sync
     from procedures._report import evaluated_summary, report_step
 
-    calibrate.check_plan(ctx, calibrate.Parameters())
-    sync.check_plan(ctx, sync.Parameters())
-    check_plan(ctx, params)
     calibrate.run_step(ctx, calibrate.Parameters())
     sync.run_step(ctx, sync.Parameters())
     done = run_steps(ctx, params)

@@ -12,7 +12,7 @@ Three steps, each a list of arm poses with the cameras recording ``frames_per_po
 
 Truth: one ``accuracy_pose`` event per visit with the commanded marker positions (from the commanded
 pose and the target geometry of the configuration) and the still window; an ``arm`` event per move.
-Every pose is checked against the envelope before the first motion (a violation: nothing moves, exit 3).
+Every pose and the speed are checked before any device is connected (a violation: exit 4).
 Marker orientation: the robot's home orientation (``devices.robot.home_pose``), printed faces towards the
 cameras.
 """
@@ -27,13 +27,17 @@ import numpy as np
 
 from procedures._acquire import Acquirer, ReduceOptions
 from procedures._common import (
+    alone_plan,
     arm_marker_positions,
-    check_poses,
+    arm_step,
+    fastest_fps,
     mount,
     record_still,
-    require_target,
     run_alone,
+    speed_from,
+    target_of,
 )
+from rig.plan import ArmMoves, Plan
 from rig.procedure import param
 
 NAME = "accuracy"
@@ -57,11 +61,11 @@ class Parameters:
                                                                   doc="arm speed (default: the limit)"))
 
 
-def _orientation(ctx: Any) -> np.ndarray:
-    robot = ctx.config.devices.robot
+def _orientation(config: Any) -> np.ndarray:
+    robot = config.devices.robot
     if robot is not None and robot.home_pose is not None:
         return np.asarray(robot.home_pose[3:], dtype=float)
-    plate = ctx.config.targets.calibration_plate
+    plate = config.targets.calibration_plate
     return np.asarray(plate.start_pose[3:] if plate is not None else (90.0, 0.0, 90.0), dtype=float)
 
 
@@ -98,13 +102,13 @@ def frame_flange_poses(volume: Any, offsets: np.ndarray, orientation: np.ndarray
     return [flange_pose_for(c + shifts[k % len(shifts)], centroid, orientation) for k in range(n)]
 
 
-def plan(ctx: Any, params: Parameters) -> dict[str, list[tuple[list, str, int]]]:
-    """Every pose of the three steps as (flange pose, target name, cycle), checked later as a whole."""
-    volume = require_target(ctx, "volume")
-    orient = _orientation(ctx)
+def visits(params: Parameters, config: Any) -> dict[str, list[tuple[list, str, int]]]:
+    """Every pose of the three steps as (flange pose, target name, cycle)."""
+    volume = target_of(config, "volume")
+    orient = _orientation(config)
     out: dict[str, list[tuple[list, str, int]]] = {step: [] for step in SCENES}
     if params.grid_points or params.cycles:
-        single = np.asarray(require_target(ctx, "single_marker").offset_tool_mm, float)
+        single = np.asarray(target_of(config, "single_marker").offset_tool_mm, float)
         for k, m in enumerate(grid_targets(volume, params.grid_points, params.grid_fraction)):
             out["accuracy_grid"].append((flange_pose_for(m, single, orient), f"G{k:03d}", 0))
         iso = iso_targets(volume, params.grid_fraction)
@@ -112,18 +116,36 @@ def plan(ctx: Any, params: Parameters) -> dict[str, list[tuple[list, str, int]]]
             for name in ISO_ORDER:
                 out["accuracy_iso9283"].append((flange_pose_for(iso[name], single, orient), name, cycle))
     if params.frame_poses:
-        frame = require_target(ctx, "marker_frame")
+        frame = target_of(config, "marker_frame")
         offsets = np.asarray(frame.offsets_mm, float)
         for k, pose in enumerate(frame_flange_poses(volume, offsets, orient, params.frame_poses)):
             out["accuracy_frame"].append((pose, f"F{k}", 0))
     return out
 
 
-def check_plan(ctx: Any, params: Parameters) -> dict[str, list[tuple[list, str, int]]]:
-    """The plan, every pose checked against the envelope before anything moves."""
-    steps = plan(ctx, params)
-    check_poses(ctx.device("robot"), [p for visits in steps.values() for p, _, _ in visits])
-    return steps
+POSES_FROM = {"accuracy_grid": "accuracy.grid_points = {p.grid_points}, accuracy.grid_fraction = "
+                               "{p.grid_fraction:g} of targets.volume",
+              "accuracy_iso9283": "accuracy.grid_fraction = {p.grid_fraction:g} of targets.volume (ISO 9283 "
+                                  "P1–P5, {p.cycles} cycles)",
+              "accuracy_frame": "accuracy.frame_poses = {p.frame_poses} in targets.volume with "
+                                "targets.marker_frame"}
+
+
+def own_plan(params: Parameters, config: Any) -> Plan:
+    """The three accuracy steps (those with poses): every flange pose and the arm speed."""
+    hold_s = params.settle_s + (params.frames_per_pose + 1.5) / fastest_fps(config)
+    steps = []
+    for step_name, planned in visits(params, config).items():
+        if planned:
+            moves = ArmMoves(tuple(tuple(p) for p, _, _ in planned), POSES_FROM[step_name].format(p=params),
+                             params.speed_mm_s, speed_from(NAME, params.speed_mm_s), hold_s)
+            steps.append(arm_step(step_name, moves, config))
+    return Plan(NAME, tuple(steps))
+
+
+def plan(params: Parameters, config: Any) -> Plan:
+    """calibrate, sync, then the accuracy steps; nothing is connected."""
+    return alone_plan(NAME, own_plan(params, config), config)
 
 
 def _marker_offsets(targets: Any) -> dict[str, dict[str, list[float]]]:
@@ -137,20 +159,20 @@ def _marker_offsets(targets: Any) -> dict[str, dict[str, list[float]]]:
 def run_steps(ctx: Any, params: Parameters) -> int:
     """The three accuracy steps (each skipped on --resume when done); returns the number of visits."""
     arm = ctx.device("robot")
-    steps = check_plan(ctx, params)
+    steps = visits(params, ctx.config)  # the poses of own_plan, checked before the station was opened
     offsets = _marker_offsets(ctx.config.targets)
     total = sum(len(v) for v in steps.values())
     index = 0  # of the visit over all steps (done ones included)
-    for step_name, visits in steps.items():
-        if not visits:
+    for step_name, planned in steps.items():
+        if not planned:
             continue
         with ctx.step(step_name) as step:
             if step.skipped:
-                index += len(visits)
+                index += len(planned)
                 continue
             mount(ctx, SCENES[step_name])
             with Acquirer(ctx, ReduceOptions(mode="track", window_px=31)) as acq:
-                for pose, target, cycle in visits:
+                for pose, target, cycle in planned:
                     ctx.progress(index / total, f"{step_name}: {target} (cycle {cycle})")
                     rec = record_still(ctx, acq, arm, pose, step_name, frames=params.frames_per_pose,
                                        settle_s=params.settle_s, speed_mm_s=params.speed_mm_s)
@@ -163,5 +185,5 @@ def run_steps(ctx: Any, params: Parameters) -> int:
 
 
 def run(ctx: Any, params: Parameters) -> dict[str, Any]:
-    n, result = run_alone(ctx, params, check_plan, run_steps)
+    n, result = run_alone(ctx, params, run_steps)
     return {**result, "summary": f"{n} poses visited; {result['summary']}"}

@@ -20,13 +20,17 @@ import numpy as np
 from procedures._acquire import Acquirer, ReduceOptions, mean_positions
 from procedures._common import (
     arm_marker_positions,
-    check_poses,
+    arm_step,
+    fastest_fps,
     mount,
     plate_offsets_tool_mm,
     read_run_json,
     record_still,
     require_target,
+    speed_from,
+    target_of,
 )
+from rig.plan import ArmMoves, Plan
 from rig.plate_grid import GridError, moving_points, order_grid
 from rig.procedure import ParameterError, param
 from rig.stereo import calibrate_dlt
@@ -78,24 +82,36 @@ def _control_points(positions: list[dict[str, Any]], camera: str, plate: Any,
     return np.concatenate(xyz), np.concatenate(uv), resid
 
 
-def check_plan(ctx: Any, params: Parameters) -> tuple[tuple[float, ...], list[list[float]]]:
-    """The slides and flange poses, every pose checked against the envelope (nothing moves)."""
-    plate = require_target(ctx, "calibration_plate")
-    slides = tuple(params.slide_positions_mm) or tuple(plate.slide_positions_mm)
+def slides_of(params: Parameters, plate: Any) -> tuple[tuple[float, ...], str]:
+    """The plate slides (mm along tool z) and what they come from (the parameter or the rig's)."""
+    if params.slide_positions_mm:
+        slides, source = tuple(params.slide_positions_mm), "calibrate.slide_positions_mm"
+    else:
+        slides, source = tuple(plate.slide_positions_mm), "targets.calibration_plate.slide_positions_mm"
     if len(set(slides)) < 2:
         raise ParameterError("calibrate.slide_positions_mm",
                              f"{list(slides)}: allowed: at least 2 distinct positions (the control points "
                              "must not be coplanar)")
-    poses = plate_poses(plate, slides)
-    check_poses(ctx.device("robot"), poses)
-    return slides, poses
+    return slides, f"{source} = {[float(s) for s in slides]} mm"
+
+
+def plan(params: Parameters, config: Any) -> Plan:
+    """The slid plate's flange poses and the arm speed (step ``calibrate``); nothing is connected."""
+    plate = target_of(config, "calibration_plate")
+    slides, source = slides_of(params, plate)
+    poses = tuple(tuple(p) for p in plate_poses(plate, slides))
+    hold_s = params.settle_s + (params.frames_per_position + 1.5) / fastest_fps(config)
+    moves = ArmMoves(poses, f"{source} from targets.calibration_plate.start_pose", params.speed_mm_s,
+                     speed_from(NAME, params.speed_mm_s), hold_s)
+    return Plan(NAME, (arm_step("calibrate", moves, config),))
 
 
 def calibrate_cameras(ctx: Any, params: Parameters) -> dict[str, Any]:
     """Acquire the slid plate and fit every camera; return the ``calibration.json`` content."""
     plate = require_target(ctx, "calibration_plate")
     arm = ctx.device("robot")
-    slides, poses = check_plan(ctx, params)
+    slides, _ = slides_of(params, plate)
+    poses = plan(params, ctx.config).moves("calibrate").poses
     mount(ctx, "calibration_plate")
     offsets = plate_offsets_tool_mm(plate)
     positions = []
@@ -144,7 +160,6 @@ def run_step(ctx: Any, params: Parameters) -> dict[str, Any]:
 
 
 def run(ctx: Any, params: Parameters) -> dict[str, Any]:
-    check_plan(ctx, params)
     calibration = run_step(ctx, params)
     worst, summary = calibration_summary(calibration)
     limit = ctx.config.criteria.calibration_rms_px

@@ -3,10 +3,10 @@
 One run folder holds everything: ``calibration.json`` (calibrate), ``timing.json`` (sync, which also
 records the rotor's radius and frequency), the static poses (accuracy), the frequency sweep, then the
 report (:func:`reports.build.build_report`: analysis, tables, figures, ``report.html``,
-``certificate.json``). Every plan (arm poses, rotor and exciter frequencies, the sweep's slope) is checked
-against the rig's limits **before anything moves**: a violation ends the run with exit code 3 and nothing
-sent. The verdict: passed when every acceptance criterion of the certificate is evaluated and passes
-(exit 0), else exit 1.
+``certificate.json``). The whole plan (arm poses and speeds, rotor and exciter frequencies, amplitudes,
+accelerations, the sweep's slope; :func:`plan`) is checked against the rig's limits **before any device is
+connected**: a violation is refused with exit code 4 and no run folder. The verdict: passed when every
+acceptance criterion of the certificate is evaluated and passes (exit 0), else exit 1.
 
 ``preset = "full"`` is the certification (grid 3³, 10 ISO 9283 cycles, 4 marker-frame poses, sweep
 1 → 30 Hz in 24 s, the paper's linear sync analysed beside ours); ``"fast"`` is a short check of the whole
@@ -22,6 +22,7 @@ from typing import Any
 
 from procedures import accuracy, calibrate, sweep, sync
 from procedures._report import report_step
+from rig.plan import Plan
 from rig.procedure import ParameterError, param
 
 NAME = "certify"
@@ -63,6 +64,14 @@ class Parameters:
         doc="also analyse with the paper's linear interpolation (default: full yes, fast no)"))
 
 
+# the steps' parameters that certify sets (as in --set sweep_max_hz=…), named so in its plan's checks
+PARAMETER_NAMES = {"sweep.start_hz": "certify.sweep_start_hz", "sweep.max_hz": "certify.sweep_max_hz",
+                   "sweep.duration_s": "certify.sweep_duration_s",
+                   "accuracy.grid_points": "certify.accuracy_grid_points",
+                   "accuracy.cycles": "certify.accuracy_cycles",
+                   "calibrate.slide_positions_mm": "certify.calibrate_slide_positions_mm"}
+
+
 def sub_parameters(params: Parameters) -> dict[str, Any]:
     """The four procedures' parameters: the preset, then the explicit overrides."""
     chosen = {k: dict(v) for k, v in PRESETS[params.preset].items()}
@@ -82,13 +91,17 @@ def sub_parameters(params: Parameters) -> dict[str, Any]:
     return out
 
 
-def run(ctx: Any, params: Parameters) -> dict[str, Any]:
+def plan(params: Parameters, config: Any) -> Plan:
+    """Every step of the certification (calibrate, sync, accuracy, sweep), from the preset and the
+    overrides; the runner checks it as a whole before any device is connected."""
     sub = sub_parameters(params)
-    # every plan against the limits before the first motion (nothing is sent on a violation)
-    calibrate.check_plan(ctx, sub["calibrate"])
-    sync.check_plan(ctx, sub["sync"])
-    accuracy.check_plan(ctx, sub["accuracy"])
-    sweep.check_plan(ctx, sub["sweep"])
+    steps = (calibrate.plan(sub["calibrate"], config).steps + sync.plan(sub["sync"], config).steps
+             + accuracy.own_plan(sub["accuracy"], config).steps + sweep.own_plan(sub["sweep"], config).steps)
+    return Plan(NAME, steps).renamed(PARAMETER_NAMES)
+
+
+def run(ctx: Any, params: Parameters) -> dict[str, Any]:
+    sub = sub_parameters(params)  # their whole plan (:func:`plan`) was checked before the station opened
     ctx.log.info("certify (%s): %s", params.preset,
                  {k: dataclasses.asdict(v) for k, v in sub.items()})
     calibrate.run_step(ctx, sub["calibrate"])

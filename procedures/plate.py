@@ -8,9 +8,9 @@ the marker ids and each marker's amplitude) and the polled ``exciter`` events.
 
 With ``targets.plate.body = "shaker"`` the generator drives the electrodynamic shaker at ``frequency_hz``
 with peak displacement ``shaker_amplitude_mm`` (volts from the sensitivity table; the limits — frequency,
-displacement, (2πf)²·x, velocity, the amplifier's volts — checked before anything is sent, exit 3). The
-generator's reported CW frequency, volts and output state are polled as ``generator`` events; the event's
-``frequency_hz`` is their mean and ``amplitude_mm`` the displacement of the reported volts.
+displacement, (2πf)²·x, velocity, the amplifier's volts — checked before any device is connected,
+exit 4). The generator's reported CW frequency, volts and output state are polled as ``generator`` events;
+the event's ``frequency_hz`` is their mean and ``amplitude_mm`` the displacement of the reported volts.
 
 Run alone (``rig run plate``) it first calibrates and synchronizes the cameras in the same run folder,
 then builds the report (trajectories, amplitude and frequency per marker).
@@ -25,6 +25,8 @@ import numpy as np
 
 from procedures._acquire import Acquirer, ReduceOptions
 from procedures._common import (
+    alone_plan,
+    amplitude_of,
     drive_of,
     hold_polling,
     mount,
@@ -32,7 +34,10 @@ from procedures._common import (
     require_target,
     run_alone,
     stop_polled,
+    target_of,
+    vfd_config,
 )
+from rig.plan import Plan, PlanStep, Vibration, shaker_limits
 from rig.procedure import ParameterError, param
 
 NAME = "plate"
@@ -59,40 +64,60 @@ def marker_amplitudes_mm(plate: Any, tip_mm: float) -> dict[str, float]:
     return out
 
 
-def check_plan(ctx: Any, params: Parameters) -> Any:
-    """The driving device's limits at ``frequency_hz`` (nothing is sent); returns the device."""
-    plate = require_target(ctx, "plate")
-    drive = drive_of(ctx, plate)
-    if plate.body == "shaker":
-        f, table = params.frequency_hz, drive.sensitivity
-        drive.limits.check_point(f, params.shaker_amplitude_mm, "shaker plate")
-        if not table.f_min_hz <= f <= table.f_max_hz:
-            raise ParameterError("frequency_hz", f"{f:g} Hz is outside the shaker's sensitivity table "
-                                                 f"{table.f_min_hz:g}..{table.f_max_hz:g} Hz "
-                                                 "(devices.generator.sensitivity_mm_per_v; no extrapolation)")
-        drive.check_point(f, drive.amplitude_vpp_for(f, params.shaker_amplitude_mm))
+def _shaker_vibration(params: Parameters, config: Any) -> Vibration:
+    """The shaker at ``frequency_hz`` and ``shaker_amplitude_mm`` (volts from the sensitivity table)."""
+    shaker = shaker_limits(config)
+    f, amp, table = params.frequency_hz, params.shaker_amplitude_mm, shaker.sensitivity
+    if not table.f_min_hz <= f <= table.f_max_hz:
+        raise ParameterError("frequency_hz", f"{f:g} Hz is outside the shaker's sensitivity table "
+                                             f"{table.f_min_hz:g}..{table.f_max_hz:g} Hz "
+                                             "(devices.generator.sensitivity_mm_per_v; no extrapolation)")
+    vpp = shaker.amplitude_vpp_for(f, amp)
+    return Vibration("generator", ((0.0, f), (params.record_s, f)), amp, f"plate.frequency_hz = {f:g} Hz",
+                     f"plate.shaker_amplitude_mm = {amp:g} mm", amplitude_vpp=(vpp, vpp))
+
+
+def own_plan(params: Parameters, config: Any, *, step_name: str = "plate") -> Plan:
+    """Step ``plate``: its driving device at ``frequency_hz`` for ``record_s`` s."""
+    body = target_of(config, "plate").body
+    if body == "shaker":
+        vibration = _shaker_vibration(params, config)
+        ramp_s = 0.0
     else:
-        drive.check_frequency(params.frequency_hz)
-    return drive
+        amplitude_mm, amplitude_from = amplitude_of(config, body)
+        ramp = vfd_config(config, body).ramp_rate_hz_per_s
+        f = params.frequency_hz
+        vibration = Vibration(body, ((0.0, f), (params.record_s, f)), amplitude_mm,
+                              f"plate.frequency_hz = {f:g} Hz", amplitude_from, max_slope_hz_per_s=ramp,
+                              slope_from=f"devices.{body}.ramp_rate_hz_per_s = {ramp:g} Hz/s")
+        ramp_s = 2 * f / ramp
+    return Plan(NAME, (PlanStep(step_name, params.record_s + ramp_s, vibration=vibration),))
+
+
+def plan(params: Parameters, config: Any) -> Plan:
+    """calibrate, sync, then step ``plate``; nothing is connected."""
+    return alone_plan(NAME, own_plan(params, config), config)
 
 
 def run_step(ctx: Any, params: Parameters, *, step_name: str = "plate") -> None:
     with ctx.step(step_name) as step:
         if step.skipped:
             return
-        drive = check_plan(ctx, params)
+        planned = own_plan(params, ctx.config, step_name=step_name).vibration(step_name)
+        frequency_hz, record_s = planned.profile[0][1], planned.profile[-1][0]
         plate = require_target(ctx, "plate")
+        drive = drive_of(ctx, plate)
         shaker = plate.body == "shaker"
         stream = "generator" if shaker else "exciter"
         mount(ctx, "plate")
         if shaker:
-            drive.start(params.frequency_hz, params.shaker_amplitude_mm)
+            drive.start(frequency_hz, planned.amplitude_mm)
             poll_event(ctx, stream, drive.read_state())
         else:
-            poll_event(ctx, stream, drive.set_frequency(params.frequency_hz, wait=True))
+            poll_event(ctx, stream, drive.set_frequency(frequency_hz, wait=True))
         with Acquirer(ctx, ReduceOptions(mode="track", window_px=41)) as acq:
             rec = acq.record(step_name, lambda: hold_polling(
-                ctx, drive, stream, record_s=params.record_s, poll_interval_s=params.poll_interval_s,
+                ctx, drive, stream, record_s=record_s, poll_interval_s=params.poll_interval_s,
                 read=drive.read_state if shaker else None))
         # shaker: the displacement of the volts the generator reports at the frequency it reports
         tip_mm = float(np.mean([s.displacement_mm for s in rec.result])) if shaker else drive.amplitude_mm
@@ -102,7 +127,7 @@ def run_step(ctx: Any, params: Parameters, *, step_name: str = "plate") -> None:
             if shaker else {}
         ctx.event("plate", {"t_start_s": rec.t_start_s, "t_stop_s": rec.t_stop_s,
                             "frequency_hz": float(np.mean([s.frequency_hz for s in rec.result])),
-                            "setpoint_hz": params.frequency_hz, "amplitude_mm": tip_mm,
+                            "setpoint_hz": frequency_hz, "amplitude_mm": tip_mm,
                             "axis": [float(v) / float(np.linalg.norm(axis)) for v in axis],
                             "marker_ids": list(amplitudes), "marker_amplitudes_mm": amplitudes,
                             "segment": step_name, **extra})
@@ -114,4 +139,4 @@ def run_step(ctx: Any, params: Parameters, *, step_name: str = "plate") -> None:
 
 
 def run(ctx: Any, params: Parameters) -> dict[str, Any]:
-    return run_alone(ctx, params, check_plan, run_step)[1]
+    return run_alone(ctx, params, run_step)[1]

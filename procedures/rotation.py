@@ -14,8 +14,9 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from procedures._acquire import Acquirer, ReduceOptions
-from procedures._common import run_alone
-from procedures.sync import spin_and_record
+from procedures._common import alone_plan, run_alone
+from procedures.sync import rotor_step, spin_and_record
+from rig.plan import Plan
 from rig.procedure import param
 
 NAME = "rotation"
@@ -29,18 +30,24 @@ class Parameters:
     poll_interval_s: float = field(default=0.25, metadata=param(lo=0.01, hi=10.0, doc="rotor polls, s"))
 
 
-def check_plan(ctx: Any, params: Parameters) -> None:
-    ctx.device("rotor").check_frequency(params.rotation_hz)
+def own_plan(params: Parameters, config: Any, *, step_name: str = "rotation") -> Plan:
+    return Plan(NAME, (rotor_step(step_name, config, rotation_hz=params.rotation_hz,
+                                  record_s=params.record_s, source="rotation.rotation_hz"),))
+
+
+def plan(params: Parameters, config: Any) -> Plan:
+    """calibrate, sync, then step ``rotation`` (the rotor at ``rotation_hz``); nothing is connected."""
+    return alone_plan(NAME, own_plan(params, config), config)
 
 
 def run_step(ctx: Any, params: Parameters, *, step_name: str = "rotation") -> None:
     with ctx.step(step_name) as step:
         if step.skipped:
             return
+        planned = own_plan(params, ctx.config, step_name=step_name).vibration(step_name)
         with Acquirer(ctx, ReduceOptions(mode="detect")) as acq:
-            spin_and_record(ctx, acq, step_name, rotation_hz=params.rotation_hz, record_s=params.record_s,
-                            poll_interval_s=params.poll_interval_s)
+            spin_and_record(ctx, acq, step_name, planned, poll_interval_s=params.poll_interval_s)
 
 
 def run(ctx: Any, params: Parameters) -> dict[str, Any]:
-    return run_alone(ctx, params, check_plan, run_step)[1]
+    return run_alone(ctx, params, run_step)[1]

@@ -5,9 +5,9 @@ radius) while its frequency follows a monotone profile from ``start_hz`` to ``ma
 (then holds ``hold_s`` at ``max_hz``). ``shape="fig17"`` rises slowly first and faster later, like the
 time–frequency characteristic of the paper's Fig. 17 (slopes 0.4, 1.0, 1.2 and 1.4 × the mean slope over
 the four quarters); ``"linear"`` and ``"log"`` are the plain alternatives. Every profile point and the
-steepest slope are checked before anything moves (exit 3, nothing sent) against the limits of the device
-that drives the column's ``body``: ``[limits.exciter]`` for the crank exciter, ``[limits.generator]`` for
-the shaker (fed by the generator).
+steepest slope are checked before any device is connected (:func:`plan`; exit 4) against the limits of
+the device that drives the column's ``body``: ``[limits.exciter]`` for the crank exciter,
+``[limits.generator]`` for the shaker (fed by the generator).
 
 Exciter (``body = "exciter"``): timed setpoint updates follow the profile at the crank's amplitude.
 Shaker (``body = "shaker"``), at the constant displacement ``shaker_amplitude_mm`` (it has no crank):
@@ -17,8 +17,8 @@ flat, so a table varying by more than ``FLAT_SENSITIVITY_TOLERANCE`` over the sw
 (ParameterError naming ``devices.generator.sensitivity_mm_per_v``, exit 4); ``shape = "fig17"`` (a points
 profile the built-in sweep cannot follow) runs as phase-continuous CW frequency steps every
 ``update_interval_s`` (:mod:`procedures._shaker`: each step at the profile's mean frequency over it, volts
-per step from the table). A sweep outside the sensitivity table is refused (exit 4). Before anything is
-sent: frequency, displacement, (2πf)²·x, velocity, slope and the amplifier's volts (exit 3).
+per step from the table). A sweep outside the sensitivity table is refused (exit 4). Before any device is
+connected: frequency, displacement, (2πf)²·x, velocity, slope and the amplifier's volts (exit 4).
 
 Truth: the ``sweep`` event (commanded profile in rig time, amplitude, axis, marker ids) and the polled
 actual frequencies as ``exciter`` events; for the shaker, the generator cannot report its instantaneous
@@ -34,8 +34,20 @@ from typing import Any
 
 from drivers.exciter.sweep import LogSweep, PointsSweep, SweepProfile
 from procedures._acquire import Acquirer, ReduceOptions
-from procedures._common import drive_of, mount, poll_event, require_target, run_alone, stop_polled
+from procedures._common import (
+    alone_plan,
+    amplitude_of,
+    drive_of,
+    mount,
+    poll_event,
+    require_target,
+    run_alone,
+    stop_polled,
+    target_of,
+    vfd_config,
+)
 from procedures._shaker import follow_staircase, staircase_plan
+from rig.plan import GeneratorSweep, Plan, PlanStep, Vibration, shaker_limits
 from rig.procedure import ParameterError, param
 
 FLAT_SENSITIVITY_TOLERANCE = 0.005  # max (s_max − s_min)/s_min of the shaker table over a sweep (0.5 %)
@@ -77,52 +89,72 @@ def profile_of(params: Parameters) -> SweepProfile:
     return PointsSweep(rise)
 
 
-def check_plan(ctx: Any, params: Parameters) -> SweepProfile:
-    """Limits of every profile point and of the steepest slope, before anything moves, for the device
-    that drives ``targets.sweep_column.body`` (LimitError, exit 3); for the shaker also the amplifier's
-    volts over the whole sweep (or every step), and what it cannot do (ParameterError, exit 4)."""
-    column = require_target(ctx, "sweep_column")
-    drive = drive_of(ctx, column)
+def _origins(params: Parameters) -> dict[str, str]:
+    return {"frequency_from": f"sweep.max_hz = {params.max_hz:g} Hz",
+            "slope_from": f"sweep.start_hz = {params.start_hz:g} Hz, sweep.max_hz = {params.max_hz:g} Hz, "
+                          f"sweep.duration_s = {params.duration_s:g} s, sweep.shape = {params.shape}"}
+
+
+def _exciter_vibration(params: Parameters, body: str, config: Any) -> tuple[Vibration, float]:
+    """The VFD-driven column: the profile's setpoints every ``update_interval_s`` at the body's amplitude;
+    the duration adds the ramp to ``start_hz`` and the stop at the drive's configured rate."""
     profile = profile_of(params)
-    points = profile.points(params.update_interval_s)
-    if column.body == "shaker":
-        _check_shaker_plan(drive, params, profile, points)
-        return profile
-    for t_s, f_hz in points:
-        drive.check_frequency(f_hz, f"{column.body} sweep at t = {t_s:g} s")
-    drive.limits.check_ramp_rate(profile.max_slope_hz_per_s(), f"{column.body} sweep slope")
-    return profile
+    amplitude_mm, amplitude_from = amplitude_of(config, body)
+    ramp = vfd_config(config, body).ramp_rate_hz_per_s
+    vibration = Vibration(body, tuple(profile.points(params.update_interval_s)), amplitude_mm,
+                          amplitude_from=amplitude_from, max_slope_hz_per_s=profile.max_slope_hz_per_s(),
+                          **_origins(params))
+    return vibration, profile.duration_s + (params.start_hz + params.max_hz) / ramp
 
 
-def _check_shaker_plan(shaker: Any, params: Parameters, profile: SweepProfile,
-                       points: list[tuple[float, float]]) -> None:
-    amp = params.shaker_amplitude_mm
-    for t_s, f_hz in points:
-        shaker.limits.check_point(f_hz, amp, f"shaker sweep at t = {t_s:g} s")
-    shaker.limits.check_ramp_rate(profile.max_slope_hz_per_s(), "shaker sweep slope")
-    table = shaker.sensitivity
+def _shaker_vibration(params: Parameters, config: Any) -> Vibration:
+    """The shaker at ``shaker_amplitude_mm``: the generator's own sweep at constant volts (linear, log:
+    the sensitivity table must be flat over it), or a staircase of CW steps with the volts of each
+    (fig17). Outside the table, or a table not flat enough: ParameterError (exit 4)."""
+    shaker = shaker_limits(config)
+    table, amp = shaker.sensitivity, params.shaker_amplitude_mm
     f0, f1 = params.start_hz, params.max_hz
     if not (table.f_min_hz <= f0 and f1 <= table.f_max_hz):
         raise ParameterError("devices.generator.sensitivity_mm_per_v",
                              f"the shaker sweep {f0:g}..{f1:g} Hz leaves the sensitivity table "
                              f"{table.f_min_hz:g}..{table.f_max_hz:g} Hz (no extrapolation)")
-    if params.shape == "fig17":
-        # stepped: every step's frequency with the volts for the amplitude there (exit 3)
-        for _, f_hz in staircase_plan(points, params.update_interval_s):
-            shaker.check_point(f_hz, shaker.amplitude_vpp_for(f_hz, amp))
-        return
-    vpp = shaker.amplitude_vpp_for(f0, amp)
-    # volts, displacement, (2πf)²·x and velocity at every frequency of [f0, f1] (exit 3)
-    shaker.check_sweep(f0, f1, params.duration_s, params.shape, vpp)
+    profile = profile_of(params)
+    points = profile.points(params.update_interval_s)
+    common = {"amplitude_mm": amp, "amplitude_from": f"sweep.shaker_amplitude_mm = {amp:g} mm",
+              "max_slope_hz_per_s": profile.max_slope_hz_per_s(), **_origins(params)}
+    if params.shape == "fig17":  # stepped: every step's frequency with the volts for the amplitude there
+        steps = staircase_plan(points, params.update_interval_s)
+        stairs = [(t, f) for t, f in steps] + [(points[-1][0], steps[-1][1])]
+        return Vibration("generator", tuple(stairs),
+                         amplitude_vpp=tuple(shaker.amplitude_vpp_for(f, amp) for _, f in stairs), **common)
     knots = [f0, f1, *(f for f, _ in table.points if f0 < f < f1)]
-    s = [table.mm_per_v(f) for f in knots]
-    spread = (max(s) - min(s)) / min(s)
+    sens = [table.mm_per_v(f) for f in knots]
+    spread = (max(sens) - min(sens)) / min(sens)
     if spread > FLAT_SENSITIVITY_TOLERANCE:
         raise ParameterError("devices.generator.sensitivity_mm_per_v",
                              f"the sensitivity varies by {100 * spread:.3g} % over {f0:g}..{f1:g} Hz; the "
                              "generator sweeps at constant volts, so the displacement would not be "
                              f"constant: at most {100 * FLAT_SENSITIVITY_TOLERANCE:g} % is allowed (narrow "
                              "the sweep, use shape = \"fig17\" — stepped, volts per step — or the exciter)")
+    vpp = shaker.amplitude_vpp_for(f0, amp)
+    return Vibration("generator", tuple(points), amplitude_vpp=tuple(vpp for _ in points),
+                     generator_sweep=GeneratorSweep(f0, f1, params.duration_s, params.shape, vpp), **common)
+
+
+def own_plan(params: Parameters, config: Any, *, step_name: str = "sweep") -> Plan:
+    """Step ``sweep``: the column's driving device over the whole profile (hold included)."""
+    body = target_of(config, "sweep_column").body
+    if body == "shaker":
+        vibration = _shaker_vibration(params, config)
+        duration_s = vibration.duration_s
+    else:
+        vibration, duration_s = _exciter_vibration(params, body, config)
+    return Plan(NAME, (PlanStep(step_name, duration_s, vibration=vibration),))
+
+
+def plan(params: Parameters, config: Any) -> Plan:
+    """calibrate, sync, then step ``sweep``; nothing is connected."""
+    return alone_plan(NAME, own_plan(params, config), config)
 
 
 def run_step(ctx: Any, params: Parameters, *, step_name: str = "sweep") -> None:
@@ -130,11 +162,12 @@ def run_step(ctx: Any, params: Parameters, *, step_name: str = "sweep") -> None:
     with ctx.step(step_name) as step:
         if step.skipped:
             return
-        profile = check_plan(ctx, params)
+        planned = own_plan(params, ctx.config, step_name=step_name).vibration(step_name)
         column = require_target(ctx, "sweep_column")
         if column.body == "shaker":
             _run_shaker(ctx, params, column, step_name)
             return
+        profile = PointsSweep(planned.profile)  # the setpoints checked before the station was opened
         exciter = drive_of(ctx, column)
         mount(ctx, "sweep_column")
         ctx.progress(None, f"sweep: exciter to {profile.start_hz:g} Hz")
@@ -217,4 +250,4 @@ def _run_shaker_steps(ctx: Any, params: Parameters, column: Any, shaker: Any, *,
 
 
 def run(ctx: Any, params: Parameters) -> dict[str, Any]:
-    return run_alone(ctx, params, check_plan, run_step)[1]
+    return run_alone(ctx, params, run_step)[1]

@@ -21,6 +21,7 @@ import pandas as pd
 
 from procedures._acquire import Acquirer, ReduceOptions
 from procedures._common import (
+    amplitude_of,
     fastest_fps,
     hold_polling,
     load_calibration,
@@ -29,7 +30,10 @@ from procedures._common import (
     read_run_json,
     require_target,
     stop_polled,
+    target_of,
+    vfd_config,
 )
+from rig.plan import Plan, PlanStep, Vibration
 from rig.procedure import param
 from rig.stereo import DLTCamera, TimingError
 from rig.stereo.timing import estimate_offset
@@ -119,12 +123,25 @@ def estimate_timing(calibration: dict[str, Any], rec: Any, camera_events: list[d
     return timing
 
 
-def spin_and_record(ctx: Any, acq: Acquirer, segment: str, *, rotation_hz: float, record_s: float,
+def rotor_step(name: str, config: Any, *, rotation_hz: float, record_s: float, source: str) -> PlanStep:
+    """The rotor spun at ``rotation_hz`` for ``record_s`` s (``source``: the parameter naming it), with the
+    spin-up and stop at the drive's configured ramp in the duration."""
+    target_of(config, "rotor")
+    radius_mm, radius_from = amplitude_of(config, "rotor")
+    ramp = vfd_config(config, "rotor").ramp_rate_hz_per_s
+    vibration = Vibration("rotor", ((0.0, rotation_hz), (record_s, rotation_hz)), radius_mm,
+                          f"{source} = {rotation_hz:g} Hz", radius_from, max_slope_hz_per_s=ramp,
+                          slope_from=f"devices.rotor.ramp_rate_hz_per_s = {ramp:g} Hz/s")
+    return PlanStep(name, record_s + 2 * rotation_hz / ramp, vibration=vibration)
+
+
+def spin_and_record(ctx: Any, acq: Acquirer, segment: str, planned: Vibration, *,
                     poll_interval_s: float) -> tuple[Any, list[dict[str, Any]]]:
-    """Spin the rotor up, record ``record_s`` s (polling it), record ``rotation`` truth, stop it."""
+    """Spin the rotor up to the ``planned`` frequency, record the planned time (polling it), record
+    ``rotation`` truth, stop it."""
     rotor_cfg = require_target(ctx, "rotor")
     rotor = ctx.device("rotor")
-    rotor.check_frequency(rotation_hz)  # limits before anything moves
+    (_, rotation_hz), (record_s, _) = planned.profile[0], planned.profile[-1]
     mount(ctx, "rotor")
     poll_event(ctx, "rotor", rotor.set_rotation_hz(rotation_hz, wait=True))
     rec = acq.record(segment, lambda: hold_polling(ctx, rotor, "rotor", record_s=record_s,
@@ -140,10 +157,10 @@ def spin_and_record(ctx: Any, acq: Acquirer, segment: str, *, rotation_hz: float
     return rec, events
 
 
-def check_plan(ctx: Any, params: Parameters) -> None:
-    """The rotor's limits at ``rotation_hz`` (nothing is sent)."""
-    require_target(ctx, "rotor")
-    ctx.device("rotor").check_frequency(params.rotation_hz)
+def plan(params: Parameters, config: Any) -> Plan:
+    """Step ``sync``: the rotor at ``rotation_hz`` for ``record_s`` s; nothing is connected."""
+    return Plan(NAME, (rotor_step("sync", config, rotation_hz=params.rotation_hz, record_s=params.record_s,
+                                  source="sync.rotation_hz"),))
 
 
 def run_step(ctx: Any, params: Parameters) -> dict[str, Any]:
@@ -151,10 +168,10 @@ def run_step(ctx: Any, params: Parameters) -> dict[str, Any]:
     with ctx.step("sync") as step:
         if not step.skipped:
             calibration = load_calibration(ctx)
-            fps = fastest_fps(ctx)
+            fps = fastest_fps(ctx.config)
+            planned = plan(params, ctx.config).vibration("sync")
             with Acquirer(ctx, ReduceOptions(mode="detect")) as acq:
-                rec, events = spin_and_record(ctx, acq, "sync", rotation_hz=params.rotation_hz,
-                                              record_s=params.record_s,
+                rec, events = spin_and_record(ctx, acq, "sync", planned,
                                               poll_interval_s=params.poll_interval_s)
             timing = estimate_timing(calibration, rec, events, params=params,
                                      rotor=require_target(ctx, "rotor"), fps=fps)
@@ -165,8 +182,6 @@ def run_step(ctx: Any, params: Parameters) -> dict[str, Any]:
 def run(ctx: Any, params: Parameters) -> dict[str, Any]:
     from procedures import calibrate
 
-    calibrate.check_plan(ctx, calibrate.Parameters())
-    check_plan(ctx, params)
     calibrate.run_step(ctx, calibrate.Parameters())
     timing = run_step(ctx, params)
     u = max((timing.get("uncertainty") or {}).get("offset_s", {}).values(), default=float("nan"))

@@ -114,6 +114,8 @@ def _run_procedure(module: types.ModuleType, args: argparse.Namespace) -> int:
 
     config = load_config(args.config)
     overrides = parse_set(args.set or [])
+    if args.dry_run:
+        return _dry_run(module, config, overrides, resume=args.resume)
     bar = ProgressBar()
     runner = Runner(module, config=config, station_factory=open_station, runs_dir=args.runs_dir,
                     progress=bar)
@@ -140,6 +142,28 @@ def _index_in_catalogue(run_dir: Path) -> None:
         index_run(run_dir)
     except (RecordError, OSError, sqlite3.Error) as exc:
         log.warning("the run was not added to the catalogue of runs (rig runs will add it): %s", exc)
+
+
+def _dry_run(module: types.ModuleType, config: Any, overrides: dict[str, Any], *, resume: str | None) -> int:
+    """Print the procedure's plan and every limit check without connecting anything: 0 all pass, 4 not."""
+    from rig.plan import PlanRefused, check_plan, format_plan, plan_of
+    from rig.procedure import validate_parameters
+
+    if resume:
+        raise ParameterError("--dry-run", "not with --resume (a resumed run keeps its checked plan)")
+    plan = plan_of(module, validate_parameters(module, overrides), config)
+    if plan is None:
+        print(f"rig: {module.NAME} declares no plan (no plan(params, config) in its module): nothing to "
+              "check before connecting; its drivers check every command before sending it")
+        return 0
+    checks = check_plan(plan, config)
+    print(format_plan(plan, checks))
+    if any(not c.passed for c in checks):
+        print(f"rig: dry run of {module.NAME}: refused (exit {EXIT_BAD_INPUT}): {PlanRefused(plan, checks)}",
+              file=sys.stderr)
+        return EXIT_BAD_INPUT
+    print(f"rig: dry run of {module.NAME}: all {len(checks)} checks pass; nothing was connected")
+    return 0
 
 
 def cmd_run(args: argparse.Namespace) -> int:
@@ -343,6 +367,9 @@ def _add_run_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--resume", metavar="RUN",
                    help="continue the run folder RUN after its last completed step")
     p.add_argument("--runs-dir", metavar="DIR", help="where run folders go (default: station.runs_dir)")
+    p.add_argument("--dry-run", action="store_true", help="print the plan (steps, poses, frequencies, "
+                   "durations) and its limit checks without connecting any device; exit 0 if all pass, "
+                   "4 if not")
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -42,8 +42,8 @@ from typing import Any
 from rig.config_geometry import SimConfig, TargetsConfig
 from rig.config_schema import ConfigError, build, spec, to_dict
 
-__all__ = ["BAUD_RATES", "ConfigError", "RigConfig", "default_config", "load_config", "parse_address",
-           "parse_config"]
+__all__ = ["BAUD_RATES", "ConfigError", "RigConfig", "default_config", "endpoint", "load_config",
+           "parse_address", "parse_config"]
 
 BAUD_RATES = (1200, 2400, 4800, 9600, 19200, 38400, 57600, 115200, 230400)
 
@@ -202,11 +202,11 @@ class RobotLimits:
                 raise ConfigError(f"limits.robot.envelope_{axis}_mm",
                                   f"[{lo:g}, {hi:g}]: allowed: [min, max] with min < max")
 
-    def contains(self, xyz_mm: Any) -> bool:
-        """True when the point (x, y, z) mm is inside the envelope box (boundary included)."""
-        x, y, z = (float(v) for v in list(xyz_mm)[:3])
-        return all(lo <= v <= hi for v, (lo, hi) in
-                   zip((x, y, z), (self.envelope_x_mm, self.envelope_y_mm, self.envelope_z_mm), strict=True))
+    def envelope(self) -> Any:
+        """The arm driver's :class:`drivers.denso.arm.BoxEnvelope` of these limits."""
+        from drivers.denso.arm import BoxEnvelope
+
+        return BoxEnvelope(self.envelope_x_mm, self.envelope_y_mm, self.envelope_z_mm)
 
 
 @dataclass(frozen=True)
@@ -292,6 +292,76 @@ class RigConfig:
         return list(self.cameras)
 
 
+DEVICE_NAMES = ("robot", "exciter", "rotor", "generator")
+
+
+def endpoint(address: str) -> tuple[str, ...] | None:
+    """Where an address leads, normalised so that two spellings of one endpoint compare equal:
+    ``("tcp", host, port)`` (``localhost`` and ``::1`` → ``127.0.0.1``, IP addresses in canonical form, names
+    lower-cased), ``("serial", device)`` (symbolic links resolved: ``/dev/serial/by-id/…`` is the tty it
+    names); None for a ``mock://`` address (the station starts one server per device)."""
+    import ipaddress
+    import os
+
+    parts = parse_address(address)
+    if parts["scheme"] == "serial":
+        return ("serial", os.path.realpath(parts["device"]))
+    if parts["scheme"] != "tcp":
+        return None
+    host = parts["host"].lower().rstrip(".")
+    try:
+        ip = ipaddress.ip_address(host)
+        host = "127.0.0.1" if ip.is_loopback and (ip.version == 6 or host == "127.0.0.1") else ip.compressed
+    except ValueError:
+        host = "127.0.0.1" if host == "localhost" else host
+    return ("tcp", host, str(parts["port"]))
+
+
+def _check_distinct_endpoints(cfg: RigConfig) -> None:
+    """Two devices must not resolve to one endpoint: the same host:port or serial device, unless both are
+    Modbus drives with distinct unit ids (drives sharing an RS-485 line or a TCP gateway)."""
+    seen: list[tuple[str, tuple[str, ...], int | None]] = []
+    for name in DEVICE_NAMES:
+        dev = getattr(cfg.devices, name)
+        where = None if dev is None else endpoint(dev.address)
+        if where is None:
+            continue
+        unit = dev.unit_id if isinstance(dev, VfdConfig) else None
+        for other, other_where, other_unit in seen:
+            if where == other_where and (unit is None or other_unit is None or unit == other_unit):
+                ids = "" if unit is None or other_unit is None else f" and unit_id {unit}"
+                raise ConfigError(f"devices.{name}.address",
+                                  f"{dev.address!r}{ids} is the endpoint of devices.{other} too "
+                                  f"({getattr(cfg.devices, other).address!r}): one physical device cannot be "
+                                  f"configured as both {other} and {name} (it would be commanded against two "
+                                  "limit sets); give each device its own address or unit_id")
+        seen.append((name, where, unit))
+
+
+def _check_configured_poses(cfg: RigConfig) -> None:
+    """``devices.robot.home_pose`` and ``targets.calibration_plate.start_pose`` inside the arm's envelope
+    (the driver's own check)."""
+    from drivers.denso.arm import LimitError as ArmLimitError
+    from drivers.denso.pose import check_pose
+
+    if cfg.limits.robot is None:
+        return
+    envelope = cfg.limits.robot.envelope()
+    poses = [("devices.robot.home_pose", cfg.devices.robot.home_pose if cfg.devices.robot else None)]
+    plate = cfg.targets.calibration_plate
+    poses.append(("targets.calibration_plate.start_pose", plate.start_pose if plate is not None else None))
+    for path, pose in poses:
+        if pose is None:
+            continue
+        try:
+            envelope.check(check_pose(pose))
+        except ArmLimitError as exc:
+            limit = f"limits.robot.envelope_{exc.axis}" if exc.axis in ("x_mm", "y_mm", "z_mm") else \
+                "the arm driver's orientation range"
+            raise ConfigError(path, f"{[float(v) for v in pose]} is outside the arm's envelope: {exc} "
+                                    f"({limit})") from exc
+
+
 def _cross_check(cfg: RigConfig) -> None:
     if len(cfg.cameras) < 2:
         raise ConfigError("cameras", f"{len(cfg.cameras)} camera(s) configured; allowed: at least 2 (stereo)")
@@ -344,6 +414,8 @@ def _cross_check(cfg: RigConfig) -> None:
                                            "virtual clock; allowed: 'virtual'")
     if cfg.station.clock == "virtual" and not cfg.station.simulated:
         raise ConfigError("station.clock", "'virtual' is only allowed when station.simulated = true")
+    _check_distinct_endpoints(cfg)
+    _check_configured_poses(cfg)
 
 
 def config_from_dict(table: dict[str, Any], source: str = "<dict>") -> RigConfig:

@@ -30,6 +30,11 @@ whatever happens. It records the truth it commands and what devices report with 
 (streams of ``docs/contracts.md``). It calls :meth:`Context.checkpoint` between motions; the runner
 raises :class:`Abort` there after a first Ctrl-C, and :class:`InterlockTripped` after a trip.
 
+A procedure that moves anything also defines ``plan(params, config) -> rig.plan.Plan``: its whole plan
+(poses, speeds, frequency profiles, amplitudes, durations) from the parameters and the configuration alone;
+the runner checks it against every limit before any device is connected (:mod:`rig.plan`; exit 4), and
+``run`` carries out that same plan.
+
 Parameters are validated before anything moves (:func:`validate_parameters`): unknown name, wrong type,
 out of range → :class:`ParameterError` naming ``<procedure>.<field>``, the value and what is allowed.
 ``param(...)`` accepts ``lo``, ``hi``, ``lo_open``, ``choices``, ``length`` (arrays) and ``doc``.

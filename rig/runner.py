@@ -2,7 +2,8 @@
 
 ``Runner(module, config=..., station_factory=...).run(overrides, resume=None) -> RunOutcome``:
 
-1. **validate** the parameters (defaults + ``--set`` overrides; nothing is built or moved on bad input →
+1. **validate** the parameters (defaults + ``--set`` overrides) and the procedure's whole plan against the
+   limits (:func:`rig.plan.validate_procedure`; nothing is built or moved on bad input →
    exit 4, no run folder);
 2. write **start** before any device is reached (``rig`` = the configuration snapshot, the parameters,
    the versions; ``devices`` = ``{"connected": false}``): a new run folder, or the same folder with a
@@ -44,6 +45,7 @@ from typing import Any
 from rig.clock import make_clock
 from rig.config_schema import ConfigError, to_dict
 from rig.jsonenc import dumps
+from rig.plan import validate_procedure
 from rig.procedure import Abort, Context, InterlockTripped, ParameterError, validate_parameters
 from rig.readback import read_back
 from rig.record import RecordError, RunRecord, parse_record
@@ -254,6 +256,12 @@ class Runner:
 
     def _validate(self, overrides: dict[str, Any] | None,
                   resume: str | Path | None) -> tuple[Any, Path | None]:
+        params, resume_dir = self._parameters(overrides, resume)
+        validate_procedure(self.module, params, self.config)  # the whole plan, before any device (exit 4)
+        return params, resume_dir
+
+    def _parameters(self, overrides: dict[str, Any] | None,
+                    resume: str | Path | None) -> tuple[Any, Path | None]:
         if resume is None:
             return validate_parameters(self.module, overrides), None
         resume_dir = Path(resume)

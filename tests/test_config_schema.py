@@ -48,7 +48,8 @@ def test_builtin_sim_config_is_valid_and_complete() -> None:
     assert cfg.camera_names() == ["left", "right"]
     assert cfg.devices.exciter.crank_radius_mm == 4.0 and cfg.devices.rotor.unit_id == 2
     assert cfg.limits.exciter.motion_limits().max_frequency_hz == 32.0
-    assert cfg.limits.robot.contains([420, 0, 300]) and not cfg.limits.robot.contains([420, 0, 800])
+    envelope = cfg.limits.robot.envelope()  # the arm driver's own BoxEnvelope
+    assert envelope.x_mm == (150.0, 650.0) and envelope.z_mm == (50.0, 650.0)
     assert set(cfg.sim.cameras) == {"left", "right"}
 
 

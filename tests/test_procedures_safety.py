@@ -3,7 +3,7 @@
 - Ctrl-C (SIGINT) in the middle of the certification's sweep: exit 2, the run's stop is ``abort``, the
   exciter stopped and the arm halted by the runner, the record readable;
 - a plan beyond a limit (a sweep above the exciter's frequency limit, a plate slide outside the arm's
-  envelope): exit 3 before anything is sent (no motion event, no step), the reason recorded.
+  envelope): exit 4 before any device is connected (no run folder), the parameter and the limit named.
 """
 
 from __future__ import annotations
@@ -18,7 +18,6 @@ from pathlib import Path
 
 import pytest
 
-from rig.catalogue import run_folders
 from rig.record import load_run
 from tests.certify_support import write_config
 
@@ -35,37 +34,26 @@ def _rig(tmp_path: Path, *args: str) -> subprocess.CompletedProcess:
                           env=_env(), capture_output=True, text=True, timeout=240, check=False)
 
 
-def _only_run(tmp_path: Path) -> Path:
-    runs = run_folders(tmp_path / "runs")
-    assert len(runs) == 1
-    return runs[0]
-
-
 def _documents(run_dir: Path) -> list[dict]:
     return [json.loads(line) for line in (run_dir / "record.jsonl").read_text().splitlines() if line.strip()]
 
 
-def test_sweep_above_the_frequency_limit_sends_nothing(tmp_path: Path) -> None:
+def test_sweep_above_the_frequency_limit_is_refused_before_connecting(tmp_path: Path) -> None:
+    # certify checks the plan of all its steps: the sweep (its last motion) is refused before calibrate runs
     proc = _rig(tmp_path, "certify", "--set", 'preset="fast"', "--set", "sweep_max_hz=40")
-    assert proc.returncode == 3, proc.stderr
-    docs = _documents(_only_run(tmp_path))
-    interlocks = [d for d in docs if d["type"] == "interlock"]
-    assert interlocks and "exceeds the limit 32 Hz" in interlocks[0]["reason"]
-    assert "nothing was sent" in interlocks[0]["reason"]
-    assert not [d for d in docs if d["type"] == "step"]
-    # no move, no exciter command, no recording (only the station's snapshot, recorded on connecting)
-    assert [d["stream"] for d in docs if d["type"] == "event"] == ["devices"]
-    stop = docs[-1]
-    assert stop["type"] == "stop" and stop["outcome"] == "interlock" and stop["exit_code"] == 3
+    assert proc.returncode == 4, proc.stderr
+    assert "certify.sweep_max_hz = 40 Hz: frequency 40 Hz" in proc.stderr, proc.stderr
+    assert "exceeds the exciter's limit 32 Hz (limits.exciter.max_frequency_hz)" in proc.stderr
+    assert "Traceback" not in proc.stderr
+    assert not (tmp_path / "runs").exists()  # no run folder, no station: nothing was connected
 
 
-def test_plate_slide_outside_the_envelope_sends_nothing(tmp_path: Path) -> None:
+def test_plate_slide_outside_the_envelope_is_refused_before_connecting(tmp_path: Path) -> None:
     proc = _rig(tmp_path, "run", "calibrate", "--set", "slide_positions_mm=[0.0, 300.0]")
-    assert proc.returncode == 3, proc.stderr
-    docs = _documents(_only_run(tmp_path))
-    reason = next(d for d in docs if d["type"] == "interlock")["reason"]
-    assert "x_mm=720" in reason and "[150, 650]" in reason
-    assert not [d for d in docs if d["type"] == "step" or (d["type"] == "event" and d["stream"] != "devices")]
+    assert proc.returncode == 4, proc.stderr
+    assert "calibrate.slide_positions_mm = [0.0, 300.0] mm" in proc.stderr, proc.stderr
+    assert "pose x = 720 mm" in proc.stderr and "[150, 650] mm (limits.robot.envelope_x_mm)" in proc.stderr
+    assert not (tmp_path / "runs").exists()
 
 
 def test_ctrl_c_mid_sweep_aborts_with_exciter_stopped_and_arm_halted(tmp_path: Path) -> None:

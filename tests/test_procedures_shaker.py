@@ -20,7 +20,6 @@ profile's mean frequency over it, so the staircase's phase equals the profile's 
 from __future__ import annotations
 
 import itertools
-import json
 import re
 from pathlib import Path
 
@@ -82,18 +81,6 @@ def _noise(run_dir: Path, centre_mm: tuple[float, ...]) -> tuple[float, float, f
     assert 0 < sigma_px < 0.5, sigma_px
     mm_per_px, z_over_b = depth_scale(read_json(run_dir / "calibration.json"), centre_mm)
     return sigma_px, mm_per_px, z_over_b
-
-
-def _refused_before_motion(code: int, run_dir: Path, exit_code: int) -> dict:
-    run = load_run(run_dir)
-    assert code == exit_code, run.stop
-    assert run.stop["exit_code"] == exit_code
-    assert not run.steps_completed
-    docs = [json.loads(line) for line in (run_dir / "record.jsonl").read_text().splitlines() if line.strip()]
-    assert not [d for d in docs if d["type"] == "step"]
-    # nothing but the station snapshot: no motion, no recording, no generator poll
-    assert [d["stream"] for d in docs if d["type"] == "event"] == ["devices"]
-    return run.stop
 
 
 @pytest.mark.slow
@@ -178,33 +165,46 @@ def test_shaker_plate_matches_the_twin(tmp_path: Path) -> None:
         pd.DataFrame({"marker": table["marker_id"], "err_hz": f_err, "u_hz": u_f})
 
 
-@pytest.mark.parametrize(("settings", "quantity"), [
+@pytest.mark.parametrize(("settings", "expected"), [
     # 3 mm at 0.5 mm/V needs 12 Vpp: above the amplifier's 10 Vpp
-    (("shaker_amplitude_mm=3.0", "max_hz=12"), "generator amplitude"),
+    (("shaker_amplitude_mm=3.0", "max_hz=12"), ("generator amplitude 12 Vpp",
+                                                 "sweep.shaker_amplitude_mm = 3 mm",
+                                                 "(devices.generator.max_amplitude_vpp)")),
     # 2 mm at 80 Hz: (2π·80)²·2 mm = 505 m/s² > 500 m/s²
-    (("shaker_amplitude_mm=2.0", "max_hz=80"), "acceleration"),
+    (("shaker_amplitude_mm=2.0", "max_hz=80"), ("acceleration (2π·80 Hz)²·2 mm", "sweep.max_hz = 80 Hz",
+                                                 "(limits.generator.max_acceleration_m_s2)")),
     # above the shaker's 5 mm stroke
-    (("shaker_amplitude_mm=6.0", "max_hz=12"), "displacement"),
+    (("shaker_amplitude_mm=6.0", "max_hz=12"), ("displacement 6 mm", "sweep.shaker_amplitude_mm = 6 mm",
+                                                 "(limits.generator.max_displacement_mm)")),
 ])
-def test_shaker_sweep_above_the_limits_exits_3_with_nothing_sent(tmp_path: Path, settings: tuple[str, ...],
-                                                                  quantity: str) -> None:
-    code, run_dir = _run(tmp_path, _config(tmp_path, "sweep_column"), "sweep", "shape=linear", *settings)
-    stop = _refused_before_motion(code, run_dir, 3)
-    assert quantity in stop["reason"] and "nothing was sent" in stop["reason"], stop["reason"]
+def test_shaker_sweep_above_the_limits_exits_4_before_connecting(tmp_path: Path, settings: tuple[str, ...],
+                                                                  expected: tuple[str, ...],
+                                                                  capsys: pytest.CaptureFixture[str]) -> None:
+    code = main(["run", "sweep", "--config", str(_config(tmp_path, "sweep_column")), "--set", "shape=linear",
+                 *(a for s in settings for a in ("--set", s))])
+    err = capsys.readouterr().err
+    assert code == 4 and not (tmp_path / "runs").exists(), err  # refused before the run folder and station
+    assert all(e in err for e in expected), err
 
 
-def test_shaker_plate_above_the_amplifier_limit_exits_3_with_nothing_sent(tmp_path: Path) -> None:
-    code, run_dir = _run(tmp_path, _config(tmp_path, "plate"), "plate", "shaker_amplitude_mm=3.0")
-    stop = _refused_before_motion(code, run_dir, 3)
-    assert "generator amplitude" in stop["reason"] and "10 Vpp" in stop["reason"], stop["reason"]
+def test_shaker_plate_above_the_amplifier_limit_exits_4_before_connecting(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    config = _config(tmp_path, "plate")
+    code = main(["run", "plate", "--config", str(config), "--set", "shaker_amplitude_mm=3.0"])
+    err = capsys.readouterr().err
+    assert code == 4 and not (tmp_path / "runs").exists(), err
+    assert "generator amplitude 12 Vpp" in err and "limit 10 Vpp" in err, err
 
 
-def test_shaker_sweep_needs_a_flat_sensitivity_table(tmp_path: Path) -> None:
+def test_shaker_sweep_needs_a_flat_sensitivity_table(tmp_path: Path,
+                                                     capsys: pytest.CaptureFixture[str]) -> None:
     # 0.5 → 0.6 mm/V over 1..100 Hz: 2 % over 2..12 Hz, more than the 0.5 % the constant-volts sweep allows
     config = _config(tmp_path, "sweep_column", sensitivity="[[1.0, 0.5], [100.0, 0.6]]")
-    code, run_dir = _run(tmp_path, config, "sweep", "shape=linear", "start_hz=2", "max_hz=12")
-    stop = _refused_before_motion(code, run_dir, 4)
-    assert "devices.generator.sensitivity_mm_per_v" in stop["reason"] and "0.5 %" in stop["reason"]
+    code = main(["run", "sweep", "--config", str(config), "--set", "shape=linear", "--set", "start_hz=2",
+                 "--set", "max_hz=12"])
+    err = capsys.readouterr().err
+    assert code == 4 and not (tmp_path / "runs").exists(), err
+    assert "devices.generator.sensitivity_mm_per_v" in err and "0.5 %" in err, err
 
 
 @settings(max_examples=60, deadline=None)

@@ -70,6 +70,15 @@ def _check(axis: str, value: float, allowed: tuple[float, float]) -> None:
         raise LimitError(axis, value, allowed)
 
 
+def check_speed(speed_mm_s: float, max_speed_mm_s: float) -> float:
+    """A move speed (mm/s) in (0, ``max_speed_mm_s``], returned as a float; else :class:`LimitError`."""
+    speed = float(speed_mm_s)
+    if not math.isfinite(speed) or speed <= 0:
+        raise LimitError("speed_mm_s", speed, (0.0, max_speed_mm_s))
+    _check("speed_mm_s", speed, (0.0, max_speed_mm_s))
+    return speed
+
+
 @dataclass(frozen=True)
 class OrientationLimits:
     """Allowed Denso angles in degrees (raw rx, ry, rz values as commanded)."""
@@ -247,11 +256,7 @@ class DensoArm:
         return target
 
     def check_speed(self, speed_mm_s: float) -> float:
-        speed = float(speed_mm_s)
-        if not math.isfinite(speed) or speed <= 0:
-            raise LimitError("speed_mm_s", speed, (0.0, self.max_speed_mm_s))
-        _check("speed_mm_s", speed, (0.0, self.max_speed_mm_s))
-        return speed
+        return check_speed(speed_mm_s, self.max_speed_mm_s)
 
     def set_speed(self, speed_mm_s: float) -> None:
         """Default speed of later moves (mm/s, at most ``max_speed_mm_s``)."""

@@ -16,20 +16,49 @@ from collections.abc import Iterable
 from dataclasses import dataclass
 from typing import Any
 
-__all__ = ["LimitError", "MotionLimits", "peak_acceleration_m_s2", "peak_velocity_mm_s"]
+__all__ = ["LimitCheck", "LimitError", "MotionLimits", "peak_acceleration_m_s2", "peak_velocity_mm_s"]
 
 
 class LimitError(ValueError):
-    """A command would exceed a configured limit. Attributes: quantity, value, limit, unit."""
+    """A command would exceed a configured limit. Attributes: quantity, value, limit, unit and ``field``,
+    the name of the limit (a :class:`MotionLimits` field such as ``max_frequency_hz``; "" when unnamed)."""
 
-    def __init__(self, quantity: str, value: float, limit: float, unit: str, context: str = "") -> None:
+    def __init__(self, quantity: str, value: float, limit: float, unit: str, context: str = "", *,
+                 field: str = "") -> None:
         self.quantity = quantity
         self.value = value
         self.limit = limit
         self.unit = unit
+        self.field = field
         where = f" ({context})" if context else ""
         super().__init__(f"{quantity} {value:.6g} {unit} exceeds the limit {limit:.6g} {unit}{where}; "
                          "nothing was sent")
+
+
+@dataclass(frozen=True)
+class LimitCheck:
+    """One quantity of an operating point against its limit: ``field`` is the :class:`MotionLimits` field
+    the limit comes from (``max_frequency_hz``, ...); ``formula`` says how ``value`` was computed."""
+
+    quantity: str
+    value: float
+    limit: float
+    unit: str
+    field: str
+    formula: str = ""
+
+    @property
+    def passed(self) -> bool:
+        return self.value <= self.limit
+
+    @property
+    def margin(self) -> float:
+        """limit − value, in ``unit`` (negative when exceeded)."""
+        return self.limit - self.value
+
+    def error(self, context: str = "") -> LimitError:
+        where = "; ".join(p for p in (self.formula, context) if p)
+        return LimitError(self.quantity, self.value, self.limit, self.unit, where, field=self.field)
 
 
 def peak_acceleration_m_s2(frequency_hz: float, amplitude_mm: float) -> float:
@@ -93,33 +122,51 @@ class MotionLimits:
         if not math.isfinite(frequency_hz) or frequency_hz < 0:
             raise ValueError(f"frequency_hz={frequency_hz!r}: must be a finite number >= 0")
         if frequency_hz > self.max_frequency_hz:
-            raise LimitError("frequency", frequency_hz, self.max_frequency_hz, "Hz", context)
+            raise LimitError("frequency", frequency_hz, self.max_frequency_hz, "Hz", context,
+                             field="max_frequency_hz")
 
     def check_displacement(self, amplitude_mm: float, context: str = "") -> None:
         if not math.isfinite(amplitude_mm) or amplitude_mm < 0:
             raise ValueError(f"amplitude_mm={amplitude_mm!r}: must be a finite number >= 0")
         if amplitude_mm > self.max_displacement_mm:
-            raise LimitError("displacement", amplitude_mm, self.max_displacement_mm, "mm", context)
+            raise LimitError("displacement", amplitude_mm, self.max_displacement_mm, "mm", context,
+                             field="max_displacement_mm")
 
     def check_ramp_rate(self, rate_hz_per_s: float, context: str = "") -> None:
+        check = self.evaluate_ramp_rate(rate_hz_per_s)
+        if not check.passed:
+            raise check.error(context)
+
+    def evaluate(self, frequency_hz: float, amplitude_mm: float) -> tuple[LimitCheck, ...]:
+        """Every limit of one operating point (frequency, displacement, (2πf)²·x, 2πf·x when limited), in
+        that order; nothing raises for a value beyond its limit (see :meth:`check_point`)."""
+        for name, value in (("frequency_hz", frequency_hz), ("amplitude_mm", amplitude_mm)):
+            if not math.isfinite(value) or value < 0:
+                raise ValueError(f"{name}={value!r}: must be a finite number >= 0")
+        out = [LimitCheck("frequency", frequency_hz, self.max_frequency_hz, "Hz", "max_frequency_hz"),
+               LimitCheck("displacement", amplitude_mm, self.max_displacement_mm, "mm",
+                          "max_displacement_mm"),
+               LimitCheck("acceleration", peak_acceleration_m_s2(frequency_hz, amplitude_mm),
+                          self.max_acceleration_m_s2, "m/s²", "max_acceleration_m_s2",
+                          f"(2π·{frequency_hz:.6g} Hz)²·{amplitude_mm:.6g} mm")]
+        if self.max_velocity_mm_s is not None:
+            out.append(LimitCheck("velocity", peak_velocity_mm_s(frequency_hz, amplitude_mm),
+                                  self.max_velocity_mm_s, "mm/s", "max_velocity_mm_s",
+                                  f"2π·{frequency_hz:.6g} Hz·{amplitude_mm:.6g} mm"))
+        return tuple(out)
+
+    def evaluate_ramp_rate(self, rate_hz_per_s: float) -> LimitCheck:
+        """The ramp-rate limit for a frequency change of ``rate_hz_per_s`` (Hz/s, finite, > 0)."""
         if not math.isfinite(rate_hz_per_s) or rate_hz_per_s <= 0:
             raise ValueError(f"rate_hz_per_s={rate_hz_per_s!r}: must be a finite number > 0")
-        if rate_hz_per_s > self.max_ramp_rate_hz_per_s:
-            raise LimitError("ramp rate", rate_hz_per_s, self.max_ramp_rate_hz_per_s, "Hz/s", context)
+        return LimitCheck("ramp rate", rate_hz_per_s, self.max_ramp_rate_hz_per_s, "Hz/s",
+                          "max_ramp_rate_hz_per_s")
 
     def check_point(self, frequency_hz: float, amplitude_mm: float, context: str = "") -> None:
         """Frequency, displacement, acceleration (2πf)²·x and velocity 2πf·x of one operating point."""
-        self.check_frequency(frequency_hz, context)
-        self.check_displacement(amplitude_mm, context)
-        acc = peak_acceleration_m_s2(frequency_hz, amplitude_mm)
-        if acc > self.max_acceleration_m_s2:
-            ctx = f"(2π·{frequency_hz:.6g} Hz)²·{amplitude_mm:.6g} mm" + (f"; {context}" if context else "")
-            raise LimitError("acceleration", acc, self.max_acceleration_m_s2, "m/s²", ctx)
-        if self.max_velocity_mm_s is not None:
-            vel = peak_velocity_mm_s(frequency_hz, amplitude_mm)
-            if vel > self.max_velocity_mm_s:
-                ctx = f"2π·{frequency_hz:.6g} Hz·{amplitude_mm:.6g} mm" + (f"; {context}" if context else "")
-                raise LimitError("velocity", vel, self.max_velocity_mm_s, "mm/s", ctx)
+        for check in self.evaluate(frequency_hz, amplitude_mm):
+            if not check.passed:
+                raise check.error(context)
 
     def check_points(self, points: Iterable[tuple[float, float]], context: str = "") -> None:
         """Every (frequency_hz, amplitude_mm) pair."""

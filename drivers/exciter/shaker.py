@@ -28,7 +28,7 @@ from drivers.exciter.generator import GeneratorError, SafeOffOutcome, ScpiGenera
 from drivers.exciter.limits import LimitError, MotionLimits
 from drivers.heartbeat import Heartbeat
 
-__all__ = ["GeneratorSample", "SensitivityTable", "Shaker", "ShakerSweep"]
+__all__ = ["GeneratorSample", "SensitivityTable", "Shaker", "ShakerLimits", "ShakerSweep"]
 
 
 class SensitivityTable:
@@ -119,6 +119,57 @@ class GeneratorSample:
         return {k: v for k, v in asdict(self).items() if v is not None}
 
 
+@dataclass(frozen=True)
+class ShakerLimits:
+    """The shaker's limits without a generator: mechanical ``limits``, the ``sensitivity`` table and the
+    amplifier's input limit ``max_amplitude_vpp`` (V peak-to-peak). Checks send nothing; the whole-plan
+    validation uses them before any device is connected."""
+
+    limits: MotionLimits
+    sensitivity: SensitivityTable
+    max_amplitude_vpp: float
+
+    def displacement_mm(self, frequency_hz: float, amplitude_vpp: float) -> float:
+        return self.sensitivity.mm_per_v(frequency_hz) * amplitude_vpp / 2.0
+
+    def amplitude_vpp_for(self, frequency_hz: float, amplitude_mm: float) -> float:
+        """Generator Vpp giving peak displacement ``amplitude_mm`` at ``frequency_hz``."""
+        return 2.0 * amplitude_mm / self.sensitivity.mm_per_v(frequency_hz)
+
+    def check_volts(self, amplitude_vpp: float) -> None:
+        if not 0 <= amplitude_vpp <= self.max_amplitude_vpp:
+            raise LimitError("generator amplitude", amplitude_vpp, self.max_amplitude_vpp, "Vpp",
+                             "amplifier input limit", field="max_amplitude_vpp")
+
+    def check_point(self, frequency_hz: float, amplitude_vpp: float) -> None:
+        """Mechanical limits at (f, volts), then the amplifier's input limit."""
+        self.limits.check_point(frequency_hz, self.displacement_mm(frequency_hz, amplitude_vpp),
+                                f"shaker at {amplitude_vpp:.4g} Vpp")
+        self.check_volts(amplitude_vpp)
+
+    def check_sweep(self, start_hz: float, stop_hz: float, duration_s: float, spacing: str,
+                    amplitude_vpp: float) -> None:
+        """Every limit at every frequency of the sweep (exact maxima per linear piece of the table)."""
+        if spacing not in ("linear", "log"):
+            raise ValueError(f"spacing={spacing!r}: must be 'linear' or 'log'")
+        if not (math.isfinite(duration_s) and duration_s > 0):
+            raise ValueError(f"duration_s={duration_s!r}: must be > 0 s")
+        if spacing == "log" and min(start_hz, stop_hz) <= 0:
+            raise ValueError(f"a log sweep needs start_hz and stop_hz > 0, got {start_hz!r}, {stop_hz!r}")
+        self.check_volts(amplitude_vpp)
+        lo, hi = min(start_hz, stop_hz), max(start_hz, stop_hz)
+        for fa, fb, a, b in self.sensitivity.pieces(lo, hi):
+            candidates = {fa, fb}
+            if b != 0:  # stationary points of velocity f·(a+bf) and acceleration f²·(a+bf)
+                candidates |= {f for f in (-a / (2 * b), -2 * a / (3 * b)) if fa < f < fb}
+            for f in sorted(candidates):
+                self.check_point(f, amplitude_vpp)
+        slope = abs(stop_hz - start_hz) / duration_s if spacing == "linear" else \
+            hi * abs(math.log(stop_hz / start_hz)) / duration_s
+        if slope > 0:
+            self.limits.check_ramp_rate(slope, "shaker sweep")
+
+
 class Shaker:
     """Shaker + amplifier + generator.
 
@@ -157,46 +208,26 @@ class Shaker:
         self.heartbeat_monitor = Heartbeat("generator", generator.contact, self._probe,
                                            timeout_s=heartbeat_timeout_s)
 
-    # conversions and checks (no I/O) -----------------------------------------------------------------------
+    # conversions and checks (no I/O): :class:`ShakerLimits` ------------------------------------------------
+    @property
+    def checks(self) -> ShakerLimits:
+        return ShakerLimits(self.limits, self.sensitivity, self.max_amplitude_vpp)
+
     def displacement_mm(self, frequency_hz: float, amplitude_vpp: float) -> float:
-        return self.sensitivity.mm_per_v(frequency_hz) * amplitude_vpp / 2.0
+        return self.checks.displacement_mm(frequency_hz, amplitude_vpp)
 
     def amplitude_vpp_for(self, frequency_hz: float, amplitude_mm: float) -> float:
         """Generator Vpp giving peak displacement ``amplitude_mm`` at ``frequency_hz``."""
-        return 2.0 * amplitude_mm / self.sensitivity.mm_per_v(frequency_hz)
-
-    def _check_volts(self, amplitude_vpp: float) -> None:
-        if not 0 <= amplitude_vpp <= self.max_amplitude_vpp:
-            raise LimitError("generator amplitude", amplitude_vpp, self.max_amplitude_vpp, "Vpp",
-                             "amplifier input limit")
+        return self.checks.amplitude_vpp_for(frequency_hz, amplitude_mm)
 
     def check_point(self, frequency_hz: float, amplitude_vpp: float) -> None:
         """Mechanical limits at (f, volts), then the amplifier's input limit."""
-        self.limits.check_point(frequency_hz, self.displacement_mm(frequency_hz, amplitude_vpp),
-                                f"shaker at {amplitude_vpp:.4g} Vpp")
-        self._check_volts(amplitude_vpp)
+        self.checks.check_point(frequency_hz, amplitude_vpp)
 
     def check_sweep(self, start_hz: float, stop_hz: float, duration_s: float, spacing: str,
                     amplitude_vpp: float) -> None:
-        """Every limit at every frequency of the sweep (exact maxima per linear piece of the table)."""
-        if spacing not in ("linear", "log"):
-            raise ValueError(f"spacing={spacing!r}: must be 'linear' or 'log'")
-        if not (math.isfinite(duration_s) and duration_s > 0):
-            raise ValueError(f"duration_s={duration_s!r}: must be > 0 s")
-        if spacing == "log" and min(start_hz, stop_hz) <= 0:
-            raise ValueError(f"a log sweep needs start_hz and stop_hz > 0, got {start_hz!r}, {stop_hz!r}")
-        self._check_volts(amplitude_vpp)
-        lo, hi = min(start_hz, stop_hz), max(start_hz, stop_hz)
-        for fa, fb, a, b in self.sensitivity.pieces(lo, hi):
-            candidates = {fa, fb}
-            if b != 0:  # stationary points of velocity f·(a+bf) and acceleration f²·(a+bf)
-                candidates |= {f for f in (-a / (2 * b), -2 * a / (3 * b)) if fa < f < fb}
-            for f in sorted(candidates):
-                self.check_point(f, amplitude_vpp)
-        slope = abs(stop_hz - start_hz) / duration_s if spacing == "linear" else \
-            hi * abs(math.log(stop_hz / start_hz)) / duration_s
-        if slope > 0:
-            self.limits.check_ramp_rate(slope, "shaker sweep")
+        """Every limit at every frequency of the sweep (:meth:`ShakerLimits.check_sweep`)."""
+        self.checks.check_sweep(start_hz, stop_hz, duration_s, spacing, amplitude_vpp)
 
     # operations ---------------------------------------------------------------------------------------------
     def _guarded(self, fn: Any, *args: Any) -> Any:

@@ -106,6 +106,13 @@ class DriveStatus:
     status_word: int
 
 
+def check_output_hz(frequency_hz: float, max_output_hz: float) -> None:
+    """A drive output frequency (Hz) within 0..``max_output_hz``; ValueError naming it otherwise."""
+    if not 0.0 <= frequency_hz <= max_output_hz:
+        raise ValueError(f"frequency_hz={frequency_hz!r}: drive output must be within "
+                         f"0..{max_output_hz:g} Hz (max_output_hz)")
+
+
 class VfdDriver:
     """A VFD on a Modbus line.
 
@@ -202,9 +209,7 @@ class VfdDriver:
     # commands ----------------------------------------------------------------------------------------
     def check_frequency_hz(self, frequency_hz: float) -> int:
         """Validate a drive output frequency and return its register value (nothing is sent)."""
-        if not 0.0 <= frequency_hz <= self.max_output_hz:
-            raise ValueError(f"frequency_hz={frequency_hz!r}: drive output must be within "
-                             f"0..{self.max_output_hz:g} Hz (max_output_hz)")
+        check_output_hz(frequency_hz, self.max_output_hz)
         return self.map.freq_to_register(frequency_hz)
 
     def set_frequency_hz(self, frequency_hz: float, *, verify: bool = True) -> None:

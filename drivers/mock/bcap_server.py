@@ -347,6 +347,7 @@ def main(argv: list[str] | None = None, prog: str | None = None) -> int:
         if options.pty:
             print(f"b-CAP mock RC8 on serial://{server.serve_pty()} (CRC framing)", flush=True)
         wait_for_interrupt()
+        print(f"b-CAP mock RC8 stopped; requests received: {len(server.requests)}", flush=True)
     return 0
 
 

@@ -338,6 +338,11 @@ class GeneratorServer:
         with self._fault_lock:
             return next((f.param for f in self.faults if f.kind == kind), None)
 
+    @property
+    def requests_received(self) -> int:
+        """Program messages received so far (every line, including those the history no longer keeps)."""
+        return self.instrument.lines_received
+
     # byte handling ---------------------------------------------------------------------------------------
     def _on_connection(self, conn: socket.socket) -> None:
         with self._fault_lock:
@@ -435,6 +440,7 @@ def main(argv: list[str] | None = None, prog: str | None = None) -> int:
             print(f"fault injected: {fault.kind}" + (f":{fault.param:g}" if fault.param is not None else ""),
                   flush=True)
         wait_for_interrupt()
+        print(f"mock SCPI generator stopped; requests received: {server.requests_received}", flush=True)
     return 0
 
 

@@ -84,6 +84,7 @@ class VfdServer:
         self._ready = threading.Event()
         self._error: BaseException | None = None
         self.replies_sent = 0
+        self.requests_received = 0  # request frames that reached the server (any unit id)
 
     # addresses ------------------------------------------------------------------------------------------
     @property
@@ -201,6 +202,7 @@ class VfdServer:
     def _trace_packet(self, sending: bool, data: bytes) -> bytes:
         """pymodbus packet hook: alters outgoing replies according to the injected fault."""
         if not sending:
+            self.requests_received += 1
             return data
         if self.mode == "rtu" and data and data[0] not in {d.map.unit_id for d in self.drives}:
             return b""  # an RS-485 slave never answers for another unit id (pymodbus would send exception 4)
@@ -239,6 +241,7 @@ def main(argv: list[str] | None = None, prog: str | None = None) -> int:
     with VfdServer(drive, mode=mode, port=args.port, serial_port=args.serial) as server:
         print(f"mock VFD ({args.body}) serving Modbus {mode.upper()} at {server.url}", flush=True)
         wait_for_interrupt()
+        print(f"mock VFD ({args.body}) stopped; requests received: {server.requests_received}", flush=True)
     return 0
 
 
