@@ -221,7 +221,9 @@ def _versions() -> dict[str, str]:
 
 
 # ---------------------------------------------------------------------------- the engine
-def _client(scheduler: str | None, n_workers: int | None) -> Any:
+def dask_client(scheduler: str | None, n_workers: int | None) -> Any:
+    """A client of the scheduler at ``scheduler``, or of a new LocalCluster (``n_workers`` processes, or one
+    per core, single-threaded, on 127.0.0.1; its dashboard on a free port)."""
     from distributed import Client, LocalCluster
 
     if scheduler:
@@ -254,7 +256,7 @@ def run_batch(manifest: BatchManifest, out_dir: str | Path, *, scheduler: str | 
         say(f"rig batch: {len(tasks)} tasks ({len(run.report.skipped)} already done, {len(todo)} to run), "
             f"{len(alone)} unmatched segments")
         if todo:
-            with _client(scheduler, n_workers) as client:
+            with dask_client(scheduler, n_workers) as client:
                 run.execute(client, todo, manifest.max_retries)
         run.summarise(tasks)
     finally:
