@@ -75,3 +75,25 @@ def write_trend(frame: pd.DataFrame, setup: str, out_dir: str | Path) -> tuple[P
     png_path = out_dir / f"{stem}.png"
     save_png(fig, png_path)
     return csv_path, png_path
+
+
+def archive_trend_figure(trend: pd.DataFrame) -> Figure | None:
+    """``rig batch``: each target's amplitude and frequency against the segment's start, one colour per
+    target (site/pair/target) — what a structural engineer watches for damage."""
+    if trend.empty:
+        return None
+    fig, axes = new_figure(2, 1, size=(8.5, 5.2), sharex=True)
+    labels = trend["site"] + "/" + trend["pair"] + "/" + trend["target"]
+    for label, g in trend.groupby(labels, sort=True):
+        when = pd.to_datetime(g["segment_start_utc"], utc=True)
+        axes[0, 0].errorbar(when, g["amplitude_mm"], yerr=2 * g.get("amplitude_std_mm", 0), fmt="o-", ms=3,
+                            lw=0.8, capsize=2, label=label)
+        axes[1, 0].errorbar(when, g["frequency_hz"], yerr=2 * g.get("frequency_std_hz", 0), fmt="o-", ms=3,
+                            lw=0.8, capsize=2, label=label)
+    axes[0, 0].set_ylabel("amplitude (mm), ±2u")
+    axes[1, 0].set_ylabel("frequency (Hz), ±2u")
+    axes[1, 0].set_xlabel("segment start (UTC)")
+    axes[0, 0].legend(title="site/pair/target", loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=7.5)
+    fig.suptitle("Targets over the archive", fontweight="bold", fontsize=10.5)
+    fig.autofmt_xdate()
+    return fig

@@ -344,6 +344,34 @@ def _show_trend(runs_dir: Path, setup: str, out_dir: Path) -> int:
     return 0
 
 
+def cmd_batch(args: argparse.Namespace) -> int:
+    """Run (or resume) the measurement of a monitoring archive on Dask."""
+    from reports.figures import save_png
+    from reports.trend import archive_trend_figure
+    from rig.batch import run_batch, target_trend
+    from rig.batch_manifest import ManifestError, load_manifest
+
+    try:
+        manifest = load_manifest(args.manifest)
+    except ManifestError as exc:
+        raise ParameterError(f"MANIFEST {exc.field}", str(exc).split(": ", 1)[-1]) from exc
+    out = Path(args.out)
+    report = run_batch(manifest, out, scheduler=args.scheduler, n_workers=args.workers,
+                       show_progress=sys.stderr.isatty())
+    figure = archive_trend_figure(target_trend(out))
+    if figure is not None:
+        save_png(figure, out / "trend.png")
+    rate = report.video_seconds / report.seconds if report.seconds > 0 else float("nan")
+    print(f"rig batch: {len(report.done)} tasks done ({report.video_seconds:.0f} s of video, {rate:.2f}× "
+          f"real time), {len(report.skipped)} skipped as done before, {len(report.failed)} failed, "
+          f"{len(report.unmatched)} unmatched segments — {out}")
+    for text in report.jumps:
+        print(f"  timing: {text}")
+    for task, error in report.failed.items():
+        print(f"  failed {task}: {error}", file=sys.stderr)
+    return EXIT_BAD_INPUT if report.failed else 0
+
+
 def cmd_list(args: argparse.Namespace) -> int:
     procedures = discover_procedures()
     if not procedures:
@@ -406,6 +434,14 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("options", nargs=argparse.REMAINDER, help="options of the mock server")
     sub.add_parser("list", help="list the procedures and their parameters",
                    description="List the procedures with their parameters, defaults and ranges.")
+    p = sub.add_parser("batch", help="measure a monitoring archive on Dask (resumable)",
+                       description="Measure every segment pair of a manifest's camera pairs (the same code "
+                                   "as rig measure) as Dask tasks; results as a partitioned Parquet dataset.")
+    p.add_argument("manifest", metavar="MANIFEST.TOML", help="sites, camera pairs, calibrations and videos")
+    p.add_argument("--out", required=True, metavar="DIR", help="the batch's output folder (rerun to resume)")
+    p.add_argument("--scheduler", metavar="tcp://HOST:8786",
+                   help="an existing Dask scheduler (default: a LocalCluster on this machine)")
+    p.add_argument("--workers", type=int, metavar="N", help="LocalCluster worker processes (default: cores)")
     p = sub.add_parser("runs", help="the catalogue of runs: list, show one, a setup's trend",
                        description="List the run folders (from an SQLite index synced with the folders "
                                    "first), show one run's certificate, or a setup's criteria over time.")
@@ -443,7 +479,7 @@ def main(argv: list[str] | None = None) -> int:
     from rig.measure_cli import COMMANDS as DEPLOYMENT_COMMANDS
 
     commands = {"run": cmd_run, "certify": cmd_certify, "report": cmd_report, "check": cmd_check,
-                "list": cmd_list, "mock": cmd_mock, "demo": cmd_demo, "runs": cmd_runs,
+                "list": cmd_list, "mock": cmd_mock, "demo": cmd_demo, "runs": cmd_runs, "batch": cmd_batch,
                 **DEPLOYMENT_COMMANDS}
     try:
         return commands[args.command](args)

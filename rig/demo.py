@@ -60,7 +60,7 @@ def _scaled(spec: CameraSpec) -> CameraSpec:
                    cx_px=(spec.cx_px + 0.5) * SCALE - 0.5, cy_px=(spec.cy_px + 0.5) * SCALE - 0.5)
 
 
-def _camera_pair(world: World) -> tuple[SimCamera, SimCamera]:
+def camera_pair(world: World) -> tuple[SimCamera, SimCamera]:
     size = {"width_px": round(1920 * SCALE), "height_px": round(1080 * SCALE)}
     left, right = (make_camera(_scaled(spec), world, **size) for spec in default_camera_specs())
     return left, right
@@ -68,7 +68,7 @@ def _camera_pair(world: World) -> tuple[SimCamera, SimCamera]:
 
 def _write_pair(world: World, folder: Path, t_start_s: float, t_stop_s: float) -> tuple[Path, Path]:
     folder.mkdir(parents=True, exist_ok=True)
-    left, right = _camera_pair(world)
+    left, right = camera_pair(world)
     paths = folder / "left.mp4", folder / "right.mp4"
     left.write_video(paths[0], t_start_s, t_stop_s)
     right.write_video(paths[1], t_start_s + RIGHT_START_DELAY_S, t_stop_s + RIGHT_START_DELAY_S)

@@ -1,0 +1,76 @@
+"""Test support: a small monitoring archive written by the twin, as segmenting cameras write one.
+
+Two camera pairs film a vibrating marker column (half-size sensors, the simulated rig's geometry): each
+camera writes consecutive segment files named by their start time (``left_20261201-120000.mp4``, …); the
+right camera runs ``RIGHT_DELAY_S`` behind the left. One calibration (from the demo plate videos, through
+``rig calibrate``) serves both pairs: they share the simulated rig's camera geometry.
+"""
+
+from __future__ import annotations
+
+import datetime as dt
+from dataclasses import dataclass
+from pathlib import Path
+
+from drivers.sim.clock import VirtualClock
+from drivers.sim.world import World, WorldLayout
+from rig.cli import main
+from rig.demo import camera_pair, write_demo
+
+SEGMENT_S = 2.0
+RIGHT_DELAY_S = 0.15
+SPINUP_S = 2.0  # the exciter runs this long before the first segment: steady motion from frame 0
+ARCHIVE_START = dt.datetime(2026, 12, 1, 12, 0, 0, tzinfo=dt.UTC)
+PAIRS = {"p1": (5.0, 3, 11), "p2": (7.0, 2, 12)}  # name: (frequency Hz, segments, seed)
+
+
+@dataclass(frozen=True)
+class Archive:
+    folder: Path
+    manifest: Path  # both pairs
+    manifest_of: dict[str, Path]  # one pair alone (smaller batches for the slower tests)
+    calibration: Path
+    frequency_hz: dict[str, float]
+    amplitude_mm: float
+
+
+def _stamp(t: dt.datetime) -> str:
+    return t.strftime("%Y%m%d-%H%M%S")
+
+
+def _pair_segments(folder: Path, frequency_hz: float, segments: int, seed: int) -> float:
+    world = World(VirtualClock(), seed=seed, layout=WorldLayout(initial_scene="sweep_column"))
+    world.exciter.set_frequency(0.0, frequency_hz)
+    left, right = camera_pair(world)
+    (folder / "left").mkdir(parents=True)
+    (folder / "right").mkdir(parents=True)
+    for k in range(segments):
+        t0 = SPINUP_S + k * SEGMENT_S
+        name = _stamp(ARCHIVE_START + dt.timedelta(seconds=k * SEGMENT_S))
+        left.write_video(folder / "left" / f"left_{name}.mp4", t0, t0 + SEGMENT_S)
+        right.write_video(folder / "right" / f"right_{name}.mp4", t0 + RIGHT_DELAY_S,
+                          t0 + SEGMENT_S + RIGHT_DELAY_S)
+    return world.layout.crank_radius_mm
+
+
+def write_archive(folder: Path) -> Archive:
+    """The archive, its calibration and ``manifest.toml`` in ``folder``."""
+    demo = write_demo(folder / "demo")
+    calibration = folder / "calibration.json"
+    assert main(["calibrate", str(demo.plate[0]), str(demo.plate[1]), "--target", str(demo.target_toml),
+                 "--out", str(calibration)]) == 0
+    amplitude_mm = 0.0
+    pairs = {}
+    for name, (frequency_hz, segments, seed) in PAIRS.items():
+        amplitude_mm = _pair_segments(folder / name, frequency_hz, segments, seed)
+        pairs[name] = (f'[[sites.pairs]]\nname = "{name}"\ncalibration = "calibration.json"\n'
+                       f'left = ["{name}/left/*.mp4"]\nright = ["{name}/right/*.mp4"]\n')
+
+    def manifest(path: Path, names: list[str]) -> Path:
+        path.write_text('[batch]\nname = "test-archive"\nmax_retries = 1\n\n[[sites]]\nname = "bridge"\n\n'
+                        + "\n".join(pairs[n] for n in names), encoding="utf-8")
+        return path
+
+    return Archive(folder, manifest(folder / "manifest.toml", list(pairs)),
+                   {n: manifest(folder / f"manifest_{n}.toml", [n]) for n in pairs}, calibration,
+                   {n: f for n, (f, _, _) in PAIRS.items()}, amplitude_mm)
