@@ -174,41 +174,64 @@ def test_paced_move_sends_keepalives_and_restarts_the_timeout() -> None:
             np.testing.assert_allclose(arm.position()[:3], target[:3], atol=1e-9)
 
 
-def test_busy_reply_while_a_move_executes_over_raw_tcp() -> None:
+def _raw_session(sock: socket.socket, world: World, wdt: str = ",WDT=100"):
+    """Service_Start … Motor on over a raw socket; returns (call, receive, robot handle)."""
+    decoder = PacketDecoder()
+
+    def call(serial: int, function: int, args: list) -> None:
+        sock.sendall(encode_packet(serial, 0, function, args))
+
+    def receive():
+        while (packet := decoder.next_packet()) is None:
+            decoder.feed(sock.recv(4096))
+        return packet
+
+    call(1, 1, [wdt])
+    call(2, 3, ["", "CaoProv.DENSO.VRC", "localhost", ""])
+    call(3, 7, [Variant(VT_I4, 1), "Arm", ""])
+    assert [receive().serial for _ in range(3)] == [1, 2, 3]
+    robot = Variant(VT_I4, 2)
+    call(4, 64, [robot, "TakeArm", [0, 1]])
+    call(5, 64, [robot, "Motor", [1, 0]])
+    assert [receive().code for _ in range(2)] == [0, 0]
+    return call, receive, robot
+
+
+def _move_40_mm(world: World) -> str:
+    pose = world.robot.pose_at(world.clock.now_s())
+    return "@P P({:.3f},{:.3f},{:.3f},{:.3f},{:.3f},{:.3f})".format(pose[0] - 40, *pose[1:])
+
+
+def test_a_request_during_a_blocking_move_waits_its_turn_over_raw_tcp() -> None:
+    """Reference server: the connection is not read while a call executes, so a request sent meanwhile
+    is answered after the call's final reply, not refused."""
     world = World(VirtualClock(rate=1.0))
     with BcapMockServer(world.robot, world.clock) as server:
-        port = server.serve_tcp()
-        with socket.create_connection(("127.0.0.1", port), timeout=2.0) as sock:
-            def call(serial: int, function: int, args: list) -> None:
-                sock.sendall(encode_packet(serial, 0, function, args))
-
-            decoder = PacketDecoder()
-
-            def receive():
-                while (packet := decoder.next_packet()) is None:
-                    decoder.feed(sock.recv(4096))
-                return packet
-
-            call(1, 1, [",WDT=100"])
-            call(2, 3, ["", "CaoProv.DENSO.VRC", "localhost", ""])
-            call(3, 7, [Variant(VT_I4, 1), "Arm", ""])
-            assert [receive().serial for _ in range(3)] == [1, 2, 3]
-            robot = Variant(VT_I4, 2)
-            call(4, 64, [robot, "TakeArm", [0, 1]])
-            call(5, 64, [robot, "Motor", [1, 0]])
-            assert [receive().code for _ in range(2)] == [0, 0]
-            pose = world.robot.pose_at(world.clock.now_s())
-            text = "@P P({:.3f},{:.3f},{:.3f},{:.3f},{:.3f},{:.3f})".format(pose[0] - 40, *pose[1:])
-            call(6, 72, [robot, Variant(VT_I4, 2), text, "SPEED=10"])  # 40 mm at 100 mm/s
+        with socket.create_connection(("127.0.0.1", server.serve_tcp()), timeout=5.0) as sock:
+            call, receive, robot = _raw_session(sock, world)
+            call(6, 72, [robot, Variant(VT_I4, 2), _move_40_mm(world), "SPEED=10"])  # 40 mm at 100 mm/s
             call(7, 64, [robot, "CurPos", None])
             replies = [receive()]
-            while replies[-1].serial != 6 or replies[-1].is_keepalive:
+            while replies[-1].serial != 7:
                 replies.append(receive())
-            busy = [p for p in replies if p.serial == 7]
-            assert len(busy) == 1 and hr.to_unsigned(busy[0].code) == hr.E_BUSY_PROC
-            assert len(busy[0].args) == 1  # failed value-returning call: one EMPTY argument
+            finals = [p for p in replies if not p.is_keepalive]
+            assert [(p.serial, p.code) for p in finals] == [(6, 0), (7, 0)]
             assert sum(p.is_keepalive for p in replies if p.serial == 6) >= 2
-            assert replies[-1].code == 0
+            assert not world.robot.is_moving(world.clock.now_s())  # CurPos ran after the move ended
+            np.testing.assert_allclose(finals[1].args[0].value[:6], world.robot.pose_at(world.clock.now_s()))
+
+
+def test_busy_only_after_invoke_timeout_expired_with_the_call_still_running() -> None:
+    world = World(VirtualClock(rate=1.0))
+    with BcapMockServer(world.robot, world.clock) as server:
+        with socket.create_connection(("127.0.0.1", server.serve_tcp()), timeout=5.0) as sock:
+            call, receive, robot = _raw_session(sock, world, ",WDT=100,InvokeTimeout=100")
+            call(6, 72, [robot, Variant(VT_I4, 2), _move_40_mm(world), "SPEED=1"])  # 4 s >> 0.1 s
+            call(7, 64, [robot, "CurPos", None])  # read once the InvokeTimeout has expired
+            while (packet := receive()).is_keepalive and packet.serial == 6:
+                pass
+            assert packet.serial == 7 and hr.to_unsigned(packet.code) == hr.E_BUSY_PROC
+            assert packet.args == ()  # refused before execution: no argument (reference server)
 
 
 def test_second_tcp_client_gets_max_connect(world: World, server: BcapMockServer) -> None:

@@ -9,8 +9,11 @@ from __future__ import annotations
 import math
 import re
 
-from drivers.denso import hresult as hr
-from drivers.denso.variant import VT_ARRAY, VT_BSTR, VT_VARIANT, Variant
+from drivers.mock import bcap_wire as w
+from drivers.mock.bcap_wire import ARRAY as VT_ARRAY
+from drivers.mock.bcap_wire import BSTR as VT_BSTR
+from drivers.mock.bcap_wire import VARIANT as VT_VARIANT
+from drivers.mock.bcap_wire import Value as Variant
 
 # mock-chosen controller errors (0x83xxxxxx): code -> (name, description)
 OUT_OF_REACH = 0x8350A001
@@ -39,16 +42,24 @@ class CallFailed(Exception):  # noqa: N818 (internal control flow, never escapes
 
 
 def error_description(code: int) -> str:
-    code = hr.to_unsigned(code)
+    code = w.unsigned(code)
     if code in MOCK_ERRORS:
         return MOCK_ERRORS[code][1]
-    return hr.describe(code)
+    return w.DESCRIPTIONS.get(code, "No description for this code")
 
 
 def _number(v: Variant, what: str) -> float:
     if v.vt & VT_ARRAY or isinstance(v.value, bool) or not isinstance(v.value, int | float):
-        raise CallFailed(hr.DISP_E_TYPEMISMATCH, f"{what}: expected a number, got vt=0x{v.vt:04X}")
+        raise CallFailed(w.DISP_E_TYPEMISMATCH, f"{what}: expected a number, got vt=0x{v.vt:04X}")
     return float(v.value)
+
+
+def _integer(v: Variant, what: str) -> int:
+    """A whole number (any numeric VARIANT holding one); NaN, infinities and fractions → E_INVALIDARG."""
+    value = _number(v, what)
+    if not math.isfinite(value) or value != int(value):
+        raise CallFailed(w.E_INVALIDARG, f"{what}: {value!r} is not a whole number")
+    return int(value)
 
 
 def _numbers(v: Variant, what: str) -> list[float]:
@@ -56,7 +67,7 @@ def _numbers(v: Variant, what: str) -> list[float]:
         values = v.to_python()
         if isinstance(values, bytes) or not all(isinstance(x, int | float) and not isinstance(x, bool)
                                                  for x in values):
-            raise CallFailed(hr.DISP_E_TYPEMISMATCH, f"{what}: expected numbers")
+            raise CallFailed(w.DISP_E_TYPEMISMATCH, f"{what}: expected numbers")
         return [float(x) for x in values]
     if v.vt == 0:
         return []
@@ -65,7 +76,7 @@ def _numbers(v: Variant, what: str) -> list[float]:
 
 def _text(v: Variant, what: str) -> str:
     if v.vt != VT_BSTR:
-        raise CallFailed(hr.DISP_E_TYPEMISMATCH, f"{what}: expected BSTR, got vt=0x{v.vt:04X}")
+        raise CallFailed(w.DISP_E_TYPEMISMATCH, f"{what}: expected BSTR, got vt=0x{v.vt:04X}")
     return str(v.value)
 
 
@@ -81,9 +92,9 @@ def parse_move_option(option: str) -> dict[str, float | bool]:
             try:
                 out[key] = float(value)
             except ValueError:
-                raise CallFailed(hr.E_INVALIDARG, f"option {part!r}: not a number") from None
+                raise CallFailed(w.E_INVALIDARG, f"option {part!r}: not a number") from None
         else:
-            raise CallFailed(hr.E_INVALIDARG, f"unknown Move option {part!r}")
+            raise CallFailed(w.E_INVALIDARG, f"unknown Move option {part!r}")
     return out
 
 
@@ -92,19 +103,19 @@ def parse_pose(v: Variant) -> tuple[list[float], int | None]:
     if v.vt == VT_BSTR:
         match = _POSE_RE.match(v.value)
         if not match:
-            raise CallFailed(hr.E_INVALIDARG, f"pose {v.value!r}: expected '@P P(x,y,z,rx,ry,rz,fig)'")
+            raise CallFailed(w.E_INVALIDARG, f"pose {v.value!r}: expected '@P P(x,y,z,rx,ry,rz,fig)'")
         try:
             values = [float(t) for t in match.group(2).split(",")]
         except ValueError:
-            raise CallFailed(hr.E_INVALIDARG, f"pose {v.value!r}: not numbers") from None
+            raise CallFailed(w.E_INVALIDARG, f"pose {v.value!r}: not numbers") from None
     elif v.vt == VT_ARRAY | VT_VARIANT and v.value:
         kind = v.value[1].value if len(v.value) > 1 else "P"
         if kind not in ("P", 0):
-            raise CallFailed(hr.E_NOTIMPL, f"pose type {kind!r}: the mock moves to P poses only")
+            raise CallFailed(w.E_NOTIMPL, f"pose type {kind!r}: the mock moves to P poses only")
         values = _numbers(v.value[0], "pose")
     else:
         values = _numbers(v, "pose")
     if len(values) not in (6, 7) or not all(math.isfinite(x) for x in values):
-        raise CallFailed(hr.E_INVALIDARG, f"pose has {len(values)} values; expected 6 or 7 finite numbers")
+        raise CallFailed(w.E_INVALIDARG, f"pose has {len(values)} values; expected 6 or 7 finite numbers")
     fig = int(values[6]) if len(values) == 7 else None
     return values[:6], fig

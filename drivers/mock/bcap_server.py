@@ -1,23 +1,32 @@
-"""A mock DENSO RC8 controller speaking b-CAP over TCP (127.0.0.1) or a pty serial line (with CRC).
+"""A mock DENSO RC8 controller speaking b-CAP over TCP (127.0.0.1), UDP or a pty serial line (with CRC).
 
 Behind it is the simulated robot body (``world.robot``) and the rig's virtual clock: a Move starts the
 body's move at the current virtual time and lasts as long as the body says. In *instant* clock mode the
 server advances the clock to the end of the move and replies at once; in *paced* mode the reply waits
 until the move ends in (scaled) wall time, with S_EXECUTING keep-alives every WDT ms meanwhile.
 
-Protocol behaviour (``../shared/notes/bcap.md`` §15): each reply is one write; handles are returned as
-VT_UI4 and accepted as VT_I4 or VT_UI4; a request arriving while a Move executes gets E_BUSY_PROC; on a
-serial line a retry (reserved field = first attempt's serial) is answered from the reply cache and
-bad-CRC packets are dropped silently. Fault switches are in :class:`Faults`.
+The mock speaks through its own codec (``bcap_wire.py``), never the driver's. Behaviour, each with its
+source (vendor documentation, DENSO's reference server in DENSORobot/orin_bcap, or our choice), is tabled
+in ``docs/bcap_mock.md``; in short:
+
+* one reply per write; handles returned as VT_UI4, accepted as VT_I4 or VT_UI4; at most 1,000 objects
+  (E_MAX_OBJECT); Service_Start sets WDT and InvokeTimeout, to their defaults when absent (values below
+  80 ms: E_INVALIDARG), and a new client starts from the defaults;
+* a blocking call is executed while the connection is not read: requests sent meanwhile wait their turn
+  (reference server); only after InvokeTimeout expired with the call still running does a request get
+  E_BUSY_PROC; a closed connection is noticed at once, and ends the session (the arm stops);
+* a framed but malformed packet closes a TCP connection (reference server); on a serial line or UDP it
+  is dropped; a bad CRC is dropped silently; a serial/UDP retry is answered from the reply cache.
+* fault injection (:class:`Faults`, and ``--fault KIND[:PARAM]`` on the command line, see
+  :func:`parse_fault`).
 
 **One client at a time**, over all channels: the controller state is one arm whose cleanup when a client
 goes away halts the robot, switches the motor off and drops *every* handle — two concurrent clients
-(say one on TCP, one on the serial line) would pull the arm from under each other, so the mock does not
-serve one client per channel. A client holds the controller from its first request until its connection
-ends or it sends Service_Stop (a serial line has no connection to close: Service_Stop, which the driver
-sends last, ends its session); a request of any other client meanwhile gets E_MAX_CONNECT. An open but
-silent channel holds nothing, so serving ``--pty`` beside TCP does not lock TCP clients out. (A serial
-client that dies without Service_Stop keeps the controller until the mock restarts.)
+(say one on TCP, one on the serial line) would pull the arm from under each other. A client holds the
+controller from its first request until its connection ends or it sends Service_Stop (a serial line has
+no connection to close: Service_Stop ends its session); a request of any other client meanwhile gets
+E_MAX_CONNECT. An open but silent channel holds nothing. (A serial client that dies without Service_Stop
+keeps the controller until the mock restarts.) Histories are bounded (the newest 10,000 requests).
 
 The mock binds loopback addresses only (127.0.0.1 by default): ``ValueError`` / a usage error otherwise.
 
@@ -26,10 +35,12 @@ Run on its own (own world, paced clock at real time)::
     python -m drivers.mock.bcap_server --port 5007          # tcp://127.0.0.1:5007
     python -m drivers.mock.bcap_server --port 0             # any free port; the first line printed says which
     python -m drivers.mock.bcap_server --pty                # also prints the pty slave to open
+    python -m drivers.mock.bcap_server --fault delay:2.5 --fault disconnect-after:40
 """
 
 from __future__ import annotations
 
+import argparse
 import logging
 import socket
 import threading
@@ -39,9 +50,7 @@ from dataclasses import dataclass
 from types import TracebackType
 from typing import Any
 
-from drivers.denso import hresult as hr
-from drivers.denso.bcap import ROBOT_MOVE, SERVICE_STOP, Packet, PacketDecoder, encode_packet
-from drivers.denso.variant import EMPTY, Variant
+from drivers.mock import bcap_wire as w
 from drivers.mock._serve import (
     accept_loop,
     loopback_host,
@@ -50,12 +59,14 @@ from drivers.mock._serve import (
     start_standalone,
     wait_for_interrupt,
 )
-from drivers.mock.bcap_args import VALUE_RETURNING
 from drivers.mock.bcap_channels import Channel, PtyChannel, TcpChannel, UdpChannel
-from drivers.mock.bcap_state import ControllerState, RobotBodyLike
+from drivers.mock.bcap_state import ControllerState, History, RobotBodyLike
 
 log = logging.getLogger(__name__)
 CACHE_SIZE = 32
+MAX_REQUESTS_KEPT = 10_000
+SERVICE_STOP, ROBOT_MOVE = 2, 72
+ALL = 10**9  # "every time" for a fault counter
 
 
 @dataclass
@@ -64,7 +75,7 @@ class Faults:
 
     drop_replies: int = 0            # replies executed but never sent (a retry gets the cached reply)
     drop_function: int | None = None
-    delay_reply_s: float = 0.0       # wall delay before replies to delay_function
+    delay_reply_s: float = 0.0       # wall delay before replies to delay_function (a late reply)
     delay_function: int | None = None
     corrupt_crc: int = 0             # serial line: replies sent with a broken CRC
     close_mid_move: bool = False     # close the connection once a Move has started (blocking or NEXT)
@@ -74,35 +85,83 @@ class Faults:
     wrong_serial_first: bool = False  # send a copy of each reply under another serial first
     stray_keepalive: bool = False     # send an S_EXECUTING before each reply
     fragment_replies: bool = False    # opt-in: send replies byte by byte (tests client reassembly)
+    duplicate_replies: int = 0       # replies sent twice
+    stale_replies: int = 0           # replies replaced by the previous reply (answer the previous request)
+    drop_reply_bytes: int = 0        # replies with 3 bytes lost from their middle
+    disconnect_after: int | None = None  # close each connection when it sends request number N + 1
 
     def matches(self, wanted: int | None, function_id: int) -> bool:
         return wanted is None or wanted == function_id
 
 
+FAULT_KINDS = {  # --fault KIND[:PARAM] → (Faults fields set, default PARAM, help)
+    "delay": ("delay_reply_s", 5.0, "late reply: every reply waits PARAM s (default 5)"),
+    "no-reply": ("drop_replies", ALL, "no reply: the next PARAM replies are not sent (default all)"),
+    "busy": ("busy_replies", ALL, "busy: the next PARAM requests get E_BUSY_PROC (default all)"),
+    "move-error": ("move_error", 0x8350A005, "move error: every Move fails with HRESULT PARAM"),
+    "disconnect-after": ("disconnect_after", 20, "close each connection at request PARAM + 1"),
+    "corrupt-crc": ("corrupt_crc", ALL, "serial line: the next PARAM replies have a bad CRC"),
+    "duplicate": ("duplicate_replies", ALL, "the next PARAM replies are sent twice"),
+    "stale": ("stale_replies", ALL, "the next PARAM requests are answered with the previous reply"),
+    "drop-bytes": ("drop_reply_bytes", ALL, "the next PARAM replies lose 3 bytes"),
+}
+
+
+def parse_fault(text: str) -> tuple[str, Any]:
+    """``KIND[:PARAM]`` → (Faults field, value); argparse-style ``ValueError`` naming the allowed kinds."""
+    kind, _, param = text.partition(":")
+    if kind not in FAULT_KINDS:
+        raise ValueError(f"fault {kind!r}: expected one of {', '.join(sorted(FAULT_KINDS))}")
+    name, default, _help = FAULT_KINDS[kind]
+    if not param:
+        return name, default
+    try:
+        value: Any = float(param) if isinstance(default, float) else int(param, 0)
+    except ValueError:
+        raise ValueError(f"fault {kind}:{param}: PARAM must be a {type(default).__name__}") from None
+    if value < 0 and kind != "move-error":
+        raise ValueError(f"fault {kind}:{param}: PARAM must be >= 0")
+    return name, value
+
+
+def _fault_arg(text: str) -> tuple[str, Any]:
+    try:
+        return parse_fault(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from exc
+
+
 class _Session:
-    """One client connection: reads requests, executes them on the shared state, writes replies."""
+    """One client connection: reads requests, executes them on the shared state one at a time (a
+    blocking call is waited for in this thread, so later requests queue in the connection), writes replies."""
 
     def __init__(self, server: BcapMockServer, channel: Channel) -> None:
         self.server = server
         self.channel = channel
         self._write_lock = threading.Lock()
-        self._cache: OrderedDict[int, tuple[int, int, list[Variant]]] = OrderedDict()
-        self._executing: tuple[int, int] | None = None  # (original serial, function) of a running Move
+        self._cache: OrderedDict[int, tuple[int, list[w.Value]]] = OrderedDict()
+        self._running_until_rest = False  # a blocking call whose InvokeTimeout expired still runs
+        self._previous_reply: bytes | None = None  # for the "stale" fault
         self._stop = threading.Event()
+        self.request_count = 0
         self.thread = threading.Thread(target=self._run, name=f"bcap-{channel.name}", daemon=True)
 
     # -------------------------------------------------------------------------------------- reading
     def _run(self) -> None:
-        decoder = PacketDecoder(serial_line=self.channel.serial_line)
+        framer = w.Framer(serial_line=self.channel.serial_line,
+                          max_length=w.MAX_SERIAL_LINE if self.channel.may_retry else None)
         try:
             while not self._stop.is_set():
-                decoder.feed(self.channel.recv(0.05))
-                while True:
+                framer.feed(self.channel.recv(0.05))
+                while not self._stop.is_set():
                     try:
-                        packet = decoder.next_packet()
-                    except hr.BcapProtocolError as exc:
-                        log.warning("%s: malformed request dropped: %s", self.channel.name, exc)
-                        continue
+                        packet = framer.next()
+                    except w.WireError as exc:
+                        if self.channel.may_retry:  # serial line / UDP: nothing to close (our choice)
+                            log.warning("%s: malformed request dropped: %s", self.channel.name, exc)
+                            continue
+                        log.warning("%s: malformed request, connection closed: %s", self.channel.name, exc)
+                        return
                     if packet is None:
                         break
                     self._on_request(packet)
@@ -118,93 +177,93 @@ class _Session:
         self.channel.close()
 
     def _drop_connection(self) -> None:
-        """Fault: the controller goes away mid-move. It stops the arm first, as a controller would."""
+        """The controller goes away (fault): it stops the arm first, as a controller would."""
         with self.server.lock:
             self.server.state.release_all()
         self.stop()
 
-    def _on_request(self, packet: Packet) -> None:
+    def _bare(self, packet: w.Packet, code: int) -> None:
+        """A refusal before execution: reply without arguments (reference server), never cached."""
+        self._send(packet.serial, code, [], packet.code)
+
+    def _on_request(self, packet: w.Packet) -> None:
         faults, function = self.server.faults, packet.code
         self.server.requests.append((packet.serial, packet.reserved, function))
+        self.request_count += 1
+        if faults.disconnect_after is not None and self.request_count > faults.disconnect_after:
+            log.info("fault: connection closed at request %d", self.request_count)
+            self._drop_connection()
+            return
         original = packet.reserved if self.channel.may_retry and packet.reserved else packet.serial
         if not self.server._claim(self):  # another client holds the controller
-            self._reply(packet, hr.E_MAX_CONNECT, [EMPTY] if function in VALUE_RETURNING else [], cache=False)
+            self._bare(packet, w.E_MAX_CONNECT)
             return
-        if original != packet.serial:
-            if original in self._cache:  # a retry of an answered request: re-send the same reply
-                _fn, code, args = self._cache[original]
-                self._send(packet.serial, code, args, function)
-                return
-            if self._executing and self._executing[0] == original:
-                return  # still executing: the final reply goes out under the first serial
-        injected_busy = bool(faults.busy_replies) and faults.matches(faults.busy_function, function)
-        if self._executing is not None or injected_busy:
-            if self._executing is None:
-                faults.busy_replies -= 1
-            self._reply(packet, hr.E_BUSY_PROC, [EMPTY] if function in VALUE_RETURNING else [], cache=False)
+        if original != packet.serial and original in self._cache:  # a retry: re-send the same reply
+            code, args = self._cache[original]
+            self._send(packet.serial, code, args, function)
             return
+        if self._running_until_rest and self.server.state.robot.is_moving(self.server.clock.now_s()):
+            self._bare(packet, w.E_BUSY_PROC)  # the call whose InvokeTimeout expired still runs
+            return
+        self._running_until_rest = False
+        if faults.busy_replies and faults.matches(faults.busy_function, function):
+            faults.busy_replies -= 1
+            self._bare(packet, w.E_BUSY_PROC)
+            return
+        self._execute(packet, function)
+
+    def _execute(self, packet: w.Packet, function: int) -> None:
+        faults = self.server.faults
         with self.server.lock:
             self.server.state.move_error = faults.move_error
             outcome = self.server.state.execute(function, list(packet.args))
-        if faults.close_mid_move and function == ROBOT_MOVE and not hr.is_failure(outcome.hresult) \
-                and outcome.motion_end_s is None:  # a NEXT move has started: go away before the reply
+        moving = function == ROBOT_MOVE and not w.failed(outcome.hresult)
+        if faults.close_mid_move and moving:  # go away once the move has started, before any reply
             self._drop_connection()
             return
-        if outcome.motion_end_s is None or hr.is_failure(outcome.hresult):
-            if function == SERVICE_STOP:  # the client is done (all a serial line can say): controller free,
-                self.server._release(self)  # before the reply, on which the next client may connect at once
-            self._reply(packet, outcome.hresult, outcome.args)
-            return
-        if self.server.instant:
-            if faults.close_mid_move:
-                self._drop_connection()
+        if outcome.motion_end_s is not None and not w.failed(outcome.hresult):
+            if self.server.instant:
+                self.server.clock.advance_to(outcome.motion_end_s)
+            elif not self._wait_for_rest(packet):
                 return
-            self.server.clock.advance_to(outcome.motion_end_s)
-            self._reply(packet, outcome.hresult, outcome.args)
-            return
-        self._executing = (original, function)
-        threading.Thread(target=self._wait_for_move, args=(packet, outcome.hresult, outcome.args),
-                         name=f"bcap-move-{packet.serial}", daemon=True).start()
+        if function == SERVICE_STOP:  # the client is done (all a serial line can say): controller free,
+            self.server._release(self)  # before the reply, on which the next client may connect at once
+        self._reply(packet, outcome.hresult, outcome.args)
 
-    def _wait_for_move(self, packet: Packet, code: int, args: list[Variant]) -> None:
-        """Paced clock: keep-alives every WDT ms until the body is at rest, then the final reply."""
+    def _wait_for_rest(self, packet: w.Packet) -> bool:
+        """Paced clock, blocking call: keep-alives every WDT ms until the body is at rest. False when no
+        final reply is to be sent (InvokeTimeout expired, or the client went away: the arm is stopped)."""
         state, robot = self.server.state, self.server.state.robot
         wdt_s = state.wdt_ms / 1000.0 if state.wdt_ms else None
         started = time.monotonic()
         invoke_deadline = started + state.invoke_timeout_ms / 1000.0
         next_keepalive = started + wdt_s if wdt_s else float("inf")
-        try:
-            while robot.is_moving(self.server.clock.now_s()):
-                if self.server.faults.close_mid_move:
-                    self._drop_connection()
-                    return
-                now = time.monotonic()
-                if now >= invoke_deadline:
-                    log.warning("serial %d: InvokeTimeout expired; no final reply", packet.serial)
-                    return
-                if now >= next_keepalive:
-                    self._write(encode_packet(packet.serial, 0, hr.S_EXECUTING, [],
-                                              serial_line=self.channel.serial_line))
-                    next_keepalive += wdt_s or 0.0
-                if self._stop.wait(min(0.01, max(0.0, next_keepalive - now))):
-                    return
-            self._executing = None  # before the reply: the client may send its next request at once
-            self._reply(packet, code, args)
-        except EOFError:
-            self.stop()
-        finally:
-            self._executing = None
+        while robot.is_moving(self.server.clock.now_s()):
+            now = time.monotonic()
+            if self.channel.peer_closed():
+                log.info("%s: client gone during a blocking call; the arm is stopped", self.channel.name)
+                self._drop_connection()
+                return False
+            if now >= invoke_deadline:
+                log.warning("serial %d: InvokeTimeout expired; no final reply", packet.serial)
+                self._running_until_rest = True
+                return False
+            if now >= next_keepalive:
+                self._write(w.build(packet.serial, 0, w.S_EXECUTING, serial_line=self.channel.serial_line))
+                next_keepalive += wdt_s or 0.0
+            if self._stop.wait(min(0.01, max(0.0, next_keepalive - now))):
+                return False
+        return True
 
     # -------------------------------------------------------------------------------------- writing
-    def _reply(self, packet: Packet, code: int, args: list[Any], *, cache: bool = True) -> None:
-        if cache and self.channel.may_retry:
-            original = packet.reserved or packet.serial
-            self._cache[original] = (packet.code, code, list(args))
+    def _reply(self, packet: w.Packet, code: int, args: list[w.Value]) -> None:
+        if self.channel.may_retry:
+            self._cache[packet.reserved or packet.serial] = (code, list(args))
             while len(self._cache) > CACHE_SIZE:
                 self._cache.popitem(last=False)
         self._send(packet.serial, code, args, packet.code)
 
-    def _send(self, serial: int, code: int, args: list[Any], function: int) -> None:
+    def _send(self, serial: int, code: int, args: list[w.Value], function: int) -> None:
         faults = self.server.faults
         delayed = faults.delay_reply_s and faults.matches(faults.delay_function, function)
         if delayed and self._stop.wait(faults.delay_reply_s):
@@ -214,15 +273,35 @@ class _Session:
             log.info("fault: reply to serial %d dropped", serial)
             return
         serial_line = self.channel.serial_line
-        data = bytearray(encode_packet(serial, 0, code, args, serial_line=serial_line))
+        data = bytearray(w.build(serial, 0, code, args, serial_line=serial_line))
         if serial_line and faults.corrupt_crc:
             faults.corrupt_crc -= 1
             data[-2] ^= 0x5A
         if faults.stray_keepalive:
-            self._write(encode_packet(serial, 0, hr.S_EXECUTING, [], serial_line=serial_line))
+            self._write(w.build(serial, 0, w.S_EXECUTING, serial_line=serial_line))
         if faults.wrong_serial_first:
-            self._write(encode_packet(serial % 0xFFFF + 1, 0, code, args, serial_line=serial_line))
-        self._write(bytes(data))
+            self._write(w.build(serial % 0xFFFF + 1, 0, code, args, serial_line=serial_line))
+        self._write_faulty(bytes(data))
+
+    def _write_faulty(self, data: bytes) -> None:
+        """Write one reply through the stale / drop-bytes / duplicate faults."""
+        faults = self.server.faults
+        if faults.stale_replies:
+            faults.stale_replies -= 1
+            data, self._previous_reply = self._previous_reply or b"", data
+        else:
+            self._previous_reply = data
+        if faults.drop_reply_bytes and len(data) > 8:
+            faults.drop_reply_bytes -= 1
+            middle = len(data) // 2
+            data = data[:middle - 1] + data[middle + 2:]
+        copies = 1
+        if faults.duplicate_replies:
+            faults.duplicate_replies -= 1
+            copies = 2
+        for _ in range(copies):
+            if data:
+                self._write(data)
 
     def _write(self, data: bytes) -> None:
         with self._write_lock:
@@ -256,7 +335,8 @@ class BcapMockServer:
         self._listener: socket.socket | None = None
         self._closing = threading.Event()
         self.port: int | None = None
-        self.requests: list[tuple[int, int, int]] = []  # (serial, reserved, function ID) as received
+        # (serial, reserved, function ID) as received, the newest MAX_REQUESTS_KEPT
+        self.requests: History = History(MAX_REQUESTS_KEPT)
 
     def serve_tcp(self, host: str = "127.0.0.1", port: int = 0) -> int:
         """Listen on ``host:port`` (a loopback address; port 0 = ephemeral); return the bound port."""
@@ -286,9 +366,12 @@ class BcapMockServer:
 
     def _start_session(self, channel: Channel) -> None:
         session = _Session(self, channel)
-        with self.lock:
+        with self.lock:  # listed and started together: close() never sees an unstarted session
+            if self._closing.is_set():
+                channel.close()
+                return
             self._sessions.append(session)
-        session.thread.start()
+            session.thread.start()
 
     def _claim(self, session: _Session) -> bool:
         """True if ``session`` holds the controller (taking it when free); False if another client does."""
@@ -317,13 +400,16 @@ class BcapMockServer:
                 self._sessions.remove(session)
 
     def close(self) -> None:
-        self._closing.set()
+        with self.lock:
+            self._closing.set()
+            sessions = list(self._sessions)
         if self._listener is not None:
             self._listener.close()
-        for session in list(self._sessions):
+        for session in sessions:
             session.stop()
-        for session in list(self._sessions):
-            session.thread.join(timeout=1.0)
+        for session in sessions:
+            if session.thread is not threading.current_thread():
+                session.thread.join(timeout=1.0)
 
     def __enter__(self) -> BcapMockServer:
         return self
@@ -340,8 +426,14 @@ def main(argv: list[str] | None = None, prog: str | None = None) -> int:
     parser.add_argument("--host", default="127.0.0.1", type=loopback_host,
                         help="loopback address to bind (default 127.0.0.1; other addresses are refused)")
     parser.add_argument("--pty", action="store_true", help="also serve a pty serial line (CRC framing)")
+    kinds = "; ".join(f"{kind}: {text}" for kind, (_f, _d, text) in FAULT_KINDS.items())
+    parser.add_argument("--fault", action="append", default=[], type=_fault_arg, metavar="KIND[:PARAM]",
+                        help=f"inject a fault (repeatable). {kinds}")
     options, world = start_standalone(parser, argv)
-    with BcapMockServer(world.robot, world.clock) as server:
+    faults = Faults()
+    for name, value in options.fault:
+        setattr(faults, name, value)
+    with BcapMockServer(world.robot, world.clock, faults=faults) as server:
         port = server.serve_tcp(options.host, options.port)
         print(f"b-CAP mock RC8 on tcp://{options.host}:{port}", flush=True)
         if options.pty:
@@ -355,4 +447,4 @@ if __name__ == "__main__":
     raise SystemExit(main())
 
 
-__all__ = ["BcapMockServer", "Faults"]
+__all__ = ["FAULT_KINDS", "BcapMockServer", "Faults", "parse_fault"]
