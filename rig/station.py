@@ -168,9 +168,10 @@ def _build_robot(st: Station, cfg: RigConfig) -> None:
         else:
             url = f"serial://{server.serve_pty()}?baud=115200"
     transport = open_transport(url, timeout_s=rc.timeout_s)
-    st._closers.append(("robot transport", transport.close))
     client = BcapClient(transport, serial_line=serial_line, timeout_s=rc.timeout_s,
                         rc7m=rc.controller == "rc7m")
+    # the link's transport, not the first one: a make-safe may have reconnected
+    st._closers.append(("robot transport", lambda: client.link.transport.close()))  # noqa: PLW0108
     wait_mode = rc.wait_mode or ("blocking" if rc.controller == "rc7m" else "next")
     arm = DensoArm(client, envelope=BoxEnvelope(lim.envelope_x_mm, lim.envelope_y_mm, lim.envelope_z_mm),
                    max_speed_mm_s=lim.max_speed_mm_s, position_tolerance_mm=rc.position_tolerance_mm,
@@ -192,8 +193,8 @@ def _build_robot(st: Station, cfg: RigConfig) -> None:
         return None
 
     st._liveness.append(("robot", reported_pose_in_envelope))
-    st._liveness.append(("robot", lambda: "b-CAP link closed" if getattr(transport, "closed", False)
-                         else None))
+    st._liveness.append(("robot", lambda: "b-CAP link closed"
+                         if getattr(client.link.transport, "closed", False) else None))
 
 
 def _build_vfd(st: Station, cfg: RigConfig, name: str) -> None:

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import logging
 import math
+import time
 from collections.abc import Mapping, Sequence
 from dataclasses import asdict, dataclass, field
 from types import TracebackType
@@ -27,7 +28,7 @@ import numpy as np
 from drivers.clock import Clock
 from drivers.denso import bcap
 from drivers.denso.client import BcapClient
-from drivers.denso.hresult import E_BUSY_PROC, BcapError, BcapProtocolError
+from drivers.denso.hresult import BcapError, BcapProtocolError
 from drivers.denso.motion import (
     MoveHaltedError,
     MoveTimeoutError,
@@ -52,6 +53,17 @@ class LimitError(ValueError):
 
 class ArmHaltError(RuntimeError):
     """The arm could not be halted by a Robot_Halt; the message says what was done instead."""
+
+
+@dataclass
+class HaltReport:
+    """What a make-safe did: ``halted`` when a Robot_Halt was accepted, ``fresh_link`` when that took a
+    new connection and session; ``attempts``: one line per attempt; ``elapsed_s``: wall seconds."""
+
+    halted: bool = False
+    fresh_link: bool = False
+    attempts: list[str] = field(default_factory=list)
+    elapsed_s: float = 0.0
 
 
 class PositionMismatchError(RuntimeError):
@@ -201,7 +213,8 @@ class DensoArm:
     def __init__(self, client: BcapClient, *, envelope: Envelope, max_speed_mm_s: float,
                  position_tolerance_mm: float, clock: Clock, orientation_tolerance_deg: float = 0.1,
                  full_speed_mm_s: float = 1000.0, linear: bool = True,
-                 heartbeat_timeout_s: float = 2.0, wait: WaitSettings | None = None) -> None:
+                 heartbeat_timeout_s: float = 2.0, wait: WaitSettings | None = None,
+                 make_safe_deadline_s: float = 15.0) -> None:
         if not (0 < max_speed_mm_s <= full_speed_mm_s and math.isfinite(max_speed_mm_s)):
             raise ValueError(f"max_speed_mm_s={max_speed_mm_s}: must be in (0, full_speed_mm_s="
                              f"{full_speed_mm_s}]")
@@ -223,6 +236,10 @@ class DensoArm:
         self.wait = wait or WaitSettings(wait_mode="blocking" if client.rc7m else "next")
         self._pose_known: np.ndarray | None = None  # last pose read from CurPos (None after a failed move)
         self.halts_sent = 0  # Robot_Halts accepted or unanswered, any thread (a move halted under way)
+        if not (math.isfinite(make_safe_deadline_s) and make_safe_deadline_s > 0):
+            raise ValueError(f"make_safe_deadline_s={make_safe_deadline_s}: must be > 0 s")
+        self.make_safe_deadline_s = float(make_safe_deadline_s)
+        self.last_make_safe: HaltReport | None = None
         self.heartbeat_monitor = Heartbeat("robot", client.link.contact, self._probe,
                                            timeout_s=heartbeat_timeout_s)
 
@@ -325,13 +342,13 @@ class DensoArm:
         self._pose_known = np.asarray(values[:6], dtype=float)
         return self._pose_known.copy()
 
-    def halt(self) -> None:
+    def halt(self, *, attempts: int | None = None) -> None:
         """Stop the arm now (Robot_Halt). Thread-safe; in ``"next"`` wait mode it is accepted mid-move
         (the moving thread holds the link only for each ``@BUSY_STATUS`` poll)."""
         with self.client.link.contact.lock:  # (re-entrant) a polling mover sees the count with the result
             self.halts_sent += 1
             try:
-                self.client.halt()
+                self.client.halt(attempts=attempts)
             except BcapError:
                 self.halts_sent -= 1  # refused (e.g. E_BUSY_PROC): it stopped nothing
                 raise
@@ -361,22 +378,55 @@ class DensoArm:
             raise HeartbeatError("robot", "no b-CAP session to probe (open() not called or closed)")
 
     def safe_state(self) -> None:
-        """The runner's "make safe": Robot_Halt, accepted mid-move in ``"next"`` wait mode. In
-        ``"blocking"`` mode an interrupted Move still executes on this connection and b-CAP refuses the
-        halt with E_BUSY_PROC (bcap.md §10): the connection is then closed so the controller ends the
-        session and stops the arm (the mock RC8 does; **UNVERIFIED** on a real RC8): :class:`ArmHaltError`.
+        """The runner's "make safe": :meth:`make_safe`; :class:`ArmHaltError` when no halt was accepted
+        before the deadline (the message lists every attempt)."""
+        report = self.make_safe()
+        if not report.halted:
+            raise ArmHaltError(f"no Robot_Halt accepted within {report.elapsed_s:.1f} s: "
+                               + "; ".join(report.attempts))
+
+    def make_safe(self, deadline_s: float | None = None) -> HaltReport:
+        """Halt the arm, on a fresh link if need be, within ``deadline_s`` wall seconds (default
+        ``make_safe_deadline_s``); the outcome is returned and kept in :attr:`last_make_safe`.
+
+        First a Robot_Halt on the current link, if its lock comes free within the receive timeout. When
+        that fails — the link is busy with a blocking Move (the reference server queues the halt behind
+        it, a controller may refuse it with E_BUSY_PROC), out of step, silent or closed — the connection
+        is closed (the controller ends that session and stops the arm: the mock does; **UNVERIFIED** on a
+        real RC8) and a new one is opened: Service_Start, Controller_Connect, Controller_GetRobot,
+        Robot_Halt; repeated until the deadline.
         """
-        try:
-            self.halt()
-        except BcapError as exc:
-            if exc.hresult != E_BUSY_PROC:
-                raise
-            self.client.link.transport.close()
-            self.client.link.contact.fail("closed by safe_state: Robot_Halt refused with E_BUSY_PROC")
-            raise ArmHaltError(
-                "Robot_Halt refused with E_BUSY_PROC (an interrupted Move is still executing on this "
-                "connection); the b-CAP connection was closed so the controller ends the session and "
-                "stops the arm — check the arm is at rest") from exc
+        link = self.client.link
+        deadline = time.monotonic() + (self.make_safe_deadline_s if deadline_s is None else deadline_s)
+        started = time.monotonic()
+        report = HaltReport()
+        self.last_make_safe = report
+        errors = (BcapError, BcapProtocolError, TransportError, OSError)
+        if link.contact.lock.acquire(timeout=min(link.timeout_s, max(0.0, deadline - time.monotonic()))):
+            try:
+                self.halt(attempts=1)  # a busy or out-of-step link is left for a fresh one at once
+                report.halted = True
+                report.attempts.append("Robot_Halt on the current link: accepted")
+            except errors as exc:
+                report.attempts.append(f"Robot_Halt on the current link: {exc}")
+            finally:
+                link.contact.lock.release()
+        else:
+            report.attempts.append(f"current link busy for {link.timeout_s:g} s (a call in flight)")
+        while not report.halted and time.monotonic() < deadline:
+            link.transport.close()  # ends a call in flight in another thread, and the controller's session
+            try:
+                with link.contact.lock:
+                    self.client.restart_session()
+                    self.halt()
+                report.halted = report.fresh_link = True
+                report.attempts.append("Robot_Halt on a fresh link: accepted")
+            except errors as exc:
+                report.attempts.append(f"Robot_Halt on a fresh link: {exc}")
+                time.sleep(min(0.2, max(0.0, deadline - time.monotonic())))
+        report.elapsed_s = time.monotonic() - started
+        (log.info if report.halted else log.error)("make safe: %s", "; ".join(report.attempts))
+        return report
 
     def _try_halt(self) -> None:
         try:
@@ -401,4 +451,5 @@ class DensoArm:
             "linear": self.linear,
             "wait": asdict(self.wait),
             "last_move": asdict(self.last_move) if self.last_move else None,
+            "last_make_safe": asdict(self.last_make_safe) if self.last_make_safe else None,
         }

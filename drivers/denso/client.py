@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import logging
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from types import TracebackType
 from typing import Any
 
@@ -88,9 +88,9 @@ class BcapClient:
 
     def __init__(self, transport: Transport, *, serial_line: bool = False, udp: bool = False,
                  retries: int = 3, timeout_s: float = 3.0, invoke_timeout_s: float = 180.0,
-                 rc7m: bool = False) -> None:
+                 rc7m: bool = False, reopen: Callable[[], Transport] | None = None) -> None:
         self.link = BcapLink(transport, serial_line=serial_line, datagram=udp, retries=retries,
-                             timeout_s=timeout_s, invoke_timeout_s=invoke_timeout_s)
+                             timeout_s=timeout_s, invoke_timeout_s=invoke_timeout_s, reopen=reopen)
         self.rc7m = rc7m
         self.h_ctrl: Variant | None = None
         self.h_robot: Variant | None = None
@@ -99,12 +99,17 @@ class BcapClient:
         self.motor_on = False
         self.h_busy: Variant | None = None  # Robot_GetVariable "@BUSY_STATUS" handle (cached per session)
         self._describing = False
+        self._service_options: dict[str, int | None] = {"wdt_ms": 400, "invoke_timeout_ms": 180_000}
+        self._robot_name = "Arm"
 
     # low level ------------------------------------------------------------------------------------
-    def call(self, function_id: int, args: Sequence[Any] = (), *, timeout_s: float | None = None) -> Variant:
-        """One call; returns the first reply argument (EMPTY when there is none)."""
+    def call(self, function_id: int, args: Sequence[Any] = (), *, timeout_s: float | None = None,
+             idempotent: bool = False, attempts: int | None = None) -> Variant:
+        """One call; returns the first reply argument (EMPTY when there is none). ``idempotent``: a read
+        or a halt, which the link may ask again after a timeout (:class:`BcapLink`)."""
         try:
-            reply = self.link.call(function_id, args, timeout_s=timeout_s)
+            reply = self.link.call(function_id, args, timeout_s=timeout_s, idempotent=idempotent,
+                                   attempts=attempts)
         except BcapError as exc:
             describable = is_controller_error(exc.hresult) and exc.hresult not in CODES
             if describable and self.h_ctrl is not None and not self._describing:
@@ -137,6 +142,7 @@ class BcapClient:
             raise ValueError(f"wdt_ms={wdt_ms}: the receive timeout {self.link.timeout_s:g} s must exceed "
                              "1.5 × WDT so keep-alives can arrive")
         self.call(bcap.SERVICE_START, [service_option(wdt_ms, invoke_timeout_ms)])
+        self._service_options = {"wdt_ms": wdt_ms, "invoke_timeout_ms": invoke_timeout_ms}
         self.service_started = True
         # without WDT a blocking call is silent until it ends: the heartbeat must not count that as lost
         self.link.contact.silent_calls = wdt_ms is None
@@ -159,18 +165,19 @@ class BcapClient:
 
     def controller_get_robot(self, name: str = "Arm", option: str = "") -> Variant:
         self.h_busy = None  # belongs to the previous robot handle, if any
+        self._robot_name = name
         self.h_robot = self._handle(self.call(bcap.CONTROLLER_GET_ROBOT, [self._ctrl(), name, option]),
                                     "Controller_GetRobot")
         return self.h_robot
 
-    def controller_execute(self, command: str, param: Any = None) -> Variant:
-        return self.call(bcap.CONTROLLER_EXECUTE, [self._ctrl(), command, param])
+    def controller_execute(self, command: str, param: Any = None, *, idempotent: bool = False) -> Variant:
+        return self.call(bcap.CONTROLLER_EXECUTE, [self._ctrl(), command, param], idempotent=idempotent)
 
     def clear_error(self) -> None:
         self.controller_execute("ClearError")
 
     def error_count(self) -> int:
-        return int(self.controller_execute("GetCurErrorCount").value)
+        return int(self.controller_execute("GetCurErrorCount", idempotent=True).value)
 
     def error_info(self, index: int = 0) -> list[Any]:
         """``[code, message, ...]`` of the current error number ``index``."""
@@ -180,8 +187,10 @@ class BcapClient:
         return str(self.controller_execute("GetErrorDescription", Variant(VT_I4, to_signed(code))).value)
 
     # robot ----------------------------------------------------------------------------------------
-    def robot_execute(self, command: str, param: Any = None, *, timeout_s: float | None = None) -> Variant:
-        return self.call(bcap.ROBOT_EXECUTE, [self._robot(), command, param], timeout_s=timeout_s)
+    def robot_execute(self, command: str, param: Any = None, *, timeout_s: float | None = None,
+                      idempotent: bool = False) -> Variant:
+        return self.call(bcap.ROBOT_EXECUTE, [self._robot(), command, param], timeout_s=timeout_s,
+                         idempotent=idempotent)
 
     def take_arm(self, group: int = 0, keep: int = 1) -> None:
         if not self.rc7m:
@@ -209,7 +218,7 @@ class BcapClient:
 
     def cur_pos(self) -> list[float]:
         """``[x, y, z, rx, ry, rz, fig]`` (mm, degrees, fig as a float as the controller sends it)."""
-        reply = self.robot_execute("CurPos")
+        reply = self.robot_execute("CurPos", idempotent=True)
         values = reply.to_python()
         if not isinstance(values, list) or len(values) < 6:
             raise BcapError(0x80004005, description=f"CurPos returned {reply!r}; expected 7 numbers")
@@ -248,7 +257,7 @@ class BcapClient:
         if self.h_busy is None:
             reply = self.call(bcap.ROBOT_GET_VARIABLE, [self._robot(), "@BUSY_STATUS", ""])
             self.h_busy = self._handle(reply, "Robot_GetVariable @BUSY_STATUS")
-        reply = self.call(bcap.VARIABLE_GET_VALUE, [self.h_busy])
+        reply = self.call(bcap.VARIABLE_GET_VALUE, [self.h_busy], idempotent=True)
         value = reply.value
         if isinstance(value, bool):
             return value
@@ -263,8 +272,20 @@ class BcapClient:
         self.call(bcap.ROBOT_SPEED,
                   [self._robot(), Variant(VT_I4, axis), Variant(VT_R4, float(speed_percent))])
 
-    def halt(self, option: str = "") -> None:
-        self.call(bcap.ROBOT_HALT, [self._robot(), option])
+    def halt(self, option: str = "", *, attempts: int | None = None) -> None:
+        """Robot_Halt (idempotent: asked again after a timeout unless ``attempts`` is 1)."""
+        self.call(bcap.ROBOT_HALT, [self._robot(), option], idempotent=True, attempts=attempts)
+
+    def restart_session(self) -> None:
+        """A fresh link and session, for a make-safe when the old link is out of step, busy or gone:
+        reconnect, Service_Start (the last options), Controller_Connect, Controller_GetRobot. Arm
+        ownership and motor are not taken again (a halt is all this session is for)."""
+        self.link.reconnect()
+        self.h_ctrl = self.h_robot = self.h_busy = None
+        self.service_started = self.arm_taken = self.motor_on = False
+        self.service_start(**self._service_options)
+        self.controller_connect()
+        self.controller_get_robot(self._robot_name)
 
     def robot_release(self) -> None:
         if self.h_robot is not None:

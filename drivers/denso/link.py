@@ -6,13 +6,20 @@ keep-alive is skipped and restarts the receive timeout. TCP never re-sends. On a
 a call may be attempted ``retries`` times (1..7): every attempt gets a new serial and carries the first
 attempt's serial in the reserved field, so the controller answers a duplicate from its cache instead of
 executing twice.
+
+Recovery (a link out of step — a late reply, a duplicated reply, the reply to an earlier request, lost
+bytes): replies with another serial are discarded; after a timeout the input is **drained** (every byte
+already received or arriving before ``drain_quiet_s`` of silence is discarded and the decoder starts
+afresh), so the next call does not read the stale bytes. An idempotent call (a read, a halt) may be
+attempted again on TCP too, as a new request (``idempotent=True``: :data:`IDEMPOTENT_TCP_ATTEMPTS`).
+:meth:`BcapLink.reconnect` replaces the transport by a fresh one (``reopen``; by default the same address).
 """
 
 from __future__ import annotations
 
 import logging
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import Any
 
 from drivers.denso.bcap import (
@@ -32,11 +39,19 @@ from drivers.denso.hresult import (
 )
 from drivers.denso.variant import Variant
 from drivers.heartbeat import ContactRecord
-from drivers.transport import Transport, TransportClosed, TransportError, TransportTimeout
+from drivers.transport import (
+    Transport,
+    TransportClosed,
+    TransportError,
+    TransportTimeout,
+    open_transport,
+)
 
 log = logging.getLogger(__name__)
 
 MAX_ATTEMPTS = 7
+IDEMPOTENT_TCP_ATTEMPTS = 2  # a read or a halt is asked again once on TCP (a new request, never a re-send)
+DRAIN_LIMIT_BYTES = 1 << 20  # a line that never falls silent is not drained for ever
 
 
 class BcapLink:
@@ -53,10 +68,14 @@ class BcapLink:
         retries: attempts per call on a serial line, 1..7 (TCP always makes exactly one).
         timeout_s: receive timeout per attempt, restarted by each keep-alive; must exceed the WDT.
         invoke_timeout_s: cap on one call's total duration even while keep-alives arrive.
+        drain_quiet_s: silence (s) that ends the drain after a timeout.
+        reopen: opens a fresh transport for :meth:`reconnect` (default: ``open_transport`` of the same
+            address with ``timeout_s``).
     """
 
     def __init__(self, transport: Transport, *, serial_line: bool = False, datagram: bool = False,
-                 retries: int = 3, timeout_s: float = 3.0, invoke_timeout_s: float = 180.0) -> None:
+                 retries: int = 3, timeout_s: float = 3.0, invoke_timeout_s: float = 180.0,
+                 drain_quiet_s: float = 0.05, reopen: Callable[[], Transport] | None = None) -> None:
         if not 1 <= retries <= MAX_ATTEMPTS:
             raise ValueError(f"retries={retries}: must be 1..{MAX_ATTEMPTS} attempts")
         if not timeout_s > 0:
@@ -77,18 +96,52 @@ class BcapLink:
         self._lock = self.contact.lock
         self.keepalives_seen = 0
         self.discarded_replies = 0
+        self.drained_bytes = 0
+        self.reconnects = 0
+        self.drain_quiet_s = float(drain_quiet_s)
+        self._reopen = reopen or (lambda: open_transport(transport.url, self.timeout_s))
+
+    def drain(self) -> int:
+        """Discard what is buffered and what arrives until ``drain_quiet_s`` of silence; return the count.
+        A closed transport drains nothing."""
+        dropped = self._decoder.buffered
+        self._decoder = PacketDecoder(serial_line=self.serial_line, max_length=self.max_length)
+        while dropped < DRAIN_LIMIT_BYTES:
+            try:
+                dropped += len(self.transport.read_exact(1, self.drain_quiet_s))
+                dropped += len(self.transport.read_available())
+            except TransportError:  # silence (timeout), or the link is gone: nothing more to drain
+                break
+        if dropped:
+            log.info("%s: drained %d stale bytes", self.transport.url, dropped)
+        self.drained_bytes += dropped
+        return dropped
+
+    def reconnect(self) -> None:
+        """Close the transport and open a fresh one (same serial numbering; the caller starts a new
+        b-CAP session on it). Raises ``TransportError`` when the controller cannot be reached."""
+        with self._lock:
+            try:
+                self.transport.close()
+            except OSError as exc:
+                log.warning("closing the old b-CAP transport: %s", exc)
+            self.transport = self._reopen()
+            self._decoder = PacketDecoder(serial_line=self.serial_line, max_length=self.max_length)
+            self.reconnects += 1
 
     @property
     def last_serial(self) -> int:
         return self._serial
 
-    def call(self, function_id: int, args: Sequence[Any] = (), *,
-             timeout_s: float | None = None, attempts: int | None = None) -> list[Variant]:
+    def call(self, function_id: int, args: Sequence[Any] = (), *, timeout_s: float | None = None,
+             attempts: int | None = None, idempotent: bool = False) -> list[Variant]:
         """Send one request and return the reply's arguments; a failure HRESULT raises :class:`BcapError`.
-        ``attempts`` (1..``retries``) caps the attempts of this call (the heartbeat probe makes one)."""
+        ``attempts`` (1..``retries``) caps the attempts of this call (the heartbeat probe makes one);
+        ``idempotent`` lets a read or a halt be asked again on TCP after a timeout and a drain."""
         name = function_name(function_id)
         timeout = self.timeout_s if timeout_s is None else float(timeout_s)
-        n_attempts = self.attempts if attempts is None else max(1, min(int(attempts), self.attempts))
+        allowed = max(self.attempts, IDEMPOTENT_TCP_ATTEMPTS) if idempotent else self.attempts
+        n_attempts = allowed if attempts is None else max(1, min(int(attempts), allowed))
         with self.contact.exchange():
             sent: set[int] = set()
             first = 0
@@ -96,7 +149,7 @@ class BcapLink:
                 self._serial = next_serial(self._serial)
                 serial = self._serial
                 first = first or serial
-                reserved = first if self.may_retry else 0
+                reserved = first if self.may_retry else 0  # TCP: each attempt is a new request
                 packet = encode_packet(serial, reserved, function_id, args, serial_line=self.serial_line,
                                        max_length=self.max_length)
                 sent.add(serial)
@@ -106,7 +159,9 @@ class BcapLink:
                 except TransportTimeout:
                     log.warning("%s: no reply to serial %d (attempt %d of %d)", name, serial, attempt + 1,
                                 n_attempts)
-                    self._decoder.drop_stalled_frame()
+                    self.drain()
+                    if not self.may_retry:
+                        sent.clear()  # TCP: a late reply to the abandoned request is stale, not an answer
                     continue
                 except TransportError as exc:
                     kind = "closed" if isinstance(exc, TransportClosed) else "failed"

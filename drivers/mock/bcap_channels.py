@@ -30,11 +30,6 @@ class Channel(abc.ABC):
     def close(self) -> None:
         """Release the channel (idempotent)."""
 
-    def peer_closed(self) -> bool:
-        """True when the client has closed its end (checked without consuming data); a pty or UDP
-        channel has no connection to close."""
-        return False
-
 
 class TcpChannel(Channel):
     def __init__(self, sock: socket.socket) -> None:
@@ -59,13 +54,6 @@ class TcpChannel(Channel):
             self.sock.sendall(data)
         except OSError as exc:
             raise EOFError(str(exc)) from exc
-
-    def peer_closed(self) -> bool:
-        try:
-            ready, _, _ = select.select([self.sock], [], [], 0)
-            return bool(ready) and self.sock.recv(1, socket.MSG_PEEK) == b""
-        except (OSError, ValueError):
-            return True
 
     def close(self) -> None:
         with contextlib.suppress(OSError):

@@ -65,6 +65,7 @@ from drivers.mock.bcap_state import ControllerState, History, RobotBodyLike
 log = logging.getLogger(__name__)
 CACHE_SIZE = 32
 MAX_REQUESTS_KEPT = 10_000
+QUEUE_LIMIT_BYTES = 1 << 20  # requests queued during a blocking call, beyond which reading pauses
 SERVICE_STOP, ROBOT_MOVE = 2, 72
 ALL = 10**9  # "every time" for a fault counter
 
@@ -144,12 +145,13 @@ class _Session:
         self._previous_reply: bytes | None = None  # for the "stale" fault
         self._stop = threading.Event()
         self.request_count = 0
+        self.framer = w.Framer(serial_line=channel.serial_line,
+                               max_length=w.MAX_SERIAL_LINE if channel.may_retry else None)
         self.thread = threading.Thread(target=self._run, name=f"bcap-{channel.name}", daemon=True)
 
     # -------------------------------------------------------------------------------------- reading
     def _run(self) -> None:
-        framer = w.Framer(serial_line=self.channel.serial_line,
-                          max_length=w.MAX_SERIAL_LINE if self.channel.may_retry else None)
+        framer = self.framer
         try:
             while not self._stop.is_set():
                 framer.feed(self.channel.recv(0.05))
@@ -240,10 +242,6 @@ class _Session:
         next_keepalive = started + wdt_s if wdt_s else float("inf")
         while robot.is_moving(self.server.clock.now_s()):
             now = time.monotonic()
-            if self.channel.peer_closed():
-                log.info("%s: client gone during a blocking call; the arm is stopped", self.channel.name)
-                self._drop_connection()
-                return False
             if now >= invoke_deadline:
                 log.warning("serial %d: InvokeTimeout expired; no final reply", packet.serial)
                 self._running_until_rest = True
@@ -251,7 +249,17 @@ class _Session:
             if now >= next_keepalive:
                 self._write(w.build(packet.serial, 0, w.S_EXECUTING, serial_line=self.channel.serial_line))
                 next_keepalive += wdt_s or 0.0
-            if self._stop.wait(min(0.01, max(0.0, next_keepalive - now))):
+            if self._stop.is_set():
+                return False
+            wait_s = min(0.01, max(0.001, next_keepalive - now))
+            if len(self.framer.buffer) >= QUEUE_LIMIT_BYTES:  # the rest waits in the socket
+                self._stop.wait(wait_s)
+                continue
+            try:  # requests sent meanwhile queue here; a closed connection is seen at once
+                self.framer.feed(self.channel.recv(wait_s))
+            except EOFError:
+                log.info("%s: client gone during a blocking call; the arm is stopped", self.channel.name)
+                self._drop_connection()
                 return False
         return True
 
