@@ -206,32 +206,32 @@ def test_a_request_during_a_blocking_move_waits_its_turn_over_raw_tcp() -> None:
     """Reference server: the connection is not read while a call executes, so a request sent meanwhile
     is answered after the call's final reply, not refused."""
     world = World(VirtualClock(rate=1.0))
-    with BcapMockServer(world.robot, world.clock) as server:
-        with socket.create_connection(("127.0.0.1", server.serve_tcp()), timeout=5.0) as sock:
-            call, receive, robot = _raw_session(sock, world)
-            call(6, 72, [robot, Variant(VT_I4, 2), _move_40_mm(world), "SPEED=10"])  # 40 mm at 100 mm/s
-            call(7, 64, [robot, "CurPos", None])
-            replies = [receive()]
-            while replies[-1].serial != 7:
-                replies.append(receive())
-            finals = [p for p in replies if not p.is_keepalive]
-            assert [(p.serial, p.code) for p in finals] == [(6, 0), (7, 0)]
-            assert sum(p.is_keepalive for p in replies if p.serial == 6) >= 2
-            assert not world.robot.is_moving(world.clock.now_s())  # CurPos ran after the move ended
-            np.testing.assert_allclose(finals[1].args[0].value[:6], world.robot.pose_at(world.clock.now_s()))
+    with BcapMockServer(world.robot, world.clock) as server, \
+            socket.create_connection(("127.0.0.1", server.serve_tcp()), timeout=5.0) as sock:
+        call, receive, robot = _raw_session(sock, world)
+        call(6, 72, [robot, Variant(VT_I4, 2), _move_40_mm(world), "SPEED=10"])  # 40 mm at 100 mm/s
+        call(7, 64, [robot, "CurPos", None])
+        replies = [receive()]
+        while replies[-1].serial != 7:
+            replies.append(receive())
+        finals = [p for p in replies if not p.is_keepalive]
+        assert [(p.serial, p.code) for p in finals] == [(6, 0), (7, 0)]
+        assert sum(p.is_keepalive for p in replies if p.serial == 6) >= 2
+        assert not world.robot.is_moving(world.clock.now_s())  # CurPos ran after the move ended
+        np.testing.assert_allclose(finals[1].args[0].value[:6], world.robot.pose_at(world.clock.now_s()))
 
 
 def test_busy_only_after_invoke_timeout_expired_with_the_call_still_running() -> None:
     world = World(VirtualClock(rate=1.0))
-    with BcapMockServer(world.robot, world.clock) as server:
-        with socket.create_connection(("127.0.0.1", server.serve_tcp()), timeout=5.0) as sock:
-            call, receive, robot = _raw_session(sock, world, ",WDT=100,InvokeTimeout=100")
-            call(6, 72, [robot, Variant(VT_I4, 2), _move_40_mm(world), "SPEED=1"])  # 4 s >> 0.1 s
-            call(7, 64, [robot, "CurPos", None])  # read once the InvokeTimeout has expired
-            while (packet := receive()).is_keepalive and packet.serial == 6:
-                pass
-            assert packet.serial == 7 and hr.to_unsigned(packet.code) == hr.E_BUSY_PROC
-            assert packet.args == ()  # refused before execution: no argument (reference server)
+    with BcapMockServer(world.robot, world.clock) as server, \
+            socket.create_connection(("127.0.0.1", server.serve_tcp()), timeout=5.0) as sock:
+        call, receive, robot = _raw_session(sock, world, ",WDT=100,InvokeTimeout=100")
+        call(6, 72, [robot, Variant(VT_I4, 2), _move_40_mm(world), "SPEED=1"])  # 4 s >> 0.1 s
+        call(7, 64, [robot, "CurPos", None])  # read once the InvokeTimeout has expired
+        while (packet := receive()).is_keepalive and packet.serial == 6:
+            pass
+        assert packet.serial == 7 and hr.to_unsigned(packet.code) == hr.E_BUSY_PROC
+        assert packet.args == ()  # refused before execution: no argument (reference server)
 
 
 def test_second_tcp_client_gets_max_connect(world: World, server: BcapMockServer) -> None:
