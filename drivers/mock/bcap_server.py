@@ -381,6 +381,12 @@ class BcapMockServer:
             self._sessions.append(session)
             session.thread.start()
 
+    @property
+    def held_by(self) -> str | None:
+        """The channel name of the client holding the controller, or None when it is free."""
+        with self.lock:
+            return self._active.channel.name if self._active is not None else None
+
     def _claim(self, session: _Session) -> bool:
         """True if ``session`` holds the controller (taking it when free); False if another client does."""
         with self.lock:
