@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import math
 import socket
+import struct
 import time
 
 import numpy as np
@@ -245,3 +246,17 @@ def test_value_returning_refusals_before_execution_carry_no_argument() -> None:
         assert packet is not None and hr.to_unsigned(packet.code) == hr.E_BUSY_PROC and packet.args == ()
         assert client.robot_execute("CurPos").vt == VT_ARRAY | VT_R8
         client.close()
+
+
+def test_connections_reset_before_they_are_served_do_not_stop_the_accept_loop() -> None:
+    """Found by benchmarks/fuzz_bcap.py: a reset before the mock served it killed the accept thread."""
+    world = World(VirtualClock())
+    with BcapMockServer(world.robot, world.clock) as server:
+        port = server.serve_tcp()
+        for _ in range(200):
+            sock = socket.create_connection(("127.0.0.1", port), timeout=2.0)
+            sock.setsockopt(socket.SOL_SOCKET, socket.SO_LINGER, struct.pack("ii", 1, 0))
+            sock.close()
+        client = _client(server)
+        client.service_start(wdt_ms=None)
+        client.link.transport.close()

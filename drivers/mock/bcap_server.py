@@ -369,8 +369,14 @@ class BcapMockServer:
         return channel.slave_name
 
     def _on_connection(self, sock: socket.socket) -> None:
-        sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-        self._start_session(TcpChannel(sock))
+        try:
+            sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+            channel = TcpChannel(sock)
+        except OSError as exc:  # reset before it was served: the accept loop must live on
+            log.info("connection gone before it was served: %s", exc)
+            sock.close()
+            return
+        self._start_session(channel)
 
     def _start_session(self, channel: Channel) -> None:
         session = _Session(self, channel)
