@@ -137,3 +137,29 @@ def test_channel_is_an_abstract_interface() -> None:
 
     with pytest.raises(TypeError, match="send"):
         Half()  # type: ignore[abstract]
+
+
+def test_rig_mock_robot_passes_faults_to_the_mock() -> None:
+    """``rig mock robot --fault busy:1 --fault move-error`` (parsed by the mock's own argparse): the first
+    request is refused with E_BUSY_PROC, then every Move fails with the injected controller error."""
+    command = [sys.executable, "-m", "rig.cli", "mock", "robot", "--port", "0", "--fault", "busy:1",
+               "--fault", "move-error"]
+    proc = subprocess.Popen(command, cwd=ROOT, env={**os.environ, "PYTHONPATH": str(ROOT)},
+                            stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
+    try:
+        found = re.search(r"tcp://127\.0\.0\.1:(\d+)", proc.stdout.readline())
+        assert found
+        client = BcapClient(open_transport(f"tcp://127.0.0.1:{found.group(1)}", 2.0), timeout_s=2.0)
+        with pytest.raises(hr.BcapError) as busy:
+            client.service_start(wdt_ms=None)
+        assert busy.value.hresult == hr.E_BUSY_PROC
+        client.open_robot(wdt_ms=None)
+        start = client.cur_pos()
+        with pytest.raises(hr.BcapError) as failed:
+            client.move([start[0] + 10.0, *start[1:6]])
+        assert failed.value.hresult == 0x8350A005
+        client.close()
+        client.link.transport.close()
+    finally:
+        proc.send_signal(signal.SIGTERM)
+        assert proc.wait(timeout=10) == 0

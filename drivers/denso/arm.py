@@ -206,8 +206,8 @@ class DensoArm:
         wait: how a move waits for the end of motion (:class:`~drivers.denso.motion.WaitSettings`):
             by default Robot_Move with NEXT and ``@BUSY_STATUS`` polls every 0.05 s of ``clock``, so
             :meth:`halt` from another thread is accepted mid-move; ``WaitSettings(wait_mode="blocking")``
-            for controllers without NEXT (a halt mid-move is then refused with E_BUSY_PROC; the default
-            for an RC7M client).
+            for controllers without NEXT (a halt cannot pass the Move on its connection, so
+            :meth:`safe_state` halts on a fresh one; the default for an RC7M client).
     """
 
     def __init__(self, client: BcapClient, *, envelope: Envelope, max_speed_mm_s: float,
@@ -362,7 +362,7 @@ class DensoArm:
         from the controller and the limit, when the link was closed or nothing (not even an S_EXECUTING
         keep-alive of a running Move) arrived for ``heartbeat_timeout_s``. When the link has been idle
         for a quarter of that, one ``CurPos`` is sent from a helper thread — only while no call is in
-        flight (a request during a blocking Move would get E_BUSY_PROC, bcap.md §10).
+        flight (a request during a blocking Move would wait behind it, or get E_BUSY_PROC, bcap.md §10).
         """
         return self.heartbeat_monitor.verify() if wait else self.heartbeat_monitor.check()
 

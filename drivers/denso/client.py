@@ -238,7 +238,8 @@ class BcapClient:
 
         ``next_=True`` adds the ``NEXT`` option: the controller answers as soon as the motion has started
         (bcap.md §8) and the caller polls :meth:`busy_status` for its end; otherwise the call blocks until
-        the arm is at rest (the controller refuses any other request meanwhile with E_BUSY_PROC, §10)."""
+        the arm is at rest (no other request on the connection is served meanwhile: queued by the
+        reference server, or E_BUSY_PROC, §10)."""
         parts = []
         if speed_percent is not None:
             if not 0 < speed_percent <= 100:

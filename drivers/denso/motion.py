@@ -1,7 +1,8 @@
 """Waiting for the end of a ``NEXT`` move by polling ``@BUSY_STATUS`` (``../shared/notes/bcap.md`` §8, §10).
 
 A Robot_Move without ``NEXT`` keeps the controller executing that one call until the arm is at rest, and
-b-CAP refuses every other request meanwhile with E_BUSY_PROC — including Robot_Halt. With ``NEXT`` the
+no other request on that connection is served meanwhile — including Robot_Halt: DENSO's reference server
+queues it behind the Move, a controller may refuse it with E_BUSY_PROC (docs/bcap_mock.md). With ``NEXT`` the
 controller answers at once; :func:`wait_for_rest` then polls ``@BUSY_STATUS`` every ``poll_interval_s``
 of the injected clock, taking the link lock only for each poll, so a Robot_Halt from another thread (the
 runner's safe state after an interlock or a second Ctrl-C) goes out at once and is accepted.
@@ -40,8 +41,8 @@ class WaitSettings:
     Args:
         wait_mode: ``"next"`` (default): Robot_Move with NEXT, then poll ``@BUSY_STATUS`` — a halt can be
             sent mid-move. ``"blocking"``: Robot_Move without NEXT, for controllers that lack NEXT or
-            ``@BUSY_STATUS``; the call returns when the arm is at rest, and a Robot_Halt sent meanwhile is
-            refused with E_BUSY_PROC (the arm's safe state then closes the connection instead).
+            ``@BUSY_STATUS``; the call returns when the arm is at rest, and a Robot_Halt cannot pass it on
+            that connection (the arm's safe state then closes it and halts on a fresh one).
         poll_interval_s: clock seconds between two ``@BUSY_STATUS`` polls, in (0, 5].
         timeout_factor: the bound is ``timeout_factor`` × the nominal duration (≥ 1) …
         timeout_margin_s: … plus this many seconds (≥ 0; covers acceleration and settling).
