@@ -25,11 +25,12 @@ from drivers.transport import open_transport
 ENVELOPE = BoxEnvelope((100.0, 600.0), (-300.0, 300.0), (50.0, 600.0))
 
 
-def _arm(server: BcapMockServer, world: World, timeout_s: float = 0.5, **kwargs) -> DensoArm:
+def _arm(server: BcapMockServer, world: World, timeout_s: float = 0.5, wdt_ms: int | None = None,
+         **kwargs) -> DensoArm:
     transport = open_transport(f"tcp://127.0.0.1:{server.serve_tcp()}", timeout_s)
     arm = DensoArm(BcapClient(transport, timeout_s=timeout_s), envelope=ENVELOPE, max_speed_mm_s=250.0,
                    position_tolerance_mm=0.01, clock=world.clock, **kwargs)
-    arm.open(wdt_ms=None)
+    arm.open(wdt_ms=wdt_ms)
     return arm
 
 
@@ -136,7 +137,7 @@ def test_make_safe_during_a_blocking_move_in_another_thread_stops_the_arm() -> N
     stops the arm — and halts on a fresh session."""
     world = World(VirtualClock(rate=1.0))
     with BcapMockServer(world.robot, world.clock) as server:
-        arm = _arm(server, world, timeout_s=0.5, wait=WaitSettings(wait_mode="blocking"))
+        arm = _arm(server, world, timeout_s=0.5, wdt_ms=100, wait=WaitSettings(wait_mode="blocking"))
         start = _truth(world)
         target = [start[0] + 150.0, *start[1:]]
         errors: list[BaseException] = []
@@ -156,8 +157,11 @@ def test_make_safe_during_a_blocking_move_in_another_thread_stops_the_arm() -> N
         report = arm.make_safe(deadline_s=10.0)
         mover.join(timeout=10.0)
         assert report.halted and report.fresh_link, report
-        assert not world.robot.is_moving(world.clock.now_s())
+        while world.robot.is_moving(world.clock.now_s()):  # decelerating to rest (bounded: it was halted)
+            assert time.monotonic() < deadline + 10.0
+            time.sleep(0.01)
         assert _truth(world)[0] < target[0] - 50.0  # stopped, not arrived
+        assert server.state.moves[-1]["t_end_s"] > world.clock.now_s() + 1.0  # the planned end lay ahead
         assert errors and isinstance(errors[0], hr.BcapError | OSError), errors
         arm.close()
         arm.client.link.transport.close()
