@@ -253,9 +253,6 @@ def test_random_streams_never_hang_and_raise_only_protocol_errors(chunks: list[b
             continue
     else:
         pytest.fail("decoder did not terminate")
-    decoder.drop_stalled_frame()  # a stalled frame is dropped after a timeout, and decoding carries on
-    with contextlib.suppress(BcapProtocolError):
-        decoder.packets()
 
 
 @given(st.binary(max_size=200))

@@ -218,11 +218,6 @@ class PacketDecoder:
             del buf[:length]
             return _parse_body(frame, end)
 
-    def drop_stalled_frame(self) -> None:
-        """Give up on an incomplete frame at the head (its SOH was probably noise) and rescan after it."""
-        if self._buffer:
-            self._skip(1)
-
     def packets(self) -> list[Packet]:
         """Every complete packet now buffered (stops at, and raises, the first malformed one)."""
         found = []
