@@ -259,3 +259,12 @@ def test_random_streams_never_hang_and_raise_only_protocol_errors(chunks: list[b
 def test_random_variant_bytes_raise_only_protocol_errors(data: bytes) -> None:
     with contextlib.suppress(BcapProtocolError):
         decode_variant(data)
+
+
+@given(st.binary(min_size=1, max_size=40), st.integers(0, 200), st.booleans())
+def test_mutated_vendor_frames_decode_or_raise_a_protocol_error(noise: bytes, at: int,
+                                                               serial_line: bool) -> None:
+    frame = bytearray(SERVICE_STOP_SERIAL if serial_line else TAKE_ARM)
+    frame[at % len(frame):at % len(frame) + len(noise)] = noise
+    with contextlib.suppress(BcapProtocolError):
+        decode_packet(bytes(frame), serial_line=serial_line)

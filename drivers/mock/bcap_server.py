@@ -96,11 +96,11 @@ class Faults:
 
 
 FAULT_KINDS = {  # --fault KIND[:PARAM] → (Faults fields set, default PARAM, help)
-    "delay": ("delay_reply_s", 5.0, "late reply: every reply waits PARAM s (default 5)"),
-    "no-reply": ("drop_replies", ALL, "no reply: the next PARAM replies are not sent (default all)"),
-    "busy": ("busy_replies", ALL, "busy: the next PARAM requests get E_BUSY_PROC (default all)"),
-    "move-error": ("move_error", 0x8350A005, "move error: every Move fails with HRESULT PARAM"),
-    "disconnect-after": ("disconnect_after", 20, "close each connection at request PARAM + 1"),
+    "delay": ("delay_reply_s", 5.0, "a late reply: every reply waits PARAM s (default 5)"),
+    "no-reply": ("drop_replies", ALL, "the next PARAM replies are not sent (default all)"),
+    "busy": ("busy_replies", ALL, "the next PARAM requests get E_BUSY_PROC (default all)"),
+    "move-error": ("move_error", 0x8350A005, "every Move fails with HRESULT PARAM (default 0x8350A005)"),
+    "disconnect-after": ("disconnect_after", 20, "close each connection at request PARAM + 1 (default 20)"),
     "corrupt-crc": ("corrupt_crc", ALL, "serial line: the next PARAM replies have a bad CRC"),
     "duplicate": ("duplicate_replies", ALL, "the next PARAM replies are sent twice"),
     "stale": ("stale_replies", ALL, "the next PARAM requests are answered with the previous reply"),
