@@ -169,7 +169,8 @@ def _build_robot(st: Station, cfg: RigConfig) -> None:
             url = f"serial://{server.serve_pty()}?baud=115200"
     transport = open_transport(url, timeout_s=rc.timeout_s)
     client = BcapClient(transport, serial_line=serial_line, timeout_s=rc.timeout_s,
-                        rc7m=rc.controller == "rc7m")
+                        rc7m=rc.controller == "rc7m",
+                        reopen=lambda: open_transport(url, timeout_s=rc.timeout_s))  # same line settings
     # the link's transport, not the first one: a make-safe may have reconnected
     st._closers.append(("robot transport", lambda: client.link.transport.close()))  # noqa: PLW0108
     wait_mode = rc.wait_mode or ("blocking" if rc.controller == "rc7m" else "next")

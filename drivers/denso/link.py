@@ -69,8 +69,9 @@ class BcapLink:
         timeout_s: receive timeout per attempt, restarted by each keep-alive; must exceed the WDT.
         invoke_timeout_s: cap on one call's total duration even while keep-alives arrive.
         drain_quiet_s: silence (s) that ends the drain after a timeout.
-        reopen: opens a fresh transport for :meth:`reconnect` (default: ``open_transport`` of the same
-            address with ``timeout_s``).
+        reopen: opens a fresh transport for :meth:`reconnect` (default: ``open_transport`` of the
+            transport's ``url`` with ``timeout_s``; a serial line's ``url`` is only its device, so pass the
+            configured address there to keep its line settings).
     """
 
     def __init__(self, transport: Transport, *, serial_line: bool = False, datagram: bool = False,
