@@ -199,12 +199,11 @@ def _build_robot(st: Station, cfg: RigConfig) -> None:
 
 
 def _build_vfd(st: Station, cfg: RigConfig, name: str) -> None:
-    from pymodbus.client import ModbusSerialClient, ModbusTcpClient
-    from pymodbus.framer import FramerType
-
     from drivers.exciter.exciter import Exciter
     from drivers.exciter.rotor import Rotor
     from drivers.exciter.vfd import VfdDriver
+    from drivers.modbus_link import ModbusLink
+    from drivers.transport import TransportError
 
     dc, lim = getattr(cfg.devices, name), getattr(cfg.limits, name)
     regs = dc.resolved_register_map()
@@ -219,17 +218,13 @@ def _build_vfd(st: Station, cfg: RigConfig, name: str) -> None:
         server = VfdServer(drive, mode="tcp" if addr["link"] == "tcp" else "rtu").start()
         st._closers.append((f"{name} mock server", server.stop))
         url = server.url if addr["link"] == "tcp" else f"serial://{server.client_port}?baud=115200"
-        addr = parse_address(url)
         thread = server._thread
         st._liveness.append((name, lambda: None if thread is None or thread.is_alive()
                              else "mock server died"))
-    if addr["scheme"] == "tcp":
-        client: Any = ModbusTcpClient(addr["host"], port=addr["port"], timeout=dc.timeout_s, retries=1)
-    else:
-        client = ModbusSerialClient(addr["device"], framer=FramerType.RTU, baudrate=addr["baud"],
-                                    timeout=dc.timeout_s, retries=1)
-    if not client.connect():
-        raise StationError(f"{name}: cannot connect to the drive at {url}")
+    try:
+        client = ModbusLink(url, timeout_s=dc.timeout_s, retries=1)
+    except (TransportError, ValueError) as exc:
+        raise StationError(f"{name}: cannot connect to the drive at {url}: {exc}") from exc
     st._closers.append((f"{name} Modbus client", client.close))
     vfd = VfdDriver(client, regs, max_output_hz=dc.max_output_hz)
     common = {"clock": st.clock, "limits": lim.motion_limits(), "gear_ratio": dc.gear_ratio,

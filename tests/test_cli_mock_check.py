@@ -26,9 +26,8 @@ def test_check_reaches_every_simulated_device(capsys: pytest.CaptureFixture[str]
 
 
 def test_mock_exciter_serves_modbus_to_the_real_driver() -> None:
-    from pymodbus.client import ModbusTcpClient
-
     from drivers.exciter.vfd import VfdDriver
+    from drivers.modbus_link import ModbusLink
 
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
     proc = subprocess.Popen([sys.executable, "-m", "rig.cli", "mock", "exciter", "--port", "0"],
@@ -37,8 +36,7 @@ def test_mock_exciter_serves_modbus_to_the_real_driver() -> None:
         line = proc.stdout.readline()
         match = re.search(r"tcp://127\.0\.0\.1:(\d+)", line)
         assert match, (line, proc.stderr.read() if proc.poll() is not None else "")
-        client = ModbusTcpClient("127.0.0.1", port=int(match.group(1)), timeout=2.0, retries=0)
-        assert client.connect()
+        client = ModbusLink(f"tcp://127.0.0.1:{match.group(1)}", timeout_s=2.0, retries=0)
         try:
             vfd = VfdDriver(client)
             vfd.set_frequency_hz(12.5)

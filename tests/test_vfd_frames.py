@@ -12,15 +12,16 @@ from typing import Any
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
-from pymodbus.client import ModbusTcpClient
 from vfd_support import ScriptedPeer, crc16_modbus, rtu, rtu_client_for
 
 from drivers.exciter.register_map import RegisterMap
 from drivers.exciter.vfd import (
+    VfdCommunicationError,
     VfdDriver,
     VfdExceptionResponseError,
     VfdProtocolError,
 )
+from drivers.modbus_link import ModbusLink
 
 # the notes' example frames (unit 1), with their CRC as documented
 SET_10HZ = bytes.fromhex("01 06 20 01 03 E8 D3 74")
@@ -115,9 +116,9 @@ def test_exception_response_raises_and_a_stop_is_sent() -> None:
     assert info.value.stop_attempted and info.value.stop_ok
 
 
-def test_wrong_echo_is_a_protocol_error() -> None:
-    wrong = rtu("01 06 20 01 03 E9")
-    with pytest.raises(VfdProtocolError, match="echoes"):
+def test_wrong_echo_is_not_taken_as_the_reply() -> None:
+    wrong = rtu("01 06 20 01 03 E9")  # well-formed, but not the echo of this request: the link is out of step
+    with pytest.raises(VfdCommunicationError, match="echoes 20 01 03 e9, sent 20 01 03 e8"):
         _run([(SET_10HZ, wrong), (STOP, STOP)], lambda d: d.set_frequency_hz(10.0, verify=False))
 
 
@@ -137,12 +138,11 @@ def test_modbus_tcp_carries_the_same_pdu_behind_mbap() -> None:
     # MBAP after the transaction id: protocol 0, length 6, unit 1; then the FC06 PDU, no CRC
     request = bytes.fromhex("0000 0006 01 06 2001 03E8")
     peer = ScriptedPeer([(request, request)], transport="tcp")
-    client = ModbusTcpClient("127.0.0.1", port=peer.port, timeout=1.0, retries=0)
+    link = ModbusLink(f"tcp://127.0.0.1:{peer.port}", timeout_s=1.0, retries=0)
     try:
-        assert client.connect()
-        VfdDriver(client).set_frequency_hz(10.0, verify=False)
+        VfdDriver(link).set_frequency_hz(10.0, verify=False)
     finally:
-        client.close()
+        link.close()
         peer.close()
     assert peer.mismatch is None and peer.served == 1
 

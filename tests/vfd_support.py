@@ -10,8 +10,6 @@ from dataclasses import dataclass
 from typing import Any
 
 import serial
-from pymodbus.client import ModbusSerialClient, ModbusTcpClient
-from pymodbus.framer import FramerType
 
 from drivers.exciter.exciter import Exciter
 from drivers.exciter.limits import MotionLimits
@@ -19,18 +17,24 @@ from drivers.exciter.vfd import VfdDriver
 from drivers.mock.pty_link import PtyLink
 from drivers.mock.vfd_drive import DriveModel
 from drivers.mock.vfd_server import VfdServer
+from drivers.modbus import crc16
+from drivers.modbus_link import ModbusLink
 from drivers.sim.clock import VirtualClock
 from drivers.sim.world import World
 
 
 def crc16_modbus(data: bytes) -> bytes:
-    """CRC-16/MODBUS (poly 0xA001 reflected, init 0xFFFF), low byte first — written from the spec."""
+    """CRC-16/MODBUS (poly 0xA001 reflected, init 0xFFFF), low byte first — written from the spec, bit by
+    bit (independent of the table-driven :func:`drivers.modbus.crc16`)."""
     crc = 0xFFFF
     for byte in data:
         crc ^= byte
         for _ in range(8):
             crc = (crc >> 1) ^ 0xA001 if crc & 1 else crc >> 1
     return bytes([crc & 0xFF, crc >> 8])
+
+
+assert crc16(b"\x01\x03\x21\x00\x00\x05") == crc16_modbus(b"\x01\x03\x21\x00\x00\x05")
 
 
 def rtu(hex_without_crc: str) -> bytes:
@@ -114,14 +118,13 @@ class ScriptedPeer:
 
 
 @contextlib.contextmanager
-def rtu_client_for(peer: ScriptedPeer, timeout_s: float = 1.0) -> Iterator[ModbusSerialClient]:
-    client = ModbusSerialClient(peer.client_port, framer=FramerType.RTU, baudrate=115200, timeout=timeout_s,
-                                retries=0)
-    assert client.connect()
+def rtu_client_for(peer: ScriptedPeer, timeout_s: float = 1.0) -> Iterator[ModbusLink]:
+    """Our Modbus RTU master on the peer's line, no retries (every byte it sends is scripted)."""
+    link = ModbusLink(f"serial://{peer.client_port}?baud=115200", timeout_s=timeout_s, retries=0)
     try:
-        yield client
+        yield link
     finally:
-        client.close()
+        link.close()
 
 
 EXCITER_LIMITS = MotionLimits(max_frequency_hz=32.0, max_displacement_mm=10.0, max_acceleration_m_s2=250.0,
@@ -134,31 +137,29 @@ class VfdRig:
     clock: VirtualClock
     drive: DriveModel
     server: VfdServer
-    client: Any
+    client: ModbusLink
     vfd: VfdDriver
     exciter: Exciter
 
 
-def connect_client(server: VfdServer, *, timeout_s: float = 0.25, retries: int = 0) -> Any:
-    if server.mode == "tcp":
-        client: Any = ModbusTcpClient("127.0.0.1", port=server.port, timeout=timeout_s, retries=retries)
-    else:
-        client = ModbusSerialClient(server.client_port, framer=FramerType.RTU, baudrate=115200,
-                                    timeout=timeout_s, retries=retries)
-    assert client.connect()
-    return client
+def connect_client(server: VfdServer, *, timeout_s: float = 0.25, retries: int = 0,
+                   clock: Any = None) -> ModbusLink:
+    """Our Modbus master on the mock's TCP port or RTU pty."""
+    url = server.url if server.mode == "tcp" else f"serial://{server.client_port}?baud=115200"
+    return ModbusLink(url, timeout_s=timeout_s, retries=retries, clock=clock)
 
 
 @contextlib.contextmanager
 def vfd_rig(mode: str, *, gear_ratio: float = 1.5, max_output_hz: float = 60.0, poll_interval_s: float = 0.25,
-            timeout_s: float = 0.25, **drive_kwargs: Any) -> Iterator[VfdRig]:
+            timeout_s: float = 0.25, retries: int = 0, stop_deadline_s: float = 2.0,
+            **drive_kwargs: Any) -> Iterator[VfdRig]:
     """World (instant clock) + mock drive moving world.exciter + connected driver + Exciter."""
     world = World(VirtualClock(), seed=1)
     drive = DriveModel(world.exciter, world.clock, gear_ratio=gear_ratio, max_output_hz=max_output_hz,
                        **drive_kwargs)
     server = VfdServer(drive, mode=mode).start()
-    client = connect_client(server, timeout_s=timeout_s)
-    vfd = VfdDriver(client, max_output_hz=max_output_hz)
+    client = connect_client(server, timeout_s=timeout_s, retries=retries)
+    vfd = VfdDriver(client, max_output_hz=max_output_hz, stop_deadline_s=stop_deadline_s)
     exciter = Exciter(vfd, clock=world.clock, limits=EXCITER_LIMITS,
                       crank_radius_mm=world.layout.crank_radius_mm, gear_ratio=gear_ratio,
                       ramp_rate_hz_per_s=2.0, poll_interval_s=poll_interval_s)

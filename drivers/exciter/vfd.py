@@ -1,33 +1,32 @@
 """Modbus driver for a variable-frequency drive (VFD), register map as data.
 
-The driver receives an already connected **synchronous** pymodbus client — ``ModbusSerialClient``
-(RTU on an RS-485 line, or any pyserial URL) or ``ModbusTcpClient`` — and never opens a port itself.
-It speaks only FC03 (read holding registers) and FC06 (write single register), the two function codes
-every drive supports, and writes absolute values only (pymodbus re-sends a request on retry, so every
-write must be idempotent).
+The driver receives an open :class:`drivers.modbus_link.ModbusLink` (Modbus RTU on an RS-485 line or
+Modbus TCP) and never opens a port itself. It speaks only FC03 (read holding registers) and FC06 (write
+single register), the two function codes every drive supports, and writes absolute values only (the
+link repeats a request after a lost or out-of-step reply, so every write must be idempotent).
 
 Frequencies here are **drive output frequencies** in Hz (the motor side); the exciter and the rotor
 (:mod:`drivers.exciter.exciter`, :mod:`drivers.exciter.rotor`) convert through their gear ratio.
 
 Every failure raises a :class:`VfdError` subclass naming the operation, the register and what went
 wrong. When a command or read fails, the driver first **attempts a stop** (unless the failure happened
-while stopping) and says in the message whether that stop went through.
+while stopping) and says in the message whether that stop went through. A stop is repeated on a fresh
+link (reopened port or connection, after the line's silence) until ``stop_deadline_s`` has passed, so an
+out-of-step link never makes it fail.
 """
 
 from __future__ import annotations
 
 import logging
 import math
-import threading
-import weakref
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any
-
-from pymodbus.exceptions import ModbusException
+from typing import TypeVar
 
 from drivers.exciter.register_map import DELTA_MAP, RegisterMap
 from drivers.heartbeat import ContactRecord
+from drivers.modbus import ModbusExceptionReply, write_single_request
+from drivers.modbus_link import ModbusLink, ModbusLinkError
 
 __all__ = ["DriveStatus", "VfdCommunicationError", "VfdDriver", "VfdError", "VfdExceptionResponseError",
            "VfdFaultError", "VfdProtocolError"]
@@ -42,19 +41,7 @@ EXCEPTION_NAMES = {1: "illegal function", 2: "illegal data address", 3: "illegal
 MOCK_FAULT_NAMES = {5: "oL: drive overload", 0x41: "oSPd: overspeed",
                     0x42: "CE10: Modbus communication time-out (watchdog)"}
 
-
-# one lock per Modbus client (= per line): drives sharing an RS-485 bus are serialised on it
-_LINE_LOCKS: weakref.WeakKeyDictionary[Any, threading.RLock] = weakref.WeakKeyDictionary()
-_LINE_LOCKS_GUARD = threading.Lock()
-
-
-def line_lock(client: Any) -> threading.RLock:
-    """The lock every request on ``client``'s line takes (pymodbus sync clients are not thread-safe)."""
-    with _LINE_LOCKS_GUARD:
-        lock = _LINE_LOCKS.get(client)
-        if lock is None:
-            lock = _LINE_LOCKS[client] = threading.RLock()
-        return lock
+_T = TypeVar("_T")
 
 
 class VfdError(RuntimeError):
@@ -65,7 +52,7 @@ class VfdError(RuntimeError):
 
 
 class VfdCommunicationError(VfdError):
-    """No (valid) reply: time-out, bad CRC, lost connection (pymodbus ``ModbusException``)."""
+    """No valid reply: time-out, CRC error, out-of-step reply, lost connection (after the link's retries)."""
 
 
 class VfdExceptionResponseError(VfdError):
@@ -116,28 +103,36 @@ def check_output_hz(frequency_hz: float, max_output_hz: float) -> None:
 class VfdDriver:
     """A VFD on a Modbus line.
 
-    client: a connected pymodbus sync client (``ModbusSerialClient`` / ``ModbusTcpClient``); its
-        ``timeout`` and ``retries`` bound every call (worst case ≈ timeout × (retries + 1)).
+    link: the open Modbus line (:class:`~drivers.modbus_link.ModbusLink`); its ``timeout_s`` and
+        ``retries`` bound every call (worst case ≈ timeout × (retries + 1)). Drives on one RS-485 bus
+        share one link.
     register_map: where the drive keeps what (default: Delta).
     max_output_hz: the drive's maximum output frequency (its parameter, e.g. Delta 01-00); setpoints
         above it raise, and ramp times are defined as the time from 0 Hz to it.
     fault_names: fault code → text for messages.
+    stop_deadline_s: how long (s, on the link's clock) a stop command is repeated on fresh links before
+        it is reported as failed.
 
-    Thread-safe: every request holds the line's lock (:func:`line_lock`); ``contact`` records the wall
-    time of the drive's last reply (an exception response counts: the drive answered) for the heartbeat.
+    Thread-safe: every request holds the link's lock; ``contact`` records the wall time of the drive's
+    last reply (an exception response counts: the drive answered) for the heartbeat.
     """
 
-    def __init__(self, client: Any, register_map: RegisterMap = DELTA_MAP, *, max_output_hz: float = 50.0,
-                 fault_names: dict[int, str] | None = None) -> None:
+    def __init__(self, link: ModbusLink, register_map: RegisterMap = DELTA_MAP, *,
+                 max_output_hz: float = 50.0, fault_names: dict[int, str] | None = None,
+                 stop_deadline_s: float = 3.0) -> None:
         if not max_output_hz > 0:
             raise ValueError(f"max_output_hz={max_output_hz!r}: must be > 0 Hz")
+        if not stop_deadline_s > 0:
+            raise ValueError(f"stop_deadline_s={stop_deadline_s!r}: must be > 0 s")
         register_map.freq_to_register(max_output_hz)
-        self.client = client
+        self.link = link
         self.map = register_map
         self.max_output_hz = float(max_output_hz)
         self.fault_names = dict(MOCK_FAULT_NAMES if fault_names is None else fault_names)
+        self.stop_deadline_s = float(stop_deadline_s)
         self._stopping = False
-        self.contact = ContactRecord(line_lock(client))
+        self.contact = ContactRecord(link.lock)
+        self.stop_attempts = 0  # requests the last stop command needed
 
     # low level ---------------------------------------------------------------------------------------
     def _fail(self, exc: VfdError) -> VfdError:
@@ -146,9 +141,11 @@ class VfdDriver:
             return exc
         exc.stop_attempted = True
         try:
-            self._write(self.map.command, self.map.cmd_stop, "stop (after a failure)", stop_on_error=False)
+            self._send_stop("stop (after a failure)")
             exc.stop_ok = True
             note = "stop command sent and acknowledged"
+            if self.stop_attempts > 1:
+                note += f" (attempt {self.stop_attempts})"
         except VfdError as stop_exc:
             exc.stop_ok = False
             note = f"stop command attempted but failed: {stop_exc}"
@@ -160,51 +157,55 @@ class VfdDriver:
         names = [n for n, a in self.map.addresses().items() if a == address]
         return f"{names[0] if names else 'register'} 0x{address:04X}"
 
-    def _check_reply(self, reply: Any, what: str) -> None:
-        if reply is None:
-            raise VfdCommunicationError(f"{what}: no reply object from the client")
-        if reply.isError():
-            code = int(getattr(reply, "exception_code", 0) or 0)
-            name = EXCEPTION_NAMES.get(code, "unknown exception")
-            raise VfdExceptionResponseError(f"{what}: drive answered Modbus exception {code} ({name})", code)
-
-    def _request(self, call: Callable[[], Any], what: str) -> Any:
-        """One request under the line lock; any reply object is a contact with the drive."""
+    def _request(self, call: Callable[[], _T], what: str) -> _T:
+        """One request under the line lock; any reply (an exception response too) is a contact."""
         with self.contact.exchange():
             try:
-                reply = call()
-            except ModbusException as exc:
-                raise VfdCommunicationError(f"{what}: {type(exc).__name__}: {exc}") from exc
-            if reply is not None:
+                result = call()
+            except ModbusExceptionReply as exc:
                 self.contact.touch()
-            return reply
+                name = EXCEPTION_NAMES.get(exc.exception_code, "unknown exception")
+                raise VfdExceptionResponseError(
+                    f"{what}: drive answered Modbus exception {exc.exception_code} ({name})",
+                    exc.exception_code) from exc
+            except ModbusLinkError as exc:
+                raise VfdCommunicationError(f"{what}: {exc}") from exc
+            self.contact.touch()
+            return result
 
     def _read(self, address: int, count: int, what: str) -> list[int]:
         what = f"{what}: read {count} register(s) at {self._describe(address)} (unit {self.map.unit_id})"
         try:
-            reply = self._request(lambda: self.client.read_holding_registers(
-                address, count=count, device_id=self.map.unit_id), what)
-            self._check_reply(reply, what)
-            regs = list(reply.registers)
-            if len(regs) != count:
-                raise VfdProtocolError(f"{what}: got {len(regs)} registers, expected {count}")
-            return regs
+            return self._request(lambda: self.link.read_holding_registers(self.map.unit_id, address, count),
+                                 what)
         except VfdError as exc:
             raise self._fail(exc) from exc.__cause__
 
-    def _write(self, address: int, value: int, what: str, *, stop_on_error: bool = True) -> None:
+    def _write(self, address: int, value: int, what: str) -> None:
         what = f"{what}: write 0x{value:04X} to {self._describe(address)} (unit {self.map.unit_id})"
         try:
-            reply = self._request(lambda: self.client.write_register(
-                address, value, device_id=self.map.unit_id), what)
-            self._check_reply(reply, what)
-            echo = (getattr(reply, "address", None), list(getattr(reply, "registers", []) or []))
-            if echo != (address, [value]):
-                raise VfdProtocolError(f"{what}: reply echoes address {echo[0]!r} value {echo[1]!r}")
+            self._request(lambda: self.link.write_register(self.map.unit_id, address, value), what)
         except VfdError as exc:
-            if stop_on_error:
-                raise self._fail(exc) from exc.__cause__
+            raise self._fail(exc) from exc.__cause__
+
+    def _send_stop(self, what: str) -> None:
+        """The stop command, repeated on fresh links until acknowledged or ``stop_deadline_s`` has passed."""
+        address, value = self.map.command, self.map.cmd_stop
+        what = f"{what}: write 0x{value:04X} to {self._describe(address)} (unit {self.map.unit_id})"
+        pdu = write_single_request(address, value)
+        self.stop_attempts = 0
+
+        def send() -> None:
+            self.stop_attempts = self.link.execute_until(self.map.unit_id, pdu, self.stop_deadline_s)
+
+        try:
+            self._request(send, what)
+        except VfdCommunicationError as exc:
+            cause = exc.__cause__
+            self.stop_attempts = cause.attempts if isinstance(cause, ModbusLinkError) else 0
             raise
+        if self.stop_attempts > 1:
+            log.warning("%s: acknowledged at attempt %d", what, self.stop_attempts)
 
     # commands ----------------------------------------------------------------------------------------
     def check_frequency_hz(self, frequency_hz: float) -> int:
@@ -232,10 +233,11 @@ class VfdDriver:
         self._write(self.map.command, codes[direction], f"run {direction}")
 
     def stop(self) -> None:
-        """Command a stop (the drive decelerates on its deceleration ramp)."""
+        """Command a stop (the drive decelerates on its deceleration ramp), repeated on fresh links until
+        acknowledged or ``stop_deadline_s`` has passed; raises :class:`VfdError` naming the attempts."""
         self._stopping = True
         try:
-            self._write(self.map.command, self.map.cmd_stop, "stop")
+            self._send_stop("stop")
         finally:
             self._stopping = False
 
@@ -309,12 +311,7 @@ class VfdDriver:
         lo = min(m.fault, m.status) if abs(m.fault - m.status) == 1 else m.status
         count = 2 if abs(m.fault - m.status) == 1 else 1
         what = f"heartbeat: read {count} register(s) at {self._describe(lo)} (unit {m.unit_id})"
-        reply = self._request(lambda: self.client.read_holding_registers(lo, count=count,
-                                                                         device_id=m.unit_id), what)
-        self._check_reply(reply, what)
-        regs = list(reply.registers)
-        if len(regs) != count:
-            raise VfdProtocolError(f"{what}: got {len(regs)} registers, expected {count}")
+        regs = self._request(lambda: self.link.read_holding_registers(m.unit_id, lo, count), what)
         if count == 2:
             fault = regs[m.fault - lo] & m.fault_code_mask
             if fault:

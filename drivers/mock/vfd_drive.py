@@ -1,18 +1,20 @@
 """The simulated drive behind the mock VFD server: register semantics, ramp, faults, watchdog.
 
-:class:`DriveModel` implements the register map of :mod:`drivers.exciter.register_map` as a pymodbus
-``SimDevice`` action (pymodbus ≥ 3.13 simulator API): every request runs :meth:`DriveModel.action`,
-which validates writes, updates the drive state and publishes the monitor registers computed **at the
-moment of the request** from the world clock. The physics lives in the twin: the drive commands the
-body (``body.ramp_to(t, target_hz / gear_ratio, rate / gear_ratio)``) and reads its output frequency
-back as ``body.frequency_hz(clock.now_s()) · gear_ratio``, so the drive and the twin cannot disagree.
+:class:`DriveModel` implements the register map of :mod:`drivers.exciter.register_map`: the Modbus
+slave (:mod:`drivers.mock.vfd_server`) hands it every read (:meth:`DriveModel.read`) and write
+(:meth:`DriveModel.write`); it validates writes, updates the drive state and computes the monitor
+registers **at the moment of the request** from the world clock. The physics lives in the twin: the
+drive commands the body (``body.ramp_to(t, target_hz / gear_ratio, rate / gear_ratio)``) and reads
+its output frequency back as ``body.frequency_hz(clock.now_s()) · gear_ratio``, so the drive and the
+twin cannot disagree.
 
 Behaviour (docs/exciter.md, "Mock drive"):
 
 * ramp: the output frequency moves linearly toward the command at ``max_output_hz / accel_time_s``
   (accelerating) or ``max_output_hz / decel_time_s`` (decelerating); ramp times are registers;
 * FREQ_SET above ``max_output_hz`` → exception 03 and the value is unchanged; an unknown command code
-  → exception 03; unmapped address → 02; write to a monitor register → 02 (pymodbus ``readonly``);
+  → exception 03; an unmapped address anywhere in the requested range → 02; write to a monitor
+  register → 02;
 * load model ``I = I0 + (I_max − I0)·(f/f_max)²`` (eccentric force ∝ ω²); **overload** trips when the
   current exceeds ``overload_current_a``; **overspeed** trips when the output exceeds ``overspeed_hz``;
   **watchdog**: no request for ``watchdog_s`` while running trips; a trip latches the fault code, drops
@@ -28,10 +30,8 @@ import math
 import threading
 from typing import Any
 
-from pymodbus.constants import ExcCodes
-from pymodbus.simulator import DataType, SimData, SimDevice
-
 from drivers.exciter.register_map import DELTA_MAP, RegisterMap
+from drivers.modbus import ExceptionCode
 
 __all__ = ["FAULT_OVERLOAD", "FAULT_OVERSPEED", "FAULT_WATCHDOG", "DriveModel"]
 
@@ -90,37 +90,51 @@ class DriveModel:
         self._plan = (self._last_request_s, self._output_hz(self._last_request_s), 0.0, 1.0)
         self._lock = threading.RLock()
 
-    # pymodbus device -----------------------------------------------------------------------------------
-    def sim_device(self) -> SimDevice:
-        """The pymodbus ``SimDevice`` serving this drive (unit id from the map)."""
+    # Modbus requests -------------------------------------------------------------------------------------
+    def address_sets(self) -> tuple[set[int], set[int]]:
+        """(read/write addresses, read-only monitor addresses) of this drive."""
         m = self.map
         optional = (m.aux_command, m.accel_time, m.decel_time)
-        rw = [m.command, m.freq_set] + [a for a in optional if a is not None]
-        ro = [a for a in (m.fault, m.status, m.freq_cmd, m.freq_out, m.current) if a is not None]
-        blocks = [SimData(a, values=self.regs.get(a, 0), datatype=DataType.REGISTERS) for a in rw]
-        blocks += [SimData(a, values=0, datatype=DataType.REGISTERS, readonly=True) for a in ro]
-        return SimDevice(id=m.unit_id, simdata=blocks, action=self.action)
+        rw = {m.command, m.freq_set} | {a for a in optional if a is not None}
+        ro = {a for a in (m.fault, m.status, m.freq_cmd, m.freq_out, m.current) if a is not None}
+        return rw, ro
 
-    async def action(self, function_code: int, start_address: int, address: int,  # noqa: PLR0917
-                     count: int, current_registers: list[int],
-                     set_values: list[int] | list[bool] | None) -> ExcCodes | None:
-        """pymodbus SimDevice action: runs on every request after pymodbus' address checks."""
+    def _begin_request(self) -> float:
+        now = self.clock.now_s()
+        self.advance(now)
+        self.request_count += 1
+        self._last_request_s = now
+        return now
+
+    def read(self, address: int, count: int) -> list[int] | ExceptionCode:
+        """FC03: ``count`` registers from ``address`` computed now, or the exception code."""
+        rw, ro = self.address_sets()
         with self._lock:
-            now = self.clock.now_s()
-            self.advance(now)
-            self.request_count += 1
-            self._last_request_s = now
+            now = self._begin_request()
             if self.forced_exception is not None:
-                return ExcCodes(self.forced_exception)
-            if set_values is not None:
-                values = [int(v) for v in set_values]
-                for i, value in enumerate(values):
-                    if (exc := self._validate(address + i, value)) is not None:
-                        return exc
-                for i, value in enumerate(values):
-                    self._apply(address + i, value, now)
-            self._publish(start_address, current_registers, now)
-        return None
+                return ExceptionCode(self.forced_exception)
+            wanted = range(address, address + count)
+            if any(a not in rw and a not in ro for a in wanted):
+                return ExceptionCode.ILLEGAL_DATA_ADDRESS
+            registers = [0] * count
+            self._publish(address, registers, now)
+            return registers
+
+    def write(self, address: int, values: list[int]) -> ExceptionCode | None:
+        """FC06/FC16: validate every value, then apply them all (or none); None when accepted."""
+        rw, _ = self.address_sets()
+        with self._lock:
+            now = self._begin_request()
+            if self.forced_exception is not None:
+                return ExceptionCode(self.forced_exception)
+            if any(address + i not in rw for i in range(len(values))):
+                return ExceptionCode.ILLEGAL_DATA_ADDRESS
+            for i, value in enumerate(values):
+                if (exc := self._validate(address + i, value)) is not None:
+                    return exc
+            for i, value in enumerate(values):
+                self._apply(address + i, value, now)
+            return None
 
     # state ---------------------------------------------------------------------------------------------
     def _output_hz(self, t_s: float) -> float:
@@ -193,14 +207,14 @@ class DriveModel:
             self.running = False
             self._retarget(t)
 
-    def _validate(self, address: int, value: int) -> ExcCodes | None:
+    def _validate(self, address: int, value: int) -> ExceptionCode | None:
         m = self.map
         if address == m.command and value not in (m.cmd_stop, m.cmd_run_forward, m.cmd_run_reverse):
-            return ExcCodes.ILLEGAL_VALUE
+            return ExceptionCode.ILLEGAL_DATA_VALUE
         if address == m.freq_set and value * m.freq_unit_hz > self.max_output_hz + 1e-9:
-            return ExcCodes.ILLEGAL_VALUE
+            return ExceptionCode.ILLEGAL_DATA_VALUE
         if address in (m.accel_time, m.decel_time) and value < 1:
-            return ExcCodes.ILLEGAL_VALUE
+            return ExceptionCode.ILLEGAL_DATA_VALUE
         return None
 
     def _apply(self, address: int, value: int, now: float) -> None:

@@ -1,68 +1,260 @@
-"""Mock VFD: a pymodbus server (SimDevice action API) speaking Modbus TCP or RTU, moving the twin.
+"""Mock VFD: a Modbus slave speaking Modbus TCP or Modbus RTU, backed by :class:`DriveModel` (the twin).
 
-The drive's behaviour is :class:`drivers.mock.vfd_drive.DriveModel`; this module serves it
+* Modbus TCP on ``127.0.0.1`` (port 0 = ephemeral), one thread per connection (at most
+  :data:`MAX_CONNECTIONS`; finished threads are reaped);
+* Modbus RTU on a serial line: by default a :class:`~drivers.mock.pty_link.PtyLink` is created and the
+  server opens its device end, so a client opens :attr:`VfdServer.client_port` (``/dev/pts/N``) exactly
+  like a USB–RS485 adapter; or a given device path.
 
-* over Modbus TCP on ``127.0.0.1`` (port 0 = ephemeral), or
-* over Modbus RTU on a serial line: by default a :class:`~drivers.mock.pty_link.PtyLink` is created and
-  the server opens its device end, so a client opens :attr:`VfdServer.client_port` (``/dev/pts/N``)
-  exactly like a USB–RS485 adapter; or a given device path.
+How the slave behaves, and the source of each behaviour, is the table in ``docs/exciter.md`` ("Mock
+drive: Modbus behaviour"). In short: an RTU frame ends when its length (known from the function code)
+is complete with a valid CRC, or at t3.5 of silence; a frame with a CRC error is dropped, and after any
+partial frame the slave is back in step at the next silence. Exception replies carry the request's
+function code | 0x80. Broadcast writes (unit 0) on RTU are carried out by every drive without a reply.
+A unit id not on the line gets no reply on RTU and exception 0x0B (gateway target failed to respond) on
+TCP.
 
-Fault injection (:meth:`VfdServer.inject`), each for the next ``count`` replies or until
-:meth:`VfdServer.clear_faults` (``count=None``):
-
-* ``"no_reply"`` — the request is executed but the reply is not sent;
-* ``"bad_crc"`` — the reply's CRC is corrupted (RTU); on TCP the MBAP protocol id is corrupted;
-* ``"exception"`` — the request is refused with Modbus exception ``exception_code`` (default 6, busy);
-* ``"disconnect"`` — TCP: the connection is closed instead of replying; RTU: the cable is pulled
-  (everything is lost until :meth:`clear_faults`).
-
-On RTU the drive stays silent for requests to other unit ids, like a slave on a shared RS-485 bus.
-
-Drive faults (overload, overspeed, watchdog) are :class:`DriveModel` parameters or ``server.drive.trip``.
+Fault injection (:meth:`VfdServer.inject`, or ``--fault KIND[:PARAM]`` on the command line, see
+:data:`FAULT_KINDS`) applies to requests addressed to a drive of this server.
 
 Run standalone (its own world with a paced clock)::
 
     python -m drivers.mock.vfd_server --port 5020            # Modbus TCP on 127.0.0.1:5020
     python -m drivers.mock.vfd_server --rtu                  # RTU on a new pty; prints the port name
+    python -m drivers.mock.vfd_server --rtu --fault late:0.5 --fault busy:10
 """
 
 from __future__ import annotations
 
-import asyncio
+import argparse
 import contextlib
 import logging
+import select
+import socket
+import struct
 import threading
+from dataclasses import dataclass
 from types import TracebackType
 
-from pymodbus.constants import ExcCodes
-from pymodbus.framer import FramerType
-from pymodbus.server import ModbusSerialServer, ModbusTcpServer
+import serial
 
-from drivers.mock._serve import require_loopback, standalone_parser, start_standalone, wait_for_interrupt
+from drivers.mock._serve import (
+    accept_loop,
+    require_loopback,
+    standalone_parser,
+    start_standalone,
+    wait_for_interrupt,
+)
 from drivers.mock.pty_link import PtyLink
-from drivers.mock.vfd_drive import DriveModel
+from drivers.mock.vfd_drive import FAULT_OVERLOAD, DriveModel
+from drivers.modbus import (
+    BROADCAST,
+    FC_READ_HOLDING,
+    FC_WRITE_MULTIPLE,
+    FC_WRITE_SINGLE,
+    MAX_READ_QUANTITY,
+    MAX_WRITE_QUANTITY,
+    MBAP_BYTES,
+    ExceptionCode,
+    exception_pdu,
+    mbap_adu,
+    parse_mbap,
+    request_pdu_length,
+    rtu_adu,
+    rtu_silence_s,
+    split_rtu,
+)
 
-__all__ = ["FAULTS", "VfdServer", "main"]
+__all__ = ["FAULTS", "FAULT_KINDS", "Fault", "ModbusSlave", "VfdServer", "main", "parse_fault"]
 
 log = logging.getLogger(__name__)
 
-FAULTS = ("no_reply", "bad_crc", "exception", "disconnect")
-HOUSEKEEPING_S = 0.02  # wall seconds between checks for trips that happen while nobody asks
+HOUSEKEEPING_S = 0.02   # wall seconds between checks for trips that happen while nobody asks
+MAX_CONNECTIONS = 8     # concurrent Modbus TCP clients (our choice; drive Ethernet cards allow a few)
+MAX_RTU_ADU = 256       # Serial Line §2.5.1
+IDLE_POLL_S = 0.1       # how often an idle reader looks at the stop flag
+
+# kind → (meaning of PARAM on the command line, default PARAM)
+FAULT_KINDS: dict[str, tuple[str, float]] = {
+    "late": ("every reply is sent PARAM s late", 1.0),
+    "no_reply": ("every PARAM-th request is executed but not answered", 1),
+    "trip": ("the drive trips with fault code PARAM as soon as it runs", FAULT_OVERLOAD),
+    "busy": ("every PARAM-th request is refused with exception 06 (busy), not executed", 1),
+    "disconnect": ("after every PARAM requests the link drops (TCP: connection closed; RTU: cable pulled "
+                   "for 1 s)", 10),
+    "bad_crc": ("every PARAM-th reply has a corrupted CRC (TCP: MBAP protocol id)", 1),
+    "twice": ("every PARAM-th reply is sent twice", 1),
+    "previous": ("every PARAM-th request is answered with the reply to the request before it", 1),
+    "drop": ("every reply loses PARAM bytes from its middle", 1),
+}
+FAULTS = (*FAULT_KINDS, "exception")
+_EVERY_KINDS = ("no_reply", "busy", "bad_crc", "twice", "previous", "exception")
+RTU_UNPLUG_S = 1.0
+
+
+@dataclass
+class Fault:
+    """One injected fault: ``kind`` (see :data:`FAULT_KINDS`), its ``value`` (seconds, fault code,
+    exception code or byte count), applying to every ``every``-th request, ``count`` times (None: until
+    cleared)."""
+
+    kind: str
+    value: float | None = None
+    every: int = 1
+    count: int | None = None
+
+    def __post_init__(self) -> None:
+        if self.kind not in FAULTS:
+            raise ValueError(f"fault kind {self.kind!r}: must be one of {list(FAULTS)}")
+        if self.every < 1:
+            raise ValueError(f"fault {self.kind}: every={self.every!r} must be >= 1")
+        if self.count is not None and self.count < 1:
+            raise ValueError(f"fault {self.kind}: count={self.count!r} must be >= 1 or None")
+
+
+def parse_fault(text: str) -> Fault:
+    """``KIND[:PARAM]`` from the command line → a permanent :class:`Fault` (ValueError naming the problem)."""
+    kind, _, param = text.partition(":")
+    if kind not in FAULT_KINDS:
+        raise ValueError(f"--fault {text!r}: unknown kind {kind!r}; allowed: {', '.join(FAULT_KINDS)}")
+    default = FAULT_KINDS[kind][1]
+    try:
+        value = float(param) if param else float(default)
+    except ValueError:
+        raise ValueError(f"--fault {text!r}: PARAM {param!r} is not a number") from None
+    if kind == "late":
+        if not 0 < value <= 60:
+            raise ValueError(f"--fault {text!r}: a late reply is 0 < PARAM <= 60 s late")
+        return Fault(kind, value)
+    if value != int(value) or value < 1:
+        raise ValueError(f"--fault {text!r}: PARAM must be a whole number >= 1")
+    if kind in _EVERY_KINDS:
+        return Fault(kind, None, every=int(value))
+    if kind == "disconnect":
+        return Fault(kind, RTU_UNPLUG_S, every=int(value))
+    return Fault(kind, int(value))
+
+
+class ModbusSlave:
+    """The PDU handler: request PDU for ``unit`` → reply PDU (None: no reply), per the Application
+    Protocol V1.1b3 (§6.3 FC03, §6.6 FC06, §6.12 FC16, §7 exceptions)."""
+
+    def __init__(self, drives: list[DriveModel], mode: str) -> None:
+        self.drives = {d.map.unit_id: d for d in drives}
+        self.mode = mode
+
+    def addressed(self, unit: int) -> bool:
+        """Whether a request to ``unit`` is for this line's slave(s) (RTU broadcast included)."""
+        return self.mode == "tcp" or unit in self.drives or unit == BROADCAST
+
+    def _target(self, unit: int) -> DriveModel | None:
+        if unit in self.drives:
+            return self.drives[unit]
+        if self.mode == "tcp" and unit in (0, 0xFF) and len(self.drives) == 1:
+            return next(iter(self.drives.values()))  # TCP guide §4.4.2: 0xFF (or 0) addresses the server
+        return None
+
+    def handle(self, unit: int, pdu: bytes) -> bytes | None:
+        broadcast = self.mode == "rtu" and unit == BROADCAST
+        target = self._target(unit)
+        if target is None and not broadcast:
+            if self.mode == "rtu":
+                return None  # another slave's request
+            return exception_pdu(pdu[0] if pdu else 0, ExceptionCode.GATEWAY_TARGET_NO_RESPONSE)
+        if not pdu:
+            return None
+        fc = pdu[0]
+        reply = self._execute(target, fc, pdu, broadcast)
+        return None if broadcast else reply
+
+    def _execute(self, target: DriveModel | None, fc: int, pdu: bytes, broadcast: bool) -> bytes:
+        if fc not in (FC_READ_HOLDING, FC_WRITE_SINGLE, FC_WRITE_MULTIPLE):
+            return exception_pdu(fc, ExceptionCode.ILLEGAL_FUNCTION)
+        if len(pdu) != request_pdu_length(pdu):
+            return exception_pdu(fc, ExceptionCode.ILLEGAL_DATA_VALUE)  # short or overlong request
+        address, quantity = struct.unpack(">HH", pdu[1:5])
+        if fc == FC_READ_HOLDING:
+            if broadcast or target is None:
+                return b""  # a broadcast read is not a request (Serial Line §2.1)
+            if not 1 <= quantity <= MAX_READ_QUANTITY:
+                return exception_pdu(fc, ExceptionCode.ILLEGAL_DATA_VALUE)
+            if address + quantity > 0x10000:
+                return exception_pdu(fc, ExceptionCode.ILLEGAL_DATA_ADDRESS)
+            result = target.read(address, quantity)
+            if isinstance(result, ExceptionCode):
+                return exception_pdu(fc, result)
+            return struct.pack(f">BB{quantity}H", fc, 2 * quantity, *result)
+        if fc == FC_WRITE_SINGLE:
+            values, echo = [quantity], pdu
+        else:
+            if not 1 <= quantity <= MAX_WRITE_QUANTITY or pdu[5] != 2 * quantity:
+                return exception_pdu(fc, ExceptionCode.ILLEGAL_DATA_VALUE)
+            if address + quantity > 0x10000:
+                return exception_pdu(fc, ExceptionCode.ILLEGAL_DATA_ADDRESS)
+            values, echo = list(struct.unpack(f">{quantity}H", pdu[6:])), pdu[:5]
+        drives = list(self.drives.values()) if broadcast else [target]
+        results = [d.write(address, values) for d in drives if d is not None]
+        failed = next((r for r in results if r is not None), None)
+        return exception_pdu(fc, failed) if failed is not None else echo
+
+
+class _FaultPlan:
+    """Active faults and the request counter (thread-safe)."""
+
+    def __init__(self) -> None:
+        self._faults: list[Fault] = []
+        self._lock = threading.Lock()
+        self.requests = 0
+
+    def add(self, fault: Fault) -> None:
+        with self._lock:
+            self._faults = [f for f in self._faults if f.kind != fault.kind] + [fault]
+
+    def clear(self) -> None:
+        with self._lock:
+            self._faults = []
+
+    def next_request(self) -> dict[str, Fault]:
+        """Count one request; the faults that apply to it (each consumed once)."""
+        with self._lock:
+            self.requests += 1
+            due: dict[str, Fault] = {}
+            for fault in list(self._faults):
+                if fault.kind == "trip" or self.requests % fault.every:
+                    continue
+                due[fault.kind] = fault
+                if fault.count is not None:
+                    fault.count -= 1
+                    if fault.count <= 0:
+                        self._faults.remove(fault)
+            return due
+
+    def take_trip(self) -> int | None:
+        """The fault code of an active "trip" fault (consumed when it has a count), else None."""
+        with self._lock:
+            fault = next((f for f in self._faults if f.kind == "trip"), None)
+            if fault is None:
+                return None
+            if fault.count is not None:
+                fault.count -= 1
+                if fault.count <= 0:
+                    self._faults.remove(fault)
+            return int(fault.value or FAULT_OVERLOAD)
 
 
 class VfdServer:
-    """Serve one :class:`DriveModel`, or several with distinct unit ids sharing one line (an RS-485
-    bus with the exciter and the rotor drives), in a background thread (its own asyncio loop).
+    """Serve one :class:`DriveModel`, or several with distinct unit ids sharing one line (an RS-485 bus
+    with the exciter and the rotor drives), in background threads.
 
     mode: "tcp" or "rtu". host/port: TCP bind address (a loopback address only, ValueError otherwise;
-    port 0 picks one).
-    serial_port: RTU device path to open; None creates a pty pair (see :attr:`client_port`).
-    baudrate: RTU line speed (a pty ignores it, but pymodbus times frames with it).
+    port 0 picks one). serial_port: RTU device path to open; None creates a pty pair (see
+    :attr:`client_port`). baudrate: RTU line speed; it sets t3.5 (a pty carries bytes at any speed).
+    faults: faults active from the start (the command line's ``--fault``).
     """
 
     def __init__(self, drive: DriveModel | list[DriveModel], *, mode: str = "tcp", host: str = "127.0.0.1",
-                 port: int = 0,
-                 serial_port: str | None = None, baudrate: int = 115200) -> None:
+                 port: int = 0, serial_port: str | None = None, baudrate: int = 115200,
+                 faults: list[Fault] | None = None) -> None:
         if mode not in ("tcp", "rtu"):
             raise ValueError(f"mode={mode!r}: must be 'tcp' or 'rtu'")
         self.drives = list(drive) if isinstance(drive, list) else [drive]
@@ -74,17 +266,24 @@ class VfdServer:
         self.host = require_loopback(host)
         self.port = port
         self.baudrate = baudrate
+        self.silence_s = rtu_silence_s(baudrate)
         self.link: PtyLink | None = None
+        self.slave = ModbusSlave(self.drives, mode)
         self._serial_port = serial_port
-        self._fault: tuple[str, int | None, int] | None = None  # (kind, remaining or None, exception code)
-        self._fault_lock = threading.Lock()
-        self._loop: asyncio.AbstractEventLoop | None = None
-        self._server: ModbusTcpServer | ModbusSerialServer | None = None
-        self._thread: threading.Thread | None = None
-        self._ready = threading.Event()
-        self._error: BaseException | None = None
+        self._plan = _FaultPlan()
+        for fault in faults or []:
+            self._plan.add(fault)
+        self._stopped = threading.Event()
+        self._thread: threading.Thread | None = None  # the serving thread (liveness)
+        self._threads: list[threading.Thread] = []
+        self._connections: dict[threading.Thread, socket.socket] = {}
+        self._conn_lock = threading.Lock()
+        self._listener: socket.socket | None = None
+        self._serial: serial.Serial | None = None
+        self._write_lock = threading.Lock()
+        self._last_reply: bytes | None = None
         self.replies_sent = 0
-        self.requests_received = 0  # request frames that reached the server (any unit id)
+        self.frames_dropped = 0  # RTU frames discarded (CRC error, overlong, cut by silence)
 
     # addresses ------------------------------------------------------------------------------------------
     @property
@@ -100,58 +299,60 @@ class VfdServer:
     def url(self) -> str:
         return f"tcp://{self.host}:{self.port}" if self.mode == "tcp" else self.client_port
 
+    @property
+    def requests_received(self) -> int:
+        """Requests addressed to this server's drives so far."""
+        return self._plan.requests
+
+    @property
+    def connection_threads(self) -> int:
+        """TCP connection threads still alive."""
+        with self._conn_lock:
+            return sum(t.is_alive() for t in self._connections)
+
     # lifecycle ------------------------------------------------------------------------------------------
-    def start(self, timeout_s: float = 5.0) -> VfdServer:
-        if self.mode == "rtu" and self._serial_port is None:
-            self.link = PtyLink()
-        self._thread = threading.Thread(target=self._run, name=f"vfd-mock {self.mode}", daemon=True)
-        self._thread.start()
-        if not self._ready.wait(timeout_s):
-            raise RuntimeError(f"VFD mock did not start within {timeout_s} s")
-        if self._error is not None:
-            raise RuntimeError(f"VFD mock failed to start: {self._error}") from self._error
+    def start(self) -> VfdServer:
+        if self.mode == "tcp":
+            self._listener = socket.create_server((self.host, self.port))
+            self.port = self._listener.getsockname()[1]
+            self._thread = self._spawn(self._accept, f"vfd-mock tcp :{self.port}")
+        else:
+            if self._serial_port is None:
+                self.link = PtyLink()
+            port = self.link.device_port if self.link is not None else self._serial_port
+            self._serial = serial.serial_for_url(port, baudrate=self.baudrate, timeout=0, write_timeout=2.0)
+            self._thread = self._spawn(self._serve_rtu, f"vfd-mock rtu {port}")
+        self._spawn(self._housekeeping, "vfd-mock housekeeping")
         return self
 
-    def _run(self) -> None:
-        loop = asyncio.new_event_loop()
-        self._loop = loop
-        asyncio.set_event_loop(loop)
-        try:
-            loop.run_until_complete(self._serve())
-        except BaseException as exc:  # reported to start()
-            self._error = exc
-            self._ready.set()
-        finally:
-            loop.close()
+    def _spawn(self, target: object, name: str) -> threading.Thread:
+        thread = threading.Thread(target=target, name=name, daemon=True)  # type: ignore[arg-type]
+        self._threads.append(thread)
+        thread.start()
+        return thread
 
-    async def _serve(self) -> None:
-        device = [d.sim_device() for d in self.drives]
-        if self.mode == "tcp":
-            server: ModbusTcpServer | ModbusSerialServer = ModbusTcpServer(
-                device, address=(self.host, self.port), trace_packet=self._trace_packet)
-        else:
-            port = self.link.device_port if self.link is not None else self._serial_port
-            server = ModbusSerialServer(device, port=port or "", framer=FramerType.RTU,
-                                        baudrate=self.baudrate, trace_packet=self._trace_packet,
-                                        reconnect_delay=0.1)
-        self._server = server
-        await server.serve_forever(background=True)
-        if self.mode == "tcp":
-            self.port = server.transport.sockets[0].getsockname()[1]  # type: ignore[union-attr]
-        self._stop_event = asyncio.Event()
-        self._ready.set()
-        while not self._stop_event.is_set():
+    def _housekeeping(self) -> None:
+        while not self._stopped.wait(HOUSEKEEPING_S):
             for drive in self.drives:
                 drive.advance(drive.clock.now_s())
-            with contextlib.suppress(asyncio.TimeoutError):
-                await asyncio.wait_for(self._stop_event.wait(), HOUSEKEEPING_S)
-        await server.shutdown()
 
     def stop(self) -> None:
         """Shut the server down and close the pty link; idempotent."""
-        if self._loop is not None and self._thread is not None and self._thread.is_alive():
-            self._loop.call_soon_threadsafe(self._stop_event.set)
-            self._thread.join(timeout=5.0)
+        self._stopped.set()
+        if self._listener is not None:
+            with contextlib.suppress(OSError):
+                self._listener.close()
+        with self._conn_lock:
+            for conn in self._connections.values():
+                with contextlib.suppress(OSError):
+                    conn.shutdown(socket.SHUT_RDWR)
+            threads = [*self._threads, *self._connections]
+        for thread in threads:
+            if thread is not threading.current_thread():
+                thread.join(timeout=5.0)
+        if self._serial is not None:
+            with contextlib.suppress(OSError, serial.SerialException):
+                self._serial.close()
         if self.link is not None:
             self.link.close()
 
@@ -163,85 +364,241 @@ class VfdServer:
         self.stop()
 
     # fault injection ------------------------------------------------------------------------------------
-    def inject(self, fault: str, *, count: int | None = 1, exception_code: int = 6) -> None:
-        """Make the next ``count`` replies faulty (``None``: until :meth:`clear_faults`)."""
-        if fault not in FAULTS:
-            raise ValueError(f"fault={fault!r}: must be one of {FAULTS}")
-        if count is not None and count < 1:
-            raise ValueError(f"count={count!r}: must be >= 1 or None")
-        if exception_code not in {int(c) for c in ExcCodes}:
-            allowed = sorted(int(c) for c in ExcCodes)
-            raise ValueError(f"exception_code={exception_code!r}: must be one of {allowed}")
-        with self._fault_lock:
-            self._fault = (fault, count, exception_code)
+    def inject(self, fault: str, value: float | None = None, *, count: int | None = 1, every: int = 1,
+               exception_code: int = 6) -> None:
+        """Apply ``fault`` (a kind of :data:`FAULTS`) to the next ``count`` requests it is due for
+        (``None``: until :meth:`clear_faults`), every ``every``-th request. ``value``: see
+        :data:`FAULT_KINDS` ("late": seconds, default 1; "trip": fault code; "drop": bytes;
+        "disconnect": seconds an RTU cable stays pulled, default until :meth:`clear_faults`).
+        ``exception_code`` is the code of kind "exception"."""
         if fault == "exception":
-            self._force_exception(exception_code)
-
-    def _force_exception(self, code: int | None) -> None:
-        for drive in self.drives:
-            drive.forced_exception = code
+            if exception_code not in {int(c) for c in ExceptionCode}:
+                raise ValueError(f"exception_code={exception_code!r}: must be one of "
+                                 f"{sorted(int(c) for c in ExceptionCode)}")
+            value = exception_code
+        elif value is None and fault in ("late", "trip", "drop"):
+            value = FAULT_KINDS[fault][1]
+        self._plan.add(Fault(fault, value, every=every, count=count))
 
     def clear_faults(self) -> None:
-        with self._fault_lock:
-            self._fault = None
-        self._force_exception(None)
+        self._plan.clear()
         if self.link is not None:
             self.link.plug()
 
-    def _consume(self, kinds: tuple[str, ...]) -> str | None:
-        with self._fault_lock:
-            if self._fault is None or self._fault[0] not in kinds:
-                return None
-            kind, remaining, code = self._fault
-            if remaining is not None:
-                self._fault = None if remaining <= 1 else (kind, remaining - 1, code)
-                if self._fault is None and kind == "exception":
-                    self._force_exception(None)
-            return kind
+    def _respond(self, unit: int, pdu: bytes) -> tuple[bytes | None, dict[str, Fault]]:
+        """The reply PDU to one request addressed to this line, and the faults due for it."""
+        due = self._plan.next_request()
+        running = [d for d in self.drives if d.running and not d.fault_code]
+        if running and (code := self._plan.take_trip()) is not None:
+            for drive in running:
+                drive.trip(code)
+        if "busy" in due or "exception" in due:
+            busy = int(ExceptionCode.SERVER_DEVICE_BUSY)
+            code = int(due["exception"].value or busy) if "exception" in due else busy
+            if unit == BROADCAST and self.mode == "rtu":
+                return None, due
+            return exception_pdu(pdu[0] if pdu else 0, code), due
+        return self.slave.handle(unit, pdu), due
 
-    def _trace_packet(self, sending: bool, data: bytes) -> bytes:
-        """pymodbus packet hook: alters outgoing replies according to the injected fault."""
-        if not sending:
-            self.requests_received += 1
-            return data
-        if self.mode == "rtu" and data and data[0] not in {d.map.unit_id for d in self.drives}:
-            return b""  # an RS-485 slave never answers for another unit id (pymodbus would send exception 4)
-        kind = self._consume(("no_reply", "bad_crc", "disconnect", "exception"))
-        if kind == "no_reply":
-            return b""
-        if kind == "bad_crc":
-            if self.mode == "rtu":
-                return data[:-2] + bytes([data[-2] ^ 0xFF, data[-1]])
-            return data[:2] + b"\xff\xff" + data[4:]
-        if kind == "disconnect":
-            if self.mode == "tcp" and self._server is not None:
-                for conn in list(self._server.active_connections.values()):
-                    self._loop.call_soon(conn.close)  # type: ignore[union-attr]
-            elif self.link is not None:
-                self.link.unplug()
-            return b""
-        self.replies_sent += 1
-        return data
+    def _outgoing(self, adu: bytes, due: dict[str, Fault]) -> list[bytes]:
+        """The byte strings actually sent for reply ``adu`` (faults applied); [] for none."""
+        previous, self._last_reply = self._last_reply, adu
+        if "no_reply" in due:
+            return []
+        if "previous" in due and previous is not None:
+            adu = previous
+        if "bad_crc" in due:
+            adu = (adu[:-2] + bytes([adu[-2] ^ 0xFF, adu[-1]])) if self.mode == "rtu" else \
+                adu[:2] + b"\xff\xff" + adu[4:]
+        if "drop" in due:
+            k = max(1, int(due["drop"].value or 1))
+            mid = len(adu) // 2
+            adu = adu[:max(1, mid - k // 2)] + adu[max(1, mid - k // 2) + k:]
+        return [adu, adu] if "twice" in due else [adu]
+
+    def _delay(self, due: dict[str, Fault]) -> None:
+        if "late" in due:
+            self._stopped.wait(float(due["late"].value or 1.0))
+
+    # Modbus TCP -----------------------------------------------------------------------------------------
+    def _accept(self) -> None:
+        assert self._listener is not None
+        accept_loop(self._listener, self._stopped, self._on_connection)
+
+    def _on_connection(self, conn: socket.socket) -> None:
+        with self._conn_lock:
+            for thread in [t for t in self._connections if not t.is_alive()]:
+                thread.join()
+                del self._connections[thread]  # reap finished connection threads
+            if len(self._connections) >= MAX_CONNECTIONS:
+                log.warning("refusing a Modbus TCP connection: %d clients already", MAX_CONNECTIONS)
+                conn.close()
+                return
+            thread = threading.Thread(target=self._serve_connection, args=(conn,), daemon=True,
+                                      name=f"vfd-mock tcp client {len(self._connections) + 1}")
+            self._connections[thread] = conn
+        thread.start()
+
+    def _serve_connection(self, conn: socket.socket) -> None:
+        buffer = bytearray()
+        conn.settimeout(IDLE_POLL_S)
+        with contextlib.suppress(OSError), conn:
+            while not self._stopped.is_set():
+                try:
+                    chunk = conn.recv(4096)
+                except TimeoutError:
+                    continue
+                if not chunk:
+                    return
+                buffer += chunk
+                while len(buffer) >= MBAP_BYTES:
+                    tid, protocol, length, unit = parse_mbap(bytes(buffer[:MBAP_BYTES]))
+                    if not 2 <= length <= 254:
+                        return  # cannot find the next frame in the stream: close (our choice)
+                    if len(buffer) < MBAP_BYTES - 1 + length:
+                        break
+                    pdu = bytes(buffer[MBAP_BYTES:MBAP_BYTES - 1 + length])
+                    del buffer[:MBAP_BYTES - 1 + length]
+                    if protocol != 0:
+                        continue  # not Modbus: discarded (TCP guide §4.4.1.2)
+                    if not self._tcp_request(conn, tid, unit, pdu):
+                        return
+
+    def _tcp_request(self, conn: socket.socket, tid: int, unit: int, pdu: bytes) -> bool:
+        """Answer one request; False when the connection is to be closed."""
+        reply, due = self._respond(unit, pdu)
+        if "disconnect" in due:
+            return False
+        if reply is None:
+            return True
+        self._delay(due)
+        for data in self._outgoing(mbap_adu(tid, unit, reply), due):
+            conn.sendall(data)
+            self.replies_sent += 1
+        return True
+
+    # Modbus RTU -----------------------------------------------------------------------------------------
+    def _serve_rtu(self) -> None:
+        assert self._serial is not None
+        fd = self._serial.fileno()
+        buffer = bytearray()
+        resync = False  # an overlong frame: drop everything until the next silence
+        while not self._stopped.is_set():
+            ready, _, _ = select.select([fd], [], [], self.silence_s if buffer or resync else IDLE_POLL_S)
+            if not ready:
+                if resync or buffer:
+                    self._rtu_frame_at_silence(bytes(buffer), resync)
+                buffer.clear()
+                resync = False
+                continue
+            try:
+                chunk = self._serial.read(max(1, self._serial.in_waiting))
+            except (OSError, serial.SerialException):
+                if self._stopped.wait(IDLE_POLL_S):
+                    return
+                continue
+            if not chunk:
+                self._stopped.wait(self.silence_s)
+                continue
+            if resync:
+                continue
+            buffer += chunk
+            while (frame := self._complete_rtu_frame(buffer)) is not None:
+                self._rtu_request(frame)
+            if len(buffer) > MAX_RTU_ADU:
+                self.frames_dropped += 1
+                buffer.clear()
+                resync = True
+
+    @staticmethod
+    def _complete_rtu_frame(buffer: bytearray) -> bytes | None:
+        """A frame complete by the length its function code implies, with a valid CRC (removed from
+        ``buffer``); else None (the frame will end at the next silence)."""
+        if len(buffer) < 2:
+            return None
+        n = request_pdu_length(bytes(buffer[1:7]))
+        if not n or len(buffer) < n + 3:
+            return None
+        frame = bytes(buffer[:n + 3])
+        if split_rtu(frame) is None:
+            return None
+        del buffer[:n + 3]
+        return frame
+
+    def _rtu_frame_at_silence(self, data: bytes, resync: bool) -> None:
+        if resync or split_rtu(data) is None:
+            self.frames_dropped += 1  # CRC error or a partial frame: the slave ignores it
+            return
+        self._rtu_request(data)
+
+    def _rtu_request(self, frame: bytes) -> None:
+        parts = split_rtu(frame)
+        assert parts is not None
+        unit, pdu = parts
+        if not self.slave.addressed(unit) or (self.link is not None and not self.link.plugged):
+            return
+        reply, due = self._respond(unit, pdu)
+        if "disconnect" in due and self.link is not None:
+            fault = due["disconnect"]
+            self.link.unplug()
+            if fault.value is not None:
+                timer = threading.Timer(float(fault.value), self.link.plug)
+                timer.daemon = True
+                timer.start()
+            return
+        if reply is None:
+            return
+        self._delay(due)
+        for data in self._outgoing(rtu_adu(unit, reply), due):
+            with self._write_lock:
+                self._serial.write(data)  # type: ignore[union-attr]
+            self.replies_sent += 1
 
 
-def main(argv: list[str] | None = None, prog: str | None = None) -> int:
-    """Serve until Ctrl-C or SIGTERM; ``prog`` names the command in help and errors."""
+def _parser(prog: str | None) -> argparse.ArgumentParser:
     parser = standalone_parser("vfd_server", "Mock VFD (Delta-style register map) on Modbus TCP or RTU.",
                                default_port=5020, prog=prog)
     parser.add_argument("--rtu", action="store_true", help="Modbus RTU on a new pty pair, not TCP")
     parser.add_argument("--serial", default=None, help="RTU on this serial device instead of a pty")
+    parser.add_argument("--baud", type=int, default=115200, help="RTU line speed (sets t3.5)")
     parser.add_argument("--body", choices=("exciter", "rotor"), default="exciter", help="twin body to move")
+    parser.add_argument("--unit", type=int, default=None,
+                        help="Modbus unit id 1..247 (default: 1 for the exciter, 2 for the rotor, as in "
+                             "rig/data/sim.toml)")
     parser.add_argument("--gear-ratio", type=float, default=1.0, help="drive Hz per body Hz")
     parser.add_argument("--max-output-hz", type=float, default=50.0)
     parser.add_argument("--watchdog-s", type=float, default=None)
+    kinds = "; ".join(f"{k}: {text} (default {d:g})" for k, (text, d) in FAULT_KINDS.items())
+    parser.add_argument("--fault", action="append", default=[], metavar="KIND[:PARAM]",
+                        help=f"inject a fault (repeatable). {kinds}")
+    return parser
+
+
+DEFAULT_UNITS = {"exciter": 1, "rotor": 2}
+
+
+def main(argv: list[str] | None = None, prog: str | None = None) -> int:
+    """Serve until Ctrl-C or SIGTERM; ``prog`` names the command in help and errors."""
+    from dataclasses import replace
+
+    from drivers.exciter.register_map import DELTA_MAP
+
+    parser = _parser(prog)
     args, world = start_standalone(parser, argv)
-    drive = DriveModel(getattr(world, args.body), world.clock, gear_ratio=args.gear_ratio,
+    try:
+        faults = [parse_fault(text) for text in args.fault]
+        regs = replace(DELTA_MAP, unit_id=DEFAULT_UNITS[args.body] if args.unit is None else args.unit)
+    except ValueError as exc:
+        parser.error(str(exc))
+    drive = DriveModel(getattr(world, args.body), world.clock, register_map=regs, gear_ratio=args.gear_ratio,
                        max_output_hz=args.max_output_hz, watchdog_s=args.watchdog_s)
     mode = "rtu" if (args.rtu or args.serial) else "tcp"
-    with VfdServer(drive, mode=mode, port=args.port, serial_port=args.serial) as server:
-        print(f"mock VFD ({args.body}) serving Modbus {mode.upper()} at {server.url}", flush=True)
+    with VfdServer(drive, mode=mode, port=args.port, serial_port=args.serial, baudrate=args.baud,
+                   faults=faults) as server:
+        note = f"; faults: {', '.join(args.fault)}" if args.fault else ""
+        print(f"mock VFD ({args.body}, unit {regs.unit_id}) serving Modbus {mode.upper()} at "
+              f"{server.url}{note}", flush=True)
         wait_for_interrupt()
-        print(f"mock VFD ({args.body}) stopped; requests received: {server.requests_received}", flush=True)
     return 0
 
 
