@@ -9,8 +9,9 @@ to the next request. :class:`ModbusLink` therefore
 * after a timeout, a CRC error or a reply that does not match (out of step), discards everything until
   the line has been silent for t3.5 (3.5 character times at the line's baud rate; in practice at least
   one serial poll, ~20 ms) before the next request; then retries (``retries`` times);
-* on TCP, numbers requests (MBAP transaction id) and skips replies with another id; a malformed MBAP
-  header or a closed connection reconnects;
+* on TCP, numbers requests (MBAP transaction id) and skips replies with another id; after a timeout, a
+  malformed MBAP header or a closed connection it reconnects (a stream cut mid-frame cannot be
+  resynchronised);
 * :meth:`ModbusLink.execute_until` (for a stop or make-safe command) retries on a **fresh link** (port
   reopened / new TCP connection, then t3.5 silence) until a deadline on the injected clock, and reports
   the number of attempts.
@@ -223,8 +224,8 @@ class ModbusLink:
     def _after_failure(self, exc: BaseException) -> None:
         if isinstance(exc, _OutOfStep):
             self.stale_replies += 1
-        if isinstance(exc, _OutOfStep) and self.framing == "tcp":
-            self._drop()  # a TCP stream cannot be resynchronised: reconnect
+        if self.framing == "tcp":
+            self._drop()  # a TCP stream cut mid-frame cannot be resynchronised: reconnect
         elif isinstance(exc, TransportError) and not isinstance(exc, TransportTimeout):
             self._drop()  # closed or broken: reconnect on the next attempt
         else:
