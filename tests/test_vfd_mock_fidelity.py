@@ -160,10 +160,11 @@ def test_fault_options_are_parsed_with_clear_errors() -> None:
 
 
 def test_rig_mock_rotor_answers_its_configured_unit_and_injects_cli_faults() -> None:
-    """`rig mock rotor` defaults to unit 2 as rig/data/sim.toml; --fault busy:2 refuses every second request."""
+    """`rig mock rotor` defaults to unit 2 as in rig/data/sim.toml; --fault busy:2 refuses every second
+    request."""
     env = {**os.environ, "PYTHONPATH": str(ROOT), "PYTHONUNBUFFERED": "1"}
-    proc = subprocess.Popen([sys.executable, "-m", "rig.cli", "mock", "rotor", "--port", "0", "--fault", "busy:2"],
-                            stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True, env=env)
+    command = [sys.executable, "-m", "rig.cli", "mock", "rotor", "--port", "0", "--fault", "busy:2"]
+    proc = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True, env=env)
     try:
         assert proc.stdout is not None
         line = proc.stdout.readline()
