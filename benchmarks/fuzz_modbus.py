@@ -265,8 +265,8 @@ class TcpFuzzer:
         return sock
 
     def _close(self) -> None:
+        self.read(0.0)  # replies already there (this may find the connection closed by the server)
         if self.sock is not None:
-            self.read(0.0)
             self.sock.close()
             self.sock = None
         self.replies.buffer.clear()

@@ -1,7 +1,7 @@
 """Scaffolding shared by the mock servers: the TCP accept loop and the stand-alone command line.
 
 * :func:`accept_loop` — accept connections on a listening socket until a stop event is set, handing
-  each to a callback (the b-CAP and SCPI mocks; the VFD mock's TCP side is pymodbus's);
+  each to a callback (the b-CAP, SCPI and VFD mocks);
 * :func:`require_loopback` — every mock binds a loopback address only: it speaks a real controller's
   protocol with no authentication and moves nothing real, so it must never be reachable from the network
   (where a program looking for the real device could find it);

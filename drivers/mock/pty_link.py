@@ -1,6 +1,6 @@
 """A null-modem cable in software: two pseudo-terminals joined by a byte-copying thread.
 
-A mock device opens :attr:`PtyLink.device_port` (for example a pymodbus ``ModbusSerialServer``), the
+A mock device opens :attr:`PtyLink.device_port` (for example the mock VFD's Modbus RTU slave), the
 driver under test opens :attr:`PtyLink.client_port`; both are ordinary tty device names (``/dev/pts/N``)
 that pyserial opens like a USB-RS485 adapter. Every byte written on one side arrives on the other.
 
