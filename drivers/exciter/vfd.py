@@ -111,7 +111,9 @@ class VfdDriver:
         above it raise, and ramp times are defined as the time from 0 Hz to it.
     fault_names: fault code → text for messages.
     stop_deadline_s: how long (s, on the link's clock) a stop command is repeated on fresh links before
-        it is reported as failed.
+        it is reported as failed; default twice the link's worst case for one request,
+        2 × timeout × (retries + 1), at least 1 s (the runner makes the devices safe one after the other,
+        so a dead drive must not hold up the others for long).
 
     Thread-safe: every request holds the link's lock; ``contact`` records the wall time of the drive's
     last reply (an exception response counts: the drive answered) for the heartbeat.
@@ -119,9 +121,11 @@ class VfdDriver:
 
     def __init__(self, link: ModbusLink, register_map: RegisterMap = DELTA_MAP, *,
                  max_output_hz: float = 50.0, fault_names: dict[int, str] | None = None,
-                 stop_deadline_s: float = 3.0) -> None:
+                 stop_deadline_s: float | None = None) -> None:
         if not max_output_hz > 0:
             raise ValueError(f"max_output_hz={max_output_hz!r}: must be > 0 Hz")
+        if stop_deadline_s is None:
+            stop_deadline_s = max(1.0, 2.0 * link.timeout_s * (link.retries + 1))
         if not stop_deadline_s > 0:
             raise ValueError(f"stop_deadline_s={stop_deadline_s!r}: must be > 0 s")
         register_map.freq_to_register(max_output_hz)
