@@ -15,8 +15,9 @@ from hypothesis import strategies as st
 from vfd_support import crc16_modbus, rtu
 
 from drivers.exciter.register_map import RegisterMap
+from drivers.mock.modbus_slave import ModbusSlave
 from drivers.mock.vfd_drive import DriveModel
-from drivers.mock.vfd_server import ModbusSlave, VfdServer
+from drivers.mock.vfd_server import VfdServer
 from drivers.modbus import (
     ModbusExceptionReply,
     ReplyMismatch,

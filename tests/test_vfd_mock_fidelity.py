@@ -23,8 +23,9 @@ import serial
 from vfd_support import rtu
 
 from drivers.exciter.register_map import RegisterMap
+from drivers.mock.modbus_faults import parse_fault
 from drivers.mock.vfd_drive import DriveModel
-from drivers.mock.vfd_server import MAX_CONNECTIONS, VfdServer, parse_fault
+from drivers.mock.vfd_server import MAX_CONNECTIONS, VfdServer
 from drivers.sim.clock import VirtualClock
 from drivers.sim.world import World
 

@@ -17,7 +17,7 @@ A unit id not on the line gets no reply on RTU and exception 0x0B (gateway targe
 TCP.
 
 Fault injection (:meth:`VfdServer.inject`, or ``--fault KIND[:PARAM]`` on the command line, see
-:data:`FAULT_KINDS`) applies to requests addressed to a drive of this server.
+:data:`drivers.mock.modbus_faults.FAULT_KINDS`) applies to requests addressed to a drive of this server.
 
 Run standalone (its own world with a paced clock)::
 
@@ -33,9 +33,7 @@ import contextlib
 import logging
 import select
 import socket
-import struct
 import threading
-from dataclasses import dataclass
 from types import TracebackType
 
 import serial
@@ -47,15 +45,12 @@ from drivers.mock._serve import (
     start_standalone,
     wait_for_interrupt,
 )
+from drivers.mock.modbus_faults import FAULT_KINDS, Fault, FaultPlan, parse_fault
+from drivers.mock.modbus_slave import ModbusSlave
 from drivers.mock.pty_link import PtyLink
-from drivers.mock.vfd_drive import FAULT_OVERLOAD, DriveModel
+from drivers.mock.vfd_drive import DriveModel
 from drivers.modbus import (
     BROADCAST,
-    FC_READ_HOLDING,
-    FC_WRITE_MULTIPLE,
-    FC_WRITE_SINGLE,
-    MAX_READ_QUANTITY,
-    MAX_WRITE_QUANTITY,
     MBAP_BYTES,
     ExceptionCode,
     exception_pdu,
@@ -67,7 +62,7 @@ from drivers.modbus import (
     split_rtu,
 )
 
-__all__ = ["FAULTS", "FAULT_KINDS", "Fault", "ModbusSlave", "VfdServer", "main", "parse_fault"]
+__all__ = ["MAX_CONNECTIONS", "VfdServer", "main"]
 
 log = logging.getLogger(__name__)
 
@@ -75,173 +70,6 @@ HOUSEKEEPING_S = 0.02   # wall seconds between checks for trips that happen whil
 MAX_CONNECTIONS = 8     # concurrent Modbus TCP clients (our choice; drive Ethernet cards allow a few)
 MAX_RTU_ADU = 256       # Serial Line §2.5.1
 IDLE_POLL_S = 0.1       # how often an idle reader looks at the stop flag
-
-# kind → (meaning of PARAM on the command line, default PARAM)
-FAULT_KINDS: dict[str, tuple[str, float]] = {
-    "late": ("every reply is sent PARAM s late", 1.0),
-    "no_reply": ("every PARAM-th request is executed but not answered", 1),
-    "trip": ("the drive trips with fault code PARAM as soon as it runs", FAULT_OVERLOAD),
-    "busy": ("every PARAM-th request is refused with exception 06 (busy), not executed", 1),
-    "disconnect": ("after every PARAM requests the link drops (TCP: connection closed; RTU: cable pulled "
-                   "for 1 s)", 10),
-    "bad_crc": ("every PARAM-th reply has a corrupted CRC (TCP: MBAP protocol id)", 1),
-    "twice": ("every PARAM-th reply is sent twice", 1),
-    "previous": ("every PARAM-th request is answered with the reply to the request before it", 1),
-    "drop": ("every reply loses PARAM bytes from its middle", 1),
-}
-FAULTS = (*FAULT_KINDS, "exception")
-_EVERY_KINDS = ("no_reply", "busy", "bad_crc", "twice", "previous", "exception")
-RTU_UNPLUG_S = 1.0
-
-
-@dataclass
-class Fault:
-    """One injected fault: ``kind`` (see :data:`FAULT_KINDS`), its ``value`` (seconds, fault code,
-    exception code or byte count), applying to every ``every``-th request, ``count`` times (None: until
-    cleared)."""
-
-    kind: str
-    value: float | None = None
-    every: int = 1
-    count: int | None = None
-
-    def __post_init__(self) -> None:
-        if self.kind not in FAULTS:
-            raise ValueError(f"fault kind {self.kind!r}: must be one of {list(FAULTS)}")
-        if self.every < 1:
-            raise ValueError(f"fault {self.kind}: every={self.every!r} must be >= 1")
-        if self.count is not None and self.count < 1:
-            raise ValueError(f"fault {self.kind}: count={self.count!r} must be >= 1 or None")
-
-
-def parse_fault(text: str) -> Fault:
-    """``KIND[:PARAM]`` from the command line → a permanent :class:`Fault` (ValueError naming the problem)."""
-    kind, _, param = text.partition(":")
-    if kind not in FAULT_KINDS:
-        raise ValueError(f"--fault {text!r}: unknown kind {kind!r}; allowed: {', '.join(FAULT_KINDS)}")
-    default = FAULT_KINDS[kind][1]
-    try:
-        value = float(param) if param else float(default)
-    except ValueError:
-        raise ValueError(f"--fault {text!r}: PARAM {param!r} is not a number") from None
-    if kind == "late":
-        if not 0 < value <= 60:
-            raise ValueError(f"--fault {text!r}: a late reply is 0 < PARAM <= 60 s late")
-        return Fault(kind, value)
-    if value != int(value) or value < 1:
-        raise ValueError(f"--fault {text!r}: PARAM must be a whole number >= 1")
-    if kind in _EVERY_KINDS:
-        return Fault(kind, None, every=int(value))
-    if kind == "disconnect":
-        return Fault(kind, RTU_UNPLUG_S, every=int(value))
-    return Fault(kind, int(value))
-
-
-class ModbusSlave:
-    """The PDU handler: request PDU for ``unit`` → reply PDU (None: no reply), per the Application
-    Protocol V1.1b3 (§6.3 FC03, §6.6 FC06, §6.12 FC16, §7 exceptions)."""
-
-    def __init__(self, drives: list[DriveModel], mode: str) -> None:
-        self.drives = {d.map.unit_id: d for d in drives}
-        self.mode = mode
-
-    def addressed(self, unit: int) -> bool:
-        """Whether a request to ``unit`` is for this line's slave(s) (RTU broadcast included)."""
-        return self.mode == "tcp" or unit in self.drives or unit == BROADCAST
-
-    def _target(self, unit: int) -> DriveModel | None:
-        if unit in self.drives:
-            return self.drives[unit]
-        if self.mode == "tcp" and unit in (0, 0xFF) and len(self.drives) == 1:
-            return next(iter(self.drives.values()))  # TCP guide §4.4.2: 0xFF (or 0) addresses the server
-        return None
-
-    def handle(self, unit: int, pdu: bytes) -> bytes | None:
-        broadcast = self.mode == "rtu" and unit == BROADCAST
-        target = self._target(unit)
-        if target is None and not broadcast:
-            if self.mode == "rtu":
-                return None  # another slave's request
-            return exception_pdu(pdu[0] if pdu else 0, ExceptionCode.GATEWAY_TARGET_NO_RESPONSE)
-        if not pdu:
-            return None
-        fc = pdu[0]
-        reply = self._execute(target, fc, pdu, broadcast)
-        return None if broadcast else reply
-
-    def _execute(self, target: DriveModel | None, fc: int, pdu: bytes, broadcast: bool) -> bytes:
-        if fc not in (FC_READ_HOLDING, FC_WRITE_SINGLE, FC_WRITE_MULTIPLE):
-            return exception_pdu(fc, ExceptionCode.ILLEGAL_FUNCTION)
-        if len(pdu) != request_pdu_length(pdu):
-            return exception_pdu(fc, ExceptionCode.ILLEGAL_DATA_VALUE)  # short or overlong request
-        address, quantity = struct.unpack(">HH", pdu[1:5])
-        if fc == FC_READ_HOLDING:
-            if broadcast or target is None:
-                return b""  # a broadcast read is not a request (Serial Line §2.1)
-            if not 1 <= quantity <= MAX_READ_QUANTITY:
-                return exception_pdu(fc, ExceptionCode.ILLEGAL_DATA_VALUE)
-            if address + quantity > 0x10000:
-                return exception_pdu(fc, ExceptionCode.ILLEGAL_DATA_ADDRESS)
-            result = target.read(address, quantity)
-            if isinstance(result, ExceptionCode):
-                return exception_pdu(fc, result)
-            return struct.pack(f">BB{quantity}H", fc, 2 * quantity, *result)
-        if fc == FC_WRITE_SINGLE:
-            values, echo = [quantity], pdu
-        else:
-            if not 1 <= quantity <= MAX_WRITE_QUANTITY or pdu[5] != 2 * quantity:
-                return exception_pdu(fc, ExceptionCode.ILLEGAL_DATA_VALUE)
-            if address + quantity > 0x10000:
-                return exception_pdu(fc, ExceptionCode.ILLEGAL_DATA_ADDRESS)
-            values, echo = list(struct.unpack(f">{quantity}H", pdu[6:])), pdu[:5]
-        drives = list(self.drives.values()) if broadcast else [target]
-        results = [d.write(address, values) for d in drives if d is not None]
-        failed = next((r for r in results if r is not None), None)
-        return exception_pdu(fc, failed) if failed is not None else echo
-
-
-class _FaultPlan:
-    """Active faults and the request counter (thread-safe)."""
-
-    def __init__(self) -> None:
-        self._faults: list[Fault] = []
-        self._lock = threading.Lock()
-        self.requests = 0
-
-    def add(self, fault: Fault) -> None:
-        with self._lock:
-            self._faults = [f for f in self._faults if f.kind != fault.kind] + [fault]
-
-    def clear(self) -> None:
-        with self._lock:
-            self._faults = []
-
-    def next_request(self) -> dict[str, Fault]:
-        """Count one request; the faults that apply to it (each consumed once)."""
-        with self._lock:
-            self.requests += 1
-            due: dict[str, Fault] = {}
-            for fault in list(self._faults):
-                if fault.kind == "trip" or self.requests % fault.every:
-                    continue
-                due[fault.kind] = fault
-                if fault.count is not None:
-                    fault.count -= 1
-                    if fault.count <= 0:
-                        self._faults.remove(fault)
-            return due
-
-    def take_trip(self) -> int | None:
-        """The fault code of an active "trip" fault (consumed when it has a count), else None."""
-        with self._lock:
-            fault = next((f for f in self._faults if f.kind == "trip"), None)
-            if fault is None:
-                return None
-            if fault.count is not None:
-                fault.count -= 1
-                if fault.count <= 0:
-                    self._faults.remove(fault)
-            return int(fault.value or FAULT_OVERLOAD)
 
 
 class VfdServer:
@@ -272,7 +100,7 @@ class VfdServer:
         self.link: PtyLink | None = None
         self.slave = ModbusSlave(self.drives, mode)
         self._serial_port = serial_port
-        self._plan = _FaultPlan()
+        self._plan = FaultPlan()
         for fault in faults or []:
             self._plan.add(fault)
         self._stopped = threading.Event()
@@ -368,9 +196,9 @@ class VfdServer:
     # fault injection ------------------------------------------------------------------------------------
     def inject(self, fault: str, value: float | None = None, *, count: int | None = 1, every: int = 1,
                exception_code: int = 6) -> None:
-        """Apply ``fault`` (a kind of :data:`FAULTS`) to the next ``count`` requests it is due for
-        (``None``: until :meth:`clear_faults`), every ``every``-th request. ``value``: see
-        :data:`FAULT_KINDS` ("late": seconds, default 1; "trip": fault code; "drop": bytes;
+        """Apply ``fault`` (a kind of :data:`~drivers.mock.modbus_faults.FAULTS`) to the next ``count``
+        requests it is due for (``None``: until :meth:`clear_faults`), every ``every``-th request.
+        ``value``: see :data:`FAULT_KINDS` ("late": seconds, default 1; "trip": fault code; "drop": bytes;
         "disconnect": seconds an RTU cable stays pulled, default until :meth:`clear_faults`).
         ``exception_code`` is the code of kind "exception"."""
         if fault == "exception":
