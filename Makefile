@@ -20,7 +20,8 @@ test: $(STAMP) browser
 	$(VENV)/bin/python -m pytest -q
 
 bench: $(STAMP)
-	for b in benchmarks/*.py; do $(VENV)/bin/python $$b || exit 1; done
+	for b in benchmarks/*.py; do case $$b in benchmarks/fuzz_*) continue;; esac; \
+		$(VENV)/bin/python $$b || exit 1; done  # fuzz_*.py run once, through benchmarks/fuzz.py
 
 # The report's browser test (tests/test_reports_html_chromium.py) needs a headless Chromium. It is
 # installed here, in its own announced step, when missing and this user may install Debian packages;
