@@ -135,6 +135,11 @@ def test_tcp_connection_threads_are_reaped_and_capped() -> None:
         for i in range(3 * MAX_CONNECTIONS):
             with socket.create_connection(("127.0.0.1", server.port), timeout=2.0) as sock:
                 assert _tcp_ask(sock, i, 1, bytes.fromhex("03 21 00 00 01")) == bytes.fromhex("03 02 00 00")
+            deadline = time.monotonic() + 10.0  # the server notices the close
+            while server.connection_threads and time.monotonic() < deadline:
+                time.sleep(0.01)
+            assert server.connection_threads == 0
+        assert server.connections_tracked <= 1  # 24 finished connections: all but the last reaped
         held = [socket.create_connection(("127.0.0.1", server.port), timeout=2.0)
                 for _ in range(MAX_CONNECTIONS + 1)]
         try:

@@ -140,6 +140,12 @@ class VfdServer:
         with self._conn_lock:
             return sum(t.is_alive() for t in self._connections)
 
+    @property
+    def connections_tracked(self) -> int:
+        """TCP connection threads the server still holds (finished ones are reaped at the next accept)."""
+        with self._conn_lock:
+            return len(self._connections)
+
     # lifecycle ------------------------------------------------------------------------------------------
     def start(self) -> VfdServer:
         if self.mode == "tcp":
