@@ -113,6 +113,7 @@ class VfdServer:
         self._write_lock = threading.Lock()
         self._last_reply: bytes | None = None
         self.replies_sent = 0
+        self.requests_received = 0  # request frames that reached the server (any unit id)
         self.frames_dropped = 0  # RTU frames discarded (CRC error, overlong, cut by silence)
 
     # addresses ------------------------------------------------------------------------------------------
@@ -128,11 +129,6 @@ class VfdServer:
     @property
     def url(self) -> str:
         return f"tcp://{self.host}:{self.port}" if self.mode == "tcp" else self.client_port
-
-    @property
-    def requests_received(self) -> int:
-        """Requests addressed to this server's drives so far."""
-        return self._plan.requests
 
     @property
     def connection_threads(self) -> int:
@@ -302,6 +298,7 @@ class VfdServer:
 
     def _tcp_request(self, conn: socket.socket, tid: int, unit: int, pdu: bytes) -> bool:
         """Answer one request; False when the connection is to be closed."""
+        self.requests_received += 1
         reply, due = self._respond(unit, pdu)
         if "disconnect" in due:
             return False
@@ -384,6 +381,7 @@ class VfdServer:
         parts = split_rtu(frame)
         assert parts is not None
         unit, pdu = parts
+        self.requests_received += 1
         if not self.slave.addressed(unit) or (self.link is not None and not self.link.plugged):
             return
         reply, due = self._respond(unit, pdu)
@@ -448,6 +446,7 @@ def main(argv: list[str] | None = None, prog: str | None = None) -> int:
         print(f"mock VFD ({args.body}, unit {regs.unit_id}) serving Modbus {mode.upper()} at "
               f"{server.url}{note}", flush=True)
         wait_for_interrupt()
+        print(f"mock VFD ({args.body}) stopped; requests received: {server.requests_received}", flush=True)
     return 0
 
 
