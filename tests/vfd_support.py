@@ -151,9 +151,11 @@ def connect_client(server: VfdServer, *, timeout_s: float = 0.25, retries: int =
 
 @contextlib.contextmanager
 def vfd_rig(mode: str, *, gear_ratio: float = 1.5, max_output_hz: float = 60.0, poll_interval_s: float = 0.25,
-            timeout_s: float = 0.25, retries: int = 0, stop_deadline_s: float = 2.0,
+            timeout_s: float = 0.25, retries: int = 1, stop_deadline_s: float = 2.0,
             **drive_kwargs: Any) -> Iterator[VfdRig]:
-    """World (instant clock) + mock drive moving world.exciter + connected driver + Exciter."""
+    """World (instant clock) + mock drive moving world.exciter + connected driver + Exciter. The link
+    repeats a request once (the station's setting); a test of one failure sets ``rig.client.retries = 0``
+    after its set-up."""
     world = World(VirtualClock(), seed=1)
     drive = DriveModel(world.exciter, world.clock, gear_ratio=gear_ratio, max_output_hz=max_output_hz,
                        **drive_kwargs)
