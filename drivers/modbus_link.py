@@ -46,7 +46,7 @@ from drivers.modbus import (
     split_rtu,
     write_single_request,
 )
-from drivers.transport import Transport, TransportError, TransportTimeout, open_transport
+from drivers.transport import SerialTransport, Transport, TransportError, TransportTimeout, open_transport
 
 __all__ = ["LinkClock", "ModbusLink", "ModbusLinkError", "WallClock"]
 
@@ -119,7 +119,8 @@ class ModbusLink:
         self.stale_replies = 0
         self.reconnects = 0
         self._transport = self._open()
-        baud = int(getattr(self._transport, "baudrate", 19200) or 19200)
+        # a pyserial URL without a line (socket://, a pty) still gets the t3.5 of its nominal speed
+        baud = self._transport.baudrate if isinstance(self._transport, SerialTransport) else 19200
         self.silence_s = rtu_silence_s(baud)
 
     # connection ------------------------------------------------------------------------------------------
