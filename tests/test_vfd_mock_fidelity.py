@@ -26,6 +26,7 @@ from drivers.exciter.register_map import RegisterMap
 from drivers.mock.modbus_faults import parse_fault
 from drivers.mock.vfd_drive import DriveModel
 from drivers.mock.vfd_server import MAX_CONNECTIONS, VfdServer
+from drivers.modbus import mbap_adu
 from drivers.sim.clock import VirtualClock
 from drivers.sim.world import World
 
@@ -184,3 +185,23 @@ def test_rig_mock_rotor_answers_its_configured_unit_and_injects_cli_faults() -> 
         proc.send_signal(signal.SIGINT)
         proc.wait(timeout=20)
     assert proc.returncode == 0
+
+
+def test_cli_faults_disconnect_every_n_requests_and_trip_when_running() -> None:
+    world = World(VirtualClock(), seed=5)
+    faults = [parse_fault("disconnect:3"), parse_fault("trip:65")]
+    with VfdServer(DriveModel(world.exciter, world.clock), faults=faults) as server:
+        read = bytes.fromhex("03 21 00 00 01")
+        with socket.create_connection(("127.0.0.1", server.port), timeout=2.0) as sock:
+            assert _tcp_ask(sock, 1, 1, read) == bytes.fromhex("03 02 00 00")
+            assert _tcp_ask(sock, 2, 1, read) == bytes.fromhex("03 02 00 00")
+            sock.sendall(mbap_adu(3, 1, read))
+            assert sock.recv(16) == b""  # the third request: the connection drops
+        with socket.create_connection(("127.0.0.1", server.port), timeout=2.0) as sock:
+            assert _tcp_ask(sock, 4, 1, bytes.fromhex("06 20 01 03 E8")) == bytes.fromhex("06 20 01 03 E8")
+            assert _tcp_ask(sock, 5, 1, bytes.fromhex("06 20 00 00 12")) == bytes.fromhex("06 20 00 00 12")
+            sock.sendall(mbap_adu(6, 1, read))
+            assert sock.recv(16) == b""
+        with socket.create_connection(("127.0.0.1", server.port), timeout=2.0) as sock:
+            assert _tcp_ask(sock, 7, 1, read) == bytes.fromhex("03 02 00 41")  # tripped: fault 65 (0x41)
+        assert server.drive.fault_code == 65 and not server.drive.running
