@@ -443,9 +443,10 @@ def main(argv: list[str] | None = None, prog: str | None = None) -> int:
     with VfdServer(drive, mode=mode, port=args.port, serial_port=args.serial, baudrate=args.baud,
                    faults=faults) as server:
         note = f"; faults: {', '.join(args.fault)}" if args.fault else ""
-        print(f"mock VFD ({args.body}, unit {regs.unit_id}) serving Modbus {mode.upper()} at "
-              f"{server.url}{note}", flush=True)
-        wait_for_interrupt()
+        with contextlib.suppress(KeyboardInterrupt):  # a Ctrl-C right after the line is a clean stop too
+            print(f"mock VFD ({args.body}, unit {regs.unit_id}) serving Modbus {mode.upper()} at "
+                  f"{server.url}{note}", flush=True)
+            wait_for_interrupt()
         print(f"mock VFD ({args.body}) stopped; requests received: {server.requests_received}", flush=True)
     return 0
 
