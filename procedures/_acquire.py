@@ -46,6 +46,7 @@ import numpy as np
 import pandas as pd
 
 from rig.frame_reduction import MarkerReducer, ReduceOptions
+from rig.frame_tap import FRAMES
 from rig.stereo import FLAG_LOST
 
 __all__ = ["Acquirer", "MarkerReducer", "Recording", "ReduceOptions"]
@@ -198,6 +199,9 @@ class _Reader:
                 found, ids = self.reducer.reduce(frame.image)
                 keep = ~(found["flags"] & FLAG_LOST).astype(bool)
                 self.parts.append((int(frame.index), float(frame.timestamp_s), found[keep], ids[keep]))
+                if FRAMES.enabled:  # the live view's latest frame (a reference; see rig.frame_tap)
+                    FRAMES.offer(self.camera.name, frame.index, frame.image,
+                                 np.column_stack([found["u_px"][keep], found["v_px"][keep]]), ids[keep])
         except BaseException as exc:  # handed to the recording's thread, which raises it
             self.error = exc
 

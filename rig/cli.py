@@ -117,18 +117,38 @@ def _run_procedure(module: types.ModuleType, args: argparse.Namespace) -> int:
     if args.dry_run:
         return _dry_run(module, config, overrides, resume=args.resume)
     bar = ProgressBar()
+    live = _live_dashboard(module, config, args)
     runner = Runner(module, config=config, station_factory=open_station, runs_dir=args.runs_dir,
-                    progress=bar)
+                    progress=live.progress(bar) if live else bar, observers=(live.observe,) if live else ())
+    if live:
+        live.attach(runner)
     try:
         outcome = runner.run(overrides, resume=args.resume)
     finally:
         bar.close()
+        if live:
+            live.close()
     if outcome.run_dir:
         _index_in_catalogue(Path(outcome.run_dir))
     where = f" — {outcome.run_dir}" if outcome.run_dir else ""
     print(f"rig: {module.NAME}: {outcome.outcome} (exit {outcome.exit_code}): {outcome.reason}{where}",
           file=sys.stderr if outcome.exit_code else sys.stdout, flush=True)
     return outcome.exit_code
+
+
+def _live_dashboard(module: types.ModuleType, config: Any, args: argparse.Namespace) -> Any:
+    """The run's dashboard (rig.dashboard_run.LiveDashboard), or None with --no-dashboard."""
+    if args.no_dashboard:
+        return None
+    from rig.dashboard import DashboardError
+    from rig.dashboard_run import LiveDashboard
+
+    host = args.dashboard_host or "127.0.0.1"
+    try:
+        return LiveDashboard(module, config, host=host, port=args.dashboard_port,
+                             allow_remote=args.dashboard_host is not None)
+    except DashboardError as exc:
+        raise ParameterError("--dashboard-port", str(exc)) from exc
 
 
 def _index_in_catalogue(run_dir: Path) -> None:
@@ -398,6 +418,17 @@ def _add_run_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--dry-run", action="store_true", help="print the plan (steps, poses, frequencies, "
                    "durations) and its limit checks without connecting any device; exit 0 if all pass, "
                    "4 if not")
+    _add_dashboard_options(p)
+
+
+def _add_dashboard_options(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--no-dashboard", action="store_true", help="do not serve the live dashboard")
+    p.add_argument("--dashboard-port", type=int, default=0, metavar="PORT",
+                   help="the live dashboard's port on 127.0.0.1 (default 0: chosen automatically; the URL is "
+                   "printed at start)")
+    p.add_argument("--dashboard-host", metavar="HOST",
+                   help="serve the dashboard on this interface instead of 127.0.0.1 (e.g. 0.0.0.0); "
+                   "the URL then carries a random token, required by every request")
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -33,12 +33,14 @@ from __future__ import annotations
 
 import datetime as _dt
 import json
+import logging
 import os
 import platform
 import subprocess
 import threading
 import time
 import uuid
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any, Protocol
 
@@ -103,6 +105,13 @@ def collect_versions() -> dict[str, Any]:
     return versions
 
 
+def _offer(observer: Callable[[dict[str, Any]], None], document: dict[str, Any]) -> None:
+    try:
+        observer(document)
+    except Exception:  # a live view's failure never affects the record
+        logging.getLogger("rig.record").warning("record observer failed", exc_info=True)
+
+
 class RunRecord:
     """Writer of one run folder's ``record.jsonl``. Build with :meth:`create` or :meth:`resume`."""
 
@@ -129,6 +138,8 @@ class RunRecord:
         self._syncer.start()
         self._stopped = False
         self._writers: list[ObservationWriter] = []
+        self._observers: list[Callable[[dict[str, Any]], None]] = []
+        self._start_document: dict[str, Any] | None = None
 
     @property
     def run_id(self) -> str:
@@ -220,7 +231,20 @@ class RunRecord:
                 self._dirty = False
             else:
                 self._dirty = True
+            if doc_type == "start":
+                self._start_document = clean
+            for observer in self._observers:
+                _offer(observer, clean)
             return clean
+
+    def add_observer(self, observer: Callable[[dict[str, Any]], None]) -> None:
+        """Offer every document written from now on to ``observer(document)`` (in the writing thread, after
+        the line is written; it must return quickly, and an exception in it is logged, never raised), and at
+        once this session's ``start`` document when it was already written. For live views."""
+        with self._lock:
+            self._observers.append(observer)
+            if self._start_document is not None:
+                _offer(observer, self._start_document)
 
     def _sync_loop(self) -> None:
         """fsync what was written but not yet synced, every ``fsync_interval_s`` (a quiet record too)."""

@@ -100,12 +100,14 @@ class Runner:
         handle_signals: install the SIGINT/SIGUSR1 handlers (only possible in the main thread).
         watchdog_period_s: wall seconds between watchdog rounds.
         log_level: level of the ``rig.log`` file handler.
+        observers: ``(document) -> None`` offered every record document (:meth:`RunRecord.add_observer`).
     """
 
     def __init__(self, module: types.ModuleType, *, config: Any, station_factory: Callable[[Any, Any], Any],
                  runs_dir: str | Path | None = None,
                  progress: Callable[[float | None, str], None] | None = None, handle_signals: bool = True,
-                 watchdog_period_s: float = 0.25, log_level: int = logging.INFO) -> None:
+                 watchdog_period_s: float = 0.25, log_level: int = logging.INFO,
+                 observers: tuple[Callable[[dict[str, Any]], None], ...] = ()) -> None:
         self.module = module
         self.config = config
         self.station_factory = station_factory
@@ -114,6 +116,7 @@ class Runner:
         self.handle_signals = handle_signals and threading.current_thread() is threading.main_thread()
         self.watchdog_period_s = watchdog_period_s
         self.log_level = log_level
+        self.observers = observers
         self._control = _Control()
         self._record: RunRecord | None = None
 
@@ -209,6 +212,8 @@ class Runner:
                 return RunOutcome(EXIT_FAULT, None, "fault",
                                   f"could not create the run record: {type(exc).__name__}: {exc}")
             self._record = record
+            for observer in self.observers:  # live views (the dashboard): every document, start first
+                record.add_observer(observer)
             with _run_log(record, self.log_level) as file_only:
                 log.info("run %s: procedure %s, session %d", record.run_id, self.module.NAME, record.session)
                 try:
