@@ -9,6 +9,7 @@ Commands (``rig COMMAND --help`` for each):
   list      the procedures and their parameters
   calibrate on-site calibration from a video pair of the slid plate (target.toml)
   measure   displacement and spectra from a video pair and a calibration
+  preview   the cameras' live view with markers and aiming/focus hints (a local web page)
 
 Without ``--config`` the built-in simulated rig is used. Exit codes: 0 pass, 1 certificate failed,
 2 aborted (Ctrl-C), 3 interlock or hardware fault, 4 bad input.
@@ -296,6 +297,26 @@ def cmd_demo(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_preview(args: argparse.Namespace) -> int:
+    """The cameras' live view with markers and aiming/focus hints, until Ctrl-C or the page's Abort."""
+    from rig.dashboard import DashboardError
+    from rig.preview import run_preview
+
+    try:
+        state = run_preview(load_config(args.config), calibration=args.calibration,
+                            host=args.dashboard_host or "127.0.0.1", port=args.dashboard_port,
+                            allow_remote=args.dashboard_host is not None, interval_s=args.interval_s,
+                            max_updates=args.updates)
+    except DashboardError as exc:
+        raise ParameterError("--dashboard-host", str(exc)) from exc
+    except KeyboardInterrupt:
+        print("rig preview: stopped", file=sys.stderr)
+        return 0
+    for item in (state.fields["hints"] or {}).get("items", []):
+        print(f"  {item['level']:4s} {item['text']}")
+    return 0
+
+
 def _runs_dir(args: argparse.Namespace) -> Path:
     return Path(args.runs_dir or load_config(args.config).station.runs_dir)
 
@@ -483,6 +504,19 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", metavar="DIR", help="trend: where the CSV and PNG go (default: the runs folder)")
     p.add_argument("--runs-dir", metavar="DIR", help="the runs folder (default: station.runs_dir)")
     p.add_argument("--config", metavar="RIG.TOML", help="rig configuration naming station.runs_dir")
+    p = sub.add_parser("preview", help="live view of the cameras for aiming and focusing",
+                       description="Serve the cameras' latest frames with the markers found and hints "
+                                   "(saturation, marker size, blur, count per camera, the epipolar check "
+                                   "with --calibration) on a local page, until Ctrl-C.")
+    p.add_argument("--config", metavar="RIG.TOML", help="rig configuration (default: the simulated rig)")
+    p.add_argument("--calibration", metavar="CALIBRATION.JSON", help="check the found markers against its "
+                   "epipolar geometry")
+    p.add_argument("--interval-s", type=float, default=0.5, metavar="S", help="seconds between views")
+    p.add_argument("--updates", type=int, metavar="N", help="stop after N views (default: until Ctrl-C)")
+    p.add_argument("--dashboard-port", type=int, default=0, metavar="PORT",
+                   help="the page's port on 127.0.0.1 (default 0: chosen automatically)")
+    p.add_argument("--dashboard-host", metavar="HOST", help="serve on this interface instead (a token then "
+                   "required in the URL)")
     p = sub.add_parser("demo", help="write sample stereo videos to try calibrate and measure",
                        description="Write a short stereo video pair of the slid calibration plate, its "
                                    "target.toml, and a pair of a vibrating marker column, all rendered by "
@@ -511,6 +545,7 @@ def main(argv: list[str] | None = None) -> int:
 
     commands = {"run": cmd_run, "certify": cmd_certify, "report": cmd_report, "check": cmd_check,
                 "list": cmd_list, "mock": cmd_mock, "demo": cmd_demo, "runs": cmd_runs, "batch": cmd_batch,
+                "preview": cmd_preview,
                 **DEPLOYMENT_COMMANDS}
     try:
         return commands[args.command](args)
