@@ -35,7 +35,7 @@ def _rig(tmp_path: Path, *args: str) -> subprocess.CompletedProcess:
 
 def test_run_with_an_unreachable_robot_records_why_in_the_run_folder(tmp_path: Path) -> None:
     config = _unreachable_robot(tmp_path)
-    proc = _rig(tmp_path, "run", "plate", "--config", str(config), "--set", "record_s=1.5")
+    proc = _rig(tmp_path, "run", "plate", "--config", str(config), "--set", "record_s=1.5", "--no-dashboard")
     assert proc.returncode == 3, proc.stderr
     (run_dir,) = run_folders(tmp_path / "runs")
 
