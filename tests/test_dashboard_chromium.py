@@ -134,7 +134,7 @@ def test_dashboard_follows_certify_and_its_abort_stops_it_safely(chromium: str, 
             proc.kill()
         reader.join(timeout=10)
     assert code == 2, "".join(err_lines)
-    run_dir = next((tmp_path / "runs").iterdir())
+    (run_dir,) = [p for p in (tmp_path / "runs").iterdir() if p.is_dir()]  # and the catalogue's index
     run = load_run(run_dir)
     assert run.stop["exit_status"] == "abort" and run.stop["reason"] == "aborted by the operator (dashboard)"
     assert run.stop["safe_state_failures"] == []
