@@ -145,3 +145,43 @@ def test_dashboard_follows_certify_and_its_abort_stops_it_safely(chromium: str, 
     assert state["generator"] == {"output_on": False}, state
     done = [d["name"] for d in run.documents if d["type"] == "step" and d["status"] == "done"]
     assert "sweep" not in done
+
+
+@pytest.mark.timeout(600)
+def test_preview_page_shows_both_cameras_and_the_hints_and_abort_ends_it(chromium: str,
+                                                                           tmp_path: Path) -> None:
+    import io
+    import json
+
+    from rig.config import load_config
+    from rig.preview import run_preview
+
+    config = load_config(write_config(tmp_path))
+    printed = io.StringIO()
+    result: dict[str, Any] = {}
+    worker = threading.Thread(target=lambda: result.update(state=run_preview(config, interval_s=0.3,
+                                                                              stream=printed)), daemon=True)
+    worker.start()
+    deadline = time.monotonic() + 300
+    while "http://" not in printed.getvalue() and time.monotonic() < deadline:
+        assert worker.is_alive(), "the preview ended early"
+        time.sleep(0.05)
+    url = re.search(r"(http://127\.0\.0\.1:\d+/)", printed.getvalue()).group(1)
+    hints_js = "JSON.stringify([...document.querySelectorAll('#hints li')].map(li => li.className + ' ' + " \
+               "li.textContent).concat([String([...document.querySelectorAll('#cameras img')]" \
+               ".filter(i => i.naturalWidth > 0).length)]))"
+    with Browser(chromium, url, tmp_path / "profile") as page:
+        shown: list[str] = []
+        while time.monotonic() < deadline:
+            shown = json.loads(page.evaluate(f"document.getElementById('hints') ? {hints_js} : '[]'"))
+            if shown and shown[-1] == "2" and len(shown) >= 3:
+                break
+            time.sleep(0.2)
+        else:
+            raise AssertionError(f"the preview page never showed both cameras and their hints: {shown}")
+        _shot(page, tmp_path, "5-preview")
+        assert any(h.startswith("ok left:") and "markers" in h for h in shown), shown
+        assert any(h.startswith("ok right:") for h in shown), shown
+        page.evaluate("document.getElementById('abort').click()")
+        worker.join(timeout=120)
+    assert not worker.is_alive() and result["state"].fields["hints"]["cameras"]
