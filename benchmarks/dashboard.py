@@ -1,0 +1,112 @@
+"""What the live dashboard costs the run: record events/s with and without the dashboard observing them
+(and a client streaming them), and the acquisition's per-frame cost of the frame tap.
+
+    .venv/bin/python benchmarks/dashboard.py [--events N] [--frames N]
+
+Record: ``RunRecord.event`` of an ``exciter`` sample, baseline = the same record with no observer,
+measured in the same run; then with ``DashboardState.on_document`` observing, then with that and one SSE
+client reading ``/events`` on 127.0.0.1. Frame tap: ``FRAMES.offer`` per frame (a 1280 × 1024 image and 12
+markers) enabled, against the attribute test it costs when disabled; and the on-request JPEG encoding
+(downscale to 480 px, draw, encode), paid in the client's thread once per delivered frame.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import tempfile
+import threading
+import time
+import urllib.request
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from rig.dashboard import DashboardServer
+from rig.dashboard_state import DashboardState
+from rig.frame_tap import FrameTap
+from rig.record import RunRecord
+
+
+class _Clock:
+    is_virtual = True
+
+    def __init__(self) -> None:
+        self.t = 0.0
+
+    def now_s(self) -> float:
+        self.t += 0.001
+        return self.t
+
+
+def _events_per_s(root: Path, n: int, observe: bool, client: bool) -> float:
+    rec = RunRecord.create(root, "bench", {}, {}, _Clock(), versions={})
+    state = DashboardState("bench")
+    server = DashboardServer(state) if client else None
+    stop = threading.Event()
+    if observe:
+        rec.add_observer(state.on_document)
+    if server is not None:
+        server.start()
+
+        def read() -> None:
+            with urllib.request.urlopen(server.url + "events", timeout=60) as stream:
+                while not stop.is_set() and stream.readline():
+                    pass
+        threading.Thread(target=read, daemon=True).start()
+        time.sleep(0.3)
+    t0 = time.perf_counter()
+    for i in range(n):
+        rec.event("exciter", {"frequency_hz": 10.0 + i * 1e-4, "setpoint_hz": 10.0, "status": "running"})
+    rate = n / (time.perf_counter() - t0)
+    rec.close()
+    stop.set()
+    if server is not None:
+        server.close(linger_s=0.0)
+    return rate
+
+
+def _frame_costs(frames: int) -> tuple[float, float, float]:
+    image = np.random.default_rng(0).integers(0, 255, (1024, 1280), dtype=np.uint8)
+    uv, ids = np.random.default_rng(1).uniform(0, 1000, (12, 2)), np.arange(12)
+    tap = FrameTap(min_interval_s=0.0)
+    t0 = time.perf_counter()
+    for i in range(frames):
+        tap.offer("left", i, image, uv, ids)
+    disabled_us = (time.perf_counter() - t0) / frames * 1e6
+    tap.enabled = True
+    t0 = time.perf_counter()
+    for i in range(frames):
+        tap.offer("left", i, image, uv, ids)
+    enabled_us = (time.perf_counter() - t0) / frames * 1e6
+    t0 = time.perf_counter()
+    n = 50
+    for i in range(n):
+        tap.offer("left", frames + i, image, uv, ids)
+        tap.jpeg("left")
+    jpeg_ms = (time.perf_counter() - t0) / n * 1e3
+    return disabled_us, enabled_us, jpeg_ms
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__)
+    parser.add_argument("--events", type=int, default=20000)
+    parser.add_argument("--frames", type=int, default=20000)
+    args = parser.parse_args()
+    with tempfile.TemporaryDirectory() as tmp:
+        root = Path(tmp)
+        base = _events_per_s(root / "a", args.events, observe=False, client=False)
+        observed = _events_per_s(root / "b", args.events, observe=True, client=False)
+        streamed = _events_per_s(root / "c", args.events, observe=True, client=True)
+    print(f"record events/s: no dashboard {base:,.0f}; observed {observed:,.0f} ({observed / base:.2f}×); "
+          f"observed + 1 SSE client {streamed:,.0f} ({streamed / base:.2f}×)")
+    disabled_us, enabled_us, jpeg_ms = _frame_costs(args.frames)
+    print(f"frame tap per frame: disabled {disabled_us:.2f} µs, enabled {enabled_us:.2f} µs "
+          f"(a 60 FPS frame period is 16,667 µs); JPEG on request {jpeg_ms:.1f} ms per delivered frame "
+          "(client thread)")
+
+
+if __name__ == "__main__":
+    main()
