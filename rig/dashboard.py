@@ -12,7 +12,8 @@ daemon thread (:class:`http.server.ThreadingHTTPServer`, one thread per client):
 - ``GET /state`` the whole state as JSON (what the page shows; tests poll it);
 - ``GET /frame/CAMERA.jpg`` the camera's latest frame, downscaled and annotated (:mod:`rig.frame_tap`);
 - ``POST /abort`` the operator's abort: ``on_abort(reason)`` (the runner's ``request_abort``, the same
-  safe stop as a first Ctrl-C); 202, or 404 when there is nothing to abort.
+  safe stop as a first Ctrl-C); 202, or 404 when there is nothing to abort. The request must carry the
+  header ``X-Rig-Dashboard: abort`` (403 otherwise), which another site's page cannot send.
 
 Bound to 127.0.0.1 by default. Any other ``host`` is refused unless ``allow_remote=True`` (the CLI's
 ``--dashboard-host``), and then every request needs ``?token=…``: a random token, printed in the URL
@@ -39,6 +40,7 @@ from rig.frame_tap import FRAMES, FrameTap
 __all__ = ["DashboardError", "DashboardServer", "is_loopback", "sse_message"]
 
 log = logging.getLogger("rig.dashboard")
+ABORT_HEADER = "X-Rig-Dashboard"
 PAGE = Path(__file__).with_name("data") / "dashboard.html"
 
 
@@ -173,6 +175,11 @@ class _Handler(BaseHTTPRequestHandler):
                 return
             if urlsplit(self.path).path != "/abort":
                 self._send(404, "text/plain; charset=utf-8", b"not found\n")
+            elif self.headers.get(ABORT_HEADER) != "abort":
+                # a page of another site can post a form here but cannot add this header without a CORS
+                # preflight, which this server never approves: only the dashboard's own page can abort
+                self._send(403, "text/plain; charset=utf-8", f"the {ABORT_HEADER}: abort header is required\n"
+                           .encode())
             elif self.dashboard.on_abort is None:
                 self._send(404, "application/json", b'{"abort":"nothing to abort"}')
             else:

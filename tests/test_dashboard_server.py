@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from rig.clock import make_clock
-from rig.dashboard import DashboardError, DashboardServer, is_loopback, sse_message
+from rig.dashboard import ABORT_HEADER, DashboardError, DashboardServer, is_loopback, sse_message
 from rig.dashboard_state import DashboardState, Series
 from rig.frame_tap import FrameTap
 from rig.record import RunRecord
@@ -78,14 +78,19 @@ def test_state_and_page_and_abort_endpoints() -> None:
         assert "EventSource" in page and "http" not in page.replace("http://www.w3.org", "")  # nothing remote
         got = json.loads(urllib.request.urlopen(server.url + "state", timeout=30).read())
         assert got["title"] == "certify"
-        abort = urllib.request.Request(server.url + "abort", method="POST")
+        # a plain cross-site form post (no custom header) is refused; the page's own request is not
+        with pytest.raises(urllib.error.HTTPError) as forged:
+            urllib.request.urlopen(urllib.request.Request(server.url + "abort", method="POST"), timeout=30)
+        assert forged.value.code == 403 and reasons == []
+        abort = urllib.request.Request(server.url + "abort", method="POST", headers={ABORT_HEADER: "abort"})
         reply = urllib.request.urlopen(abort, timeout=30)
         assert reply.status == 202 and reasons == ["aborted by the operator (dashboard)"]
         with pytest.raises(urllib.error.HTTPError) as missing:
             urllib.request.urlopen(server.url + "frame/left.jpg", timeout=30)
         assert missing.value.code == 404
     with DashboardServer(state) as server, pytest.raises(urllib.error.HTTPError) as no_abort:
-        urllib.request.urlopen(urllib.request.Request(server.url + "abort", method="POST"), timeout=30)
+        urllib.request.urlopen(urllib.request.Request(server.url + "abort", method="POST",
+                                                      headers={ABORT_HEADER: "abort"}), timeout=30)
     assert no_abort.value.code == 404
 
 
