@@ -3,11 +3,13 @@
 ``rig calibrate LEFT RIGHT --target target.toml --out calibration.json`` (the paper's slid plate, on site):
 
 1. each video is reduced to marker detections, every frame searched whole (:mod:`rig.video_markers`);
-2. **still segments**: frame i is still when every marker seen in frames i − lag and i + lag lies within
-   ``still_px`` of where it is in frame i (a slide along the optical axis moves the image slowly, so motion
-   is measured over ``lag`` frames, not one), and a still segment is ≥ ``min_still_frames`` still frames in
-   a row. The segments are matched **in order** to the positions of ``target.toml``; another number of
-   segments is a :class:`OnsiteCalibrationError` that lists the segments found;
+2. **still segments**: a run of frames is still while every marker of each frame lies within ``still_px``
+   of its mean position over the run so far (a slide along the optical axis moves the image slowly: the
+   drift accumulates against the run's mean, however slow it is, so no frame lag is needed), and a still
+   segment is a still run of ≥ ``min_still_frames`` frames — the plate must be held exactly that long.
+   The segments are matched **in order** to the positions of ``target.toml``; another number of
+   segments is a :class:`OnsiteCalibrationError` that lists the segments found and the longest shorter
+   still runs;
 3. per segment each marker's image position is averaged over the segment's frames; the plate's markers are
    told from fixed markers (those stay put between positions) and identified on the plate's grid by
    :mod:`rig.plate_grid` (an unidentifiable grid is a clear error naming the camera and position);
@@ -117,33 +119,55 @@ def _motion_px(a: np.ndarray, b: np.ndarray, gate_px: float) -> float:
     return float(np.max(np.linalg.norm(b - a[idx], axis=1)))
 
 
-def still_segments(obs: pd.DataFrame, *, still_px: float = 0.3, lag_frames: int = 6,
-                   min_still_frames: int = 20) -> list[dict[str, Any]]:
+def _still_run(uv: list[np.ndarray], first: int, still_px: float, gate_px: float) -> int:
+    """Last frame of the still run starting at ``first``: each later frame's markers (the same number,
+    each within ``gate_px``) stay within ``still_px`` of their running mean over the run."""
+    ref = uv[first]
+    if len(ref) == 0:
+        return first
+    total, count, last = ref.copy(), 1, first
+    for j in range(first + 1, len(uv)):
+        if len(uv[j]) != len(ref):
+            break
+        idx = associate(total / count, uv[j], gate_px)
+        if np.any(idx < 0):
+            break
+        moved = np.zeros(len(ref))
+        moved[idx] = np.linalg.norm(uv[j] - total[idx] / count, axis=1)
+        if moved.max() > still_px:
+            break
+        total[idx] += uv[j]
+        count, last = count + 1, j
+    return last
+
+
+def still_segments(obs: pd.DataFrame, *, still_px: float = 0.3, min_still_frames: int = 20,
+                   short_runs: list[int] | None = None) -> list[dict[str, Any]]:
     """Still segments of one camera's detections (see the module docstring): list of
-    ``{"first_index", "last_index", "t_start_s", "t_stop_s", "frames": [frame indices]}`` in time order."""
-    if not (still_px > 0 and lag_frames >= 1 and min_still_frames >= 2):
-        raise OnsiteCalibrationError(f"still_px={still_px!r} (> 0), lag_frames={lag_frames!r} (≥ 1), "
-                                     f"min_still_frames={min_still_frames!r} (≥ 2)")
+    ``{"first_index", "last_index", "t_start_s", "t_stop_s", "frames": [frame indices]}`` in time order.
+    ``short_runs``: if given, receives the length (frames) of the longest still run between two segments
+    (and before the first / after the last) that was shorter than ``min_still_frames``."""
+    if not (still_px > 0 and min_still_frames >= 2):
+        raise OnsiteCalibrationError(f"still_px={still_px!r} (> 0), min_still_frames={min_still_frames!r} "
+                                     "(≥ 2)")
     frames, stamps, uv = _per_frame(obs)
-    n = len(frames)
     gate = max(10.0 * still_px, 5.0)
-    still = np.zeros(n, dtype=bool)
-    for i in range(n):
-        lo, hi = max(0, i - lag_frames), min(n - 1, i + lag_frames)
-        still[i] = max(_motion_px(uv[lo], uv[i], gate), _motion_px(uv[i], uv[hi], gate)) <= still_px
-    segments, i = [], 0
-    while i < n:
-        if not still[i]:
+    segments, i, longest_short = [], 0, 0
+    while i < len(frames):
+        j = _still_run(uv, i, still_px, gate)
+        if j - i + 1 < min_still_frames:
+            longest_short = max(longest_short, j - i + 1 if len(uv[i]) and j > i else 0)
             i += 1
             continue
-        j = i
-        while j + 1 < n and still[j + 1]:
-            j += 1
-        if j - i + 1 >= min_still_frames:
-            segments.append({"first_index": int(frames[i]), "last_index": int(frames[j]),
-                             "t_start_s": float(stamps[i]), "t_stop_s": float(stamps[j]),
-                             "frames": frames[i:j + 1].tolist()})
+        if short_runs is not None and longest_short:
+            short_runs.append(longest_short)
+        longest_short = 0
+        segments.append({"first_index": int(frames[i]), "last_index": int(frames[j]),
+                         "t_start_s": float(stamps[i]), "t_stop_s": float(stamps[j]),
+                         "frames": frames[i:j + 1].tolist()})
         i = j + 1
+    if short_runs is not None and longest_short:
+        short_runs.append(longest_short)
     return segments
 
 
@@ -168,7 +192,7 @@ def _describe(segments: list[dict[str, Any]]) -> str:
 
 def calibrate_from_videos(videos: dict[str, str | Path], target: PlateTarget | str | Path, *,
                           distortion: str = "k1", refine: bool = True, still_px: float = 0.3,
-                          lag_frames: int = 6, min_still_frames: int = 20,
+                          min_still_frames: int = 20,
                           detect: dict[str, Any] | None = None, max_rms_px: float = 2.0) -> dict[str, Any]:
     """The ``calibration.json`` content from one video per camera (name → path) of the slid plate.
 
@@ -186,13 +210,17 @@ def calibrate_from_videos(videos: dict[str, str | Path], target: PlateTarget | s
         if vo.error:
             raise OnsiteCalibrationError(f"camera {name!r}: {vo.error}")
         sizes[name] = (vo.width_px, vo.height_px)
-        segs = still_segments(vo.observations, still_px=still_px, lag_frames=lag_frames,
-                              min_still_frames=min_still_frames)
+        short: list[int] = []
+        segs = still_segments(vo.observations, still_px=still_px, min_still_frames=min_still_frames,
+                              short_runs=short)
         if len(segs) != len(tgt.positions_mm):
+            found = (f"; the longest shorter still runs last {short} frame(s) (--min-still-frames, or hold "
+                     "longer)" if short else "")
             raise OnsiteCalibrationError(
                 f"camera {name!r} ({path}): found {len(segs)} still segment(s) ({_describe(segs)}) but "
-                f"target lists {len(tgt.positions_mm)} positions; hold the plate still ≥ {min_still_frames} "
-                f"frames at each listed position (or change still_px={still_px} px / min_still_frames)")
+                f"target lists {len(tgt.positions_mm)} positions; hold the plate still (every marker "
+                f"within --still-px {still_px:g} px of its mean) ≥ {min_still_frames} frames "
+                f"(--min-still-frames) at each listed position{found}")
         means = [_mean_positions(vo.observations, s) for s in segs]
         moving = moving_points(means)
         xyz, uv, grid_rms = [], [], []
@@ -222,7 +250,7 @@ def calibrate_from_videos(videos: dict[str, str | Path], target: PlateTarget | s
     first = next(iter(cameras.values()))
     return {"cameras": cameras, "convention": first["convention"], "units": {"world": "mm", "image": "px"},
             "method": {"command": "rig calibrate", "refine": refine, "distortion": distortion,
-                       "still_px": still_px, "lag_frames": lag_frames, "min_still_frames": min_still_frames,
+                       "still_px": still_px, "min_still_frames": min_still_frames,
                        "plate": {"rows": tgt.rows, "cols": tgt.cols}, "positions": len(tgt.positions_mm)},
             "videos": details}
 
