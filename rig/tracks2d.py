@@ -138,6 +138,47 @@ def _periodic_prediction(slots: list[float], pos: list[np.ndarray], s_now: float
     return None
 
 
+def _circle_prediction(slots: list[float], pos: list[np.ndarray], s_now: float) -> np.ndarray | None:
+    """From the last three positions on consecutive frames: the circle through them, turned on by the same
+    angle per frame (a rotor before the periodic prediction has frames enough); None if they are not on a
+    turning circle (collinear, or the two angle steps disagree by more than 20 %)."""
+    if len(pos) < 3 or round(slots[-1] - slots[-2]) != 1 or round(slots[-2] - slots[-3]) != 1:
+        return None
+    a, b, c = (np.asarray(p, float) for p in pos[-3:])
+    d = 2.0 * ((a[0] - c[0]) * (b[1] - c[1]) - (b[0] - c[0]) * (a[1] - c[1]))
+    span = max(np.linalg.norm(b - a), np.linalg.norm(c - b))
+    if abs(d) <= 1e-6 * span**2:
+        return None
+    a2, b2 = a - c, b - c
+    centre = c + np.array([(b2[1] * (a2 @ a2) - a2[1] * (b2 @ b2)),
+                           (a2[0] * (b2 @ b2) - b2[0] * (a2 @ a2))]) / d
+    ang = [math.atan2(*(p - centre)[::-1]) for p in (a, b, c)]
+    step1 = (ang[1] - ang[0] + math.pi) % (2 * math.pi) - math.pi
+    step2 = (ang[2] - ang[1] + math.pi) % (2 * math.pi) - math.pi
+    if step1 * step2 <= 0 or abs(step2 - step1) > 0.2 * abs(step2):
+        return None
+    turn = step2 * (s_now - slots[-1])
+    rot = np.array([[math.cos(turn), -math.sin(turn)], [math.sin(turn), math.cos(turn)]])
+    return centre + rot @ (c - centre)
+
+
+def _acquire(assigned: np.ndarray, det: np.ndarray, hist: list[list[np.ndarray]],
+             acquire_gate: float) -> None:
+    """Tracks and detections the gated assignment left over: a track takes a detection within
+    ``acquire_gate`` of its last position when, among the leftovers, each is the other's only candidate
+    (a lone fast marker before its motion model has frames enough; the still markers around it were
+    taken by their own tracks first)."""
+    free_t = np.setdiff1d(np.arange(len(hist)), assigned[assigned >= 0])
+    free_d = np.flatnonzero(assigned < 0)
+    if not len(free_t) or not len(free_d):
+        return
+    last = np.array([hist[t][-1] for t in free_t])
+    near = np.linalg.norm(det[free_d][None, :, :] - last[:, None, :], axis=2) <= acquire_gate
+    lone = near & (near.sum(axis=1) == 1)[:, None] & (near.sum(axis=0) == 1)[None, :]
+    for ti, di in zip(*np.nonzero(lone), strict=True):
+        assigned[free_d[di]] = free_t[ti]
+
+
 def _track_group(obs: pd.DataFrame, gate: float, max_gap: int, min_length: int,
                  acquire_gate: float) -> tuple[np.ndarray, int]:
     """Labels (local ids ≥ 0 or −1) for one segment's observations, and the number of ids used."""
@@ -179,24 +220,23 @@ def _track_group(obs: pd.DataFrame, gate: float, max_gap: int, min_length: int,
             d_cv = np.linalg.norm(det[None, :, :] - (last + velocity * gap[:, None])[:, None, :], axis=2)
             cost = np.minimum(d_last, d_cv)
             for ti in np.flatnonzero(cost.min(axis=1) > 0.2 * gate):  # simple predictions miss: periodic?
-                periodic = _periodic_prediction(slots[ti], hist[ti], s_now)
-                if periodic is not None:
-                    cost[ti] = np.minimum(cost[ti], np.linalg.norm(det - periodic, axis=1))
+                for model in (_periodic_prediction, _circle_prediction):
+                    predicted = model(slots[ti], hist[ti], s_now)
+                    if predicted is not None:
+                        cost[ti] = np.minimum(cost[ti], np.linalg.norm(det - predicted, axis=1))
             feasible = cost <= gate * np.maximum(gap, 1.0)[:, None]  # the prediction error grows with the gap
-            if acquire_gate > gate:  # a lone marker and a lone track within the acquisition gate: together
-                near = d_last <= acquire_gate
-                lone = near & (near.sum(axis=1) == 1)[:, None] & (near.sum(axis=0) == 1)[None, :]
-                lone &= ~feasible.any(axis=1)[:, None]
-                cost = np.where(lone, np.minimum(cost, d_last), cost)
-                feasible |= lone
             if feasible.any():
                 big = float(np.max(np.where(feasible, cost, 0.0))) ** 2 * (min(cost.shape) + 1.0) + 1.0
                 r, c = linear_sum_assignment(np.where(feasible, cost**2, big))
                 for ti, di in zip(r, c, strict=True):
                     if feasible[ti, di]:
                         assigned[di] = ti
-                        slots[ti] = [*slots[ti][-HISTORY + 1:], s_now]
-                        hist[ti] = [*hist[ti][-HISTORY + 1:], det[di]]
+            if acquire_gate > gate:
+                _acquire(assigned, det, hist, acquire_gate)
+            for di in np.flatnonzero(assigned >= 0):
+                ti = assigned[di]
+                slots[ti] = [*slots[ti][-HISTORY + 1:], s_now]
+                hist[ti] = [*hist[ti][-HISTORY + 1:], det[di]]
         for di in range(len(rows)):
             if assigned[di] < 0:
                 ids.append(n_ids)
