@@ -14,7 +14,9 @@ Pipeline (every step reuses the shared modules):
    the references back home (:func:`rig.stereo.stabilize`), references interpolated to the target's
    instants; displacement = stabilised position − its median;
 5. per target: principal direction of motion, spectrum (uniform grid of one frame period) and dominant
-   frequency, four-parameter sine fit at it (amplitude and frequency with standard uncertainties);
+   frequency, four-parameter sine fit at it (amplitude and frequency with standard uncertainties); the
+   Welch spectrum, every significant tone (amplitude, frequency, active interval) and the STFT table
+   (:mod:`rig.measure_spectra`: several modes, successive tones, sweeps);
 6. ``DIR``: ``tables/*.csv`` (units in column names), ``figures/*.png``, ``report.html``,
    ``timing.json``, ``measure.json`` (inputs, frame reports, notes); with a run record (``--record``), the
    controller's clock too (:mod:`rig.video_clock`, ``clock.json``, ``controller_time_s`` columns).
@@ -82,6 +84,8 @@ class MeasureResult:
     notes: list[str]
     problems: list[str]
     timings_s: dict[str, float]  # per camera (decode, extract, total) and per step ("step_*"), s
+    peaks: pd.DataFrame = field(default_factory=pd.DataFrame)  # significant tones per target track
+    time_frequency: pd.DataFrame = field(default_factory=pd.DataFrame)  # STFT amplitude per target track
 
 
 def _load_json(path: Path | None, what: str, how: str) -> dict[str, Any]:
@@ -241,7 +245,7 @@ def measure_videos(videos: dict[str, str | Path], calibration: str | Path, out_d
                                           gate_mm=opts.reference_gate_mm)
         notes.append(ref_note)
         displacement = stabilised_displacement(tracks, refs)
-        summary, spectra = summarise(displacement, refs, window_s=opts.window_s, notes=notes)
+        series = summarise(displacement, refs, window_s=opts.window_s, notes=notes)
     except (SeriesError, StereoError) as exc:
         raise MeasureError(f"displacement: {exc}") from exc
     if clock is not None:
@@ -250,15 +254,16 @@ def measure_videos(videos: dict[str, str | Path], calibration: str | Path, out_d
                          frame["time_s"] + clock["offset_s"])
     tables = out / "tables"
     tables.mkdir(exist_ok=True)
-    for name, frame in (("tracks_3d", tracks), ("displacement", displacement), ("summary", summary),
-                        ("spectra", spectra)):
+    for name, frame in (("tracks_3d", tracks), ("displacement", displacement), ("summary", series.summary),
+                        ("spectra", series.spectra), ("peaks", series.peaks),
+                        ("time_frequency", series.time_frequency)):
         files[name] = tables / f"{name}.csv"
         frame.to_csv(files[name], index=False)
     stamps.append(("series_tables", time.perf_counter()))
     timings = {f"{n}_{k}": v for n, vo in vos.items() for k, v in vo.timings_s.items()}
     timings.update({f"step_{name}": t - stamps[i][1] for i, (name, t) in enumerate(stamps[1:])})
-    result = MeasureResult(out, tracks, displacement, summary, spectra, timing_dict, reports, files, notes,
-                           problems, timings)
+    result = MeasureResult(out, tracks, displacement, series.summary, series.spectra, timing_dict, reports,
+                           files, notes, problems, timings, series.peaks, series.time_frequency)
     if opts.make_figures:
         from rig.measure_report import write_report
 

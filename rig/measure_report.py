@@ -106,6 +106,11 @@ def write_report(result: Any, videos: dict[str, str], calibration: str) -> dict[
             f"<p class='warn'>{html.escape(p)}</p>" for p in result.problems)
             + "<p>The results below use the frames that could be read.</p></section>")
     parts.append("<section><h2>Summary per track</h2>" + _table(result.summary[cols]) + "</section>")
+    if len(result.peaks):
+        parts.append("<section><h2>Significant tones per target track</h2><p class='muted'>Sine fit over "
+                     "each tone's active interval (from the STFT), the other tones subtracted; significant "
+                     "above the Welch noise floor (false-alarm probability per spectrum in the notes)</p>"
+                     + _table(result.peaks.drop(columns=["welch_amplitude_mm"])) + "</section>")
     for name, caption in (("displacement", "Displacement relative to the reference markers"),
                           ("spectrum", "Amplitude spectrum along each track's principal direction")):
         if pngs[name] is not None:

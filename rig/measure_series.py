@@ -8,23 +8,28 @@ Pure functions on DataFrames (``rig measure`` step 4–5; mm, s, Hz):
 - :func:`stabilised_displacement` — per target track, the reference markers interpolated (linearly: they
   hardly move) to the target's own instants, the rigid transform mapping them home applied
   (:func:`rig.stereo.stabilize`), displacement = stabilised position − its median;
-- :func:`summarise` — per track: principal direction of motion (first singular vector), spectrum along it
-  on a uniform grid of one median sample period (gaps from dropped frames filled linearly, counted), the
-  dominant frequency (interpolated spectral peak) and a four-parameter sine fit (amplitude, frequency and
-  their standard uncertainties) for targets; half the peak-to-peak and the RMS (model-free) for every track.
+- :func:`summarise` — per track: principal direction of motion (first singular vector), the record along
+  it on a uniform grid of one median sample period (gaps from dropped frames filled linearly, counted);
+  for targets the dominant frequency (interpolated peak of the whole record's spectrum) and a single-tone
+  four-parameter sine fit at it (amplitude, frequency and their standard uncertainties; a fit that fails
+  leaves the spectrum and the peaks), and — for several modes, successive tones or a sweep — the Welch
+  spectrum, every significant tone with its fitted amplitude and active interval, and the STFT table
+  (:mod:`rig.measure_spectra`); half the peak-to-peak and the RMS (model-free) for every track.
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 import pandas as pd
 
+from rig.measure_spectra import false_alarm_text, time_frequency, tone_peaks
 from rig.stereo import fit_sine, spectrum, stabilize
 from rig.stereo.errors import StereoError
 
-__all__ = ["SeriesError", "reference_tracks", "stabilised_displacement", "summarise"]
+__all__ = ["SeriesError", "SeriesTables", "reference_tracks", "stabilised_displacement", "summarise"]
 
 XYZ = ["x_mm", "y_mm", "z_mm"]
 MIN_SAMPLES = 16
@@ -111,11 +116,94 @@ def _uniform(t: np.ndarray, d: np.ndarray) -> tuple[np.ndarray, np.ndarray, int]
     return grid, np.interp(grid, t, d), max(filled, 0)
 
 
+@dataclass
+class SeriesTables:
+    """What :func:`summarise` produces (long-form DataFrames, mm, Hz, s).
+
+    ``summary``: one row per track; ``spectra``: the Welch amplitude spectrum per target track (track_id,
+    frequency_hz, amplitude_mm, noise_floor_mm, threshold_mm); ``peaks``: every significant tone per target
+    track (:class:`rig.measure_spectra.Peak` fields with units); ``time_frequency``: the STFT amplitude per
+    target track (track_id, time_s = window centre, frequency_hz, amplitude_mm)."""
+
+    summary: pd.DataFrame
+    spectra: pd.DataFrame
+    peaks: pd.DataFrame
+    time_frequency: pd.DataFrame
+
+
+SPECTRA_COLUMNS = ["track_id", "frequency_hz", "amplitude_mm", "noise_floor_mm", "threshold_mm"]
+PEAK_COLUMNS = ["track_id", "rank", "frequency_hz", "frequency_std_hz", "amplitude_mm", "amplitude_std_mm",
+                "t_start_s", "t_stop_s", "welch_amplitude_mm", "noise_floor_mm", "false_alarm_probability",
+                "method"]
+TF_COLUMNS = ["track_id", "time_s", "frequency_hz", "amplitude_mm"]
+
+
+@dataclass(frozen=True)
+class _Record:
+    """One target track along its principal direction: measured (t_s, d_mm) and on a uniform grid."""
+
+    track_id: int
+    t_s: np.ndarray
+    d_mm: np.ndarray
+    grid_s: np.ndarray
+    grid_mm: np.ndarray
+
+
+def _dominant(rec: _Record, notes: list[str]) -> dict[str, Any]:
+    """The whole record's interpolated spectral peak, and a single-tone sine fit at it (separately: a fit
+    that fails keeps the spectrum)."""
+    tid, grid, dg, t, d = rec.track_id, rec.grid_s, rec.grid_mm, rec.t_s, rec.d_mm
+    try:
+        sp = spectrum(grid, dg)
+    except StereoError as exc:
+        notes.append(f"track {tid}: no spectrum ({exc})")
+        return {}
+    out = {"dominant_frequency_hz": sp.peak_frequency_hz, "spectral_amplitude_mm": sp.peak_amplitude,
+           "resolution_hz": sp.resolution_hz}
+    try:
+        fit = fit_sine(t, d, initial_frequency_hz=sp.peak_frequency_hz)
+        if abs(fit.frequency_hz - sp.peak_frequency_hz) > sp.resolution_hz:
+            notes.append(f"track {tid}: the sine fit left the spectral peak ({fit.frequency_hz:.3f} vs "
+                         f"{sp.peak_frequency_hz:.3f} Hz); amplitude fitted at the peak frequency")
+            fit = fit_sine(t, d, frequency_hz=sp.peak_frequency_hz)
+    except StereoError as exc:
+        notes.append(f"track {tid}: no single-tone sine fit at {sp.peak_frequency_hz:.3f} Hz ({exc}); the "
+                     "spectrum and the peaks table stand")
+        return out
+    out.update({"frequency_hz": fit.frequency_hz, "frequency_std_hz": fit.frequency_std_hz,
+                "amplitude_mm": abs(fit.amplitude), "amplitude_std_mm": fit.amplitude_std,
+                "fit_residual_rms_mm": fit.residual_rms})
+    return out
+
+
+def _tones(rec: _Record, notes: list[str], false_alarm: float) -> tuple[list[pd.DataFrame], int]:
+    """([spectra, peaks, time–frequency] frames of one target track, number of peaks)."""
+    tid, grid, dg, t, d = rec.track_id, rec.grid_s, rec.grid_mm, rec.t_s, rec.d_mm
+    try:
+        sg = time_frequency(grid, dg)
+        peaks, ws = tone_peaks(grid, dg, samples=(t, d), false_alarm=false_alarm, sg=sg)
+    except StereoError as exc:
+        notes.append(f"track {tid}: no Welch spectrum / peaks ({exc})")
+        return [], 0
+    spec = pd.DataFrame({"track_id": tid, "frequency_hz": ws.frequency_hz, "amplitude_mm": ws.amplitude,
+                         "noise_floor_mm": ws.noise_floor, "threshold_mm": ws.threshold})
+    pk = pd.DataFrame([(tid, i, p.frequency_hz, p.frequency_std_hz, p.amplitude, p.amplitude_std, p.t_start_s,
+                        p.t_stop_s, p.welch_amplitude, p.noise_floor, p.false_alarm_probability, p.method)
+                       for i, p in enumerate(peaks)], columns=PEAK_COLUMNS)
+    tf = pd.DataFrame({"track_id": tid, "time_s": np.repeat(sg.time_s, len(sg.frequency_hz)),
+                       "frequency_hz": np.tile(sg.frequency_hz, len(sg.time_s)),
+                       "amplitude_mm": sg.amplitude.ravel()})
+    return [spec, pk, tf], len(peaks)
+
+
 def summarise(displacement: pd.DataFrame, refs: list[int], *, window_s: tuple[float, float] | None = None,
-              notes: list[str] | None = None) -> tuple[pd.DataFrame, pd.DataFrame]:
-    """(summary per track, spectra in long form: track_id, frequency_hz, amplitude_mm) — module doc."""
+              notes: list[str] | None = None, false_alarm: float = 1e-3) -> SeriesTables:
+    """Summary per track, and per target track its Welch spectrum, significant tones and STFT table (module
+    doc; :mod:`rig.measure_spectra`). ``false_alarm``: probability that a spectrum of noise alone shows a
+    peak above the significance threshold."""
     notes = notes if notes is not None else []
-    rows, spectra = [], []
+    rows: list[dict[str, Any]] = []
+    frames: list[list[pd.DataFrame]] = [[], [], []]
     for tid, group in displacement.groupby("track_id", sort=True):
         g = group.sort_values("time_s")
         if window_s is not None:
@@ -123,11 +211,11 @@ def summarise(displacement: pd.DataFrame, refs: list[int], *, window_s: tuple[fl
         g = g[np.isfinite(g[["dx_mm", "dy_mm", "dz_mm"]].to_numpy(float)).all(axis=1)]
         row: dict[str, Any] = {"track_id": int(tid), "role": "reference" if tid in refs else "target",
                                "n_samples": len(g)}
+        rows.append(row)
         if len(g):
             row.update({k: float(g[k].median()) for k in XYZ})
         if len(g) < MIN_SAMPLES:
             notes.append(f"track {tid}: {len(g)} samples in the window (< {MIN_SAMPLES}); not analysed")
-            rows.append(row)
             continue
         t, d3 = g["time_s"].to_numpy(float), g[["dx_mm", "dy_mm", "dz_mm"]].to_numpy(float)
         d3 = d3 - d3.mean(axis=0)
@@ -139,26 +227,15 @@ def summarise(displacement: pd.DataFrame, refs: list[int], *, window_s: tuple[fl
                     "rms_mm": float(np.sqrt(np.mean(d**2))),
                     "half_peak_to_peak_mm": float(0.5 * (d.max() - d.min())), "filled_samples": filled})
         if tid in refs:  # a reference marker's motion is noise and shake: no tone to fit
-            rows.append(row)
             continue
-        try:
-            sp = spectrum(grid, dg)
-            fit = fit_sine(t, d)
-            if abs(fit.frequency_hz - sp.peak_frequency_hz) > sp.resolution_hz:
-                notes.append(f"track {tid}: the sine fit left the spectral peak ({fit.frequency_hz:.3f} vs "
-                             f"{sp.peak_frequency_hz:.3f} Hz); amplitude fitted at the peak frequency")
-                fit = fit_sine(t, d, frequency_hz=sp.peak_frequency_hz)
-        except StereoError as exc:
-            notes.append(f"track {tid}: no spectrum/sine fit ({exc})")
-            rows.append(row)
-            continue
-        row.update({"dominant_frequency_hz": sp.peak_frequency_hz, "spectral_amplitude_mm": sp.peak_amplitude,
-                    "resolution_hz": sp.resolution_hz, "frequency_hz": fit.frequency_hz,
-                    "frequency_std_hz": fit.frequency_std_hz, "amplitude_mm": abs(fit.amplitude),
-                    "amplitude_std_mm": fit.amplitude_std, "fit_residual_rms_mm": fit.residual_rms})
-        rows.append(row)
-        spectra.append(pd.DataFrame({"track_id": int(tid), "frequency_hz": sp.frequency_hz,
-                                     "amplitude_mm": sp.amplitude}))
-    spec = (pd.concat(spectra, ignore_index=True) if spectra
-            else pd.DataFrame(columns=["track_id", "frequency_hz", "amplitude_mm"]))
-    return pd.DataFrame(rows), spec
+        rec = _Record(int(tid), t, d, grid, dg)
+        row.update(_dominant(rec, notes))
+        parts, row["n_peaks"] = _tones(rec, notes, false_alarm)
+        for acc, part in zip(frames, parts, strict=False):
+            acc.append(part)
+    if any(r.get("n_peaks") for r in rows):
+        notes.append(false_alarm_text(false_alarm))
+    columns = (SPECTRA_COLUMNS, PEAK_COLUMNS, TF_COLUMNS)
+    spectra, peaks, tf = (pd.concat(f, ignore_index=True) if f else pd.DataFrame(columns=cols)
+                          for f, cols in zip(frames, columns, strict=True))
+    return SeriesTables(pd.DataFrame(rows), spectra, peaks, tf)

@@ -79,13 +79,16 @@ def fit_sine(
     frequency_hz: float | None = None,
     t_ref_s: float | None = None,
     max_iterations: int = 50,
+    initial_frequency_hz: float | None = None,
 ) -> SineFit:
     """Fit ``amplitude·cos(2πf(t − t_ref) + phase) + offset`` to samples at any increasing times.
 
     ``frequency_hz`` given → three-parameter fit; None → four-parameter fit (frequency estimated).
     ``t_ref_s`` is the phase reference instant (default: the record's mid time, where the phase is least
-    correlated with the frequency). Raises TooFewSamplesError (< 4 samples for 3 parameters, < 6 for 4, or a
-    record shorter than one period in the four-parameter fit) and TimingError if the iteration diverges.
+    correlated with the frequency). ``initial_frequency_hz``: where the four-parameter fit starts (e.g. a
+    spectral peak already located; default: the largest DTFT peak, searched densely). Raises
+    TooFewSamplesError (< 4 samples for 3 parameters, < 6 for 4, or a record shorter than one period in the
+    four-parameter fit) and TimingError if the iteration diverges.
     """
     t = as_times(t_s, min_count=4)
     xv = as_values(x, t.size)
@@ -105,7 +108,8 @@ def fit_sine(
     else:
         if t.size < 6:
             raise TooFewSamplesError(f"a four-parameter sine fit needs at least 6 samples, got {t.size}")
-        omega = 2 * np.pi * initial_frequency(t, xv)
+        f_start = initial_frequency(t, xv) if initial_frequency_hz is None else float(initial_frequency_hz)
+        omega = 2 * np.pi * f_start
         p, *_ = np.linalg.lstsq(_design(tc, omega), xv, rcond=None)
         for _ in range(max_iterations):
             c, s = np.cos(omega * tc), np.sin(omega * tc)
