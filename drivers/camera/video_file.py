@@ -6,10 +6,17 @@ tools). :class:`VideoFile` therefore
 
 - decodes frames **in order, by index** (never by seeking to a time), and gives each frame the container's
   presentation time stamp (``CAP_PROP_POS_MSEC``, converted to seconds);
-- detects **duplicated frames**: a repeated presentation time stamp, or an image identical or nearly
-  identical to the previous one (mean absolute difference on a 4×-subsampled image below
-  ``duplicate_ratio`` × the running median of that difference — relative, because compression smooths the
-  sensor noise by different amounts in different codecs);
+- detects **duplicated frames** only on evidence (see :class:`DuplicateJudge`): a repeated presentation time
+  stamp; or, with advancing stamps (a constant-frame-rate container), an image that is the previous one
+  again — its sensor noise not renewed (the median 8×8-block difference to the previous frame below
+  ``duplicate_ratio`` × the video's typical one, when the video carries sensor noise), or, in a video
+  without usable noise, unchanged where the markers move: its block-maximum change below 0.15 × the changes
+  of the frames before and after it (both showing motion) while the change across it (frame k−2 → k+1)
+  shows the motion continuing — a genuine frame at a turning point of an oscillation can repeat its
+  predecessor's image, but then the frames either side mirror each other. A frame that repeats its
+  predecessor with no such evidence (a still scene) is not counted: it is listed as ``undecided``. Each
+  duplicate carries its evidence (the numbers compared) in the report. Deciding needs the next frame, so
+  frames are delivered one decode behind;
 - detects **dropped frames**: a gap between consecutive time stamps longer than (1 + ``gap_tolerance``)
   frame periods (``round(gap / period) − 1`` frames missing);
 - reports all of them in a :class:`FrameTimeReport` (``.report``), and never shifts a time silently. A
@@ -44,7 +51,7 @@ __all__ = ["DUPLICATE_POLICIES", "FrameTimeReport", "VideoFile", "VideoFileError
            "VideoTruncatedError", "find_gaps"]
 
 DUPLICATE_POLICIES = ("replace", "insert")
-_SUB = 4  # subsampling of the duplicate test
+_SUB = 4  # subsampling of the luma-plane check
 
 
 class VideoFileError(RuntimeError):
@@ -69,7 +76,11 @@ class FrameTimeReport:
     """What reading a video file found about its frames (times in s, on the file's clock).
 
     ``duplicated``: frames repeating the previous image and/or its time stamp, each as
-    ``{"index", "pts_s", "pts_repeated", "image_repeated", "difference_dn"}``; ``dropped``: gaps as
+    ``{"index", "pts_s", "pts_repeated", "image_repeated", "evidence", "change_dn", "noise_floor_dn",
+    "typical_noise_dn", "change_before_dn", "change_after_dn", "change_across_dn"}`` (block-mean absolute
+    differences in DN, see :class:`DuplicateJudge`; None where not computed); ``undecided``: indices of
+    frames that repeat their predecessor's image with no evidence of a duplicate (a still scene; counted as
+    genuine frames); ``dropped``: gaps as
     ``{"after_index", "gap_s", "missing_frames"}``; ``corrections``: ``{"from_index", "shift_s"}`` applied
     under ``duplicate_policy="insert"``; ``truncated``: decoding stopped before ``frames_declared``.
     """
@@ -85,6 +96,7 @@ class FrameTimeReport:
     duplicate_policy: str = "replace"
     luma_plane: bool = False
     duplicated: list[dict[str, Any]] = field(default_factory=list)
+    undecided: list[int] = field(default_factory=list)
     dropped: list[dict[str, Any]] = field(default_factory=list)
     corrections: list[dict[str, Any]] = field(default_factory=list)
     non_monotonic: list[int] = field(default_factory=list)
@@ -110,6 +122,9 @@ class FrameTimeReport:
         if self.duplicated:
             parts.append(f"{len(self.duplicated)} duplicated (indices {self.duplicate_indices[:8]}"
                          f"{' …' if len(self.duplicated) > 8 else ''})")
+        if self.undecided:
+            parts.append(f"{len(self.undecided)} repeating the previous image with no evidence of a duplicate "
+                         "(a still or barely moving scene; kept as genuine)")
         if self.dropped:
             parts.append(f"{self.missing_frames} dropped in {len(self.dropped)} gap(s) after indices "
                          f"{[d['after_index'] for d in self.dropped[:8]]}")
@@ -135,6 +150,100 @@ def _quiet(step: int) -> None:
         _quiet_state["readers"] += step
         if step < 0 and _quiet_state["readers"] == 0:
             cv2.utils.logging.setLogLevel(_quiet_state["level"])
+
+
+@dataclass
+class _Decoded:
+    index: int
+    pts_s: float
+    image: np.ndarray
+    change: np.ndarray | None = None  # 8×8-block mean |image − previous image|, uint8 DN
+
+
+def _ratio_where_moved(change: np.ndarray, motion: np.ndarray) -> float:
+    """Mean of ``change`` over the blocks where ``motion`` reaches half its largest value, relative to the
+    mean of ``motion`` there: ≈ 0 when the image did not change where the neighbour's markers moved."""
+    where = motion >= 0.5 * float(motion.max())
+    return float(change[where].mean() / max(float(motion[where].mean()), 1e-9))
+
+
+def _block_change(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Mean absolute difference per 8×8 block (uint8 DN, rounded): localises marker motion."""
+    h, w = a.shape
+    return cv2.resize(cv2.absdiff(a, b).astype(np.float32), (max(1, w // 8), max(1, h // 8)),
+                      interpolation=cv2.INTER_AREA)
+
+
+class DuplicateJudge:
+    """Decides, on evidence, whether a decoded frame repeats its predecessor (module docstring).
+
+    Per frame k (DN = 8-bit levels, statistics of the 8×8-block mean absolute differences):
+    ``change`` s_k = largest block change from frame k−1; ``noise_floor`` f_k = median block change (the
+    sensor noise renewed between two exposures); ``typical_noise`` F = running median of f over recent
+    genuine frames. Evidence of a duplicate, either of:
+
+    - *noise not renewed* (videos with F ≥ ``MIN_FLOOR_DN``): f_k < ``noise_ratio`` · F;
+    - *identical where the markers move*: the neighbours show motion well above what a codec swallows
+      (s_{k−1}, s_{k+1} ≥ ``MIN_MOTION_DN``); frame k's change is at most ``IDENTICAL_RATIO`` × each
+      neighbour's, both as largest block changes and as means over the blocks where the neighbour's change
+      reaches half its largest; and the change across, frame k−2 → k+1, is at least ``ACROSS_RATIO`` × the
+      neighbours' in the same two ways (the motion goes on: at a turning point of an oscillation
+      I_{k+1} ≈ I_{k−2}, and a genuine frame there may repeat its predecessor's image).
+
+    Both ways are required because a codec (MPEG-4 part 2 at its default quality) swallows sub-pixel changes
+    and renews the picture at each key frame, which can make a genuine frame look like a copy in one of them.
+    """
+
+    IDENTICAL_RATIO = 0.25
+    ACROSS_RATIO = 0.75
+    MIN_MOTION_DN = 4.0
+    MIN_FLOOR_DN = 0.5
+    UNDECIDED_DN = 1.5  # a frame whose largest block change is at most this repeats its predecessor (DN)
+
+    def __init__(self, noise_ratio: float) -> None:
+        self.noise_ratio = float(noise_ratio)
+        self._floors: deque[float] = deque(maxlen=31)
+
+    def judge(self, frames: list[_Decoded]) -> dict[str, Any] | None:
+        """Evidence that ``frames[-2]`` (or the last frame when ``frames[-1]`` is None) duplicates its
+        predecessor, or None. ``frames``: [k−2 | None, k−1, k, k+1 | None], k−1 and k decoded."""
+        before2, prev, cur, nxt = frames
+        s_k = float(cur.change.max())
+        floor = float(np.median(cur.change))
+        typical = float(np.median(self._floors)) if len(self._floors) >= 3 else None
+        out = {"change_dn": s_k, "noise_floor_dn": floor, "typical_noise_dn": typical,
+               "change_before_dn": float(prev.change.max()) if prev.change is not None else None,
+               "change_after_dn": float(nxt.change.max()) if nxt is not None else None,
+               "change_across_dn": None, "identity_ratio": None, "across_ratio": None}
+        if typical is not None and typical >= self.MIN_FLOOR_DN and floor < self.noise_ratio * typical:
+            return {**out, "evidence": f"sensor noise not renewed: median block change {floor:.1f} DN < "
+                                       f"{self.noise_ratio:g} × typical {typical:.1f} DN"}
+        self._floors.append(floor)
+        before, after = out["change_before_dn"], out["change_after_dn"]
+        if before is None or after is None or before2 is None:
+            return None
+        if min(before, after) < self.MIN_MOTION_DN:
+            return None
+        ratio = max(_ratio_where_moved(cur.change, prev.change), _ratio_where_moved(cur.change, nxt.change),
+                    s_k / min(before, after))
+        out["identity_ratio"] = ratio
+        if ratio > self.IDENTICAL_RATIO:
+            return None
+        across_map = _block_change(nxt.image, before2.image)
+        across = min(_ratio_where_moved(across_map, prev.change), _ratio_where_moved(across_map, nxt.change),
+                     float(across_map.max()) / max(before, after))
+        out["change_across_dn"], out["across_ratio"] = float(across_map.max()), across
+        if across < self.ACROSS_RATIO:
+            return None  # the scene turned round: a genuine frame at a turning point may repeat the image
+        return {**out, "evidence": f"unchanged where the markers move: change {ratio:.2f} × the motion "
+                                   f"before ({before:.1f} DN) and after ({after:.1f} DN) in the same blocks "
+                                   f"(≤ {self.IDENTICAL_RATIO:g}); motion continuing across it (frame k−2 → "
+                                   f"k+1: {across:.2f} × ≥ {self.ACROSS_RATIO:g})"}
+
+    def forget(self, floor_dn: float) -> None:
+        """A frame found duplicated by its time stamp: its noise floor is not a genuine frame's."""
+        if self._floors and self._floors[-1] == floor_dn:
+            self._floors.pop()
 
 
 def find_gaps(timestamps_s: np.ndarray, period_s: float, gap_tolerance: float = 0.5) -> list[dict[str, Any]]:
@@ -275,13 +384,10 @@ class VideoFile:
             raise VideoTruncatedError(f"{self.path}: {rep.error}; the {rep.frames_read} frames read are kept",
                                       rep)
 
-    def _decode(self, cap: cv2.VideoCapture, rep: FrameTimeReport, period: float) -> Iterator[Frame]:
-        prev_small: np.ndarray | None = None
-        prev_pts = -math.inf
-        recent: deque[float] = deque(maxlen=31)
-        shift_s = 0.0
+    def _grab(self, cap: cv2.VideoCapture, rep: FrameTimeReport) -> Iterator[_Decoded]:
+        """Decoded frames in order with their time stamps and block change to the previous frame."""
+        prev: np.ndarray | None = None
         index = 0
-        self._first_pts_s = 0.0
         try:
             while cap.grab():
                 pts = float(cap.get(cv2.CAP_PROP_POS_MSEC)) / 1000.0
@@ -291,35 +397,57 @@ class VideoFile:
                     break
                 if index == 0:
                     self._first_pts_s = pts
-                small = img[::_SUB, ::_SUB].astype(np.int16)
-                diff = float(np.mean(np.abs(small - prev_small))) if prev_small is not None else math.inf
-                repeated = pts <= prev_pts + 1e-6 * period
-                if repeated and pts < prev_pts - 1e-6 * period:
-                    rep.non_monotonic.append(index)
-                    repeated = False
-                similar = (prev_small is not None and len(recent) >= 3
-                           and diff < self.duplicate_ratio * float(np.median(recent)))
-                if similar or (repeated and prev_small is not None):
-                    self.duplicate_indices.add(index)
-                    rep.duplicated.append({"index": index, "pts_s": pts, "pts_repeated": bool(repeated),
-                                           "image_repeated": bool(similar), "difference_dn": diff})
-                    if not repeated and self.duplicate_policy == "insert":
-                        shift_s -= period
-                        rep.corrections.append({"from_index": index + 1, "shift_s": shift_s})
-                    stamp = pts + shift_s if not repeated else prev_pts
-                else:
-                    if prev_small is not None and not repeated:
-                        recent.append(diff)
-                    if prev_pts > -math.inf and not repeated:
-                        gap = pts - prev_pts
-                        if gap > (1.0 + self.gap_tolerance) * period:
-                            rep.dropped.append({"after_index": index - 1, "gap_s": gap,
-                                                "missing_frames": max(1, round(gap / period) - 1)})
-                    stamp = pts + shift_s
-                prev_small, prev_pts = small, max(prev_pts, pts)
-                rep.frames_read = index + 1
-                rep.duration_s = max(rep.duration_s, pts + period)
-                yield Frame(index=index, timestamp_s=stamp, image=img)
+                yield _Decoded(index, pts, img, _block_change(img, prev) if prev is not None else None)
+                prev = img
                 index += 1
         finally:
             cap.release()
+
+    def _decode(self, cap: cv2.VideoCapture, rep: FrameTimeReport, period: float) -> Iterator[Frame]:
+        judge = DuplicateJudge(self.duplicate_ratio)
+        state = {"prev_pts": -math.inf, "shift_s": 0.0}
+        self._first_pts_s = 0.0
+        window: deque[_Decoded | None] = deque([None, None], maxlen=4)  # k−2, k−1, k, k+1
+        for item in self._grab(cap, rep):
+            window.append(item)
+            if len(window) == 4 and window[2] is not None:
+                yield self._deliver(list(window), judge, rep, period, state)
+        if window[-1] is not None:
+            window.append(None)
+            yield self._deliver(list(window), judge, rep, period, state)
+
+    def _deliver(self, frames: list[_Decoded | None], judge: DuplicateJudge, rep: FrameTimeReport,
+                 period: float, state: dict[str, float]) -> Frame:
+        """Frame ``frames[2]`` with its time stamp, after deciding (on evidence) whether it is a duplicate."""
+        cur = frames[2]
+        assert cur is not None
+        pts, index, prev_pts = cur.pts_s, cur.index, state["prev_pts"]
+        repeated = pts <= prev_pts + 1e-6 * period
+        if repeated and pts < prev_pts - 1e-6 * period:
+            rep.non_monotonic.append(index)
+            repeated = False
+        evidence = judge.judge(frames) if cur.change is not None and frames[1] is not None else None  # type: ignore[arg-type]
+        if repeated and cur.change is not None:
+            evidence = evidence or {"evidence": "time stamp repeated"}
+            judge.forget(float(np.median(cur.change)))
+        if evidence is not None:
+            self.duplicate_indices.add(index)
+            rep.duplicated.append({"index": index, "pts_s": pts, "pts_repeated": bool(repeated),
+                                   "image_repeated": "time stamp" not in evidence["evidence"], **evidence})
+            if not repeated and self.duplicate_policy == "insert":
+                state["shift_s"] -= period
+                rep.corrections.append({"from_index": index + 1, "shift_s": state["shift_s"]})
+            stamp = pts + state["shift_s"] if not repeated else prev_pts
+        else:
+            if cur.change is not None and float(cur.change.max()) <= judge.UNDECIDED_DN:
+                rep.undecided.append(index)
+            if prev_pts > -math.inf and not repeated:
+                gap = pts - prev_pts
+                if gap > (1.0 + self.gap_tolerance) * period:
+                    rep.dropped.append({"after_index": index - 1, "gap_s": gap,
+                                        "missing_frames": max(1, round(gap / period) - 1)})
+            stamp = pts + state["shift_s"]
+        state["prev_pts"] = max(prev_pts, pts)
+        rep.frames_read = index + 1
+        rep.duration_s = max(rep.duration_s, pts + period)
+        return Frame(index=index, timestamp_s=stamp, image=cur.image)
