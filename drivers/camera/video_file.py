@@ -177,7 +177,8 @@ def _half(image: np.ndarray) -> np.ndarray:
 def _block_change(a_half: np.ndarray, b_half: np.ndarray) -> np.ndarray:
     """Mean absolute difference per 8×8 block of the full image (float32 DN, to 1/16 DN) from the two
     half-size images: two exact 2× area reductions of 16 × |a − b| (fast paths, no rounding loss)."""
-    d = cv2.multiply(cv2.absdiff(a_half, b_half), 16, dtype=cv2.CV_16U)
+    d = cv2.absdiff(a_half, b_half).astype(np.uint16)
+    d <<= 4
     for _ in range(2):
         h, w = d.shape
         d = cv2.resize(d, (max(1, w // 2), max(1, h // 2)), interpolation=cv2.INTER_AREA)
