@@ -3,10 +3,13 @@
 :class:`MarkerReducer` keeps the state of one camera stream: the first frame is searched whole
 (:func:`rig.stereo.detect_markers`), later frames only in a window around each marker's last position
 (:func:`rig.stereo.track_markers`), with a whole-frame search again when a marker is lost and every
-``redetect_every`` frames (markers entering the view). ``mode="detect"`` searches every frame whole (fast
-motion such as the rotor, ≈ 100 px per frame). Each marker gets a ``track_2d`` number that it keeps while
-it is followed; a whole-frame detection hands the previous numbers on to the detections within half a
-window (one-to-one, Hungarian assignment), new markers get new numbers.
+``redetect_every`` frames (markers entering the view). A marker that moved more than a quarter window in
+the last frame (a rotor, ≈ 100 px per frame at 10 Hz) is searched where the circle through its last three
+positions puts it (:func:`rig.tracks2d.circle_prediction`), so it is followed in its window rather than
+found by a whole-frame search every frame. ``mode="detect"`` searches every frame whole. Each marker gets a
+``track_2d`` number that it keeps while it is followed; a whole-frame detection hands the previous numbers
+on to the detections within half a window of where each was expected (one-to-one, Hungarian assignment),
+new markers get new numbers.
 
 Used by :mod:`procedures._acquire` (cameras of the rig, reduced while recording) and
 :mod:`rig.video_markers` (video files of a deployment).
@@ -21,9 +24,12 @@ import numpy as np
 from scipy.optimize import linear_sum_assignment
 
 from rig.stereo import FLAG_LOST, detect_markers, track_markers
+from rig.tracks2d import circle_prediction
 
 __all__ = ["DETECT_ONLY_KEYS", "TRACK_KEYS", "MarkerReducer", "ReduceOptions", "track_options"]
 
+#: distance (px) within which a lone leftover marker keeps its number across a whole-frame search
+ACQUIRE_PX = 150.0
 #: keyword options that both :func:`detect_markers` and :func:`track_markers` take
 TRACK_KEYS = ("polarity", "min_area_px", "max_area_px", "min_roundness", "min_contrast", "centre",
               "max_skewness", "outline_check", "max_edge_rms_px")
@@ -79,21 +85,47 @@ class MarkerReducer:
         self._ids = np.empty(0, dtype=np.int64)
         self._next_id = int(first_id)
         self._since_detect = 0
+        self._hist: dict[int, list[np.ndarray]] = {}  # last three positions per followed marker
+        self.whole_frame_searches = 0  # frames searched whole (the costly path), for diagnostics
 
     @property
     def next_id(self) -> int:
         """The number the next new marker gets (continue from it in a later recording of the segment)."""
         return self._next_id
 
-    def _associate(self, found: np.ndarray) -> np.ndarray:
-        """Track numbers for whole-frame detections: the previous marker within half a window, else new."""
+    def _predicted(self, shape: tuple[int, ...]) -> np.ndarray:
+        """Where each followed marker should be in this frame: its last position, or — when it moved more
+        than a quarter window in the last frame (a rotor, ≈ 100 px per frame at 10 Hz) — the circle through
+        its last three positions turned on by the same angle (constant velocity if they are collinear)."""
+        out = self._uv.copy()
+        for j, mid in enumerate(self._ids):
+            h = self._hist.get(int(mid), [])
+            if len(h) < 2 or np.linalg.norm(h[-1] - h[-2]) <= self.options.window_px / 4:
+                continue
+            p = circle_prediction([0.0, 1.0, 2.0], h, 3.0) if len(h) == 3 else None
+            out[j] = p if p is not None else 2 * h[-1] - h[-2]
+        out[:, 0] = np.clip(out[:, 0], 0, shape[1] - 1)
+        out[:, 1] = np.clip(out[:, 1], 0, shape[0] - 1)
+        return out
+
+    def _associate(self, found: np.ndarray, predicted: np.ndarray) -> np.ndarray:
+        """Track numbers for whole-frame detections: the previous marker whose predicted position is within
+        half a window; then, among the markers left on both sides, a previous one and a detection within
+        ``ACQUIRE_PX`` of each other when each is the other's only candidate there (a fast marker whose motion
+        is not known yet); else new."""
         ids = np.full(len(found), -1, dtype=np.int64)
         uv = np.c_[found["u_px"], found["v_px"]]
-        if len(self._uv) and len(uv):
-            cost = np.linalg.norm(uv[:, None, :] - self._uv[None, :, :], axis=2)
+        if len(predicted) and len(uv):
+            cost = np.linalg.norm(uv[:, None, :] - predicted[None, :, :], axis=2)
             r, c = linear_sum_assignment(cost)
             ok = cost[r, c] <= self.options.window_px / 2
             ids[r[ok]] = self._ids[c[ok]]
+            free_d = np.flatnonzero(ids < 0)
+            free_p = np.setdiff1d(np.arange(len(predicted)), c[ok])
+            near = cost[np.ix_(free_d, free_p)] <= ACQUIRE_PX
+            lone = near & (near.sum(axis=1) == 1)[:, None] & (near.sum(axis=0) == 1)[None, :]
+            for di, pi in zip(*np.nonzero(lone), strict=True):
+                ids[free_d[di]] = self._ids[free_p[pi]]
         new = ids < 0
         ids[new] = np.arange(self._next_id, self._next_id + int(new.sum()))
         self._next_id += int(new.sum())
@@ -104,16 +136,20 @@ class MarkerReducer:
         opts = self.options
         found: np.ndarray | None = None
         ids: np.ndarray | None = None
+        predicted = self._predicted(image.shape)
         if opts.mode == "track" and len(self._uv) and self._since_detect < opts.redetect_every:
-            tracked = track_markers(image, self._uv, window_px=opts.window_px, **self._track_kw)
+            tracked = track_markers(image, predicted, window_px=opts.window_px, **self._track_kw)
             if not np.any(tracked["flags"] & FLAG_LOST):
                 found, ids = tracked, self._ids
                 self._since_detect += 1
         if found is None:
             found = detect_markers(image, **opts.detect)
-            ids = self._associate(found)
+            self.whole_frame_searches += 1
+            ids = self._associate(found, predicted)
             self._since_detect = 1
         assert ids is not None
         self._uv = np.c_[found["u_px"], found["v_px"]]
         self._ids = ids
+        self._hist = {int(m): [*self._hist.get(int(m), [])[-2:], uv]
+                      for m, uv in zip(ids, self._uv, strict=True)}
         return found, ids

@@ -33,6 +33,9 @@ from scipy.optimize import linear_sum_assignment
 
 from rig.analysis_errors import AnalysisError
 
+__all__ = ["NOT_TRACKED", "REQUIRED_COLUMNS", "check_observations", "circle_prediction", "segment_keys",
+           "tracks_2d"]
+
 REQUIRED_COLUMNS = ("frame_index", "timestamp_s", "u_px", "v_px")
 NOT_TRACKED = -1
 
@@ -138,7 +141,7 @@ def _periodic_prediction(slots: list[float], pos: list[np.ndarray], s_now: float
     return None
 
 
-def _circle_prediction(slots: list[float], pos: list[np.ndarray], s_now: float) -> np.ndarray | None:
+def circle_prediction(slots: list[float], pos: list[np.ndarray], s_now: float) -> np.ndarray | None:
     """From the last three positions on consecutive frames: the circle through them, turned on by the same
     angle per frame (a rotor before the periodic prediction has frames enough); None if they are not on a
     turning circle (collinear, or the two angle steps disagree by more than 20 %)."""
@@ -220,7 +223,7 @@ def _track_group(obs: pd.DataFrame, gate: float, max_gap: int, min_length: int,
             d_cv = np.linalg.norm(det[None, :, :] - (last + velocity * gap[:, None])[:, None, :], axis=2)
             cost = np.minimum(d_last, d_cv)
             for ti in np.flatnonzero(cost.min(axis=1) > 0.2 * gate):  # simple predictions miss: periodic?
-                for model in (_periodic_prediction, _circle_prediction):
+                for model in (_periodic_prediction, circle_prediction):
                     predicted = model(slots[ti], hist[ti], s_now)
                     if predicted is not None:
                         cost[ti] = np.minimum(cost[ti], np.linalg.norm(det - predicted, axis=1))
