@@ -9,7 +9,8 @@ positions puts it (:func:`rig.tracks2d.circle_prediction`), so it is followed in
 found by a whole-frame search every frame. ``mode="detect"`` searches every frame whole. Each marker gets a
 ``track_2d`` number that it keeps while it is followed; a whole-frame detection hands the previous numbers
 on to the detections within half a window of where each was expected (one-to-one, Hungarian assignment),
-new markers get new numbers.
+new markers get new numbers (a fast marker's first frames, before its motion is known, included: the 2-D
+tracking of :mod:`rig.tracks2d` joins them).
 
 Used by :mod:`procedures._acquire` (cameras of the rig, reduced while recording) and
 :mod:`rig.video_markers` (video files of a deployment).
@@ -28,7 +29,7 @@ from rig.tracks2d import circle_prediction
 
 __all__ = ["DETECT_ONLY_KEYS", "TRACK_KEYS", "MarkerReducer", "ReduceOptions", "track_options"]
 
-#: distance (px) within which a lone leftover marker keeps its number across a whole-frame search
+#: distance (px) within which a lone leftover marker continues its motion history across a whole-frame search
 ACQUIRE_PX = 150.0
 #: keyword options that both :func:`detect_markers` and :func:`track_markers` take
 TRACK_KEYS = ("polarity", "min_area_px", "max_area_px", "min_roundness", "min_contrast", "centre",
@@ -85,7 +86,7 @@ class MarkerReducer:
         self._ids = np.empty(0, dtype=np.int64)
         self._next_id = int(first_id)
         self._since_detect = 0
-        self._hist: dict[int, list[np.ndarray]] = {}  # last three positions per followed marker
+        self._hist: list[list[np.ndarray]] = []  # last three positions of each marker row of ``_uv``
         self.whole_frame_searches = 0  # frames searched whole (the costly path), for diagnostics
 
     @property
@@ -98,8 +99,7 @@ class MarkerReducer:
         than a quarter window in the last frame (a rotor, ≈ 100 px per frame at 10 Hz) — the circle through
         its last three positions turned on by the same angle (constant velocity if they are collinear)."""
         out = self._uv.copy()
-        for j, mid in enumerate(self._ids):
-            h = self._hist.get(int(mid), [])
+        for j, h in enumerate(self._hist):
             if len(h) < 2 or np.linalg.norm(h[-1] - h[-2]) <= self.options.window_px / 4:
                 continue
             p = circle_prediction([0.0, 1.0, 2.0], h, 3.0) if len(h) == 3 else None
@@ -108,28 +108,31 @@ class MarkerReducer:
         out[:, 1] = np.clip(out[:, 1], 0, shape[0] - 1)
         return out
 
-    def _associate(self, found: np.ndarray, predicted: np.ndarray) -> np.ndarray:
-        """Track numbers for whole-frame detections: the previous marker whose predicted position is within
-        half a window; then, among the markers left on both sides, a previous one and a detection within
-        ``ACQUIRE_PX`` of each other when each is the other's only candidate there (a fast marker whose motion
-        is not known yet); else new."""
+    def _associate(self, found: np.ndarray, predicted: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """For whole-frame detections: (track numbers, previous row continued or −1). A detection within half
+        a window of a marker's predicted position keeps its number; among the markers left on both sides, a
+        previous one and a detection within ``ACQUIRE_PX`` of each other, each the other's only candidate
+        there, are linked for the motion model only (a fast marker whose motion is not known yet: it gets a
+        new number now, and keeps the next one once its motion predicts it); else new."""
         ids = np.full(len(found), -1, dtype=np.int64)
+        links = np.full(len(found), -1, dtype=np.int64)
         uv = np.c_[found["u_px"], found["v_px"]]
         if len(predicted) and len(uv):
             cost = np.linalg.norm(uv[:, None, :] - predicted[None, :, :], axis=2)
             r, c = linear_sum_assignment(cost)
             ok = cost[r, c] <= self.options.window_px / 2
             ids[r[ok]] = self._ids[c[ok]]
+            links[r[ok]] = c[ok]
             free_d = np.flatnonzero(ids < 0)
             free_p = np.setdiff1d(np.arange(len(predicted)), c[ok])
             near = cost[np.ix_(free_d, free_p)] <= ACQUIRE_PX
             lone = near & (near.sum(axis=1) == 1)[:, None] & (near.sum(axis=0) == 1)[None, :]
             for di, pi in zip(*np.nonzero(lone), strict=True):
-                ids[free_d[di]] = self._ids[free_p[pi]]
+                links[free_d[di]] = free_p[pi]
         new = ids < 0
         ids[new] = np.arange(self._next_id, self._next_id + int(new.sum()))
         self._next_id += int(new.sum())
-        return ids
+        return ids, links
 
     def reduce(self, image: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Marker rows of one 2-D uint8 frame (in stream order) and their ``track_2d`` numbers (int64)."""
@@ -137,6 +140,7 @@ class MarkerReducer:
         found: np.ndarray | None = None
         ids: np.ndarray | None = None
         predicted = self._predicted(image.shape)
+        links = np.arange(len(self._uv))
         if opts.mode == "track" and len(self._uv) and self._since_detect < opts.redetect_every:
             tracked = track_markers(image, predicted, window_px=opts.window_px, **self._track_kw)
             if not np.any(tracked["flags"] & FLAG_LOST):
@@ -145,11 +149,11 @@ class MarkerReducer:
         if found is None:
             found = detect_markers(image, **opts.detect)
             self.whole_frame_searches += 1
-            ids = self._associate(found, predicted)
+            ids, links = self._associate(found, predicted)
             self._since_detect = 1
         assert ids is not None
         self._uv = np.c_[found["u_px"], found["v_px"]]
         self._ids = ids
-        self._hist = {int(m): [*self._hist.get(int(m), [])[-2:], uv]
-                      for m, uv in zip(ids, self._uv, strict=True)}
+        self._hist = [[*(self._hist[k][-2:] if k >= 0 else []), uv]
+                      for k, uv in zip(links, self._uv, strict=True)]
         return found, ids

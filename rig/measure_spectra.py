@@ -16,7 +16,9 @@ sampled displacement (s, mm):
   its amplitude and frequency from a four-parameter sine fit over that interval (three-parameter at the
   spectral peak if the fit leaves it) after the tones already found are subtracted; the fitted tone is then
   subtracted and the spectrum of the residual searched again (the leakage of a strong tone never counts as
-  a peak). A final pass refits every tone with all the others subtracted;
+  a peak). A final pass refits every tone with all the others subtracted; a tone whose fitted amplitude is
+  below ``FIT_SIGNIFICANCE`` of its standard uncertainties is dropped (significant in the spectrum of a
+  residual, but not as a tone of the record);
 - :func:`time_frequency` — the STFT amplitude table (window :func:`stft_window_s`, step a quarter window).
 """
 
@@ -36,6 +38,7 @@ __all__ = ["Peak", "WelchSpectrum", "stft_window_s", "time_frequency", "tone_pea
 FLOOR_HALF_BINS = 6
 ACTIVE_FRACTION = 0.8
 MAX_PEAKS = 12
+FIT_SIGNIFICANCE = 3.0  # a tone's fitted amplitude must also exceed this many of its standard uncertainties
 HANN_OVERLAP_CORRELATION = 0.167  # correlation of Hann segments overlapping by 50 % (Welch 1967)
 
 
@@ -202,7 +205,7 @@ def tone_peaks(t_s: np.ndarray, x: np.ndarray, *, samples: tuple[np.ndarray, np.
         entry[2], entry[3] = _fit(ts[inside], others[inside], entry[0], whole.resolution_hz)
     peaks = [Peak(fit.frequency_hz, fit.frequency_std_hz, abs(fit.amplitude), fit.amplitude_std, span[0],
                   span[1], a_w, floor, p_fa, how) for _, span, fit, how, a_w, floor, p_fa in found]
-    return peaks, whole
+    return [p for p in peaks if p.amplitude >= FIT_SIGNIFICANCE * p.amplitude_std], whole
 
 
 def _refine_bin(ws: WelchSpectrum, k: int) -> float:

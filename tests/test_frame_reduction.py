@@ -53,7 +53,8 @@ def test_unknown_detect_option_is_refused_by_name() -> None:
 
 def test_a_rotor_is_followed_in_its_window_not_searched_whole_every_frame() -> None:
     """A marker on a 10 Hz circle (60° ≈ 70 px per frame) beside a still one: after three frames the circle
-    through its last positions puts the window on it, so whole-frame searches stop and its number stays."""
+    through its last positions puts the window on it, so whole-frame searches stop and its number stays
+    (before that, a jump beyond half a window is a new number, as for any marker)."""
     centre, radius = np.array([160.0, 120.0]), 70.0
     frames = []
     for k in range(30):
@@ -63,5 +64,5 @@ def test_a_rotor_is_followed_in_its_window_not_searched_whole_every_frame() -> N
     reducer = MarkerReducer(ReduceOptions(window_px=41, redetect_every=1000))
     ids = [reducer.reduce(img)[1] for img in frames]
     assert all(len(i) == 2 for i in ids)
-    assert len({tuple(sorted(i.tolist())) for i in ids}) == 1  # the same two numbers throughout
+    assert len({tuple(sorted(i.tolist())) for i in ids[3:]}) == 1  # the same two numbers from frame 3
     assert reducer.whole_frame_searches <= 3  # the first frame and the two before the circle is known

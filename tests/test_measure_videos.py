@@ -200,3 +200,31 @@ def test_truncated_mp4_and_missing_or_mismatched_calibration_are_clear_errors(
     other.write_text(json.dumps(cal))
     with pytest.raises(MeasureError, match=r"960×540 px but .* 1920×1080"):
         measure_videos({"left": paths[0], "right": paths[1]}, other, tmp_path / "o3")
+
+
+def test_rotor_turning_from_the_first_frame_is_one_track_with_its_radius(site: dict, tmp_path: Path) -> None:
+    """The paper's synchronisation target filmed already turning at 10 Hz (≈ 45 px per frame at half size),
+    with the timing given: the 2-D tracking follows it as one track per camera, so one 3-D track whose
+    amplitude along its principal direction is the radius and whose one significant tone is 10 Hz."""
+    from drivers.sim.targets import RotorTarget
+    from drivers.sim.world import World, WorldLayout
+
+    world = World(VirtualClock(), seed=5, layout=WorldLayout(initial_scene="rotor"))
+    world.rotor.set_frequency(-5.0, 10.0)
+    left, right = mt.camera_pair(world)
+    paths = mt.write_pair(left, right, tmp_path, t_left_s=(0.0, 1.5), t_right_s=(0.15, 1.65))
+    timing = tmp_path / "timing.json"
+    timing.write_text(json.dumps(mt.truth_timing(left, right, 0.0, 0.15)))
+    res = measure_videos({"left": paths[0], "right": paths[1]}, site["calibration"], tmp_path / "out",
+                         timing=timing, options=MeasureOptions(make_figures=False))
+    targets = res.summary[res.summary["role"] == "target"]
+    assert len(targets) == 1 and (res.summary["role"] == "reference").sum() == 4
+    row = targets.iloc[0]
+    overlap = round((1.5 - 0.15) * 60)  # frames both cameras saw; the sync loses an edge frame or two
+    assert row["n_samples"] >= overlap - 3, row["n_samples"]  # the whole record in one track
+    radius = RotorTarget().radius_mm
+    bias = 4e-3  # the trajectory sync's amplitude bias bound up to 22 Hz (rig/sync_tracks.py)
+    tol_mm = 4 * row["amplitude_std_mm"] + radius * (site["scale_floor"] + bias)
+    assert abs(row["amplitude_mm"] - radius) <= tol_mm
+    assert abs(row["frequency_hz"] - 10.0) <= 4 * row["frequency_std_hz"] + abs(left.clock_ppm) * 1e-5
+    assert res.peaks["frequency_hz"].iloc[0] == pytest.approx(row["frequency_hz"])
