@@ -118,9 +118,16 @@ def write_report(result: Any, videos: dict[str, str], calibration: str) -> dict[
             parts.append(f"<section><h2>{caption}</h2><img alt='{name}' src='data:image/png;base64,{b64}'>"
                          "</section>")
     frames = pd.DataFrame([{"camera": n, "frames_read": r["frames_read"], "duplicated": len(r["duplicated"]),
+                            "undecided": len(r["undecided"]),
                             "dropped": r["missing_frames"], "truncated": str(r["truncated"]),
                             "duration_s": r["duration_s"]} for n, r in result.frame_reports.items()])
     parts.append("<section><h2>Frames</h2>" + _table(frames) + "</section>")
+    evidence = pd.DataFrame([{"camera": n, "index": d["index"], "pts_s": d["pts_s"],
+                              "evidence": d["evidence"]}
+                             for n, r in result.frame_reports.items() for d in r["duplicated"]][:40])
+    if len(evidence):
+        parts.append("<section><h2>Duplicated frames and their evidence</h2>" + _table(evidence)
+                     + "<p class='muted'>all of them in frames.json</p></section>")
     timing = result.timing
     parts.append("<section><h2>Timing</h2><p>" + html.escape(
         f"reference camera {timing['reference_camera']}; method {timing['method']}; offset_s "

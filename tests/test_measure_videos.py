@@ -157,6 +157,8 @@ def test_duplicated_and_dropped_frames_are_reported_and_the_result_holds(site: d
     assert [d["missing_frames"] for d in frames["right"]["dropped"]] == [2, 1]
     assert len(frames["right"]["duplicated"]) == 1
     assert any("duplicated" in n for n in res.notes) and any("dropped" in n for n in res.notes)
+    html = (tmp_path / "out" / "report.html").read_text()
+    assert "Duplicated frames and their evidence" in html and "sensor noise not renewed" in html
     _check_targets(res.summary, left.clock_ppm, site["scale_floor"])
 
 
