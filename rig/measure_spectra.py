@@ -31,6 +31,7 @@ from scipy import ndimage, stats
 
 from rig.stereo import fit_sine
 from rig.stereo.errors import StereoError
+from rig.stereo.sinefit import SineFit
 from rig.stereo.spectrum import Spectrogram, window_weights
 
 __all__ = ["Peak", "WelchSpectrum", "stft_window_s", "time_frequency", "tone_peaks", "welch"]
@@ -139,7 +140,19 @@ def _active_interval(sg: Spectrogram, frequency_hz: float, t_s: np.ndarray,
     return start, stop
 
 
-def _fit(t_s: np.ndarray, r: np.ndarray, f0: float, resolution_hz: float) -> tuple[object, str]:
+@dataclass
+class _Tone:
+    """A tone while the search runs (refitted at the end)."""
+
+    span: tuple[float, float]
+    fit: SineFit
+    method: str
+    welch_amplitude: float
+    noise_floor: float
+    false_alarm_probability: float
+
+
+def _fit(t_s: np.ndarray, r: np.ndarray, f0: float, resolution_hz: float) -> tuple[SineFit, str]:
     try:
         fit = fit_sine(t_s, r, initial_frequency_hz=f0)
         if abs(fit.frequency_hz - f0) <= resolution_hz:
@@ -149,9 +162,10 @@ def _fit(t_s: np.ndarray, r: np.ndarray, f0: float, resolution_hz: float) -> tup
     return fit_sine(t_s, r, frequency_hz=f0), "3-parameter fit at the spectral peak"
 
 
-def _tone(fit: object, t_s: np.ndarray, span: tuple[float, float]) -> np.ndarray:
+def _tone(fit: SineFit, t_s: np.ndarray, span: tuple[float, float]) -> np.ndarray:
+    """The fitted tone (without its offset) within its active interval, 0 outside."""
     inside = (t_s >= span[0]) & (t_s <= span[1])
-    return np.where(inside, fit.evaluate(t_s) - fit.offset, 0.0)  # type: ignore[attr-defined]
+    return np.where(inside, fit.evaluate(t_s) - fit.offset, 0.0)
 
 
 def _strongest(ws: WelchSpectrum, found: list[float]) -> int | None:
@@ -181,10 +195,10 @@ def tone_peaks(t_s: np.ndarray, x: np.ndarray, *, samples: tuple[np.ndarray, np.
     period = float(np.median(np.diff(t_s)))
     win = stft_window_s(float(t_s[-1] - t_s[0]) + period, period)
     resid, resid_s = x.copy(), xs.copy()
-    found: list[list] = []  # [frequency, span, fit, method, welch amplitude, floor, false-alarm probability]
+    found: list[_Tone] = []
     for _ in range(MAX_PEAKS):
         ws = welch(t_s, resid, false_alarm=false_alarm)
-        k = _strongest(ws, [p[0] for p in found])
+        k = _strongest(ws, [tone.fit.frequency_hz for tone in found])
         if k is None:
             break
         f0 = _refine_bin(ws, k)
@@ -196,15 +210,15 @@ def tone_peaks(t_s: np.ndarray, x: np.ndarray, *, samples: tuple[np.ndarray, np.
         resid_s -= _tone(fit, ts, span)
         ratio2 = (ws.amplitude[k] / ws.noise_floor[k]) ** 2
         p_fa = min(1.0, len(ws.amplitude) * float(stats.chi2.sf(ws.dof * ratio2, ws.dof)))
-        found.append([fit.frequency_hz, span, fit, how, float(ws.amplitude[k]), float(ws.noise_floor[k]),
-                      p_fa])
-    for i, entry in enumerate(found):  # refit each tone with every other one subtracted
-        span = entry[1]
-        inside = (ts >= span[0]) & (ts <= span[1])
-        others = xs - sum((_tone(g[2], ts, g[1]) for j, g in enumerate(found) if j != i), np.zeros_like(xs))
-        entry[2], entry[3] = _fit(ts[inside], others[inside], entry[0], whole.resolution_hz)
-    peaks = [Peak(fit.frequency_hz, fit.frequency_std_hz, abs(fit.amplitude), fit.amplitude_std, span[0],
-                  span[1], a_w, floor, p_fa, how) for _, span, fit, how, a_w, floor, p_fa in found]
+        found.append(_Tone(span, fit, how, float(ws.amplitude[k]), float(ws.noise_floor[k]), p_fa))
+    for i, tone in enumerate(found):  # refit each tone with every other one subtracted
+        inside = (ts >= tone.span[0]) & (ts <= tone.span[1])
+        others = xs - sum((_tone(g.fit, ts, g.span) for j, g in enumerate(found) if j != i),
+                          np.zeros_like(xs))
+        tone.fit, tone.method = _fit(ts[inside], others[inside], tone.fit.frequency_hz, whole.resolution_hz)
+    peaks = [Peak(t.fit.frequency_hz, t.fit.frequency_std_hz, abs(t.fit.amplitude), t.fit.amplitude_std,
+                  t.span[0], t.span[1], t.welch_amplitude, t.noise_floor, t.false_alarm_probability, t.method)
+             for t in found]
     return [p for p in peaks if p.amplitude >= FIT_SIGNIFICANCE * p.amplitude_std], whole
 
 
