@@ -168,6 +168,14 @@ def _ratio_where_moved(change: np.ndarray, motion: np.ndarray) -> float:
     return float(change[where].mean() / max(float(motion[where].mean()), 1e-9))
 
 
+@dataclass
+class _Stamps:
+    """Time-stamp state while delivering: the latest stamp seen and the insert-policy correction (s)."""
+
+    prev_pts_s: float = -math.inf
+    shift_s: float = 0.0
+
+
 def _half(image: np.ndarray) -> np.ndarray:
     """The image averaged over 2×2 pixels (uint8): a quarter of the pixels for the change maps."""
     h, w = image.shape
@@ -419,7 +427,7 @@ class VideoFile:
 
     def _decode(self, cap: cv2.VideoCapture, rep: FrameTimeReport, period: float) -> Iterator[Frame]:
         judge = DuplicateJudge(self.duplicate_ratio)
-        state = {"prev_pts": -math.inf, "shift_s": 0.0}
+        state = _Stamps()
         self._first_pts_s = 0.0
         window: deque[_Decoded | None] = deque([None, None], maxlen=4)  # k−2, k−1, k, k+1
         for item in self._grab(cap, rep):
@@ -431,11 +439,11 @@ class VideoFile:
             yield self._deliver(list(window), judge, rep, period, state)
 
     def _deliver(self, frames: list[_Decoded | None], judge: DuplicateJudge, rep: FrameTimeReport,
-                 period: float, state: dict[str, float]) -> Frame:
+                 period: float, state: _Stamps) -> Frame:
         """Frame ``frames[2]`` with its time stamp, after deciding (on evidence) whether it is a duplicate."""
         cur = frames[2]
         assert cur is not None
-        pts, index, prev_pts = cur.pts_s, cur.index, state["prev_pts"]
+        pts, index, prev_pts = cur.pts_s, cur.index, state.prev_pts_s
         repeated = pts <= prev_pts + 1e-6 * period
         if repeated and pts < prev_pts - 1e-6 * period:
             rep.non_monotonic.append(index)
@@ -449,9 +457,9 @@ class VideoFile:
             rep.duplicated.append({"index": index, "pts_s": pts, "pts_repeated": bool(repeated),
                                    "image_repeated": "time stamp" not in evidence["evidence"], **evidence})
             if not repeated and self.duplicate_policy == "insert":
-                state["shift_s"] -= period
-                rep.corrections.append({"from_index": index + 1, "shift_s": state["shift_s"]})
-            stamp = pts + state["shift_s"] if not repeated else prev_pts
+                state.shift_s -= period
+                rep.corrections.append({"from_index": index + 1, "shift_s": state.shift_s})
+            stamp = pts + state.shift_s if not repeated else prev_pts
         else:
             if cur.change is not None and float(cur.change.max()) <= judge.UNDECIDED_DN:
                 rep.undecided.append(index)
@@ -460,8 +468,8 @@ class VideoFile:
                 if gap > (1.0 + self.gap_tolerance) * period:
                     rep.dropped.append({"after_index": index - 1, "gap_s": gap,
                                         "missing_frames": max(1, round(gap / period) - 1)})
-            stamp = pts + state["shift_s"]
-        state["prev_pts"] = max(prev_pts, pts)
+            stamp = pts + state.shift_s
+        state.prev_pts_s = max(prev_pts, pts)
         rep.frames_read = index + 1
         rep.duration_s = max(rep.duration_s, pts + period)
         return Frame(index=index, timestamp_s=stamp, image=cur.image)
