@@ -14,7 +14,7 @@ from hypothesis import strategies as st
 from drivers.sim.clock import VirtualClock
 from drivers.sim.world import World, WorldLayout
 from rig.analysis_errors import AnalysisError
-from rig.tracks2d import NOT_TRACKED, tracks_2d
+from rig.tracks2d import NOT_TRACKED, circle_prediction, tracks_2d
 from rig.video_markers import extract_video
 
 
@@ -140,3 +140,24 @@ def test_rotor_turning_from_the_first_frame_is_one_track_in_each_video(tmp_path)
         steps = [np.median(np.linalg.norm(np.diff(g[["u_px", "v_px"]].to_numpy(), axis=0), axis=1))
                  for _, g in obs.groupby(ids.to_numpy())]
         assert max(steps) > 30  # the rotor's marker: tens of px per frame at half size
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.tuples(st.floats(-500, 500), st.floats(-500, 500)), st.floats(5, 400), st.floats(-np.pi, np.pi),
+       st.one_of(st.floats(0.05, 2.5), st.floats(-2.5, -0.05)), st.integers(1, 3))
+def test_circle_prediction_continues_a_uniform_rotation(centre, radius, phase, step, ahead):
+    """Three points of a uniform rotation (any centre, radius, step below 143°) predict the point ``ahead``
+    frames on exactly (to rounding)."""
+    angles = phase + step * np.arange(3 + ahead)
+    pts = np.c_[centre[0] + radius * np.cos(angles), centre[1] + radius * np.sin(angles)]
+    got = circle_prediction([0.0, 1.0, 2.0], list(pts[:3]), 2.0 + ahead)
+    assert got is not None
+    assert np.allclose(got, pts[2 + ahead], atol=1e-6 * max(radius, 1.0))
+
+
+def test_circle_prediction_declines_collinear_or_irregular_points():
+    assert circle_prediction([0.0, 1.0, 2.0], [np.array([0.0, 0.0]), np.array([1.0, 1.0]),
+                                              np.array([2.0, 2.0])], 3.0) is None
+    a = np.deg2rad([0.0, 30.0, 90.0])  # steps of 30° then 60°: not a uniform rotation
+    pts = [np.array([np.cos(x), np.sin(x)]) * 50 for x in a]
+    assert circle_prediction([0.0, 1.0, 2.0], pts, 3.0) is None

@@ -10,9 +10,11 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from rig.measure_series import summarise
-from rig.measure_spectra import time_frequency, tone_peaks
+from rig.measure_spectra import time_frequency, tone_peaks, welch
 from rig.stereo.spectrum import window_weights
 
 FS_HZ = 60.0
@@ -100,3 +102,16 @@ def test_noise_alone_shows_no_peak(seed: int) -> None:
     # of a quarter record); its estimate scatters by ≈ 1/sqrt(ν · bins in the median) ≈ 10 %
     w = window_weights("hann", len(t) // 4)
     assert np.median(ws.noise_floor) == pytest.approx(2 * SIGMA_MM * np.sqrt(np.sum(w**2)) / w.sum(), rel=0.2)
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.floats(0.01, 100.0), st.integers(2, 60), st.floats(-np.pi, np.pi), st.integers(256, 1024))
+def test_welch_reads_the_peak_amplitude_of_a_tone_on_a_bin(amplitude, k, phase, n):
+    """The stated scaling: a steady tone centred on a Welch bin shows its peak amplitude there."""
+    seg = max(16, n // 4)
+    k = min(k, seg // 2 - 2)
+    t = np.arange(n) / FS_HZ
+    x = amplitude * np.cos(2 * np.pi * k / (seg / FS_HZ) * t + phase)
+    ws = welch(t, x)
+    assert ws.amplitude[k] == pytest.approx(amplitude, rel=1e-9)
+    assert ws.resolution_hz == pytest.approx(FS_HZ / seg)
