@@ -34,7 +34,8 @@ import json
 import os
 import sys
 import time
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -221,16 +222,21 @@ def _versions() -> dict[str, str]:
 
 
 # ---------------------------------------------------------------------------- the engine
-def dask_client(scheduler: str | None, n_workers: int | None) -> Any:
+@contextmanager
+def dask_client(scheduler: str | None, n_workers: int | None) -> Iterator[Any]:
     """A client of the scheduler at ``scheduler``, or of a new LocalCluster (``n_workers`` processes, or one
-    per core, single-threaded, on 127.0.0.1; its dashboard on a free port)."""
+    per core, single-threaded, on 127.0.0.1; its dashboard on a free port) that is shut down on exit with its
+    worker processes (closing a client alone leaves a cluster it was handed running)."""
     from distributed import Client, LocalCluster
 
     if scheduler:
-        return Client(scheduler, timeout="30s")
-    cluster = LocalCluster(n_workers=n_workers or os.cpu_count() or 1, threads_per_worker=1, processes=True,
-                           host="127.0.0.1", dashboard_address="127.0.0.1:0")
-    return Client(cluster)
+        with Client(scheduler, timeout="30s") as client:
+            yield client
+        return
+    with (LocalCluster(n_workers=n_workers or os.cpu_count() or 1, threads_per_worker=1, processes=True,
+                       host="127.0.0.1", dashboard_address="127.0.0.1:0") as cluster,
+          Client(cluster) as client):
+        yield client
 
 
 def run_batch(manifest: BatchManifest, out_dir: str | Path, *, scheduler: str | None = None,
