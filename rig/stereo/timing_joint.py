@@ -20,31 +20,40 @@ fits as well (Δχ² < 25 + 10·√n, n residuals: the fluctuation of the cost b
 different noise samples), AmbiguousOffsetError is raised instead of picking one; a cost curve flatter than
 that over the whole range raises NoCommonMotionError.
 
-**Line time not observable** (estimated, but the two cameras' rows barely change relative to each other, e.g.
-markers moving along their rows: ℓ·(v_B − v_A) is then a near-constant delay the offset absorbs): when the
+**Line time not observable**: the line time enters only through ℓ·(v_B − v_A). When the row difference of
+the two views is nearly the same for every observation (cameras side by side at one height, whatever the
+marker's vertical motion: both views' rows move together), ℓ·(v_B − v_A) is a constant delay the offset
+absorbs — the data fix δ + ℓ·(v_B − v_A), not δ and ℓ apart. It is declared not observable when the
 solution lies on the line-time bound, or its standard uncertainty exceeds the largest physical line time
-(frame period / largest observed row), LineTimeNotObservableError is raised. The estimator does not fix ℓ
-itself: the offset then shifts by (true − assumed ℓ) × row difference, so the caller, who knows the cameras
-(datasheet, an earlier rotor sync, 0 for a global shutter), must pass ``line_time_s``.
+(frame period / largest observed row). Then, with ``line_time_prior_s = (lo, hi)`` (e.g. 0 … frame period /
+image height), ℓ is taken uniform over the prior: the offset is refitted at the prior's middle and its
+uncertainty widened by the whole trade-off, |∂δ/∂ℓ|·(hi − lo)/√12 (the profile slope ∂δ/∂ℓ ≈ −mean row
+difference, from the Jacobian); ``details["line_time"]`` states it. Without a prior
+LineTimeNotObservableError is raised: the caller who knows the cameras (datasheet, an earlier rotor sync, 0
+for a global shutter) passes ``line_time_s``.
 
 Units: seconds, pixels; drift in ppm (1e-6 s/s) of camera B's clock relative to camera A's.
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+from typing import Any
+
 import numpy as np
 from scipy import optimize
 
 from rig.stereo._series import as_times
 from rig.stereo.errors import (
+    AmbiguousOffsetError,
     DelayOutOfRangeError,
     InputArrayError,
+    LineTimeNotObservableError,
     NoCommonMotionError,
     TooFewSamplesError,
 )
 from rig.stereo.resample import bandlimited
-from rig.stereo.timing import TimingResult, projection_matrix
-from rig.stereo.timing_joint_checks import check_ambiguity, check_line_time, fit_details
+from rig.stereo.timing_model import TimingResult, projection_matrix
 
 MIN_OBSERVATIONS = 30
 CHI2_DISTINCT = 25.0  # Δχ² (5 σ) that separates a real minimum from an equally good one
@@ -142,7 +151,7 @@ def as_tracks(observations_a: object, observations_b: object) -> list[tuple[np.n
     return tracks
 
 
-class _Problem:
+class _Residuals:
     """Residuals of the joint timing model for fixed data (one or more tracks)."""
 
     def __init__(self, F, tracks, *, epoch_b, margin_s, guess_s, half_width_s, line_a, line_b):
@@ -192,6 +201,266 @@ class _Problem:
         return np.concatenate(out)
 
 
+@dataclass
+class _Fit:
+    """One local least-squares solution (seconds, ppm) with its statistics."""
+
+    offset_s: float
+    line_s: float
+    drift_ppm: float
+    std: np.ndarray  # (3,) standard uncertainties in ms, µs, ppm (0 for fixed parameters)
+    cov: np.ndarray  # covariance of the free parameters (ms, µs, ppm)
+    free: list[bool]
+    residuals: np.ndarray
+    s2: float
+    jac: np.ndarray
+    at_bound: bool
+
+
+class JointTiming:
+    """The joint timing problem of one data set: coarse search → refinement → checks → :class:`TimingResult`.
+
+    Options as :func:`estimate_joint`. ``solve(names)`` runs the stages; each stage raises the errors listed
+    there.
+    """
+
+    def __init__(self, camera_a: object, camera_b: object, observations_a: object, observations_b: object, *,
+                 offset_guess_s: float = 0.0, search_half_width_s: float | None = None,
+                 line_time_s: float | tuple[float, float] | None = None, line_time_guess_s: float = 0.0,
+                 line_time_prior_s: tuple[float, float] | None = None, estimate_drift: bool = True,
+                 max_drift_ppm: float = 200.0) -> None:
+        P_a, P_b = projection_matrix(camera_a), projection_matrix(camera_b)
+        self.tracks = as_tracks(observations_a, observations_b)
+        self.period_b = float(np.median(np.concatenate([np.diff(tr[3]) for tr in self.tracks])))
+        half = 1.5 * self.period_b if search_half_width_s is None else float(search_half_width_s)
+        if not half > 0:
+            raise InputArrayError(f"search_half_width_s must be positive, got {search_half_width_s!r}")
+        if line_time_prior_s is not None:
+            lo, hi = (float(x) for x in line_time_prior_s)
+            if not (np.isfinite(lo) and np.isfinite(hi) and 0.0 <= lo <= hi < self.period_b):
+                raise InputArrayError(f"line_time_prior_s must be (lo, hi) with 0 ≤ lo ≤ hi < frame period, "
+                                      f"got {line_time_prior_s!r}")
+            self.prior: tuple[float, float] | None = (lo, hi)
+        else:
+            self.prior = None
+        self.guess_s, self.half_s = float(offset_guess_s), half
+        self.estimate_drift, self.max_drift_ppm = bool(estimate_drift), float(max_drift_ppm)
+        all_tb = np.concatenate([tr[3] for tr in self.tracks])
+        self.epoch_b = 0.5 * (all_tb.min() + all_tb.max())
+        margin = 34 * self.period_b + max_drift_ppm * 1e-6 * np.ptp(all_tb)  # kernel half-width 32 + rows
+        self.estimate_line = line_time_s is None
+        if line_time_s is None:
+            self.fixed: tuple[float | None, float | None] = (None, None)
+            self.line0 = float(line_time_guess_s)
+        elif isinstance(line_time_s, tuple | list):
+            self.fixed = tuple(float(x) for x in line_time_s)  # type: ignore[assignment]
+            self.line0 = 0.0
+        else:
+            self.fixed = (float(line_time_s), float(line_time_s))
+            self.line0 = float(line_time_s)
+        self.res = _Residuals(fundamental_matrix(P_a, P_b), self.tracks, epoch_b=self.epoch_b,
+                              margin_s=margin, guess_s=self.guess_s, half_width_s=half, line_a=self.fixed[0],
+                              line_b=self.fixed[1])
+        if self.res.n < MIN_OBSERVATIONS:
+            raise NoCommonMotionError(
+                f"only {self.res.n} observations of camera A fall inside camera B's record for offsets "
+                f"{self.guess_s:+.4f} ± {half:.4f} s (need {MIN_OBSERVATIONS}); "
+                "the records do not overlap enough (or are too short)")
+        v_span = max(float(np.ptp(np.concatenate([tr[2], tr[5]]))) for tr in self.tracks)
+        # the row-time spread must stay below half a frame for the band-limited reconstruction
+        self.line_max_s = 0.4 * self.period_b / max(v_span, 1.0)
+        self.notes: dict[str, Any] = {}
+
+    def solve(self, names: tuple[str, str]) -> TimingResult:
+        """All stages; the result of camera B relative to A."""
+        self.coarse_search()
+        fit = self.refine(free_line=self.estimate_line, offset0_s=self.grid[self.k], line0_s=self.line0)
+        if self.estimate_line:
+            problem = self.line_time_problem(fit)
+            if problem is not None:
+                if self.prior is None:
+                    raise problem
+                fit = self.apply_line_time_prior(fit, problem)
+        self.check_in_range(fit)
+        self.check_ambiguity(fit)
+        return self.result(fit, names)
+
+    def cost(self, offset_s: float, line_s: float, drift_ppm: float) -> float:
+        """Unweighted sum of squared Sampson residuals (px²)."""
+        return float(np.sum(self.res.residuals(offset_s, line_s, drift_ppm, weighted=False) ** 2))
+
+    def coarse_search(self) -> None:
+        """Cost over the offset range (step ≤ a tenth of a frame); raises NoCommonMotionError when flat,
+        DelayOutOfRangeError when the minimum is at the edge."""
+        step = min(self.period_b / 10.0, self.half_s / 15.0)
+        self.grid = self.guess_s + np.arange(-self.half_s, self.half_s + 0.5 * step, step)
+        self.costs = np.array([self.cost(d, self.line0, 0.0) for d in self.grid])
+        k = int(np.argmin(self.costs))
+        # Identifiability in units of the noise level at the minimum. With no usable motion the curve still
+        # fluctuates (different offsets interpolate different noise): about √(4n)·σ², hence the √n term.
+        self.chi2_distinct = CHI2_DISTINCT + 10.0 * np.sqrt(self.res.n)
+        s2 = self.costs[k] / max(self.res.n - 1, 1)
+        contrast = (self.costs.max() - self.costs[k]) / s2
+        if contrast < self.chi2_distinct:
+            raise NoCommonMotionError(
+                f"the epipolar residual hardly changes over offsets {self.grid[0]:+.4f} … "
+                f"{self.grid[-1]:+.4f} s "
+                f"(Δχ² = {contrast:.1f} < {self.chi2_distinct:.0f}); "
+                "the marker shows no motion out of the epipolar plane")
+        if k in (0, self.grid.size - 1):
+            raise DelayOutOfRangeError(
+                f"the best offset lies at the edge of the search range {self.grid[0]:+.6f} … "
+                f"{self.grid[-1]:+.6f} s; widen search_half_width_s or correct offset_guess_s")
+        self.k = k
+
+    def refine(self, *, free_line: bool, offset0_s: float, line0_s: float, drift0_ppm: float = 0.0) -> _Fit:
+        """Local least squares in scaled units (ms, µs, ppm) from the given start; the line time free or
+        held at ``line0_s``."""
+        free = [True, free_line, self.estimate_drift]
+        mask = np.array(free)
+        full0 = np.array([offset0_s * 1e3, line0_s * 1e6, drift0_ppm])
+
+        def unpack(x: np.ndarray) -> tuple[float, float, float]:
+            full = full0.copy()
+            full[mask] = x
+            return full[0] * 1e-3, full[1] * 1e-6, full[2]
+
+        step = self.grid[1] - self.grid[0]
+        line_max_us = self.line_max_s * 1e6
+        lower = np.array([(self.grid[0] - step) * 1e3, -line_max_us, -self.max_drift_ppm])[mask]
+        upper = np.array([(self.grid[-1] + step) * 1e3, line_max_us, self.max_drift_ppm])[mask]
+        x0 = np.clip(full0[mask], lower + 1e-9, upper - 1e-9)
+        res = optimize.least_squares(lambda x: self.res.residuals(*unpack(x)), x0, method="trf",
+                                     bounds=(lower, upper), diff_step=1e-7, x_scale=1.0, xtol=1e-10,
+                                     ftol=1e-10, gtol=1e-10, max_nfev=60)
+        delta, line, drift = unpack(res.x)
+        r = res.fun
+        dof = r.size - int(np.sum(free))
+        if dof <= 0:
+            raise TooFewSamplesError(
+                f"{r.size} residuals cannot determine {int(np.sum(free))} timing parameters")
+        s2 = float(r @ r) / dof
+        cov = s2 * np.linalg.pinv(res.jac.T @ res.jac)
+        std = np.zeros(3)
+        std[mask] = np.sqrt(np.clip(np.diag(cov), 0, None))
+        at_bound = free_line and (bool(res.active_mask[1] != 0) or abs(line) >= 0.999 * self.line_max_s)
+        return _Fit(delta, line, drift, std, cov, free, r, s2, res.jac, at_bound)
+
+    def line_time_problem(self, fit: _Fit) -> LineTimeNotObservableError | None:
+        """Why the estimated line time cannot be trusted (module doc), or None: on its bound, less certain
+        than the largest physical line time (frame period / largest observed row), or (with a prior) more
+        than 3 σ outside the prior."""
+        std_s = fit.std[1] * 1e-6
+        max_row = max(float(np.max(np.concatenate([tr[2], tr[5]]))) for tr in self.tracks)
+        limit_s = self.period_b / max(max_row, 1.0)
+        outside = self.prior is not None and not (
+            self.prior[0] - 3 * std_s <= fit.line_s <= self.prior[1] + 3 * std_s)
+        if not fit.at_bound and std_s <= limit_s and not outside:
+            return None
+        diff = np.concatenate([np.interp(ta, tb + fit.offset_s, rb) - ra
+                               for ta, _, ra, tb, _, rb in self.tracks])
+        spread = float(np.std(diff))
+        if fit.at_bound:
+            why = f"it ran to the bound ±{self.line_max_s * 1e6:.1f} µs of the fit"
+        elif std_s > limit_s:
+            why = (f"its uncertainty exceeds the largest physical line time {limit_s * 1e6:.2f} µs "
+                   "(frame period / largest row)")
+        else:
+            why = (f"it lies outside the physical range {self.prior[0] * 1e6:.2f} … "  # type: ignore[index]
+                   f"{self.prior[1] * 1e6:.2f} µs by more than 3 σ")  # type: ignore[index]
+        return LineTimeNotObservableError(
+            f"the rolling-shutter line time is not observable from this motion: estimate "
+            f"{fit.line_s * 1e6:+.2f} ± {std_s * 1e6:.2f} µs, and {why}; the two cameras' rows differ by a "
+            f"nearly constant amount (std {spread:.2f} px about mean {float(np.mean(diff)):+.2f} px), so the "
+            "line time trades against the offset. Pass line_time_s (the cameras' known line time, or 0 for a "
+            "global shutter) or line_time_prior_s",
+            estimate_s=float(fit.line_s), uncertainty_s=float(std_s), limit_s=limit_s, at_bound=fit.at_bound,
+            row_difference_spread_px=spread)
+
+    def apply_line_time_prior(self, fit: _Fit, problem: LineTimeNotObservableError) -> _Fit:
+        """Refit at the prior's middle and widen the offset uncertainty by the trade-off (module doc)."""
+        lo, hi = self.prior  # type: ignore[misc]
+        mid = 0.5 * (lo + hi)
+        # profile slope: the best (offset, drift) for a given line time, from the free fit's Jacobian
+        J = fit.jac
+        others = [0] + ([2] if fit.free[2] else [])
+        J_o, J_l = J[:, others], J[:, 1]
+        shift = -np.linalg.lstsq(J_o, J_l, rcond=None)[0]  # per µs of line time, in (ms, ppm)
+        slope_s_per_s = float(shift[0]) * 1e3  # s of offset per s of line time
+        d_line_us = (mid - fit.line_s) * 1e6
+        drift0 = fit.drift_ppm + (float(shift[1]) * d_line_us if fit.free[2] else 0.0)
+        held = self.refine(free_line=False, offset0_s=fit.offset_s + float(shift[0]) * d_line_us * 1e-3,
+                           line0_s=mid, drift0_ppm=drift0)
+        u_prior_s = abs(slope_s_per_s) * (hi - lo) / np.sqrt(12.0)
+        u_stat_s = held.std[0] * 1e-3
+        held.std[0] = np.hypot(u_stat_s, u_prior_s) * 1e3
+        held.std[1] = (hi - lo) / np.sqrt(12.0) * 1e6
+        self.notes["line_time"] = {
+            "observable": False,
+            "reason": str(problem),
+            "prior_s": [lo, hi],
+            "offset_per_line_time_s_per_s": slope_s_per_s,
+            "offset_uncertainty_statistical_s": u_stat_s,
+            "offset_uncertainty_from_line_time_s": u_prior_s,
+            "statement": (
+                f"line time not observable from this motion (free estimate {problem.estimate_s * 1e6:+.2f} ± "
+                f"{problem.uncertainty_s * 1e6:.2f} µs); taken uniform over {lo * 1e6:.2f} … "
+                f"{hi * 1e6:.2f} µs "
+                f"(value {mid * 1e6:.2f} µs, u {(hi - lo) / np.sqrt(12) * 1e6:.2f} µs). The offset moves by "
+                f"{slope_s_per_s:+.2f} s per s of line time (−row difference, px), so its uncertainty "
+                f"includes {u_prior_s * 1e3:.4f} ms for the line time beside {u_stat_s * 1e3:.4f} ms "
+                "statistical; give --line-time-s if the cameras' line time is known"),
+        }
+        return held
+
+    def check_in_range(self, fit: _Fit) -> None:
+        """DelayOutOfRangeError when the refined offset left the searched range."""
+        if not (self.grid[0] <= fit.offset_s <= self.grid[-1]):
+            raise DelayOutOfRangeError(
+                f"the best offset {fit.offset_s:+.6f} s lies beyond the search range {self.grid[0]:+.6f} … "
+                f"{self.grid[-1]:+.6f} s; widen search_half_width_s or correct offset_guess_s")
+
+    def check_ambiguity(self, fit: _Fit) -> None:
+        """AmbiguousOffsetError if a separate local minimum of the coarse cost fits as well as the best."""
+        grid, cost, k = self.grid, self.costs, self.k
+        step = grid[1] - grid[0]
+        best = self.cost(fit.offset_s, fit.line_s, fit.drift_ppm)
+        is_min = np.r_[False, (cost[1:-1] <= cost[:-2]) & (cost[1:-1] <= cost[2:]), False]
+        for j in np.flatnonzero(is_min):
+            if abs(j - k) <= 3:
+                continue
+            refined = optimize.minimize_scalar(lambda d: self.cost(d, fit.line_s, fit.drift_ppm),
+                                               bounds=(grid[j] - step, grid[j] + step), method="bounded")
+            if (refined.fun - best) / fit.s2 < self.chi2_distinct:
+                raise AmbiguousOffsetError(
+                    f"offsets {grid[k]:+.6f} s and {refined.x:+.6f} s fit equally well "
+                    f"(Δχ² = {(refined.fun - best) / fit.s2:.1f}); the motion repeats within the search "
+                    "range: narrow search_half_width_s around a better offset_guess_s, or use a non-periodic "
+                    "motion")
+
+    def result(self, fit: _Fit, names: tuple[str, str]) -> TimingResult:
+        """The :class:`TimingResult` of ``fit`` (camera B relative to A)."""
+        a, b = names
+        fa, fb = self.fixed
+        labels = [n for n, f in zip(("offset", "line_time", "drift"), fit.free, strict=True) if f]
+        sd = np.sqrt(np.clip(np.diag(fit.cov), 1e-300, None))
+        return TimingResult(
+            reference_camera=a,
+            offset_s={a: 0.0, b: fit.offset_s},
+            line_time_s={a: fit.line_s if fa is None else fa, b: fit.line_s if fb is None else fb},
+            drift_ppm={a: 0.0, b: fit.drift_ppm},
+            method="joint",
+            uncertainty={"offset_s": {a: 0.0, b: fit.std[0] * 1e-3},
+                         "line_time_s": {a: fit.std[1] * 1e-6, b: fit.std[1] * 1e-6},
+                         "drift_ppm": {a: 0.0, b: fit.std[2]}},
+            epoch_s={a: 0.0, b: self.epoch_b},
+            details={"residual_rms_px": float(np.sqrt(np.mean(fit.residuals**2))),
+                     "n_residuals": int(fit.residuals.size), "sigma_px": float(np.sqrt(fit.s2)),
+                     "parameters": labels, "correlation": (fit.cov / np.outer(sd, sd)).tolist(),
+                     "coarse_offset_s": self.grid.tolist(), "coarse_cost_px2": self.costs.tolist(),
+                     "n_left_out_near_gaps": self.res.n_near_gaps, **self.notes})
+
+
 def estimate_joint(
     camera_a: object,
     camera_b: object,
@@ -203,6 +472,7 @@ def estimate_joint(
     search_half_width_s: float | None = None,
     line_time_s: float | tuple[float, float] | None = None,
     line_time_guess_s: float = 0.0,
+    line_time_prior_s: tuple[float, float] | None = None,
     estimate_drift: bool = True,
     max_drift_ppm: float = 200.0,
 ) -> TimingResult:
@@ -211,139 +481,15 @@ def estimate_joint(
     The offset range searched is ``offset_guess_s`` ± ``search_half_width_s`` (default 1.5 frames of B).
     ``line_time_s``: None → one line time common to both cameras is estimated (starting at
     ``line_time_guess_s``); a number → fixed for both; a pair → fixed per camera (A, B).
+    ``line_time_prior_s``: (lo, hi) s, the physical range used when the motion cannot reveal the line time
+    (module doc); None → LineTimeNotObservableError instead.
     ``estimate_drift``: fit B's clock rate error (ppm, |d| ≤ ``max_drift_ppm`` enters only the record margin).
     Errors: TooFewSamplesError, NonMonotonicTimestampsError, NoCommonMotionError (no overlap, or the offset
     does not change the residual), DelayOutOfRangeError (best offset at the edge of the range),
-    AmbiguousOffsetError (another offset in the range fits equally well), LineTimeNotObservableError
-    (estimated line time on its bound or less certain than its physical range: pass ``line_time_s``).
+    AmbiguousOffsetError (another offset in the range fits equally well), LineTimeNotObservableError.
     """
-    P_a, P_b = projection_matrix(camera_a), projection_matrix(camera_b)
-    tracks = as_tracks(observations_a, observations_b)
-    period_b = float(np.median(np.concatenate([np.diff(tr[3]) for tr in tracks])))
-    half = 1.5 * period_b if search_half_width_s is None else float(search_half_width_s)
-    if not half > 0:
-        raise InputArrayError(f"search_half_width_s must be positive, got {search_half_width_s!r}")
-    all_tb = np.concatenate([tr[3] for tr in tracks])
-    epoch_b = 0.5 * (all_tb.min() + all_tb.max())
-    duration = all_tb.max() - all_tb.min()
-    margin = 34 * period_b + max_drift_ppm * 1e-6 * duration  # kernel half-width 32 + line-time spread
-    if line_time_s is None:
-        fixed_a = fixed_b = None
-        line0 = float(line_time_guess_s)
-    elif isinstance(line_time_s, tuple | list):
-        fixed_a, fixed_b = (float(x) for x in line_time_s)
-        line0 = 0.0
-    else:
-        fixed_a = fixed_b = float(line_time_s)
-        line0 = fixed_a
-    prob = _Problem(
-        fundamental_matrix(P_a, P_b),
-        tracks,
-        epoch_b=epoch_b,
-        margin_s=margin,
-        guess_s=offset_guess_s,
-        half_width_s=half,
-        line_a=fixed_a,
-        line_b=fixed_b,
-    )
-    if prob.n < MIN_OBSERVATIONS:
-        raise NoCommonMotionError(
-            f"only {prob.n} observations of camera A fall inside camera B's record for offsets "
-            f"{offset_guess_s:+.4f} ± {half:.4f} s (need {MIN_OBSERVATIONS}); "
-            "the records do not overlap enough (or are too short)"
-        )
-
-    # Coarse search over the offset.
-    step = min(period_b / 10.0, half / 15.0)
-    grid = offset_guess_s + np.arange(-half, half + 0.5 * step, step)
-    cost = np.array([np.sum(prob.residuals(d, line0, 0.0, weighted=False) ** 2) for d in grid])
-    k = int(np.argmin(cost))
-    # Identifiability on the coarse curve, in units of the noise level at its minimum. With no usable motion
-    # the curve still fluctuates, because different offsets interpolate different noise: about √(4n)·σ²
-    # between two offsets, hence a threshold growing with √n.
-    chi2_distinct = CHI2_DISTINCT + 10.0 * np.sqrt(prob.n)
-    s2_coarse = cost[k] / max(prob.n - 1, 1)
-    if (cost.max() - cost[k]) / s2_coarse < chi2_distinct:
-        raise NoCommonMotionError(
-            f"the epipolar residual hardly changes over offsets {grid[0]:+.4f} … {grid[-1]:+.4f} s "
-            f"(Δχ² = {(cost.max() - cost[k]) / s2_coarse:.1f} < {chi2_distinct:.0f}); "
-            "the marker shows no motion out of the epipolar plane"
-        )
-    if k in (0, grid.size - 1):
-        raise DelayOutOfRangeError(
-            f"the best offset lies at the edge of the search range {grid[0]:+.6f} … {grid[-1]:+.6f} s; "
-            "widen search_half_width_s or correct offset_guess_s"
-        )
-
-    # Local least squares in scaled units: ms, µs, ppm.
-    estimate_line = line_time_s is None
-    free = [True, estimate_line, estimate_drift]
-    full0 = np.array([grid[k] * 1e3, line0 * 1e6, 0.0])
-
-    def unpack(x: np.ndarray) -> tuple[float, float, float]:
-        full = full0.copy()
-        full[np.array(free)] = x
-        return full[0] * 1e-3, full[1] * 1e-6, full[2]
-
-    # Bounds keep every evaluation valid: the row-time spread must stay below half a frame for the
-    # band-limited reconstruction, the offset inside the searched range, the drift inside its limit.
-    v_span = max(float(np.ptp(np.concatenate([tr[2], tr[5]]))) for tr in tracks)
-    line_max_us = 0.4 * period_b / max(v_span, 1.0) * 1e6
-    lower = np.array([(grid[0] - step) * 1e3, -line_max_us, -max_drift_ppm])[np.array(free)]
-    upper = np.array([(grid[-1] + step) * 1e3, line_max_us, max_drift_ppm])[np.array(free)]
-    x0 = np.clip(full0[np.array(free)], lower + 1e-9, upper - 1e-9)
-    res = optimize.least_squares(
-        lambda x: prob.residuals(*unpack(x)),
-        x0,
-        method="trf",
-        bounds=(lower, upper),
-        diff_step=1e-7,
-        x_scale=1.0,
-        xtol=1e-10,
-        ftol=1e-10,
-        gtol=1e-10,
-        max_nfev=60,
-    )
-    delta, line, drift = unpack(res.x)
-    r = res.fun
-    dof = r.size - int(np.sum(free))
-    if dof <= 0:
-        raise TooFewSamplesError(f"{r.size} residuals cannot determine {int(np.sum(free))} timing parameters")
-    s2 = float(r @ r) / dof
-    J = res.jac
-    cov = s2 * np.linalg.pinv(J.T @ J)
-    std_full = np.zeros(3)
-    std_full[np.array(free)] = np.sqrt(np.clip(np.diag(cov), 0, None))
-
-    if estimate_line:
-        check_line_time(tracks, line, std_full[1] * 1e-6, bound_s=line_max_us * 1e-6,
-                         at_bound=bool(res.active_mask[1] != 0) or abs(line) >= 0.999 * line_max_us * 1e-6,
-                         period_s=period_b, offset_s=delta)
-    if not (grid[0] <= delta <= grid[-1]):
-        raise DelayOutOfRangeError(
-            f"the best offset {delta:+.6f} s lies beyond the search range "
-            f"{grid[0]:+.6f} … {grid[-1]:+.6f} s; widen search_half_width_s or correct offset_guess_s"
-        )
-    best_unweighted = float(np.sum(prob.residuals(delta, line, drift, weighted=False) ** 2))
-    check_ambiguity(
-        prob, grid, cost, k, line=line, drift=drift, best_cost=best_unweighted, s2=s2, threshold=chi2_distinct
-    )
-
-    a, b = names
-    return TimingResult(
-        reference_camera=a,
-        offset_s={a: 0.0, b: delta},
-        line_time_s={a: line if fixed_a is None else fixed_a, b: line if fixed_b is None else fixed_b},
-        drift_ppm={a: 0.0, b: drift},
-        method="joint",
-        uncertainty={
-            "offset_s": {a: 0.0, b: std_full[0] * 1e-3},
-            "line_time_s": {a: std_full[1] * 1e-6, b: std_full[1] * 1e-6},
-            "drift_ppm": {a: 0.0, b: std_full[2]},
-        },
-        epoch_s={a: 0.0, b: epoch_b},
-        details={
-            **fit_details(r, s2, cov, free, grid=grid, cost=cost),
-            "n_left_out_near_gaps": prob.n_near_gaps,
-        },
-    )
+    problem = JointTiming(camera_a, camera_b, observations_a, observations_b, offset_guess_s=offset_guess_s,
+                          search_half_width_s=search_half_width_s, line_time_s=line_time_s,
+                          line_time_guess_s=line_time_guess_s, line_time_prior_s=line_time_prior_s,
+                          estimate_drift=estimate_drift, max_drift_ppm=max_drift_ppm)
+    return problem.solve(names)

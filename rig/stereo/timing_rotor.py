@@ -22,7 +22,7 @@ import numpy as np
 
 from rig.stereo._series import as_times
 from rig.stereo.errors import InputArrayError, NotRotatingError, TooFewSamplesError
-from rig.stereo.timing import TimingResult, projection_matrix
+from rig.stereo.timing_model import TimingResult, projection_matrix
 
 MIN_FRAMES = 12
 

@@ -49,7 +49,7 @@ from scipy.sparse.linalg import spsolve
 
 from rig.stereo._series import as_times
 from rig.stereo.errors import AmbiguousFrequencyError, InputArrayError, TimingError, TooFewSamplesError
-from rig.stereo.timing import projection_matrix
+from rig.stereo.timing_model import projection_matrix
 
 CHI2_DISTINCT = 25.0
 
