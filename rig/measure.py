@@ -65,6 +65,8 @@ class MeasureOptions:
     window_s: tuple[float, float] | None = None
     gate_px: float = 5.0
     line_time_s: float | None = None
+    max_offset_s: float = 10.0  # the cameras started within prior_offset_s ± this (s)
+    prior_offset_s: float = 0.0
     extract: ExtractOptions = field(default_factory=ExtractOptions)
     make_figures: bool = True
 
@@ -143,20 +145,21 @@ def _timing(args: dict[str, Any], obs: dict[str, pd.DataFrame], cameras: dict[st
         return tr.to_dict()
     try:
         tr = estimate_video_timing(obs, cameras, fps, reference=reference,
-                                   line_time_s=args.get("line_time_s"))
+                                   line_time_s=args.get("line_time_s"),
+                                   max_offset_s=args.get("max_offset_s", 10.0),
+                                   prior_offset_s=args.get("prior_offset_s", 0.0))
     except (VideoTimingError, AnalysisError) as exc:
         raise MeasureError(f"estimating the timing from the videos: {exc}") from exc
+    other = next(c for c in obs if c != reference)
     coarse = tr.details["coarse"]
-    if tr.details.get("line_time_note"):
-        notes.append("timing: " + tr.details["line_time_note"])
-    notes.append(f"timing estimated from the videos' motion: coarse offset {coarse['offset_s']:+.4f} s "
-                 f"(correlation {coarse['correlation']:.2f}), joint offset "
-                 f"{tr.offset_s[next(c for c in obs if c != reference)]:+.6f} s")
-    if coarse["ambiguous"]:
-        notes.append(f"timing: the motion correlates almost as well at {coarse['second_offset_s']:+.4f} s "
-                     "(a steady periodic motion): amplitudes and frequencies hold, absolute timing may be "
-                     "off "
-                     "by whole periods — film the start of the motion, or give --timing")
+    notes.append(f"timing estimated from the videos' motion: offset {tr.offset_s[other]:+.6f} s ± "
+                 f"{tr.uncertainty['offset_s'][other] * 1e3:.4f} ms (coarse "
+                 f"{coarse['chosen_offset_s']:+.4f} s "
+                 f"of {len(coarse['candidates'])} candidate(s) within {coarse['window_s'][0]:+.1f} … "
+                 f"{coarse['window_s'][1]:+.1f} s), line time {tr.line_time_s[other] * 1e6:.3f} µs")
+    for key in ("ambiguity_note", "line_time_note"):
+        if tr.details.get(key):
+            notes.append("timing: " + tr.details[key])
     return tr.to_dict()
 
 
@@ -217,7 +220,9 @@ def measure_videos(videos: dict[str, str | Path], calibration: str | Path, out_d
     reference = next(iter(paths))
     fps = {n: vo.fps for n, vo in vos.items()}
     stamps.append(("read_videos", time.perf_counter()))
-    timing_dict = _timing({"timing": timing, "line_time_s": opts.line_time_s}, obs, cameras, fps=fps,
+    timing_dict = _timing({"timing": timing, "line_time_s": opts.line_time_s,
+                           "max_offset_s": opts.max_offset_s, "prior_offset_s": opts.prior_offset_s},
+                          obs, cameras, fps=fps,
                           reference=reference, notes=notes)
     files["timing"] = out / "timing.json"
     files["timing"].write_text(json.dumps(timing_dict, indent=1), encoding="utf-8")

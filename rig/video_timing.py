@@ -7,22 +7,32 @@ offset between the files can be seconds. :func:`estimate_video_timing`:
    median image position; a marker oscillating about a rest position has its median near the image of the
    rest position in both cameras, so tracks pair by the symmetric epipolar distance of their medians
    (optimal one-to-one assignment within ``gate_px``);
-2. **coarse offset** by cross-correlating the paired moving tracks' image velocities (u and v, every pair,
-   on a common grid of one frame period): the lag of the largest normalised correlation within
-   ± ``max_offset_s``. A steady periodic motion correlates equally at whole periods: when the second best
-   peak (more than 2 frames away) reaches 95 % of the best, the offset is reported ambiguous (amplitudes and
-   frequencies of a steady vibration are unaffected; absolute timing is) — film the start of the motion;
-3. the **joint estimate** (:func:`rig.stereo.estimate_offset`, method "joint": offset, rolling-shutter line
-   time, drift) from the coarse offset, on the moving pairs (undistorted pixels). When the motion cannot
-   reveal the line time (the estimator raises :class:`rig.stereo.errors.LineTimeNotObservableError`, e.g.
-   markers moving along their rows; or its estimate lies outside 0 … frame period / image height) it is
-   taken as 0 (global shutter) and the estimate repeated, with a note in ``details["line_time_note"]``.
+   A marker the 2-D tracking breaks into pieces (a rotor moving tens of pixels per frame) is taken whole:
+   when a camera's moving detections number at most one per frame, they are one marker
+   (:func:`merge_lone_mover`), whatever the tracking made of them;
+2. **candidate offsets** by cross-correlating the paired moving tracks' image velocities (u and v, every
+   pair, on a common grid of one frame period): the peaks of the normalised correlation within the prior
+   window ``prior_offset_s`` ± ``max_offset_s`` (cameras started independently within that window);
+3. **each candidate scored** by the joint model's epipolar cost (all used pairs jointly, so several markers,
+   amplitude and frequency changes all count): Δχ² against the best, and a relative likelihood
+   exp(−z²/2) with z = Δχ² / (2√n) — 2√n being the spread of the cost between two offsets that explain the
+   data equally well but interpolate different noise (:mod:`rig.stereo.timing_joint`). A candidate with
+   Δχ² < 25 + 10√n cannot be told from the best: the offset is then **ambiguous** (a steady periodic motion
+   repeats every period); the most likely is used — among equals the one nearest ``prior_offset_s`` — and
+   every candidate is listed with its likelihood in ``details["coarse"]["candidates"]``. Whole periods of a
+   steady motion change neither amplitudes nor frequencies (both candidates explain the 3-D motion equally
+   well); they change absolute timing;
+4. the **joint estimate** (:func:`rig.stereo.estimate_offset`, method "joint": offset, rolling-shutter line
+   time, drift) around the chosen candidate, on the moving pairs (undistorted pixels), the line time with
+   the prior 0 … frame period / image height: when the motion cannot reveal it the offset uncertainty
+   includes all the line time can do (``details["line_time"]``).
 
 Units: s, px. Pure functions of observation frames (no I/O).
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -33,11 +43,14 @@ from scipy.signal import correlate
 from rig.stereo import estimate_offset, fundamental_from_projections
 from rig.stereo.dlt import DLTCamera
 from rig.stereo.epipolar import epipolar_distance_px
-from rig.stereo.errors import LineTimeNotObservableError, StereoError
+from rig.stereo.errors import StereoError
 from rig.stereo.timing import TimingResult
+from rig.stereo.timing_joint import CHI2_DISTINCT, JointTiming
 from rig.tracks2d import tracks_2d
 
-__all__ = ["VideoTimingError", "coarse_offset", "estimate_video_timing", "pair_by_median"]
+__all__ = ["VideoTimingError", "coarse_offset", "estimate_video_timing", "merge_lone_mover", "pair_by_median"]
+
+MAX_CANDIDATES = 8
 
 
 class VideoTimingError(ValueError):
@@ -87,16 +100,35 @@ def _velocity_on_grid(obs: pd.DataFrame, track: int, grid_s: np.ndarray) -> np.n
     return out
 
 
+def merge_lone_mover(obs: pd.DataFrame, *, min_motion_px: float = 0.5) -> pd.DataFrame:
+    """``obs`` (with ``track_id``) where the moving tracks of a camera that never shows two moving markers in
+    one frame are joined into one track (the lowest id): one fast marker the tracking broke into pieces."""
+    tid = obs["track_id"].to_numpy()
+    med = _medians(obs)
+    moving = med.index[med["motion_px"] >= min_motion_px].to_numpy()
+    if moving.size < 2:
+        return obs
+    sel = np.isin(tid, moving)
+    if obs.loc[sel, "frame_index"].duplicated().any():
+        return obs
+    out = obs.copy()
+    out.loc[sel, "track_id"] = int(moving.min())
+    return out
+
+
 def coarse_offset(obs_a: pd.DataFrame, obs_b: pd.DataFrame, pairs: pd.DataFrame, period_s: float,
-                  *, max_offset_s: float = 600.0) -> dict[str, Any]:
-    """Offset (s) to add to camera B's time stamps to put them on A's clock, to about one frame:
-    ``{"offset_s", "correlation", "second_correlation", "second_offset_s", "ambiguous"}``."""
+                  *, max_offset_s: float = 600.0, prior_offset_s: float = 0.0) -> dict[str, Any]:
+    """Offset (s) to add to camera B's time stamps to put them on A's clock, to about one frame, within
+    ``prior_offset_s`` ± ``max_offset_s``: ``{"offset_s", "correlation", "second_correlation",
+    "second_offset_s", "ambiguous", "peaks"}``; ``peaks`` are the correlation's local maxima (offset_s,
+    correlation), best first, at most :data:`MAX_CANDIDATES`, each ≥ half the best. ``ambiguous``: the
+    second peak reaches 95 % of the best (a hint; :func:`estimate_video_timing` decides by the epipolar
+    cost)."""
     t_lo = min(obs_a["timestamp_s"].min(), obs_b["timestamp_s"].min())
     t_hi = max(obs_a["timestamp_s"].max(), obs_b["timestamp_s"].max())
     grid = np.arange(t_lo, t_hi + period_s, period_s)
     n = len(grid)
-    max_lag = int(min(np.ceil(max_offset_s / period_s), n - 8))
-    if max_lag < 1:
+    if n - 8 < 1:
         raise VideoTimingError(f"the videos are too short ({n} frames) to relate their clocks")
     num = np.zeros(2 * n - 1)
     va_all = vb_all = 0.0
@@ -111,40 +143,145 @@ def coarse_offset(obs_a: pd.DataFrame, obs_b: pd.DataFrame, pairs: pd.DataFrame,
                                "motion; give --timing timing.json")
     lags = np.arange(-(n - 1), n)  # lag L: a[i + L] ~ b[i] → t_a = t_b + L·period
     corr = num / np.sqrt(va_all * vb_all)
-    sel = np.abs(lags) <= max_lag
+    in_window = np.abs(lags * period_s - prior_offset_s) <= max_offset_s + 0.5 * period_s
+    sel = in_window & (np.abs(lags) <= n - 8)
+    if not sel.any():
+        raise VideoTimingError(f"no offset within {prior_offset_s:+.3f} ± {max_offset_s:.3f} s leaves the "
+                               "videos overlapping; widen --max-offset-s")
     corr, lags = corr[sel], lags[sel]
     best = int(np.argmax(corr))
     far = np.abs(lags - lags[best]) > 2
     second = int(np.flatnonzero(far)[np.argmax(corr[far])]) if far.any() else best
     ambiguous = bool(far.any() and corr[second] >= 0.95 * corr[best])
+    padded = np.r_[-np.inf, corr, -np.inf]
+    is_peak = (padded[1:-1] >= padded[:-2]) & (padded[1:-1] > padded[2:])
+    peaks = [j for j in np.argsort(-corr) if is_peak[j] and corr[j] >= 0.5 * corr[best]][:MAX_CANDIDATES]
     return {"offset_s": float(lags[best] * period_s), "correlation": float(corr[best]),
             "second_offset_s": float(lags[second] * period_s), "second_correlation": float(corr[second]),
-            "ambiguous": ambiguous}
+            "ambiguous": ambiguous,
+            "peaks": [(float(lags[j] * period_s), float(corr[j])) for j in peaks]}
+
+
+@dataclass(frozen=True)
+class _Views:
+    """Both cameras' tracked observations, the pairs used for timing and how much of the record."""
+
+    tracked: dict[str, pd.DataFrame]
+    use: pd.DataFrame
+    cameras: dict[str, DLTCamera]
+    reference: str
+    other: str
+    window_s: float
+
+
+def _joint_tracks(views: _Views, offset_s: float
+                  ) -> tuple[list[tuple[np.ndarray, np.ndarray]], list[tuple[np.ndarray, np.ndarray]], list]:
+    """The joint estimate's tracks for a coarse offset: the used pairs, and for long records a window of
+    ``window_s`` at each end (the drift needs the span, the offset only a few periods)."""
+    tracked, use, cameras, reference, other = (views.tracked, views.use, views.cameras, views.reference,
+                                               views.other)
+    window_s = views.window_s
+    t_b = tracked[other]["timestamp_s"].to_numpy(float)
+    t0, t1 = float(t_b.min()) + offset_s, float(t_b.max()) + offset_s
+    windows = [(t0, t1)] if t1 - t0 <= 2 * window_s else [(t0, t0 + window_s), (t1 - window_s, t1)]
+    tracks_a: list[tuple[np.ndarray, np.ndarray]] = []
+    tracks_b: list[tuple[np.ndarray, np.ndarray]] = []
+    for a, b in zip(use["track_a"], use["track_b"], strict=True):
+        for lo, hi in windows:
+            for name, tid, dest, shift in ((reference, a, tracks_a, 0.0), (other, b, tracks_b, offset_s)):
+                tr = tracked[name]
+                tr = tr[tr["track_id"] == tid].sort_values("timestamp_s").drop_duplicates("timestamp_s")
+                t = tr["timestamp_s"].to_numpy(float)
+                sel = (t + shift >= lo) & (t + shift <= hi)
+                dest.append((t[sel], cameras[name].undistort_px(tr[["u_px", "v_px"]].to_numpy(float)[sel])))
+    # a piece too short for the joint estimate in one camera is left out with its partner
+    keep = [i for i, (ta, tb) in enumerate(zip(tracks_a, tracks_b, strict=True))
+            if len(ta[0]) >= 30 and len(tb[0]) >= 30]
+    return [tracks_a[i] for i in keep], [tracks_b[i] for i in keep], windows
+
+
+def _use_pairs(moving: pd.DataFrame, max_pairs: int) -> pd.DataFrame:
+    """The most moving pairs (the joint estimate's cost grows with the samples)."""
+    return moving.assign(m=np.minimum(moving["motion_a_px"], moving["motion_b_px"])).nlargest(max_pairs, "m")
+
+
+def score_candidates(views: _Views, peaks: list[tuple[float, float]], *, prior_offset_s: float
+                     ) -> list[dict[str, Any]]:
+    """Every correlation peak scored by the joint model's epipolar cost (module doc, step 3); best first.
+    Each: offset_s (the cost's minimum near the peak), correlation, delta_chi2, relative_likelihood,
+    distinct (told apart from the best), or an ``error`` when the cost cannot be evaluated there."""
+    scored: list[dict[str, Any]] = []
+    for off, corr in peaks:
+        ta, tb, _ = _joint_tracks(views, off)
+        try:
+            prob = JointTiming(views.cameras[views.reference], views.cameras[views.other], ta, tb,
+                               offset_guess_s=off)
+            prob.coarse_search()
+        except (StereoError, ValueError) as exc:
+            scored.append({"offset_s": off, "correlation": corr, "error": str(exc)})
+            continue
+        scored.append({"offset_s": float(prob.grid[prob.k]), "correlation": corr,
+                       "mean_cost_px2": float(prob.costs[prob.k]) / prob.res.n, "n": prob.res.n})
+    ok = [c for c in scored if "error" not in c]
+    if not ok:
+        return scored
+    best = min(ok, key=lambda c: c["mean_cost_px2"])
+    s2 = best["mean_cost_px2"]
+    for c in ok:
+        n = min(c["n"], best["n"])
+        d = n * (c["mean_cost_px2"] - s2) / s2
+        c["delta_chi2"] = float(d)
+        c["relative_likelihood"] = float(np.exp(-0.5 * (d / (2 * np.sqrt(n))) ** 2))
+        c["distinct"] = bool(d >= CHI2_DISTINCT + 10 * np.sqrt(n))
+    # the best first, then those the data cannot tell from it (nearest the expected offset first)
+    ok.sort(key=lambda c: (c is not best, c["distinct"], abs(c["offset_s"] - prior_offset_s)))
+    if not ok[1:] or ok[1]["distinct"]:
+        return ok + [c for c in scored if "error" in c]
+    equal = [c for c in ok if not c["distinct"]]
+    equal.sort(key=lambda c: abs(c["offset_s"] - prior_offset_s))
+    return equal + [c for c in ok if c["distinct"]] + [c for c in scored if "error" in c]
+
+
+def _ambiguity_note(candidates: list[dict[str, Any]]) -> str | None:
+    equal = [c for c in candidates if "error" not in c and not c["distinct"]]
+    if len(equal) < 2:
+        return None
+    listed = ", ".join(f"{c['offset_s']:+.4f} s (likelihood {c['relative_likelihood']:.2f}, "
+                       f"Δχ² {c['delta_chi2']:.0f})" for c in equal)
+    return (f"offset ambiguous: {len(equal)} offsets explain the motion equally well — {listed}; "
+            f"{equal[0]['offset_s']:+.4f} s used (the nearest the expected offset among those the data "
+            "cannot tell apart). They differ by whole periods of a steady motion: amplitudes and frequencies "
+            "are the same under each, absolute timing between the cameras is not; film a change of motion "
+            "(start, stop, another tone), narrow --max-offset-s, or give --timing")
 
 
 def estimate_video_timing(obs: dict[str, pd.DataFrame], cameras: dict[str, DLTCamera], fps: dict[str, float],
-                          *, reference: str, gate_px: float = 8.0, max_offset_s: float = 600.0,
-                          min_motion_px: float = 0.5, track_gate_px: float = 25.0, max_pairs: int = 2,
-                          window_s: float = 1.5, line_time_s: float | None = None) -> TimingResult:
+                          *, reference: str, gate_px: float = 8.0, max_offset_s: float = 10.0,
+                          prior_offset_s: float = 0.0, min_motion_px: float = 0.5,
+                          track_gate_px: float = 25.0, max_pairs: int = 3, window_s: float = 1.5,
+                          line_time_s: float | None = None) -> TimingResult:
     """Timing of the other camera relative to ``reference`` from the videos' observations (module doc).
 
     ``obs``: camera → observations (``frame_index``, ``timestamp_s``, ``u_px``, ``v_px``; duplicates already
-    left out). At most ``max_pairs`` pairs (the most moving) go to the joint estimate, and of records longer
-    than 2 × ``window_s`` only a window of ``window_s`` at each end. ``line_time_s``: the cameras' known
-    rolling-shutter line time (s), else estimated — and taken as 0 with a note in ``details`` when the motion
-    cannot identify it (the estimator reports it not observable, or an estimate outside 0 … frame period /
-    image height). ``details`` hold the coarse step.
+    left out). ``prior_offset_s`` ± ``max_offset_s``: the window the offset lies in (the cameras started
+    within it). At most ``max_pairs`` pairs (the most moving) go to the joint estimate, and of records
+    longer than 2 × ``window_s`` only a window of ``window_s`` at each end. ``line_time_s``: the cameras'
+    known rolling-shutter line time (s), else estimated with the prior 0 … frame period / image height.
+    ``details`` hold the candidates (``coarse``) and, when it applies, the ambiguity and line-time notes.
     """
     names = list(obs)
     if len(names) != 2 or reference not in names:
         raise VideoTimingError(f"timing from videos needs exactly 2 cameras including {reference!r}, "
                                f"got {names}")
+    if not (np.isfinite(max_offset_s) and max_offset_s > 0 and np.isfinite(prior_offset_s)):
+        raise VideoTimingError(f"max_offset_s must be > 0 s and prior_offset_s finite, got {max_offset_s!r}, "
+                               f"{prior_offset_s!r}")
     other = names[1] if names[0] == reference else names[0]
     tracked = {}
     for c in names:
         o = obs[c].copy()
         o["track_id"] = tracks_2d(o, gate_px=track_gate_px).to_numpy()
-        tracked[c] = o
+        tracked[c] = merge_lone_mover(o, min_motion_px=min_motion_px)
     pairs = pair_by_median(tracked[reference], tracked[other], cameras[reference], cameras[other],
                            gate_px=gate_px)
     moving = pairs[(pairs["motion_a_px"] >= min_motion_px) & (pairs["motion_b_px"] >= min_motion_px)]
@@ -154,50 +291,29 @@ def estimate_video_timing(obs: dict[str, pd.DataFrame], cameras: dict[str, DLTCa
             "clocks "
             "cannot be estimated from motion — give --timing timing.json")
     coarse = coarse_offset(tracked[reference], tracked[other], moving, 1.0 / fps[other],
-                           max_offset_s=max_offset_s)
-    # the joint estimate's cost grows with the samples: the most moving pairs, and for long records a
-    # window at each end (the drift needs the span, the offset only a few periods)
-    use = moving.assign(m=np.minimum(moving["motion_a_px"], moving["motion_b_px"])).nlargest(max_pairs, "m")
-    t_b = tracked[other]["timestamp_s"].to_numpy(float)
-    t0, t1 = float(t_b.min()) + coarse["offset_s"], float(t_b.max()) + coarse["offset_s"]
-    windows = [(t0, t1)] if t1 - t0 <= 2 * window_s else [(t0, t0 + window_s), (t1 - window_s, t1)]
-    tracks_a, tracks_b = [], []
-    for a, b in zip(use["track_a"], use["track_b"], strict=True):
-        for lo, hi in windows:
-            for cam, name, tid, dest, shift in ((cameras[reference], reference, a, tracks_a, 0.0),
-                                                (cameras[other], other, b, tracks_b, coarse["offset_s"])):
-                tr = tracked[name]
-                tr = tr[tr["track_id"] == tid].sort_values("timestamp_s").drop_duplicates("timestamp_s")
-                t = tr["timestamp_s"].to_numpy(float)
-                sel = (t + shift >= lo) & (t + shift <= hi)
-                dest.append((t[sel], cam.undistort_px(tr[["u_px", "v_px"]].to_numpy(float)[sel])))
+                           max_offset_s=max_offset_s, prior_offset_s=prior_offset_s)
+    use = _use_pairs(moving, max_pairs)
+    views = _Views(tracked, use, cameras, reference, other, window_s)
+    candidates = score_candidates(views, coarse["peaks"], prior_offset_s=prior_offset_s)
+    chosen = next((c["offset_s"] for c in candidates if "error" not in c), coarse["offset_s"])
+    ambiguity = _ambiguity_note(candidates)
+    tracks_a, tracks_b, windows = _joint_tracks(views, chosen)
     line_max_s = 1.0 / (max(fps.values()) * max(c.image_size[1] for c in cameras.values()))
-    note = None
-    fallback = " assumed 0 (global shutter) — give --line-time-s for a rolling-shutter camera"
     try:
-        try:
-            result = estimate_offset(cameras[reference], cameras[other], tracks_a, tracks_b, method="joint",
-                                     names=(reference, other), offset_guess_s=coarse["offset_s"],
-                                     line_time_s=line_time_s, line_time_guess_s=0.5 * line_max_s)
-        except LineTimeNotObservableError as exc:
-            note = (f"line time not observable from this motion (estimate {exc.estimate_s * 1e6:+.2f} ± "
-                    f"{exc.uncertainty_s * 1e6:.2f} µs{', at the bound of the fit' if exc.at_bound else ''}; "
-                    f"rows differ by {exc.row_difference_spread_px:.2f} px std between the cameras);"
-                    + fallback)
-        else:
-            lt = result.line_time_s.get(other, 0.0)
-            if line_time_s is None and not -0.05 * line_max_s <= lt <= 1.05 * line_max_s:
-                note = (f"line time not identifiable from this motion (estimate {lt * 1e6:.2f} µs outside "
-                        f"0…{line_max_s * 1e6:.2f} µs = frame period / image height);" + fallback)
-        if note:
-            result = estimate_offset(cameras[reference], cameras[other], tracks_a, tracks_b, method="joint",
-                                     names=(reference, other), offset_guess_s=coarse["offset_s"],
-                                     line_time_s=0.0)
+        result = estimate_offset(cameras[reference], cameras[other], tracks_a, tracks_b, method="joint",
+                                 names=(reference, other), offset_guess_s=chosen, line_time_s=line_time_s,
+                                 line_time_guess_s=0.5 * line_max_s, line_time_prior_s=(0.0, line_max_s))
     except StereoError as exc:
-        raise VideoTimingError(f"joint timing estimate from the coarse offset {coarse['offset_s']:+.4f} s "
-                               f"failed: {exc}; give --timing timing.json") from exc
-    if note:
-        result.details = {**result.details, "line_time_note": note}
-    result.details = {**result.details, "coarse": coarse, "pairs_used": len(use), "windows_s": windows,
-                      "source": "rig measure --estimate-timing (video motion)"}
+        raise VideoTimingError(f"joint timing estimate from the coarse offset {chosen:+.4f} s failed: "
+                               f"{exc}; give --timing timing.json") from exc
+    coarse = {**coarse, "candidates": candidates, "chosen_offset_s": chosen,
+              "ambiguous": ambiguity is not None,
+              "window_s": [prior_offset_s - max_offset_s, prior_offset_s + max_offset_s]}
+    extra: dict[str, Any] = {"coarse": coarse, "pairs_used": len(use), "windows_s": windows,
+                             "source": "rig measure --estimate-timing (video motion)"}
+    if ambiguity:
+        extra["ambiguity_note"] = ambiguity
+    if "line_time" in result.details:
+        extra["line_time_note"] = result.details["line_time"]["statement"]
+    result.details = {**result.details, **extra}
     return result

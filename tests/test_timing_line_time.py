@@ -1,5 +1,5 @@
 """The joint estimator reports a line time it cannot observe (LineTimeNotObservableError) instead of
-returning a value at its bound, and rig.video_timing falls back to a global shutter with a note.
+returning a value at its bound; with a prior on it, the offset's uncertainty covers all the line time can do.
 
 Synthetic two-camera rolling-shutter records with known truth (``timing_synth``): line time 12 µs,
 offset 4.3 ms, 0.1 px noise, 7 s at 60 fps.
@@ -73,14 +73,35 @@ def _frames(t: np.ndarray, uv: np.ndarray) -> pd.DataFrame:
                          "v_px": uv[:, 1]})
 
 
-def test_video_timing_takes_a_global_shutter_with_a_note_when_the_line_time_is_not_observable() -> None:
+def test_an_unobservable_line_time_with_a_prior_widens_the_offset_uncertainty_to_cover_it() -> None:
+    ca, cb, a, b = _synthetic(_along_rows(), seed=0)
+    prior = (0.0, (1 / FS_HZ) / 1080)  # 0 … frame period / image height
+    res = estimate_offset(ca, cb, a, b, line_time_prior_s=prior)
+    info = res.details["line_time"]
+    assert not info["observable"] and "not observable" in info["statement"]
+    assert res.line_time_s["b"] == pytest.approx(0.5 * prior[1])
+    assert res.uncertainty["line_time_s"]["b"] == pytest.approx(prior[1] / np.sqrt(12))
+    # the offset moves by −(row of B − row of A) per unit of line time …
+    row_diff = float(np.mean(b[1][:, 1] - a[1][:, 1]))
+    assert abs(info["offset_per_line_time_s_per_s"] + row_diff) <= 0.05 * abs(row_diff) + 0.05
+    # … so its uncertainty holds the whole trade-off, and the truth (12 µs, inside the prior) is covered
+    u = res.uncertainty["offset_s"]["b"]
+    assert u >= abs(row_diff) * prior[1] / np.sqrt(12) * 0.95
+    assert abs(res.offset_s["b"] - OFFSET_S) <= 3 * u
+
+
+def _frames(t: np.ndarray, uv: np.ndarray) -> pd.DataFrame:
+    return pd.DataFrame({"frame_index": np.arange(len(t)), "timestamp_s": t, "u_px": uv[:, 0],
+                         "v_px": uv[:, 1]})
+
+
+def test_video_timing_states_an_unobservable_line_time_and_its_share_of_the_offset_uncertainty() -> None:
     ca, cb, a, b = _synthetic(_along_rows(), seed=0)
     cams = {"left": DLTCamera(P=ca.P), "right": DLTCamera(P=cb.P)}
     res = estimate_video_timing({"left": _frames(*a), "right": _frames(*b)}, cams,
                                 {"left": FS_HZ, "right": FS_HZ}, reference="left")
     note = res.details["line_time_note"]
     assert "not observable" in note and "--line-time-s" in note
-    assert res.line_time_s == {"left": 0.0, "right": 0.0}
-    # assuming 0 instead of the true 12 µs moves the offset by 12 µs × (row of B − row of A)
-    shift_s = LINE_S * abs(float(np.mean(b[1][:, 1] - a[1][:, 1])))
-    assert abs(res.offset_s["right"] - OFFSET_S) <= shift_s + 5 * res.uncertainty["offset_s"]["right"]
+    line_max = (1 / FS_HZ) / 1080
+    assert res.line_time_s["right"] == pytest.approx(0.5 * line_max)
+    assert abs(res.offset_s["right"] - OFFSET_S) <= 3 * res.uncertainty["offset_s"]["right"]
