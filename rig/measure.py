@@ -45,9 +45,14 @@ from rig.stereo.dlt import DLTCamera
 from rig.stereo.errors import StereoError
 from rig.sync_tracks import SYNC_METHODS, pair_all, prepare_observations, timing_result, triangulate_tracks
 from rig.video_markers import ExtractOptions, VideoObservations, extract_video
-from rig.video_timing import VideoTimingError, estimate_video_timing
+from rig.video_timing import VideoTimingError, estimate_video_timing, rotor_timing, tracked
 
-__all__ = ["MeasureError", "MeasureOptions", "MeasureResult", "measure_videos"]
+__all__ = ["MEASURE_SYNC", "MeasureError", "MeasureOptions", "MeasureResult", "measure_videos"]
+
+#: ``--sync``: how the 3-D tracks are timed. The interpolation methods of :mod:`rig.sync_tracks`, or
+#: ``rotor``: the timing from the paper's rotating-marker phase method (row-corrected; a marker turning at
+#: constant speed in view), 3-D by the trajectory method.
+MEASURE_SYNC = (*SYNC_METHODS, "rotor")
 
 
 class MeasureError(ValueError):
@@ -148,6 +153,16 @@ def _timing(args: dict[str, Any], obs: dict[str, pd.DataFrame], cameras: dict[st
                                    line_time_s=args.get("line_time_s"),
                                    max_offset_s=args.get("max_offset_s", 10.0),
                                    prior_offset_s=args.get("prior_offset_s", 0.0))
+        if args.get("sync") == "rotor":
+            joint = tr
+            tr = rotor_timing(obs, cameras, joint, reference=reference)
+            other = next(c for c in obs if c != reference)
+            notes.append(f"timing by the rotating-marker phase method (row-corrected, --sync rotor): offset "
+                         f"{tr.offset_s[other]:+.6f} s ± {tr.uncertainty['offset_s'][other] * 1e3:.4f} ms, "
+                         f"line time {tr.line_time_s[other] * 1e6:.3f} ± "
+                         f"{tr.uncertainty['line_time_s'][other] * 1e6:.3f} µs at "
+                         f"{tr.details['rotation_hz']:.4f} rev/s; the joint estimate (offset "
+                         f"{joint.offset_s[other]:+.6f} s) in timing.json details.comparison")
     except (VideoTimingError, AnalysisError) as exc:
         raise MeasureError(f"estimating the timing from the videos: {exc}") from exc
     other = next(c for c in obs if c != reference)
@@ -186,8 +201,8 @@ def measure_videos(videos: dict[str, str | Path], calibration: str | Path, out_d
     ``record``: a run folder whose motion events the videos show; adds ``controller_time_s`` (the
     controller's clock, related by :mod:`rig.video_clock`) to the tables and writes ``clock.json``."""
     opts = options or MeasureOptions()
-    if opts.sync not in SYNC_METHODS:
-        raise MeasureError(f"sync={opts.sync!r}; allowed: {SYNC_METHODS}")
+    if opts.sync not in MEASURE_SYNC:
+        raise MeasureError(f"sync={opts.sync!r}; allowed: {MEASURE_SYNC}")
     if len(videos) != 2:
         raise MeasureError(f"{len(videos)} video(s) given; rig measure takes exactly 2 (LEFT RIGHT)")
     paths = {n: Path(p) for n, p in videos.items()}
@@ -220,7 +235,7 @@ def measure_videos(videos: dict[str, str | Path], calibration: str | Path, out_d
     reference = next(iter(paths))
     fps = {n: vo.fps for n, vo in vos.items()}
     stamps.append(("read_videos", time.perf_counter()))
-    timing_dict = _timing({"timing": timing, "line_time_s": opts.line_time_s,
+    timing_dict = _timing({"timing": timing, "line_time_s": opts.line_time_s, "sync": opts.sync,
                            "max_offset_s": opts.max_offset_s, "prior_offset_s": opts.prior_offset_s},
                           obs, cameras, fps=fps,
                           reference=reference, notes=notes)
@@ -228,10 +243,12 @@ def measure_videos(videos: dict[str, str | Path], calibration: str | Path, out_d
     files["timing"].write_text(json.dumps(timing_dict, indent=1), encoding="utf-8")
     stamps.append(("timing", time.perf_counter()))
     try:
-        prepared = {n: prepare_observations(o, timing_dict, n) for n, o in obs.items()}
+        # a lone fast marker the 2-D tracking splits (a rotor) is one track (rig.video_timing.tracked)
+        prepared = {n: prepare_observations(tracked(o), timing_dict, n) for n, o in obs.items()}
         pairs, more = pair_all(prepared, cameras, reference, gate_px=opts.gate_px)
         notes += more
-        tracks = triangulate_tracks(prepared, cameras, timing_dict, sync=opts.sync, reference=reference,
+        tracks = triangulate_tracks(prepared, cameras, timing_dict, reference=reference,
+                                    sync="trajectory" if opts.sync == "rotor" else opts.sync,
                                     pairs=pairs)
     except (AnalysisError, StereoError) as exc:
         raise MeasureError(f"3-D tracks: {exc}") from exc

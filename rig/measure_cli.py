@@ -12,6 +12,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 from drivers.camera.video_file import VideoFileError
+from rig.measure import MEASURE_SYNC
 from rig.onsite_calibration import (
     DISTORTION_MODELS,
     OnsiteCalibrationError,
@@ -20,7 +21,6 @@ from rig.onsite_calibration import (
     write_calibration,
 )
 from rig.safety import EXIT_BAD_INPUT
-from rig.sync_tracks import SYNC_METHODS
 
 __all__ = ["COMMANDS", "add_parsers", "cmd_calibrate", "cmd_measure"]
 
@@ -134,7 +134,10 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
                    help="'auto' reference markers move less than this RMS, mm (default 0.1)")
     p.add_argument("--out", required=True, metavar="DIR")
     p.add_argument("--names", nargs=2, metavar=("LEFT_NAME", "RIGHT_NAME"), help="camera names (left right)")
-    p.add_argument("--sync", choices=SYNC_METHODS, default="trajectory")
+    p.add_argument("--sync", choices=MEASURE_SYNC, default="trajectory",
+                   help="3-D timing of the tracks: trajectory (default), bandlimited, cubic, linear (the "
+                        "paper's interpolation), or rotor (timing by the paper's rotating-marker phase "
+                        "method, row-corrected, on a marker turning at constant speed; 3-D by trajectory)")
     p.add_argument("--window", nargs=2, type=float, metavar=("START_S", "STOP_S"),
                    help="analyse spectra and amplitudes in this time window only (reference clock, s)")
     p.add_argument("--line-time-s", type=float,

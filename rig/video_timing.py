@@ -6,7 +6,7 @@ offset between the files can be seconds. :func:`estimate_video_timing`:
 1. **pairs tracks without time**: each 2-D track (:func:`rig.tracks2d.tracks_2d`) is summarised by its
    median image position; a marker oscillating about a rest position has its median near the image of the
    rest position in both cameras, so tracks pair by the symmetric epipolar distance of their medians
-   (optimal one-to-one assignment within ``gate_px``);
+   (optimal one-to-one assignment within ``gate_px`` + a fifth of the motion);
    A marker the 2-D tracking breaks into pieces (a rotor moving tens of pixels per frame) is taken whole:
    when a camera's moving detections number at most one per frame, they are one marker
    (:func:`merge_lone_mover`), whatever the tracking made of them;
@@ -40,15 +40,17 @@ import pandas as pd
 from scipy.optimize import linear_sum_assignment
 from scipy.signal import correlate
 
-from rig.stereo import estimate_offset, fundamental_from_projections
+from rig.stereo import estimate_offset, fundamental_from_projections, triangulate
 from rig.stereo.dlt import DLTCamera
 from rig.stereo.epipolar import epipolar_distance_px
 from rig.stereo.errors import StereoError
+from rig.stereo.resample import bandlimited
 from rig.stereo.timing import TimingResult
 from rig.stereo.timing_joint import CHI2_DISTINCT, JointTiming
 from rig.tracks2d import tracks_2d
 
-__all__ = ["VideoTimingError", "coarse_offset", "estimate_video_timing", "merge_lone_mover", "pair_by_median"]
+__all__ = ["VideoTimingError", "coarse_offset", "estimate_video_timing", "merge_lone_mover", "pair_by_median",
+           "rotor_timing", "tracked"]
 
 MAX_CANDIDATES = 8
 
@@ -68,7 +70,8 @@ def _medians(obs: pd.DataFrame) -> pd.DataFrame:
 def pair_by_median(obs_a: pd.DataFrame, obs_b: pd.DataFrame, cam_a: DLTCamera, cam_b: DLTCamera,
                    *, gate_px: float = 8.0) -> pd.DataFrame:
     """Pairs (track_a, track_b, distance_px, motion_a_px, motion_b_px) of tracks whose median positions
-    satisfy the epipolar constraint within ``gate_px`` (undistorted pixels), one-to-one."""
+    satisfy the epipolar constraint within ``gate_px`` + a fifth of their motion (undistorted pixels),
+    one-to-one."""
     ma, mb = _medians(obs_a), _medians(obs_b)
     cols = ["track_a", "track_b", "distance_px", "motion_a_px", "motion_b_px"]
     if ma.empty or mb.empty:
@@ -77,9 +80,12 @@ def pair_by_median(obs_a: pd.DataFrame, obs_b: pd.DataFrame, cam_a: DLTCamera, c
     ua = cam_a.undistort_px(ma[["u_px", "v_px"]].to_numpy(float))
     ub = cam_b.undistort_px(mb[["u_px", "v_px"]].to_numpy(float))
     d = epipolar_distance_px(F, ua, ub)
-    cost = np.where(d <= gate_px, d, 1e6)
+    # a moving marker's median is its rest position's image only to within a fraction of its motion (a
+    # circle sampled at a few phases per turn): the gate widens by a fifth of the larger motion
+    gate = gate_px + 0.2 * np.maximum.outer(ma["motion_px"].to_numpy(float), mb["motion_px"].to_numpy(float))
+    cost = np.where(d <= gate, d, 1e6)
     r, c = linear_sum_assignment(cost)
-    ok = cost[r, c] <= gate_px
+    ok = cost[r, c] <= gate[r, c]
     r, c = r[ok], c[ok]
     return pd.DataFrame({"track_a": ma.index.to_numpy()[r], "track_b": mb.index.to_numpy()[c],
                          "distance_px": d[r, c], "motion_a_px": ma["motion_px"].to_numpy()[r],
@@ -114,6 +120,14 @@ def merge_lone_mover(obs: pd.DataFrame, *, min_motion_px: float = 0.5) -> pd.Dat
     out = obs.copy()
     out.loc[sel, "track_id"] = int(moving.min())
     return out
+
+
+def tracked(obs: pd.DataFrame, *, track_gate_px: float = 25.0, min_motion_px: float = 0.5) -> pd.DataFrame:
+    """A copy of one camera's observations with ``track_id`` (:func:`rig.tracks2d.tracks_2d`, then
+    :func:`merge_lone_mover`)."""
+    o = obs.copy()
+    o["track_id"] = tracks_2d(o, gate_px=track_gate_px).to_numpy()
+    return merge_lone_mover(o, min_motion_px=min_motion_px)
 
 
 def coarse_offset(obs_a: pd.DataFrame, obs_b: pd.DataFrame, pairs: pd.DataFrame, period_s: float,
@@ -175,25 +189,27 @@ class _Views:
 
 
 def _joint_tracks(views: _Views, offset_s: float
-                  ) -> tuple[list[tuple[np.ndarray, np.ndarray]], list[tuple[np.ndarray, np.ndarray]], list]:
+                  ) -> tuple[list[tuple[np.ndarray, ...]], list[tuple[np.ndarray, ...]], list]:
     """The joint estimate's tracks for a coarse offset: the used pairs, and for long records a window of
     ``window_s`` at each end (the drift needs the span, the offset only a few periods)."""
-    tracked, use, cameras, reference, other = (views.tracked, views.use, views.cameras, views.reference,
-                                               views.other)
+    by_camera, use, cameras, reference, other = (views.tracked, views.use, views.cameras, views.reference,
+                                                 views.other)
     window_s = views.window_s
-    t_b = tracked[other]["timestamp_s"].to_numpy(float)
+    t_b = by_camera[other]["timestamp_s"].to_numpy(float)
     t0, t1 = float(t_b.min()) + offset_s, float(t_b.max()) + offset_s
     windows = [(t0, t1)] if t1 - t0 <= 2 * window_s else [(t0, t0 + window_s), (t1 - window_s, t1)]
-    tracks_a: list[tuple[np.ndarray, np.ndarray]] = []
-    tracks_b: list[tuple[np.ndarray, np.ndarray]] = []
+    tracks_a: list[tuple[np.ndarray, ...]] = []
+    tracks_b: list[tuple[np.ndarray, ...]] = []
     for a, b in zip(use["track_a"], use["track_b"], strict=True):
         for lo, hi in windows:
             for name, tid, dest, shift in ((reference, a, tracks_a, 0.0), (other, b, tracks_b, offset_s)):
-                tr = tracked[name]
+                tr = by_camera[name]
                 tr = tr[tr["track_id"] == tid].sort_values("timestamp_s").drop_duplicates("timestamp_s")
                 t = tr["timestamp_s"].to_numpy(float)
                 sel = (t + shift >= lo) & (t + shift <= hi)
-                dest.append((t[sel], cameras[name].undistort_px(tr[["u_px", "v_px"]].to_numpy(float)[sel])))
+                uv = tr[["u_px", "v_px"]].to_numpy(float)[sel]
+                # undistorted centres for the geometry, observed rows for the rolling-shutter instant
+                dest.append((t[sel], cameras[name].undistort_px(uv), uv[:, 1]))
     # a piece too short for the joint estimate in one camera is left out with its partner
     keep = [i for i, (ta, tb) in enumerate(zip(tracks_a, tracks_b, strict=True))
             if len(ta[0]) >= 30 and len(tb[0]) >= 30]
@@ -248,7 +264,9 @@ def _ambiguity_note(candidates: list[dict[str, Any]]) -> str | None:
         return None
     listed = ", ".join(f"{c['offset_s']:+.4f} s (likelihood {c['relative_likelihood']:.2f}, "
                        f"Δχ² {c['delta_chi2']:.0f})" for c in equal)
-    return (f"offset ambiguous: {len(equal)} offsets explain the motion equally well — {listed}; "
+    more = (f" (only the {MAX_CANDIDATES} highest correlation peaks are scored: further whole periods "
+            "within the window fit as well)" if len(candidates) >= MAX_CANDIDATES else "")
+    return (f"offset ambiguous: {len(equal)} offsets explain the motion equally well{more} — {listed}; "
             f"{equal[0]['offset_s']:+.4f} s used (the nearest the expected offset among those the data "
             "cannot tell apart). They differ by whole periods of a steady motion: amplitudes and frequencies "
             "are the same under each, absolute timing between the cameras is not; film a change of motion "
@@ -277,12 +295,8 @@ def estimate_video_timing(obs: dict[str, pd.DataFrame], cameras: dict[str, DLTCa
         raise VideoTimingError(f"max_offset_s must be > 0 s and prior_offset_s finite, got {max_offset_s!r}, "
                                f"{prior_offset_s!r}")
     other = names[1] if names[0] == reference else names[0]
-    tracked = {}
-    for c in names:
-        o = obs[c].copy()
-        o["track_id"] = tracks_2d(o, gate_px=track_gate_px).to_numpy()
-        tracked[c] = merge_lone_mover(o, min_motion_px=min_motion_px)
-    pairs = pair_by_median(tracked[reference], tracked[other], cameras[reference], cameras[other],
+    tracks = {c: tracked(obs[c], track_gate_px=track_gate_px, min_motion_px=min_motion_px) for c in names}
+    pairs = pair_by_median(tracks[reference], tracks[other], cameras[reference], cameras[other],
                            gate_px=gate_px)
     moving = pairs[(pairs["motion_a_px"] >= min_motion_px) & (pairs["motion_b_px"] >= min_motion_px)]
     if moving.empty:
@@ -290,10 +304,10 @@ def estimate_video_timing(obs: dict[str, pd.DataFrame], cameras: dict[str, DLTCa
             f"no marker moves by ≥ {min_motion_px} px in both videos ({len(pairs)} static pair(s)); the "
             "clocks "
             "cannot be estimated from motion — give --timing timing.json")
-    coarse = coarse_offset(tracked[reference], tracked[other], moving, 1.0 / fps[other],
+    coarse = coarse_offset(tracks[reference], tracks[other], moving, 1.0 / fps[other],
                            max_offset_s=max_offset_s, prior_offset_s=prior_offset_s)
     use = _use_pairs(moving, max_pairs)
-    views = _Views(tracked, use, cameras, reference, other, window_s)
+    views = _Views(tracks, use, cameras, reference, other, window_s)
     candidates = score_candidates(views, coarse["peaks"], prior_offset_s=prior_offset_s)
     chosen = next((c["offset_s"] for c in candidates if "error" not in c), coarse["offset_s"])
     ambiguity = _ambiguity_note(candidates)
@@ -317,3 +331,64 @@ def estimate_video_timing(obs: dict[str, pd.DataFrame], cameras: dict[str, DLTCa
         extra["line_time_note"] = result.details["line_time"]["statement"]
     result.details = {**result.details, **extra}
     return result
+
+
+def rotor_timing(obs: dict[str, pd.DataFrame], cameras: dict[str, DLTCamera], joint: TimingResult, *,
+                 reference: str, min_motion_px: float = 0.5, track_gate_px: float = 25.0) -> TimingResult:
+    """The paper's rotating-marker phase method, row-corrected (:mod:`rig.stereo.timing_rotor`), on the
+    videos' one moving marker (per-frame detections, however the tracking split them).
+
+    The rotor's plane is not known on site: the marker's path is triangulated with the ``joint`` timing
+    (:func:`estimate_video_timing`), a plane fitted (SVD) and a circle in it (Kåsa); the phase method then
+    gives offset and line time near the joint offset (the same revolution). The joint result is kept in
+    ``details["comparison"]``, its candidates and notes in ``details``.
+    """
+    other = next(c for c in obs if c != reference)
+    tracks = {c: tracked(obs[c], track_gate_px=track_gate_px, min_motion_px=min_motion_px)
+              for c in (reference, other)}
+    pairs = pair_by_median(tracks[reference], tracks[other], cameras[reference], cameras[other])
+    both = (pairs["motion_a_px"] >= min_motion_px) & (pairs["motion_b_px"] >= min_motion_px)
+    moving = _use_pairs(pairs[both], 1)
+    if moving.empty:
+        raise VideoTimingError("--sync rotor: no marker moves in both videos")
+    series = []
+    for cam, tid in ((reference, int(moving["track_a"].iloc[0])), (other, int(moving["track_b"].iloc[0]))):
+        tr = tracks[cam]
+        tr = tr[tr["track_id"] == tid].sort_values("timestamp_s").drop_duplicates("timestamp_s")
+        uv = tr[["u_px", "v_px"]].to_numpy(float)
+        series.append((tr["timestamp_s"].to_numpy(float), cameras[cam].undistort_px(uv), uv[:, 1]))
+    (ta, ua, ra), (tb, ub, rb) = series
+    centre, axis = _rotor_plane(cameras[reference], cameras[other], joint, series, reference=reference,
+                                other=other)
+    try:
+        res = estimate_offset(cameras[reference], cameras[other], (ta, ua), (tb, ub), method="rotor",
+                              names=(reference, other), rotor_centre_mm=centre, rotor_axis=axis,
+                              offset_guess_s=joint.offset_s[other], estimate_line_time=True, rows_px=(ra, rb))
+    except StereoError as exc:
+        raise VideoTimingError(f"--sync rotor: the rotating-marker method failed: {exc}") from exc
+    res.details = {**res.details, "rotor_centre_mm": centre.tolist(), "rotor_axis": axis.tolist(),
+                   "comparison": {"joint": joint.to_dict()},
+                   **{k: joint.details[k] for k in ("coarse", "ambiguity_note") if k in joint.details},
+                   "source": "rig measure --sync rotor (the paper's rotating-marker phase, row-corrected)"}
+    return res
+
+
+def _rotor_plane(cam_a: DLTCamera, cam_b: DLTCamera, joint: TimingResult, series: list, *, reference: str,
+                 other: str) -> tuple[np.ndarray, np.ndarray]:
+    """Centre (mm) and unit axis of the circle the marker runs on, triangulated with the joint timing."""
+    (ta, ua, ra), (tb, ub, rb) = series
+    t_a = joint.times(reference, ta, ra)
+    t_b = joint.times(other, tb, rb)
+    inside = (t_a > t_b[0] + 0.6) & (t_a < t_b[-1] - 0.6)  # the reconstruction's kernel half-width
+    if np.count_nonzero(inside) < 12:
+        raise VideoTimingError("--sync rotor: the videos overlap too little to locate the rotor's plane")
+    ub_at = np.asarray(bandlimited(t_b, ub, t_a[inside]))
+    X = triangulate([DLTCamera(P=cam_a.P), DLTCamera(P=cam_b.P)], [ua[inside], ub_at]).xyz_mm
+    X = X[np.isfinite(X).all(axis=1)]
+    mean = X.mean(axis=0)
+    _, _, vt = np.linalg.svd(X - mean)
+    axis = vt[2] / np.linalg.norm(vt[2])
+    xy = np.column_stack([(X - mean) @ vt[0], (X - mean) @ vt[1]])
+    (a, b, _), *_ = np.linalg.lstsq(np.column_stack([2 * xy, np.ones(len(xy))]), np.sum(xy**2, axis=1),
+                                    rcond=None)
+    return mean + a * vt[0] + b * vt[1], axis

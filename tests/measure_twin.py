@@ -119,3 +119,44 @@ def world_time(left: SimCamera, t_left0_s: float, t_ref_s: np.ndarray) -> np.nda
     k0l = left.sensor_frame(left.first_frame_index_at_or_after(t_left0_s))
     start_l = left.start_offset_s + k0l * left.frame_period_true_s
     return start_l + np.asarray(t_ref_s, float) / (1.0 + left.clock_ppm * 1e-6) + 0.5 * left.exposure_s
+
+
+# ---------------------------------------------------------------- hard scenarios (issue 14): motion already
+# running at the first frame, one column moving along one axis, a rotor, successive tones, a chirp, a larger
+# start offset and a 100 ppm clock. Each builds its world; the cameras are the twin's (drivers.sim), whose
+# camera model (OpenCV projection, its own rolling shutter and clocks) the measurement does not share.
+
+STEADY_FROM_S = -10.0  # the motion started long before either video
+
+
+def steady_world(frequency_hz: float = FREQUENCY_HZ, seed: int = 5) -> World:
+    """The sweep column vibrating at ``frequency_hz`` since before the videos start."""
+    return measurement_world(seed=seed, frequency_hz=frequency_hz, onset_s=STEADY_FROM_S)
+
+
+def tones_world(tones: tuple[tuple[float, float], ...], seed: int = 5) -> World:
+    """Successive tones ``(frequency_hz, until_s)`` (world s), the first running since before the videos."""
+    world = measurement_world(seed=seed, frequency_hz=tones[0][0], onset_s=STEADY_FROM_S)
+    for (_, until), (f_next, _) in zip(tones[:-1], tones[1:], strict=True):
+        world.exciter.set_frequency(until, f_next)
+    return world
+
+
+def chirp_world(start_hz: float, stop_hz: float, t0_s: float, t1_s: float, seed: int = 5) -> World:
+    """A steady ``start_hz`` tone, then a linear chirp to ``stop_hz`` over ``t0_s`` … ``t1_s`` (world s)."""
+    world = measurement_world(seed=seed, frequency_hz=start_hz, onset_s=STEADY_FROM_S)
+    world.exciter.sweep(t0_s, start_hz, stop_hz, t1_s - t0_s)
+    return world
+
+
+def rotor_world(rotation_hz: float = 10.0, seed: int = 5) -> World:
+    """The rotor marker turning at a constant ``rotation_hz`` since before the videos start."""
+    world = World(VirtualClock(), seed=seed, layout=WorldLayout(initial_scene="rotor"))
+    world.rotor.set_frequency(STEADY_FROM_S, rotation_hz)
+    return world
+
+
+def rotor_radius_mm() -> float:
+    from drivers.sim.targets import RotorTarget
+
+    return RotorTarget().radius_mm

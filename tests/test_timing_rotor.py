@@ -123,3 +123,14 @@ def test_angles_unwrap_over_many_turns():
         10.0 * (rec.t_left[-1] - rec.t_left[0]), rel=1e-2
     )
     assert radius == pytest.approx(60.0, abs=0.1)
+
+
+def test_row_corrected_phase_method_measures_the_line_time_from_the_ripple():
+    # every pair's delay is δ + ℓ·(v_B − v_A): the once-per-revolution ripple the paper ignores gives ℓ
+    rec = _record(10.0)
+    res = _paper(rec, estimate_line_time=True)
+    truth = rec.truth_offset_s(res.epoch_s["right"])
+    u_off, u_line = res.uncertainty["offset_s"]["right"], res.uncertainty["line_time_s"]["right"]
+    assert u_line < 0.1 * rec.right.line_time_s  # observable: the rows of the two views differ along the turn
+    assert abs(res.line_time_s["right"] - rec.right.line_time_s) <= 5 * u_line
+    assert abs(res.offset_s["right"] - truth) <= 5 * u_off

@@ -8,9 +8,12 @@ is taken, and the delay follows from their angular difference: δ = wrap(θ_B �
 The offset is the mean over all frame pairs (drift ignored: ``epoch_s`` is the mean time stamp of the
 paired frames of B), its uncertainty the standard error of that mean.
 
-As in the paper, the frame time stamps are used as they are: the rolling shutter is **not** corrected, so
-the delay carries a once-per-revolution ripple of amplitude ≈ line time × the spread of v_B − v_A and a bias
-of line time × mean(v_B − v_A) (metrology notes §4). The result is determined modulo one revolution;
+As in the paper, by default the frame time stamps are used as they are: the rolling shutter is **not**
+corrected, so the delay carries a once-per-revolution ripple of amplitude ≈ line time × the spread of
+v_B − v_A and a bias of line time × mean(v_B − v_A) (metrology notes §4). With ``estimate_line_time=True``
+the ripple is the measurement: every pair's delay is δ + ℓ·(v_B − v_A) (rows in px), so a straight line
+fitted to the delays against the row difference gives the offset δ and the line time ℓ (common to both
+cameras), with standard uncertainties from the fit. The result is determined modulo one revolution;
 ``offset_guess_s`` selects the revolution. Units: seconds, mm, radians.
 """
 
@@ -98,11 +101,16 @@ def estimate_rotor(
     rotor_axis: object,
     names: tuple[str, str] = ("a", "b"),
     offset_guess_s: float = 0.0,
+    estimate_line_time: bool = False,
+    rows_px: tuple[object, object] | None = None,
 ) -> TimingResult:
     """Delay of camera B relative to camera A by the paper's rotating-marker method (see module doc).
 
     ``rotor_centre_mm`` (3,) and ``rotor_axis`` (3,) give the rotor plane in the cameras' world frame.
-    Raises TooFewSamplesError (< 12 frames per camera), NonMonotonicTimestampsError, NotRotatingError.
+    ``estimate_line_time``: fit the rolling-shutter line time from the delays' dependence on the row
+    difference (module doc); ``rows_px``: the observed (distorted) image rows of each camera's observations,
+    default the v of ``uv``. Raises TooFewSamplesError (< 12 frames per camera), NonMonotonicTimestampsError,
+    NotRotatingError.
     """
     P_a, P_b = projection_matrix(camera_a), projection_matrix(camera_b)
     centre = np.asarray(rotor_centre_mm, dtype=float).reshape(-1)
@@ -128,8 +136,11 @@ def estimate_rotor(
             )
         theta, radius, _scatter = rotor_angles(P, uvv, centre, axis, cam)
         omega, ang_scatter = _rate(theta, tau, cam)
-        series.append((tau, theta, omega, radius, ang_scatter))
-    (ta, tha, wa, ra, sa), (tb, thb, wb, rb, sb) = series
+        rows = uvv[:, 1] if rows_px is None else np.asarray(rows_px[len(series)], float).reshape(-1)
+        if rows.shape != tau.shape:
+            raise InputArrayError(f"rows_px of camera {cam} must have {tau.size} values, got {rows.shape}")
+        series.append((tau, theta, omega, radius, ang_scatter, rows))
+    (ta, tha, wa, ra, sa, _), (tb, thb, wb, rb, sb, _) = series
     if np.sign(wa) != np.sign(wb):
         raise NotRotatingError("the two cameras see opposite senses of rotation; check the rotor axis")
     omega = 0.5 * (wa + wb)
@@ -150,9 +161,22 @@ def estimate_rotor(
     # Delay δ with θ_B(τ_B + δ) = θ_A(τ_A): pick the revolution nearest to the guess.
     raw = d_theta / omega - (tb[j[keep]] - ta[keep])
     delays = offset_guess_s + (raw - offset_guess_s + 0.5 * period) % period - 0.5 * period
-    delay = float(np.mean(delays))
-    std = float(np.std(delays, ddof=1) / np.sqrt(delays.size))
     a, b = names
+    line, u_line = 0.0, 0.0
+    if estimate_line_time:
+        rows_a, rows_b = (np.asarray(series[k][5], float) for k in (0, 1))
+        d_rows = rows_b[j[keep]] - rows_a[keep]
+        A = np.column_stack([np.ones_like(d_rows), d_rows - d_rows.mean()])
+        (mean_delay, line), *_ = np.linalg.lstsq(A, delays, rcond=None)
+        resid = delays - A @ np.array([mean_delay, line])
+        s2 = float(resid @ resid) / max(delays.size - 2, 1)
+        cov = s2 * np.linalg.inv(A.T @ A)
+        delay = float(mean_delay - line * d_rows.mean())  # δ: the delay at equal rows
+        std = float(np.sqrt(cov[0, 0] + d_rows.mean() ** 2 * cov[1, 1]))
+        line, u_line = float(line), float(np.sqrt(cov[1, 1]))
+    else:
+        delay = float(np.mean(delays))
+        std = float(np.std(delays, ddof=1) / np.sqrt(delays.size))
     details: dict[str, Any] = {
         "rotation_hz": omega / (2 * np.pi),
         "radius_mm": {a: ra, b: rb},
@@ -163,10 +187,10 @@ def estimate_rotor(
     return TimingResult(
         reference_camera=a,
         offset_s={a: 0.0, b: delay},
-        line_time_s={a: 0.0, b: 0.0},
+        line_time_s={a: line, b: line},
         drift_ppm={a: 0.0, b: 0.0},
         method="rotor",
-        uncertainty={"offset_s": {a: 0.0, b: std}},
+        uncertainty={"offset_s": {a: 0.0, b: std}, "line_time_s": {a: u_line, b: u_line}},
         epoch_s={a: 0.0, b: float(np.mean(tb[j[keep]]))},
         details=details,
     )
