@@ -9,6 +9,7 @@ crank radius as amplitude) and the 4 fixed reference markers; the exciter starts
 from __future__ import annotations
 
 from dataclasses import replace
+from itertools import pairwise
 from pathlib import Path
 
 import numpy as np
@@ -137,7 +138,7 @@ def steady_world(frequency_hz: float = FREQUENCY_HZ, seed: int = 5) -> World:
 def tones_world(tones: tuple[tuple[float, float], ...], seed: int = 5) -> World:
     """Successive tones ``(frequency_hz, until_s)`` (world s), the first running since before the videos."""
     world = measurement_world(seed=seed, frequency_hz=tones[0][0], onset_s=STEADY_FROM_S)
-    for (_, until), (f_next, _) in zip(tones[:-1], tones[1:], strict=True):
+    for (_, until), (f_next, _) in pairwise(tones):
         world.exciter.set_frequency(until, f_next)
     return world
 
@@ -160,3 +161,33 @@ def rotor_radius_mm() -> float:
     from drivers.sim.targets import RotorTarget
 
     return RotorTarget().radius_mm
+
+
+def calibrated_site(folder: Path) -> dict:
+    """``rig calibrate`` on the twin's plate videos in ``folder``: {"folder", "calibration" (path),
+    "scale_floor"} — the floor being the largest relative length error of the plate's points (> 100 mm
+    apart) when their exact images are triangulated with the calibration."""
+    import json
+
+    from scipy.spatial.distance import pdist
+
+    from rig.analysis import load_cameras
+    from rig.cli import main
+    from rig.stereo import triangulate
+
+    world, truth, t_end = calibration_world()
+    left, right = camera_pair(world)
+    left.write_video(folder / "cal_left.mp4", 0.0, t_end, fourcc="mp4v")
+    right.write_video(folder / "cal_right.mp4", 0.0, t_end, fourcc="mp4v")
+    target = write_target(folder / "target.toml", truth)
+    code = main(["calibrate", str(folder / "cal_left.mp4"), str(folder / "cal_right.mp4"), "--target",
+                 str(target), "--out", str(folder / "calibration.json")])
+    if code != 0:
+        raise RuntimeError(f"rig calibrate on the twin's plate videos exited {code}")
+    cams = load_cameras(json.loads((folder / "calibration.json").read_text()))
+    pts = np.concatenate(truth)
+    tri = triangulate([cams["left"], cams["right"]], [left.project(pts), right.project(pts)])
+    d_true, d_meas = pdist(pts), pdist(tri.xyz_mm)
+    long = d_true > 100.0
+    scale = float(np.max(np.abs(d_meas[long] - d_true[long]) / d_true[long]))
+    return {"folder": folder, "calibration": folder / "calibration.json", "scale_floor": scale}

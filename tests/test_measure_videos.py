@@ -17,38 +17,20 @@ import numpy as np
 import pandas as pd
 import pytest
 from camera_mkv import write_mkv
-from scipy.spatial.distance import pdist
 
 from drivers.sim.clock import VirtualClock
 from drivers.sim.targets import ReferenceMarkers
-from rig.analysis import load_cameras
 from rig.cli import main
 from rig.measure import MeasureError, MeasureOptions, measure_videos
 from rig.measure_series import SeriesError, reference_tracks
 from rig.record import RunRecord
-from rig.stereo import triangulate
 
 WINDOW = (0.6, 2.4)  # s on the left video's clock: the exciter runs from 0.4 s
 
 
 @pytest.fixture(scope="module")
 def site(tmp_path_factory: pytest.TempPathFactory) -> dict:
-    folder = tmp_path_factory.mktemp("site")
-    world, truth, t_end = mt.calibration_world()
-    left, right = mt.camera_pair(world)
-    left.write_video(folder / "cal_left.mp4", 0.0, t_end, fourcc="mp4v")
-    right.write_video(folder / "cal_right.mp4", 0.0, t_end, fourcc="mp4v")
-    target = mt.write_target(folder / "target.toml", truth)
-    code = main(["calibrate", str(folder / "cal_left.mp4"), str(folder / "cal_right.mp4"), "--target",
-                 str(target), "--out", str(folder / "calibration.json")])
-    assert code == 0
-    cams = load_cameras(json.loads((folder / "calibration.json").read_text()))
-    pts = np.concatenate(truth)
-    tri = triangulate([cams["left"], cams["right"]], [left.project(pts), right.project(pts)])
-    d_true, d_meas = pdist(pts), pdist(tri.xyz_mm)
-    long = d_true > 100.0
-    scale = float(np.max(np.abs(d_meas[long] - d_true[long]) / d_true[long]))
-    return {"folder": folder, "calibration": folder / "calibration.json", "scale_floor": scale}
+    return mt.calibrated_site(tmp_path_factory.mktemp("site"))
 
 
 def _exciter_record(folder: Path) -> Path:

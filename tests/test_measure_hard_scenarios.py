@@ -1,0 +1,172 @@
+"""`rig measure` with default options on the twin's hard scenarios (issue 14), against the twin's truth.
+
+Motion already running at the first frame, one column moving along one axis (the line time trades against
+the offset), a rotor at constant speed (measured without --timing, with and without --sync rotor),
+successive tones, a chirp, a larger start offset with a 100 ppm clock. The videos are MJPG (intra-frame):
+mp4v's motion-compensated frames move a slowly moving marker's centre in phase with its velocity, by about
+0.03 px here, which reads as a 0.2 ms offset on a 5 Hz, 3 px vibration (see docs/deployment.md).
+
+Tolerances are derived, never tuned: the offset within 4 of its stated standard uncertainties (which hold
+the line time's share when it is not observable) — modulo the motion's period when the ambiguity is
+stated; the line time within 4 of its own when observable; amplitudes within 4 of the sine fit's standard
+uncertainties plus the calibration's scale floor and the trajectory method's bias (≤ 0.5 % to 26 Hz,
+rig/sync_tracks.py).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import measure_twin as mt
+import numpy as np
+import pandas as pd
+import pytest
+
+from drivers.sim.world import World
+from rig.measure import MeasureOptions, MeasureResult, measure_videos
+from rig.stereo import fit_sine
+
+SYNC_BIAS = 0.005  # the trajectory method's relative amplitude bias up to 26 Hz (rig/sync_tracks.py)
+
+
+@pytest.fixture(scope="module")
+def site(tmp_path_factory: pytest.TempPathFactory) -> dict:
+    return mt.calibrated_site(tmp_path_factory.mktemp("site"))
+
+
+def _measure(site: dict, folder: Path, world: World, *, duration_s: float = 2.5, right_start_s: float = 0.15,
+             sync: str = "trajectory", **cameras: dict) -> tuple[MeasureResult, dict]:
+    left, right = mt.camera_pair(world, **cameras)
+    paths = mt.write_pair(left, right, folder, fourcc="MJPG", ext="avi", t_left_s=(0.0, duration_s),
+                          t_right_s=(right_start_s, right_start_s + duration_s))
+    res = measure_videos({"left": paths[0], "right": paths[1]}, site["calibration"], folder / "out",
+                         options=MeasureOptions(sync=sync, make_figures=False))
+    return res, mt.truth_timing(left, right, 0.0, right_start_s)
+
+
+def _offset_error_s(res: MeasureResult, truth: dict) -> float:
+    """Estimated − true offset at the estimate's epoch (the drifts differ; the offset is stated there)."""
+    epoch = res.timing["epoch_s"]["right"]
+    true = truth["offset_s"]["right"] + truth["drift_ppm"]["right"] * 1e-6 * epoch
+    return res.timing["offset_s"]["right"] - true
+
+
+def _check_offset(res: MeasureResult, truth: dict, *, period_s: float | None) -> float:
+    """The offset within 4 u, modulo ``period_s`` when the ambiguity is stated (then the truth must be one of
+    the candidates listed). Returns the error (s)."""
+    err = _offset_error_s(res, truth)
+    u = res.timing["uncertainty"]["offset_s"]["right"]
+    coarse = res.timing["details"]["coarse"]
+    if period_s is not None:
+        assert coarse["ambiguous"] and any("offset ambiguous" in n for n in res.notes)
+        assert any(abs(c["offset_s"] - truth["offset_s"]["right"]) < 1 / 60 for c in coarse["candidates"]
+                   if not c.get("distinct", True))
+        err = (err + 0.5 * period_s) % period_s - 0.5 * period_s
+    else:
+        assert not coarse["ambiguous"], coarse["candidates"]
+    assert abs(err) <= 4 * u, (err, u)
+    return err
+
+
+def _check_line_time(res: MeasureResult, truth: dict) -> None:
+    got, true = res.timing["line_time_s"]["right"], truth["line_time_s"]["right"]
+    u = res.timing["uncertainty"]["line_time_s"]["right"]
+    info = res.timing["details"].get("line_time")
+    if info is None:  # observable: estimated
+        assert abs(got - true) <= 4 * u, (got, true, u)
+        return
+    lo, hi = info["prior_s"]
+    assert lo <= true <= hi and u == pytest.approx((hi - lo) / np.sqrt(12))
+    assert any("line time not observable" in n for n in res.notes)
+    # the offset's uncertainty holds all the unknown line time can do
+    assert res.timing["uncertainty"]["offset_s"]["right"] >= info["offset_uncertainty_from_line_time_s"]
+
+
+def _targets(res: MeasureResult) -> pd.DataFrame:
+    return res.summary[res.summary["role"] == "target"]
+
+
+def _check_amplitudes(res: MeasureResult, amplitude_mm: float, frequency_hz: float, site: dict) -> None:
+    for r in _targets(res).itertuples():
+        tol = 4 * r.amplitude_std_mm + amplitude_mm * (site["scale_floor"] + SYNC_BIAS)
+        assert abs(r.amplitude_mm - amplitude_mm) <= tol, (r.track_id, r.amplitude_mm, tol)
+        assert abs(r.frequency_hz - frequency_hz) <= 4 * r.frequency_std_hz + 50e-6 * frequency_hz
+
+
+def test_steady_column_from_before_the_first_frame(site: dict, tmp_path: Path) -> None:
+    # a column moving along one axis, vibrating since long before the videos: whole periods are ambiguous,
+    # the line time is not observable (both views' rows move together)
+    res, truth = _measure(site, tmp_path, mt.steady_world())
+    _check_offset(res, truth, period_s=1 / mt.FREQUENCY_HZ)
+    _check_line_time(res, truth)
+    assert res.timing["details"]["line_time"]["observable"] is False
+    assert len(_targets(res)) == 5
+    _check_amplitudes(res, mt.CRANK_MM, mt.FREQUENCY_HZ, site)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("sync", ["trajectory", "rotor"])
+def test_rotor_turning_from_frame_0_is_measured_without_timing(site: dict, tmp_path: Path, sync: str) -> None:
+    rotation_hz = 10.0
+    res, truth = _measure(site, tmp_path, mt.rotor_world(rotation_hz), sync=sync)
+    assert res.timing["method"] == ("rotor" if sync == "rotor" else "joint")
+    _check_offset(res, truth, period_s=1 / rotation_hz)
+    _check_line_time(res, truth)
+    assert "line_time" not in res.timing["details"]  # the rotor's rows move differently in the two views
+    (target,) = _targets(res).itertuples()
+    radius = mt.rotor_radius_mm()
+    tol = 4 * target.amplitude_std_mm + radius * (site["scale_floor"] + SYNC_BIAS)
+    assert abs(target.amplitude_mm - radius) <= tol
+    assert abs(target.frequency_hz - rotation_hz) <= 4 * target.frequency_std_hz + 50e-6 * rotation_hz
+
+
+TONES = ((3.5, 1.0), (10.0, 2.0), (20.0, 3.0), (25.0, 9.0))  # (Hz, until world s)
+
+
+def _tone_amplitudes(res: MeasureResult, left_start_s: float = 0.0) -> list[tuple[float, float, float]]:
+    """(frequency, amplitude, its std) of each tone, by a four-parameter sine fit of each target's
+    displacement inside the tone (0.1 s clear of the switches; the left clock ≈ world time here)."""
+    disp = res.displacement
+    out = []
+    starts = [0.0] + [until for _, until in TONES[:-1]]
+    for (f, until), start in zip(TONES, starts, strict=True):
+        stop = min(until, float(disp["time_s"].max()) + left_start_s)
+        for tid in _targets(res)["track_id"]:
+            d = disp[(disp["track_id"] == tid) & disp["time_s"].between(start + 0.1, stop - 0.1)]
+            fit = fit_sine(d["time_s"].to_numpy(), d["dz_mm"].to_numpy())
+            assert abs(fit.frequency_hz - f) <= 4 * fit.frequency_std_hz + 1e-3 * f
+            out.append((f, fit.amplitude, fit.amplitude_std))
+    return out
+
+
+@pytest.mark.slow
+def test_successive_tones_resolve_the_period_and_keep_every_amplitude(site: dict, tmp_path: Path) -> None:
+    res, truth = _measure(site, tmp_path, mt.tones_world(TONES), duration_s=4.0)
+    _check_offset(res, truth, period_s=None)  # the changes of tone tell the candidates apart
+    _check_line_time(res, truth)
+    for f, amp, std in _tone_amplitudes(res):
+        tol = 4 * std + mt.CRANK_MM * (site["scale_floor"] + SYNC_BIAS)
+        assert abs(amp - mt.CRANK_MM) <= tol, (f, amp, tol)
+        assert abs(amp - mt.CRANK_MM) <= (0.01 if f <= 10 else 0.02) * mt.CRANK_MM  # issue 14's targets
+
+
+@pytest.mark.slow
+def test_chirp_and_a_larger_offset_with_a_100_ppm_clock(site: dict, tmp_path: Path) -> None:
+    # the right camera starts 0.5 s (30 frames) later and its clock runs 100 ppm fast
+    world = mt.chirp_world(3.0, 20.0, 0.5, 3.5)
+    res, truth = _measure(site, tmp_path, world, duration_s=4.0, right_start_s=0.5,
+                          right={"clock_ppm": 100.0})
+    _check_offset(res, truth, period_s=None)
+    _check_line_time(res, truth)
+    drift, u_drift = res.timing["drift_ppm"]["right"], res.timing["uncertainty"]["drift_ppm"]["right"]
+    assert abs(drift - truth["drift_ppm"]["right"]) <= 4 * u_drift
+    # the displacement follows the chirp (constant crank amplitude) within the noise and scale floors
+    left, _ = mt.camera_pair(world)
+    noise = float(res.summary[res.summary["role"] == "reference"]["rms_mm"].max())
+    disp = res.displacement
+    for tid in _targets(res)["track_id"]:
+        d = disp[(disp["track_id"] == tid) & disp["time_s"].between(0.6, 3.4)]
+        true = mt.truth_displacement_mm(world, mt.world_time(left, 0.0, d["time_s"].to_numpy()))
+        resid = d["dz_mm"].to_numpy() - (true - np.median(true))
+        floor = 2 * noise + mt.CRANK_MM * (site["scale_floor"] + SYNC_BIAS)
+        assert np.sqrt(np.mean((resid - resid.mean()) ** 2)) <= floor
