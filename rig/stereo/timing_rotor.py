@@ -91,6 +91,40 @@ def _rate(theta: np.ndarray, tau: np.ndarray, camera: str) -> tuple[float, float
     return float(omega), float(np.std(resid))
 
 
+def _camera_series(cam: str, P: np.ndarray, obs: object, rows_px: object, *, centre: np.ndarray,
+                   axis: np.ndarray) -> tuple[np.ndarray, np.ndarray, float, float, float, np.ndarray]:
+    """(τ, unwrapped angle, rate rad/s, radius mm, angle scatter rad, rows px) of one camera's track."""
+    if not (isinstance(obs, tuple | list) and len(obs) == 2):
+        raise InputArrayError(f"observations of camera {cam} must be one pair (timestamp_s, uv_px)")
+    t, uv = obs
+    tau = as_times(t, f"t_{cam}_s", min_count=MIN_FRAMES)
+    uvv = np.asarray(uv, dtype=float)
+    if uvv.shape != (tau.size, 2) or not np.isfinite(uvv).all():
+        raise InputArrayError(
+            f"uv of camera {cam} must be finite with shape ({tau.size}, 2), got {uvv.shape}")
+    theta, radius, _scatter = rotor_angles(P, uvv, centre, axis, cam)
+    omega, ang_scatter = _rate(theta, tau, cam)
+    rows = uvv[:, 1] if rows_px is None else np.asarray(rows_px, float).reshape(-1)
+    if rows.shape != tau.shape:
+        raise InputArrayError(f"rows_px of camera {cam} must have {tau.size} values, got {rows.shape}")
+    return tau, theta, omega, radius, ang_scatter, rows
+
+
+def _offset_from_delays(delays: np.ndarray, d_rows: np.ndarray | None) -> tuple[float, float, float, float]:
+    """(offset s, its u, line time s, its u): the mean delay, or with the row differences ``d_rows`` (px)
+    the straight line delay = δ + ℓ·d_rows (δ at equal rows)."""
+    if d_rows is None:
+        return float(np.mean(delays)), float(np.std(delays, ddof=1) / np.sqrt(delays.size)), 0.0, 0.0
+    A = np.column_stack([np.ones_like(d_rows), d_rows - d_rows.mean()])
+    (mean_delay, line), *_ = np.linalg.lstsq(A, delays, rcond=None)
+    resid = delays - A @ np.array([mean_delay, line])
+    s2 = float(resid @ resid) / max(delays.size - 2, 1)
+    cov = s2 * np.linalg.inv(A.T @ A)
+    delay = float(mean_delay - line * d_rows.mean())
+    std = float(np.sqrt(cov[0, 0] + d_rows.mean() ** 2 * cov[1, 1]))
+    return delay, std, float(line), float(np.sqrt(cov[1, 1]))
+
+
 def estimate_rotor(
     camera_a: object,
     camera_b: object,
@@ -123,23 +157,9 @@ def estimate_rotor(
     ):
         raise InputArrayError("rotor_centre_mm and rotor_axis must be finite 3-vectors, the axis non-zero")
     axis = axis / np.linalg.norm(axis)
-    series = []
-    for cam, P, obs in ((names[0], P_a, observations_a), (names[1], P_b, observations_b)):
-        if not (isinstance(obs, tuple | list) and len(obs) == 2):
-            raise InputArrayError(f"observations of camera {cam} must be one pair (timestamp_s, uv_px)")
-        t, uv = obs
-        tau = as_times(t, f"t_{cam}_s", min_count=MIN_FRAMES)
-        uvv = np.asarray(uv, dtype=float)
-        if uvv.shape != (tau.size, 2) or not np.isfinite(uvv).all():
-            raise InputArrayError(
-                f"uv of camera {cam} must be finite with shape ({tau.size}, 2), got {uvv.shape}"
-            )
-        theta, radius, _scatter = rotor_angles(P, uvv, centre, axis, cam)
-        omega, ang_scatter = _rate(theta, tau, cam)
-        rows = uvv[:, 1] if rows_px is None else np.asarray(rows_px[len(series)], float).reshape(-1)
-        if rows.shape != tau.shape:
-            raise InputArrayError(f"rows_px of camera {cam} must have {tau.size} values, got {rows.shape}")
-        series.append((tau, theta, omega, radius, ang_scatter, rows))
+    series = [_camera_series(cam, P, obs, None if rows_px is None else rows_px[k], centre=centre, axis=axis)
+              for k, (cam, P, obs) in enumerate(((names[0], P_a, observations_a),
+                                                  (names[1], P_b, observations_b)))]
     (ta, tha, wa, ra, sa, _), (tb, thb, wb, rb, sb, _) = series
     if np.sign(wa) != np.sign(wb):
         raise NotRotatingError("the two cameras see opposite senses of rotation; check the rotor axis")
@@ -162,21 +182,8 @@ def estimate_rotor(
     raw = d_theta / omega - (tb[j[keep]] - ta[keep])
     delays = offset_guess_s + (raw - offset_guess_s + 0.5 * period) % period - 0.5 * period
     a, b = names
-    line, u_line = 0.0, 0.0
-    if estimate_line_time:
-        rows_a, rows_b = (np.asarray(series[k][5], float) for k in (0, 1))
-        d_rows = rows_b[j[keep]] - rows_a[keep]
-        A = np.column_stack([np.ones_like(d_rows), d_rows - d_rows.mean()])
-        (mean_delay, line), *_ = np.linalg.lstsq(A, delays, rcond=None)
-        resid = delays - A @ np.array([mean_delay, line])
-        s2 = float(resid @ resid) / max(delays.size - 2, 1)
-        cov = s2 * np.linalg.inv(A.T @ A)
-        delay = float(mean_delay - line * d_rows.mean())  # δ: the delay at equal rows
-        std = float(np.sqrt(cov[0, 0] + d_rows.mean() ** 2 * cov[1, 1]))
-        line, u_line = float(line), float(np.sqrt(cov[1, 1]))
-    else:
-        delay = float(np.mean(delays))
-        std = float(np.std(delays, ddof=1) / np.sqrt(delays.size))
+    d_rows = series[1][5][j[keep]] - series[0][5][keep] if estimate_line_time else None
+    delay, std, line, u_line = _offset_from_delays(delays, d_rows)
     details: dict[str, Any] = {
         "rotation_hz": omega / (2 * np.pi),
         "radius_mm": {a: ra, b: rb},
