@@ -160,13 +160,20 @@ def test_chirp_and_a_larger_offset_with_a_100_ppm_clock(site: dict, tmp_path: Pa
     _check_line_time(res, truth)
     drift, u_drift = res.timing["drift_ppm"]["right"], res.timing["uncertainty"]["drift_ppm"]["right"]
     assert abs(drift - truth["drift_ppm"]["right"]) <= 4 * u_drift
-    # the displacement follows the chirp (constant crank amplitude) within the noise and scale floors
+    # the displacement follows the chirp (constant crank amplitude) within the noise and scale floors, on
+    # a time axis that the line time's uncertainty may shift as a whole (instants are row-corrected:
+    # τ + ℓ·v, so an error in ℓ moves the reference clock's instants by up to that error × 540 rows)
     left, _ = mt.camera_pair(world)
     noise = float(res.summary[res.summary["role"] == "reference"]["rms_mm"].max())
+    floor = 2 * noise + mt.CRANK_MM * (site["scale_floor"] + SYNC_BIAS)
+    max_shift_s = 4 * res.timing["uncertainty"]["line_time_s"]["right"] * 540 + 1e-4
     disp = res.displacement
     for tid in _targets(res)["track_id"]:
         d = disp[(disp["track_id"] == tid) & disp["time_s"].between(0.6, 3.4)]
-        true = mt.truth_displacement_mm(world, mt.world_time(left, 0.0, d["time_s"].to_numpy()))
-        resid = d["dz_mm"].to_numpy() - (true - np.median(true))
-        floor = 2 * noise + mt.CRANK_MM * (site["scale_floor"] + SYNC_BIAS)
-        assert np.sqrt(np.mean((resid - resid.mean()) ** 2)) <= floor
+        t_world = mt.world_time(left, 0.0, d["time_s"].to_numpy())
+        rms = []
+        for shift in np.linspace(-max_shift_s, max_shift_s, 81):
+            true = mt.truth_displacement_mm(world, t_world + shift)
+            resid = d["dz_mm"].to_numpy() - (true - np.median(true))
+            rms.append(float(np.sqrt(np.mean((resid - resid.mean()) ** 2))))
+        assert min(rms) <= floor, (tid, min(rms), floor)
