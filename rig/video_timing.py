@@ -53,6 +53,9 @@ __all__ = ["VideoTimingError", "coarse_offset", "estimate_video_timing", "merge_
            "rotor_timing", "tracked"]
 
 MAX_CANDIDATES = 8
+#: Candidates are scored up to this many frames from B's record ends (the joint estimate keeps 34): a
+#: motion's start is often near an end, and it is what tells whole periods apart.
+SCORE_EDGE_FRAMES = 4
 
 
 class VideoTimingError(ValueError):
@@ -231,7 +234,7 @@ def score_candidates(views: _Views, peaks: list[tuple[float, float]], *, prior_o
         ta, tb, _ = _joint_tracks(views, off)
         try:
             prob = JointTiming(views.cameras[views.reference], views.cameras[views.other], ta, tb,
-                               offset_guess_s=off)
+                               offset_guess_s=off, edge_margin_frames=SCORE_EDGE_FRAMES)
             prob.coarse_search()
         except (StereoError, ValueError) as exc:
             scored.append({"offset_s": off, "correlation": corr, "error": str(exc)})

@@ -58,6 +58,7 @@ from rig.stereo.timing_model import TimingResult, projection_matrix
 MIN_OBSERVATIONS = 30
 CHI2_DISTINCT = 25.0  # Δχ² (5 σ) that separates a real minimum from an equally good one
 GAP_GUARD = 32  # frames of B either side of a dropped frame whose reconstruction is not trusted
+EDGE_MARGIN_FRAMES = 34  # A's instants used lie this far inside B's record (the kernel's half-width + 2)
 
 
 def fundamental_matrix(P_a: np.ndarray, P_b: np.ndarray) -> np.ndarray:
@@ -220,15 +221,18 @@ class _Fit:
 class JointTiming:
     """The joint timing problem of one data set: coarse search → refinement → checks → :class:`TimingResult`.
 
-    Options as :func:`estimate_joint`. ``solve(names)`` runs the stages; each stage raises the errors listed
-    there.
+    Options as :func:`estimate_joint`, and ``edge_margin_frames``: how far inside B's record A's instants
+    must lie (default the band-limited kernel's half-width: exact reconstruction; fewer keeps the record's
+    ends — where a motion starts — at the price of a truncated kernel there, for comparing offsets a whole
+    period apart, whose truncation errors coincide on a periodic motion). ``solve(names)`` runs the stages;
+    each stage raises the errors listed there.
     """
 
     def __init__(self, camera_a: object, camera_b: object, observations_a: object, observations_b: object, *,
                  offset_guess_s: float = 0.0, search_half_width_s: float | None = None,
                  line_time_s: float | tuple[float, float] | None = None, line_time_guess_s: float = 0.0,
                  line_time_prior_s: tuple[float, float] | None = None, estimate_drift: bool = True,
-                 max_drift_ppm: float = 200.0) -> None:
+                 max_drift_ppm: float = 200.0, edge_margin_frames: float = EDGE_MARGIN_FRAMES) -> None:
         P_a, P_b = projection_matrix(camera_a), projection_matrix(camera_b)
         self.tracks = as_tracks(observations_a, observations_b)
         self.period_b = float(np.median(np.concatenate([np.diff(tr[3]) for tr in self.tracks])))
@@ -247,7 +251,9 @@ class JointTiming:
         self.estimate_drift, self.max_drift_ppm = bool(estimate_drift), float(max_drift_ppm)
         all_tb = np.concatenate([tr[3] for tr in self.tracks])
         self.epoch_b = 0.5 * (all_tb.min() + all_tb.max())
-        margin = 34 * self.period_b + max_drift_ppm * 1e-6 * np.ptp(all_tb)  # kernel half-width 32 + rows
+        # A's instants this far inside B's record: the kernel half-width (32) + the rows' spread; or fewer
+        # frames (``edge_margin_frames``) when a truncated kernel near B's ends is acceptable
+        margin = edge_margin_frames * self.period_b + max_drift_ppm * 1e-6 * np.ptp(all_tb)
         self.estimate_line = line_time_s is None
         if line_time_s is None:
             self.fixed: tuple[float | None, float | None] = (None, None)
