@@ -279,7 +279,7 @@ def _ambiguity_note(candidates: list[dict[str, Any]]) -> str | None:
 def estimate_video_timing(obs: dict[str, pd.DataFrame], cameras: dict[str, DLTCamera], fps: dict[str, float],
                           *, reference: str, gate_px: float = 8.0, max_offset_s: float = 10.0,
                           prior_offset_s: float = 0.0, min_motion_px: float = 0.5,
-                          track_gate_px: float = 25.0, max_pairs: int = 3, window_s: float = 1.5,
+                          track_gate_px: float = 25.0, max_pairs: int = 5, window_s: float = 3.0,
                           line_time_s: float | None = None) -> TimingResult:
     """Timing of the other camera relative to ``reference`` from the videos' observations (module doc).
 

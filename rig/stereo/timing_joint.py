@@ -25,7 +25,8 @@ the two views is nearly the same for every observation (cameras side by side at 
 marker's vertical motion: both views' rows move together), ℓ·(v_B − v_A) is a constant delay the offset
 absorbs — the data fix δ + ℓ·(v_B − v_A), not δ and ℓ apart. It is declared not observable when the
 solution lies on the line-time bound, or its standard uncertainty exceeds the largest physical line time
-(frame period / largest observed row). Then, with ``line_time_prior_s = (lo, hi)`` (e.g. 0 … frame period /
+(frame period / largest observed row) — or, given a prior, that of the prior (width/√12), or it lies more
+than 3 σ outside it. Then, with ``line_time_prior_s = (lo, hi)`` (e.g. 0 … frame period /
 image height), ℓ is taken uniform over the prior: the offset is refitted at the prior's middle and its
 uncertainty widened by the whole trade-off, |∂δ/∂ℓ|·(hi − lo)/√12 (the profile slope ∂δ/∂ℓ ≈ −mean row
 difference, from the Jacobian); ``details["line_time"]`` states it. Without a prior
@@ -355,13 +356,14 @@ class JointTiming:
     def line_time_problem(self, fit: _Fit) -> LineTimeNotObservableError | None:
         """Why the estimated line time cannot be trusted (module doc), or None: on its bound, less certain
         than the largest physical line time (frame period / largest observed row), or (with a prior) more
-        than 3 σ outside the prior."""
+        than 3 σ outside the prior or less certain than the prior itself (its width / √12)."""
         std_s = fit.std[1] * 1e-6
         max_row = max(float(np.max(np.concatenate([tr[2], tr[5]]))) for tr in self.tracks)
         limit_s = self.period_b / max(max_row, 1.0)
         outside = self.prior is not None and not (
             self.prior[0] - 3 * std_s <= fit.line_s <= self.prior[1] + 3 * std_s)
-        if not fit.at_bound and std_s <= limit_s and not outside:
+        vague = self.prior is not None and std_s > (self.prior[1] - self.prior[0]) / np.sqrt(12.0)
+        if not fit.at_bound and std_s <= limit_s and not outside and not vague:
             return None
         diff = np.concatenate([np.interp(ta, tb + fit.offset_s, rb) - ra
                                for ta, _, ra, tb, _, rb in self.tracks])
@@ -371,9 +373,12 @@ class JointTiming:
         elif std_s > limit_s:
             why = (f"its uncertainty exceeds the largest physical line time {limit_s * 1e6:.2f} µs "
                    "(frame period / largest row)")
-        else:
+        elif outside:
             why = (f"it lies outside the physical range {self.prior[0] * 1e6:.2f} … "  # type: ignore[index]
                    f"{self.prior[1] * 1e6:.2f} µs by more than 3 σ")  # type: ignore[index]
+        else:
+            why = ("its uncertainty exceeds that of the physical range itself "
+                   f"({(self.prior[1] - self.prior[0]) / np.sqrt(12.0) * 1e6:.2f} µs)")  # type: ignore[index]
         return LineTimeNotObservableError(
             f"the rolling-shutter line time is not observable from this motion: estimate "
             f"{fit.line_s * 1e6:+.2f} ± {std_s * 1e6:.2f} µs, and {why}; the two cameras' rows differ by a "
