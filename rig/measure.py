@@ -146,7 +146,9 @@ def _timing(args: dict[str, Any], obs: dict[str, pd.DataFrame], cameras: dict[st
         if set(tr.offset_s) != set(obs):
             raise MeasureError(f"{args['timing']}: cameras {sorted(tr.offset_s)} do not match the videos' "
                                f"{sorted(obs)}")
-        notes.append(f"timing from {args['timing']} (method {tr.method})")
+        notes.append(f"timing from {args['timing']} (method {tr.method})"
+                     + ("; --sync rotor estimates nothing with a timing file: 3-D by trajectory"
+                        if args.get("sync") == "rotor" else ""))
         return tr.to_dict()
     try:
         tr = estimate_video_timing(obs, cameras, fps, reference=reference,

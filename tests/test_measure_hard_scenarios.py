@@ -93,6 +93,7 @@ def _check_amplitudes(res: MeasureResult, amplitude_mm: float, frequency_hz: flo
         assert abs(r.frequency_hz - frequency_hz) <= 4 * r.frequency_std_hz + 50e-6 * frequency_hz
 
 
+@pytest.mark.slow
 def test_steady_column_from_before_the_first_frame(site: dict, tmp_path: Path) -> None:
     # a column moving along one axis, vibrating since long before the videos: whole periods are ambiguous,
     # the line time is not observable (both views' rows move together)
