@@ -134,3 +134,4 @@ def test_row_corrected_phase_method_measures_the_line_time_from_the_ripple():
     assert u_line < 0.1 * rec.right.line_time_s  # observable: the rows of the two views differ along the turn
     assert abs(res.line_time_s["right"] - rec.right.line_time_s) <= 5 * u_line
     assert abs(res.offset_s["right"] - truth) <= 5 * u_off
+    assert abs(res.drift_ppm["right"] - rec.truth_drift_ppm()) <= 5 * res.uncertainty["drift_ppm"]["right"]

@@ -11,9 +11,10 @@ paired frames of B), its uncertainty the standard error of that mean.
 As in the paper, by default the frame time stamps are used as they are: the rolling shutter is **not**
 corrected, so the delay carries a once-per-revolution ripple of amplitude ≈ line time × the spread of
 v_B − v_A and a bias of line time × mean(v_B − v_A) (metrology notes §4). With ``estimate_line_time=True``
-the ripple is the measurement: every pair's delay is δ + ℓ·(v_B − v_A) (rows in px), so a straight line
-fitted to the delays against the row difference gives the offset δ and the line time ℓ (common to both
-cameras), with standard uncertainties from the fit. The result is determined modulo one revolution;
+the ripple is the measurement: every pair's delay is δ + ℓ·(v_B − v_A) + d·(τ_B − epoch) (rows in px, d the
+clock drift), so a plane fitted to the delays against the row difference and the time gives the offset δ,
+the line time ℓ (common to both cameras) and the drift, with standard uncertainties from the fit. The
+result is determined modulo one revolution;
 ``offset_guess_s`` selects the revolution. Units: seconds, mm, radians.
 """
 
@@ -110,19 +111,24 @@ def _camera_series(cam: str, P: np.ndarray, obs: object, rows_px: object, *, cen
     return tau, theta, omega, radius, ang_scatter, rows
 
 
-def _offset_from_delays(delays: np.ndarray, d_rows: np.ndarray | None) -> tuple[float, float, float, float]:
-    """(offset s, its u, line time s, its u): the mean delay, or with the row differences ``d_rows`` (px)
-    the straight line delay = δ + ℓ·d_rows (δ at equal rows)."""
+def _offset_from_delays(delays: np.ndarray, d_rows: np.ndarray | None, dt_s: np.ndarray
+                        ) -> tuple[np.ndarray, np.ndarray]:
+    """(offset s, line time s, drift ppm) and their standard uncertainties: the mean delay, or with the row
+    differences ``d_rows`` (px) the least-squares plane delay = δ + ℓ·d_rows + drift·1e-6·dt_s (``dt_s``:
+    B's time stamps about the epoch; δ at equal rows and the epoch)."""
     if d_rows is None:
-        return float(np.mean(delays)), float(np.std(delays, ddof=1) / np.sqrt(delays.size)), 0.0, 0.0
-    A = np.column_stack([np.ones_like(d_rows), d_rows - d_rows.mean()])
-    (mean_delay, line), *_ = np.linalg.lstsq(A, delays, rcond=None)
-    resid = delays - A @ np.array([mean_delay, line])
-    s2 = float(resid @ resid) / max(delays.size - 2, 1)
+        std = float(np.std(delays, ddof=1) / np.sqrt(delays.size))
+        return np.array([float(np.mean(delays)), 0.0, 0.0]), np.array([std, 0.0, 0.0])
+    A = np.column_stack([np.ones_like(d_rows), d_rows - d_rows.mean(), dt_s * 1e-6])
+    coef, *_ = np.linalg.lstsq(A, delays, rcond=None)
+    resid = delays - A @ coef
+    s2 = float(resid @ resid) / max(delays.size - 3, 1)
     cov = s2 * np.linalg.inv(A.T @ A)
-    delay = float(mean_delay - line * d_rows.mean())
-    std = float(np.sqrt(cov[0, 0] + d_rows.mean() ** 2 * cov[1, 1]))
-    return delay, std, float(line), float(np.sqrt(cov[1, 1]))
+    # δ = c0 − ℓ·mean(d_rows): its variance from the covariance of (c0, ℓ)
+    g = np.array([1.0, -d_rows.mean(), 0.0])
+    value = np.array([coef[0] - coef[1] * d_rows.mean(), coef[1], coef[2]])
+    std = np.sqrt(np.array([g @ cov @ g, cov[1, 1], cov[2, 2]]))
+    return value, std
 
 
 def estimate_rotor(
@@ -183,7 +189,8 @@ def estimate_rotor(
     delays = offset_guess_s + (raw - offset_guess_s + 0.5 * period) % period - 0.5 * period
     a, b = names
     d_rows = series[1][5][j[keep]] - series[0][5][keep] if estimate_line_time else None
-    delay, std, line, u_line = _offset_from_delays(delays, d_rows)
+    epoch = float(np.mean(tb[j[keep]]))
+    (delay, line, drift), (std, u_line, u_drift) = _offset_from_delays(delays, d_rows, tb[j[keep]] - epoch)
     details: dict[str, Any] = {
         "rotation_hz": omega / (2 * np.pi),
         "radius_mm": {a: ra, b: rb},
@@ -193,11 +200,12 @@ def estimate_rotor(
     }
     return TimingResult(
         reference_camera=a,
-        offset_s={a: 0.0, b: delay},
-        line_time_s={a: line, b: line},
-        drift_ppm={a: 0.0, b: 0.0},
+        offset_s={a: 0.0, b: float(delay)},
+        line_time_s={a: float(line), b: float(line)},
+        drift_ppm={a: 0.0, b: float(drift)},
         method="rotor",
-        uncertainty={"offset_s": {a: 0.0, b: std}, "line_time_s": {a: u_line, b: u_line}},
-        epoch_s={a: 0.0, b: float(np.mean(tb[j[keep]]))},
+        uncertainty={"offset_s": {a: 0.0, b: float(std)}, "line_time_s": {a: float(u_line), b: float(u_line)},
+                     "drift_ppm": {a: 0.0, b: float(u_drift)}},
+        epoch_s={a: 0.0, b: epoch},
         details=details,
     )
