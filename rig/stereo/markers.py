@@ -21,6 +21,7 @@ passes ``require=True``; then :class:`~rig.stereo.errors.NoMarkersError` is rais
 from __future__ import annotations
 
 from collections.abc import Sequence
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -111,32 +112,37 @@ def _merge_sizes(sizes: np.ndarray) -> np.ndarray:
     return merged
 
 
-def _measure(gray: np.ndarray, rows: np.ndarray, cols: np.ndarray, half: np.ndarray, *, dark: bool,
-             fit_ellipse: bool = False, retries: int = 2, exact: bool = False) -> Measured:
+def _measure(gray, rows: np.ndarray, cols: np.ndarray, half: np.ndarray, *, dark: bool,
+             fit_ellipse: bool = False, retries: int = 2, exact: bool = False,
+             frame: np.ndarray | None = None) -> Measured:
     """Measure windows of several sizes (grouped on the size ladder); Measured for all, in input order.
 
     A window whose marker reaches the background ring is measured again one ladder step larger (up to
     ``retries`` times), so a first size guess that is too small costs time, not accuracy. ``exact``:
     use the given half sizes for the first attempt instead of rounding them up to the ladder.
+    ``gray`` and ``frame`` as ``image`` and ``frame`` of :func:`measure_windows`.
     """
     sizes = np.asarray(half, dtype=np.int64).copy() if exact else _merge_sizes(_ladder(half))
     groups = np.unique(sizes)
     if len(groups) == 0:
         return Measured.empty()
     if len(groups) == 1:  # the usual case: one batch
-        result = measure_windows(gray, rows, cols, int(groups[0]), dark=dark, fit_ellipse=fit_ellipse)
+        result = measure_windows(gray, rows, cols, int(groups[0]), dark=dark, fit_ellipse=fit_ellipse,
+                                 frame=frame)
     else:
         result = None
         for size in groups:
             sel = np.nonzero(sizes == size)[0]
-            part = measure_windows(gray, rows[sel], cols[sel], int(size), dark=dark, fit_ellipse=fit_ellipse)
+            part = measure_windows(gray, rows[sel], cols[sel], int(size), dark=dark, fit_ellipse=fit_ellipse,
+                                   frame=None if frame is None else frame[sel])
             result = _scatter(result, len(rows), sel, part)
     return _retry_cramped(gray, rows, cols, sizes, result, dark=dark, fit_ellipse=fit_ellipse,
-                          retries=retries)
+                          retries=retries, frame=frame)
 
 
-def _retry_cramped(gray: np.ndarray, rows: np.ndarray, cols: np.ndarray, sizes: np.ndarray, result: Measured,
-                   *, dark: bool, fit_ellipse: bool, retries: int) -> Measured:
+def _retry_cramped(gray, rows: np.ndarray, cols: np.ndarray, sizes: np.ndarray, result: Measured,
+                   *, dark: bool, fit_ellipse: bool, retries: int,
+                   frame: np.ndarray | None = None) -> Measured:
     """Measure the windows of ``result`` whose marker reaches the ring again, one ladder step larger."""
     if retries > 0 and len(rows) and result.cramped.any():
         again = np.nonzero(result.cramped & (sizes < _HALF_LADDER[-1]))[0]
@@ -144,7 +150,7 @@ def _retry_cramped(gray: np.ndarray, rows: np.ndarray, cols: np.ndarray, sizes: 
             bigger = _HALF_LADDER[np.minimum(np.searchsorted(_HALF_LADDER, sizes[again], side="right"),
                                              len(_HALF_LADDER) - 1)]
             part = _measure(gray, rows[again], cols[again], bigger, dark=dark, fit_ellipse=fit_ellipse,
-                            retries=retries - 1, exact=True)
+                            retries=retries - 1, exact=True, frame=None if frame is None else frame[again])
             result = _scatter(result, len(rows), again, part)
     return result
 
@@ -352,34 +358,76 @@ def track_markers(
     a row with u_px = v_px = NaN and FLAG_LOST (area, roundness, contrast keep what was measured, or NaN).
     """
     gray = check_gray(gray)
-    _check_options(polarity, centre, min_area_px=min_area_px, max_area_px=max_area_px,
-                   min_roundness=min_roundness, min_contrast=min_contrast)
+    options = TrackOptions.checked(window_px=window_px, polarity=polarity, min_area_px=min_area_px,
+                                   max_area_px=max_area_px, min_roundness=min_roundness,
+                                   min_contrast=min_contrast, centre=centre, max_skewness=max_skewness,
+                                   outline_check=outline_check, max_edge_rms_px=max_edge_rms_px)
     pred = np.asarray(predicted_uv_px, dtype=np.float64)
     if pred.ndim != 2 or pred.shape[1] != 2:
         raise InputArrayError(f"predicted_uv_px has shape {pred.shape}; give a (K, 2) array of (u, v) in px")
-    if int(window_px) != window_px or window_px < 7:
-        raise InputArrayError(f"window_px={window_px}; give an integer side of at least 7 px")
-    dark = polarity == "dark"
-    height, width = gray.shape
-    # usable predictions: inside the frame (NaN compares False, so it is unusable too)
+    return track_rows(gray, pred, None, options)
+
+
+@dataclass(frozen=True)
+class TrackOptions:
+    """The checked options of :func:`track_markers` (see there), shared by the batched trackers."""
+
+    half_px: int
+    dark: bool
+    fit: bool  # the outline is fitted (centre="ellipse" or outline_check)
+    centre: str
+    min_area_px: float
+    max_area_px: float
+    min_roundness: float
+    min_contrast: float
+    max_skewness: float
+    max_edge_rms_px: float
+
+    @classmethod
+    def checked(cls, *, window_px, polarity, min_area_px, max_area_px, min_roundness, min_contrast, centre,
+                max_skewness, outline_check, max_edge_rms_px) -> TrackOptions:
+        """Options from :func:`track_markers`' keywords; InputArrayError names an invalid one."""
+        _check_options(polarity, centre, min_area_px=min_area_px, max_area_px=max_area_px,
+                       min_roundness=min_roundness, min_contrast=min_contrast)
+        if int(window_px) != window_px or window_px < 7:
+            raise InputArrayError(f"window_px={window_px}; give an integer side of at least 7 px")
+        return cls(half_px=int(window_px) // 2, dark=polarity == "dark",
+                   fit=centre == "ellipse" or outline_check, centre=centre, min_area_px=min_area_px,
+                   max_area_px=max_area_px, min_roundness=min_roundness, min_contrast=min_contrast,
+                   max_skewness=max_skewness, max_edge_rms_px=max_edge_rms_px)
+
+
+def track_rows(images, pred: np.ndarray, frame: np.ndarray | None, opt: TrackOptions) -> np.ndarray:
+    """:func:`track_markers` of the predictions ``pred`` (N, 2) float64, checked: one row per prediction.
+
+    ``images`` and ``frame`` as in :func:`rig.stereo.markers_refine.measure_windows` (``frame`` None: one
+    frame; else prediction i is searched in ``images[frame[i]]``, ``frame`` non-decreasing). Every window
+    is measured on its own, so the rows equal those of separate calls per frame.
+    """
     if len(pred) == 0:
         return np.empty(0, dtype=MARKER_DTYPE)
+    height, width = (images if frame is None else images[int(frame[0])]).shape
+    # usable predictions: inside the frame (NaN compares False, so it is unusable too)
     limit = np.array([width - 0.5, height - 0.5])
     all_usable = bool((pred > -0.5).all() and (pred < limit).all())
     usable = None
     if not all_usable:
         usable = ((pred > -0.5) & (pred < limit)).all(axis=1)
+        if frame is not None:
+            frame = frame[usable]
     centre_px = np.rint(pred if all_usable else pred[usable]).astype(np.int64)
     cols, rows = centre_px[:, 0], centre_px[:, 1]
-    half = int(window_px) // 2
-    fit = centre == "ellipse" or outline_check
-    measured = measure_windows(gray, rows, cols, half, dark=dark, fit_ellipse=fit)
+    if len(rows) == 0:
+        measured = Measured.empty()
+    else:
+        measured = measure_windows(images, rows, cols, opt.half_px, dark=opt.dark, fit_ellipse=opt.fit,
+                                   frame=frame)
     if measured.cramped.any():
-        measured = _retry_cramped(gray, rows, cols, np.full(len(rows), half), measured, dark=dark,
-                                  fit_ellipse=fit, retries=2)
+        measured = _retry_cramped(images, rows, cols, np.full(len(rows), opt.half_px), measured,
+                                  dark=opt.dark, fit_ellipse=opt.fit, retries=2, frame=frame)
     with np.errstate(invalid="ignore"):
-        rec = _rows_from(measured, centre, max_edge_rms_px, max_skewness, fit)
-        passed = _passes(rec, min_area_px, max_area_px, min_roundness, min_contrast)
+        rec = _rows_from(measured, opt.centre, opt.max_edge_rms_px, opt.max_skewness, opt.fit)
+        passed = _passes(rec, opt.min_area_px, opt.max_area_px, opt.min_roundness, opt.min_contrast)
     if not passed.all():
         lost = ~passed
         rec["u_px"][lost] = np.nan

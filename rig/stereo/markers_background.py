@@ -27,6 +27,26 @@ import numpy as np
 MIN_SIGMA_DN = 0.5  # floor of σ: a flat 8-bit background has zero spread but ±0.5 DN quantization
 RING_PX = 2  # width of the background ring at the window's edge
 OUTLIER_SPREADS = 4.0  # ring pixels farther than this many spreads from the median are left out
+# OpenBLAS runs a product on all its threads when rows·columns·inner ≥ 65536·4: on a busy machine its
+# spinning threads cost far more than these small products, and their work escapes the caller's thread
+BLAS_SINGLE_THREAD_OPS = 200_000
+
+
+def matmul_one_thread(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``a @ b`` for 2-D ``a`` (K, P), ``b`` (P, N), as stacked products small enough to stay on one thread.
+
+    numpy's stacked matmul calls BLAS once per (rows, P) block, each below OpenBLAS's threading threshold.
+    """
+    rows = max(1, BLAS_SINGLE_THREAD_OPS // (b.shape[0] * b.shape[1]))
+    k = a.shape[0]
+    if k <= rows:
+        return a @ b
+    out = np.empty((k, b.shape[1]), dtype=np.result_type(a, b))
+    main = k - k % rows
+    np.matmul(a[:main].reshape(-1, rows, a.shape[1]), b, out=out[:main].reshape(-1, rows, b.shape[1]))
+    if main < k:
+        np.matmul(a[main:], b, out=out[main:])
+    return out
 
 
 @dataclass(frozen=True)
@@ -77,7 +97,7 @@ def ring_background(flat: np.ndarray, valid: np.ndarray | None, half_px: int):
     # residual sum of squares is Σy² − coef·m; uint8 values make every product and sum an integer,
     # exact in float32 while P·255² < 2²⁴ (rings of windows up to 33 px), else computed in float64
     values = vals.astype(geo.dtype)
-    moments = (values @ geo.design_t.T).astype(np.float64)
+    moments = matmul_one_thread(values, geo.design_t.T).astype(np.float64)
     coef = moments * geo.normal_inv
     rss = np.vecdot(values, values).astype(np.float64) - np.vecdot(coef, moments)
     sigma = np.maximum(np.sqrt(np.maximum(rss, 0.0) / (len(geo.idx) - 3.0)), MIN_SIGMA_DN)
@@ -112,13 +132,14 @@ def _weighted_fit(values: np.ndarray, inlier: np.ndarray, geo: Ring):
     σ is the RMS residual of the inliers (with K − 3 degrees of freedom), at least MIN_SIGMA_DN.
     """
     mask = inlier.astype(np.float64)
-    normal = mask @ geo.outer  # (K, 9): row-major symmetric 3×3 [[a, b, c], [b, d, e], [c, e, f]]
+    # (K, 9): row-major symmetric 3×3 [[a, b, c], [b, d, e], [c, e, f]]
+    normal = matmul_one_thread(mask, geo.outer)
     normal[:, ::4] += 1e-9  # keeps a ring with (almost) no inliers finite
     cof = normal[:, _COF_A] * normal[:, _COF_B] - normal[:, _COF_C] * normal[:, _COF_D]
     det = np.vecdot(normal[:, :3], cof[:, :3])
-    rhs = (mask * values) @ geo.design
+    rhs = matmul_one_thread(mask * values, geo.design)
     coef = np.vecdot(cof[:, _COF_FULL].reshape(-1, 3, 3), rhs[:, None, :]) / det[:, None]
-    resid = (values - coef @ geo.design.T) * mask
+    resid = (values - matmul_one_thread(coef, geo.design.T)) * mask
     dof = np.maximum(mask.sum(axis=1) - 3.0, 1.0)
     return coef, np.maximum(np.sqrt(np.vecdot(resid, resid) / dof), MIN_SIGMA_DN)
 

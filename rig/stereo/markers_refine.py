@@ -36,7 +36,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from rig.stereo.markers_background import RING_PX, ring_background
+from rig.stereo.markers_background import RING_PX, matmul_one_thread, ring_background
 from rig.stereo.markers_outline import edge_points, fit_ellipses
 
 NOISE_FLOOR_K = 3.0  # support and weight threshold, in units of the window's background noise σ
@@ -78,7 +78,6 @@ class _Geometry:
 
     moments: np.ndarray  # (W², 11) float32: 1, x, y, x², xy, y², x³, x²y, xy², y³, ring's inner edge
     plane: np.ndarray  # (3, W²) float32: 1, x, y
-    ones: np.ndarray  # (W²,) float32 ones (row sums as a matrix product)
     dist2: np.ndarray  # (W, W) squared distance from the centre
 
 
@@ -98,16 +97,37 @@ def _geometry(half_px: int) -> _Geometry:
                             edge.ravel()], 1)
         _GEOMETRY[half_px] = _Geometry(moments=moments.astype(np.float32),
                                        plane=moments[:, :3].T.astype(np.float32),
-                                       ones=np.ones(w * w, dtype=np.float32),
                                        dist2=(x * x + y * y).reshape(w, w))
     return _GEOMETRY[half_px]
 
 
-def gather_windows(image: np.ndarray, rows: np.ndarray, cols: np.ndarray, half_px: int):
+def gather_frames(images, frame: np.ndarray, rows: np.ndarray, cols: np.ndarray, half_px: int):
+    """:func:`gather_windows` of windows in several frames: window i lies in ``images[frame[i]]``.
+
+    ``frame`` must be non-decreasing (windows grouped by frame); one gather per frame.
+    """
+    if frame[0] == frame[-1]:
+        return gather_windows(images[int(frame[0])], rows, cols, half_px)
+    w = 2 * half_px + 1
+    stack = np.empty((len(rows), w, w), dtype=np.uint8)
+    valid = None
+    bounds = np.flatnonzero(np.diff(frame)) + 1
+    for lo, hi in zip(np.r_[0, bounds], np.r_[bounds, len(rows)], strict=True):
+        _, part_valid = gather_windows(images[int(frame[lo])], rows[lo:hi], cols[lo:hi], half_px,
+                                          out=stack[lo:hi])
+        if part_valid is not None:
+            if valid is None:
+                valid = np.ones(stack.shape, dtype=bool)
+            valid[lo:hi] = part_valid
+    return stack, valid
+
+
+def gather_windows(image: np.ndarray, rows: np.ndarray, cols: np.ndarray, half_px: int,
+                   out: np.ndarray | None = None):
     """Stack the windows centred on integer ``(rows, cols)``: (uint8 (K, W, W), valid bool (K, W, W) | None).
 
     Out-of-image pixels repeat the nearest edge pixel and are False in ``valid`` (None when every window
-    lies inside the image).
+    lies inside the image). ``out``: write the stack there (then it is returned).
     """
     height, width = image.shape
     w = 2 * half_px + 1
@@ -122,9 +142,12 @@ def gather_windows(image: np.ndarray, rows: np.ndarray, cols: np.ndarray, half_p
             views = np.lib.stride_tricks.as_strided(image, shape, image.strides * 2, writeable=False)
         if (len(rows) and rows.min() >= half_px and rows.max() < height - half_px
                 and cols.min() >= half_px and cols.max() < width - half_px):
-            return views[rows - half_px, cols - half_px], None  # the usual case: all inside
+            if out is None:
+                return views[rows - half_px, cols - half_px], None  # the usual case: all inside
+            out[...] = views[rows - half_px, cols - half_px]
+            return out, None
     inside = (rows >= half_px) & (rows < height - half_px) & (cols >= half_px) & (cols < width - half_px)
-    stack = np.empty((len(rows), w, w), dtype=np.uint8)
+    stack = np.empty((len(rows), w, w), dtype=np.uint8) if out is None else out
     if fits:
         stack[inside] = views[rows[inside] - half_px, cols[inside] - half_px]
     if inside.all():
@@ -194,20 +217,24 @@ def _moment_shape(raw_m: np.ndarray):
 
 
 @np.errstate(invalid="ignore", divide="ignore")
-def measure_windows(image: np.ndarray, rows: np.ndarray, cols: np.ndarray, half_px: int, *,
-                    dark: bool, fit_ellipse: bool = False) -> Measured:
+def measure_windows(image, rows: np.ndarray, cols: np.ndarray, half_px: int, *,
+                    dark: bool, fit_ellipse: bool = False, frame: np.ndarray | None = None) -> Measured:
     """Measure the marker in each window centred on the integer pixel ``(rows[i], cols[i])``.
 
-    ``image``: uint8 frame; ``dark``: dark markers on a bright background; ``fit_ellipse``: also fit the
-    outline (``u_ellipse_px``, ``v_ellipse_px``, ``edge_rms_px``; NaN otherwise). Windows without any
-    support above the noise floor give NaN measurements.
+    ``image``: uint8 frame, or with ``frame`` (non-decreasing indices, one per window) a sequence of
+    frames, window i lying in ``image[frame[i]]``; ``dark``: dark markers on a bright background;
+    ``fit_ellipse``: also fit the outline (``u_ellipse_px``, ``v_ellipse_px``, ``edge_rms_px``; NaN
+    otherwise). Windows without any support above the noise floor give NaN measurements.
     """
     n = len(rows)
     if n == 0:
         return Measured.empty()
     w = 2 * half_px + 1
     geo = _geometry(half_px)
-    raw, valid = gather_windows(image, rows, cols, half_px)
+    if frame is None:
+        raw, valid = gather_windows(image, rows, cols, half_px)
+    else:
+        raw, valid = gather_frames(image, frame, rows, cols, half_px)
     if dark:
         raw = np.subtract(255, raw, dtype=np.uint8)
     flat = raw.reshape(n, w * w)
@@ -216,21 +243,21 @@ def measure_windows(image: np.ndarray, rows: np.ndarray, cols: np.ndarray, half_
     shifted = coef.copy()
     shifted[:, 0] += floor
     # signal above background plane + noise floor: > 0 on the marker's support
-    weights = shifted @ geo.plane
+    weights = matmul_one_thread(shifted, geo.plane)
     np.subtract(flat, weights, out=weights)
     if valid is not None:
         weights *= valid.reshape(n, -1)
     grid = weights.reshape(n, w, w)
     support = _select_support(grid > 0, grid, half_px, geo.dist2).reshape(n, -1)
     weights *= support
-    raw_m = (weights @ geo.moments).astype(np.float64)
+    raw_m = matmul_one_thread(weights, geo.moments).astype(np.float64)
     du, dv, roundness, skew = _moment_shape(raw_m[:, :10])  # NaN for empty windows (0/0)
     # contrast: the plateau, i.e. the mean signal of the pixels above 85 % of the peak (the peak alone,
     # a maximum of N noisy pixels, would be biased up by ≈ σ·√(2 ln N)); area: the integrated signal
     # above the floor over the plateau above it (exact for a flat disc, nearly so for a blurred one:
     # only its skirt below the floor, 3σ ≪ contrast, is left out)
     top = (weights >= (PLATEAU_LEVEL * weights.max(axis=1))[:, None]).astype(np.float32)
-    peak = (np.vecdot(weights, top) / (top @ geo.ones)).astype(np.float64)
+    peak = (np.vecdot(weights, top) / top.sum(axis=1)).astype(np.float64)
     contrast = np.where(raw_m[:, 0] > 0, peak + floor, np.nan)
     area = raw_m[:, 0] / peak
     saturated = (support & (flat == 255)).any(axis=1) if raw.max() == 255 else np.zeros(n, bool)
