@@ -5,10 +5,11 @@ markers; measuring the windows of many frames together pays it once. :func:`trac
 given predictions in each of several frames; :func:`track_markers_sequence` follows markers through a run
 of frames, each frame's prediction being the previous frame's result — exactly what calling
 :func:`track_markers` frame by frame gives (tests/test_stereo_markers_sequence.py), computed
-speculatively: a chunk of frames is measured with windows at the last known centres, and the frames are
-kept up to the first whose window (the rounded previous result) would have been placed differently; the
-next chunk starts there. Markers that move less than about half a pixel per frame (a structure's
-vibration, a slow drift) keep their windows for many frames, and whole chunks are kept.
+speculatively, each marker on its own: a chunk of its frames is measured with windows at its last known
+centre, and kept up to the first frame whose window (the rounded previous result) would have been placed
+differently; its next chunk starts there. A marker that moves less than about half a pixel per frame (a
+structure's vibration, a slow drift) keeps its window for many frames, and whole chunks are kept; one
+that moves a pixel or more per frame needs a round per frame, as frame-by-frame tracking does.
 """
 
 from __future__ import annotations
@@ -95,28 +96,53 @@ def track_markers_sequence(frames: Sequence[np.ndarray] | np.ndarray, start_uv_p
     pos = np.asarray(start_uv_px, dtype=np.float64)
     if pos.ndim != 2 or pos.shape[1] != 2:
         raise InputArrayError(f"start_uv_px has shape {pos.shape}; give a (K, 2) array of (u, v) in px")
-    out = np.empty((len(images), len(pos)), dtype=MARKER_DTYPE)
-    done, chunk = 0, 4
-    height, width = images[0].shape if images else (0, 0)
+    return _sequence(images, pos, options)
+
+
+def _sequence(images: list[np.ndarray], start: np.ndarray, options: TrackOptions) -> np.ndarray:
+    """Speculative frame-by-frame tracking, each marker on its own (its windows depend only on its own
+    previous results): every round measures, for each marker still behind, a chunk of its next frames
+    in a window at its last centre, and keeps them up to the first frame whose window would have been
+    placed differently (the rounded previous result) — the next round starts that marker there."""
+    n_frames, k = len(images), len(start)
+    out = np.empty((n_frames, k), dtype=MARKER_DTYPE)
+    if n_frames == 0 or k == 0:
+        return out
+    height, width = images[0].shape
     limit = np.array([width - 0.5, height - 0.5])
-    while done < len(images):
-        n = min(chunk, len(images) - done)
-        rec = _batch(images[done : done + n], np.broadcast_to(pos, (n, *pos.shape)), options)
-        uv = np.stack([rec["u_px"], rec["v_px"]], axis=-1)  # (n, K, 2)
-        # frame j ≥ 1 of the chunk is right when frame j − 1's result would have put its windows where
-        # they were: the same rounded centres, and the same usable (inside the frame) predictions
+    done = np.zeros(k, dtype=np.int64)  # frames finished, per marker
+    pos = start.copy()
+    stop = n_frames  # frames wanted: up to and including the first frame with a lost marker
+    chunk = 4
+    while True:
+        active = np.flatnonzero(done < stop)
+        if len(active) == 0:
+            return out[:stop]
+        # (A, chunk) frames of each active marker (beyond ``stop``: not measured), measured in frame order
+        frame = done[active, None] + np.arange(chunk)
+        marker = np.repeat(active[:, None], chunk, axis=1)
+        wanted = frame < stop
+        order = np.argsort(frame[wanted], kind="stable")
+        rows = np.empty(len(order), dtype=MARKER_DTYPE)
+        rows[order] = track_rows(images, pos[marker[wanted][order]], frame[wanted][order], options)
+        rec = np.zeros(frame.shape, dtype=MARKER_DTYPE)
+        rec[wanted] = rows
+        uv = np.stack([rec["u_px"], rec["v_px"]], axis=-1)  # (A, chunk, 2)
+        prev = pos[active, None, :]
+        # frame j ≥ 1 is right when frame j − 1's result puts the window where it was: the same rounded
+        # centre, the same usability (inside the frame), and nothing lost in frame j − 1
         with np.errstate(invalid="ignore"):
-            same = (np.rint(uv[:-1]) == np.rint(pos)).all(axis=(1, 2))
-            same &= (((uv[:-1] > -0.5) & (uv[:-1] < limit)).all(axis=2)
-                     == ((pos > -0.5) & (pos < limit)).all(axis=1)).all(axis=1)
-        kept = 1 + int(np.argmin(same)) if not same.all() else n
-        lost = (rec["flags"][:kept] & FLAG_LOST).any(axis=1)
-        if lost.any():
-            kept = int(np.argmax(lost)) + 1
-        out[done : done + kept] = rec[:kept]
-        done += kept
-        if lost.any():
-            return out[:done]
-        pos = uv[kept - 1]
-        chunk = min(2 * chunk, MAX_CHUNK_FRAMES) if kept == n else max(kept, 2)
-    return out[:done]
+            same = (np.rint(uv[:, :-1]) == np.rint(prev)).all(axis=2)
+            same &= ((uv[:, :-1] > -0.5) & (uv[:, :-1] < limit)).all(axis=2) == (
+                (prev > -0.5) & (prev < limit)).all(axis=2)
+        lost = (rec["flags"] & FLAG_LOST).astype(bool) & wanted
+        same &= ~lost[:, :-1] & wanted[:, 1:]
+        kept = 1 + np.cumprod(same, axis=1).sum(axis=1)  # (A,) frames kept per marker
+        sel = np.arange(chunk)[None, :] < kept[:, None]
+        out[frame[sel], marker[sel]] = rec[sel]
+        if (lost & sel).any():
+            stop = min(stop, int(frame[lost & sel].min()) + 1)
+        pos[active] = uv[np.arange(len(active)), kept - 1]
+        done[active] += kept
+        all_kept = bool((kept == wanted.sum(axis=1)).all())
+        chunk = min(2 * chunk, MAX_CHUNK_FRAMES) if all_kept else max(int(kept.min()), 2)
