@@ -59,6 +59,20 @@ def sequential(frames, start, **opts):
     return np.array(rows)
 
 
+def held(frames, start, hold_px, **opts):
+    """track_markers frame by frame in windows that move only when a marker leaves hold_px of the centre."""
+    rows, centre = [], np.rint(start)
+    for frame in frames:
+        rec = track_markers(frame, centre, **opts)
+        rows.append(rec)
+        if (rec["flags"] & FLAG_LOST).any():
+            break
+        uv = np.c_[rec["u_px"], rec["v_px"]]
+        moved = (np.abs(uv - centre) > hold_px).any(axis=1)
+        centre[moved] = np.rint(uv[moved])
+    return np.array(rows)
+
+
 def assert_rows_equal(got: np.ndarray, want: np.ndarray) -> None:
     assert got.shape == want.shape
     np.testing.assert_array_equal(got["flags"], want["flags"])
@@ -79,6 +93,19 @@ def test_sequence_equals_frame_by_frame_tracking(step_px):
     assert len(got) == len(frames)
     assert_rows_equal(got, want)
     assert np.abs(got["u_px"] - truth[..., 0]).max() < 0.1
+
+
+@pytest.mark.parametrize("step_px", [0.1, 1.5, np.array([0.02, 0.02, 1.5, 0.02, 0.6, 0.02])])
+def test_sequence_holding_windows_equals_tracking_in_held_windows(step_px):
+    frames, truth = scene(20, step_px)
+    start = truth[0] + 0.3
+    got = track_markers_sequence(frames, start, hold_px=1.0, **OPTS)
+    assert_rows_equal(got, held(frames, start, 1.0, **OPTS))
+    # the same measurement as re-centring every frame, up to the background plane's placement
+    exact = sequential(frames, start, **OPTS)
+    assert np.abs(got["u_px"] - exact["u_px"]).max() < 0.02
+    lost_at_7 = track_markers_sequence(scene(12, 0.1, vanish_at=7)[0], truth[0], hold_px=1.0, **OPTS)
+    assert len(lost_at_7) == 8 and lost_at_7[-1]["flags"][0] & FLAG_LOST
 
 
 def test_sequence_stops_after_the_first_loss():
@@ -124,6 +151,7 @@ def test_empty_inputs():
     (lambda f, t: track_markers_sequence([f[0], f[1][:100]], t[0], **OPTS), "different shapes"),
     (lambda f, t: track_markers_sequence([f[0].astype(float)], t[0], **OPTS), r"frames\[0\] has dtype"),
     (lambda f, t: track_markers_sequence(f, t[0], window_px=5), "window_px=5"),
+    (lambda f, t: track_markers_sequence(f, t[0], window_px=11, hold_px=3.0), "hold_px=3.0"),
 ])
 def test_bad_input_is_named(call, message):
     frames, truth = scene(3, 0.1)

@@ -79,11 +79,18 @@ def track_markers_sequence(frames: Sequence[np.ndarray] | np.ndarray, start_uv_p
                            max_area_px: float = 20000.0, min_roundness: float = 0.5,
                            min_contrast: float = 20.0, centre: str = "centroid",
                            max_skewness: float = MAX_SKEWNESS, outline_check: bool = False,
-                           max_edge_rms_px: float = MAX_EDGE_RMS_PX) -> np.ndarray:
+                           max_edge_rms_px: float = MAX_EDGE_RMS_PX, hold_px: float | None = None,
+                           ) -> np.ndarray:
     """Follow K markers through consecutive frames: rows (n, K) of :data:`MARKER_DTYPE`, n ≤ F.
 
-    Frame 0 is searched around ``start_uv_px`` (K, 2) (u, v px), every later frame around the previous
-    frame's result: row [f] equals ``track_markers(frames[f], prev)``, prev the (u, v) of row [f − 1].
+    Frame 0 is searched around ``start_uv_px`` (K, 2) (u, v px). hold_px None (default): every later frame
+    around the previous frame's result — row [f] equals ``track_markers(frames[f], prev)``, prev the
+    (u, v) of row [f − 1]. hold_px a number (0.5–2 px): a marker's window stays where it is while the
+    marker's centre stays within hold_px of the window's centre in u and in v, and is moved to the
+    rounded centre otherwise (its prediction for the next frame) — row [f] equals
+    ``track_markers(frames[f], window_centres)``; the same measurement with the marker up to hold_px
+    instead of 0.5 px off its window's centre (make window_px 2·hold_px larger), and whole runs of frames
+    measured together when the markers move little (vibration about a position).
     The run stops after the first frame in which a marker is lost (FLAG_LOST; that frame's rows are the
     last returned), so n < F tells the caller to search that frame whole. Options as in
     :func:`track_markers`.
@@ -96,14 +103,19 @@ def track_markers_sequence(frames: Sequence[np.ndarray] | np.ndarray, start_uv_p
     pos = np.asarray(start_uv_px, dtype=np.float64)
     if pos.ndim != 2 or pos.shape[1] != 2:
         raise InputArrayError(f"start_uv_px has shape {pos.shape}; give a (K, 2) array of (u, v) in px")
-    return _sequence(images, pos, options)
+    if hold_px is not None and not (0.5 <= hold_px <= 0.5 * (window_px - 7)):
+        raise InputArrayError(f"hold_px={hold_px}; give None (re-centre every frame) or 0.5 px up to "
+                              f"(window_px − 7)/2 = {0.5 * (window_px - 7)} px")
+    return _sequence(images, pos if hold_px is None else np.rint(pos), options, hold_px)
 
 
-def _sequence(images: list[np.ndarray], start: np.ndarray, options: TrackOptions) -> np.ndarray:
+def _sequence(images: list[np.ndarray], start: np.ndarray, options: TrackOptions,
+              hold_px: float | None) -> np.ndarray:
     """Speculative frame-by-frame tracking, each marker on its own (its windows depend only on its own
     previous results): every round measures, for each marker still behind, a chunk of its next frames
-    in a window at its last centre, and keeps them up to the first frame whose window would have been
-    placed differently (the rounded previous result) — the next round starts that marker there."""
+    in a window at its last prediction, and keeps them up to the first frame whose window would have been
+    placed differently — the next round starts that marker there. ``start``: the first predictions,
+    rounded when hold_px is set (predictions are then window centres)."""
     n_frames, k = len(images), len(start)
     out = np.empty((n_frames, k), dtype=MARKER_DTYPE)
     if n_frames == 0 or k == 0:
@@ -129,12 +141,16 @@ def _sequence(images: list[np.ndarray], start: np.ndarray, options: TrackOptions
         rec[wanted] = rows
         uv = np.stack([rec["u_px"], rec["v_px"]], axis=-1)  # (A, chunk, 2)
         prev = pos[active, None, :]
-        # frame j ≥ 1 is right when frame j − 1's result puts the window where it was: the same rounded
-        # centre, the same usability (inside the frame), and nothing lost in frame j − 1
+        # frame j ≥ 1 is right when frame j − 1's result puts the window where it was: within hold_px
+        # of it, or (hold_px None) the same rounded centre and the same usability (inside the frame);
+        # and nothing lost in frame j − 1
         with np.errstate(invalid="ignore"):
-            same = (np.rint(uv[:, :-1]) == np.rint(prev)).all(axis=2)
-            same &= ((uv[:, :-1] > -0.5) & (uv[:, :-1] < limit)).all(axis=2) == (
-                (prev > -0.5) & (prev < limit)).all(axis=2)
+            if hold_px is None:
+                same = (np.rint(uv[:, :-1]) == np.rint(prev)).all(axis=2)
+                same &= ((uv[:, :-1] > -0.5) & (uv[:, :-1] < limit)).all(axis=2) == (
+                    (prev > -0.5) & (prev < limit)).all(axis=2)
+            else:
+                same = (np.abs(uv[:, :-1] - prev) <= hold_px).all(axis=2)
         lost = (rec["flags"] & FLAG_LOST).astype(bool) & wanted
         same &= ~lost[:, :-1] & wanted[:, 1:]
         kept = 1 + np.cumprod(same, axis=1).sum(axis=1)  # (A,) frames kept per marker
@@ -142,7 +158,12 @@ def _sequence(images: list[np.ndarray], start: np.ndarray, options: TrackOptions
         out[frame[sel], marker[sel]] = rec[sel]
         if (lost & sel).any():
             stop = min(stop, int(frame[lost & sel].min()) + 1)
-        pos[active] = uv[np.arange(len(active)), kept - 1]
+        last = uv[np.arange(len(active)), kept - 1]
+        if hold_px is None:
+            pos[active] = last
+        else:  # the window moves when the marker left its hold (else it stays)
+            held = (np.abs(last - pos[active]) <= hold_px).all(axis=1)
+            pos[active] = np.where(held[:, None], pos[active], np.rint(last))
         done[active] += kept
         all_kept = bool((kept == wanted.sum(axis=1)).all())
         chunk = min(2 * chunk, MAX_CHUNK_FRAMES) if all_kept else max(int(kept.min()), 2)
