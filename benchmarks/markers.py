@@ -43,6 +43,7 @@ caches the other methods evicted: the same calls run 2–4× faster back to back
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 import time
 from pathlib import Path
@@ -56,16 +57,19 @@ sys.path.insert(0, str(ROOT / "tests"))
 
 from marker_images import Disc, render  # noqa: E402
 
-from rig.stereo import detect_markers, track_markers  # noqa: E402
+from rig.stereo import detect_markers, track_markers, track_markers_sequence  # noqa: E402
 
 SHAPE = (1080, 1920)
 CLOCKS = {"wall": time.perf_counter, "cpu": time.thread_time}  # cpu: this thread's CPU time
 DETECT_KW = {"min_area_px": 80.0, "max_area_px": 2000.0, "min_contrast": 40.0}
 TRACK_WINDOW_PX = 33
+HOLD_PX = 1.0  # ours/seq: a window moves when its marker is more than this off its centre
 
 
-def make_sequence(n_markers: int, n_frames: int, seed: int):
-    """Frames (uint8) and truth (n_frames, n_markers, 2) of markers drifting ≤ 3 px per frame."""
+def make_sequence(n_markers: int, n_frames: int, seed: int, scene: str = "drift"):
+    """Frames (uint8) and truth (n_frames, n_markers, 2) of markers drifting ≤ 3 px per frame (scene
+    "drift") or vibrating about fixed positions, ≤ 0.5 px amplitude at 1–12 Hz and 60 frames/s (scene
+    "vibration": a structure under monitoring)."""
     rng = np.random.default_rng(seed)
     centres: list[tuple[float, float]] = []
     while len(centres) < n_markers:
@@ -75,9 +79,14 @@ def make_sequence(n_markers: int, n_frames: int, seed: int):
     base = np.array(centres)
     radius = rng.uniform(7.5, 8.5, n_markers)
     step = rng.uniform(-3, 3, (n_markers, 2))
+    amplitude = rng.uniform(0.1, 0.5, (n_markers, 2))
+    freq_hz, phase = rng.uniform(1, 12, (n_markers, 1)), rng.uniform(0, 2 * np.pi, (n_markers, 2))
     frames, truth = [], []
     for f in range(n_frames):
-        uv = base + f * step
+        if scene == "drift":
+            uv = base + f * step
+        else:
+            uv = base + amplitude * np.sin(2 * np.pi * freq_hz * f / 60.0 + phase)
         discs = [Disc(u, v, r) for (u, v), r in zip(uv, radius, strict=True)]
         frames.append(render(SHAPE, discs, background_dn=20.0, blur_sigma_px=0.8, noise_sigma_dn=2.0,
                              seed=seed * 1000 + f))
@@ -116,9 +125,17 @@ def ours_track(img, prev):
     return np.stack([r["u_px"], r["v_px"]], axis=1)
 
 
+def ours_sequence(frames, start):
+    """All frames of a round in one call, windows held while a marker stays within HOLD_PX of the centre."""
+    r = track_markers_sequence(frames, start, window_px=TRACK_WINDOW_PX, hold_px=HOLD_PX, **DETECT_KW)
+    return list(np.stack([r["u_px"], r["v_px"]], axis=-1))
+
+
+SEQUENCE = "ours/seq"  # timed once per round over all its frames (time per frame = total / frames)
 METHODS = {
     "ours/full": ours_full,
     "ours/track": ours_track,
+    SEQUENCE: ours_sequence,
     "sbd/default": sbd({}),
     "sbd/tuned": sbd({"minThreshold": 50, "maxThreshold": 170}),
     "sbd/coarse": sbd({"minThreshold": 50, "maxThreshold": 170, "thresholdStep": 20}),
@@ -138,24 +155,38 @@ def errors(found: np.ndarray, truth: np.ndarray):
     return matched, len(truth) - len(set(nearest[ok].tolist())), int((~ok).sum())
 
 
-def run(n_markers: int, n_frames: int, rounds: int, clock=time.perf_counter,
-        order: str = "interleaved") -> None:
-    frames, truth = make_sequence(n_markers, n_frames + 1, seed=n_markers)
+def schedule(names: list[str], r: int, n_frames: int, order: str) -> list[tuple[int, str]]:
+    """The (frame, method) steps of round r; the sequence method is one step (frame 0) for all frames."""
+    per_frame = [name for name in names if name != SEQUENCE]
+    if order == "interleaved":  # each frame through every method, in a rotating order
+        steps = [(f, name) for f in range(1, n_frames + 1)
+                 for name in per_frame[(r + f) % len(per_frame):] + per_frame[: (r + f) % len(per_frame)]]
+        at = len(per_frame) * ((r * 7) % (n_frames + 1))  # the sequence between frames, moving each round
+        return [*steps[:at], (0, SEQUENCE), *steps[at:]]
+    # blocked: each method through every frame, methods in a rotating order per round
+    return [(f, name) for name in names[r % len(names):] + names[: r % len(names)]
+            for f in ((0,) if name == SEQUENCE else range(1, n_frames + 1))]
+
+
+def run(n_markers: int, n_frames: int, rounds: int, *, clock=time.perf_counter,
+        order: str = "interleaved", scene: str = "drift") -> None:
+    frames, truth = make_sequence(n_markers, n_frames + 1, seed=n_markers, scene=scene)
     names = list(METHODS)
     for name in names:  # warm-up (caches, first-call costs)
-        METHODS[name](frames[0], truth[0])
+        METHODS[name](frames[1:3] if name == SEQUENCE else frames[0], truth[0])
     # times[name][round, frame]; speed-ups are medians of the ratios paired by (round, frame)
     times = {name: np.zeros((rounds, n_frames)) for name in names}
     results: dict[str, list[np.ndarray]] = {name: [] for name in names}
     for r in range(rounds):
         prev_track = truth[0]
-        if order == "interleaved":  # each frame through every method, in a rotating order
-            steps = [(f, name) for f in range(1, n_frames + 1)
-                     for name in names[(r + f) % len(names):] + names[: (r + f) % len(names)]]
-        else:  # blocked: each method through every frame, methods in a rotating order per round
-            steps = [(f, name) for name in names[r % len(names):] + names[: r % len(names)]
-                     for f in range(1, n_frames + 1)]
-        for f, name in steps:
+        for f, name in schedule(names, r, n_frames, order):
+            if name == SEQUENCE:  # all frames in one call, fed the truth of frame 0 as ours/track is
+                t0 = clock()
+                found = METHODS[name](frames[1:], truth[0])
+                times[name][r, :] = (clock() - t0) / n_frames
+                if r == 0:
+                    results[name] = found
+                continue
             prev = prev_track if name == "ours/track" else truth[f - 1]
             t0 = clock()
             found = METHODS[name](frames[f], prev)
@@ -164,14 +195,21 @@ def run(n_markers: int, n_frames: int, rounds: int, clock=time.perf_counter,
                 prev_track = found
             if r == 0:
                 results[name].append(found)
-    per_round = {name: np.median(times[name], axis=1) * 1e3 for name in names}
-    print(f"\n{n_markers} markers, {n_frames} frames 1920×1080, {rounds} rounds, {order}")
+    report(times, results, truth,
+           f"{n_markers} markers, {scene}, {n_frames} frames 1920×1080, {rounds} rounds, {order}")
+
+
+def report(times: dict[str, np.ndarray], results: dict[str, list[np.ndarray]], truth: np.ndarray,
+           title: str) -> None:
+    """Print ms/frame, paired speed-ups over the SimpleBlobDetector variants and centroid errors."""
+    per_round = {name: np.median(t, axis=1) * 1e3 for name, t in times.items()}
+    print(f"\n{title}")
     refs = ("sbd/default", "sbd/tuned", "sbd/coarse")
     print(f"{'method':<12} {'ms/frame':>8} {'(worst)':>8} " + " ".join(f"{'×' + r[4:]:>8}" for r in refs)
           + f" {'RMS px':>7} {'bias u,v px':>16} {'missed':>6} {'false':>5}")
-    for name in METHODS:
+    for name, t in times.items():
         ms = per_round[name]
-        ratios = [np.median(times[r] / times[name]) for r in refs]
+        ratios = [np.median(times[r] / t) for r in refs]
         errs, missed, false = [], 0, 0
         for f, found in enumerate(results[name], start=1):
             e, m, fa = errors(found, truth[f])
@@ -188,27 +226,34 @@ def run(n_markers: int, n_frames: int, rounds: int, clock=time.perf_counter,
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--rounds", type=int, default=7)
-    parser.add_argument("--frames", type=int, default=10)
+    parser.add_argument("--frames", type=int, default=30)
     parser.add_argument("--threads", type=int, default=None,
-                        help="cv2.setNumThreads for every method (default: OpenCV's own choice)")
-    parser.add_argument("--clock", choices=("wall", "cpu"), default="wall",
-                        help="wall: time.perf_counter; cpu: time.thread_time, the CPU time of this thread "
-                             "(insensitive to other processes; needs --threads 1 to include OpenCV's work)")
+                        help="cv2.setNumThreads for every method in the wall-clock pass (default: OpenCV's "
+                             "own choice, every core); the CPU-time pass always runs on one thread")
+    parser.add_argument("--clock", choices=("both", "wall", "cpu"), default="both",
+                        help="cpu: time.thread_time, the CPU time of this thread with OpenCV on one thread "
+                             "(insensitive to other processes); wall: time.perf_counter, each method free to "
+                             "use every core; both (default): a cpu pass, then a wall pass")
+    parser.add_argument("--scene", choices=("both", "drift", "vibration"), default="both")
+    parser.add_argument("--markers", type=int, nargs="+", default=[12, 30])
     parser.add_argument("--order", choices=("interleaved", "blocked"), default="interleaved",
                         help="interleaved: every frame through all methods in turn (each method finds its "
                              "caches cold, as after other work); blocked: each method through all frames "
                              "(as in a pipeline that only detects markers)")
     args = parser.parse_args()
-    if args.threads is not None:
-        cv2.setNumThreads(args.threads)
-    if args.clock == "cpu" and args.threads != 1:
-        parser.error("--clock cpu needs --threads 1 (OpenCV's worker threads are not on this thread)")
-    print(f"clock: {args.clock}")
-    print(f"OpenCV {cv2.__version__} ({cv2.getNumThreads()} threads), numpy {np.__version__}")
+    all_cores = cv2.getNumThreads() if args.threads is None else args.threads
+    print(f"OpenCV {cv2.__version__}, numpy {np.__version__}, {os.cpu_count()} cores, "
+          f"load average {' '.join(f'{x:.1f}' for x in os.getloadavg())}")
     print("ms/frame: median over frames, best (and worst) round; ×: speed-up, median of per-frame paired "
           "ratios; RMS: per-axis centroid error vs truth")
-    for n in (12, 30):
-        run(n, args.frames, args.rounds, CLOCKS[args.clock], args.order)
+    scenes = ("drift", "vibration") if args.scene == "both" else (args.scene,)
+    for clock in (("cpu", "wall") if args.clock == "both" else (args.clock,)):
+        cv2.setNumThreads(1 if clock == "cpu" else all_cores)
+        print(f"\n=== clock: {clock} ({'CPU time of this thread' if clock == 'cpu' else 'wall time'}), "
+              f"OpenCV on {cv2.getNumThreads()} thread(s) ===")
+        for scene in scenes:
+            for n in args.markers:
+                run(n, args.frames, args.rounds, clock=CLOCKS[clock], order=args.order, scene=scene)
 
 
 if __name__ == "__main__":

@@ -125,15 +125,16 @@ def _sequence(images: list[np.ndarray], start: np.ndarray, options: TrackOptions
     done = np.zeros(k, dtype=np.int64)  # frames finished, per marker
     pos = start.copy()
     stop = n_frames  # frames wanted: up to and including the first frame with a lost marker
-    chunk = 4
+    chunk = np.full(k, 4, dtype=np.int64)  # frames per round, per marker: doubles while all are kept
     while True:
         active = np.flatnonzero(done < stop)
         if len(active) == 0:
             return out[:stop]
         # (A, chunk) frames of each active marker (beyond ``stop``: not measured), measured in frame order
-        frame = done[active, None] + np.arange(chunk)
-        marker = np.repeat(active[:, None], chunk, axis=1)
-        wanted = frame < stop
+        width_frames = int(chunk[active].max())
+        frame = done[active, None] + np.arange(width_frames)
+        marker = np.repeat(active[:, None], width_frames, axis=1)
+        wanted = (frame < stop) & (np.arange(width_frames) < chunk[active, None])
         order = np.argsort(frame[wanted], kind="stable")
         rows = np.empty(len(order), dtype=MARKER_DTYPE)
         rows[order] = track_rows(images, pos[marker[wanted][order]], frame[wanted][order], options)
@@ -154,16 +155,21 @@ def _sequence(images: list[np.ndarray], start: np.ndarray, options: TrackOptions
         lost = (rec["flags"] & FLAG_LOST).astype(bool) & wanted
         same &= ~lost[:, :-1] & wanted[:, 1:]
         kept = 1 + np.cumprod(same, axis=1).sum(axis=1)  # (A,) frames kept per marker
-        sel = np.arange(chunk)[None, :] < kept[:, None]
+        sel = np.arange(width_frames)[None, :] < kept[:, None]
         out[frame[sel], marker[sel]] = rec[sel]
         if (lost & sel).any():
             stop = min(stop, int(frame[lost & sel].min()) + 1)
         last = uv[np.arange(len(active)), kept - 1]
-        if hold_px is None:
-            pos[active] = last
-        else:  # the window moves when the marker left its hold (else it stays)
-            held = (np.abs(last - pos[active]) <= hold_px).all(axis=1)
-            pos[active] = np.where(held[:, None], pos[active], np.rint(last))
+        with np.errstate(invalid="ignore"):
+            if hold_px is None:
+                held = (np.rint(last) == np.rint(pos[active])).all(axis=1)
+                pos[active] = last
+            else:  # the window moves when the marker left its hold (else it stays)
+                held = (np.abs(last - pos[active]) <= hold_px).all(axis=1)
+                pos[active] = np.where(held[:, None], pos[active], np.rint(last))
         done[active] += kept
-        all_kept = bool((kept == wanted.sum(axis=1)).all())
-        chunk = min(2 * chunk, MAX_CHUNK_FRAMES) if all_kept else max(int(kept.min()), 2)
+        # a marker whose chunk was all kept and whose window stays doubles its chunk, else takes what was
+        # kept (a marker moving a pixel per frame comes down to one frame per round, as frame-by-frame
+        # tracking, without measuring frames in vain)
+        chunk[active] = np.where((kept == wanted.sum(axis=1)) & held,
+                                 np.minimum(2 * chunk[active], MAX_CHUNK_FRAMES), kept)
