@@ -6,7 +6,10 @@ runs on the frame reduced ×2 or ×4 (chosen from ``min_area_px``; :mod:`rig.ste
 each candidate is then measured at full resolution in a small window (:mod:`rig.stereo.markers_refine`;
 a window that turns out too small for its marker is measured again, larger). :func:`track_markers` skips the
 full-frame search: it measures only windows around predicted positions (the speed mode for
-sequences). Both measure a marker with the same pixels and weights; they differ only through the
+sequences; :mod:`rig.stereo.markers_sequence` measures the windows of many frames in one call:
+:func:`~rig.stereo.markers_sequence.track_markers_batch`, and
+:func:`~rig.stereo.markers_sequence.track_markers_sequence` for a run of frames). Both measure a marker with
+the same pixels and weights; they differ only through the
 background plane fitted to the ring of their (differently placed) windows — by less than the
 centroid's own noise (tests/test_stereo_markers.py).
 
