@@ -32,6 +32,7 @@ from rig.stereo import MARKER_DTYPE
 __all__ = ["ExtractOptions", "VideoObservations", "extract_video"]
 
 _FIELDS = ("u_px", "v_px", "area_px", "roundness", "contrast")
+BATCH_FRAMES = 16  # frames decoded before they are reduced together (16 1080p frames: 33 MB)
 
 
 @dataclass(frozen=True)
@@ -111,14 +112,24 @@ def extract_video(path: str | Path, camera: str | None = None,
     error = None
     t_all = time.perf_counter()
     frames = video.frames()
+    batch: list[tuple[int, float, bool, np.ndarray]] = []  # frames reduced together (reduce_many)
+
+    def flush() -> float:
+        t0 = time.perf_counter()
+        reduced = reducer.reduce_many([image for *_, image in batch])
+        parts.extend((*info, found) for (*info, _), (found, _) in zip(batch, reduced, strict=True))
+        batch.clear()
+        return time.perf_counter() - t0
+
     try:
         for frame in frames:
-            t0 = time.perf_counter()
-            found, _ = reducer.reduce(frame.image)
-            parts.append((frame.index, frame.timestamp_s, frame.index in video.duplicate_indices, found))
-            t_extract += time.perf_counter() - t0
+            duplicate = frame.index in video.duplicate_indices
+            batch.append((frame.index, frame.timestamp_s, duplicate, frame.image))
+            if len(batch) == BATCH_FRAMES:
+                t_extract += flush()
     except VideoTruncatedError as exc:
         error = str(exc)
+    t_extract += flush()
     total = time.perf_counter() - t_all
     obs = _frame(parts)
     return VideoObservations(
