@@ -30,38 +30,45 @@ Run: .venv/bin/python benchmarks/markers.py [--rounds N] [--frames N] [--clock b
 [--scene both|drift|vibration] [--markers 12 30]
 
 Figures (2-core VM shared with 7 other sessions, load average 13–20 during the runs; --clock cpu, 5
-rounds of 30 frames, two runs; ms/frame = best-round median; × = speed-up over sbd/default / sbd/tuned;
-ranges over the runs). "before" is 6282ad7 (its own benchmark, 10 frames, drift scene), run right after
-under the same load:
+rounds of 30 frames, three runs; ms/frame = best-round median; × = paired speed-up over sbd/default and
+sbd/tuned; ranges over the runs). "before" is 6282ad7 (its own benchmark: 10 frames, drift only, no
+ours/seq), one run under the same load:
 
-  scene      markers  method       before                     after (this version)        target
-  drift      12       ours/full    {B12F}       {A12F}       ≥ 10× / 6×
-  drift      12       ours/track   {B12T}       {A12T}       — / ≥ 30×
-  drift      12       ours/seq                                {A12S}
-  drift      30       ours/full    {B30F}       {A30F}       ≥ 10× / 6×
-  drift      30       ours/track   {B30T}       {A30T}       — / ≥ 30×
-  drift      30       ours/seq                                {A30S}
-  vibration  12       ours/track                              {V12T}
-  vibration  12       ours/seq                                {V12S}
-  vibration  30       ours/track                              {V30T}
-  vibration  30       ours/seq                                {V30S}
-  sbd/tuned: {SBD}. Centroid RMS (unchanged by this version):
-  ours 0.0065–0.0070 px (full, track and seq alike); sbd 0.0104–0.0108 px; thr+cc 0.05–0.06 px.
+  scene      markers  method       before                     after (this version)            target
+  drift      12       ours/full    1.32 ms  7.4× / 5.2×       1.36–1.48 ms  7.2–7.4× / 5.0–5.1×  ≥ 10× / 6×
+  drift      12       ours/track   0.38 ms  24.2× / 17.5×     0.40–0.59 ms  20–25× / 13–18×      ≥ 30× tuned
+  drift      12       ours/seq                                0.65–0.75 ms  12–16× / 9–11×
+  drift      30       ours/full    1.53 ms  7.2× / 5.3×       1.55–1.83 ms  6.9–7.0× / 5.0–5.2×  ≥ 10× / 6×
+  drift      30       ours/track   0.56 ms  19.5× / 14.0×     0.56–0.84 ms  16–18× / 11.6–13.5×  ≥ 30× tuned
+  drift      30       ours/seq                                0.83–1.09 ms  10–13× / 7.4–9.2×
+  vibration  12       ours/full                               1.29–1.54 ms  6.7–7.2× / 4.7–5.1×
+  vibration  12       ours/track                              0.37–0.59 ms  18–26× / 12.8–18.3×
+  vibration  12       ours/seq                                0.22–0.26 ms  36–43× / 25.5–30.2×  ≥ 30× tuned
+  vibration  30       ours/track                              0.56–0.76 ms  15.5–19× / 11.4–14×
+  vibration  30       ours/seq                                0.35–0.45 ms  25–30× / 18.4–22.3×  ≥ 30× tuned
+  sbd/tuned: 7.4–8.0 ms (12, drift), 8.0–9.0 ms (30, drift), 6.5–7.6 / 7.8–8.9 ms (vibration). Centroid
+  RMS (unchanged): ours 0.0065–0.0070 px (full, track and seq alike); sbd 0.0104–0.0108 px; thr+cc
+  0.05–0.06 px. One-call-per-frame tracking and full-frame detection are unchanged within the run-to-run
+  spread at this load (before: one run).
 
-Wall time (--clock wall, both cores, same runs): meaningless on this machine at load 13–20 (every method
-2–4× its CPU time, the sbd variants' second thread starved; a 30-frame ours/seq call is preempted many
-times); the wall-time ratios of a quiet machine remain to be measured.
+Wall time (--clock wall, OpenCV on both cores, one run after the CPU pass): not a fair figure at load 13–20 —
+the sbd variants' second thread is starved (sbd/tuned 24–33 ms/frame, 3–4× its CPU time), so the ratios
+inflate (ours/full 7–14×, ours/track 37–52× sbd/tuned), and a 30-frame ours/seq call is preempted many
+times (9–20×). The wall-time ratios of a quiet machine remain to be measured.
 
-Targets: full frame ≥ 10× sbd/default and ≥ 6× sbd/tuned — NOT met (≈ 7× / 5×); tracking ≥ 30× sbd/tuned —
-met only by ours/seq on the vibration scene with 12 markers ({V12Sx}), not with 30 ({V30Sx}) nor by
-one-frame-per-call tracking (≈ 12–14×, as before). Why: per tracked window ~10 µs of CPU at this load (gather,
-ring sort and robust plane, connected components, moments, plateau: ~15 passes over 1,089 pixels in
-numpy) plus ~0.25 ms of fixed cost per call (~120 small numpy calls); track_markers_sequence pays the
-fixed cost once per run of frames (hence 2–2.5× on the vibration scene), but a marker moving ≥ 1 px per
-frame needs its own round every frame (the drift scene: the sequence is slower than one call per
+Targets: full frame ≥ 10× sbd/default and ≥ 6× sbd/tuned — NOT met (≈ 7× / 5×, as before). Tracking
+≥ 30× sbd/tuned — met only by ours/seq on the vibration scene with 12 markers (25.5–30.2×: at the target
+in the best run), not with 30 (18–22×), nor on the drift scene, nor by one-call-per-frame tracking
+(12–18×, as before). Why: per tracked window ~10 µs of CPU at this load (gather, ring sort and robust
+plane, connected components, moments, plateau: ~15 passes over 1,089 pixels in numpy) plus ~0.25 ms of
+fixed cost per call (~120 small numpy calls); track_markers_sequence pays the fixed cost once per run of
+frames (1.6–1.8× faster than one call per frame on the vibration scene), but a marker moving ≥ 1 px per
+frame needs its own round every frame (the drift scene: there the sequence is slower than one call per
 frame by its bookkeeping). Cutting the per-window passes needs compiled code, which rig.stereo (numpy,
-scipy, cv2 only) does not allow; no cv2 primitive computes the robust ring plane or the masked moments
-of many windows in one call.
+scipy, cv2 only) does not allow; no cv2 primitive computes the robust ring plane or the masked moments of
+many windows in one call. rig measure / rig batch (MarkerReducer.reduce_many on 16 decoded frames) use
+the exact frame-by-frame windows (hold_px None), so they gain only where markers keep their rounded
+centres for several frames.
 Found and fixed on the way: with 30 markers the moment product (30 × 1,089 × 11) crossed OpenBLAS's
 threading threshold; its threads spun on the busy machine, and their work escaped the CPU-time clock
 (the old 30-marker figures were flattered). Products are now split below the threshold.
