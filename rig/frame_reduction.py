@@ -31,6 +31,8 @@ __all__ = ["DETECT_ONLY_KEYS", "TRACK_KEYS", "MarkerReducer", "ReduceOptions", "
 
 #: distance (px) within which a lone leftover marker continues its motion history across a whole-frame search
 ACQUIRE_PX = 150.0
+#: largest motion (px per frame, in u and in v) of every marker for reduce_many to track a run of frames
+STILL_PX = 0.5
 #: keyword options that both :func:`detect_markers` and :func:`track_markers` take
 TRACK_KEYS = ("polarity", "min_area_px", "max_area_px", "min_roundness", "min_contrast", "centre",
               "max_skewness", "outline_check", "max_edge_rms_px")
@@ -161,12 +163,15 @@ class MarkerReducer:
     def reduce_many(self, images: list[np.ndarray]) -> list[tuple[np.ndarray, np.ndarray]]:
         """:meth:`reduce` of each frame in order — the same rows and numbers — with runs of frames in which
         every marker is searched at its last position (none moved more than a quarter window, none off
-        the frame) tracked in one call (:func:`rig.stereo.track_markers_sequence`, cheaper per frame)."""
+        the frame) tracked in one call (:func:`rig.stereo.track_markers_sequence`), when the markers were
+        nearly still in the last frame (< ``STILL_PX``: their windows stay put for several frames, where
+        the one call is cheaper per frame; with markers moving a pixel per frame it is dearer)."""
         out: list[tuple[np.ndarray, np.ndarray]] = []
         i = 0
         while i < len(images):
             n = min(len(images) - i, self.options.redetect_every - self._since_detect)
-            if (self.options.mode == "track" and len(self._uv) and n > 1
+            still = all(len(h) >= 2 and np.abs(h[-1] - h[-2]).max() < STILL_PX for h in self._hist)
+            if (self.options.mode == "track" and len(self._uv) and n > 1 and still
                     and np.array_equal(self._predicted(images[i].shape), self._uv)):
                 i += self._track_run(images[i : i + n], out)
             if i < len(images):

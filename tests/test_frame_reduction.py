@@ -69,12 +69,14 @@ def test_a_rotor_is_followed_in_its_window_not_searched_whole_every_frame() -> N
 
 
 def test_reduce_many_equals_reduce_frame_by_frame() -> None:
-    # still markers (tracked in runs), one vanishing (lost → whole-frame search), one reappearing, and a
-    # fast one (≥ a quarter window per frame: reduce's motion prediction, frame by frame)
+    # still markers (tracked in runs), one vanishing (lost → whole-frame search), one reappearing, one
+    # that starts moving fast in a run and a fast new one (≥ a quarter window per frame: reduce's motion
+    # prediction, frame by frame)
     rng = np.random.default_rng(5)
     frames = []
     for f in range(40):
-        centres = [(60.0 + 0.05 * np.sin(f), 60.0), (250.0, 180.0 + 0.2 * np.cos(f / 3))]
+        centres = [(60.0 + 0.05 * np.sin(f), 60.0 + 9.0 * max(f - 33, 0)),
+                   (250.0, 180.0 + 0.2 * np.cos(f / 3))]
         if not 12 <= f < 15:
             centres.append((150.0 + rng.uniform(-0.3, 0.3), 120.0))
         if f >= 25:
