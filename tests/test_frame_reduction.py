@@ -75,7 +75,7 @@ def test_reduce_many_equals_reduce_frame_by_frame() -> None:
     rng = np.random.default_rng(5)
     frames = []
     for f in range(40):
-        centres = [(60.0 + 0.05 * np.sin(f), 60.0 + 9.0 * max(f - 33, 0)),
+        centres = [(60.0 + 0.05 * np.sin(f), 60.0 + 9.0 * max(f - 26, 0)),
                    (250.0, 180.0 + 0.2 * np.cos(f / 3))]
         if not 12 <= f < 15:
             centres.append((150.0 + rng.uniform(-0.3, 0.3), 120.0))
