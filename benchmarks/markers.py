@@ -50,6 +50,12 @@ ours/seq), one run under the same load:
   RMS (unchanged): ours 0.0065–0.0070 px (full, track and seq alike); sbd 0.0104–0.0108 px; thr+cc
   0.05–0.06 px. One-call-per-frame tracking and full-frame detection are unchanged within the run-to-run
   spread at this load (before: one run).
+  A fourth run as the load fell (load average 0.5 at its start, 2.5 at its end), CPU time, × sbd/default /
+  sbd/tuned: drift 12: full 7.1 / 5.1, track 26.1 / 18.5, seq 16.4 / 11.6; drift 30: full 6.9 / 5.0, track
+  19.0 / 13.9, seq 13.2 / 9.6; vibration 12: track 23.3 / 16.8, seq 42.9 / 30.5 (0.221 ms); vibration 30:
+  track 17.3 / 12.6, seq 28.7 / 20.8 (0.361 ms). Its wall pass (other sessions back on the second core by
+  then, sbd/tuned 6.6–9.3 ms wall): full 5.0–6.6× sbd/tuned, 6.8–10.0× sbd/default; track 12.4–20.4×;
+  seq 8.0–11.0× (drift), 24.6–31.0× (vibration).
 
 Wall time (--clock wall, OpenCV on both cores, one run after the CPU pass): not a fair figure at load 13–20 —
 the sbd variants' second thread is starved (sbd/tuned 24–33 ms/frame, 3–4× its CPU time), so the ratios
