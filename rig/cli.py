@@ -11,8 +11,9 @@ Commands (``rig COMMAND --help`` for each):
   measure   displacement and spectra from a video pair and a calibration
   preview   the cameras' live view with markers and aiming/focus hints (a local web page)
 
-Without ``--config`` the built-in simulated rig is used. Exit codes: 0 pass, 1 certificate failed,
-2 aborted (Ctrl-C), 3 interlock or hardware fault, 4 bad input.
+Without ``--config`` the built-in simulated rig is used. Exit codes (one meaning each): 0 pass,
+1 certificate failed (FAIL or INCOMPLETE), 2 aborted (SIGINT/Ctrl-C, SIGTERM, SIGHUP, SIGQUIT),
+3 interlock, hardware or I/O fault, 4 bad input (command line included).
 """
 
 from __future__ import annotations
@@ -23,15 +24,17 @@ import importlib.util
 import inspect
 import logging
 import pkgutil
+import signal
 import sys
+import threading
 import types
 from pathlib import Path
-from typing import Any
+from typing import Any, NoReturn
 
 from rig.config import ConfigError, load_config
 from rig.procedure import ParameterError, check_procedure_module, parameter_table, parse_set
 from rig.record_reader import RecordError
-from rig.safety import EXIT_BAD_INPUT, EXIT_FAULT
+from rig.safety import EXIT_ABORTED, EXIT_BAD_INPUT, EXIT_FAULT, STOP_SIGNALS, Interrupted
 
 log = logging.getLogger("rig.cli")
 MOCK_MODULES = {"robot": ("drivers.mock.bcap_server", []),
@@ -251,19 +254,13 @@ def cmd_check(args: argparse.Namespace) -> int:
                 print(f"  {name:10s} NOT REACHABLE: {station.unreachable[name]}")
                 failures += 1
                 continue
-            beat = getattr(station.devices[name], "heartbeat", None)
             try:
-                # the drivers' heartbeat(wait=True) probes now (their plain heartbeat() only reports)
-                waits = callable(beat) and "wait" in inspect.signature(beat).parameters
-                ok = (beat(wait=True) if waits else beat()) if callable(beat) else True
+                ok = station.devices[name].heartbeat(wait=True)  # probes now (plain heartbeat() only reports)
                 print(f"  {name:10s} {'reachable' if ok is not False else 'NOT REACHABLE'}")
                 failures += ok is False
             except Exception as exc:
                 print(f"  {name:10s} NOT REACHABLE: {type(exc).__name__}: {exc}")
                 failures += 1
-        station_safe = getattr(station, "make_safe", None)
-        if callable(station_safe):
-            station_safe()
     return EXIT_FAULT if failures else 0
 
 
@@ -452,10 +449,18 @@ def _add_dashboard_options(p: argparse.ArgumentParser) -> None:
                    "the URL then carries a random token, required by every request")
 
 
+class _Parser(argparse.ArgumentParser):
+    """argparse with the usage error exiting 4 (bad input), not argparse's 2 (which means aborted)."""
+
+    def error(self, message: str) -> NoReturn:
+        self.print_usage(sys.stderr)
+        self.exit(EXIT_BAD_INPUT, f"{self.prog}: error: {message}\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
-    """Return the top-level argument parser with one sub-command per verb."""
-    parser = argparse.ArgumentParser(prog="rig", description=__doc__,
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    """Return the top-level argument parser with one sub-command per verb (sub-parsers are
+    :class:`_Parser` too: argparse makes them of the parent's class)."""
+    parser = _Parser(prog="rig", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("-v", "--verbose", action="count", default=0, help="more log output (-vv: debug)")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     p = sub.add_parser("certify", help="run the whole certification", description=cmd_certify.__doc__ or
@@ -528,8 +533,25 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _interrupted(signum: int, frame: object) -> None:
+    raise Interrupted(signal.Signals(signum).name)
+
+
 def main(argv: list[str] | None = None) -> int:
-    """Run the ``rig`` command; return its exit code."""
+    """Run the ``rig`` command; return its exit code (the one place that maps outcomes to exit codes:
+    see :mod:`rig.safety`). Outside a run (whose runner handles them itself) a stop signal ends the
+    command as an abort (2); an I/O error (full disk, read-only folder) that escapes a command is a
+    fault (3) with a one-line message — a run has made its devices safe before it gets here."""
+    in_main = threading.current_thread() is threading.main_thread()
+    old = {sig: signal.signal(sig, _interrupted) for sig in STOP_SIGNALS if in_main}
+    try:
+        return _main(argv)
+    finally:
+        for sig, handler in old.items():
+            signal.signal(sig, handler)
+
+
+def _main(argv: list[str] | None) -> int:
     parser = build_parser()
     argv = list(sys.argv[1:] if argv is None else argv)
     args = parser.parse_args(argv)
@@ -552,9 +574,21 @@ def main(argv: list[str] | None = None) -> int:
     except (ConfigError, ParameterError, RecordError) as exc:
         print(f"rig: bad input: {exc}", file=sys.stderr)
         return EXIT_BAD_INPUT
-    except KeyboardInterrupt:
-        print("rig: interrupted", file=sys.stderr)
-        return 2
+    except KeyboardInterrupt as exc:
+        name = exc.signal_name if isinstance(exc, Interrupted) else "SIGINT"
+        print(f"rig: interrupted ({name})", file=sys.stderr)
+        return EXIT_ABORTED
+    except OSError as exc:
+        print(f"rig: I/O fault: {_one_line(exc)}", file=sys.stderr)
+        return EXIT_FAULT
+
+
+def _one_line(exc: OSError) -> str:
+    """``[Errno 28] No space left on device: runs/…/record.jsonl`` as one line, naming the file."""
+    if exc.errno is None:
+        return " ".join((str(exc) or type(exc).__name__).split())
+    text = f"[Errno {exc.errno}] {exc.strerror}" + (f": {exc.filename}" if exc.filename is not None else "")
+    return " ".join(text.split())
 
 
 if __name__ == "__main__":

@@ -9,18 +9,22 @@
    the versions; ``devices`` = ``{"connected": false}``): a new run folder, or the same folder with a
    ``resume`` start when ``resume=RUN_DIR`` (completed steps are then skipped, see
    :class:`rig.procedure.Step`); ``rig.log`` in the run folder from here on;
-3. build the **station** (``station_factory(config, clock)``, a context manager yielding an object with
-   ``devices: dict[str, device]`` and optionally ``snapshot() -> dict`` and
-   ``check_interlocks() -> [(device, reason)]``) and record its snapshot as the ``devices`` event. When it
-   cannot be built: a **stop** ``fail`` with the reason (exit 3; 4 for a configuration error; Ctrl-C:
-   ``abort``, exit 2), the traceback in ``rig.log`` only;
+3. build the **station** (``station_factory(config, clock)``, a context manager yielding a
+   :class:`rig.safety.StationLike`: ``devices``, ``roster()`` — every device with its declared role —,
+   ``snapshot()`` and ``check_interlocks()``) and record its snapshot as the ``devices`` event. When it
+   cannot be built: a **stop** ``fail`` with the reason (exit 3; 4 for a configuration error; a stop
+   signal: ``abort``, exit 2), the traceback in ``rig.log`` only;
 4. run ``module.run(ctx, params)`` with a watchdog thread polling every device's ``heartbeat()`` and the
-   station's interlock checks, and SIGINT handled (first Ctrl-C: abort at the next checkpoint; second:
-   ``KeyboardInterrupt`` at once);
-5. **always**, whatever happened: put every device in its safe state (vibration sources, then the arm,
-   then the rest; each attempted; each failure recorded), read back what the devices then report
+   station's interlock checks, and the stop signals handled alike (SIGINT, SIGTERM, SIGHUP, SIGQUIT;
+   first: abort at the next checkpoint — or, in a step without checkpoints such as the report, at its
+   end; second: :class:`rig.safety.Interrupted` at once); either way the run ends ``abort``, exit 2;
+5. **always**, whatever happened: put every device in its safe state in the order of its role
+   (:data:`drivers.roles.SHUTDOWN_ORDER`: generator, exciter and rotor, then the arm, then the cameras;
+   each attempted; each failure recorded), read back what the devices then report
    (:mod:`rig.readback`), and write **stop** (``exit_status`` success / abort / fail, ``reason``,
-   ``outcome``, ``exit_code``, ``verdict``, ``safe_state``) and close the record and station.
+   ``outcome``, ``exit_code``, ``verdict``, ``safe_state``, ``signal`` when a signal ended the run) and
+   close the record and station. An I/O error closing the record after the stop turns a pass or a fail
+   into the fault exit 3 (an abort or a fault stands).
 
 Heartbeats and the station's interlock checks run at every checkpoint and in the watchdog. An
 interlock trip (watchdog, checkpoint, or a driver refusing a command beyond a limit) writes an ``interlock``
@@ -42,6 +46,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from drivers.roles import Assignment
 from rig.clock import make_clock
 from rig.config_schema import ConfigError, to_dict
 from rig.jsonenc import dumps
@@ -53,7 +58,11 @@ from rig.safety import (
     EXIT_ABORTED,
     EXIT_BAD_INPUT,
     EXIT_FAULT,
+    STOP_SIGNALS,
+    Interrupted,
+    StationLike,
     Watchdog,
+    abort_reason,
     check_heartbeats,
     classify,
     format_exception,
@@ -84,7 +93,7 @@ class _Control:
         self.lock = threading.Lock()
         self.abort_reason: str | None = None
         self.interlock: tuple[str, str] | None = None
-        self.sigints = 0
+        self.signals: list[str] = []  # names of the stop signals received, in order
         self.in_cleanup = False
 
 
@@ -143,36 +152,39 @@ class Runner:
             with contextlib.suppress(Exception):
                 signal.pthread_kill(main_thread.ident, signal.SIGUSR1)  # type: ignore[arg-type]
 
-    def _checkpoint(self, station: Any) -> None:
+    def _checkpoint(self, station: StationLike, roster: list[Assignment]) -> None:
         c = self._control
         if c.interlock is not None:
             raise InterlockTripped(*c.interlock)
-        lost = check_heartbeats(dict(getattr(station, "devices", {})))
+        lost = check_heartbeats(roster)
         if lost is not None:
             self.trip(*lost)
             raise InterlockTripped(*lost)
-        check = getattr(station, "check_interlocks", None)
-        if callable(check):
-            trips = check()
-            if trips:
-                self.trip(*trips[0])
-                raise InterlockTripped(*trips[0])
+        trips = station.check_interlocks()
+        if trips:
+            self.trip(*trips[0])
+            raise InterlockTripped(*trips[0])
         if c.abort_reason is not None:
             raise Abort(c.abort_reason)
 
     # ------------------------------------------------------------------ signals
-    def _on_sigint(self, signum: int, frame: Any) -> None:
+    def _on_stop_signal(self, signum: int, frame: Any) -> None:
+        """SIGINT, SIGTERM, SIGHUP, SIGQUIT alike: the first asks for an abort at the next checkpoint, the
+        second aborts at once (:class:`Interrupted`); during cleanup they only say to wait."""
         c = self._control
-        c.sigints += 1
+        name = signal.Signals(signum).name
+        c.signals.append(name)
         if c.in_cleanup:
-            print("rig: putting devices in their safe state; please wait", file=sys.stderr, flush=True)
+            print(f"rig: {name}: putting devices in their safe state; please wait", file=sys.stderr,
+                  flush=True)
             return
-        if c.sigints == 1:
-            self.request_abort("aborted by the operator (Ctrl-C)")
-            print("rig: abort requested; stopping at the next checkpoint (Ctrl-C again to abort at once)",
+        if len(c.signals) == 1:
+            self.request_abort(abort_reason(name))
+            again = "Ctrl-C again" if name == "SIGINT" else "a second signal"
+            print(f"rig: {name}: abort requested; stopping at the next checkpoint ({again} to abort at once)",
                   file=sys.stderr, flush=True)
             return
-        raise KeyboardInterrupt
+        raise Interrupted(name)
 
     def _on_sigusr1(self, signum: int, frame: Any) -> None:
         c = self._control
@@ -184,13 +196,13 @@ class Runner:
         if not self.handle_signals:
             yield
             return
-        old_int = signal.signal(signal.SIGINT, self._on_sigint)
-        old_usr1 = signal.signal(signal.SIGUSR1, self._on_sigusr1)
+        old = {sig: signal.signal(sig, self._on_stop_signal) for sig in STOP_SIGNALS}
+        old[signal.SIGUSR1] = signal.signal(signal.SIGUSR1, self._on_sigusr1)
         try:
             yield
         finally:
-            signal.signal(signal.SIGINT, old_int)
-            signal.signal(signal.SIGUSR1, old_usr1)
+            for sig, handler in old.items():
+                signal.signal(sig, handler)
 
     # ------------------------------------------------------------------ the run
     def run(self, overrides: dict[str, Any] | None = None, *, resume: str | Path | None = None) -> RunOutcome:
@@ -208,31 +220,45 @@ class Runner:
                 record = self._open_record(clock, params, resume_dir)
             except KeyboardInterrupt:
                 return RunOutcome(EXIT_ABORTED, None, "aborted", "aborted before the run folder was created")
+            except RecordError as exc:  # e.g. --resume of a run that already completed
+                return RunOutcome(EXIT_BAD_INPUT, None, "bad_input", str(exc))
             except Exception as exc:
                 return RunOutcome(EXIT_FAULT, None, "fault",
                                   f"could not create the run record: {type(exc).__name__}: {exc}")
             self._record = record
+            outcome: RunOutcome | None = None
             for observer in self.observers:  # live views (the dashboard): every document, start first
                 record.add_observer(observer)
-            with _run_log(record, self.log_level) as file_only:
-                log.info("run %s: procedure %s, session %d", record.run_id, self.module.NAME, record.session)
-                try:
+            try:
+                with _run_log(record, self.log_level) as file_only:
+                    log.info("run %s: procedure %s, session %d", record.run_id, self.module.NAME,
+                             record.session)
                     try:
-                        station_cm = self.station_factory(self.config, clock)
-                        station = station_cm.__enter__()
-                    except (KeyboardInterrupt, Exception) as exc:
-                        return self._station_failed(record, exc, file_only)
-                    try:
-                        return self._run_with_station(record, station, clock, params)
+                        outcome = self._run_and_close_station(record, clock, params, file_only)
                     finally:
-                        self._control.in_cleanup = True
-                        try:
-                            station_cm.__exit__(None, None, None)
-                        except Exception as exc:
-                            log.error("closing the station failed: %s", exc, exc_info=True)
-                finally:
-                    self._record = None
-                    record.close()
+                        self._record = None
+                        record.close()
+            except OSError as exc:
+                if outcome is None:
+                    raise  # the devices were made safe; the CLI reports the I/O fault (exit 3)
+                return _io_fault_after_stop(outcome, exc)
+            return outcome
+
+    def _run_and_close_station(self, record: RunRecord, clock: Any, params: Any,
+                               file_only: Callable[[str, BaseException], None]) -> RunOutcome:
+        try:
+            station_cm = self.station_factory(self.config, clock)
+            station = station_cm.__enter__()
+        except (KeyboardInterrupt, Exception) as exc:
+            return self._station_failed(record, exc, file_only)
+        try:
+            return self._run_with_station(record, station, clock, params)
+        finally:
+            self._control.in_cleanup = True
+            try:
+                station_cm.__exit__(None, None, None)
+            except Exception as exc:
+                log.error("closing the station failed: %s", exc, exc_info=True)
 
     def _open_record(self, clock: Any, params: Any, resume_dir: Path | None) -> RunRecord:
         """The run folder and its start document, written before any device is reached."""
@@ -249,15 +275,21 @@ class Runner:
         self._control.in_cleanup = True
         if isinstance(exc, KeyboardInterrupt):
             code, status, outcome = EXIT_ABORTED, "abort", "aborted"
-            reason = "aborted by the operator (Ctrl-C) while connecting to the devices"
+            signame = self._control.signals[-1] if self._control.signals else "SIGINT"
+            reason = f"{abort_reason(signame)} while connecting to the devices"
         else:
             code = EXIT_BAD_INPUT if isinstance(exc, ConfigError) else EXIT_FAULT
             status, outcome = "fail", "bad_input" if code == EXIT_BAD_INPUT else "fault"
             reason = f"could not build the station: {type(exc).__name__}: {exc}"
             file_only(reason, exc)  # the traceback goes to rig.log, not to the console
-        record.stop(status, reason, outcome=outcome, exit_code=code, safe_state_failures=[], verdict=None)
+        record.stop(status, reason, outcome=outcome, exit_code=code, safe_state_failures=[], verdict=None,
+                    **self._signal_field())
         log.info("run %s ended: %s (exit %d): %s", record.run_id, outcome, code, reason)
         return RunOutcome(code, status, outcome, reason, record.run_dir)
+
+    def _signal_field(self) -> dict[str, str]:
+        """``{"signal": NAME}`` for the stop document when a stop signal ended the run."""
+        return {"signal": self._control.signals[0]} if self._control.signals else {}
 
     def _validate(self, overrides: dict[str, Any] | None,
                   resume: str | Path | None) -> tuple[Any, Path | None]:
@@ -280,49 +312,50 @@ class Runner:
             raise RecordError(f"{resume_dir} is a {start.get('procedure')!r} run, not {self.module.NAME!r}")
         return validate_parameters(self.module, start.get("parameters") or {}), resume_dir
 
-    def _run_with_station(self, record: RunRecord, station: Any, clock: Any, params: Any) -> RunOutcome:
-        station_snapshot: dict[str, Any] = {}
-        snap = getattr(station, "snapshot", None)
-        if callable(snap):
-            try:  # a snapshot failure must not prevent making safe
-                station_snapshot = snap()
-            except Exception as exc:
-                station_snapshot = {"error": f"{type(exc).__name__}: {exc}"}
-        devices: dict[str, Any] = dict(getattr(station, "devices", {}))
+    def _run_with_station(self, record: RunRecord, station: StationLike, clock: Any,
+                          params: Any) -> RunOutcome:
+        roster = station.roster()  # every device with its declared role, fixed for the run
+        try:  # a snapshot failure must not prevent making safe
+            station_snapshot: dict[str, Any] = station.snapshot()
+        except Exception as exc:
+            station_snapshot = {"error": f"{type(exc).__name__}: {exc}"}
         try:
             record.event("devices", station_snapshot)
         except Exception as exc:  # e.g. a snapshot not recordable as JSON: say so, carry on
             record.log("warning", f"station snapshot not recordable: {type(exc).__name__}: {exc}")
-        watchdog = Watchdog(devices, self.trip, period_s=self.watchdog_period_s,
-                            extra_checks=getattr(station, "check_interlocks", None))
+        watchdog = Watchdog(roster, self.trip, period_s=self.watchdog_period_s,
+                            extra_checks=station.check_interlocks)
         ctx = Context(station=station, config=self.config, clock=clock, record=record, params=params,
                       log=logging.getLogger(f"procedures.{self.module.NAME}"),
-                      checkpoint=lambda: self._checkpoint(station), progress=self.progress)
+                      checkpoint=lambda: self._checkpoint(station, roster), progress=self.progress)
         error: BaseException | None = None
         result: Any = None
         try:
             watchdog.start()
-            self._checkpoint(station)
+            self._checkpoint(station, roster)
             result = self.module.run(ctx, params)
         except BaseException as exc:
             error = exc
         finally:
             self._control.in_cleanup = True
             watchdog.stop()
-        error = self._lost_device_check(watchdog, error)
+        error = self._lost_device_check(watchdog, roster, error)
         if error is not None and not isinstance(error, Abort | KeyboardInterrupt):
             log.error("procedure raised:\n%s", format_exception(error))
-        return self._finish(record, devices, error, result, clock)
+        return self._finish(record, roster, error, result)
 
-    def _lost_device_check(self, watchdog: Watchdog, error: BaseException | None) -> BaseException | None:
+    def _lost_device_check(self, watchdog: Watchdog, roster: list[Assignment],
+                           error: BaseException | None) -> BaseException | None:
         """A procedure that failed on a device error before the watchdog's next round: if a heartbeat now
-        says a device is lost (its link closed, or silent past the limit), that is the interlock."""
+        says a device is lost (its link closed, or silent past the limit) — or, failing that, a probe of
+        each device now does (the procedure has ended: the links are free; a drive that stopped
+        answering mid-poll may not yet be silent past the heartbeat limit) — that is the interlock."""
         if error is None or isinstance(error, Abort | KeyboardInterrupt):
             return error
         if self._control.interlock is not None:
             return error
         try:
-            lost = watchdog.poll_once()
+            lost = watchdog.poll_once() or check_heartbeats(roster, wait=True)
         except Exception as exc:
             log.error("final heartbeat check failed: %s", exc)
             return error
@@ -334,22 +367,26 @@ class Runner:
         log.error("procedure error caused by the lost device:\n%s", format_exception(error))
         return tripped
 
-    def _finish(self, record: RunRecord, devices: dict[str, Any], error: BaseException | None,
-                result: Any, clock: Any) -> RunOutcome:
-        # a late interlock (tripped after the procedure returned) still counts
+    def _finish(self, record: RunRecord, roster: list[Assignment], error: BaseException | None,
+                result: Any) -> RunOutcome:
+        # a late interlock (tripped after the procedure returned) still counts, and so does an abort
+        # requested during a step without checkpoints (the report): the run did not finish as asked
         if error is None and self._control.interlock is not None:
             error = InterlockTripped(*self._control.interlock)
+        elif error is None and self._control.abort_reason is not None:
+            error = Abort(self._control.abort_reason)
         passed, summary = _verdict(result)
-        verdict = classify(error, passed, summary)
+        certificate = result.get("certificate_result") if isinstance(result, dict) else None
+        verdict = classify(error, passed, summary, certificate)
         if verdict.outcome == "interlock" and not isinstance(error, InterlockTripped):
             record.interlock(verdict.interlock_device or "limits", str(error))  # a driver refused a command
-        safe = make_safe(devices)
-        failures = [{"device": r.device, "action": r.action, "error": r.error} for r in safe if r.error]
+        safe = make_safe(roster)
+        failures = [{"device": r.device, "role": r.role, "error": r.error} for r in safe if r.error]
         for r in safe:
             if r.error:
-                record.log("error", f"safe state of {r.device} ({r.action}) failed: {r.error}")
-            elif r.action != "none":
-                record.log("info", f"{r.device}: {r.action}() done")
+                record.log("error", f"safe state of {r.device} ({r.role}) failed: {r.error}")
+            else:
+                record.log("info", f"{r.device}: safe_state() done")
         exit_code, status = verdict.exit_code, verdict.exit_status
         outcome, reason = verdict.outcome, verdict.reason
         if failures and exit_code in (0, 1, EXIT_ABORTED):
@@ -357,8 +394,9 @@ class Runner:
             reason = f"{reason}; then making a device safe failed: " + "; ".join(
                 f"{f['device']}: {f['error']}" for f in failures)
         stop_fields = {"outcome": outcome, "exit_code": exit_code, "safe_state_failures": failures,
-                       "safe_state": read_back(devices, safe, clock),  # what the devices now report
-                       "verdict": None if passed is None else ("pass" if passed else "fail")}
+                       "safe_state": read_back(roster, safe),  # what the devices now report
+                       "verdict": _verdict_word(passed, certificate),
+                       **self._signal_field()}
         try:
             dumps({"result": result})
             stop_fields["result"] = result if isinstance(result, dict) else None
@@ -370,11 +408,34 @@ class Runner:
         return RunOutcome(exit_code, status, outcome, reason, record.run_dir, result)
 
 
+def _io_fault_after_stop(outcome: RunOutcome, exc: OSError) -> RunOutcome:
+    """Closing the record or the log failed after the stop document (e.g. ENOSPC): the run cannot count as
+    passed or failed on an incomplete record, so 0/1 become the I/O fault (3); 2, 3 and 4 stand."""
+    what = f"closing the record failed: {type(exc).__name__}: {exc}"
+    log.error("%s", what)
+    if outcome.exit_code in (0, 1):
+        return RunOutcome(EXIT_FAULT, outcome.exit_status, "fault", f"{outcome.reason}; then {what}",
+                          outcome.run_dir, outcome.result)
+    return RunOutcome(outcome.exit_code, outcome.exit_status, outcome.outcome,
+                      f"{outcome.reason}; then {what}", outcome.run_dir, outcome.result)
+
+
+class _LogFile(logging.FileHandler):
+    """``rig.log``: a write failure (full disk) is noted once in ``failed`` instead of a traceback per
+    message on the console (the run's own I/O failures are reported by the runner)."""
+
+    failed: str | None = None
+
+    def handleError(self, record: logging.LogRecord) -> None:  # noqa: N802 — logging's name
+        if self.failed is None:
+            self.failed = str(sys.exc_info()[1])
+
+
 @contextlib.contextmanager
 def _run_log(record: RunRecord, level: int) -> Iterator[Callable[[str, BaseException], None]]:
     """Log to ``<run_dir>/rig.log`` while the run lasts; yields ``file_only(message, exc)``, which writes
     an error with its traceback to that file and not to the console."""
-    handler = logging.FileHandler(record.run_dir / "rig.log", encoding="utf-8")
+    handler = _LogFile(record.run_dir / "rig.log", encoding="utf-8")
     handler.setLevel(level)
     handler.setFormatter(logging.Formatter("%(asctime)s %(levelname)s %(name)s: %(message)s"))
     root = logging.getLogger()
@@ -392,6 +453,13 @@ def _run_log(record: RunRecord, level: int) -> Iterator[Callable[[str, BaseExcep
         root.removeHandler(handler)
         root.setLevel(old_level)
         handler.close()
+
+
+def _verdict_word(passed: bool | None, certificate: str | None) -> str | None:
+    """The stop document's ``verdict``: pass / fail / incomplete (None: the procedure gave none)."""
+    if certificate == "INCOMPLETE":
+        return "incomplete"
+    return None if passed is None else ("pass" if passed else "fail")
 
 
 def _verdict(result: Any) -> tuple[bool | None, str]:

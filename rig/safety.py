@@ -1,74 +1,96 @@
-"""Safety pieces of the runner: bringing every device to a safe state, the heartbeat watchdog, and the
-mapping from what went wrong to an exit code.
+"""Safety pieces of the runner: bringing every device to a safe state, the stop signals, the heartbeat
+watchdog, and the mapping from what went wrong to an exit code.
 
-Exit codes of ``rig``: 0 pass, 1 certificate failed, 2 aborted (Ctrl-C), 3 interlock or hardware fault
-(also an unexpected error inside a procedure: the rig state is then unknown, which is a fault), 4 bad
-input (configuration, parameters, a device the procedure needs but the rig lacks).
+Exit codes of ``rig`` (one meaning each; :func:`rig.cli.main` owns the mapping): 0 pass, 1 certificate
+failed (FAIL or INCOMPLETE: not a pass), 2 aborted (a stop signal: SIGINT, SIGTERM, SIGHUP, SIGQUIT), 3
+interlock, hardware or I/O fault (also an unexpected error inside a procedure: the rig state is then
+unknown, which is a fault), 4 bad input (configuration, parameters, command line, a device the procedure
+needs but the rig lacks, a run folder that cannot be resumed).
 
-Device duck-typing (what the runner calls, when present):
-
-- ``safe_state()`` — the device's own "make safe" (exciter/rotor: output off, frequency 0; generator:
-  output off; arm: halt and release). Preferred.
-- ``stop()`` / ``halt()`` — used when there is no ``safe_state()``.
-- ``heartbeat()`` — called by the watchdog thread every ``period_s`` and at every checkpoint; must be
-  thread-safe and return within about a second; returns False or raises when the device is lost (the
-  drivers' heartbeats return at once: see ``drivers/heartbeat.py``).
-
-The shutdown order is: vibration sources (exciter, rotor, generator/shaker) first, then the arm, then
-everything else (cameras…). Every device is attempted even if an earlier one fails; each failure is
-returned (and recorded by the runner).
+Devices are what :mod:`drivers.roles` says: the station declares each one's role
+(:class:`drivers.roles.Assignment`), and the shutdown order is :data:`drivers.roles.SHUTDOWN_ORDER` —
+generator output, then the VFD axes (exciter, rotor), then the arm, then the cameras; within a role, the
+station's order. Every device is attempted even if an earlier one fails; each outcome is returned (and
+recorded by the runner). Names never decide anything.
 """
 
 from __future__ import annotations
 
 import logging
+import signal
 import threading
 import traceback
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Protocol
 
 from drivers.denso.arm import LimitError as ArmLimitError
 from drivers.exciter.limits import LimitError as ExciterLimitError
+from drivers.roles import Assignment, shutdown_rank
 from rig.config_schema import ConfigError
 from rig.procedure import Abort, InterlockTripped
 
 log = logging.getLogger("rig.safety")
 
 EXIT_PASS, EXIT_CERTIFICATE_FAILED, EXIT_ABORTED, EXIT_FAULT, EXIT_BAD_INPUT = 0, 1, 2, 3, 4
-_FIRST = ("exciter", "rotor", "generator", "shaker")
-_ARM = ("robot", "arm")
+STOP_SIGNALS: tuple[signal.Signals, ...] = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP, signal.SIGQUIT)
+"""Every catchable way a user, a terminal or a supervisor (systemd, docker, a CI timeout) ends ``rig``:
+all go through the same safe stop."""
 
 
-def shutdown_order(names: list[str]) -> list[str]:
-    """Vibration sources first, then the arm, then the rest (each group in the given order)."""
-    first = [n for n in names if any(k in n for k in _FIRST)]
-    arm = [n for n in names if n not in first and any(k in n for k in _ARM)]
-    return first + arm + [n for n in names if n not in first and n not in arm]
+class Interrupted(KeyboardInterrupt):
+    """A second stop signal: abort at once. ``signal_name`` e.g. ``"SIGTERM"``."""
+
+    def __init__(self, signal_name: str = "SIGINT") -> None:
+        super().__init__(signal_name)
+        self.signal_name = signal_name
+
+
+def abort_reason(signal_name: str) -> str:
+    """The stop document's reason for an abort by ``signal_name`` (first signal)."""
+    if signal_name == "SIGINT":
+        return "aborted by the operator (Ctrl-C)"
+    return f"aborted by {signal_name}"
+
+
+class StationLike(Protocol):
+    """What the runner needs of a station (:class:`rig.station.Station` and the tests' stations)."""
+
+    devices: dict[str, Any]
+
+    def roster(self) -> list[Assignment]:
+        """Every device the runner must make safe, with its declared role (cameras included)."""
+        ...
+
+    def snapshot(self) -> dict[str, Any]: ...
+
+    def check_interlocks(self) -> list[tuple[str, str]]:
+        """(device, reason) of every device found lost or beyond a limit, without device I/O."""
+        ...
+
+
+def shutdown_order(roster: Sequence[Assignment]) -> list[Assignment]:
+    """By role (:data:`drivers.roles.SHUTDOWN_ORDER`), the station's order within a role."""
+    return sorted(roster, key=lambda a: shutdown_rank(a.role))  # sorted() is stable
 
 
 @dataclass
 class SafeStateResult:
     device: str
-    action: str  # "safe_state" | "stop" | "halt" | "none"
+    role: str
     error: str | None = None
 
 
-def make_safe(devices: dict[str, Any]) -> list[SafeStateResult]:
-    """Bring every device to its safe state (see module docstring); never raises."""
+def make_safe(roster: Sequence[Assignment]) -> list[SafeStateResult]:
+    """``safe_state()`` of every device in :func:`shutdown_order`; never raises, never skips one."""
     results = []
-    for name in shutdown_order(list(devices)):
-        dev = devices[name]
-        action = next((a for a in ("safe_state", "stop", "halt") if callable(getattr(dev, a, None))), "none")
-        if action == "none":
-            results.append(SafeStateResult(name, action))
-            continue
+    for entry in shutdown_order(roster):
         try:
-            getattr(dev, action)()
-            results.append(SafeStateResult(name, action))
-        except BaseException as exc:
-            log.error("safe state of %s failed: %s", name, exc, exc_info=True)
-            results.append(SafeStateResult(name, action, f"{type(exc).__name__}: {exc}"))
+            entry.device.safe_state()
+            results.append(SafeStateResult(entry.name, entry.role.value))
+        except BaseException as exc:  # a second signal here must not skip the remaining devices
+            log.error("safe state of %s failed: %s", entry.name, exc, exc_info=True)
+            results.append(SafeStateResult(entry.name, entry.role.value, f"{type(exc).__name__}: {exc}"))
     return results
 
 
@@ -85,10 +107,16 @@ class Classified:
     interlock_device: str | None = None
 
 
-def classify(exc: BaseException | None, verdict_passed: bool | None, verdict_summary: str = "") -> Classified:
-    """Map the end of a procedure (an exception or a verdict) to exit code, stop status and reason."""
+def classify(exc: BaseException | None, verdict_passed: bool | None, verdict_summary: str = "",
+             certificate_result: str | None = None) -> Classified:
+    """Map the end of a procedure (an exception or a verdict) to exit code, stop status and reason.
+    ``certificate_result`` (PASS / FAIL / INCOMPLETE, when the procedure issued a certificate) decides
+    over the verdict: an INCOMPLETE certificate is not a pass (exit 1, outcome ``incomplete``)."""
     if exc is None:
-        if verdict_passed is False:
+        if certificate_result == "INCOMPLETE":
+            return Classified(EXIT_CERTIFICATE_FAILED, "success", "incomplete",
+                              f"certificate INCOMPLETE: {verdict_summary or 'not every criterion evaluated'}")
+        if verdict_passed is False or certificate_result == "FAIL":
             return Classified(EXIT_CERTIFICATE_FAILED, "success", "certificate_failed",
                               verdict_summary or "certificate failed")
         return Classified(EXIT_PASS, "success", "pass", verdict_summary or "completed")
@@ -97,7 +125,9 @@ def classify(exc: BaseException | None, verdict_passed: bool | None, verdict_sum
                       "limits")
         return Classified(EXIT_FAULT, "abort", "interlock", f"interlock: {exc}", str(device))
     if isinstance(exc, KeyboardInterrupt):
-        return Classified(EXIT_ABORTED, "abort", "aborted", "aborted at once (second Ctrl-C)")
+        name = exc.signal_name if isinstance(exc, Interrupted) else "SIGINT"
+        again = "second Ctrl-C" if name == "SIGINT" else f"second signal, {name}"
+        return Classified(EXIT_ABORTED, "abort", "aborted", f"aborted at once ({again})")
     if isinstance(exc, Abort):
         return Classified(EXIT_ABORTED, "abort", "aborted", exc.reason)
     if isinstance(exc, ConfigError):
@@ -109,19 +139,17 @@ def format_exception(exc: BaseException) -> str:
     return "".join(traceback.format_exception(type(exc), exc, exc.__traceback__))
 
 
-def check_heartbeats(devices: dict[str, Any]) -> tuple[str, str] | None:
+def check_heartbeats(roster: Sequence[Assignment], *, wait: bool = False) -> tuple[str, str] | None:
     """Call every device's ``heartbeat()``; the first (device, reason) lost, or None. The drivers' own
-    heartbeats do no I/O in the caller (``drivers/heartbeat.py``), so checkpoints may call this too."""
-    for name, dev in devices.items():
-        beat = getattr(dev, "heartbeat", None)
-        if not callable(beat):
-            continue
+    heartbeats do no I/O in the caller (``drivers/heartbeat.py``), so checkpoints may call this too;
+    ``wait=True`` probes each device now instead (after the procedure ended: the links are free)."""
+    for entry in roster:
         try:
-            ok = beat()
+            ok = entry.device.heartbeat(wait=True) if wait else entry.device.heartbeat()
         except Exception as exc:
-            return name, f"lost heartbeat: {type(exc).__name__}: {exc}"
+            return entry.name, f"lost heartbeat: {type(exc).__name__}: {exc}"
         if ok is False:
-            return name, "lost heartbeat: device reports the link is down"
+            return entry.name, "lost heartbeat: device reports the link is down"
     return None
 
 
@@ -130,10 +158,10 @@ class Watchdog:
     ``extra_checks`` (returning ``[(device, reason)]``). The first failure calls ``on_trip(device, reason)``
     once and the watchdog stops."""
 
-    def __init__(self, devices: dict[str, Any], on_trip: Callable[[str, str], None], *,
+    def __init__(self, roster: Sequence[Assignment], on_trip: Callable[[str, str], None], *,
                  period_s: float = 0.25,
                  extra_checks: Callable[[], list[tuple[str, str]]] | None = None) -> None:
-        self._devices = {n: d for n, d in devices.items() if callable(getattr(d, "heartbeat", None))}
+        self._devices = list(roster)
         self._extra = extra_checks
         self._on_trip = on_trip
         self._period_s = float(period_s)

@@ -4,8 +4,11 @@
 
 - ``devices``: name → driver object for everything that moves (``robot`` → :class:`DensoArm`,
   ``exciter`` → :class:`Exciter`, ``rotor`` → :class:`Rotor`, ``generator`` → :class:`Shaker` (SCPI
-  generator + amplifier + shaker)); the runner makes each of them safe;
+  generator + amplifier + shaker));
 - ``cameras``: name → camera device (``FrameSource``: ``start()``, ``stop()``, ``frames()``);
+- ``roles``: name → the :class:`drivers.roles.Role` the station declares for each device and camera
+  (arm, vibration source, generator, camera); ``roster()`` lists them for the runner, which makes each
+  safe in the order of its role (:data:`drivers.roles.SHUTDOWN_ORDER`) — names decide nothing;
 - ``world``: the twin (:class:`drivers.sim.world.World`) on a simulated station, else None — procedures
   must not use it for truth (truth is what they command, from the configuration); it exists for scene
   changes a human would do on a real bench (mounting a target: ``station.mount(scene)``);
@@ -33,6 +36,7 @@ from typing import Any
 
 import numpy as np
 
+from drivers.roles import Assignment, Device, Role
 from rig.config import ConfigError, RigConfig, parse_address
 from rig.config_schema import to_dict
 
@@ -55,19 +59,30 @@ class Station:
     world: Any = None
     devices: dict[str, Any] = field(default_factory=dict)
     cameras: dict[str, Any] = field(default_factory=dict)
+    roles: dict[str, Role] = field(default_factory=dict)  # device or camera → its declared role
     addresses: dict[str, str] = field(default_factory=dict)  # device → address actually connected
     unreachable: dict[str, str] = field(default_factory=dict)  # device → why (``keep_going`` only)
     _closers: list[tuple[str, Callable[[], None]]] = field(default_factory=list, repr=False)
     _liveness: list[tuple[str, Callable[[], str | None]]] = field(default_factory=list, repr=False)
 
+    def add(self, name: str, role: Role, device: Device, address: str | None = None) -> None:
+        """Declare a built device with its role (cameras go to ``cameras``, the rest to ``devices``)."""
+        (self.cameras if role is Role.CAMERA else self.devices)[name] = device
+        self.roles[name] = role
+        if address is not None:
+            self.addresses[name] = address
+
+    def roster(self) -> list[Assignment]:
+        """Every device and camera with its declared role (what the runner makes safe, in build order)."""
+        built = {**self.devices, **self.cameras}
+        return [Assignment(name, role, built[name]) for name, role in self.roles.items()]
+
     def snapshot(self) -> dict[str, Any]:
-        """Addresses and each driver's own configuration snapshot (when it offers one)."""
-        out: dict[str, Any] = {"simulated": self.world is not None, "addresses": dict(self.addresses),
-                               "devices": {}, "cameras": sorted(self.cameras)}
-        for name, dev in self.devices.items():
-            snap = getattr(dev, "snapshot", None)
-            out["devices"][name] = snap() if callable(snap) else {"type": type(dev).__name__}
-        return out
+        """Addresses, roles and each driver's own configuration snapshot."""
+        return {"simulated": self.world is not None, "addresses": dict(self.addresses),
+                "roles": {name: role.value for name, role in self.roles.items()},
+                "devices": {name: dev.snapshot() for name, dev in self.devices.items()},
+                "cameras": sorted(self.cameras)}
 
     def check_interlocks(self) -> list[tuple[str, str]]:
         """Devices found lost without any I/O (see the module docstring)."""
@@ -181,7 +196,7 @@ def _build_robot(st: Station, cfg: RigConfig) -> None:
                    wait=WaitSettings(wait_mode=wait_mode, poll_interval_s=rc.busy_poll_interval_s))
     arm.open()
     st._closers.append(("robot session", arm.close))
-    st.devices["robot"], st.addresses["robot"] = arm, url
+    st.add("robot", Role.ARM, arm, url)
 
     def reported_pose_in_envelope() -> str | None:
         last = arm.last_move
@@ -236,7 +251,7 @@ def _build_vfd(st: Station, cfg: RigConfig, name: str) -> None:
         radius = cfg.targets.rotor.radius_mm if cfg.targets.rotor is not None else 0.0
         axis = Rotor(vfd, marker_radius_mm=radius, **common)
     st._closers.append((f"{name} stop", axis.close))
-    st.devices[name], st.addresses[name] = axis, url
+    st.add(name, Role.VIBRATION_SOURCE, axis, url)
 
     def setpoint_within_limits() -> str | None:
         try:
@@ -278,7 +293,7 @@ def _build_generator(st: Station, cfg: RigConfig) -> None:
                     amplitude_step_vpp=gc.amplitude_step_vpp, step_interval_s=gc.step_interval_s,
                     heartbeat_timeout_s=cfg.station.heartbeat_timeout_s)
     st._closers.append(("generator output off", shaker.close))
-    st.devices["generator"], st.addresses["generator"] = shaker, url
+    st.add("generator", Role.GENERATOR, shaker, url)
     st._liveness.append(("generator", lambda: "SCPI link closed"
                          if getattr(generator.transport, "closed", False) else None))
 
@@ -289,12 +304,13 @@ def _build_cameras(st: Station, cfg: RigConfig) -> None:
             from drivers.camera.opencv_device import OpenCVCamera
 
             width, height = cam.resolution_px
-            st.cameras[name] = OpenCVCamera(name, cam.source, fps=cam.fps, width_px=width, height_px=height)
+            st.add(name, Role.CAMERA, OpenCVCamera(name, cam.source, fps=cam.fps, width_px=width,
+                                                   height_px=height))
         elif cam.driver == "file":
             from drivers.camera.video_file import VideoFile, VideoFileError
 
             try:
-                st.cameras[name] = VideoFile(cam.source, name=name, fps=cam.fps)
+                st.add(name, Role.CAMERA, VideoFile(cam.source, name=name, fps=cam.fps))
             except VideoFileError as exc:
                 raise StationError(f"cameras.{name}.source: {exc}") from exc
     if st.world is None:
@@ -304,7 +320,8 @@ def _build_cameras(st: Station, cfg: RigConfig) -> None:
 
     for spec in camera_specs(cfg):
         width, height = cfg.cameras[spec.name].resolution_px
-        st.cameras[spec.name] = SimFrameSource(make_camera(spec, st.world, width_px=width, height_px=height))
+        st.add(spec.name, Role.CAMERA, SimFrameSource(make_camera(spec, st.world, width_px=width,
+                                                                  height_px=height)))
 
 
 @contextlib.contextmanager

@@ -18,6 +18,7 @@ import types
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from drivers.roles import Assignment, Role
 from rig.config import default_config
 from rig.procedure import param
 from rig.runner import Runner
@@ -43,18 +44,36 @@ class FakeDevice:
         if self.fail_safe:
             raise ConnectionError(f"{self.name} does not answer")
 
-    def heartbeat(self) -> bool:
+    def heartbeat(self, *, wait: bool = False) -> bool:
         return self.alive
+
+    def read_back(self) -> dict:
+        return {"calls": "see CALLS_FILE"}
+
+    def snapshot(self) -> dict:
+        return {"type": "fake"}
+
+
+ROLES = {"robot": Role.ARM, "exciter": Role.VIBRATION_SOURCE, "rotor": Role.VIBRATION_SOURCE,
+         "left": Role.CAMERA}
 
 
 class FakeStation:
-    def __init__(self, calls: Path, **fail: bool) -> None:
-        self.devices = {n: FakeDevice(n, calls, fail_safe=fail.get(n, False))
-                        for n in ("robot", "exciter", "rotor", "left")}
+    """A station of fake devices; ``roles`` maps each name to its role (default :data:`ROLES`)."""
+
+    def __init__(self, calls: Path, roles: dict[str, Role] | None = None, **fail: bool) -> None:
+        self.roles = dict(ROLES if roles is None else roles)
+        self.devices = {n: FakeDevice(n, calls, fail_safe=fail.get(n, False)) for n in self.roles}
         self.calls = calls
+
+    def roster(self) -> list[Assignment]:
+        return [Assignment(n, self.roles[n], d) for n, d in self.devices.items()]
 
     def snapshot(self) -> dict:
         return {"devices": sorted(self.devices)}
+
+    def check_interlocks(self) -> list[tuple[str, str]]:
+        return []
 
 
 def station_factory(calls: Path, **fail: bool):

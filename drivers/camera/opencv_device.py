@@ -32,6 +32,7 @@ import cv2
 import numpy as np
 
 from drivers.camera.base import Frame
+from drivers.roles import Camera
 
 __all__ = ["CameraDeviceError", "CaptureStats", "OpenCVCamera", "parse_source"]
 
@@ -69,7 +70,7 @@ class CaptureStats:
         return int(sum(d["missing_frames"] for d in self.dropped))
 
 
-class OpenCVCamera:
+class OpenCVCamera(Camera):
     """A live camera through ``cv2.VideoCapture`` (see the module docstring).
 
     ``source``: device index, path or URL. ``fps``, ``width_px``, ``height_px``: requested from the device
@@ -108,6 +109,20 @@ class OpenCVCamera:
     @property
     def recording(self) -> bool:
         return self._thread is not None and self._thread.is_alive()
+
+    def safe_state(self) -> None:
+        """Stop a recording in progress (the runner's make-safe; nothing to do otherwise)."""
+        if self.recording and not self._stop.is_set():
+            self.stop()
+
+    def read_back(self) -> dict[str, Any]:
+        return {"recording": self.recording, "delivered": self.stats.delivered, "error": self.stats.error}
+
+    def heartbeat(self, *, wait: bool = False) -> bool:
+        return True  # a camera's loss shows in its frames (stats.error), not in a link to probe
+
+    def snapshot(self) -> dict[str, Any]:
+        return {"driver": "opencv", "fps": self.fps, "resolution_px": [self.width_px, self.height_px]}
 
     def start(self) -> None:
         """Open the device, apply the requested mode, start the grabbing thread."""

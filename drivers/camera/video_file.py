@@ -46,6 +46,7 @@ import cv2
 import numpy as np
 
 from drivers.camera.base import Frame
+from drivers.roles import Camera
 
 __all__ = ["DUPLICATE_POLICIES", "FrameTimeReport", "VideoFile", "VideoFileError", "VideoOpenError",
            "VideoTruncatedError", "find_gaps"]
@@ -283,7 +284,7 @@ def find_gaps(timestamps_s: np.ndarray, period_s: float, gap_tolerance: float = 
     return out
 
 
-class VideoFile:
+class VideoFile(Camera):
     """A video file as a ``FrameSource`` (see the module docstring).
 
     ``name``: camera name (default: the file stem). ``fps``: nominal frame rate if the container's is wrong
@@ -347,6 +348,18 @@ class VideoFile:
 
     def stop(self) -> None:
         """Nothing to stop (``FrameSource`` protocol)."""
+
+    def safe_state(self) -> None:
+        """Nothing to make safe: a file does not record."""
+
+    def read_back(self) -> dict[str, Any]:
+        return {"recording": False}
+
+    def heartbeat(self, *, wait: bool = False) -> bool:
+        return True
+
+    def snapshot(self) -> dict[str, Any]:
+        return {"driver": "file", "path": str(self.path)}
 
     def _gray(self, cap: cv2.VideoCapture) -> np.ndarray | None:
         ok, img = cap.retrieve()

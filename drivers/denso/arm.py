@@ -38,6 +38,7 @@ from drivers.denso.motion import (
 )
 from drivers.denso.pose import check_pose, orientation_error_deg
 from drivers.heartbeat import Heartbeat, HeartbeatError
+from drivers.roles import Arm
 from drivers.transport import TransportError
 
 log = logging.getLogger(__name__)
@@ -189,7 +190,7 @@ class MoveResult:
     orientation_error_deg: float
 
 
-class DensoArm:
+class DensoArm(Arm):
     """A DENSO arm behind a b-CAP client.
 
     Args:
@@ -433,6 +434,15 @@ class DensoArm:
             self.halt()
         except (BcapError, TransportError, OSError) as exc:
             log.error("halt after a failed move also failed: %s", exc)
+
+    def read_back(self, *, settle_s: float = 0.2) -> dict[str, Any]:
+        """The controller's own report (:class:`drivers.roles.Arm`): the pose read twice ``settle_s``
+        (s, rig clock, > 0) apart and ``moved_mm``, how far the flange moved in between (0 when halted)."""
+        first = self.position()
+        self.clock.sleep_s(settle_s)
+        second = self.position()
+        return {"pose": [float(v) for v in second], "settle_s": settle_s,
+                "moved_mm": float(np.linalg.norm(second[:3] - first[:3]))}
 
     def snapshot(self) -> dict[str, Any]:
         """Configuration and last state, for the run record."""

@@ -21,6 +21,7 @@ from drivers.exciter.limits import MotionLimits
 from drivers.exciter.sweep import FrequencySample, SweepProfile, SweepResult, run_sweep
 from drivers.exciter.vfd import VfdDriver, VfdError
 from drivers.heartbeat import Heartbeat
+from drivers.roles import VibrationSource
 
 __all__ = ["VfdAxis", "VfdTimeoutError"]
 
@@ -29,7 +30,7 @@ class VfdTimeoutError(VfdError):
     """The drive did not reach the commanded frequency (or standstill) in the expected time."""
 
 
-class VfdAxis:
+class VfdAxis(VibrationSource):
     """A VFD-driven mechanism (base of :class:`~drivers.exciter.exciter.Exciter` and
     :class:`~drivers.exciter.rotor.Rotor`).
 
@@ -215,6 +216,20 @@ class VfdAxis:
         self.vfd.set_frequency_hz(0.0, verify=False)
         self._setpoint_hz = 0.0
         self.wait_until_reached(0.0, fault_is_error=False)
+
+    def read_back(self) -> dict[str, Any]:
+        """The drive's own report (:class:`drivers.roles.VibrationSource`): output frequency and setpoint
+        (mechanical Hz) and status, a drive fault included as ``"fault N"``."""
+        sample = self.read_sample(fault_is_error=False)
+        return {"frequency_hz": float(sample.frequency_hz), "setpoint_hz": float(sample.setpoint_hz),
+                "status": str(sample.status)}
+
+    def snapshot(self) -> dict[str, Any]:
+        """Configuration for the run record (no I/O)."""
+        return {"driver": "modbus-vfd", "kind": self.kind, "register_map": self.vfd.map.model,
+                "unit_id": self.vfd.map.unit_id, "gear_ratio": self.gear_ratio,
+                "amplitude_mm": self.amplitude_mm, "ramp_rate_hz_per_s": self.ramp_rate_hz_per_s,
+                "max_output_hz": self.vfd.max_output_hz, "setpoint_hz": self._setpoint_hz}
 
     def heartbeat(self, *, wait: bool = False) -> bool:
         """Watchdog probe (thread-safe, no I/O in the caller's thread, returns at once; ``wait=True``

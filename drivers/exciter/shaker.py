@@ -27,6 +27,7 @@ from typing import Any
 from drivers.exciter.generator import GeneratorError, SafeOffOutcome, ScpiGenerator
 from drivers.exciter.limits import LimitError, MotionLimits
 from drivers.heartbeat import Heartbeat
+from drivers.roles import Generator
 
 __all__ = ["GeneratorSample", "SensitivityTable", "Shaker", "ShakerLimits", "ShakerSweep"]
 
@@ -170,7 +171,7 @@ class ShakerLimits:
             self.limits.check_ramp_rate(slope, "shaker sweep")
 
 
-class Shaker:
+class Shaker(Generator):
     """Shaker + amplifier + generator.
 
     generator: the SCPI generator. clock: rig clock. limits: shaker limits. sensitivity: the table.
@@ -396,6 +397,15 @@ class Shaker:
         except GeneratorError:
             if self.last_safe_outcome is None or not self.last_safe_outcome.output_off:
                 raise
+
+    def read_back(self) -> dict[str, Any]:
+        """The generator's own report (:class:`drivers.roles.Generator`): is its output on?"""
+        return {"output_on": bool(self.generator.output())}
+
+    def snapshot(self) -> dict[str, Any]:
+        """Configuration for the run record (no I/O)."""
+        return {"driver": "scpi-generator", "channel": self.generator.channel,
+                "max_amplitude_vpp": self.max_amplitude_vpp, "output_on": self._output_on}
 
     def heartbeat(self, *, wait: bool = False) -> bool:
         """Watchdog probe (thread-safe, no I/O in the caller's thread, returns at once; ``wait=True``

@@ -8,8 +8,10 @@ order, every frame whose whole exposure (all rows) lies in that interval. Called
 from __future__ import annotations
 
 from collections.abc import Iterator
+from typing import Any
 
 from drivers.camera.base import Frame
+from drivers.roles import Camera
 from drivers.sim.camera import SimCamera
 
 __all__ = ["RecordingStateError", "SimFrameSource"]
@@ -19,7 +21,7 @@ class RecordingStateError(RuntimeError):
     """start/stop/frames called in the wrong order."""
 
 
-class SimFrameSource:
+class SimFrameSource(Camera):
     """``FrameSource`` over a :class:`SimCamera` (name, size and fps are the camera's)."""
 
     def __init__(self, camera: SimCamera) -> None:
@@ -44,6 +46,24 @@ class SimFrameSource:
         if self._t_start_s is None or self._t_stop_s is not None:
             raise RecordingStateError(f"camera {self.name!r} is not recording (call start first)")
         self._t_stop_s = self.camera.world.clock.now_s()
+
+    @property
+    def recording(self) -> bool:
+        return self._t_start_s is not None and self._t_stop_s is None
+
+    def safe_state(self) -> None:
+        """Stop a recording in progress (the runner's make-safe; nothing to do otherwise)."""
+        if self.recording:
+            self.stop()
+
+    def read_back(self) -> dict[str, Any]:
+        return {"recording": self.recording}
+
+    def heartbeat(self, *, wait: bool = False) -> bool:
+        return True  # rendered from the twin: cannot be lost
+
+    def snapshot(self) -> dict[str, Any]:
+        return {"driver": "sim", "fps": self.fps, "resolution_px": [self.width_px, self.height_px]}
 
     def frame_indices(self) -> range:
         """Indices of the frames :meth:`frames` yields."""
