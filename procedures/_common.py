@@ -208,4 +208,5 @@ def run_alone(ctx: Any, params: Any, run_steps: Callable[[Any, Any], T]) -> tupl
     sync.run_step(ctx, sync.Parameters())
     done = run_steps(ctx, params)
     result = report_step(ctx)
-    return done, {"summary": evaluated_summary(result), "report": result["report"]}
+    return done, {"summary": evaluated_summary(result), "report": result["report"],
+                  "passed": result["passed"], "certificate_result": result["certificate_result"]}

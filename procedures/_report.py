@@ -1,9 +1,10 @@
 """The ``report`` step shared by the procedures: analysis → tables, figures, report.html, certificate.json.
 
 Calls :func:`reports.build.build_report` on the run folder (a pure function of it). The report is built
-before the run's ``stop`` document exists, so the certificate's overall ``result`` cannot be ``PASS`` yet
-(the reports require a successful stop); the procedure's verdict is therefore taken from the criteria:
-passed when every criterion is evaluated and passes.
+before the run's ``stop`` document exists, as the run's last step (``in_run``: the certificate says the
+run is finishing normally); the procedure's verdict is taken from the criteria: passed when every
+criterion is evaluated and passes. ``certificate_result`` (PASS / FAIL / INCOMPLETE) goes back to the
+runner, whose outcome and exit code then agree with the certificate (INCOMPLETE is not a pass: exit 1).
 """
 
 from __future__ import annotations
@@ -42,11 +43,12 @@ def report_step(ctx: Any, *, make_figures: bool = True,
 
     with ctx.step("report") as step:
         ctx.progress(None, "report: analysis, tables, figures, certificate")
-        result = build_report(ctx.run_dir, make_figures=make_figures, compare=compare)
+        result = build_report(ctx.run_dir, make_figures=make_figures, compare=compare, in_run=True)
         if not step.skipped:
             for path in (result.report_html, result.certificate_json):
                 step.output(path.relative_to(ctx.run_dir))
     passed, summary = verdict_of(result.certificate)
     return {"passed": passed, "summary": summary, "report": str(result.report_html),
+            "certificate_result": result.certificate.get("result"),
             "certificate": str(result.certificate_json),
             "criteria": {r.get("id", "?"): r["status"] for r in result.certificate.get("criteria") or []}}

@@ -111,4 +111,5 @@ def run(ctx: Any, params: Parameters) -> dict[str, Any]:
     compare = params.preset == "full" if params.compare_paper_sync is None else params.compare_paper_sync
     result = report_step(ctx, make_figures=params.figures, compare=("linear",) if compare else ())
     return {"passed": result["passed"], "summary": result["summary"], "report": result["report"],
-            "certificate": result["certificate"], "preset": params.preset, "criteria": result["criteria"]}
+            "certificate": result["certificate"], "certificate_result": result["certificate_result"],
+            "preset": params.preset, "criteria": result["criteria"]}

@@ -92,6 +92,7 @@ def build_report(
     compare: tuple[str, ...] = (COMPARISON_SYNC,),
     analysis: Analyse | None = None,
     make_figures: bool = True,
+    in_run: bool = False,
 ) -> ReportResult:
     """Rebuild ``tables/``, ``figures/``, ``report.html`` and ``certificate.json`` inside ``run_dir``.
 
@@ -100,6 +101,9 @@ def build_report(
     ``rig.analysis.analyse``.
     A failing comparison method is reported as a note; a failing primary method raises.
     ``make_figures=False`` skips the figures (≈ 3 s of matplotlib) for a quick table/certificate rebuild.
+    ``in_run=True``: built by the run's own last step (the procedures' ``report`` step), which is
+    finishing normally — the conditions then say so (``exit_status`` "success", the stop document follows)
+    instead of a missing stop document (a killed run).
     """
     run = load_record(run_dir)
     run_dir = run.run_dir
@@ -131,7 +135,9 @@ def build_report(
     )
     notes += [f"quadratic fit, sync '{m}': {msg}" for m, msg in sorted(t.fit_notes.items())]
     notes += t.notes
-    if run.stop is None:
+    if run.stop is None and in_run:
+        notes.append("built as the run's last step, before its stop document (which records how it ended)")
+    elif run.stop is None:
         notes.append(
             "the record has no stop document yet: the report was built as a step of the run (or the run "
             "was killed); the result follows from the criteria"
@@ -143,8 +149,8 @@ def build_report(
         "run_id": run.run_id,
         "procedure": run.start.get("procedure"),
         "date_utc": run.start.get("wall_utc"),
-        "exit_status": run.exit_status,
-        "stop_reason": stop.get("reason"),
+        "exit_status": "success" if in_run and run.stop is None else run.exit_status,
+        "stop_reason": stop.get("reason") if not (in_run and run.stop is None) else "finishing normally",
         "clock": run.start.get("clock"),
         "sync_method": primary,
         "compared_sync_methods": [m for m in results if m != primary],

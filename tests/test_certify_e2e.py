@@ -96,7 +96,11 @@ def test_certify_fast_preset_end_to_end(tmp_path: Path) -> None:
     statuses = {r["id"]: r["status"] for r in cert["criteria"]}
     # the verdict follows the criteria: exit 0 exactly when every criterion passed
     assert (code == 0) == all(s == "PASS" for s in statuses.values()), statuses
-    assert run.stop["verdict"] == ("pass" if code == 0 else "fail")
+    # ... and agrees with the certificate; the certificate knows the run was finishing normally
+    assert (code == 0) == (cert["result"] == "PASS")
+    assert run.stop["verdict"] == {"PASS": "pass", "FAIL": "fail", "INCOMPLETE": "incomplete"}[cert["result"]]
+    assert cert["conditions"]["exit_status"] == "success"
+    assert not any("killed" in note for note in cert["conditions"]["notes"]), cert["conditions"]["notes"]
     for stream in ("arm", "calibration_position", "accuracy_pose", "sweep", "rotation", "camera", "exciter"):
         assert stream in run.events, stream
     _check_against_truth(run_dir, tmp_path / "rig.toml")
