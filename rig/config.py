@@ -137,6 +137,12 @@ class VfdConfig:
     timeout_s: float = field(default=1.0, metadata=spec(lo=0.05, hi=60.0))
     max_output_hz: float = field(default=50.0, metadata=spec(lo=0.0, lo_open=True, hi=1000.0))
     ramp_rate_hz_per_s: float = field(default=1.0, metadata=spec(lo=0.0, lo_open=True, hi=1000.0))
+    comm_timeout_s: float = field(default=2.0, metadata=spec(lo=0.1, hi=100.0, doc=(
+        "the drive's own communication-loss stop (Delta 09-03): no valid request for this long → it faults "
+        "and ramps to a stop by itself, so a controller killed without cleanup (SIGKILL, power loss) "
+        "leaves the motor stopped within comm_timeout_s + frequency / deceleration rate; armed when the "
+        "station connects (not on mock:// drives), disarmed on a clean close. Must exceed twice the "
+        "heartbeat probe interval (station.heartbeat_timeout_s / 4)")))
 
     def resolved_register_map(self) -> Any:
         """The :class:`drivers.exciter.register_map.RegisterMap`: the named map, overridden by ``registers``

@@ -338,11 +338,14 @@ class Runner:
             error = exc
         finally:
             self._control.in_cleanup = True
+            watchdog.quiet()  # its probes keep idle drives' communication-loss stops from firing
+        try:
+            error = self._lost_device_check(watchdog, roster, error)
+            if error is not None and not isinstance(error, Abort | KeyboardInterrupt):
+                log.error("procedure raised:\n%s", format_exception(error))
+            return self._finish(record, roster, error, result)
+        finally:
             watchdog.stop()
-        error = self._lost_device_check(watchdog, roster, error)
-        if error is not None and not isinstance(error, Abort | KeyboardInterrupt):
-            log.error("procedure raised:\n%s", format_exception(error))
-        return self._finish(record, roster, error, result)
 
     def _lost_device_check(self, watchdog: Watchdog, roster: list[Assignment],
                            error: BaseException | None) -> BaseException | None:

@@ -156,7 +156,9 @@ def check_heartbeats(roster: Sequence[Assignment], *, wait: bool = False) -> tup
 class Watchdog:
     """Background thread: every ``period_s`` wall seconds, call each device's ``heartbeat()`` and the
     ``extra_checks`` (returning ``[(device, reason)]``). The first failure calls ``on_trip(device, reason)``
-    once and the watchdog stops."""
+    once. It keeps polling until :meth:`stop` — after a trip, and in :meth:`quiet` mode while the runner
+    makes the devices safe — because the heartbeats' probes of idle links are also what keeps every drive's
+    communication-loss stop from firing while another device is being brought to rest."""
 
     def __init__(self, roster: Sequence[Assignment], on_trip: Callable[[str, str], None], *,
                  period_s: float = 0.25,
@@ -166,6 +168,7 @@ class Watchdog:
         self._on_trip = on_trip
         self._period_s = float(period_s)
         self._stop = threading.Event()
+        self._quiet = threading.Event()
         self._thread = threading.Thread(target=self._loop, name="rig-watchdog", daemon=True)
         self.tripped: tuple[str, str] | None = None
 
@@ -173,6 +176,10 @@ class Watchdog:
         if self._devices or self._extra:
             self._thread.start()
         return self
+
+    def quiet(self) -> None:
+        """Keep polling (probes keep idle links alive) but trip no more: cleanup has begun."""
+        self._quiet.set()
 
     def stop(self) -> None:
         self._stop.set()
@@ -196,7 +203,6 @@ class Watchdog:
                 trip = self.poll_once()
             except Exception as exc:
                 trip = ("watchdog", f"interlock check failed: {type(exc).__name__}: {exc}")
-            if trip is not None:
+            if trip is not None and self.tripped is None and not self._quiet.is_set():
                 self.tripped = trip
                 self._on_trip(*trip)
-                return

@@ -24,7 +24,8 @@ from drivers.exciter.sweep import LinearSweep, LogSweep, PointsSweep
 def test_delta_map_matches_the_documented_table() -> None:
     assert DELTA_MAP.addresses() == {
         "command": 0x2000, "freq_set": 0x2001, "aux_command": 0x2002, "fault": 0x2100, "status": 0x2101,
-        "freq_cmd": 0x2102, "freq_out": 0x2103, "current": 0x2104, "accel_time": 0x0109, "decel_time": 0x010A}
+        "freq_cmd": 0x2102, "freq_out": 0x2103, "current": 0x2104, "accel_time": 0x0109, "decel_time": 0x010A,
+        "comm_fault_treatment": 0x0902, "comm_timeout": 0x0903}
     assert (DELTA_MAP.cmd_stop, DELTA_MAP.cmd_run_forward, DELTA_MAP.cmd_run_reverse) == (0x01, 0x12, 0x22)
     assert DELTA_MAP.freq_to_register(10.0) == 1000
     assert get_register_map("delta") is DELTA_MAP

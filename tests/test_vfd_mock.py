@@ -179,3 +179,43 @@ def test_paced_clock_watchdog_trips_with_nobody_asking() -> None:
             assert world.exciter.frequency_hz(t_trip + 0.25) == pytest.approx(f_trip - 2.5, abs=1e-9)
         finally:
             client.close()
+
+
+COMM_TREATMENT, COMM_TIMEOUT = 0x0902, 0x0903  # Delta 09-02 (1 = ramp to stop), 09-03 (0.1 s, 0 = off)
+
+
+@pytest.mark.parametrize(("treatment", "trips"), [(0, False), (1, True), (2, True), (3, False)])
+def test_communication_timeout_is_set_over_modbus_like_the_drive(treatment: int, trips: bool) -> None:
+    """The time-out armed through its registers stops a running drive nobody talks to; the treatments
+    that keep running (0, 3) do not."""
+    with plain() as (client, world, drive):
+        write(client, COMM_TREATMENT, treatment)
+        write(client, COMM_TIMEOUT, 15)  # 1.5 s
+        assert read(client, COMM_TREATMENT, 2) == [treatment, 15]
+        write(client, FREQ_SET, 1000)
+        write(client, CMD, RUN_FWD)
+        t_last = world.clock.now_s()
+        world.clock.advance_to(t_last + 30.0)
+        assert (read(client, FAULT)[0] & 0xFF == FAULT_WATCHDOG) is trips  # the trip is applied at its time
+        if trips:
+            assert drive.fault_time_s == pytest.approx(t_last + 1.5)
+            assert read(client, FREQ_OUT) == [0]
+        write(client, COMM_TIMEOUT, 0)  # off: a drive left idle never trips
+        write(client, AUX, RESET)
+        write(client, CMD, RUN_FWD)
+        t_last = world.clock.now_s()
+        world.clock.advance_to(t_last + 30.0)
+        assert read(client, FAULT) == [0]
+
+
+def test_the_driver_arms_and_disarms_the_communication_timeout() -> None:
+    from drivers.exciter.vfd import VfdDriver
+
+    with plain() as (client, world, drive):
+        vfd = VfdDriver(client)
+        vfd.set_comm_timeout_s(2.0)
+        assert read(client, COMM_TREATMENT, 2) == [1, 20] and drive.watchdog_s == pytest.approx(2.0)
+        vfd.set_comm_timeout_s(None)
+        assert read(client, COMM_TIMEOUT) == [0] and drive.watchdog_s is None
+        with pytest.raises(ValueError, match="communication time-out"):
+            vfd.set_comm_timeout_s(1e6)

@@ -8,7 +8,10 @@ number like "40001" is wire address 0, a hex address like Delta's ``0x2000`` alr
 The default, :data:`DELTA_MAP`, follows the Delta VFD-E/EL/MS300 communication map (unit id 1,
 frequencies in 0.01 Hz). The ramp-time parameters (Delta parameters 01-09 / 01-10, "acceleration /
 deceleration time 1", wire addresses 0x0109 / 0x010A, 0.1 s) are taken from the VFD-E parameter list;
-check them against your drive's manual (MS300 uses 01-12 / 01-13 and 0.01 s by default).
+check them against your drive's manual (MS300 uses 01-12 / 01-13 and 0.01 s by default). The
+communication-loss parameters are Delta 09-02 "transmission fault treatment" (1 = warn and ramp to
+stop) and 09-03 "time-out detection" (0.1 s, 0 = off), wire addresses 0x0902 / 0x0903 by the same
+group-parameter rule (VFD-E and MS300 manuals; **UNVERIFIED** against our drive).
 
 A rig configuration can override any field from a TOML table (see :func:`register_map_from_dict`)::
 
@@ -31,13 +34,14 @@ __all__ = ["DELTA_MAP", "REGISTER_MAPS", "RegisterMap", "get_register_map", "loa
            "register_map_from_dict"]
 
 _ADDRESS_FIELDS = ("command", "freq_set", "aux_command", "fault", "status", "freq_cmd", "freq_out",
-                   "current", "accel_time", "decel_time")
-_OPTIONAL_ADDRESS_FIELDS = ("aux_command", "current", "accel_time", "decel_time")
+                   "current", "accel_time", "decel_time", "comm_fault_treatment", "comm_timeout")
+_OPTIONAL_ADDRESS_FIELDS = ("aux_command", "current", "accel_time", "decel_time", "comm_fault_treatment",
+                            "comm_timeout")
 _CODE_FIELDS = ("cmd_stop", "cmd_run_forward", "cmd_run_reverse", "aux_fault_reset",
                 "status_run_mask", "status_running", "status_decelerating", "status_standby",
                 "status_stopped", "status_dir_mask", "status_dir_forward", "status_dir_reverse",
-                "fault_code_mask")
-_SCALE_FIELDS = ("freq_unit_hz", "current_unit_a", "ramp_time_unit_s")
+                "fault_code_mask", "comm_treatment_ramp_stop")
+_SCALE_FIELDS = ("freq_unit_hz", "current_unit_a", "ramp_time_unit_s", "comm_timeout_unit_s")
 
 
 @dataclass(frozen=True)
@@ -65,11 +69,16 @@ class RegisterMap:
     current: int | None = 0x2104
     accel_time: int | None = 0x0109
     decel_time: int | None = 0x010A
+    # communication loss (Delta 09-02 "transmission fault treatment", 09-03 "time-out detection"): with
+    # a time-out set, a drive that receives no valid request for that long faults and stops by itself
+    comm_fault_treatment: int | None = 0x0902
+    comm_timeout: int | None = 0x0903
     # codes written to ``command`` / ``aux_command``
     cmd_stop: int = 0x0001
     cmd_run_forward: int = 0x0012
     cmd_run_reverse: int = 0x0022
     aux_fault_reset: int = 0x0002
+    comm_treatment_ramp_stop: int = 0x0001  # 09-02 = 1: warn and ramp to stop (0 keeps running!)
     # status word decoding: (status & mask) == code
     status_run_mask: int = 0x0003
     status_stopped: int = 0x0000
@@ -85,6 +94,7 @@ class RegisterMap:
     freq_unit_hz: float = 0.01
     current_unit_a: float = 0.01
     ramp_time_unit_s: float = 0.1
+    comm_timeout_unit_s: float = 0.1  # 09-03 in 0.1 s; 0 = detection off
 
     def __post_init__(self) -> None:
         if not isinstance(self.model, str) or not self.model:
@@ -111,6 +121,8 @@ class RegisterMap:
             raise ValueError(f"register addresses must be distinct, got {dict(self.addresses())}")
         if (self.accel_time is None) != (self.decel_time is None):
             raise ValueError("accel_time and decel_time must both be given or both be None")
+        if (self.comm_timeout is None) != (self.comm_fault_treatment is None):
+            raise ValueError("comm_timeout and comm_fault_treatment must both be given or both be None")
         if len({self.cmd_stop, self.cmd_run_forward, self.cmd_run_reverse}) != 3:
             raise ValueError("cmd_stop, cmd_run_forward and cmd_run_reverse must be distinct codes")
 
@@ -121,6 +133,11 @@ class RegisterMap:
     @property
     def has_ramp_registers(self) -> bool:
         return self.accel_time is not None
+
+    @property
+    def has_comm_timeout(self) -> bool:
+        """The drive's communication-loss stop can be set over Modbus."""
+        return self.comm_timeout is not None
 
     # conversions at the boundary -------------------------------------------------------------------
     def freq_to_register(self, frequency_hz: float) -> int:
@@ -133,6 +150,14 @@ class RegisterMap:
 
     def register_to_freq(self, value: int) -> float:
         return value * self.freq_unit_hz
+
+    def comm_timeout_to_register(self, timeout_s: float) -> int:
+        """Communication time-out (s, > 0) → register value; raises outside 1..65535 steps."""
+        value = round(timeout_s / self.comm_timeout_unit_s)
+        if not 1 <= value <= 0xFFFF:
+            raise ValueError(f"communication time-out {timeout_s!r} s: outside the register range "
+                             f"{self.comm_timeout_unit_s:g}..{0xFFFF * self.comm_timeout_unit_s:g} s")
+        return value
 
     def ramp_time_to_register(self, time_s: float) -> int:
         value = round(time_s / self.ramp_time_unit_s)

@@ -261,6 +261,22 @@ class VfdDriver:
         self._write(self.map.accel_time, accel, f"acceleration time {accel_s:g} s")
         self._write(self.map.decel_time, decel, f"deceleration time {decel_s:g} s")
 
+    def set_comm_timeout_s(self, timeout_s: float | None) -> None:
+        """Arm the drive's own communication-loss stop: with no valid request for ``timeout_s`` (s, within
+        the register's range) it faults (Delta CE10) and ramps to a stop on its deceleration ramp — what
+        covers a controller that dies without a word (SIGKILL, power loss, a cut cable). ``None`` disarms
+        it (a clean close: an idle drive must not fault between runs)."""
+        m = self.map
+        if m.comm_timeout is None or m.comm_fault_treatment is None:
+            raise VfdError(f"set_comm_timeout_s: register map {m.model!r} has no communication time-out "
+                           "registers")
+        if timeout_s is None:
+            self._write(m.comm_timeout, 0, "communication time-out off")
+            return
+        value = m.comm_timeout_to_register(timeout_s)
+        self._write(m.comm_fault_treatment, m.comm_treatment_ramp_stop, "on communication loss: ramp to stop")
+        self._write(m.comm_timeout, value, f"communication time-out {timeout_s:g} s")
+
     def set_ramp_rate_hz_per_s(self, rate_hz_per_s: float, *,
                                max_rate_hz_per_s: float | None = None) -> float:
         """Set both ramp times so the drive changes frequency at ``rate_hz_per_s`` (drive Hz/s) or a

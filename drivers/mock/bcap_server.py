@@ -68,6 +68,7 @@ MAX_REQUESTS_KEPT = 10_000
 QUEUE_LIMIT_BYTES = 1 << 20  # requests queued during a blocking call, beyond which reading pauses
 SERVICE_STOP, ROBOT_MOVE = 2, 72
 ALL = 10**9  # "every time" for a fault counter
+CLIENT_WDT_FACTOR = 4  # client watchdog: silence longer than 4 × WDT (1.6 s at the driver's 400 ms) ends it
 
 
 @dataclass
@@ -152,9 +153,15 @@ class _Session:
     # -------------------------------------------------------------------------------------- reading
     def _run(self) -> None:
         framer = self.framer
+        last_packet = time.monotonic()
         try:
             while not self._stop.is_set():
-                framer.feed(self.channel.recv(0.05))
+                data = self.channel.recv(0.05)
+                if data:
+                    last_packet = time.monotonic()
+                elif self._client_silent_too_long(last_packet):
+                    return
+                framer.feed(data)
                 while not self._stop.is_set():
                     try:
                         packet = framer.next()
@@ -167,6 +174,7 @@ class _Session:
                     if packet is None:
                         break
                     self._on_request(packet)
+                    last_packet = time.monotonic()  # a blocking call waited for in here is no silence
         except EOFError:
             log.info("%s: client gone", self.channel.name)
         finally:
@@ -177,6 +185,21 @@ class _Session:
     def stop(self) -> None:
         self._stop.set()
         self.channel.close()
+
+    def _client_silent_too_long(self, last_packet: float) -> bool:
+        """Client watchdog (:attr:`BcapMockServer.client_watchdog`): the client holding the controller sent
+        nothing for ``CLIENT_WDT_FACTOR`` × WDT wall seconds since its last request was answered (a
+        blocking call is waited for in this thread, so it never counts) → it is presumed dead: halt, motor
+        off, handles dropped, session ended (as when its connection closes)."""
+        wdt_ms = self.server.state.wdt_ms
+        if not (self.server.client_watchdog and wdt_ms and self.server._active is self):
+            return False
+        silent_s = time.monotonic() - last_packet
+        if silent_s <= CLIENT_WDT_FACTOR * wdt_ms / 1000.0:
+            return False
+        log.warning("%s: client silent for %.2f s (> %d × WDT %d ms): halting the arm, motor off, session "
+                    "ended", self.channel.name, silent_s, CLIENT_WDT_FACTOR, wdt_ms)
+        return True
 
     def _drop_connection(self) -> None:
         """The controller goes away (fault): it stops the arm first, as a controller would."""
@@ -328,14 +351,20 @@ class BcapMockServer:
         clock: the rig clock (``world.clock``); instant mode if it has ``is_instant`` true.
         full_speed_mm_s, full_accel_mm_s2: what 100 % speed / acceleration mean on this controller.
         faults: fault switches (shared, may be changed while serving).
+        client_watchdog: a client that set a WDT in Service_Start and then sends nothing for
+            ``CLIENT_WDT_FACTOR`` × WDT (no call of its executing) is presumed dead: the arm is halted and
+            released (what a controller must do when its client loses power without closing the
+            connection). On in the stand-alone mock; off by default (in-process mocks die with the client).
     """
 
     def __init__(self, robot: RobotBodyLike, clock: Any, *, full_speed_mm_s: float = 1000.0,
-                 full_accel_mm_s2: float = 5000.0, faults: Faults | None = None) -> None:
+                 full_accel_mm_s2: float = 5000.0, faults: Faults | None = None,
+                 client_watchdog: bool = False) -> None:
         self.clock = clock
         self.state = ControllerState(robot, clock, full_speed_mm_s=full_speed_mm_s,
                                      full_accel_mm_s2=full_accel_mm_s2)
         self.faults = faults or Faults()
+        self.client_watchdog = client_watchdog
         self.lock = threading.RLock()
         self.instant = bool(getattr(clock, "is_instant", False))
         self._sessions: list[_Session] = []
@@ -453,7 +482,7 @@ def main(argv: list[str] | None = None, prog: str | None = None) -> int:
     faults = Faults()
     for name, value in options.fault:
         setattr(faults, name, value)
-    with BcapMockServer(world.robot, world.clock, faults=faults) as server:
+    with BcapMockServer(world.robot, world.clock, faults=faults, client_watchdog=True) as server:
         port = server.serve_tcp(options.host, options.port)
         print(f"b-CAP mock RC8 on tcp://{options.host}:{port}", flush=True)
         if options.pty:

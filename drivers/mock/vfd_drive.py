@@ -18,14 +18,17 @@ Behaviour (docs/exciter.md, "Mock drive"):
 * load model ``I = I0 + (I_max − I0)·(f/f_max)²`` (eccentric force ∝ ω²); **overload** trips when the
   current exceeds ``overload_current_a``; **overspeed** trips when the output exceeds ``overspeed_hz``;
   **watchdog**: no request for ``watchdog_s`` while running trips; a trip latches the fault code, drops
-  the run command and decelerates the body to rest. The fault reset (AUX bit 1) clears the code only
-  once the output is at 0 Hz (the cause is gone);
+  the run command and decelerates the body to rest. ``watchdog_s`` is also set over Modbus, as on the
+  drive: the communication time-out register (Delta 09-03, 0 = off) with the fault treatment register
+  (09-02) at 1 or 2 (ramp / coast to stop; 0 and 3 keep running: no trip). The fault reset (AUX bit 1)
+  clears the code only once the output is at 0 Hz (the cause is gone);
 * events between requests (a trip while nobody asks) are applied at the exact virtual time they
   happen, by the next request or by the server's housekeeping tick.
 """
 
 from __future__ import annotations
 
+import logging
 import math
 import threading
 from typing import Any
@@ -34,6 +37,8 @@ from drivers.exciter.register_map import DELTA_MAP, RegisterMap
 from drivers.modbus import ExceptionCode
 
 __all__ = ["FAULT_OVERLOAD", "FAULT_OVERSPEED", "FAULT_WATCHDOG", "DriveModel"]
+
+log = logging.getLogger(__name__)
 
 FAULT_OVERLOAD = 5        # "oL" drive overload
 FAULT_OVERSPEED = 0x41    # "oSPd" overspeed (mock-defined)
@@ -77,6 +82,9 @@ class DriveModel:
         if m.accel_time is not None and m.decel_time is not None:
             self.regs[m.accel_time] = m.ramp_time_to_register(accel_time_s)
             self.regs[m.decel_time] = m.ramp_time_to_register(decel_time_s)
+        if m.comm_timeout is not None and m.comm_fault_treatment is not None:
+            self.regs[m.comm_fault_treatment] = 0
+            self.regs[m.comm_timeout] = 0
         self._accel_s = float(accel_time_s)
         self._decel_s = float(decel_time_s)
         self.running = False
@@ -94,7 +102,8 @@ class DriveModel:
     def address_sets(self) -> tuple[set[int], set[int]]:
         """(read/write addresses, read-only monitor addresses) of this drive."""
         m = self.map
-        optional = (m.aux_command, m.accel_time, m.decel_time)
+        optional = (m.aux_command, m.accel_time, m.decel_time, m.comm_fault_treatment,
+                    m.comm_timeout)
         rw = {m.command, m.freq_set} | {a for a in optional if a is not None}
         ro = {a for a in (m.fault, m.status, m.freq_cmd, m.freq_out, m.current) if a is not None}
         return rw, ro
@@ -206,6 +215,10 @@ class DriveModel:
             self.fault_time_s = t
             self.running = False
             self._retarget(t)
+            _t0, f_hz, _target, rate = self._plan
+            log.warning("drive fault 0x%02X at t = %.3f s (last request t = %.3f s): output %.2f Hz ramps to "
+                        "0 at %.3g Hz/s, at rest by t = %.3f s", fault_code, t, self._last_request_s, f_hz,
+                        rate, t + f_hz / rate)
 
     def _validate(self, address: int, value: int) -> ExceptionCode | None:
         m = self.map
@@ -235,10 +248,20 @@ class DriveModel:
             else:
                 self._decel_s = value * m.ramp_time_unit_s
             self._retarget(now)
+        elif address in (m.comm_timeout, m.comm_fault_treatment):
+            self._set_comm_watchdog()
         elif (address == m.aux_command and value & m.aux_fault_reset and self.fault_code
               and self._output_hz(now) <= 0.0):
             self.fault_code = 0
             self.fault_time_s = None
+
+    def _set_comm_watchdog(self) -> None:
+        """``watchdog_s`` from the communication time-out registers (09-03 × unit; off unless 09-02 stops)."""
+        m = self.map
+        assert m.comm_timeout is not None and m.comm_fault_treatment is not None
+        timeout = self.regs[m.comm_timeout] * m.comm_timeout_unit_s
+        stops = self.regs[m.comm_fault_treatment] in (1, 2)
+        self.watchdog_s = timeout if timeout > 0 and stops else None
 
     def status_word(self, now: float) -> int:
         m = self.map
