@@ -211,7 +211,7 @@ def test_communication_timeout_is_set_over_modbus_like_the_drive(treatment: int,
 def test_the_driver_arms_and_disarms_the_communication_timeout() -> None:
     from drivers.exciter.vfd import VfdDriver
 
-    with plain() as (client, world, drive):
+    with plain() as (client, _world, drive):
         vfd = VfdDriver(client)
         vfd.set_comm_timeout_s(2.0)
         assert read(client, COMM_TREATMENT, 2) == [1, 20] and drive.watchdog_s == pytest.approx(2.0)
