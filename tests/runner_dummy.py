@@ -6,7 +6,8 @@ CALLS_FILE (one line each, flushed), so the parent test can see what was done ev
 
 MODE: ``normal`` (step b ends after 30 ticks), ``forever`` (step b checkpoints but never ends),
 ``deaf`` (step b never checkpoints: only a second Ctrl-C can stop it), ``heartbeat`` (the exciter's
-heartbeat fails after 5 ticks, while step b never checkpoints).
+heartbeat fails after 5 ticks, while step b never checkpoints), ``report`` (as ``normal``, then a step
+``report`` of 500 ticks without a checkpoint).
 """
 
 from __future__ import annotations
@@ -118,6 +119,11 @@ def make_module(mode: str, announce: bool = False) -> types.ModuleType:
                         ctx.checkpoint()
                     time.sleep(params.tick_s)
                     i += 1
+        if mode == "report":  # a last step without checkpoints, like the report: 500 ticks
+            with ctx.step("report"):
+                for i in range(500):
+                    ctx.event("report_tick", {"i": i})
+                    time.sleep(params.tick_s)
         return {"passed": True, "summary": "dummy done"}
 
     mod.Parameters = Parameters

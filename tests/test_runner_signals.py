@@ -10,6 +10,8 @@ import time
 import warnings
 from pathlib import Path
 
+import pytest
+
 from rig.record import TruncatedRecordWarning, load_run
 
 HERE = Path(__file__).resolve().parent
@@ -27,14 +29,15 @@ def _start(tmp_path: Path, mode: str, *extra: str) -> tuple[subprocess.Popen[str
     return proc, Path(line), calls
 
 
-def _ticks_after(run_dir: Path, n: int, timeout_s: float = 20.0) -> None:
-    """Wait until the record holds at least ``n`` tick events (the procedure is really running)."""
+def _ticks_after(run_dir: Path, n: int, timeout_s: float = 60.0, stream: str = "tick") -> None:
+    """Wait until the record holds at least ``n`` events of ``stream`` (the procedure is really running);
+    the bound is generous (a loaded machine), the wait ends as soon as they are there."""
     deadline = time.monotonic() + timeout_s
     while time.monotonic() < deadline:
-        if (run_dir / "record.jsonl").read_text().count('"stream":"tick"') >= n:
+        if (run_dir / "record.jsonl").read_text().count(f'"stream":"{stream}"') >= n:
             return
         time.sleep(0.02)
-    raise AssertionError("the procedure did not tick")
+    raise AssertionError(f"the procedure did not tick ({stream})")
 
 
 def _finish(proc: subprocess.Popen[str]) -> tuple[int, str, str]:
@@ -99,3 +102,54 @@ def test_kill_9_leaves_a_readable_record_and_resume_completes_it(tmp_path: Path)
     # the superseded attempt is still in the file, and its seq numbers were not reused
     full = load_run(run_dir, include_superseded=True)
     assert full.events["tick"]["seq"].tolist() == list(range(len(ticks_before) + 30))
+
+
+STOP_SIGNALS = [signal.SIGTERM, signal.SIGHUP, signal.SIGQUIT]
+
+
+@pytest.mark.parametrize("sig", STOP_SIGNALS, ids=lambda s: s.name)
+def test_every_stop_signal_takes_the_safe_stop(tmp_path: Path, sig: signal.Signals) -> None:
+    """What systemd, docker, a CI timeout, a closed terminal or Ctrl-\\ send: the same safe stop as Ctrl-C,
+    and the stop document names the signal."""
+    proc, run_dir, calls = _start(tmp_path, "forever")
+    _ticks_after(run_dir, 5)
+    proc.send_signal(sig)
+    code, out, err = _finish(proc)
+    assert code == 2, (out, err)
+    assert f"{sig.name}: abort requested" in err
+    run = load_run(run_dir)
+    assert run.exit_status == "abort" and run.stop["reason"] == f"aborted by {sig.name}"
+    assert run.stop["signal"] == sig.name and run.stop["exit_code"] == 2
+    lines = calls.read_text().splitlines()
+    safe = [x for x in lines if x.endswith("safe_state")]
+    assert safe == ["exciter.safe_state", "rotor.safe_state", "robot.safe_state", "left.safe_state"]
+    assert lines[-1] == "station.closed"
+
+
+@pytest.mark.parametrize("sig", [signal.SIGINT, *STOP_SIGNALS], ids=lambda s: s.name)
+def test_a_signal_during_the_report_step_ends_the_run_aborted(tmp_path: Path, sig: signal.Signals) -> None:
+    """The report step has no checkpoint: the abort takes effect when it ends, and the run is aborted
+    (exit 2), not passed."""
+    proc, run_dir, calls = _start(tmp_path, "report")
+    _ticks_after(run_dir, 3, stream="report_tick")
+    proc.send_signal(sig)
+    code, out, err = _finish(proc)
+    assert code == 2, (out, err)
+    run = load_run(run_dir)
+    assert run.exit_status == "abort" and run.stop["outcome"] == "aborted" and run.stop["signal"] == sig.name
+    assert "exciter.safe_state" in calls.read_text().splitlines()
+
+
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM], ids=lambda s: s.name)
+def test_a_second_signal_during_the_report_step_aborts_at_once(tmp_path: Path, sig: signal.Signals) -> None:
+    proc, run_dir, calls = _start(tmp_path, "report")
+    _ticks_after(run_dir, 3, stream="report_tick")
+    proc.send_signal(sig)
+    _ticks_after(run_dir, 6, stream="report_tick")  # the first one did not stop the step
+    proc.send_signal(sig)
+    code, out, err = _finish(proc)
+    assert code == 2, (out, err)
+    run = load_run(run_dir)
+    assert run.exit_status == "abort" and run.stop["reason"].startswith("aborted at once")
+    assert run.events["report_tick"]["i"].max() < 499  # cut short
+    assert "exciter.safe_state" in calls.read_text().splitlines()
