@@ -69,6 +69,7 @@ def load_procedure(name_or_path: str) -> types.ModuleType:
             raise ParameterError("PROCEDURE", f"{name_or_path!r}: no such file")
         spec = importlib.util.spec_from_file_location(f"rig_user_procedure_{path.stem}", path)
         module = importlib.util.module_from_spec(spec)  # type: ignore[arg-type]
+        sys.modules[module.__name__] = module  # dataclasses resolve string annotations through it
         spec.loader.exec_module(module)  # type: ignore[union-attr]
         try:
             check_procedure_module(module)

@@ -1,0 +1,242 @@
+"""Every way out leaves the devices safe — on stand-alone mock servers, as a lab would first try it.
+
+Three ``rig mock`` processes (exciter, rotor, robot) serve on 127.0.0.1; a ``rig.toml`` points at them;
+``rig run tests/spin_procedure.py`` spins both drives through the real drivers. Then the controller is
+stopped — by SIGTERM, SIGHUP, SIGQUIT, SIGINT once or twice, during the hold (checkpoints) or the report
+step (none) — or killed with SIGKILL, and a **stock pymodbus client** reads each drive's output
+frequency back afterwards. A clean stop leaves both at 0 Hz with the stop document naming the signal;
+after SIGKILL nobody stops them but the drives themselves: their communication-loss stop (armed by the
+station, ``devices.<name>.comm_timeout_s``) trips ``comm_timeout_s`` after the last request — on the
+mock's own clock, from its log — and the output ramps to 0 within the stated bound.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import os
+import re
+import signal
+import subprocess
+import sys
+import time
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+import pytest
+from pymodbus.client import ModbusTcpClient
+
+from drivers.denso.client import BcapClient
+from drivers.transport import open_transport
+
+ROOT = Path(__file__).resolve().parents[1]
+SPIN = ROOT / "tests" / "spin_procedure.py"
+FAULT, FREQ_OUT = 0x2100, 0x2103  # docs/exciter.md register map (wire addresses, unit 1)
+FAULT_COMM_TIMEOUT = 0x42  # the mock drive's CE10
+COMM_TIMEOUT_S = 2.0  # rig.toml default (devices.<name>.comm_timeout_s)
+TRIP = re.compile(r"drive fault 0x42 at t = ([\d.]+) s \(last request t = ([\d.]+) s\): output ([\d.]+) Hz "
+                  r"ramps to 0 at ([\d.]+) Hz/s, at rest by t = ([\d.]+) s")  # the mock drive's log
+WAIT_S = 120.0  # generous bound for waits on a loaded machine; each ends as soon as its event is seen
+
+
+def _env() -> dict[str, str]:
+    return {**os.environ, "PYTHONPATH": str(ROOT)}
+
+
+@dataclass
+class Mock:
+    name: str
+    proc: subprocess.Popen[str]
+    port: int
+    log_path: Path
+
+    def log(self) -> str:
+        return self.log_path.read_text()
+
+
+@dataclass
+class StandaloneRig:
+    config: Path
+    runs: Path
+    mocks: dict[str, Mock]
+
+
+def _start_mock(tmp_path: Path, name: str) -> Mock:
+    log_path = tmp_path / f"mock-{name}.log"
+    with open(log_path, "w") as log:  # the child keeps its own descriptor
+        proc = subprocess.Popen([sys.executable, "-m", "rig.cli", "mock", name, "--port", "0"], cwd=tmp_path,
+                                env=_env(), stdout=subprocess.PIPE, stderr=log, text=True)
+    line = proc.stdout.readline()
+    found = re.search(r"tcp://127\.0\.0\.1:(\d+)", line)
+    assert found, (line, log_path.read_text())
+    return Mock(name, proc, int(found.group(1)), log_path)
+
+
+def _config(tmp_path: Path, ports: dict[str, int]) -> Path:
+    """The built-in rig's configuration with the robot, exciter and rotor on the stand-alone mocks (each
+    its own unit 1 on its own TCP port) and the station clock paced at real time, like the mocks."""
+    text = (ROOT / "rig" / "data" / "sim.toml").read_text()
+    tables = text.split("\n[")
+    for i, table in enumerate(tables):
+        name = table.split("]", 1)[0]
+        if name in ("devices.robot", "devices.exciter", "devices.rotor"):
+            address = f'address = "tcp://127.0.0.1:{ports[name.split(".")[1]]}"'
+            table_at = re.sub(r'address = "mock://\w+"', address, table)
+            tables[i] = re.sub(r"unit_id = \d+", "unit_id = 1", table_at)
+        elif name == "sim":
+            tables[i] = table.replace("\n", "\nrate = 1.0\n", 1)
+    path = tmp_path / "rig.toml"
+    path.write_text("\n[".join(tables))
+    return path
+
+
+@pytest.fixture
+def standalone(tmp_path: Path) -> Iterator[StandaloneRig]:
+    mocks: dict[str, Mock] = {}
+    try:
+        for name in ("exciter", "rotor", "robot"):
+            mocks[name] = _start_mock(tmp_path, name)
+        ports = {n: m.port for n, m in mocks.items()}
+        yield StandaloneRig(_config(tmp_path, ports), tmp_path / "runs", mocks)
+    finally:
+        for mock in mocks.values():
+            if mock.proc.poll() is None:
+                mock.proc.send_signal(signal.SIGTERM)
+        for mock in mocks.values():
+            try:
+                mock.proc.wait(timeout=30)
+            except subprocess.TimeoutExpired:
+                mock.proc.kill()
+                mock.proc.wait()
+            mock.proc.stdout.close()  # type: ignore[union-attr]
+
+
+def _start_rig(rig: StandaloneRig, *settings: str) -> tuple[subprocess.Popen[str], Path]:
+    argv = [sys.executable, "-m", "rig.cli", "run", str(SPIN), "--config", str(rig.config),
+            "--runs-dir", str(rig.runs)]
+    for s in settings:
+        argv += ["--set", s]
+    proc = subprocess.Popen(argv, cwd=rig.config.parent, env=_env(), stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + WAIT_S
+    while time.monotonic() < deadline:
+        records = list(rig.runs.glob("*/record.jsonl")) if rig.runs.is_dir() else []
+        if records:
+            return proc, records[0].parent
+        assert proc.poll() is None, proc.communicate()
+        time.sleep(0.05)
+    proc.kill()
+    raise AssertionError("rig did not create its run folder")
+
+
+def _wait_for(run_dir: Path, proc: subprocess.Popen[str], needle: str) -> None:
+    deadline = time.monotonic() + WAIT_S
+    while time.monotonic() < deadline:
+        if needle in (run_dir / "record.jsonl").read_text():
+            return
+        assert proc.poll() is None, proc.communicate()
+        time.sleep(0.05)
+    proc.kill()
+    raise AssertionError(f"{needle} never appeared in the record")
+
+
+def _read(port: int, address: int) -> int:
+    """One FC03 with a stock pymodbus client (not our driver)."""
+    client = ModbusTcpClient("127.0.0.1", port=port, timeout=5.0, retries=1)
+    assert client.connect()
+    try:
+        reply = client.read_holding_registers(address, count=1, device_id=1)
+        assert not reply.isError(), reply
+        return int(reply.registers[0])
+    finally:
+        client.close()
+
+
+def _documents(run_dir: Path) -> list[dict]:
+    return [json.loads(line) for line in (run_dir / "record.jsonl").read_text().splitlines() if line.strip()]
+
+
+def _signal_and_check(rig: StandaloneRig, phase: str, signals: list[signal.Signals]) -> None:
+    # one signal in the report step (no checkpoint) takes effect when the step ends: keep it short then
+    settings = (f"report_s={600 if len(signals) > 1 else 8}",) if phase == "report" else ()
+    proc, run_dir = _start_rig(rig, "hold_s=0" if phase == "report" else "hold_s=600", *settings)
+    _wait_for(run_dir, proc, '"stream":"report_tick"' if phase == "report" else '"stream":"hold"')
+    for i, sig in enumerate(signals):
+        if i:
+            time.sleep(0.2)
+        proc.send_signal(sig)
+    out, err = proc.communicate(timeout=WAIT_S)
+    assert proc.returncode == 2, (out, err)
+    stop = [d for d in _documents(run_dir) if d["type"] == "stop"]
+    assert len(stop) == 1 and stop[0]["signal"] == signals[0].name and stop[0]["exit_status"] == "abort"
+    assert stop[0]["safe_state_failures"] == []
+    for device in ("exciter", "rotor"):
+        assert _read(rig.mocks[device].port, FREQ_OUT) == 0, device  # at rest, read by a stock client
+        assert _read(rig.mocks[device].port, FAULT) == 0, device  # stopped by the controller, no comm fault
+        assert stop[0]["safe_state"][device]["frequency_hz"] == 0.0
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize(("phase", "signals"), [
+    ("hold", [signal.SIGTERM]),
+    ("hold", [signal.SIGINT]),
+    ("report", [signal.SIGHUP]),
+    ("report", [signal.SIGQUIT]),
+    ("report", [signal.SIGINT, signal.SIGINT]),
+], ids=["hold-SIGTERM", "hold-SIGINT", "report-SIGHUP", "report-SIGQUIT", "report-SIGINTx2"])
+def test_a_stop_signal_leaves_both_drives_at_rest(standalone: StandaloneRig, phase: str,
+                                                  signals: list[signal.Signals]) -> None:
+    _signal_and_check(standalone, phase, signals)
+
+
+@pytest.mark.slow
+def test_sigkill_mid_run_the_drives_stop_themselves_within_the_bound(standalone: StandaloneRig) -> None:
+    """Nothing of ``rig`` runs after SIGKILL: the drives' own communication-loss stop must act."""
+    proc, run_dir = _start_rig(standalone, "hold_s=600")
+    _wait_for(run_dir, proc, '"stream":"hold"')
+    proc.kill()
+    proc.communicate(timeout=WAIT_S)
+    assert not [d for d in _documents(run_dir) if d["type"] == "stop"]  # no cleanup ran
+    for device, spin_hz, ramp_hz_per_s in (("exciter", 3.0, 1.0), ("rotor", 5.0, 2.0)):
+        mock = standalone.mocks[device]
+        deadline = time.monotonic() + WAIT_S
+        trip = None
+        while trip is None and time.monotonic() < deadline:  # no request before the trip (would reset it)
+            trip = TRIP.search(mock.log())
+            time.sleep(0.1)
+        assert trip, mock.log()
+        t_trip, t_last, f_hz, rate, t_rest = (float(v) for v in trip.groups())
+        # on the mock's own clock: the trip comes comm_timeout_s after the last request, and the
+        # output is at rest within comm_timeout_s + frequency / deceleration rate (docs/contracts.md)
+        assert t_trip == pytest.approx(t_last + COMM_TIMEOUT_S, abs=1e-6)
+        assert f_hz == pytest.approx(spin_hz, abs=0.01) and rate == pytest.approx(ramp_hz_per_s, rel=0.01)
+        assert t_rest - t_last <= COMM_TIMEOUT_S + spin_hz / ramp_hz_per_s + 1e-6
+        while time.monotonic() < deadline and _read(mock.port, FREQ_OUT) != 0:
+            time.sleep(0.2)
+        assert _read(mock.port, FREQ_OUT) == 0, device
+        assert _read(mock.port, FAULT) & 0xFF == FAULT_COMM_TIMEOUT, device  # the drive stopped itself
+    # the robot mock saw its client's connection end: the session ended (arm halted, motor off, handles
+    # dropped), so the controller is free for a new client at once
+    robot_url = f"tcp://127.0.0.1:{standalone.mocks['robot'].port}"
+    client = BcapClient(open_transport(robot_url, 5.0), timeout_s=5.0)
+    try:
+        client.service_start()
+        client.service_stop()
+    finally:
+        client.link.transport.close()
+
+
+@pytest.mark.slow
+def test_heartbeat_probes_keep_the_drives_armed_but_running_through_a_quiet_step(
+        standalone: StandaloneRig) -> None:
+    """No poll for 6 s (three comm time-outs) in the report step: the watchdog's probes are the
+    keep-alives, the drives do not stop themselves, the run passes, and a clean close disarms them."""
+    proc, _run_dir = _start_rig(standalone, "hold_s=0", "report_s=6")
+    out, err = proc.communicate(timeout=WAIT_S)
+    assert proc.returncode == 0, (out, err)
+    with contextlib.suppress(FileNotFoundError):
+        for device in ("exciter", "rotor"):
+            assert "drive fault" not in standalone.mocks[device].log()
+            assert _read(standalone.mocks[device].port, FAULT) == 0
+            assert _read(standalone.mocks[device].port, 0x0903) == 0  # disarmed on the clean close
