@@ -88,6 +88,26 @@ def test_exciter_that_stops_answering_trips_the_interlock_and_the_rest_is_made_s
     assert world.exciter.frequency_hz(clock.now_s() + 60.0) == 0.0  # the unanswered stop still reached it
 
 
+@pytest.mark.parametrize("fault", ["no_reply", "disconnect"])
+def test_rotor_lost_while_being_polled_is_the_interlock_with_its_document(tmp_path: Path, fault: str) -> None:
+    """The procedure's own poll fails first (Modbus time-out), before the heartbeat limit: the runner's
+    final probe of every device finds the rotor lost, so this is an interlock on the rotor with its
+    document, like every other device fault — not a plain fault."""
+    def body(ctx: Any, servers: dict[str, Any]) -> None:
+        rotor = ctx.device("rotor")
+        rotor.set_frequency(2.0)
+        servers["rotor"].inject(fault, count=None)
+        while True:
+            rotor.read_sample()  # raises VfdCommunicationError after the 0.3 s × 2 attempts
+            ctx.checkpoint()
+
+    out, run, _seen = _run(tmp_path, body)
+    assert out.exit_code == 3 and out.outcome == "interlock", out.reason
+    assert run.interlocks["device"].tolist() == ["rotor"]
+    assert run.interlocks["reason"].iloc[0].startswith("lost heartbeat: DeviceLostError: rotor: lost")
+    assert {"robot", "exciter", "generator"} <= _done(run)
+
+
 def test_interlock_during_a_blocking_move_halts_the_arm_on_a_fresh_link(tmp_path: Path) -> None:
     """The trip interrupts the procedure while it waits for a blocking Move: the controller still
     executes it and will not take a Robot_Halt on that connection (the reference server queues it, an
