@@ -406,9 +406,13 @@ class Runner:
         except (TypeError, ValueError) as exc:
             record.log("warning", f"procedure result not recordable as JSON: {exc}")
         record.stop(status, reason, **stop_fields)
-        record.close()
         log.info("run %s ended: %s (exit %d): %s", record.run_id, outcome, exit_code, reason)
-        return RunOutcome(exit_code, status, outcome, reason, record.run_dir, result)
+        ended = RunOutcome(exit_code, status, outcome, reason, record.run_dir, result)
+        try:
+            record.close()  # durable before the station closes (which may hang on a dead device)
+        except OSError as exc:
+            return _io_fault_after_stop(ended, exc)
+        return ended
 
 
 def _io_fault_after_stop(outcome: RunOutcome, exc: OSError) -> RunOutcome:

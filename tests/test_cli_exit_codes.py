@@ -1,0 +1,88 @@
+"""Exit codes mean one thing each (rig.cli.main owns the mapping): 4 for every kind of bad input — the
+command line included —, 3 for an I/O fault that reaches main (one line, no traceback) and for one
+that hits the record after its stop document, and a completed run refused on --resume as bad input."""
+
+from __future__ import annotations
+
+import errno
+import textwrap
+from pathlib import Path
+
+import pytest
+
+from rig.cli import main
+from rig.record import RunRecord, load_run
+
+PROCEDURE = textwrap.dedent('''
+    from dataclasses import dataclass
+
+    NAME = "idle"
+
+    @dataclass(frozen=True)
+    class Parameters:
+        pass
+
+    def run(ctx, params):
+        with ctx.step("idle"):
+            ctx.event("note", {"ok": True})
+        return {"passed": True, "summary": "nothing to do"}
+''')
+
+
+def _procedure(tmp_path: Path) -> Path:
+    path = tmp_path / "idle.py"
+    path.write_text(PROCEDURE)
+    return path
+
+
+@pytest.mark.parametrize("argv", [["frobnicate"], ["run", "--no-such-option"], ["report"],
+                                  ["check", "--config"], ["mock", "toaster"]])
+def test_command_line_errors_are_bad_input(argv: list[str], capsys: pytest.CaptureFixture[str]) -> None:
+    with pytest.raises(SystemExit) as info:
+        main(argv)
+    assert info.value.code == 4  # argparse's own 2 would read as "aborted"
+    err = capsys.readouterr().err
+    assert "usage: rig" in err and "error:" in err
+
+
+def test_io_fault_writing_the_stop_document_exits_3_in_one_line(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]) -> None:
+    def full_disk(self: RunRecord, *args: object, **kwargs: object) -> None:
+        raise OSError(errno.ENOSPC, "No space left on device", str(self.path))
+
+    monkeypatch.setattr(RunRecord, "stop", full_disk)
+    code = main(["run", str(_procedure(tmp_path)), "--runs-dir", str(tmp_path / "runs")])
+    err = capsys.readouterr().err
+    assert code == 3, err
+    line = next(x for x in err.splitlines() if x.startswith("rig: I/O fault"))
+    assert line.startswith("rig: I/O fault: [Errno 28] No space left on device: ") and "record.jsonl" in line
+    assert "Traceback" not in err
+
+
+def test_io_fault_closing_the_record_after_a_pass_is_a_fault_not_a_pass(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]) -> None:
+    real_close = RunRecord.close
+
+    def close_fails(self: RunRecord) -> None:
+        real_close(self)
+        if self.stopped:
+            raise OSError(errno.ENOSPC, "No space left on device", str(self.path))
+
+    monkeypatch.setattr(RunRecord, "close", close_fails)
+    code = main(["run", str(_procedure(tmp_path)), "--runs-dir", str(tmp_path / "runs")])
+    err = capsys.readouterr().err
+    assert code == 3, err
+    assert "closing the record failed: OSError: [Errno 28] No space left on device" in err
+    (run_dir,) = (tmp_path / "runs").iterdir()
+    assert load_run(run_dir).stop["exit_code"] == 0  # written before the failure; the exit says the rest
+
+
+def test_resume_of_a_completed_run_is_refused_as_bad_input(tmp_path: Path,
+                                                           capsys: pytest.CaptureFixture[str]) -> None:
+    proc = _procedure(tmp_path)
+    assert main(["run", str(proc), "--runs-dir", str(tmp_path / "runs")]) == 0
+    (run_dir,) = (tmp_path / "runs").iterdir()
+    before = (run_dir / "record.jsonl").read_bytes()
+    assert main(["run", str(proc), "--resume", str(run_dir)]) == 4
+    assert "already completed successfully; nothing to resume" in capsys.readouterr().err
+    assert (run_dir / "record.jsonl").read_bytes() == before  # untouched
