@@ -4,7 +4,7 @@ PYTHON ?= $(shell command -v python3.11 || command -v python3)
 VENV := .venv
 STAMP := $(VENV)/.installed
 
-.PHONY: certify test lint bench browser
+.PHONY: certify test test-load lint bench browser
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -18,6 +18,10 @@ certify: $(STAMP)
 test: $(STAMP) browser
 	$(VENV)/bin/ruff check .
 	$(VENV)/bin/python -m pytest -q
+
+# the same suite with a busy loop on every core (tests/conftest.py): timing must not depend on an idle machine
+test-load: $(STAMP) browser
+	RIG_TEST_LOAD=1 $(VENV)/bin/python -m pytest -q
 
 bench: $(STAMP)
 	for b in benchmarks/*.py; do case $$b in benchmarks/fuzz_*) continue;; esac; \
