@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import socket
 import struct
-import time
 
 import numpy as np
 import pytest
@@ -265,11 +264,10 @@ def test_invoke_timeout_ends_a_long_move_without_reply() -> None:
         with link, client:
             client.open_robot(wdt_ms=80, invoke_timeout_ms=200)
             start = world.robot.pose_at(world.clock.now_s())
-            began = time.monotonic()
             with pytest.raises(hr.BcapTimeoutError):
                 client.move([start[0] - 80.0, *start[1:]], speed_percent=10)  # 0.8 s at 100 mm/s
-            assert time.monotonic() - began < 0.2 + 0.25 + 0.5
-            assert client.link.keepalives_seen >= 1
+            # keep-alives at 80 and 160 ms, then nothing after the 200 ms InvokeTimeout (however loaded)
+            assert 1 <= client.link.keepalives_seen <= 2
 
 
 def test_udp_session_with_a_lost_reply_recovered_by_retry(world: World, server: BcapMockServer) -> None:

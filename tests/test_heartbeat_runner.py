@@ -71,10 +71,8 @@ def test_exciter_that_stops_answering_trips_the_interlock_and_the_rest_is_made_s
         servers["exciter"].inject("no_reply", count=None)  # executes every request, answers none
         _hold(ctx, 20.0)
 
-    t0 = time.monotonic()
     out, run, seen = _run(tmp_path, body)
     assert out.exit_code == 3 and out.outcome == "interlock", out.reason
-    assert time.monotonic() - t0 < 30.0
     assert run.interlocks["device"].tolist() == ["exciter"]
     reason = run.interlocks["reason"].iloc[0]
     assert reason.startswith("lost heartbeat: DeviceLostError: exciter: lost: no reply for ")
@@ -154,10 +152,9 @@ def test_generator_disconnected_mid_sweep_is_the_interlock(tmp_path: Path) -> No
         finally:
             timer.cancel()
 
-    t0 = time.monotonic()
     out, run, _ = _run(tmp_path, body, rate=4.0)
     assert out.exit_code == 3 and out.outcome == "interlock", out.reason
-    assert time.monotonic() - t0 < 9.0  # interrupted, not waited out
+    assert "work" not in run.steps_completed  # the sweep was interrupted, not waited out
     assert run.interlocks["device"].tolist() == ["generator"]
     assert "generator: lost: link failed (SCPI link closed" in run.interlocks["reason"].iloc[0]
     assert {"robot", "exciter", "rotor"} <= _done(run)

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import contextlib
 import sys
-import time
 import types
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -138,9 +137,8 @@ def test_limit_refused_by_a_driver_is_an_interlock_exit_3(tmp_path: Path) -> Non
 def test_watchdog_interrupts_a_blocked_procedure_at_once(tmp_path: Path) -> None:
     """The heartbeat is lost while the procedure sits in a call that never checkpoints."""
     runner, calls = _runner(tmp_path, make_module("heartbeat"))
-    t0 = time.monotonic()
-    out = runner.run({"tick_s": 0.01})
-    assert out.exit_code == 3 and out.outcome == "interlock" and time.monotonic() - t0 < 30
+    out = runner.run({"tick_s": 0.01})  # step b never ends by itself: only the interlock ends the run
+    assert out.exit_code == 3 and out.outcome == "interlock"
     run = load_run(out.run_dir)
     assert run.interlocks["device"].tolist() == ["exciter"]
     assert run.interlocks["reason"].iloc[0] == "lost heartbeat: device reports the link is down"

@@ -26,7 +26,7 @@ from drivers.modbus_link import ModbusLinkError
 
 TIMEOUT_S = 0.25
 STOP_DEADLINE_S = 2.0
-WORST_CASE_S = 2 * TIMEOUT_S + STOP_DEADLINE_S + 3.0
+WORST_CASE_S = 2 * TIMEOUT_S + STOP_DEADLINE_S + 30.0  # a liveness bound (a loaded machine), not a speed test
 
 MODES = ["tcp", "rtu"]
 
