@@ -98,6 +98,17 @@ def make_safe(roster: Sequence[Assignment]) -> list[SafeStateResult]:
 INTERLOCK_ERROR_TYPES: tuple[type[BaseException], ...] = (InterlockTripped, ArmLimitError, ExciterLimitError)
 
 
+def _interlock_subject(exc: BaseException) -> str:
+    """What the interlock document names: the device of a trip, the quantity or axis a limit refused."""
+    if isinstance(exc, InterlockTripped):
+        return exc.device
+    if isinstance(exc, ExciterLimitError):
+        return exc.quantity
+    if isinstance(exc, ArmLimitError):
+        return exc.axis
+    return "limits"
+
+
 @dataclass
 class Classified:
     exit_code: int
@@ -121,9 +132,7 @@ def classify(exc: BaseException | None, verdict_passed: bool | None, verdict_sum
                               verdict_summary or "certificate failed")
         return Classified(EXIT_PASS, "success", "pass", verdict_summary or "completed")
     if isinstance(exc, INTERLOCK_ERROR_TYPES):
-        device = next((getattr(exc, a) for a in ("device", "quantity", "axis") if getattr(exc, a, None)),
-                      "limits")
-        return Classified(EXIT_FAULT, "abort", "interlock", f"interlock: {exc}", str(device))
+        return Classified(EXIT_FAULT, "abort", "interlock", f"interlock: {exc}", _interlock_subject(exc))
     if isinstance(exc, KeyboardInterrupt):
         name = exc.signal_name if isinstance(exc, Interrupted) else "SIGINT"
         again = "second Ctrl-C" if name == "SIGINT" else f"second signal, {name}"
