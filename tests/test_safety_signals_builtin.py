@@ -1,0 +1,72 @@
+"""Stop signals on the built-in simulated rig, in the phases of a real procedure (``rig run sweep``):
+acquisition (the sync step films the spinning rotor), the sweep, and the report (no checkpoint). Each
+ends exit 2 with the stop document naming the signal, and the drives' own read-back (over Modbus, by the
+runner, before the in-process mocks end with the process) at 0 Hz. The stand-alone mock variant, read
+back by a stock Modbus client afterwards, is ``test_safety_standalone.py``."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+WAIT_S = 300.0  # generous bound on a loaded machine; each wait ends as soon as the phase is reached
+PHASES = {"acquisition": '"name":"sync","status":"begin"', "sweep": '"stream":"sweep"',
+          "report": '"name":"report","status":"begin"'}
+
+
+def _documents(run_dir: Path) -> list[dict]:
+    return [json.loads(line) for line in (run_dir / "record.jsonl").read_text().splitlines() if line.strip()]
+
+
+def _run_until(tmp_path: Path, needle: str) -> tuple[subprocess.Popen[str], Path]:
+    argv = [sys.executable, "-m", "rig.cli", "run", "sweep", "--runs-dir", str(tmp_path / "runs"),
+            "--set", "hold_s=0"]
+    proc = subprocess.Popen(argv, cwd=tmp_path, env={**os.environ, "PYTHONPATH": str(ROOT)},
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + WAIT_S
+    while time.monotonic() < deadline:
+        records = list((tmp_path / "runs").glob("*/record.jsonl")) if (tmp_path / "runs").is_dir() else []
+        if records and needle in records[0].read_text():
+            return proc, records[0].parent
+        assert proc.poll() is None, proc.communicate()
+        time.sleep(0.05)
+    proc.kill()
+    raise AssertionError(f"{needle} never appeared")
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize(("phase", "signals"), [
+    ("acquisition", [signal.SIGTERM]),
+    ("sweep", [signal.SIGHUP]),
+    ("sweep", [signal.SIGINT, signal.SIGINT]),
+    ("report", [signal.SIGINT]),
+    ("report", [signal.SIGQUIT, signal.SIGQUIT]),
+], ids=["acquisition-SIGTERM", "sweep-SIGHUP", "sweep-SIGINTx2", "report-SIGINT", "report-SIGQUITx2"])
+def test_stop_signal_in_each_phase_is_a_safe_abort(tmp_path: Path, phase: str,
+                                                   signals: list[signal.Signals]) -> None:
+    proc, run_dir = _run_until(tmp_path, PHASES[phase])
+    for i, sig in enumerate(signals):
+        if i:
+            time.sleep(0.5)
+        proc.send_signal(sig)
+    out, err = proc.communicate(timeout=WAIT_S)
+    assert proc.returncode == 2, (out, err)  # a Ctrl-C during the report used to end "pass", exit 0
+    docs = _documents(run_dir)
+    (stop,) = [d for d in docs if d["type"] == "stop"]
+    assert stop["exit_status"] == "abort" and stop["outcome"] == "aborted"
+    assert stop["signal"] == signals[0].name
+    assert stop["safe_state_failures"] == []
+    for axis in ("exciter", "rotor"):
+        state = stop["safe_state"][axis]
+        assert state["setpoint_hz"] == 0.0 and abs(state["frequency_hz"]) <= 0.02, state
+    assert stop["safe_state"]["robot"]["moved_mm"] == 0.0
+    if phase == "report" and len(signals) == 1:
+        assert "report" in {d["name"] for d in docs if d["type"] == "step" and d["status"] == "done"}
