@@ -381,9 +381,9 @@ class Runner:
         passed, summary = _verdict(result)
         certificate = result.get("certificate_result") if isinstance(result, dict) else None
         verdict = classify(error, passed, summary, certificate)
+        safe = make_safe(roster)  # first: nothing written to disk (which may be full) comes before it
         if verdict.outcome == "interlock" and not isinstance(error, InterlockTripped):
             record.interlock(verdict.interlock_device or "limits", str(error))  # a driver refused a command
-        safe = make_safe(roster)
         failures = [{"device": r.device, "role": r.role, "error": r.error} for r in safe if r.error]
         for r in safe:
             if r.error:

@@ -86,3 +86,24 @@ def test_resume_of_a_completed_run_is_refused_as_bad_input(tmp_path: Path,
     assert main(["run", str(proc), "--resume", str(run_dir)]) == 4
     assert "already completed successfully; nothing to resume" in capsys.readouterr().err
     assert (run_dir / "record.jsonl").read_bytes() == before  # untouched
+
+
+@pytest.mark.parametrize(("certificate", "code", "outcome"), [
+    ("PASS", 0, "pass"), ("FAIL", 1, "certificate_failed"), ("INCOMPLETE", 1, "incomplete")])
+def test_the_printed_outcome_and_exit_code_agree_with_the_certificate(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str], certificate: str, code: int,
+        outcome: str) -> None:
+    """``rig run accuracy`` used to print "pass (exit 0)" beside an INCOMPLETE certificate: a single
+    procedure's certificate is INCOMPLETE (it evaluates only its own criteria), which is not a pass."""
+    path = tmp_path / "issued.py"
+    path.write_text(PROCEDURE.replace('NAME = "idle"', 'NAME = "issued"').replace(
+        'return {"passed": True, "summary": "nothing to do"}',
+        f'return {{"passed": {certificate == "PASS"}, "summary": "2/2 criteria evaluated pass", '
+        f'"certificate_result": "{certificate}"}}'))
+    assert main(["run", str(path), "--runs-dir", str(tmp_path / "runs")]) == code
+    printed = capsys.readouterr()
+    assert f"rig: issued: {outcome} (exit {code})" in (printed.err if code else printed.out)
+    (run_dir,) = (tmp_path / "runs").iterdir()
+    stop = load_run(run_dir).stop
+    assert stop["outcome"] == outcome and stop["verdict"] == {"PASS": "pass", "FAIL": "fail"}.get(
+        certificate, "incomplete")
