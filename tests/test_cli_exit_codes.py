@@ -107,3 +107,37 @@ def test_the_printed_outcome_and_exit_code_agree_with_the_certificate(
     stop = load_run(run_dir).stop
     assert stop["outcome"] == outcome and stop["verdict"] == {"PASS": "pass", "FAIL": "fail"}.get(
         certificate, "incomplete")
+
+
+def test_disk_full_mid_run_every_device_is_made_safe_then_the_io_fault_surfaces(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A fault-injecting record: from the 10th tick on every write fails with ENOSPC. The procedure fails,
+    every device is still made safe (nothing on disk comes first), and the I/O fault reaches the caller
+    (main maps it to exit 3 in one line)."""
+    import sys
+
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    from runner_dummy import make_module, station_factory
+
+    from rig.config import default_config
+    from rig.runner import Runner
+
+    real_write = RunRecord._write
+    ticks = {"n": 0}
+
+    def filling(self: RunRecord, doc_type: str, fields: dict, **kwargs: object) -> dict:
+        if doc_type == "event" and fields.get("stream") == "tick":
+            ticks["n"] += 1
+        if ticks["n"] >= 10:
+            raise OSError(errno.ENOSPC, "No space left on device", str(self.path))
+        return real_write(self, doc_type, fields, **kwargs)
+
+    monkeypatch.setattr(RunRecord, "_write", filling)
+    calls = tmp_path / "calls.txt"
+    runner = Runner(make_module("normal"), config=default_config(), station_factory=station_factory(calls),
+                    runs_dir=tmp_path / "runs", handle_signals=False)
+    with pytest.raises(OSError, match="No space left on device"):
+        runner.run({"ticks": 30, "tick_s": 0.0})
+    safe = [line for line in calls.read_text().splitlines() if line.endswith("safe_state")]
+    assert safe == ["exciter.safe_state", "rotor.safe_state", "robot.safe_state", "left.safe_state"]
+    assert calls.read_text().splitlines()[-1] == "station.closed"
