@@ -411,6 +411,13 @@ def _cross_check(cfg: RigConfig) -> None:
             raise ConfigError(f"devices.{name}.ramp_rate_hz_per_s",
                               f"{dev.ramp_rate_hz_per_s:g} exceeds limits.{name}.max_ramp_rate_hz_per_s = "
                               f"{lim.max_ramp_rate_hz_per_s:g}")
+        probe_interval_s = cfg.station.heartbeat_timeout_s / 4.0  # idle drives are probed this often
+        armed = dev is not None and not dev.address.startswith("mock://")  # (in-process mocks: not armed)
+        if armed and dev.comm_timeout_s <= 2.0 * probe_interval_s:
+            raise ConfigError(f"devices.{name}.comm_timeout_s",
+                              f"{dev.comm_timeout_s:g} s must exceed twice the heartbeat probe interval "
+                              f"(station.heartbeat_timeout_s / 4 = {probe_interval_s:g} s), or an idle drive "
+                              "would stop itself")
     if cfg.devices.robot is not None and cfg.limits.robot is not None \
             and cfg.limits.robot.max_speed_mm_s > cfg.devices.robot.full_speed_mm_s:
         raise ConfigError("limits.robot.max_speed_mm_s", f"{cfg.limits.robot.max_speed_mm_s:g} exceeds "

@@ -56,3 +56,18 @@ def test_without_the_client_watchdog_a_silent_client_keeps_the_controller() -> N
         assert not _wait(lambda: not server.state.motor_on, timeout_s=CLIENT_WDT_FACTOR * 0.1 * 3)
         client.close()
         client.link.transport.close()
+
+
+def test_a_comm_timeout_the_heartbeat_probes_cannot_keep_alive_is_refused_by_the_configuration() -> None:
+    import pytest
+
+    from rig.config import ConfigError, default_config, override
+
+    cfg = override(default_config(), "station.heartbeat_timeout_s", 5.0)  # idle drives probed every 1.25 s
+    refused = (r"devices\.exciter\.comm_timeout_s: 2 s must exceed twice the heartbeat probe interval "
+               r"\(station\.heartbeat_timeout_s / 4 = 1\.25 s\)")
+    with pytest.raises(ConfigError, match=refused):
+        override(cfg, "devices.exciter.address", "tcp://127.0.0.1:5020")
+    ok = override(override(cfg, "devices.exciter.comm_timeout_s", 3.0), "devices.exciter.address",
+                  "tcp://127.0.0.1:5020")
+    assert ok.devices.exciter.comm_timeout_s == 3.0
