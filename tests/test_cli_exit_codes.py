@@ -29,6 +29,11 @@ PROCEDURE = textwrap.dedent('''
 ''')
 
 
+def _run_dirs(tmp_path: Path) -> list[Path]:
+    """The run folders (the runs folder also holds the catalogue of runs)."""
+    return [p for p in (tmp_path / "runs").iterdir() if p.is_dir()]
+
+
 def _procedure(tmp_path: Path) -> Path:
     path = tmp_path / "idle.py"
     path.write_text(PROCEDURE)
@@ -73,7 +78,7 @@ def test_io_fault_closing_the_record_after_a_pass_is_a_fault_not_a_pass(
     err = capsys.readouterr().err
     assert code == 3, err
     assert "closing the record failed: OSError: [Errno 28] No space left on device" in err
-    (run_dir,) = (tmp_path / "runs").iterdir()
+    (run_dir,) = _run_dirs(tmp_path)
     assert load_run(run_dir).stop["exit_code"] == 0  # written before the failure; the exit says the rest
 
 
@@ -81,7 +86,7 @@ def test_resume_of_a_completed_run_is_refused_as_bad_input(tmp_path: Path,
                                                            capsys: pytest.CaptureFixture[str]) -> None:
     proc = _procedure(tmp_path)
     assert main(["run", str(proc), "--runs-dir", str(tmp_path / "runs")]) == 0
-    (run_dir,) = (tmp_path / "runs").iterdir()
+    (run_dir,) = _run_dirs(tmp_path)
     before = (run_dir / "record.jsonl").read_bytes()
     assert main(["run", str(proc), "--resume", str(run_dir)]) == 4
     assert "already completed successfully; nothing to resume" in capsys.readouterr().err
@@ -103,7 +108,7 @@ def test_the_printed_outcome_and_exit_code_agree_with_the_certificate(
     assert main(["run", str(path), "--runs-dir", str(tmp_path / "runs")]) == code
     printed = capsys.readouterr()
     assert f"rig: issued: {outcome} (exit {code})" in (printed.err if code else printed.out)
-    (run_dir,) = (tmp_path / "runs").iterdir()
+    (run_dir,) = _run_dirs(tmp_path)
     stop = load_run(run_dir).stop
     assert stop["outcome"] == outcome and stop["verdict"] == {"PASS": "pass", "FAIL": "fail"}.get(
         certificate, "incomplete")
