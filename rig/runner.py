@@ -355,8 +355,11 @@ class Runner:
         answering mid-poll may not yet be silent past the heartbeat limit) — that is the interlock."""
         if error is None or isinstance(error, Abort | KeyboardInterrupt):
             return error
-        if self._control.interlock is not None:
-            return error
+        if self._control.interlock is not None:  # tripped already (its document is written): the cause
+            tripped = InterlockTripped(*self._control.interlock)
+            tripped.__cause__ = error
+            log.error("procedure error after the interlock tripped:\n%s", format_exception(error))
+            return tripped
         try:
             lost = watchdog.poll_once() or check_heartbeats(roster, wait=True)
         except Exception as exc:

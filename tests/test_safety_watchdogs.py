@@ -38,7 +38,9 @@ def test_a_silent_client_is_presumed_dead_the_arm_halted_and_released() -> None:
         # the client's connection stays open but it sends nothing more, as after a power loss
         assert _wait(lambda: not server.state.motor_on)
         assert time.monotonic() - t_silent > CLIENT_WDT_FACTOR * 0.1  # not before 4 × WDT of silence
-        assert not world.robot.is_moving(world.clock.now_s())  # halted, not left to finish its move
+        assert _wait(lambda: not world.robot.is_moving(world.clock.now_s()))  # halted (it decelerates) ...
+        rest = world.robot.pose_at(world.clock.now_s())
+        assert rest[0] < start[0] + 50.0  # ... far short of its target: not left to finish its 10 s move
         assert server.state.handles == {}
         other = BcapClient(open_transport(url, 1.0), timeout_s=1.0)  # the controller is free again
         other.service_start()

@@ -210,12 +210,15 @@ def test_communication_timeout_is_set_over_modbus_like_the_drive(treatment: int,
 
 def test_the_driver_arms_and_disarms_the_communication_timeout() -> None:
     from drivers.exciter.vfd import VfdDriver
+    from drivers.modbus_link import ModbusLink
 
     with plain() as (client, _world, drive):
-        vfd = VfdDriver(client)
+        link = ModbusLink(f"tcp://127.0.0.1:{client.comm_params.port}", timeout_s=1.0, retries=0)
+        vfd = VfdDriver(link)
         vfd.set_comm_timeout_s(2.0)
         assert read(client, COMM_TREATMENT, 2) == [1, 20] and drive.watchdog_s == pytest.approx(2.0)
         vfd.set_comm_timeout_s(None)
         assert read(client, COMM_TIMEOUT) == [0] and drive.watchdog_s is None
         with pytest.raises(ValueError, match="communication time-out"):
             vfd.set_comm_timeout_s(1e6)
+        link.close()
