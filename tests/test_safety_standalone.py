@@ -32,7 +32,8 @@ from drivers.transport import open_transport
 
 ROOT = Path(__file__).resolve().parents[1]
 SPIN = ROOT / "tests" / "spin_procedure.py"
-FAULT, FREQ_OUT = 0x2100, 0x2103  # docs/exciter.md register map (wire addresses, unit 1)
+FAULT, FREQ_OUT = 0x2100, 0x2103  # docs/exciter.md register map (wire addresses)
+UNIT = {"exciter": 1, "rotor": 2}  # sim.toml and the stand-alone mocks' defaults
 FAULT_COMM_TIMEOUT = 0x42  # the mock drive's CE10
 COMM_TIMEOUT_S = 2.0  # rig.toml default (devices.<name>.comm_timeout_s)
 TRIP = re.compile(r"drive fault 0x42 at t = ([\d.]+) s \(last request t = ([\d.]+) s\): output ([\d.]+) Hz "
@@ -74,8 +75,8 @@ def _start_mock(tmp_path: Path, name: str) -> Mock:
 
 
 def _config(tmp_path: Path, ports: dict[str, int]) -> Path:
-    """The built-in rig's configuration with the robot, exciter and rotor on the stand-alone mocks (each
-    its own unit 1 on its own TCP port) and the station clock paced at real time, like the mocks."""
+    """The built-in rig's configuration with the robot, exciter and rotor on the stand-alone mocks (each on
+    its own TCP port) and the station clock paced at real time, like the mocks."""
     text = (ROOT / "rig" / "data" / "sim.toml").read_text()
     tables = text.split("\n[")
     for i, table in enumerate(tables):
@@ -83,7 +84,7 @@ def _config(tmp_path: Path, ports: dict[str, int]) -> Path:
         if name in ("devices.robot", "devices.exciter", "devices.rotor"):
             address = f'address = "tcp://127.0.0.1:{ports[name.split(".")[1]]}"'
             table_at = re.sub(r'address = "mock://\w+"', address, table)
-            tables[i] = re.sub(r"unit_id = \d+", "unit_id = 1", table_at)
+            tables[i] = table_at  # unit ids as in sim.toml: the mocks' defaults (exciter 1, rotor 2)
         elif name == "sim":
             tables[i] = table.replace("\n", "\nrate = 1.0\n", 1)
     path = tmp_path / "rig.toml"
@@ -114,7 +115,7 @@ def standalone(tmp_path: Path) -> Iterator[StandaloneRig]:
 
 def _start_rig(rig: StandaloneRig, *settings: str) -> tuple[subprocess.Popen[str], Path]:
     argv = [sys.executable, "-m", "rig.cli", "run", str(SPIN), "--config", str(rig.config),
-            "--runs-dir", str(rig.runs)]
+            "--runs-dir", str(rig.runs), "--no-dashboard"]
     for s in settings:
         argv += ["--set", s]
     proc = subprocess.Popen(argv, cwd=rig.config.parent, env=_env(), stdout=subprocess.PIPE,
@@ -141,12 +142,12 @@ def _wait_for(run_dir: Path, proc: subprocess.Popen[str], needle: str) -> None:
     raise AssertionError(f"{needle} never appeared in the record")
 
 
-def _read(port: int, address: int) -> int:
+def _read(mock: Mock, address: int) -> int:
     """One FC03 with a stock pymodbus client (not our driver)."""
-    client = ModbusTcpClient("127.0.0.1", port=port, timeout=5.0, retries=1)
+    client = ModbusTcpClient("127.0.0.1", port=mock.port, timeout=5.0, retries=1)
     assert client.connect()
     try:
-        reply = client.read_holding_registers(address, count=1, device_id=1)
+        reply = client.read_holding_registers(address, count=1, device_id=UNIT[mock.name])
         assert not reply.isError(), reply
         return int(reply.registers[0])
     finally:
@@ -172,8 +173,8 @@ def _signal_and_check(rig: StandaloneRig, phase: str, signals: list[signal.Signa
     assert len(stop) == 1 and stop[0]["signal"] == signals[0].name and stop[0]["exit_status"] == "abort"
     assert stop[0]["safe_state_failures"] == []
     for device in ("exciter", "rotor"):
-        assert _read(rig.mocks[device].port, FREQ_OUT) == 0, device  # at rest, read by a stock client
-        assert _read(rig.mocks[device].port, FAULT) == 0, device  # stopped by the controller, no comm fault
+        assert _read(rig.mocks[device], FREQ_OUT) == 0, device  # at rest, read by a stock client
+        assert _read(rig.mocks[device], FAULT) == 0, device  # stopped by the controller, no comm fault
         assert stop[0]["safe_state"][device]["frequency_hz"] == 0.0
 
 
@@ -212,10 +213,10 @@ def test_sigkill_mid_run_the_drives_stop_themselves_within_the_bound(standalone:
         assert t_trip == pytest.approx(t_last + COMM_TIMEOUT_S, abs=1e-6)
         assert f_hz == pytest.approx(spin_hz, abs=0.01) and rate == pytest.approx(ramp_hz_per_s, rel=0.01)
         assert t_rest - t_last <= COMM_TIMEOUT_S + spin_hz / ramp_hz_per_s + 1e-6
-        while time.monotonic() < deadline and _read(mock.port, FREQ_OUT) != 0:
+        while time.monotonic() < deadline and _read(mock, FREQ_OUT) != 0:
             time.sleep(0.2)
-        assert _read(mock.port, FREQ_OUT) == 0, device
-        assert _read(mock.port, FAULT) & 0xFF == FAULT_COMM_TIMEOUT, device  # the drive stopped itself
+        assert _read(mock, FREQ_OUT) == 0, device
+        assert _read(mock, FAULT) & 0xFF == FAULT_COMM_TIMEOUT, device  # the drive stopped itself
     # the robot mock saw its client's connection end: the session ended (arm halted, motor off, handles
     # dropped), so the controller is free for a new client at once
     robot_url = f"tcp://127.0.0.1:{standalone.mocks['robot'].port}"
@@ -238,5 +239,5 @@ def test_heartbeat_probes_keep_the_drives_armed_but_running_through_a_quiet_step
     with contextlib.suppress(FileNotFoundError):
         for device in ("exciter", "rotor"):
             assert "drive fault" not in standalone.mocks[device].log()
-            assert _read(standalone.mocks[device].port, FAULT) == 0
-            assert _read(standalone.mocks[device].port, 0x0903) == 0  # disarmed on the clean close
+            assert _read(standalone.mocks[device], FAULT) == 0
+            assert _read(standalone.mocks[device], 0x0903) == 0  # disarmed on the clean close
