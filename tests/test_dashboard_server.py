@@ -73,7 +73,8 @@ def test_stream_sends_state_then_only_the_new_plot_rows() -> None:
 def test_state_and_page_and_abort_endpoints() -> None:
     reasons: list[str] = []
     state = DashboardState("certify")
-    with DashboardServer(state, on_abort=reasons.append) as server:
+    # a tap of its own: the process-wide FRAMES may hold a frame an earlier test's run left there
+    with DashboardServer(state, on_abort=reasons.append, frames=FrameTap()) as server:
         page = urllib.request.urlopen(server.url, timeout=30).read().decode()
         assert "EventSource" in page and "http" not in page.replace("http://www.w3.org", "")  # nothing remote
         got = json.loads(urllib.request.urlopen(server.url + "state", timeout=30).read())
