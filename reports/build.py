@@ -1,4 +1,9 @@
-"""``build_report(run_dir)``: rebuild tables, figures, report.html and certificate.json from a run folder.
+"""``build_report(run_dir)``: tables, figures, report.html and certificate.json from a run folder.
+
+Evidence is immutable: the first report of a run issues its certificate (written into the run folder,
+``certificate.json`` last); a later one writes a revision beside it, ``revisions/<n>-<sync>/`` (the same
+outputs plus ``changes.json``), built in a hidden staging folder and renamed into place whole. Every file
+is written atomically (:mod:`rig.atomic`).
 
 A thin layer: load the record (:mod:`reports.load`), run the analysis once per sync method (the primary
 one, then ``"linear"``, the paper's, for comparison), compute the tables (:mod:`reports.tables`), write
@@ -11,6 +16,9 @@ from __future__ import annotations
 
 import json
 import math
+import os
+import re
+import shutil
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from importlib import metadata
@@ -23,10 +31,13 @@ import pandas as pd
 from reports import figures, html, summaries
 from reports.certificate import acceptance_from_config, build_certificate, evaluate
 from reports.errors import AnalysisFailedError, ReportError
-from reports.load import load_record
-from reports.tables import compute_tables, measured_values
+from reports.load import RunData, load_record
+from reports.tables import ReportTables, compute_tables, measured_values
+from rig.atomic import atomic_path, fsync_dir, write_json, write_text
 
 DEFAULT_SYNC = "trajectory"
+CERTIFICATE_NAME = "certificate.json"
+REVISIONS_DIR = "revisions"
 COMPARISON_SYNC = "linear"
 Analyse = Callable[..., Any]  # analyse(run_dir, *, sync=...) -> object with .tracks, .timing, .calibration
 
@@ -43,6 +54,8 @@ class ReportResult:
     tables: dict[str, Path] = field(default_factory=dict)
     figures: dict[str, Path] = field(default_factory=dict)
     notes: list[str] = field(default_factory=list)
+    revision: Path | None = None  # the revision folder when the run's certificate was already issued
+    changes: dict[str, Any] | None = None  # a revision's differences from the issued certificate
 
 
 def _software_version() -> str:
@@ -71,8 +84,9 @@ def _clean(value: Any) -> Any:
 
 
 def write_csv(df: pd.DataFrame, path: Path) -> None:
-    """CSV with '\\n' line ends and floats to 9 significant digits (deterministic)."""
-    df.to_csv(path, index=False, float_format="%.9g", lineterminator="\n")
+    """CSV with '\\n' line ends and floats to 9 significant digits (deterministic), written atomically."""
+    with atomic_path(path) as tmp:
+        df.to_csv(tmp, index=False, float_format="%.9g", lineterminator="\n")
 
 
 def _default_analyse() -> Analyse:
@@ -94,7 +108,12 @@ def build_report(
     make_figures: bool = True,
     in_run: bool = False,
 ) -> ReportResult:
-    """Rebuild ``tables/``, ``figures/``, ``report.html`` and ``certificate.json`` inside ``run_dir``.
+    """Build ``tables/``, ``figures/``, ``report.html`` and ``certificate.json`` of ``run_dir``.
+
+    A run without ``certificate.json`` gets its certificate **issued**: the outputs are written into the
+    run folder, the certificate last (its presence marks the report as issued). A run whose certificate
+    is already issued is never rewritten: the outputs go to a new revision ``revisions/<n>-<sync>/``
+    (with ``changes.json``: what differs from the issued certificate), see :attr:`ReportResult.revision`.
 
     ``sync`` is the primary synchronization method (default: ``rig.analysis.sync`` of the snapshot, else
     ``"trajectory"``); ``compare`` adds methods shown beside it. ``analysis`` replaces
@@ -104,25 +123,15 @@ def build_report(
     ``in_run=True``: built by the run's own last step (the procedures' ``report`` step), which is
     finishing normally — the conditions then say so (``exit_status`` "success", the stop document follows)
     instead of a missing stop document (a killed run).
+    An ``OSError`` while writing (full disk, read-only folder) propagates; no output is left half-written.
     """
     run = load_record(run_dir)
     run_dir = run.run_dir
     acceptance = acceptance_from_config(run.rig)
     analysis_cfg = run.rig.get("analysis") if isinstance(run.rig.get("analysis"), dict) else {}
     primary = sync or analysis_cfg.get("sync") or DEFAULT_SYNC
-    methods = [primary, *[m for m in compare if m != primary]]
-    analyse = analysis or _default_analyse()
-    notes: list[str] = []
-    results: dict[str, Any] = {}
-    for method in methods:
-        try:
-            results[method] = analyse(run_dir, sync=method)
-        except Exception as exc:
-            if method == primary:
-                if isinstance(exc, ValueError | OSError):  # the analysis' own errors name the cause
-                    raise AnalysisFailedError(f"analysis with sync '{method}' failed: {exc}") from exc
-                raise
-            notes.append(f"comparison sync '{method}' failed: {type(exc).__name__}: {exc}")
+    results, notes = _analyse_all(run_dir, [primary, *[m for m in compare if m != primary]],
+                                  analysis or _default_analyse())
     main = results[primary]
     t = compute_tables(
         run,
@@ -144,8 +153,60 @@ def build_report(
         )
     if run.truncated_last_line:
         notes.append("the record's last line was cut short (the run was killed); it was ignored")
+    issued = issued_certificate(run_dir)
+    revision = None if issued is None else _next_revision(run_dir, primary)
+    if revision is not None:
+        notes.append(
+            f"revision {revision.number} (sync '{primary}') of this run's report: the issued certificate "
+            f"(certificate.json of the run folder, result {issued.get('result')}) is unchanged"
+        )
+    measured = measured_values(t, acceptance)
+    conditions = _conditions(run, t, primary, results, notes, in_run=in_run)
+    cert = _clean(build_certificate(measured, acceptance, conditions, _extra(t, primary)))
+    frames = _table_frames(t, measured, acceptance)
+    if revision is None:
+        written = _write_outputs(run_dir, cert, t, frames, acceptance, make_figures=make_figures)
+        return ReportResult(run_dir=run_dir, result=cert["result"], certificate=cert, notes=notes, **written)
+    changes = certificate_changes(issued, cert, revision=revision.number, sync=primary)
+    staging = run_dir / REVISIONS_DIR / f".staging-{revision.name}-{os.getpid()}"
+    try:
+        staging.mkdir(parents=True)
+        written = _write_outputs(staging, cert, t, frames, acceptance, make_figures=make_figures)
+        write_json(staging / "changes.json", changes, indent=2, sort_keys=True, ensure_ascii=False)
+        final = run_dir / REVISIONS_DIR / revision.name
+        if final.exists():
+            raise ReportError(f"{final} appeared while this revision was built (another `rig report` of "
+                              "the same run?); run it again")
+        os.rename(staging, final)
+        fsync_dir(final.parent)
+    except BaseException:
+        shutil.rmtree(staging, ignore_errors=True)
+        raise
+    moved = {k: _moved(v, staging, final) for k, v in written.items()}
+    return ReportResult(run_dir=run_dir, result=cert["result"], certificate=cert, notes=notes,
+                        revision=final, changes=changes, **moved)
+
+
+def _analyse_all(run_dir: Path, methods: list[str], analyse: Analyse) -> tuple[dict[str, Any], list[str]]:
+    """{method: analysis} for every method that worked (the first, primary, must) and notes on the rest."""
+    notes: list[str] = []
+    results: dict[str, Any] = {}
+    for method in methods:
+        try:
+            results[method] = analyse(run_dir, sync=method)
+        except Exception as exc:
+            if method == methods[0]:
+                if isinstance(exc, ValueError | OSError):  # the analysis' own errors name the cause
+                    raise AnalysisFailedError(f"analysis with sync '{method}' failed: {exc}") from exc
+                raise
+            notes.append(f"comparison sync '{method}' failed: {type(exc).__name__}: {exc}")
+    return results, notes
+
+
+def _conditions(run: RunData, t: ReportTables, primary: str, results: dict[str, Any],
+                notes: list[str], *, in_run: bool) -> dict[str, Any]:
     stop = run.stop or {}
-    conditions = {
+    return {
         "run_id": run.run_id,
         "procedure": run.start.get("procedure"),
         "date_utc": run.start.get("wall_utc"),
@@ -164,8 +225,10 @@ def build_report(
         "rig": run.rig,
         "notes": notes,
     }
-    measured = measured_values(t, acceptance)
-    extra = {
+
+
+def _extra(t: ReportTables, primary: str) -> dict[str, Any]:
+    return {
         "usable_frequency": {
             m: {
                 "tolerance_pct": lim.tolerance,
@@ -186,11 +249,11 @@ def build_report(
             "Student-t intervals",
         },
     }
-    cert = _clean(build_certificate(measured, acceptance, conditions, extra))
 
-    tables_dir, figures_dir = run_dir / "tables", run_dir / "figures"
-    tables_dir.mkdir(exist_ok=True)
-    figures_dir.mkdir(exist_ok=True)
+
+def _table_frames(t: ReportTables, measured: dict[str, Any],
+                  acceptance: dict[str, Any]) -> dict[str, pd.DataFrame]:
+    """The CSV tables by name."""
     criteria = pd.DataFrame(evaluate(measured, acceptance))
     criteria["budget"] = [
         "; ".join(f"{b['component']} ({b['type']}): {b['u']:.6g}" for b in budget)
@@ -216,61 +279,114 @@ def build_report(
         frames["rotation_summary"] = pd.DataFrame([t.rotation_summary])
     if t.spectrum is not None:
         frames["rotor_spectrum"] = t.spectrum
+    return frames
+
+
+POSE_COLUMNS = ["index", "cycle", "target", "marker_id", "x_cmd_mm", "y_cmd_mm", "z_cmd_mm", "ex_mm",
+                "ey_mm", "ez_mm", "error_mm", "u_error_mm", "n_samples", "distance_mm", "off_axis_mm"]
+
+
+def _write_outputs(out_dir: Path, cert: dict[str, Any], t: ReportTables, frames: dict[str, pd.DataFrame],
+                   acceptance: dict[str, Any], *, make_figures: bool) -> dict[str, Any]:
+    """Write tables, figures, report.html and — last — certificate.json into ``out_dir`` (each file
+    atomically); return the paths as :class:`ReportResult` fields."""
+    tables_dir, figures_dir = out_dir / "tables", out_dir / "figures"
+    tables_dir.mkdir(exist_ok=True)
+    figures_dir.mkdir(exist_ok=True)
     table_paths = {}
     for name, df in frames.items():
-        path = tables_dir / f"{name}.csv"
-        write_csv(df, path)
-        table_paths[name] = path
+        table_paths[name] = tables_dir / f"{name}.csv"
+        write_csv(df, table_paths[name])
     tol = float(acceptance["amplitude_error_pct"])
     pngs: dict[str, bytes] = {}
     figure_paths = {}
     for name, fig in (
         figures.all_figures(t, tol, float(acceptance["position_max_mm"])) if make_figures else {}
     ).items():
-        path = figures_dir / f"{name}.png"
-        figures.save_png(fig, path)
-        pngs[name] = path.read_bytes()
-        figure_paths[name] = path
-    cert_path = run_dir / "certificate.json"
-    cert_path.write_text(
-        json.dumps(cert, indent=2, sort_keys=True, ensure_ascii=False) + "\n", encoding="utf-8"
-    )
-    pose_cols = [
-        "index",
-        "cycle",
-        "target",
-        "marker_id",
-        "x_cmd_mm",
-        "y_cmd_mm",
-        "z_cmd_mm",
-        "ex_mm",
-        "ey_mm",
-        "ez_mm",
-        "error_mm",
-        "u_error_mm",
-        "n_samples",
-        "distance_mm",
-        "off_axis_mm",
-    ]
+        figure_paths[name] = figures_dir / f"{name}.png"
+        figures.save_png(fig, figure_paths[name])
+        pngs[name] = figure_paths[name].read_bytes()
     html_tables = {
         "iso9283": t.iso9283[t.iso9283["n_cycles"] >= 2].drop(columns=["x_cmd_mm", "y_cmd_mm", "z_cmd_mm"]),
         "length_summary": frames["length_summary"],
-        "poses": t.poses[pose_cols],
+        "poses": t.poses[POSE_COLUMNS],
         "fits": summaries.fits_display(t),
         "sweep_means": t.sweep_means,
         "plate": t.plate,
         "calibration": t.calibration,
         "timing": frames["timing"],
     }
-    html_path = run_dir / "report.html"
-    html_path.write_text(html.render(cert, t, pngs, acceptance, html_tables), encoding="utf-8")
-    return ReportResult(
-        run_dir=run_dir,
-        result=cert["result"],
-        certificate=cert,
-        report_html=html_path,
-        certificate_json=cert_path,
-        tables=table_paths,
-        figures=figure_paths,
-        notes=notes,
-    )
+    html_path = write_text(out_dir / "report.html", html.render(cert, t, pngs, acceptance, html_tables))
+    cert_path = write_json(out_dir / CERTIFICATE_NAME, cert, indent=2, sort_keys=True, ensure_ascii=False)
+    return {"report_html": html_path, "certificate_json": cert_path, "tables": table_paths,
+            "figures": figure_paths}
+
+
+def _moved(value: Any, old: Path, new: Path) -> Any:
+    """``value`` (a path or {name: path}) with the folder ``old`` replaced by ``new``."""
+    if isinstance(value, dict):
+        return {k: new / v.relative_to(old) for k, v in value.items()}
+    return new / value.relative_to(old)
+
+
+# ------------------------------------------------------------------------------------------ revisions
+@dataclass(frozen=True)
+class Revision:
+    """A revision's number (1, 2, …) and folder name ``<n>-<sync>`` under ``revisions/``."""
+
+    number: int
+    name: str
+
+
+def issued_certificate(run_dir: str | Path) -> dict[str, Any] | None:
+    """The run's issued certificate (``certificate.json``), or None when none was issued yet.
+
+    A certificate that exists but cannot be read as a JSON object is still issued (it is never replaced);
+    it is returned as ``{"result": None, "criteria": [], "unreadable": "<why>"}``."""
+    path = Path(run_dir) / CERTIFICATE_NAME
+    if not path.exists():
+        return None
+    try:
+        doc = json.loads(path.read_text(encoding="utf-8"))
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        return {"result": None, "criteria": [], "unreadable": f"{type(exc).__name__}: {exc}"}
+    if not isinstance(doc, dict):
+        return {"result": None, "criteria": [], "unreadable": "not a JSON object"}
+    return doc
+
+
+def _next_revision(run_dir: Path, sync: str) -> Revision:
+    folder = run_dir / REVISIONS_DIR
+    numbers = [int(m.group(1)) for p in (folder.iterdir() if folder.is_dir() else ())
+               if (m := re.match(r"(\d+)-", p.name))]
+    number = max(numbers, default=0) + 1
+    return Revision(number, f"{number}-{sync}")
+
+
+def certificate_changes(issued: dict[str, Any], revised: dict[str, Any], *, revision: int,
+                        sync: str) -> dict[str, Any]:
+    """What a revision's certificate changes against the issued one: the overall result and every
+    criterion whose value (beyond 10 significant digits) or decision differs; ``summary``: one line each."""
+    before = {r.get("id"): r for r in issued.get("criteria") or [] if isinstance(r, dict)}
+    after = {r.get("id"): r for r in revised.get("criteria") or [] if isinstance(r, dict)}
+    criteria = []
+    for cid in [*before, *(c for c in after if c not in before)]:
+        a, b = before.get(cid) or {}, after.get(cid) or {}
+        if a.get("value") != b.get("value") or a.get("status") != b.get("status"):
+            criteria.append({"id": cid, "issued_value": a.get("value"), "revised_value": b.get("value"),
+                             "issued_status": a.get("status"), "revised_status": b.get("status"),
+                             "unit": b.get("unit", a.get("unit"))})
+    summary = [f"result {issued.get('result')} → {revised.get('result')}"
+               if issued.get("result") != revised.get("result") else f"result {revised.get('result')} (same)"]
+    summary += [f"{c['id']}: {_fmt(c['issued_value'])} → {_fmt(c['revised_value'])} {c['unit'] or ''} "
+                f"({c['issued_status']} → {c['revised_status']})".replace("  ", " ") for c in criteria]
+    if issued.get("unreadable"):
+        summary.insert(0, f"the issued certificate could not be read ({issued['unreadable']})")
+    return {"revision": revision, "sync_method": sync, "issued_certificate": CERTIFICATE_NAME,
+            "issued_result": issued.get("result"), "revised_result": revised.get("result"),
+            "issued_sync_method": (issued.get("conditions") or {}).get("sync_method"),
+            "criteria": criteria, "summary": summary}
+
+
+def _fmt(value: Any) -> str:
+    return "—" if value is None else f"{value:.6g}" if isinstance(value, float) else str(value)

@@ -45,7 +45,6 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
-import json
 import os
 import tomllib
 import types
@@ -263,15 +262,10 @@ class Context:
 
     def write_json(self, relative_path: str, obj: Any) -> str:
         """Write ``obj`` as JSON into the run folder atomically (tmp + fsync + rename); return the path."""
+        from rig.atomic import write_json
         from rig.jsonenc import to_jsonable
 
         target = self.path(relative_path)
         target.parent.mkdir(parents=True, exist_ok=True)
-        tmp = target.with_name(target.name + ".tmp")
-        with open(tmp, "w", encoding="utf-8") as fh:
-            json.dump(to_jsonable(obj), fh, indent=2, ensure_ascii=False, allow_nan=False)
-            fh.write("\n")
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, target)
+        write_json(target, to_jsonable(obj), indent=2, ensure_ascii=False, allow_nan=False)
         return Path(relative_path).as_posix()

@@ -114,17 +114,82 @@ def test_tables_have_units_and_exact_values(built) -> None:
     assert all(c.endswith(("_mm", "_cycles")) for c in numeric)
 
 
-def test_rebuild_is_byte_identical(built) -> None:
+def test_rebuild_writes_a_byte_identical_revision_and_never_touches_the_issued_report(built) -> None:
     run = built.run_dir
-    outputs = sorted(
+    issued = sorted(
         [*run.glob("tables/*.csv"), *run.glob("figures/*.png"), run / "certificate.json", run / "report.html"]
     )
-    before = {p: p.read_bytes() for p in outputs}
+    before = {p: (p.read_bytes(), p.stat().st_mtime_ns) for p in issued}
     again = build_report(run, analysis=synth.fake_analyse)
+    assert [(p.read_bytes(), p.stat().st_mtime_ns) for p in issued] == list(before.values())
+    assert again.revision is not None and again.revision.parent == run / "revisions"
+    assert again.revision.name.endswith("-trajectory") and again.certificate_json.parent == again.revision
     assert again.result == built.result
-    after = {p: p.read_bytes() for p in outputs}
-    changed = [p.name for p in outputs if before[p] != after[p]]
-    assert changed == []
+    rebuilt = {p: again.revision / p.relative_to(run) for p in issued if p.suffix in (".csv", ".png")}
+    assert [p.name for p, q in rebuilt.items() if p.read_bytes() != q.read_bytes()] == []
+    revised = json.loads(again.certificate_json.read_text())
+    notes = revised["conditions"].pop("notes")
+    original = json.loads(built.certificate_json.read_text())
+    assert original["conditions"].pop("notes") == [n for n in notes if not n.startswith("revision ")]
+    assert revised == original
+    changes = json.loads((again.revision / "changes.json").read_text())
+    assert changes["criteria"] == [] and changes["summary"] == ["result PASS (same)"]
+
+
+def test_a_later_report_with_another_sync_is_a_revision_saying_what_changed(tmp_path: Path) -> None:
+    run = synth.write_run(tmp_path / "run_revised")
+    issued = build_report(run, analysis=synth.fake_analyse, make_figures=False)
+    assert issued.result == "PASS" and issued.revision is None and issued.changes is None
+    cert_bytes = (run / "certificate.json").read_bytes()
+    first = build_report(run, sync="linear", analysis=synth.fake_analyse, make_figures=False)
+    second = build_report(run, sync="linear", analysis=synth.fake_analyse, make_figures=False)
+    assert (run / "certificate.json").read_bytes() == cert_bytes  # PASS stays the issued result
+    assert first.revision == run / "revisions" / "1-linear" and second.revision == run / "revisions" / "2-linear"
+    assert first.result == "FAIL" and json.loads(first.certificate_json.read_text())["result"] == "FAIL"
+    changes = json.loads((first.revision / "changes.json").read_text())
+    assert changes == first.changes
+    assert changes["issued_result"] == "PASS" and changes["revised_result"] == "FAIL"
+    rows = {c["id"]: c for c in changes["criteria"]}
+    assert rows["min_usable_frequency_hz"]["issued_status"] == "PASS"
+    assert rows["min_usable_frequency_hz"]["revised_status"] == "FAIL"
+    assert rows["min_usable_frequency_hz"]["revised_value"] == pytest.approx(np.sqrt(5.0 / 0.08), rel=1e-8)
+    assert "position_max_mm" not in rows  # the same value and decision under both methods
+    assert changes["summary"][0] == "result PASS → FAIL"
+    assert any(n.startswith("revision 1 (sync 'linear')") for n in first.notes)
+    assert "revision 1 (sync &#x27;linear&#x27;)" in first.report_html.read_text()
+    assert sorted(p.name for p in (run / "revisions").iterdir()) == ["1-linear", "2-linear"]  # no staging left
+
+
+def test_a_revision_that_cannot_be_finished_leaves_nothing(tmp_path: Path, monkeypatch) -> None:
+    """A disk that fills while a revision is written: no revision folder, no staging, issued untouched."""
+    import errno
+
+    from reports import build as build_module
+
+    run = synth.write_run(tmp_path / "run_full")
+    build_report(run, analysis=synth.fake_analyse, make_figures=False)
+    issued = {p: p.read_bytes() for p in run.rglob("*") if p.is_file()}
+
+    def full_disk(path, text, encoding="utf-8"):
+        raise OSError(errno.ENOSPC, "No space left on device", str(path))
+
+    monkeypatch.setattr(build_module, "write_text", full_disk)
+    with pytest.raises(OSError, match="No space left"):
+        build_report(run, sync="linear", analysis=synth.fake_analyse, make_figures=False)
+    assert list((run / "revisions").iterdir()) == []
+    assert {p: p.read_bytes() for p in run.rglob("*") if p.is_file()} == issued
+
+
+def test_the_first_report_of_a_run_killed_before_its_report_issues_the_certificate(tmp_path: Path) -> None:
+    run = synth.write_run(tmp_path / "run_killed")
+    (run / "tables").mkdir()
+    (run / "tables" / "criteria.csv").write_text("half a table")  # what a kill mid-report may leave
+    (run / "report.html").write_text("<html>cut")
+    res = build_report(run, analysis=synth.fake_analyse, make_figures=False)
+    assert res.revision is None and res.certificate_json == run / "certificate.json"
+    assert "half a table" not in (run / "tables" / "criteria.csv").read_text()
+    assert res.report_html.read_text().startswith("<!DOCTYPE html>")
+    assert not (run / "revisions").exists()
 
 
 def test_report_is_self_contained(built) -> None:
