@@ -5,6 +5,9 @@ before the run's ``stop`` document exists, as the run's last step (``in_run``: t
 run is finishing normally); the procedure's verdict is taken from the criteria: passed when every
 criterion is evaluated and passes. ``certificate_result`` (PASS / FAIL / INCOMPLETE) goes back to the
 runner, whose outcome and exit code then agree with the certificate (INCOMPLETE is not a pass: exit 1).
+
+The step issues the run's certificate once: a run resumed after its certificate was written keeps it
+(``rig report RUN`` makes revisions; see :mod:`reports.build`).
 """
 
 from __future__ import annotations
@@ -39,16 +42,20 @@ def report_step(ctx: Any, *, make_figures: bool = True,
                 compare: tuple[str, ...] = ("linear",)) -> dict[str, Any]:
     """Build the report as step ``report``; return the verdict dict (``passed``, ``summary``, paths).
     ``compare``: sync methods analysed beside the primary one (default: the paper's ``linear``)."""
-    from reports.build import build_report
+    from reports.build import build_report, issued_certificate
 
     with ctx.step("report") as step:
-        ctx.progress(None, "report: analysis, tables, figures, certificate")
-        result = build_report(ctx.run_dir, make_figures=make_figures, compare=compare, in_run=True)
+        certificate = issued_certificate(ctx.run_dir)
+        if certificate is None:
+            ctx.progress(None, "report: analysis, tables, figures, certificate")
+            result = build_report(ctx.run_dir, make_figures=make_figures, compare=compare, in_run=True)
+            certificate = result.certificate
+        # else: issued before this session (a resumed run): the certificate is issued once, never rebuilt
         if not step.skipped:
-            for path in (result.report_html, result.certificate_json):
-                step.output(path.relative_to(ctx.run_dir))
-    passed, summary = verdict_of(result.certificate)
-    return {"passed": passed, "summary": summary, "report": str(result.report_html),
-            "certificate_result": result.certificate.get("result"),
-            "certificate": str(result.certificate_json),
-            "criteria": {r.get("id", "?"): r["status"] for r in result.certificate.get("criteria") or []}}
+            for name in ("report.html", "certificate.json"):
+                step.output(name)
+    passed, summary = verdict_of(certificate)
+    return {"passed": passed, "summary": summary, "report": str(ctx.run_dir / "report.html"),
+            "certificate_result": certificate.get("result"),
+            "certificate": str(ctx.run_dir / "certificate.json"),
+            "criteria": {r.get("id", "?"): r["status"] for r in certificate.get("criteria") or []}}

@@ -19,8 +19,8 @@ SYNC_METHODS = ("trajectory", "bandlimited", "cubic", "linear")
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="rig report",
-        description="Rebuild tables, figures, report.html and "
-        "certificate.json from a run folder (no hardware).",
+        description="Build tables, figures, report.html and certificate.json from a run folder (no "
+        "hardware); a run whose certificate was issued gets a revision in revisions/<n>-<sync>/ instead.",
     )
     parser.add_argument("run", help="the run folder")
     parser.add_argument(
@@ -42,6 +42,9 @@ def main(argv: list[str] | None = None) -> int:
         print(f"rig report: {exc}", file=sys.stderr)
         return 3
     print(f"{res.result}  {res.report_html}")
+    if res.revision is not None and res.changes is not None:
+        print(f"  revision {res.changes['revision']} of the issued certificate "
+              f"({res.changes['issued_result']}, unchanged): " + "; ".join(res.changes["summary"]))
     for c in res.certificate["criteria"]:
         value = "—" if c["value"] is None else f"{c['value']:.4g}"
         print(f"  {c['status']:<13} {c['id']:<26} {value:>10} {c['comparison']} {c['limit']:g} {c['unit']}")

@@ -3,7 +3,7 @@
 Commands (``rig COMMAND --help`` for each):
   certify   the whole certification (calibrate → sync → accuracy → sweep → report → certificate)
   run       one scripted procedure (``rig list`` shows them), or a procedure file
-  report    rebuild tables, figures, report.html and certificate.json of a run folder, without hardware
+  report    report a run folder without hardware (issues its certificate, or writes a revision)
   check     validate a rig.toml and reach every device
   mock      a mock device (robot, exciter, rotor, generator) as a standalone server on 127.0.0.1
   list      the procedures and their parameters
@@ -210,6 +210,7 @@ def cmd_certify(args: argparse.Namespace) -> int:
 
 
 def cmd_report(args: argparse.Namespace) -> int:
+    """Issue the run's certificate, or — when it was issued — write a revision beside it and say so."""
     run_dir = Path(args.run)
     if not (run_dir / "record.jsonl").is_file():
         raise ParameterError("RUN", f"{args.run!r} is not a run folder (no record.jsonl)")
@@ -221,10 +222,17 @@ def cmd_report(args: argparse.Namespace) -> int:
     except ReportError as exc:
         print(f"rig: report of {run_dir} failed: {exc}", file=sys.stderr)
         return EXIT_BAD_INPUT
-    verdict = getattr(result, "result", None)
-    print(f"rig: report of {run_dir}: {verdict or 'done'} — "
-          f"{getattr(result, 'report_html', None) or run_dir / 'report.html'}")
-    return 1 if verdict in ("FAIL", "INCOMPLETE") else 0
+    if result.revision is None:
+        print(f"rig: report of {run_dir}: {result.result} — certificate issued: {result.certificate_json}; "
+              f"{result.report_html}")
+    else:
+        changes = result.changes or {}
+        print(f"rig: {run_dir} already has an issued certificate ({changes.get('issued_result')}); it is not "
+              f"rewritten. Revision {changes.get('revision')} (sync {changes.get('sync_method')}): "
+              f"{result.result} — {result.revision}")
+        for line in changes.get("summary", []):
+            print(f"  changed: {line}" if "→" in line else f"  {line}")
+    return 1 if result.result in ("FAIL", "INCOMPLETE") else 0
 
 
 def cmd_check(args: argparse.Namespace) -> int:
@@ -471,9 +479,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("procedure", metavar="PROCEDURE", nargs="?",
                    help="a procedure name (see `rig list`) or a .py file (with --resume: the run's)")
     _add_run_options(p)
-    p = sub.add_parser("report", help="rebuild the report of a run folder",
-                       description="Rebuild tables/, figures/, report.html and certificate.json from a run "
-                                   "folder's record, without hardware.")
+    p = sub.add_parser("report", help="report a run folder (a revision when its certificate was issued)",
+                       description="Build tables/, figures/, report.html and certificate.json from a run "
+                                   "folder's record, without hardware. A run whose certificate was issued "
+                                   "is never rewritten: the report goes to RUN/revisions/<n>-<sync>/, with "
+                                   "changes.json saying what differs from the issued certificate.")
     p.add_argument("run", metavar="RUN", help="the run folder")
     p.add_argument("--sync", metavar="METHOD", help="synchronization method: trajectory (default), "
                    "bandlimited, cubic, or linear (the paper's)")

@@ -40,19 +40,25 @@ import pandas as pd
 from drivers.camera.video_file import VideoFile
 from rig.analysis import load_cameras
 from rig.analysis_errors import AnalysisError
+from rig.atomic import atomic_path, write_json
 from rig.measure_series import SeriesError, reference_tracks, stabilised_displacement, summarise
+from rig.out_guard import check_out_folder
 from rig.stereo.dlt import DLTCamera
 from rig.stereo.errors import StereoError
 from rig.sync_tracks import SYNC_METHODS, pair_all, prepare_observations, timing_result, triangulate_tracks
 from rig.video_markers import ExtractOptions, VideoObservations, extract_video
 from rig.video_timing import VideoTimingError, estimate_video_timing, rotor_timing, tracked
 
-__all__ = ["MEASURE_SYNC", "MeasureError", "MeasureOptions", "MeasureResult", "measure_videos"]
+__all__ = ["MEASURE_RESULTS", "MEASURE_SYNC", "MeasureError", "MeasureOptions", "MeasureResult",
+           "measure_videos"]
 
 #: ``--sync``: how the 3-D tracks are timed. The interpolation methods of :mod:`rig.sync_tracks`, or
 #: ``rotor``: the timing from the paper's rotating-marker phase method (row-corrected; a marker turning at
 #: constant speed in view), 3-D by the trajectory method.
 MEASURE_SYNC = (*SYNC_METHODS, "rotor")
+
+MEASURE_RESULTS = ("measure.json", "report.html", "timing.json", "frames.json", "clock.json", "tables",
+                   "figures", "observations")  # what measure_videos writes into its folder
 
 
 class MeasureError(ValueError):
@@ -93,6 +99,11 @@ class MeasureResult:
     timings_s: dict[str, float]  # per camera (decode, extract, total) and per step ("step_*"), s
     peaks: pd.DataFrame = field(default_factory=pd.DataFrame)  # significant tones per target track
     time_frequency: pd.DataFrame = field(default_factory=pd.DataFrame)  # STFT amplitude per target track
+
+
+def _write_csv(frame: pd.DataFrame, path: Path) -> None:
+    with atomic_path(path) as tmp:
+        frame.to_csv(tmp, index=False)
 
 
 def _load_json(path: Path | None, what: str, how: str) -> dict[str, Any]:
@@ -198,19 +209,25 @@ def _controller_clock(record: str | Path, obs: pd.DataFrame, period_s: float,
 
 def measure_videos(videos: dict[str, str | Path], calibration: str | Path, out_dir: str | Path, *,
                    timing: str | Path | None = None, options: MeasureOptions | None = None,
-                   record: str | Path | None = None) -> MeasureResult:
+                   record: str | Path | None = None, force: bool = False) -> MeasureResult:
     """Measure (see the module docstring). ``videos``: camera name → file, the first is the reference.
     ``record``: a run folder whose motion events the videos show; adds ``controller_time_s`` (the
-    controller's clock, related by :mod:`rig.video_clock`) to the tables and writes ``clock.json``."""
+    controller's clock, related by :mod:`rig.video_clock`) to the tables and writes ``clock.json``.
+    ``out_dir`` must not be (or lie in) a run folder, nor hold results unless ``force``
+    (:class:`rig.out_guard.OutputRefusedError`); every file is written atomically (:mod:`rig.atomic`); an
+    ``OSError`` while writing propagates."""
     opts = options or MeasureOptions()
     if opts.sync not in MEASURE_SYNC:
         raise MeasureError(f"sync={opts.sync!r}; allowed: {MEASURE_SYNC}")
     if len(videos) != 2:
         raise MeasureError(f"{len(videos)} video(s) given; rig measure takes exactly 2 (LEFT RIGHT)")
     paths = {n: Path(p) for n, p in videos.items()}
-    cameras = check_inputs(paths, Path(calibration), opts.extract.fps)
     out = Path(out_dir)
+    check_out_folder(out, MEASURE_RESULTS, force=force)
+    cameras = check_inputs(paths, Path(calibration), opts.extract.fps)
     out.mkdir(parents=True, exist_ok=True)
+    for stale in ("measure.json", "clock.json"):  # --force: never leave an earlier run's index or clock
+        (out / stale).unlink(missing_ok=True)
     notes: list[str] = []
     problems: list[str] = []
     stamps = [("start", time.perf_counter())]
@@ -227,9 +244,8 @@ def measure_videos(videos: dict[str, str | Path], calibration: str | Path, out_d
     (out / "observations").mkdir(exist_ok=True)
     for n, o in obs.items():
         files[f"observations_{n}"] = out / "observations" / f"{n}.csv"
-        o.to_csv(files[f"observations_{n}"], index=False)
-    (out / "frames.json").write_text(json.dumps(reports, indent=1), encoding="utf-8")
-    files["frames"] = out / "frames.json"
+        _write_csv(o, files[f"observations_{n}"])
+    files["frames"] = write_json(out / "frames.json", reports)
     for n, o in obs.items():
         if o.empty:
             raise MeasureError(f"camera {n} ({paths[n]}): no marker found in any frame; check the "
@@ -241,8 +257,7 @@ def measure_videos(videos: dict[str, str | Path], calibration: str | Path, out_d
                            "max_offset_s": opts.max_offset_s, "prior_offset_s": opts.prior_offset_s},
                           obs, cameras, fps=fps,
                           reference=reference, notes=notes)
-    files["timing"] = out / "timing.json"
-    files["timing"].write_text(json.dumps(timing_dict, indent=1), encoding="utf-8")
+    files["timing"] = write_json(out / "timing.json", timing_dict)
     stamps.append(("timing", time.perf_counter()))
     try:
         # a lone fast marker the 2-D tracking splits (a rotor) is one track (rig.video_timing.tracked)
@@ -262,8 +277,7 @@ def measure_videos(videos: dict[str, str | Path], calibration: str | Path, out_d
     clock = None
     if record is not None:
         clock = _controller_clock(record, obs[reference], 1.0 / fps[reference], notes)
-        files["clock"] = out / "clock.json"
-        files["clock"].write_text(json.dumps(clock, indent=1), encoding="utf-8")
+        files["clock"] = write_json(out / "clock.json", clock)
     try:
         refs, ref_note = reference_tracks(tracks, opts.reference_markers, static_mm=opts.static_mm,
                                           gate_mm=opts.reference_gate_mm)
@@ -282,7 +296,7 @@ def measure_videos(videos: dict[str, str | Path], calibration: str | Path, out_d
                         ("spectra", series.spectra), ("peaks", series.peaks),
                         ("time_frequency", series.time_frequency)):
         files[name] = tables / f"{name}.csv"
-        frame.to_csv(files[name], index=False)
+        _write_csv(frame, files[name])
     stamps.append(("series_tables", time.perf_counter()))
     timings = {f"{n}_{k}": v for n, vo in vos.items() for k, v in vo.timings_s.items()}
     timings.update({f"step_{name}": t - stamps[i][1] for i, (name, t) in enumerate(stamps[1:])})
@@ -301,6 +315,5 @@ def measure_videos(videos: dict[str, str | Path], calibration: str | Path, out_d
             "problems": problems,
             "files": {k: str(v.relative_to(out)) for k, v in files.items()},
             "clock": "reference video PTS, s", "controller_clock": clock}
-    files["measure"] = out / "measure.json"
-    files["measure"].write_text(json.dumps(meta, indent=1, default=str), encoding="utf-8")
+    files["measure"] = write_json(out / "measure.json", meta, default=str)
     return result

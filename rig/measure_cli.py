@@ -1,7 +1,9 @@
 """The deployment sub-commands of ``rig``: ``calibrate`` (on site, from a video pair) and ``measure``.
 
 ``rig/cli.py`` calls :func:`add_parsers` and dispatches to :data:`COMMANDS`. Exit codes as ``rig``: 0 done,
-4 bad input (message on stderr; a measurement from a truncated video is written, then exits 4).
+4 bad input (message on stderr; a measurement from a truncated video is written, then exits 4; an --out
+that is a run folder, or holds results without --force), 3 an I/O fault (an ``OSError`` such as a full
+disk or a read-only folder propagates to ``rig.cli.main``; no result is left half-written).
 """
 
 from __future__ import annotations
@@ -20,6 +22,7 @@ from rig.onsite_calibration import (
     residual_summary,
     write_calibration,
 )
+from rig.out_guard import OutputRefusedError, check_out_file
 from rig.safety import EXIT_BAD_INPUT
 
 __all__ = ["COMMANDS", "add_parsers", "cmd_calibrate", "cmd_measure"]
@@ -39,13 +42,14 @@ def _names(args: argparse.Namespace) -> list[str]:
 def cmd_calibrate(args: argparse.Namespace) -> int:
     names = _names(args)
     try:
+        check_out_file(args.out, force=args.force)  # before the videos are decoded
         cal = calibrate_from_videos({names[0]: args.left, names[1]: args.right}, args.target,
                                     distortion=args.distortion, still_px=args.still_px,
                                     min_still_frames=args.min_still_frames, max_rms_px=args.max_rms_px)
-    except (OnsiteCalibrationError, VideoFileError) as exc:
+    except (OnsiteCalibrationError, VideoFileError, OutputRefusedError) as exc:
         print(f"rig calibrate: {exc}", file=sys.stderr)
         return EXIT_BAD_INPUT
-    path = write_calibration(cal, args.out)
+    path = write_calibration(cal, args.out, force=args.force)
     print(f"rig calibrate: {path}\n{residual_summary(cal)}")
     return 0
 
@@ -84,8 +88,8 @@ def cmd_measure(args: argparse.Namespace) -> int:
     try:
         result = measure_videos({names[0]: args.left, names[1]: args.right}, args.calibration, args.out,
                                 timing=None if args.estimate_timing else args.timing, options=options,
-                                record=args.record)
-    except (MeasureError, VideoFileError) as exc:
+                                record=args.record, force=args.force)
+    except (MeasureError, VideoFileError, OutputRefusedError) as exc:
         print(f"rig measure: {exc}", file=sys.stderr)
         return EXIT_BAD_INPUT
     targets = result.summary[result.summary["role"] == "target"]
@@ -110,7 +114,9 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
     p.add_argument("left", metavar="LEFT", help="video of the first camera")
     p.add_argument("right", metavar="RIGHT", help="video of the second camera")
     p.add_argument("--target", required=True, metavar="TARGET.TOML", help="plate grid and positions (mm)")
-    p.add_argument("--out", default="calibration.json", metavar="CALIBRATION.JSON")
+    p.add_argument("--out", default="calibration.json", metavar="CALIBRATION.JSON",
+                   help="the calibration file to write; never inside a run folder (default calibration.json)")
+    p.add_argument("--force", action="store_true", help="replace an existing --out file")
     p.add_argument("--names", nargs=2, metavar=("LEFT_NAME", "RIGHT_NAME"), help="camera names (left right)")
     p.add_argument("--distortion", choices=sorted(DISTORTION_MODELS), default="k1",
                    help="lens distortion terms fitted (default k1)")
@@ -132,7 +138,10 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
                    help="'auto' (static tracks, default), 'none', or ≥ 3 positions in mm")
     p.add_argument("--static-mm", type=float, default=0.1,
                    help="'auto' reference markers move less than this RMS, mm (default 0.1)")
-    p.add_argument("--out", required=True, metavar="DIR")
+    p.add_argument("--out", required=True, metavar="DIR", help="a new or empty folder for the results; never "
+                   "a run folder")
+    p.add_argument("--force", action="store_true",
+                   help="replace the results of an earlier measurement in --out (never in a run folder)")
     p.add_argument("--names", nargs=2, metavar=("LEFT_NAME", "RIGHT_NAME"), help="camera names (left right)")
     p.add_argument("--sync", choices=MEASURE_SYNC, default="trajectory",
                    help="3-D timing of the tracks: trajectory (default), bandlimited, cubic, linear (the "

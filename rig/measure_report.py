@@ -18,6 +18,8 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import pandas as pd
 
+from rig.atomic import write_bytes, write_text
+
 __all__ = ["write_report"]
 
 CSS = """body{margin:0;background:#f5f7fa;color:#1d2733;font:15px/1.5 -apple-system,"Segoe UI",Roboto,Arial,
@@ -94,7 +96,7 @@ def write_report(result: Any, videos: dict[str, str], calibration: str) -> dict[
     for name, data in pngs.items():
         if data is not None:
             files[f"figure_{name}"] = figs_dir / f"{name}.png"
-            files[f"figure_{name}"].write_bytes(data)
+            write_bytes(files[f"figure_{name}"], data)
     cols = [c for c in ("track_id", "role", "x_mm", "y_mm", "z_mm", "n_samples", "dominant_frequency_hz",
                         "frequency_hz", "frequency_std_hz", "amplitude_mm", "amplitude_std_mm",
                         "half_peak_to_peak_mm", "rms_mm") if c in result.summary.columns]
@@ -137,6 +139,5 @@ def write_report(result: Any, videos: dict[str, str], calibration: str) -> dict[
                  + "</ul></section>")
     page = ("<!doctype html><html><head><meta charset='utf-8'><title>rig measure</title><style>" + CSS
             + "</style></head><body><main>" + "".join(parts) + "</main></body></html>")
-    files["report"] = out / "report.html"
-    files["report"].write_text(page, encoding="utf-8")
+    files["report"] = write_text(out / "report.html", page)
     return files

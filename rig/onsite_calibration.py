@@ -30,7 +30,6 @@ Units: px, mm, s (the videos' own clocks).
 
 from __future__ import annotations
 
-import json
 import math
 import tomllib
 from dataclasses import dataclass
@@ -40,6 +39,8 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from rig.atomic import write_json
+from rig.out_guard import check_out_file
 from rig.plate_grid import GridError, moving_points, order_grid
 from rig.stereo import calibrate_dlt
 from rig.stereo.errors import StereoError
@@ -261,9 +262,10 @@ def residual_summary(calibration: dict[str, Any]) -> str:
                      f"max {c['residuals_max_px']:.3f} px" for n, c in calibration["cameras"].items())
 
 
-def write_calibration(calibration: dict[str, Any], out: str | Path) -> Path:
-    """Write ``calibration.json`` (parent folders created)."""
+def write_calibration(calibration: dict[str, Any], out: str | Path, *, force: bool = False) -> Path:
+    """Write ``calibration.json`` atomically (parent folders created); never into a run folder, and over
+    an existing file only with ``force`` (:func:`rig.out_guard.check_out_file`)."""
     out = Path(out)
+    check_out_file(out, force=force)
     out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps(calibration, indent=1), encoding="utf-8")
-    return out
+    return write_json(out, calibration)

@@ -1,0 +1,277 @@
+"""I/O faults end to end: a full disk (a small tmpfs) and a read-only folder (a read-only mount) under
+`rig calibrate`, `rig measure`, `rig report` and `rig run` → exit 3 with a one-line message, no traceback,
+and no result left 0-byte or half-written under its final name; an issued certificate is never touched.
+Plus the atomic writer under injected faults (no mount needed)."""
+
+from __future__ import annotations
+
+import errno
+import json
+import os
+import shutil
+import textwrap
+from pathlib import Path
+
+import measure_twin as mt
+import pytest
+from fs_faults import fill, half_written, remount_read_only, tmpfs, tree
+
+from rig import atomic
+from rig.cli import main
+from rig.record import load_run
+
+FILLER_PROCEDURE = textwrap.dedent('''
+    """Runs the exciter, then its result file meets a disk that another writer filled."""
+    from dataclasses import dataclass
+
+    NAME = "filler"
+
+    @dataclass(frozen=True)
+    class Parameters:
+        pass
+
+    def run(ctx, params):
+        ctx.device("exciter").set_frequency(3.0)
+        with open(ctx.run_dir / "filler.bin", "wb", buffering=0) as fh:  # someone else fills the disk
+            try:
+                while True:
+                    fh.write(b"x" * 4096)
+            except OSError:
+                pass
+        with ctx.step("result") as step:
+            step.output(ctx.write_json("result.json", {"samples": list(range(20000))}))
+        return {"passed": True, "summary": "done"}
+''')
+
+
+def _one_line_error(err: str, *needles: str) -> None:
+    """stderr is one line, no traceback, naming every needle."""
+    lines = [ln for ln in err.splitlines() if ln.strip()]
+    assert "Traceback" not in err and len(lines) == 1, err
+    assert all(n in lines[0] for n in needles), lines[0]
+
+
+# ---------------------------------------------------------------------------------- the atomic writer
+def test_atomic_write_keeps_the_old_file_when_the_writer_or_the_rename_fails(tmp_path: Path,
+                                                                             monkeypatch) -> None:
+    target = atomic.write_text(tmp_path / "timing.json", "old\n")
+    with pytest.raises(RuntimeError, match="writer died"), atomic.atomic_path(target) as tmp:
+        tmp.write_text("half")
+        raise RuntimeError("writer died")
+    assert target.read_text() == "old\n" and [p.name for p in tmp_path.iterdir()] == ["timing.json"]
+
+    def no_rename(src, dst):
+        raise OSError(errno.EIO, "Input/output error")
+
+    monkeypatch.setattr(atomic.os, "replace", no_rename)
+    with pytest.raises(OSError, match="Input/output"):
+        atomic.write_json(target, {"new": 1})
+    assert target.read_text() == "old\n" and [p.name for p in tmp_path.iterdir()] == ["timing.json"]
+
+
+def test_atomic_write_keeps_its_format_suffix_and_replaces_whole(tmp_path: Path) -> None:
+    seen = []
+    with atomic.atomic_path(tmp_path / "summary.csv") as tmp:
+        seen.append(tmp)
+        tmp.write_text("a,b\n1,2\n")
+    assert seen[0].suffix == ".csv" and seen[0].parent == tmp_path and seen[0].name.startswith(".")
+    assert (tmp_path / "summary.csv").read_text() == "a,b\n1,2\n" and not seen[0].exists()
+
+
+def test_atomic_write_on_a_full_disk_leaves_the_old_file_whole(tmp_path: Path) -> None:
+    with tmpfs(tmp_path / "disk", 64 * 1024) as disk:
+        old = atomic.write_text(disk / "calibration.json", '{"old": true}\n')
+        fill(disk)
+        with pytest.raises(OSError) as info:
+            atomic.write_text(old, "x" * 200_000)
+        assert info.value.errno == errno.ENOSPC
+        assert old.read_text() == '{"old": true}\n'
+        assert sorted(p.name for p in disk.iterdir()) == ["calibration.json", "filler.bin"]
+
+
+# ---------------------------------------------------------------------------------- videos
+@pytest.fixture(scope="module")
+def site(tmp_path_factory: pytest.TempPathFactory) -> dict:
+    folder = tmp_path_factory.mktemp("io_site")
+    world, truth, t_end = mt.calibration_world()
+    left, right = mt.camera_pair(world)
+    left.write_video(folder / "cal_left.avi", 0.0, t_end, fourcc="MJPG")
+    right.write_video(folder / "cal_right.avi", 0.0, t_end, fourcc="MJPG")
+    target = mt.write_target(folder / "target.toml", truth)
+    assert main(["calibrate", str(folder / "cal_left.avi"), str(folder / "cal_right.avi"), "--target",
+                 str(target), "--out", str(folder / "calibration.json")]) == 0
+    left, right = mt.camera_pair(mt.measurement_world())
+    paths = mt.write_pair(left, right, folder, fourcc="MJPG", ext="avi", t_left_s=(0.0, 1.5),
+                          t_right_s=(0.15, 1.65))
+    (folder / "timing.json").write_text(json.dumps(mt.truth_timing(left, right, 0.0, 0.15)))
+    return {"folder": folder, "target": target, "paths": paths}
+
+
+def _calibrate(site: dict, out: Path) -> int:
+    f = site["folder"]
+    return main(["calibrate", str(f / "cal_left.avi"), str(f / "cal_right.avi"), "--target",
+                 str(site["target"]), "--out", str(out)])
+
+
+def _measure(site: dict, out: Path) -> int:
+    f = site["folder"]
+    return main(["measure", str(site["paths"][0]), str(site["paths"][1]), "--calibration",
+                 str(f / "calibration.json"), "--timing", str(f / "timing.json"), "--out", str(out)])
+
+
+def test_calibrate_on_a_full_disk_exits_3_and_leaves_no_calibration(site: dict, tmp_path: Path,
+                                                                   capsys: pytest.CaptureFixture[str]) -> None:
+    with tmpfs(tmp_path / "disk", 64 * 1024) as disk:
+        fill(disk)
+        capsys.readouterr()
+        assert _calibrate(site, disk / "calibration.json") == 3
+        _one_line_error(capsys.readouterr().err, "No space left on device")
+        assert sorted(p.name for p in disk.iterdir()) == ["filler.bin"]  # no 0-byte calibration.json
+
+
+def test_calibrate_into_a_read_only_folder_exits_3(site: dict, tmp_path: Path,
+                                                   capsys: pytest.CaptureFixture[str]) -> None:
+    with tmpfs(tmp_path / "disk", 1 << 20) as disk:
+        remount_read_only(disk)
+        capsys.readouterr()
+        assert _calibrate(site, disk / "calibration.json") == 3
+        _one_line_error(capsys.readouterr().err, "Read-only file system")
+
+
+def test_measure_on_a_disk_that_fills_exits_3_with_every_written_file_whole(
+        site: dict, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    full = tmp_path / "reference"
+    assert _measure(site, full) == 0
+    need = sum(len(b) for b in tree(full).values())
+    with tmpfs(tmp_path / "disk", need // 2) as disk:  # the disk fills half-way through the outputs
+        capsys.readouterr()
+        assert _measure(site, disk / "out") == 3
+        _one_line_error(capsys.readouterr().err, "No space left on device")
+        written = tree(disk / "out")
+        assert written and half_written(disk / "out") == []
+        reference = tree(full)
+        for name, data in written.items():  # what carries a final name is complete (the same bytes)
+            if name.endswith(".csv"):
+                assert data == reference[name], name
+            elif name.endswith(".json"):
+                json.loads(data)
+
+
+def test_measure_into_a_read_only_folder_exits_3(site: dict, tmp_path: Path,
+                                                 capsys: pytest.CaptureFixture[str]) -> None:
+    with tmpfs(tmp_path / "disk", 1 << 20) as disk:
+        remount_read_only(disk)
+        capsys.readouterr()
+        assert _measure(site, disk / "out") == 3
+        _one_line_error(capsys.readouterr().err, "Read-only file system")
+
+
+# ---------------------------------------------------------------------------------- a run and its report
+def test_run_on_a_disk_that_fills_makes_the_devices_safe_and_exits_3(tmp_path: Path,
+                                                                     capsys: pytest.CaptureFixture[str]) -> None:
+    proc = tmp_path / "filler.py"
+    proc.write_text(FILLER_PROCEDURE)
+    with tmpfs(tmp_path / "disk", 256 * 1024) as disk:
+        capsys.readouterr()
+        assert main(["run", str(proc), "--runs-dir", str(disk)]) == 3
+        err = capsys.readouterr().err
+        assert "No space left on device" in err.splitlines()[-1]
+        (run_dir,) = disk.iterdir()
+        assert not (run_dir / "result.json").exists() and half_written(run_dir) == []
+        run = load_run(run_dir)
+        # the stop document got written here (the failed result freed its temporary file's space)
+        assert run.stop["outcome"] == "fault" and "No space left on device" in run.stop["reason"]
+        assert any(m.startswith("exciter: ") and m.endswith("() done") for m in run.logs["message"])
+
+
+def test_run_into_a_read_only_runs_folder_exits_3_before_any_device(tmp_path: Path,
+                                                                    capsys: pytest.CaptureFixture[str]) -> None:
+    proc = tmp_path / "filler.py"
+    proc.write_text(FILLER_PROCEDURE)
+    with tmpfs(tmp_path / "disk", 1 << 20) as disk:
+        remount_read_only(disk)
+        capsys.readouterr()
+        assert main(["run", str(proc), "--runs-dir", str(disk)]) == 3
+        err = capsys.readouterr().err
+        assert "Traceback" not in err and "Read-only file system" in err.splitlines()[-1]
+        assert list(disk.iterdir()) == []
+
+
+@pytest.fixture(scope="module")
+def real_run(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A rotation run on the simulated rig (calibrate, sync, rotation, report): its certificate issued."""
+    runs = tmp_path_factory.mktemp("io_runs")
+    assert main(["run", "rotation", "--set", "record_s=1", "--runs-dir", str(runs)]) == 0
+    (run_dir,) = runs.iterdir()
+    assert (run_dir / "certificate.json").is_file()
+    return run_dir
+
+
+def _copy_run(run_dir: Path, disk: Path, *, issued: bool) -> Path:
+    copy = disk / run_dir.name
+    shutil.copytree(run_dir, copy)
+    if not issued:  # a run killed before its report: the first `rig report` issues the certificate
+        for name in ("certificate.json", "report.html"):
+            (copy / name).unlink()
+        shutil.rmtree(copy / "tables")
+        shutil.rmtree(copy / "figures")
+    return copy
+
+
+def _disk_size(run_dir: Path) -> int:
+    return sum(p.stat().st_size for p in run_dir.rglob("*") if p.is_file()) + (1 << 20)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("issued", [True, False], ids=["revision", "first_report"])
+def test_report_on_a_full_disk_exits_3_and_writes_nothing_half(real_run: Path, tmp_path: Path, issued: bool,
+                                                             capsys: pytest.CaptureFixture[str]) -> None:
+    with tmpfs(tmp_path / "disk", _disk_size(real_run)) as disk:
+        run = _copy_run(real_run, disk, issued=issued)
+        before = tree(run)
+        filler = fill(disk)
+        capsys.readouterr()
+        assert main(["report", str(run), "--sync", "linear"]) == 3
+        _one_line_error(capsys.readouterr().err, "No space left on device")
+        after = tree(run)
+        assert half_written(run) == []
+        assert {k: v for k, v in after.items() if k in before} == before  # nothing rewritten
+        if issued:
+            assert set(after) == set(before)  # no revision folder, no staging left
+            assert sorted(p.name for p in (run / "revisions").iterdir()) == []
+        else:
+            assert "certificate.json" not in after  # not issued: the next `rig report` issues it
+            filler.unlink()
+            result = json.loads((real_run / "certificate.json").read_text())["result"]
+            assert main(["report", str(run)]) == (0 if result == "PASS" else 1)
+            assert json.loads((run / "certificate.json").read_text())["result"] == result
+
+
+@pytest.mark.slow
+def test_report_of_a_read_only_run_exits_3(real_run: Path, tmp_path: Path,
+                                          capsys: pytest.CaptureFixture[str]) -> None:
+    with tmpfs(tmp_path / "disk", _disk_size(real_run)) as disk:
+        run = _copy_run(real_run, disk, issued=True)
+        remount_read_only(disk)
+        capsys.readouterr()
+        assert main(["report", str(run)]) == 3
+        _one_line_error(capsys.readouterr().err, "Read-only file system")
+
+
+@pytest.mark.slow
+def test_report_of_an_issued_run_writes_a_revision_and_says_so(real_run: Path, tmp_path: Path,
+                                                             capsys: pytest.CaptureFixture[str]) -> None:
+    run = tmp_path / real_run.name
+    shutil.copytree(real_run, run)
+    before = tree(run)
+    capsys.readouterr()
+    code = main(["report", str(run), "--sync", "linear"])
+    out = capsys.readouterr().out
+    assert {k: v for k, v in tree(run).items() if not k.startswith("revisions/")} == before
+    issued = json.loads((run / "certificate.json").read_text())["result"]
+    assert f"already has an issued certificate ({issued}); it is not rewritten" in out
+    changes = json.loads((run / "revisions" / "1-linear" / "changes.json").read_text())
+    assert f"Revision 1 (sync linear): {changes['revised_result']}" in out
+    assert code == (0 if changes["revised_result"] == "PASS" else 1)
+    assert changes["issued_result"] == issued and changes["sync_method"] == "linear"
+    assert os.path.isfile(run / "revisions" / "1-linear" / "certificate.json")
