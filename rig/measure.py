@@ -57,6 +57,7 @@ __all__ = ["MEASURE_RESULTS", "MEASURE_SYNC", "MeasureError", "MeasureOptions", 
 #: constant speed in view), 3-D by the trajectory method.
 MEASURE_SYNC = (*SYNC_METHODS, "rotor")
 
+FPS_TOLERANCE = 0.01  # relative: two cameras at one nominal rate differ by ppm, never by 1 %
 MEASURE_RESULTS = ("measure.json", "report.html", "timing.json", "frames.json", "clock.json", "tables",
                    "figures", "observations")  # what measure_videos writes into its folder
 
@@ -131,13 +132,21 @@ def check_inputs(videos: dict[str, Path], calibration_path: Path,
     if missing:
         raise MeasureError(f"{calibration_path}: no calibration for camera(s) {missing} (it has "
                            f"{sorted(cameras)}); name the videos' cameras with --names")
-    for name, path in videos.items():
-        size = VideoFile(path, name=name, fps=fps)
+    opened = {name: VideoFile(path, name=name, fps=fps) for name, path in videos.items()}
+    described = {n: f"{n} {v.fps:.6g} fps {v.width_px}×{v.height_px} px ({videos[n]})"
+                 for n, v in opened.items()}
+    rates = [v.fps for v in opened.values()]
+    if max(rates) > min(rates) * (1 + FPS_TOLERANCE):
+        raise MeasureError(f"the videos' frame rates differ: {' vs '.join(described.values())}; rig measure "
+                           "needs both cameras at the same frame rate (--fps if a container states a wrong "
+                           "one)")
+    for name, video in opened.items():
         want = tuple(cameras[name].image_size)
-        if (size.width_px, size.height_px) != want:
-            raise MeasureError(f"{path}: camera {name!r} video is {size.width_px}×{size.height_px} px but "
-                               f"{calibration_path} was made at {want[0]}×{want[1]} px; calibrate at the "
-                               "resolution you measure with")
+        if (video.width_px, video.height_px) != want:
+            raise MeasureError(f"camera {name!r}: the video is {video.width_px}×{video.height_px} px but "
+                               f"{calibration_path} calibrated it at {want[0]}×{want[1]} px "
+                               f"({' vs '.join(described.values())}); calibrate at the resolution you "
+                               "measure with")
     return cameras
 
 
@@ -224,7 +233,8 @@ def measure_videos(videos: dict[str, str | Path], calibration: str | Path, out_d
     paths = {n: Path(p) for n, p in videos.items()}
     out = Path(out_dir)
     check_out_folder(out, MEASURE_RESULTS, force=force)
-    cameras = check_inputs(paths, Path(calibration), opts.extract.fps)
+    job = _Job(out, paths, check_inputs(paths, Path(calibration), opts.extract.fps), Path(calibration),
+               timing, record, opts)
     out.mkdir(parents=True, exist_ok=True)
     for stale in ("measure.json", "clock.json"):  # --force: never leave an earlier run's index or clock
         (out / stale).unlink(missing_ok=True)
@@ -234,11 +244,38 @@ def measure_videos(videos: dict[str, str | Path], calibration: str | Path, out_d
     with ThreadPoolExecutor(max_workers=2, thread_name_prefix="measure-video") as pool:
         futures = {n: pool.submit(extract_video, p, n, opts.extract) for n, p in paths.items()}
         vos = {n: f.result() for n, f in futures.items()}
-    reports = {n: vo.report.to_dict() for n, vo in vos.items()}
     for n, vo in vos.items():
         notes.append(f"camera {n}: {vo.report.summary()}")
         if vo.error:
             problems.append(f"camera {n}: {vo.error}")
+    try:
+        return _measure(job, vos, notes, problems, stamps)
+    except MeasureError as exc:
+        if not problems:
+            raise
+        # the cause is the damaged video, not what then failed for lack of its frames
+        raise MeasureError(f"{'; '.join(problems)}; with the frames that could be read: {exc}") from exc
+
+
+@dataclass(frozen=True)
+class _Job:
+    """The checked inputs of one :func:`measure_videos` call."""
+
+    out: Path
+    paths: dict[str, Path]
+    cameras: dict[str, DLTCamera]
+    calibration: Path
+    timing: str | Path | None
+    record: str | Path | None
+    opts: MeasureOptions
+
+
+def _measure(job: _Job, vos: dict[str, VideoObservations], notes: list[str], problems: list[str],
+             stamps: list[tuple[str, float]]) -> MeasureResult:
+    """Observations → timing → 3-D tracks → displacement → tables, report and measure.json."""
+    out, paths, cameras, opts, record = job.out, job.paths, job.cameras, job.opts, job.record
+    timing, calibration = job.timing, job.calibration
+    reports = {n: vo.report.to_dict() for n, vo in vos.items()}
     obs = {n: _observations(vo) for n, vo in vos.items()}
     files: dict[str, Path] = {}
     (out / "observations").mkdir(exist_ok=True)

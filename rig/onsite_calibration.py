@@ -98,7 +98,19 @@ def load_target(path: str | Path) -> PlateTarget:
                 f"{path}: positions[{i}].markers_mm has shape {arr.shape}; allowed: {rows * cols} finite "
                 f"[x, y, z] points in mm (rows × cols = {rows} × {cols}, node r·cols + c)")
         out.append(arr)
+    _check_in_depth(path, np.concatenate(out))
     return PlateTarget(rows=int(rows), cols=int(cols), positions_mm=tuple(out))
+
+
+def _check_in_depth(path: Path, xyz_mm: np.ndarray) -> None:
+    """A DLT needs control points that span 3-D: refuse points that are (nearly) coplanar or collinear."""
+    centred = xyz_mm - xyz_mm.mean(axis=0)
+    spread_mm = np.linalg.svd(centred, compute_uv=False) / math.sqrt(len(xyz_mm))  # RMS extent per axis
+    if spread_mm[2] <= 1e-3 * spread_mm[0]:
+        raise OnsiteCalibrationError(
+            f"{path}: the control points of all positions lie in one plane (RMS {spread_mm[2]:.3g} mm out of "
+            f"it, against {spread_mm[0]:.3g} mm across); a DLT needs points in depth: slide the plate along "
+            "its normal between positions and give each position's own markers_mm")
 
 
 def _per_frame(obs: pd.DataFrame) -> tuple[np.ndarray, np.ndarray, list[np.ndarray]]:
@@ -106,7 +118,7 @@ def _per_frame(obs: pd.DataFrame) -> tuple[np.ndarray, np.ndarray, list[np.ndarr
     frames, starts = np.unique(obs["frame_index"].to_numpy(), return_index=True)
     uv = obs[["u_px", "v_px"]].to_numpy(float)
     stamps = obs["timestamp_s"].to_numpy(float)[starts]
-    ends = np.r_[starts[1:], len(obs)]
+    ends = np.r_[starts[1:], len(obs)] if len(starts) else starts
     return frames, stamps, [uv[a:b] for a, b in zip(starts, ends, strict=True)]
 
 
@@ -209,7 +221,12 @@ def calibrate_from_videos(videos: dict[str, str | Path], target: PlateTarget | s
     for name, path in videos.items():
         vo = extract_video(path, name, opts)
         if vo.error:
-            raise OnsiteCalibrationError(f"camera {name!r}: {vo.error}")
+            raise OnsiteCalibrationError(f"camera {name!r} ({path}): {vo.report.error or vo.error}; a "
+                                         "calibration needs the whole video: copy or export it again")
+        if vo.observations.empty:
+            raise OnsiteCalibrationError(
+                f"camera {name!r} ({path}): no marker found in any of its {vo.report.frames_read} frames; "
+                "film the plate with its markers in view, in focus and well exposed")
         sizes[name] = (vo.width_px, vo.height_px)
         short: list[int] = []
         segs = still_segments(vo.observations, still_px=still_px, min_still_frames=min_still_frames,

@@ -60,7 +60,8 @@ def remount_read_only(path: Path) -> None:
 
 def tree(folder: Path) -> dict[str, bytes]:
     """Every file below ``folder`` (relative path → bytes)."""
-    return {p.relative_to(folder).as_posix(): p.read_bytes() for p in sorted(folder.rglob("*")) if p.is_file()}
+    return {p.relative_to(folder).as_posix(): p.read_bytes()
+            for p in sorted(folder.rglob("*")) if p.is_file()}
 
 
 def half_written(folder: Path) -> list[str]:

@@ -119,8 +119,8 @@ def _measure(site: dict, out: Path) -> int:
                  str(f / "calibration.json"), "--timing", str(f / "timing.json"), "--out", str(out)])
 
 
-def test_calibrate_on_a_full_disk_exits_3_and_leaves_no_calibration(site: dict, tmp_path: Path,
-                                                                   capsys: pytest.CaptureFixture[str]) -> None:
+def test_calibrate_on_a_full_disk_exits_3_and_leaves_no_calibration(
+        site: dict, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     with tmpfs(tmp_path / "disk", 64 * 1024) as disk:
         fill(disk)
         capsys.readouterr()
@@ -167,8 +167,8 @@ def test_measure_into_a_read_only_folder_exits_3(site: dict, tmp_path: Path,
 
 
 # ---------------------------------------------------------------------------------- a run and its report
-def test_run_on_a_disk_that_fills_makes_the_devices_safe_and_exits_3(tmp_path: Path,
-                                                                     capsys: pytest.CaptureFixture[str]) -> None:
+def test_run_on_a_disk_that_fills_makes_the_devices_safe_and_exits_3(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     proc = tmp_path / "filler.py"
     proc.write_text(FILLER_PROCEDURE)
     with tmpfs(tmp_path / "disk", 256 * 1024) as disk:
@@ -184,8 +184,8 @@ def test_run_on_a_disk_that_fills_makes_the_devices_safe_and_exits_3(tmp_path: P
         assert any(m.startswith("exciter: ") and m.endswith("() done") for m in run.logs["message"])
 
 
-def test_run_into_a_read_only_runs_folder_exits_3_before_any_device(tmp_path: Path,
-                                                                    capsys: pytest.CaptureFixture[str]) -> None:
+def test_run_into_a_read_only_runs_folder_exits_3_before_any_device(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     proc = tmp_path / "filler.py"
     proc.write_text(FILLER_PROCEDURE)
     with tmpfs(tmp_path / "disk", 1 << 20) as disk:

@@ -144,7 +144,8 @@ def test_a_later_report_with_another_sync_is_a_revision_saying_what_changed(tmp_
     first = build_report(run, sync="linear", analysis=synth.fake_analyse, make_figures=False)
     second = build_report(run, sync="linear", analysis=synth.fake_analyse, make_figures=False)
     assert (run / "certificate.json").read_bytes() == cert_bytes  # PASS stays the issued result
-    assert first.revision == run / "revisions" / "1-linear" and second.revision == run / "revisions" / "2-linear"
+    assert first.revision == run / "revisions" / "1-linear"
+    assert second.revision == run / "revisions" / "2-linear"
     assert first.result == "FAIL" and json.loads(first.certificate_json.read_text())["result"] == "FAIL"
     changes = json.loads((first.revision / "changes.json").read_text())
     assert changes == first.changes
@@ -157,7 +158,7 @@ def test_a_later_report_with_another_sync_is_a_revision_saying_what_changed(tmp_
     assert changes["summary"][0] == "result PASS → FAIL"
     assert any(n.startswith("revision 1 (sync 'linear')") for n in first.notes)
     assert "revision 1 (sync &#x27;linear&#x27;)" in first.report_html.read_text()
-    assert sorted(p.name for p in (run / "revisions").iterdir()) == ["1-linear", "2-linear"]  # no staging left
+    assert sorted(p.name for p in (run / "revisions").iterdir()) == ["1-linear", "2-linear"]  # no staging
 
 
 def test_a_revision_that_cannot_be_finished_leaves_nothing(tmp_path: Path, monkeypatch) -> None:

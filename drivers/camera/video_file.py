@@ -413,8 +413,9 @@ class VideoFile(Camera):
         if (self.frames_declared is not None and rep.frames_read < self.frames_declared
                 and rep.duration_s < end_expected_s - 1.5 * period):
             rep.truncated = True
-            rep.error = (f"decoding stopped after {rep.frames_read} of the {self.frames_declared} frames the "
-                         "container declares (truncated or corrupt file)")
+            rep.error = (f"the video is truncated or corrupt: decoding stopped after {rep.frames_read} of "
+                         f"the {self.frames_declared} frames the container declares (the last frame read is "
+                         f"frame {rep.frames_read - 1}, ending at {rep.duration_s:.3f} s)")
             raise VideoTruncatedError(f"{self.path}: {rep.error}; the {rep.frames_read} frames read are kept",
                                       rep)
 
