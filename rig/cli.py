@@ -568,6 +568,7 @@ def _main(argv: list[str] | None) -> int:
     args = parser.parse_args(argv)
     level = (logging.WARNING, logging.INFO, logging.DEBUG)[min(args.verbose, 2)]
     logging.basicConfig(level=level, format="%(levelname)s %(name)s: %(message)s", stream=sys.stderr)
+    logging.raiseExceptions = False  # a log line lost to a full disk is not worth a traceback per line
     for handler in logging.getLogger().handlers:  # the console keeps its level when rig.log wants more
         if isinstance(handler, logging.StreamHandler) and not isinstance(handler, logging.FileHandler):
             handler.setLevel(level)

@@ -128,6 +128,7 @@ class Runner:
         self.observers = observers
         self._control = _Control()
         self._record: RunRecord | None = None
+        self._file_only: Callable[[str, BaseException], None] | None = None  # rig.log only, while a run lasts
 
     # ------------------------------------------------------------------ control (thread-safe)
     def request_abort(self, reason: str = "abort requested") -> None:
@@ -231,12 +232,13 @@ class Runner:
                 record.add_observer(observer)
             try:
                 with _run_log(record, self.log_level) as file_only:
+                    self._file_only = file_only
                     log.info("run %s: procedure %s, session %d", record.run_id, self.module.NAME,
                              record.session)
                     try:
                         outcome = self._run_and_close_station(record, clock, params, file_only)
                     finally:
-                        self._record = None
+                        self._record, self._file_only = None, None
                         record.close()
             except OSError as exc:
                 if outcome is None:
@@ -341,7 +343,11 @@ class Runner:
             watchdog.quiet()  # its probes keep idle drives' communication-loss stops from firing
         try:
             error = self._lost_device_check(watchdog, roster, error)
-            if error is not None and not isinstance(error, Abort | KeyboardInterrupt):
+            if isinstance(error, OSError) and self._file_only is not None:
+                # an I/O or link fault (full disk, read-only folder, a device's socket): the exit line says
+                # what happened; its traceback goes to rig.log only
+                self._file_only(f"procedure raised {type(error).__name__}: {error}", error)
+            elif error is not None and not isinstance(error, Abort | KeyboardInterrupt):
                 log.error("procedure raised:\n%s", format_exception(error))
             return self._finish(record, roster, error, result)
         finally:

@@ -9,6 +9,8 @@ import errno
 import json
 import os
 import shutil
+import subprocess
+import sys
 import textwrap
 from pathlib import Path
 
@@ -19,6 +21,8 @@ from fs_faults import fill, half_written, remount_read_only, tmpfs, tree
 from rig import atomic
 from rig.cli import main
 from rig.record import load_run
+
+ROOT = Path(__file__).resolve().parents[1]
 
 FILLER_PROCEDURE = textwrap.dedent('''
     """Runs the exciter, then its result file meets a disk that another writer filled."""
@@ -167,33 +171,39 @@ def test_measure_into_a_read_only_folder_exits_3(site: dict, tmp_path: Path,
 
 
 # ---------------------------------------------------------------------------------- a run and its report
-def test_run_on_a_disk_that_fills_makes_the_devices_safe_and_exits_3(
-        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+def _rig(*argv: str, cwd: Path) -> subprocess.CompletedProcess[str]:
+    """``rig`` in its own process: what a user sees on the console (the logging set up by rig itself)."""
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    return subprocess.run([sys.executable, "-m", "rig.cli", *argv], capture_output=True, text=True, env=env,
+                          cwd=cwd, timeout=600, check=False)
+
+
+def test_run_on_a_disk_that_fills_makes_the_devices_safe_and_exits_3(tmp_path: Path) -> None:
     proc = tmp_path / "filler.py"
     proc.write_text(FILLER_PROCEDURE)
     with tmpfs(tmp_path / "disk", 256 * 1024) as disk:
-        capsys.readouterr()
-        assert main(["run", str(proc), "--runs-dir", str(disk)]) == 3
-        err = capsys.readouterr().err
-        assert "No space left on device" in err.splitlines()[-1]
+        done = _rig("run", str(proc), "--runs-dir", str(disk), cwd=tmp_path)
+        assert done.returncode == 3, done.stderr
+        _one_line_error(done.stderr, "rig: filler: fault (exit 3): OSError: [Errno 28] No space left on "
+                        "device")
         (run_dir,) = disk.iterdir()
         assert not (run_dir / "result.json").exists() and half_written(run_dir) == []
         run = load_run(run_dir)
         # the stop document got written here (the failed result freed its temporary file's space)
         assert run.stop["outcome"] == "fault" and "No space left on device" in run.stop["reason"]
+        assert run.stop["safe_state"]["exciter"]["frequency_hz"] == 0.0
         assert any(m.startswith("exciter: ") and m.endswith("() done") for m in run.logs["message"])
+        assert "Traceback" in (run_dir / "rig.log").read_text()  # the traceback is kept, in rig.log only
 
 
-def test_run_into_a_read_only_runs_folder_exits_3_before_any_device(
-        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+def test_run_into_a_read_only_runs_folder_exits_3_before_any_device(tmp_path: Path) -> None:
     proc = tmp_path / "filler.py"
     proc.write_text(FILLER_PROCEDURE)
     with tmpfs(tmp_path / "disk", 1 << 20) as disk:
         remount_read_only(disk)
-        capsys.readouterr()
-        assert main(["run", str(proc), "--runs-dir", str(disk)]) == 3
-        err = capsys.readouterr().err
-        assert "Traceback" not in err and "Read-only file system" in err.splitlines()[-1]
+        done = _rig("run", str(proc), "--runs-dir", str(disk), cwd=tmp_path)
+        assert done.returncode == 3, done.stderr
+        assert "Traceback" not in done.stderr and "Read-only file system" in done.stderr.splitlines()[-1]
         assert list(disk.iterdir()) == []
 
 
