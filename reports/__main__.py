@@ -38,7 +38,7 @@ def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     try:
         res = build_report(args.run, sync=args.sync, make_figures=not args.no_figures)
-    except ReportError as exc:
+    except (ReportError, OSError) as exc:  # OSError: a full disk, a read-only run folder
         print(f"rig report: {exc}", file=sys.stderr)
         return 3
     print(f"{res.result}  {res.report_html}")
