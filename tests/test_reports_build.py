@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import json
 import re
 from pathlib import Path
@@ -318,3 +319,42 @@ def test_every_colour_of_the_error_figure_has_a_legend_entry(targets, title, ent
     groups, legend_title = _legend_groups(pd.Series(targets))
     assert legend_title == title and set(groups) == entries
     assert groups.nunique() <= MAX_DISTINCT_COLOURS
+
+
+class _StepContext:
+    """The part of a procedure context the report step uses (a run folder and recorded steps)."""
+
+    def __init__(self, run_dir: Path) -> None:
+        from rig.procedure import Step
+
+        self.run_dir, self.steps, self._step = run_dir, [], Step
+
+    def progress(self, fraction, message) -> None:
+        pass
+
+    @contextlib.contextmanager
+    def step(self, name: str):
+        step = self._step(name=name, skipped=False)
+        yield step
+        self.steps.append((name, list(step.outputs)))
+
+
+def test_the_report_step_issues_the_certificate_once(tmp_path: Path, monkeypatch) -> None:
+    """A run resumed after its certificate was issued keeps it: the step reads it, never rebuilds it."""
+    from procedures import _report
+    from reports import build as build_module
+
+    run = synth.write_run(tmp_path / "run_step")
+    ctx = _StepContext(run)
+    monkeypatch.setattr(build_module, "_default_analyse", lambda: synth.fake_analyse)
+    first = _report.report_step(ctx, make_figures=False)
+    issued = (run / "certificate.json").read_bytes()
+    assert first["passed"] and ctx.steps == [("report", ["report.html", "certificate.json"])]
+
+    def no_rebuild(*args, **kwargs):
+        raise AssertionError("the issued certificate was rebuilt")
+
+    monkeypatch.setattr(build_module, "build_report", no_rebuild)
+    again = _report.report_step(ctx, make_figures=False)
+    assert again == first and (run / "certificate.json").read_bytes() == issued
+    assert not (run / "revisions").exists()
