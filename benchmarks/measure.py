@@ -110,7 +110,7 @@ def write_videos(folder: Path, seconds: float) -> None:
     right.write_video(folder / "cal_right.mp4", 0.0, t_end)
     cal = calibrate_from_videos({"left": folder / "cal_left.mp4", "right": folder / "cal_right.mp4"},
                                 mt.write_target(folder / "target.toml", truth))
-    write_calibration(cal, folder / "calibration.json")
+    write_calibration(cal, folder / "calibration.json", force=True)  # the benchmark's own scratch folder
     world = mt.measurement_world()
     left, right = mt.camera_pair(world, scale=1.0)
     mt.write_pair(left, right, folder, t_left_s=(0.0, seconds), t_right_s=(0.15, 0.15 + seconds))
@@ -143,7 +143,7 @@ def run(folder: Path, paths: tuple[Path, Path], calibration: Path, seconds: floa
     opts = MeasureOptions(make_figures=True, window_s=(0.6, seconds - 0.1))
     c0, t0 = time.process_time(), time.perf_counter()
     res = measure_videos({"left": paths[0], "right": paths[1]}, calibration, folder / "out",
-                         timing=folder / "timing.json", options=opts)
+                         timing=folder / "timing.json", options=opts, force=True)  # --keep: rerun
     cpu_measure, wall = time.process_time() - c0, time.perf_counter() - t0
     print(f"  rig measure --timing      {cpu_measure / video_s:6.3f} = {cpu_measure / cpu_decode:5.2f} × "
           "baseline   (target ≤ 1.3×)")
@@ -162,7 +162,7 @@ def run(folder: Path, paths: tuple[Path, Path], calibration: Path, seconds: floa
 
     t0 = time.perf_counter()
     res2 = measure_videos({"left": paths[0], "right": paths[1]}, calibration, folder / "out_est",
-                          options=MeasureOptions(make_figures=False, window_s=opts.window_s))
+                          options=MeasureOptions(make_figures=False, window_s=opts.window_s), force=True)
     wall2 = time.perf_counter() - t0
     print(f"\nrig measure --estimate-timing: wall {wall2:.2f} s = {video_s / wall2:.2f} × real time; "
           f"offset {res2.timing['offset_s']['right']:+.6f} s "
