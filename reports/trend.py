@@ -15,6 +15,7 @@ import pandas as pd
 from matplotlib.figure import Figure
 
 from reports.figures import new_figure, save_png
+from rig.atomic import atomic_path
 from rig.catalogue import RunEntry
 
 TREND_COLUMNS = ["run_id", "started_utc", "procedure", "result", "simulated", "criterion", "unit", "value",
@@ -68,7 +69,8 @@ def write_trend(frame: pd.DataFrame, setup: str, out_dir: str | Path) -> tuple[P
     out_dir.mkdir(parents=True, exist_ok=True)
     stem = "trend_" + (re.sub(r"[^A-Za-z0-9._-]+", "_", setup).strip("_") or "setup")
     csv_path = out_dir / f"{stem}.csv"
-    frame.to_csv(csv_path, index=False)
+    with atomic_path(csv_path) as tmp:
+        frame.to_csv(tmp, index=False)
     fig = trend_figure(frame, setup)
     if fig is None:
         return csv_path, None
