@@ -116,6 +116,15 @@ def test_a_truncated_calibration_video_says_where_it_ends(site: dict, tmp_path: 
     assert "the last frame read is frame" in err and "copy or export it again" in err
 
 
+def test_a_corrupt_calibration_video_names_the_file(site: dict, tmp_path: Path,
+                                                    capsys: pytest.CaptureFixture[str]) -> None:
+    corrupt = tmp_path / "corrupt.avi"
+    corrupt.write_bytes(np.random.default_rng(0).integers(0, 256, 200_000, dtype=np.uint8).tobytes())
+    assert _calibrate(site, site["folder"] / "cal_left.avi", corrupt, tmp_path / "c.json") == 4
+    err = _error(capsys)
+    assert err.startswith(f"rig calibrate: {corrupt}: ") and not (tmp_path / "c.json").exists()
+
+
 def test_a_hidden_marker_names_the_count_and_the_position(site: dict, tmp_path: Path,
                                                           capsys: pytest.CaptureFixture[str]) -> None:
     hidden = _hide_one_marker(site["folder"] / "cal_right.avi", tmp_path / "hidden.avi")
