@@ -49,7 +49,8 @@ def _temporary_name(path: Path) -> Path:
 def atomic_path(path: str | os.PathLike[str]) -> Iterator[Path]:
     """Yield a temporary path beside ``path`` for a writer that wants a file name (matplotlib ``savefig``,
     pandas ``to_csv``); when the block ends without an error the file is fsync'ed and renamed to ``path``
-    and the folder fsync'ed. On an error the temporary file is removed and the error propagates."""
+    and the folder fsync'ed. On an error the temporary file is removed and the error propagates (an
+    ``OSError`` naming ``path``, of the same errno and subclass)."""
     final = Path(path)
     tmp = _temporary_name(final)
     try:
@@ -57,9 +58,11 @@ def atomic_path(path: str | os.PathLike[str]) -> Iterator[Path]:
         with open(tmp, "rb") as fh:  # the writer closed it; make its bytes durable before the rename
             os.fsync(fh.fileno())
         os.replace(tmp, final)
-    except BaseException:
+    except BaseException as exc:
         with contextlib.suppress(OSError):
             tmp.unlink()
+        if isinstance(exc, OSError) and exc.errno is not None:  # name the file meant, not the temporary one
+            raise OSError(exc.errno, exc.strerror, str(final)) from exc
         raise
     fsync_dir(final.parent)
 

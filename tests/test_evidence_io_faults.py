@@ -129,7 +129,7 @@ def test_calibrate_on_a_full_disk_exits_3_and_leaves_no_calibration(
         fill(disk)
         capsys.readouterr()
         assert _calibrate(site, disk / "calibration.json") == 3
-        _one_line_error(capsys.readouterr().err, "No space left on device")
+        _one_line_error(capsys.readouterr().err, f"No space left on device: '{disk / 'calibration.json'}'")
         assert sorted(p.name for p in disk.iterdir()) == ["filler.bin"]  # no 0-byte calibration.json
 
 
@@ -139,7 +139,7 @@ def test_calibrate_into_a_read_only_folder_exits_3(site: dict, tmp_path: Path,
         remount_read_only(disk)
         capsys.readouterr()
         assert _calibrate(site, disk / "calibration.json") == 3
-        _one_line_error(capsys.readouterr().err, "Read-only file system")
+        _one_line_error(capsys.readouterr().err, f"Read-only file system: '{disk / 'calibration.json'}'")
 
 
 def test_measure_on_a_disk_that_fills_exits_3_with_every_written_file_whole(
