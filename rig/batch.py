@@ -43,6 +43,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from rig.atomic import atomic_path
 from rig.batch_manifest import BatchManifest, PairSpec, Segment, match_segments
 
 SOFTWARE = "rig-controller batch 1"
@@ -119,16 +120,10 @@ def plan(manifest: BatchManifest) -> tuple[list[Task], list[Segment]]:
 
 # ---------------------------------------------------------------------------- one task (on a worker)
 def _write_atomic(path: Path, write: Callable[[Path], None]) -> None:
-    """Write ``path`` through a temporary name in its folder, then rename (no half file has the name)."""
+    """Write ``path`` through a temporary name in its folder, then rename (:func:`rig.atomic.atomic_path`)."""
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    try:
+    with atomic_path(path) as tmp:
         write(tmp)
-        with open(tmp, "rb") as f:
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    finally:
-        tmp.unlink(missing_ok=True)
 
 
 def _timing_columns(timing: dict[str, Any], reference: str) -> dict[str, float]:
@@ -158,7 +153,8 @@ def run_task(task: Task, out_dir: str) -> dict[str, Any]:
     work = out / "work" / task.task_id
     result = measure_videos({"left": task.left, "right": task.right}, task.calibration, work,
                             options=MeasureOptions(sync=task.sync, reference_markers=task.reference_markers,
-                                                   static_mm=task.static_mm, make_figures=False))
+                                                   static_mm=task.static_mm, make_figures=False),
+                            force=True)  # the task's own work folder: a retry replaces what it left
     timing = _timing_columns(result.timing, "left")
     video_s = float(result.displacement["time_s"].max() - result.displacement["time_s"].min()) \
         if not result.displacement.empty else 0.0
