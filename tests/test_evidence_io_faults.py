@@ -182,7 +182,7 @@ def test_run_on_a_disk_that_fills_makes_the_devices_safe_and_exits_3(tmp_path: P
     proc = tmp_path / "filler.py"
     proc.write_text(FILLER_PROCEDURE)
     with tmpfs(tmp_path / "disk", 256 * 1024) as disk:
-        done = _rig("run", str(proc), "--runs-dir", str(disk), cwd=tmp_path)
+        done = _rig("run", str(proc), "--no-dashboard", "--runs-dir", str(disk), cwd=tmp_path)
         assert done.returncode == 3, done.stderr
         lines = done.stderr.strip().splitlines()
         assert "Traceback" not in done.stderr, done.stderr
@@ -204,7 +204,7 @@ def test_run_into_a_read_only_runs_folder_exits_3_before_any_device(tmp_path: Pa
     proc.write_text(FILLER_PROCEDURE)
     with tmpfs(tmp_path / "disk", 1 << 20) as disk:
         remount_read_only(disk)
-        done = _rig("run", str(proc), "--runs-dir", str(disk), cwd=tmp_path)
+        done = _rig("run", str(proc), "--no-dashboard", "--runs-dir", str(disk), cwd=tmp_path)
         assert done.returncode == 3, done.stderr
         assert "Traceback" not in done.stderr and "Read-only file system" in done.stderr.splitlines()[-1]
         assert list(disk.iterdir()) == []
@@ -214,7 +214,7 @@ def test_run_into_a_read_only_runs_folder_exits_3_before_any_device(tmp_path: Pa
 def real_run(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """A rotation run on the simulated rig (calibrate, sync, rotation, report): its certificate issued."""
     runs = tmp_path_factory.mktemp("io_runs")
-    assert main(["run", "rotation", "--set", "record_s=1", "--runs-dir", str(runs)]) == 0
+    assert main(["run", "rotation", "--set", "record_s=1", "--no-dashboard", "--runs-dir", str(runs)]) == 0
     (run_dir,) = [p for p in runs.iterdir() if p.is_dir()]  # beside it: the catalogue of runs
     assert (run_dir / "certificate.json").is_file()
     return run_dir
