@@ -191,3 +191,29 @@ def calibrated_site(folder: Path) -> dict:
     long = d_true > 100.0
     scale = float(np.max(np.abs(d_meas[long] - d_true[long]) / d_true[long]))
     return {"folder": folder, "calibration": folder / "calibration.json", "scale_floor": scale}
+
+
+def mjpg_site(folder: Path) -> dict:
+    """A calibrated site of Motion-JPEG AVIs in ``folder``: the plate videos calibrated by ``rig calibrate``
+    (``calibration.json``, ``target.toml``) and a 1.5 s measurement pair with its true ``timing.json``.
+    Keys: folder, target, truth (plate points per position), left, right (measurement videos), paths
+    (both), calibration, timing."""
+    import json
+
+    from rig.cli import main
+
+    world, truth, t_end = calibration_world()
+    left, right = camera_pair(world)
+    left.write_video(folder / "cal_left.avi", 0.0, t_end, fourcc="MJPG")
+    right.write_video(folder / "cal_right.avi", 0.0, t_end, fourcc="MJPG")
+    target = write_target(folder / "target.toml", truth)
+    code = main(["calibrate", str(folder / "cal_left.avi"), str(folder / "cal_right.avi"), "--target",
+                 str(target), "--out", str(folder / "calibration.json")])
+    if code != 0:
+        raise RuntimeError(f"rig calibrate on the twin's plate videos exited {code}")
+    left, right = camera_pair(measurement_world())
+    paths = write_pair(left, right, folder, fourcc="MJPG", ext="avi", t_left_s=(0.0, 1.5),
+                       t_right_s=(0.15, 1.65))
+    (folder / "timing.json").write_text(json.dumps(truth_timing(left, right, 0.0, 0.15)))
+    return {"folder": folder, "target": target, "truth": truth, "left": paths[0], "right": paths[1],
+            "paths": paths, "calibration": folder / "calibration.json", "timing": folder / "timing.json"}

@@ -96,19 +96,7 @@ def test_atomic_write_on_a_full_disk_leaves_the_old_file_whole(tmp_path: Path) -
 # ---------------------------------------------------------------------------------- videos
 @pytest.fixture(scope="module")
 def site(tmp_path_factory: pytest.TempPathFactory) -> dict:
-    folder = tmp_path_factory.mktemp("io_site")
-    world, truth, t_end = mt.calibration_world()
-    left, right = mt.camera_pair(world)
-    left.write_video(folder / "cal_left.avi", 0.0, t_end, fourcc="MJPG")
-    right.write_video(folder / "cal_right.avi", 0.0, t_end, fourcc="MJPG")
-    target = mt.write_target(folder / "target.toml", truth)
-    assert main(["calibrate", str(folder / "cal_left.avi"), str(folder / "cal_right.avi"), "--target",
-                 str(target), "--out", str(folder / "calibration.json")]) == 0
-    left, right = mt.camera_pair(mt.measurement_world())
-    paths = mt.write_pair(left, right, folder, fourcc="MJPG", ext="avi", t_left_s=(0.0, 1.5),
-                          t_right_s=(0.15, 1.65))
-    (folder / "timing.json").write_text(json.dumps(mt.truth_timing(left, right, 0.0, 0.15)))
-    return {"folder": folder, "target": target, "paths": paths}
+    return mt.mjpg_site(tmp_path_factory.mktemp("io_site"))
 
 
 def _calibrate(site: dict, out: Path) -> int:
