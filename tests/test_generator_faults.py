@@ -267,3 +267,37 @@ def test_rig_mock_generator_passes_faults_to_the_mock() -> None:
     finally:
         proc.terminate()
         proc.wait(10.0)
+
+
+def test_a_connection_that_cannot_be_served_does_not_stop_the_server_accepting() -> None:
+    """accept_loop (shared by the mocks) carries on after a connection whose handler raises."""
+    import socket
+    import threading
+
+    from drivers.mock._serve import accept_loop
+
+    listener = socket.create_server(("127.0.0.1", 0))
+    stopped = threading.Event()
+    served: list[int] = []
+
+    def on_connection(conn: socket.socket) -> None:
+        served.append(1)
+        if len(served) == 1:
+            raise ConnectionResetError("reset before it was served")
+        conn.close()
+
+    thread = threading.Thread(target=accept_loop, args=(listener, stopped, on_connection), daemon=True)
+    thread.start()
+    try:
+        for _ in range(2):
+            socket.create_connection(listener.getsockname(), timeout=30).close()
+        deadline = threading.Event()
+        for _ in range(600):  # bounded: up to 60 s on a loaded machine
+            if len(served) == 2:
+                break
+            deadline.wait(0.1)
+        assert len(served) == 2 and thread.is_alive()
+    finally:
+        stopped.set()
+        listener.close()
+        thread.join(timeout=30)

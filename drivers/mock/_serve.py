@@ -22,6 +22,8 @@ import threading
 from collections.abc import Callable
 from typing import Any
 
+log = logging.getLogger("drivers.mock")
+
 __all__ = ["accept_loop", "loopback_host", "require_loopback", "standalone_parser", "start_standalone",
            "wait_for_interrupt"]
 
@@ -65,7 +67,12 @@ def accept_loop(listener: socket.socket, stopped: threading.Event,
             continue
         except OSError:  # the listener was closed
             return
-        on_connection(conn)
+        try:
+            on_connection(conn)
+        except Exception:  # one client's failure (e.g. reset before it was served) must not stop the server
+            log.warning("mock server: a connection could not be served; accepting the next", exc_info=True)
+            with contextlib.suppress(OSError):
+                conn.close()
 
 
 def standalone_parser(module: str, description: str, *, default_port: int,
