@@ -48,7 +48,9 @@ def report_step(ctx: Any, *, make_figures: bool = True,
         certificate = issued_certificate(ctx.run_dir)
         if certificate is None:
             ctx.progress(None, "report: analysis, tables, figures, certificate")
-            result = build_report(ctx.run_dir, make_figures=make_figures, compare=compare, in_run=True)
+            # an abort requested during the analysis ends the step before the certificate is issued
+            result = build_report(ctx.run_dir, make_figures=make_figures, compare=compare, in_run=True,
+                                  before_issue=ctx.checkpoint)
             certificate = result.certificate
         # else: issued before this session (a resumed run): the certificate is issued once, never rebuilt
         if not step.skipped:

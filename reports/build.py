@@ -107,6 +107,7 @@ def build_report(
     analysis: Analyse | None = None,
     make_figures: bool = True,
     in_run: bool = False,
+    before_issue: Callable[[], None] | None = None,
 ) -> ReportResult:
     """Build ``tables/``, ``figures/``, ``report.html`` and ``certificate.json`` of ``run_dir``.
 
@@ -123,6 +124,10 @@ def build_report(
     ``in_run=True``: built by the run's own last step (the procedures' ``report`` step), which is
     finishing normally — the conditions then say so (``exit_status`` "success", the stop document follows)
     instead of a missing stop document (a killed run).
+    ``before_issue``: called just before the certificate is issued (not for a revision); the run's report
+    step passes its checkpoint, so an abort requested while the report was built stops the step there and
+    no certificate saying "finishing normally" is issued for a run that ends aborted (a later
+    ``rig report RUN`` issues it from the record, stop document included).
     An ``OSError`` while writing (full disk, read-only folder) propagates; no output is left half-written.
     """
     run = load_record(run_dir)
@@ -165,7 +170,8 @@ def build_report(
     cert = _clean(build_certificate(measured, acceptance, conditions, _extra(t, primary)))
     frames = _table_frames(t, measured, acceptance)
     if revision is None:
-        written = _write_outputs(run_dir, cert, t, frames, acceptance, make_figures=make_figures)
+        written = _write_outputs(run_dir, cert, t, frames, acceptance, make_figures=make_figures,
+                                 before_certificate=before_issue)
         return ReportResult(run_dir=run_dir, result=cert["result"], certificate=cert, notes=notes, **written)
     changes = certificate_changes(issued, cert, revision=revision.number, sync=primary)
     staging = run_dir / REVISIONS_DIR / f".staging-{revision.name}-{os.getpid()}"
@@ -287,9 +293,10 @@ POSE_COLUMNS = ["index", "cycle", "target", "marker_id", "x_cmd_mm", "y_cmd_mm",
 
 
 def _write_outputs(out_dir: Path, cert: dict[str, Any], t: ReportTables, frames: dict[str, pd.DataFrame],
-                   acceptance: dict[str, Any], *, make_figures: bool) -> dict[str, Any]:
-    """Write tables, figures, report.html and — last — certificate.json into ``out_dir`` (each file
-    atomically); return the paths as :class:`ReportResult` fields."""
+                   acceptance: dict[str, Any], *, make_figures: bool,
+                   before_certificate: Callable[[], None] | None = None) -> dict[str, Any]:
+    """Write tables, figures, report.html and — last, after ``before_certificate()`` — certificate.json into
+    ``out_dir`` (each file atomically); return the paths as :class:`ReportResult` fields."""
     tables_dir, figures_dir = out_dir / "tables", out_dir / "figures"
     tables_dir.mkdir(exist_ok=True)
     figures_dir.mkdir(exist_ok=True)
@@ -317,6 +324,8 @@ def _write_outputs(out_dir: Path, cert: dict[str, Any], t: ReportTables, frames:
         "timing": frames["timing"],
     }
     html_path = write_text(out_dir / "report.html", html.render(cert, t, pngs, acceptance, html_tables))
+    if before_certificate is not None:
+        before_certificate()
     cert_path = write_json(out_dir / CERTIFICATE_NAME, cert, indent=2, sort_keys=True, ensure_ascii=False)
     return {"report_html": html_path, "certificate_json": cert_path, "tables": table_paths,
             "figures": figure_paths}
