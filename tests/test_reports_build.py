@@ -332,6 +332,9 @@ class _StepContext:
     def progress(self, fraction, message) -> None:
         pass
 
+    def checkpoint(self) -> None:
+        pass  # no abort requested
+
     @contextlib.contextmanager
     def step(self, name: str):
         step = self._step(name=name, skipped=False)
