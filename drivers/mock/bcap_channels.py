@@ -38,8 +38,8 @@ class TcpChannel(Channel):
         self.name = f"tcp:{host}:{port}"
 
     def recv(self, timeout_s: float) -> bytes:
-        self.sock.settimeout(timeout_s)
         try:
+            self.sock.settimeout(timeout_s)  # EBADF when the server closed the socket meanwhile
             data = self.sock.recv(65536)
         except TimeoutError:
             return b""
