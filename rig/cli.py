@@ -552,14 +552,18 @@ def main(argv: list[str] | None = None) -> int:
     """Run the ``rig`` command; return its exit code (the one place that maps outcomes to exit codes:
     see :mod:`rig.safety`). Outside a run (whose runner handles them itself) a stop signal ends the
     command as an abort (2); an I/O error (full disk, read-only folder) that escapes a command is a
-    fault (3) with a one-line message — a run has made its devices safe before it gets here."""
+    fault (3) with a one-line message — a run has made its devices safe before it gets here.
+
+    As the process's command (``argv`` None) the outcome is final when this returns: stop signals are then
+    ignored, so a second Ctrl-C arriving while the process exits cannot turn exit 2 into a death by
+    SIGINT. An in-process caller (``argv`` given) gets its own handlers back."""
     in_main = threading.current_thread() is threading.main_thread()
     old = {sig: signal.signal(sig, _interrupted) for sig in STOP_SIGNALS if in_main}
     try:
         return _main(argv)
     finally:
         for sig, handler in old.items():
-            signal.signal(sig, handler)
+            signal.signal(sig, signal.SIG_IGN if argv is None else handler)
 
 
 def _main(argv: list[str] | None) -> int:

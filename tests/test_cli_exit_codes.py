@@ -146,3 +146,23 @@ def test_disk_full_mid_run_every_device_is_made_safe_then_the_io_fault_surfaces(
     safe = [line for line in calls.read_text().splitlines() if line.endswith("safe_state")]
     assert safe == ["exciter.safe_state", "rotor.safe_state", "robot.safe_state", "left.safe_state"]
     assert calls.read_text().splitlines()[-1] == "station.closed"
+
+
+def test_late_stop_signals_are_ignored_once_the_command_has_its_outcome(monkeypatch) -> None:
+    """A second Ctrl-C arriving while the process exits (after an abort) cannot kill it with SIGINT (-2
+    instead of 2): the console entry leaves stop signals ignored; an in-process caller gets its own back."""
+    import signal as signal_module
+
+    from rig.cli import main
+    from rig.safety import STOP_SIGNALS
+
+    before = {sig: signal_module.getsignal(sig) for sig in STOP_SIGNALS}
+    try:
+        assert main(["list"]) == 0
+        assert {sig: signal_module.getsignal(sig) for sig in STOP_SIGNALS} == before
+        monkeypatch.setattr("sys.argv", ["rig", "list"])
+        assert main() == 0
+        assert all(signal_module.getsignal(sig) == signal_module.SIG_IGN for sig in STOP_SIGNALS)
+    finally:
+        for sig, handler in before.items():
+            signal_module.signal(sig, handler)
