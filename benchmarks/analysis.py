@@ -21,7 +21,7 @@ sys.path.insert(0, str(ROOT / "tests"))
 
 from analysis_twin import twin  # noqa: E402
 
-from rig.sync_tracks import SYNC_METHODS, pair_all, prepare_observations, triangulate_tracks  # noqa: E402
+from rig.analysis.sync_tracks import SYNC_METHODS, pair_all, prepare_observations, triangulate_tracks  # noqa: E402
 
 BANDS_HZ = (2, 6, 10, 14, 18, 22, 26, 28)
 

@@ -1,4 +1,5 @@
-"""Cost of writing results atomically (``rig.atomic``: temporary name, fsync, rename, fsync of the folder).
+"""Cost of writing results atomically (``rig.record.atomic``: temporary name, fsync, rename, fsync of the
+folder).
 
     .venv/bin/python benchmarks/atomic.py [--files N] [--kib K] [--dir DIR]
 
@@ -17,7 +18,7 @@ import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from rig import atomic
+from rig.record import atomic
 
 
 def _time(write, folder: Path, n: int, data: bytes) -> float:
@@ -44,7 +45,7 @@ def main(argv: list[str] | None = None) -> int:
     n = args.files
     print(f"{n} files of {args.kib} KiB in {folder.parent}")
     print(f"  Path.write_bytes (baseline)   {plain / n * 1e3:8.3f} ms/file")
-    print(f"  rig.atomic.write_bytes        {safe / n * 1e3:8.3f} ms/file   = {safe / plain:6.1f} × baseline")
+    print(f"  atomic.write_bytes            {safe / n * 1e3:8.3f} ms/file   = {safe / plain:6.1f} × baseline")
     print(f"  extra for a 20-file report    {(safe - plain) / n * 20:8.3f} s")
     return 0
 

@@ -4,7 +4,8 @@ An archive written by the twin (tests/batch_archive.py: two camera pairs of half
 ``--segments`` segments of ``--segment-s`` seconds each per pair, a 5-marker column and 4 references) is
 measured three ways, each into a fresh output folder:
 
-  loop       the same task function (``rig.batch.run_task``) called in a plain loop in this process: the
+  loop       the same task function (``rig.deploy.batch.run_task``) called in a plain loop in this process:
+  the
              baseline, no engine
   dask×1     ``run_batch`` on a LocalCluster with 1 worker process
   dask×2     ``run_batch`` on a LocalCluster with 2 worker processes (one per core here)
@@ -32,8 +33,8 @@ sys.path.insert(0, str(ROOT / "tests"))
 
 import batch_archive  # noqa: E402
 
-from rig.batch import dask_client, plan, run_batch, run_task  # noqa: E402
-from rig.batch_manifest import load_manifest  # noqa: E402
+from rig.deploy.batch import dask_client, plan, run_batch, run_task  # noqa: E402
+from rig.deploy.batch_manifest import load_manifest  # noqa: E402
 
 FULL_HD_PIXEL_RATIO = (1920 * 1080) / (960 * 540)
 

@@ -24,10 +24,10 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from rig.dashboard import DashboardServer
-from rig.dashboard_state import DashboardState
-from rig.frame_tap import FrameTap
-from rig.record import RunRecord
+from rig.dashboard.server import DashboardServer
+from rig.dashboard.state import DashboardState
+from rig.record.writer import RunRecord
+from rig.run.frame_tap import FrameTap
 
 
 class _Clock:

@@ -37,9 +37,9 @@ sys.path.insert(0, str(ROOT / "tests"))
 import measure_twin as mt  # noqa: E402
 
 from drivers.camera.video_file import VideoFile  # noqa: E402
-from rig.measure import MeasureOptions, measure_videos  # noqa: E402
-from rig.onsite_calibration import calibrate_from_videos, write_calibration  # noqa: E402
-from rig.video_markers import extract_video  # noqa: E402
+from rig.deploy.measure import MeasureOptions, measure_videos  # noqa: E402
+from rig.deploy.onsite_calibration import calibrate_from_videos, write_calibration  # noqa: E402
+from rig.deploy.video_markers import extract_video  # noqa: E402
 
 
 def decode_naive(path: Path) -> tuple[int, float]:

@@ -25,7 +25,7 @@ import pandas as pd
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from rig.record import RunRecord
+from rig.record.writer import RunRecord
 
 
 class _Clock:

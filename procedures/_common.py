@@ -15,12 +15,12 @@ from typing import Any, TypeVar
 import numpy as np
 
 from drivers.denso.pose import rotation_matrix
-from rig.plan import ArmMoves, Plan, PlanStep
-from rig.procedure import ParameterError
+from rig.run.plan import ArmMoves, PlanStep
+from rig.run.procedure import ParameterError
 
-__all__ = ["alone_plan", "amplitude_of", "arm_marker_positions", "arm_step", "drive_of", "fastest_fps",
+__all__ = ["amplitude_of", "arm_marker_positions", "arm_step", "drive_of", "fastest_fps",
            "hold_polling", "load_calibration", "mount", "move_arm", "plate_offsets_tool_mm", "poll_event",
-           "read_run_json", "record_still", "require_target", "run_alone", "speed_from", "stop_polled",
+           "read_run_json", "record_still", "require_target", "speed_from", "stop_polled",
            "target_of", "vfd_config"]
 
 T = TypeVar("T")
@@ -185,28 +185,3 @@ def load_calibration(ctx: Any) -> dict[str, Any]:
         raise ParameterError("calibration.json", f"{path} is missing: run the calibrate step first "
                                                  "(rig certify runs it)")
     return read_run_json(ctx, "calibration.json")
-
-
-def alone_plan(procedure: str, own: Plan, config: Any) -> Plan:
-    """The plan of a measurement procedure run on its own: calibrate and sync (their defaults), then its
-    own steps."""
-    from procedures import calibrate, sync
-
-    return Plan(procedure, calibrate.plan(calibrate.Parameters(), config).steps
-                + sync.plan(sync.Parameters(), config).steps + own.steps)
-
-
-def run_alone(ctx: Any, params: Any, run_steps: Callable[[Any, Any], T]) -> tuple[T, dict[str, Any]]:
-    """A measurement procedure run on its own (``rig run NAME``; its whole plan, :func:`alone_plan`, was
-    checked against the limits before the station was opened): calibrate and sync in the same run folder,
-    the procedure's own steps and the report. Returns what ``run_steps`` returned and the procedure's
-    result (``summary`` of the criteria evaluated, ``report`` path)."""
-    from procedures import calibrate, sync
-    from procedures._report import evaluated_summary, report_step
-
-    calibrate.run_step(ctx, calibrate.Parameters())
-    sync.run_step(ctx, sync.Parameters())
-    done = run_steps(ctx, params)
-    result = report_step(ctx)
-    return done, {"summary": evaluated_summary(result), "report": result["report"],
-                  "passed": result["passed"], "certificate_result": result["certificate_result"]}

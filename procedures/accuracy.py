@@ -25,20 +25,19 @@ from typing import Any
 
 import numpy as np
 
-from procedures._acquire import Acquirer, ReduceOptions
+from procedures._alone import alone_plan, run_alone
 from procedures._common import (
-    alone_plan,
     arm_marker_positions,
     arm_step,
     fastest_fps,
     mount,
     record_still,
-    run_alone,
     speed_from,
     target_of,
 )
-from rig.plan import ArmMoves, Plan
-from rig.procedure import param
+from rig.run.acquire import Acquirer, ReduceOptions
+from rig.run.plan import ArmMoves, Plan
+from rig.run.procedure import param
 
 NAME = "accuracy"
 DESCRIPTION = "Known marker poses over the volume, ISO 9283 cycles, marker frame → error versus position."

@@ -3,7 +3,7 @@
 At each position (``targets.calibration_plate.start_pose`` moved by ``slide_positions_mm`` along tool z)
 the arm stops, the cameras record ``frames_per_position`` still frames, and each marker's image position
 is averaged over them. The plate's markers are told from the fixed reference markers (they move between
-positions, the references do not) and ordered on the grid (:mod:`rig.plate_grid`); their base-frame
+positions, the references do not) and ordered on the grid (:mod:`rig.deploy.plate_grid`); their base-frame
 positions follow from the commanded pose and the plate geometry of the configuration. One DLT per camera
 (:func:`rig.stereo.calibrate_dlt`; refined, with radial distortion ``k1`` by default — with a small plate
 ``k1`` extrapolates best over the measurement volume, docs/stereo_core.md) → ``calibration.json`` with the
@@ -17,7 +17,6 @@ from typing import Any
 
 import numpy as np
 
-from procedures._acquire import Acquirer, ReduceOptions, mean_positions
 from procedures._common import (
     arm_marker_positions,
     arm_step,
@@ -30,9 +29,10 @@ from procedures._common import (
     speed_from,
     target_of,
 )
-from rig.plan import ArmMoves, Plan
-from rig.plate_grid import GridError, moving_points, order_grid
-from rig.procedure import ParameterError, param
+from rig.deploy.plate_grid import GridError, moving_points, order_grid
+from rig.run.acquire import Acquirer, ReduceOptions, mean_positions
+from rig.run.plan import ArmMoves, Plan
+from rig.run.procedure import ParameterError, param
 from rig.stereo import calibrate_dlt
 
 NAME = "calibrate"

@@ -22,8 +22,8 @@ from typing import Any
 
 from procedures import accuracy, calibrate, sweep, sync
 from procedures._report import report_step
-from rig.plan import Plan
-from rig.procedure import ParameterError, param
+from rig.run.plan import Plan
+from rig.run.procedure import ParameterError, param
 
 NAME = "certify"
 DESCRIPTION = "The whole certification: calibrate, sync, accuracy, sweep, report, certificate."

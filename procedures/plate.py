@@ -23,22 +23,21 @@ from typing import Any
 
 import numpy as np
 
-from procedures._acquire import Acquirer, ReduceOptions
+from procedures._alone import alone_plan, run_alone
 from procedures._common import (
-    alone_plan,
     amplitude_of,
     drive_of,
     hold_polling,
     mount,
     poll_event,
     require_target,
-    run_alone,
     stop_polled,
     target_of,
     vfd_config,
 )
-from rig.plan import Plan, PlanStep, Vibration, shaker_limits
-from rig.procedure import ParameterError, param
+from rig.run.acquire import Acquirer, ReduceOptions
+from rig.run.plan import Plan, PlanStep, Vibration, shaker_limits
+from rig.run.procedure import ParameterError, param
 
 NAME = "plate"
 DESCRIPTION = "Oscillating plate at about 3.5 Hz: trajectories of every marker (Figs. 4-8)."

@@ -13,11 +13,11 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Any
 
-from procedures._acquire import Acquirer, ReduceOptions
-from procedures._common import alone_plan, run_alone
+from procedures._alone import alone_plan, run_alone
 from procedures.sync import rotor_step, spin_and_record
-from rig.plan import Plan
-from rig.procedure import param
+from rig.run.acquire import Acquirer, ReduceOptions
+from rig.run.plan import Plan
+from rig.run.procedure import param
 
 NAME = "rotation"
 DESCRIPTION = "Marker on the rotor at 10 Hz: trajectory, radius and frequency (Figs. 10-15)."

@@ -33,22 +33,21 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from drivers.exciter.sweep import LogSweep, PointsSweep, SweepProfile
-from procedures._acquire import Acquirer, ReduceOptions
+from procedures._alone import alone_plan, run_alone
 from procedures._common import (
-    alone_plan,
     amplitude_of,
     drive_of,
     mount,
     poll_event,
     require_target,
-    run_alone,
     stop_polled,
     target_of,
     vfd_config,
 )
 from procedures._shaker import follow_staircase, staircase_plan
-from rig.plan import GeneratorSweep, Plan, PlanStep, Vibration, shaker_limits
-from rig.procedure import ParameterError, param
+from rig.run.acquire import Acquirer, ReduceOptions
+from rig.run.plan import GeneratorSweep, Plan, PlanStep, Vibration, shaker_limits
+from rig.run.procedure import ParameterError, param
 
 FLAT_SENSITIVITY_TOLERANCE = 0.005  # max (s_max − s_min)/s_min of the shaker table over a sweep (0.5 %)
 NAME = "sweep"

@@ -19,7 +19,6 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from procedures._acquire import Acquirer, ReduceOptions
 from procedures._common import (
     amplitude_of,
     fastest_fps,
@@ -33,8 +32,9 @@ from procedures._common import (
     target_of,
     vfd_config,
 )
-from rig.plan import Plan, PlanStep, Vibration
-from rig.procedure import param
+from rig.run.acquire import Acquirer, ReduceOptions
+from rig.run.plan import Plan, PlanStep, Vibration
+from rig.run.procedure import param
 from rig.stereo import DLTCamera, TimingError
 from rig.stereo.timing import estimate_offset
 

@@ -3,7 +3,7 @@
 Evidence is immutable: the first report of a run issues its certificate (written into the run folder,
 ``certificate.json`` last); a later one writes a revision beside it, ``revisions/<n>-<sync>/`` (the same
 outputs plus ``changes.json``), built in a hidden staging folder and renamed into place whole. Every file
-is written atomically (:mod:`rig.atomic`).
+is written atomically (:mod:`rig.record.atomic`).
 
 A thin layer: load the record (:mod:`reports.load`), run the analysis once per sync method (the primary
 one, then ``"linear"``, the paper's, for comparison), compute the tables (:mod:`reports.tables`), write
@@ -33,7 +33,7 @@ from reports.certificate import acceptance_from_config, build_certificate, evalu
 from reports.errors import AnalysisFailedError, ReportError
 from reports.load import RunData, load_record
 from reports.tables import ReportTables, compute_tables, measured_values
-from rig.atomic import atomic_path, fsync_dir, write_json, write_text
+from rig.record.atomic import atomic_path, fsync_dir, write_json, write_text
 
 DEFAULT_SYNC = "trajectory"
 CERTIFICATE_NAME = "certificate.json"
@@ -91,10 +91,10 @@ def write_csv(df: pd.DataFrame, path: Path) -> None:
 
 def _default_analyse() -> Analyse:
     try:
-        from rig.analysis import analyse
+        from rig.analysis.analyse import analyse
     except ImportError as exc:
         raise ReportError(
-            f"rig.analysis is not available ({exc}); pass analysis=... to build_report"
+            f"rig.analysis.analyse is not available ({exc}); pass analysis=... to build_report"
         ) from exc
     return analyse
 
@@ -116,9 +116,10 @@ def build_report(
     is already issued is never rewritten: the outputs go to a new revision ``revisions/<n>-<sync>/``
     (with ``changes.json``: what differs from the issued certificate), see :attr:`ReportResult.revision`.
 
-    ``sync`` is the primary synchronization method (default: ``rig.analysis.sync`` of the snapshot, else
+    ``sync`` is the primary synchronization method (default: ``rig.analysis.analyse.sync`` of the snapshot,
+    else
     ``"trajectory"``); ``compare`` adds methods shown beside it. ``analysis`` replaces
-    ``rig.analysis.analyse``.
+    ``rig.analysis.analyse.analyse``.
     A failing comparison method is reported as a note; a failing primary method raises.
     ``make_figures=False`` skips the figures (≈ 3 s of matplotlib) for a quick table/certificate rebuild.
     ``in_run=True``: built by the run's own last step (the procedures' ``report`` step), which is

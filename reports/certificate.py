@@ -1,6 +1,6 @@
 """The certificate: acceptance criteria, PASS/FAIL with the expanded uncertainty, and the decision rule.
 
-Limits come from the ``[criteria]`` table of ``rig.toml`` (``rig.config.CriteriaConfig``; the run's
+Limits come from the ``[criteria]`` table of ``rig.toml`` (``rig.config.rig_config.CriteriaConfig``; the run's
 ``start.rig["criteria"]`` snapshot), merged over :data:`DEFAULT_LIMITS` (the same defaults), with a
 few report settings (:data:`DEFAULT_SETTINGS`) that may be added to that table. Every criterion reports
 its measured value, limit, expanded uncertainty U = k·u (k = 2, or Student's t for fitted values with
@@ -64,7 +64,8 @@ CRITERIA: tuple[CriterionSpec, ...] = (
 )
 CRITERION_IDS = tuple(c.id for c in CRITERIA)
 
-# Same defaults as rig.config.CriteriaConfig; detection_pct and length_error_mm are the reports' own.
+# Same defaults as rig.config.rig_config.CriteriaConfig; detection_pct and length_error_mm are the reports'
+# own.
 DEFAULT_LIMITS: dict[str, float] = {
     "position_max_mm": 1.5,
     "position_rms_mm": 0.5,

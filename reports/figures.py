@@ -18,7 +18,7 @@ from matplotlib.figure import Figure
 
 from reports import frequency
 from reports.tables import ReportTables
-from rig.atomic import atomic_path
+from rig.record.atomic import atomic_path
 
 DPI = 110
 COLORS = {"primary": "#1f5fa8", "linear": "#c0392b", "theory": "#6c6c6c", "ok": "#2e8b57", "tol": "#d4a017"}
@@ -52,7 +52,7 @@ def new_figure(
 
 def save_png(fig: Figure, path: Path) -> None:
     """Write ``fig`` as PNG without a Software tag, so identical figures give identical bytes (atomically:
-    :func:`rig.atomic.atomic_path`)."""
+    :func:`rig.record.atomic.atomic_path`)."""
     with atomic_path(path) as tmp:
         fig.savefig(tmp, dpi=DPI, format="png", metadata={"Software": None})
 

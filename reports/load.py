@@ -1,7 +1,7 @@
 """Load a run folder into tidy pandas frames for the reports (units in column names).
 
 The reports read only the run folder (DESIGN.md): ``record.jsonl`` (start, events, stop),
-``calibration.json`` and ``timing.json``. The 3D tracks come from ``rig.analysis`` and are passed in
+``calibration.json`` and ``timing.json``. The 3D tracks come from ``rig.analysis.analyse`` and are passed in
 separately, so every table function here and in the sibling modules is a pure function of frames and
 dicts.
 
@@ -23,7 +23,7 @@ import numpy as np
 import pandas as pd
 
 from reports.errors import RunFolderError
-from rig.record import RecordError, load_run
+from rig.record.writer import RecordError, load_run
 
 RECORD_FILE = "record.jsonl"
 CALIBRATION_FILE = "calibration.json"
@@ -63,7 +63,7 @@ class RunData:
 
 
 def load_record(run_dir: str | Path) -> RunData:
-    """Read a run folder's record, calibration and timing through :func:`rig.record.load_run`.
+    """Read a run folder's record, calibration and timing through :func:`rig.record.writer.load_run`.
 
     Events of steps that were superseded by a resumed session are left out (``load_run``'s default);
     the event ``data`` dicts are kept unflattened. A truncated last line is tolerated by ``load_run``

@@ -1,6 +1,6 @@
 """A setup's certificates over time: every criterion's value, expanded uncertainty and limit per run.
 
-Built from the catalogue of runs (:mod:`rig.catalogue`): ``rig runs trend SETUP`` prints the table and
+Built from the catalogue of runs (:mod:`rig.record.catalogue`): ``rig runs trend SETUP`` prints the table and
 writes ``trend_<setup>.csv`` and ``trend_<setup>.png`` (one panel per criterion: value ± U against the
 run's start date, the limit as a dashed line, failed runs marked).
 """
@@ -15,8 +15,8 @@ import pandas as pd
 from matplotlib.figure import Figure
 
 from reports.figures import new_figure, save_png
-from rig.atomic import atomic_path
-from rig.catalogue import RunEntry
+from rig.record.atomic import atomic_path
+from rig.record.catalogue import RunEntry
 
 TREND_COLUMNS = ["run_id", "started_utc", "procedure", "result", "simulated", "criterion", "unit", "value",
                  "expanded_uncertainty", "limit_value", "comparison", "status"]

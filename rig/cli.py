@@ -31,10 +31,10 @@ import types
 from pathlib import Path
 from typing import Any, NoReturn
 
-from rig.config import ConfigError, load_config
-from rig.procedure import ParameterError, check_procedure_module, parameter_table, parse_set
-from rig.record_reader import RecordError
-from rig.safety import EXIT_ABORTED, EXIT_BAD_INPUT, EXIT_FAULT, STOP_SIGNALS, Interrupted
+from rig.config.rig_config import ConfigError, load_config
+from rig.record.reader import RecordError
+from rig.run.procedure import ParameterError, check_procedure_module, parameter_table, parse_set
+from rig.run.safety import EXIT_ABORTED, EXIT_BAD_INPUT, EXIT_FAULT, STOP_SIGNALS, Interrupted
 
 log = logging.getLogger("rig.cli")
 MOCK_MODULES = {"robot": ("drivers.mock.bcap_server", []),
@@ -114,8 +114,8 @@ class ProgressBar:
 
 # ---------------------------------------------------------------------------- commands
 def _run_procedure(module: types.ModuleType, args: argparse.Namespace) -> int:
-    from rig.runner import Runner
-    from rig.station import open_station
+    from rig.run.runner import Runner
+    from rig.run.station import open_station
 
     config = load_config(args.config)
     overrides = parse_set(args.set or [])
@@ -142,11 +142,11 @@ def _run_procedure(module: types.ModuleType, args: argparse.Namespace) -> int:
 
 
 def _live_dashboard(module: types.ModuleType, config: Any, args: argparse.Namespace) -> Any:
-    """The run's dashboard (rig.dashboard_run.LiveDashboard), or None with --no-dashboard."""
+    """The run's dashboard (rig.dashboard.live_run.LiveDashboard), or None with --no-dashboard."""
     if args.no_dashboard:
         return None
-    from rig.dashboard import DashboardError
-    from rig.dashboard_run import LiveDashboard
+    from rig.dashboard.live_run import LiveDashboard
+    from rig.dashboard.server import DashboardError
 
     host = args.dashboard_host or "127.0.0.1"
     try:
@@ -161,7 +161,7 @@ def _index_in_catalogue(run_dir: Path) -> None:
     and `rig runs` indexes it later)."""
     import sqlite3
 
-    from rig.catalogue import index_run
+    from rig.record.catalogue import index_run
 
     try:
         index_run(run_dir)
@@ -171,8 +171,8 @@ def _index_in_catalogue(run_dir: Path) -> None:
 
 def _dry_run(module: types.ModuleType, config: Any, overrides: dict[str, Any], *, resume: str | None) -> int:
     """Print the procedure's plan and every limit check without connecting anything: 0 all pass, 4 not."""
-    from rig.plan import PlanRefused, check_plan, format_plan, plan_of
-    from rig.procedure import validate_parameters
+    from rig.run.plan import PlanRefused, check_plan, format_plan, plan_of
+    from rig.run.procedure import validate_parameters
 
     if resume:
         raise ParameterError("--dry-run", "not with --resume (a resumed run keeps its checked plan)")
@@ -196,7 +196,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     if name is None:
         if not args.resume:
             raise ParameterError("PROCEDURE", "missing; give a procedure name or file (or --resume RUN)")
-        from rig.record import parse_record
+        from rig.record.writer import parse_record
 
         docs = parse_record(Path(args.resume) / "record.jsonl").documents
         name = next((d.get("procedure") for d in docs if d.get("type") == "start"), None)
@@ -237,8 +237,8 @@ def cmd_report(args: argparse.Namespace) -> int:
 
 def cmd_check(args: argparse.Namespace) -> int:
     if args.schema:
-        from rig.config import RigConfig
-        from rig.config_schema import describe
+        from rig.config.rig_config import RigConfig
+        from rig.config.schema import describe
 
         for row in describe(RigConfig):
             allowed = f"  [{row['allowed']}]" if row["allowed"] else ""
@@ -252,8 +252,8 @@ def cmd_check(args: argparse.Namespace) -> int:
           f"{', '.join(config.camera_names())}; devices {', '.join(devices)})")
     if args.no_devices:
         return 0
-    from rig.clock import make_clock
-    from rig.station import open_station
+    from rig.run.clock import make_clock
+    from rig.run.station import open_station
 
     clock = make_clock(config.station.clock == "virtual", rate=config.sim.rate if config.sim else None)
     failures = 0
@@ -305,7 +305,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
 
 def cmd_preview(args: argparse.Namespace) -> int:
     """The cameras' live view with markers and aiming/focus hints, until Ctrl-C or the page's Abort."""
-    from rig.dashboard import DashboardError
+    from rig.dashboard.server import DashboardError
     from rig.preview import run_preview
 
     try:
@@ -329,7 +329,7 @@ def _runs_dir(args: argparse.Namespace) -> Path:
 
 def cmd_runs(args: argparse.Namespace) -> int:
     """List the run folders (catalogue synced with them first), show one run, or a setup's trend."""
-    from rig import catalogue
+    from rig.record import catalogue
 
     if args.action in ("show", "trend") and not args.target:
         raise ParameterError("RUN|SETUP", f"`rig runs {args.action}` needs "
@@ -358,7 +358,7 @@ def cmd_runs(args: argparse.Namespace) -> int:
 
 
 def _show_run(runs_dir: Path, run: str) -> int:
-    from rig.catalogue import find_run
+    from rig.record.catalogue import find_run
 
     entry = find_run(runs_dir, run)
     if entry is None:
@@ -378,7 +378,7 @@ def _show_run(runs_dir: Path, run: str) -> int:
 
 def _show_trend(runs_dir: Path, setup: str, out_dir: Path) -> int:
     from reports.trend import trend_frame, write_trend
-    from rig.catalogue import list_runs
+    from rig.record.catalogue import list_runs
 
     frame = trend_frame(list_runs(runs_dir, setup=setup))
     if frame.empty:
@@ -395,8 +395,8 @@ def cmd_batch(args: argparse.Namespace) -> int:
     """Run (or resume) the measurement of a monitoring archive on Dask."""
     from reports.figures import save_png
     from reports.trend import archive_trend_figure
-    from rig.batch import run_batch, target_trend
-    from rig.batch_manifest import ManifestError, load_manifest
+    from rig.deploy.batch import run_batch, target_trend
+    from rig.deploy.batch_manifest import ManifestError, load_manifest
 
     try:
         manifest = load_manifest(args.manifest)
@@ -538,7 +538,7 @@ def build_parser() -> argparse.ArgumentParser:
                                    "target.toml, and a pair of a vibrating marker column, all rendered by "
                                    "the digital twin; print the commands that calibrate and measure them.")
     p.add_argument("dir", metavar="DIR", help="a new or empty folder for the demo files")
-    from rig.measure_cli import add_parsers
+    from rig.cli_measure import add_parsers
 
     add_parsers(sub)  # calibrate (on site, from videos) and measure
     return parser
@@ -550,7 +550,7 @@ def _interrupted(signum: int, frame: object) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     """Run the ``rig`` command; return its exit code (the one place that maps outcomes to exit codes:
-    see :mod:`rig.safety`). Outside a run (whose runner handles them itself) a stop signal ends the
+    see :mod:`rig.run.safety`). Outside a run (whose runner handles them itself) a stop signal ends the
     command as an abort (2); an I/O error (full disk, read-only folder) that escapes a command is a
     fault (3) with a one-line message — a run has made its devices safe before it gets here.
 
@@ -579,7 +579,7 @@ def _main(argv: list[str] | None) -> int:
     if args.command is None:
         parser.print_help()
         return 0
-    from rig.measure_cli import COMMANDS as DEPLOYMENT_COMMANDS
+    from rig.cli_measure import COMMANDS as DEPLOYMENT_COMMANDS
 
     commands = {"run": cmd_run, "certify": cmd_certify, "report": cmd_report, "check": cmd_check,
                 "list": cmd_list, "mock": cmd_mock, "demo": cmd_demo, "runs": cmd_runs, "batch": cmd_batch,

@@ -2,7 +2,8 @@
 
 Every ``interval_s`` each configured camera records a few frames (``FrameSource.start``/``stop``; on the
 simulated rig the twin's cameras), the last frame of each is searched for markers
-(:func:`rig.stereo.detect_markers`) and offered to the page (:mod:`rig.frame_tap`), and the findings become
+(:func:`rig.stereo.detect_markers`) and offered to the page (:mod:`rig.run.frame_tap`), and the findings
+become
 hints (:func:`preview_hints`):
 
 - **saturated** markers (a clipped pixel: :data:`rig.stereo.FLAG_SATURATED`) — lower the exposure or gain;
@@ -31,9 +32,9 @@ from typing import Any
 
 import numpy as np
 
-from rig.dashboard import DashboardServer
-from rig.dashboard_state import DashboardState
-from rig.frame_tap import FRAMES
+from rig.dashboard.server import DashboardServer
+from rig.dashboard.state import DashboardState
+from rig.run.frame_tap import FRAMES
 from rig.stereo import FLAG_SATURATED, detect_markers, epipolar_distance_px, fundamental_from_projections
 
 __all__ = ["CameraView", "HintLimits", "edge_width_px", "preview_hints", "run_preview", "view_of"]
@@ -169,8 +170,8 @@ def run_preview(config: Any, *, calibration: str | Path | None = None, host: str
                 stop: threading.Event | None = None) -> DashboardState:
     """Serve the live view until Ctrl-C, the page's Abort, ``stop`` set, or ``max_updates`` rounds; the
     final state (its ``hints``)."""
-    from rig.clock import make_clock
-    from rig.station import open_station
+    from rig.run.clock import make_clock
+    from rig.run.station import open_station
 
     cameras_cal = _load_calibration(calibration) if calibration is not None else None
     stop = stop or threading.Event()
@@ -206,8 +207,8 @@ def run_preview(config: Any, *, calibration: str | Path | None = None, host: str
 def _load_calibration(path: str | Path) -> dict[str, Any]:
     import json
 
-    from rig.analysis import load_cameras
-    from rig.procedure import ParameterError
+    from rig.analysis.analyse import load_cameras
+    from rig.run.procedure import ParameterError
 
     try:
         data = json.loads(Path(path).read_text())

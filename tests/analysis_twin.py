@@ -110,12 +110,12 @@ def write_run(runs_dir, tw: Twin, segments: list[tuple[str, float, float]], *, r
     the twin's noisy observations; ``calibration.json`` / ``timing.json`` from the true cameras and timing;
     ``blind`` (segment, camera) pairs record nothing. ``event_style``:
     "acquire" writes the events after the recording with ``t_s`` = start time and ``segment`` in the data
-    (as procedures/_acquire.py does); "contract" writes them at the start with the contract's fields only.
+    (as rig/run/acquire.py does); "contract" writes them at the start with the contract's fields only.
     ``resume_before``: the session stops (abort) before that recording and a resumed session records the
     rest. Returns the run folder."""
     import json
 
-    from rig.record import RunRecord
+    from rig.record.writer import RunRecord
 
     world = tw.world
     world.clock.advance_to(0.0)

@@ -10,7 +10,7 @@ from typing import Any
 
 import numpy as np
 
-from rig.config import load_config
+from rig.config.rig_config import load_config
 
 SIM_TOML = resources.files("rig").joinpath("data/sim.toml").read_text()
 
@@ -28,7 +28,7 @@ def twin_cameras(config_path: Path) -> dict[str, Any]:
     from drivers.sim.clock import VirtualClock
     from drivers.sim.stereo_rig import make_camera
     from drivers.sim.world import World
-    from rig.station import camera_specs
+    from rig.run.station import camera_specs
 
     cfg = load_config(config_path)
     world = World(VirtualClock())

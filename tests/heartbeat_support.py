@@ -10,9 +10,9 @@ from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from typing import Any
 
-from rig.clock import make_clock
-from rig.config import default_config, override
-from rig.station import Station, open_station
+from rig.config.rig_config import default_config, override
+from rig.run.clock import make_clock
+from rig.run.station import Station, open_station
 
 HEARTBEAT_TIMEOUT_S = 1.0  # the configured limit in these tests
 
@@ -100,8 +100,8 @@ def run_body_on_sim_station(tmp_path: Any, body: Callable[[Any, dict[str, Any]],
     watchdog every 0.05 s); returns (outcome, loaded record, {"station", "servers"})."""
     import types
 
-    from rig.record import load_run
-    from rig.runner import Runner
+    from rig.record.writer import load_run
+    from rig.run.runner import Runner
 
     seen: dict[str, Any] = {}
 

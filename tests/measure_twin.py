@@ -171,7 +171,7 @@ def calibrated_site(folder: Path) -> dict:
 
     from scipy.spatial.distance import pdist
 
-    from rig.analysis import load_cameras
+    from rig.analysis.analyse import load_cameras
     from rig.cli import main
     from rig.stereo import triangulate
 

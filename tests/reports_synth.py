@@ -268,7 +268,7 @@ def write_run(run_dir: Path, *, rig: dict | None = None, exit_status: str = "suc
 
 @dataclass
 class FakeAnalysis:
-    """Stands in for ``rig.analysis.Analysis`` (same attributes)."""
+    """Stands in for ``rig.analysis.analyse.Analysis`` (same attributes)."""
 
     tracks: pd.DataFrame
     timing: dict = field(default_factory=lambda: dict(TIMING))

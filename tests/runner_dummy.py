@@ -20,9 +20,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from drivers.roles import Assignment, Role
-from rig.config import default_config
-from rig.procedure import param
-from rig.runner import Runner
+from rig.config.rig_config import default_config
+from rig.run.procedure import param
+from rig.run.runner import Runner
 
 
 class FakeDevice:

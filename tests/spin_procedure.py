@@ -14,7 +14,7 @@ import dataclasses
 from dataclasses import dataclass, field
 from typing import Any
 
-from rig.procedure import param
+from rig.run.procedure import param
 
 NAME = "spin"
 

@@ -3,7 +3,7 @@
 Every observation's analysed time (row-corrected reference-clock time + the segment's controller offset)
 is compared with the twin's truth: the middle of the exposure of the marker's image row in world time
 (= controller time on the simulated rig), ``SimCamera.row_time_true_s``. The camera ``start`` events are
-written as procedures/_acquire.py does (``t_s`` = start, first frame whose row 0 starts at or after it).
+written as rig/run/acquire.py does (``t_s`` = start, first frame whose row 0 starts at or after it).
 
 Tolerance from the stated uncertainty: every start event bounds the offset to ±T/2, the analysis states the
 midpoint of the interval all events allow and u = width/√12, so the truth lies within ±√3·u of it — also
@@ -18,9 +18,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from rig.analysis import analyse
-from rig.record import read_observations
-from rig.sync_tracks import row_corrected_times
+from rig.analysis.analyse import analyse
+from rig.analysis.sync_tracks import row_corrected_times
+from rig.record.writer import read_observations
 from tests.analysis_twin import twin, write_run
 
 # recordings of 0.3 s at start times whose phase against the 60 fps frame grid is irregular

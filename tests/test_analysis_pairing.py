@@ -9,9 +9,9 @@ import pandas as pd
 import pytest
 from analysis_twin import twin
 
-from rig.analysis_errors import AnalysisError
-from rig.pairing import pair_tracks
-from rig.sync_tracks import TRACK_COLUMNS, prepare_observations, triangulate_tracks
+from rig.analysis.errors import AnalysisError
+from rig.analysis.pairing import pair_tracks
+from rig.analysis.sync_tracks import TRACK_COLUMNS, prepare_observations, triangulate_tracks
 
 VOLUME = ((0.0, 800.0), (-500.0, 500.0), (-100.0, 800.0))  # the twin's robot envelope and references, grown
 

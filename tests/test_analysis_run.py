@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 from analysis_twin import twin, write_run
 
-from rig.analysis import SYNC_METHODS, TRACK_COLUMNS, analyse, pairing_volume
-from rig.analysis_errors import (
+from rig.analysis.analyse import SYNC_METHODS, TRACK_COLUMNS, analyse, pairing_volume
+from rig.analysis.errors import (
     AnalysisError,
     ClockMappingError,
     MissingInputError,
@@ -61,7 +61,7 @@ def test_tracks_are_on_the_controller_clock_within_the_stated_bound(run):
 
 def test_contract_style_events_give_the_same_clock(run, tmp_path):
     """Events written at the start with only the contract's fields give the same offsets as events written
-    after the recording carrying ``t_s`` and ``segment`` (procedures/_acquire.py)."""
+    after the recording carrying ``t_s`` and ``segment`` (rig/run/acquire.py)."""
     tw = _moving()
     run_dir = write_run(tmp_path, tw, SEGMENTS, rig=RIG, event_style="contract")
     a, b = analyse(run_dir, sync="linear"), analyse(run[1], sync="linear")

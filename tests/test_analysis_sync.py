@@ -9,15 +9,15 @@ import pytest
 from analysis_twin import twin
 from scipy import sparse
 
-from rig.stereo.trajectory import SplineBasis, _system
-from rig.stereo.triangulate import triangulate
-from rig.sync_tracks import (
+from rig.analysis.sync_tracks import (
     SYNC_METHODS,
     TRACK_COLUMNS,
     TRAJECTORY_PENALTY,
     prepare_observations,
     triangulate_tracks,
 )
+from rig.stereo.trajectory import SplineBasis, _system
+from rig.stereo.triangulate import triangulate
 
 SIGMA_PX = 0.1
 

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 from analysis_twin import twin
 
-from rig.analysis_errors import AnalysisError
-from rig.sync_tracks import row_corrected_times
+from rig.analysis.errors import AnalysisError
+from rig.analysis.sync_tracks import row_corrected_times
 
 
 def test_row_corrected_times_are_the_exact_exposure_instants():

@@ -13,9 +13,9 @@ from hypothesis import strategies as st
 
 from drivers.sim.clock import VirtualClock
 from drivers.sim.world import World, WorldLayout
-from rig.analysis_errors import AnalysisError
-from rig.tracks2d import NOT_TRACKED, circle_prediction, tracks_2d
-from rig.video_markers import extract_video
+from rig.analysis.errors import AnalysisError
+from rig.analysis.tracks2d import NOT_TRACKED, circle_prediction, tracks_2d
+from rig.deploy.video_markers import extract_video
 
 
 def _one_track_per_marker(obs: pd.DataFrame, ids: pd.Series) -> None:

@@ -17,9 +17,9 @@ import pandas as pd
 import pytest
 from batch_archive import Archive, write_archive
 
-from rig.batch import plan, run_batch, target_trend, timing_continuity
-from rig.batch_manifest import ManifestError, load_manifest, match_segments, segment_start_utc
-from rig.measure import MeasureOptions, measure_videos
+from rig.deploy.batch import plan, run_batch, target_trend, timing_continuity
+from rig.deploy.batch_manifest import ManifestError, load_manifest, match_segments, segment_start_utc
+from rig.deploy.measure import MeasureOptions, measure_videos
 
 ROOT = Path(__file__).resolve().parents[1]
 BIN = Path(sys.executable).parent

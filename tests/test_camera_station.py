@@ -9,9 +9,9 @@ import pytest
 
 from drivers.camera.opencv_device import OpenCVCamera
 from drivers.camera.video_file import VideoFile
-from rig.clock import make_clock
-from rig.config import load_config
-from rig.station import StationError, open_station
+from rig.config.rig_config import load_config
+from rig.run.clock import make_clock
+from rig.run.station import StationError, open_station
 
 BUILTIN = Path(__file__).resolve().parents[1] / "rig" / "data" / "sim.toml"
 

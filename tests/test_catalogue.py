@@ -9,8 +9,8 @@ import sqlite3
 from pathlib import Path
 
 from reports.trend import trend_frame, write_trend
-from rig import catalogue
 from rig.cli import main
+from rig.record import catalogue
 
 PROCEDURE = '''
 """A procedure that only records one event: enough for a run folder on the simulated rig."""

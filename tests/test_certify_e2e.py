@@ -16,9 +16,9 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from rig.catalogue import run_folders
 from rig.cli import main
-from rig.record import load_run, read_observations
+from rig.record.catalogue import run_folders
+from rig.record.writer import load_run, read_observations
 from tests.certify_support import (
     depth_scale,
     read_json,

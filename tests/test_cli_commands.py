@@ -15,9 +15,9 @@ from pathlib import Path
 
 import pytest
 
-from rig.catalogue import run_folders
 from rig.cli import ProgressBar, main
-from rig.record import load_run
+from rig.record.catalogue import run_folders
+from rig.record.writer import load_run
 
 ROOT = Path(__file__).resolve().parents[1]
 SIM_TOML = resources.files("rig").joinpath("data/sim.toml").read_text()
@@ -26,7 +26,7 @@ PROCEDURE = textwrap.dedent('''
     """A test procedure on the real station: moves the arm and runs the exciter."""
     import time
     from dataclasses import dataclass, field
-    from rig.procedure import param
+    from rig.run.procedure import param
 
     NAME = "probe"
 

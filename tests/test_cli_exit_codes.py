@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 
 from rig.cli import main
-from rig.record import RunRecord, load_run
+from rig.record.writer import RunRecord, load_run
 
 PROCEDURE = textwrap.dedent('''
     from dataclasses import dataclass
@@ -124,8 +124,8 @@ def test_disk_full_mid_run_every_device_is_made_safe_then_the_io_fault_surfaces(
     sys.path.insert(0, str(Path(__file__).resolve().parent))
     from runner_dummy import make_module, station_factory
 
-    from rig.config import default_config
-    from rig.runner import Runner
+    from rig.config.rig_config import default_config
+    from rig.run.runner import Runner
 
     real_write = RunRecord._write
     ticks = {"n": 0}
@@ -154,7 +154,7 @@ def test_late_stop_signals_are_ignored_once_the_command_has_its_outcome(monkeypa
     import signal as signal_module
 
     from rig.cli import main
-    from rig.safety import STOP_SIGNALS
+    from rig.run.safety import STOP_SIGNALS
 
     before = {sig: signal_module.getsignal(sig) for sig in STOP_SIGNALS}
     try:

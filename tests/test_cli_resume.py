@@ -11,9 +11,9 @@ from pathlib import Path
 
 import pytest
 
-from rig.catalogue import run_folders
 from rig.cli import main
-from rig.record import TruncatedRecordWarning, load_run
+from rig.record.catalogue import run_folders
+from rig.record.writer import TruncatedRecordWarning, load_run
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -9,7 +9,8 @@ from importlib import resources
 import pytest
 
 from rig.cli import main
-from rig.config import ConfigError, endpoint, parse_config
+from rig.config.address import endpoint
+from rig.config.rig_config import ConfigError, parse_config
 
 SIM_TOML = resources.files("rig").joinpath("data/sim.toml").read_text()
 

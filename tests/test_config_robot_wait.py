@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import pytest
 
-from rig.clock import make_clock
-from rig.config import ConfigError, default_config, override
-from rig.station import open_station
+from rig.config.rig_config import ConfigError, default_config, override
+from rig.run.clock import make_clock
+from rig.run.station import open_station
 
 
 @pytest.mark.parametrize(("wait_mode", "expected"), [(None, "next"), ("blocking", "blocking")])

@@ -12,14 +12,14 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from rig.config import (
+from rig.config.address import parse_address
+from rig.config.rig_config import (
     ConfigError,
     RigConfig,
     config_from_dict,
     default_config,
     load_config,
     override,
-    parse_address,
     parse_config,
 )
 
@@ -175,7 +175,7 @@ def test_parse_config_string() -> None:
 
 def test_schema_reference_lists_every_field_of_the_builtin_config(capsys: pytest.CaptureFixture[str]) -> None:
     from rig.cli import main
-    from rig.config_schema import describe
+    from rig.config.schema import describe
 
     fields = {row["field"] for row in describe(RigConfig)}
 

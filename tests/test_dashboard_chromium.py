@@ -21,7 +21,7 @@ from typing import Any
 import numpy as np
 import pytest
 
-from rig.record import load_run
+from rig.record.writer import load_run
 from tests.cdp_client import Browser
 from tests.certify_support import write_config
 from tests.test_reports_html_chromium import _find_chromium
@@ -153,7 +153,7 @@ def test_preview_page_shows_both_cameras_and_the_hints_and_abort_ends_it(chromiu
     import io
     import json
 
-    from rig.config import load_config
+    from rig.config.rig_config import load_config
     from rig.preview import run_preview
 
     config = load_config(write_config(tmp_path))

@@ -13,9 +13,9 @@ import numpy as np
 
 from drivers.sim.stereo_rig import default_camera_specs, make_camera
 from drivers.sim.world import World
-from rig.config import load_config
-from rig.frame_tap import FRAMES
+from rig.config.rig_config import load_config
 from rig.preview import CameraView, HintLimits, edge_width_px, preview_hints, run_preview, view_of
+from rig.run.frame_tap import FRAMES
 from rig.stereo import DLTCamera
 from tests.analysis_twin import projection
 from tests.certify_support import write_config

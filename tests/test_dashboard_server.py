@@ -14,11 +14,11 @@ import cv2
 import numpy as np
 import pytest
 
-from rig.clock import make_clock
-from rig.dashboard import ABORT_HEADER, DashboardError, DashboardServer, is_loopback, sse_message
-from rig.dashboard_state import DashboardState, Series
-from rig.frame_tap import FrameTap
-from rig.record import RunRecord
+from rig.dashboard.server import ABORT_HEADER, DashboardError, DashboardServer, is_loopback, sse_message
+from rig.dashboard.state import DashboardState, Series
+from rig.record.writer import RunRecord
+from rig.run.clock import make_clock
+from rig.run.frame_tap import FrameTap
 
 
 def _doc(kind: str, t_s: float, **fields: object) -> dict:
@@ -169,7 +169,7 @@ def test_a_failing_observer_never_affects_the_record(tmp_path: Path,
         raise RuntimeError("view failed")
 
     rec.add_observer(broken)
-    with caplog.at_level(logging.WARNING, logger="rig.record"):
+    with caplog.at_level(logging.WARNING, logger="rig.record.writer"):
         rec.event("exciter", {"frequency_hz": 1.0})
         rec.stop("success")
     rec.close()

@@ -12,9 +12,9 @@ import numpy as np
 import pytest
 
 from rig.cli import main
-from rig.onsite_calibration import OnsiteCalibrationError, load_target
-from rig.record import RunRecord
-from rig.video_markers import ExtractOptions, extract_video
+from rig.deploy.onsite_calibration import OnsiteCalibrationError, load_target
+from rig.deploy.video_markers import ExtractOptions, extract_video
+from rig.record.writer import RunRecord
 
 
 def _reencode(src: Path, dst: Path, *, fps: float, every: int = 1, scale: float = 1.0) -> Path:

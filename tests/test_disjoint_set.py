@@ -5,7 +5,7 @@ from __future__ import annotations
 from hypothesis import given
 from hypothesis import strategies as st
 
-from rig.disjoint_set import DisjointSet
+from rig.analysis.disjoint_set import DisjointSet
 
 
 def _components_by_search(nodes: set[int], edges: list[tuple[int, int]]) -> set[frozenset[int]]:

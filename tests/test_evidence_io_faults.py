@@ -18,9 +18,9 @@ import measure_twin as mt
 import pytest
 from fs_faults import fill, half_written, remount_read_only, tmpfs, tree
 
-from rig import atomic
 from rig.cli import main
-from rig.record import load_run
+from rig.record import atomic
+from rig.record.writer import load_run
 
 ROOT = Path(__file__).resolve().parents[1]
 

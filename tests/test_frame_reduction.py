@@ -1,4 +1,4 @@
-"""rig.frame_reduction: the one frame → marker-rows reduction of recordings and video files."""
+"""rig.analysis.frame_reduction: the one frame → marker-rows reduction of recordings and video files."""
 
 from __future__ import annotations
 
@@ -6,9 +6,9 @@ import cv2
 import numpy as np
 import pytest
 
-import procedures._acquire as acquire
-from rig import video_markers
-from rig.frame_reduction import DETECT_ONLY_KEYS, MarkerReducer, ReduceOptions, track_options
+from rig.analysis.frame_reduction import DETECT_ONLY_KEYS, MarkerReducer, ReduceOptions, track_options
+from rig.deploy import video_markers
+from rig.run import acquire
 
 
 def _frame(centres: list[tuple[float, float]], seed: int = 0) -> np.ndarray:

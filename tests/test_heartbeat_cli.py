@@ -8,9 +8,9 @@ import textwrap
 from importlib import resources
 from pathlib import Path
 
-from rig.catalogue import run_folders
 from rig.cli import main
-from rig.record import load_run
+from rig.record.catalogue import run_folders
+from rig.record.writer import load_run
 
 SIM_TOML = resources.files("rig").joinpath("data/sim.toml").read_text()
 

@@ -23,9 +23,9 @@ from runner_dummy import station_factory
 
 from drivers.denso.motion import WaitSettings
 from rig.cli import main as cli_main
-from rig.config import ConfigError, default_config, override
-from rig.record import load_run
-from rig.runner import Runner
+from rig.config.rig_config import ConfigError, default_config, override
+from rig.record.writer import load_run
+from rig.run.runner import Runner
 
 MOVE_TARGET = [420.0, 0.0, 300.0, 90.0, 0.0, 90.0]
 

@@ -10,7 +10,7 @@ Tolerances are derived, never tuned: the offset within 4 of its stated standard 
 the line time's share when it is not observable) — modulo the motion's period when the ambiguity is
 stated; the line time within 4 of its own when observable; amplitudes within 4 of the sine fit's standard
 uncertainties plus the calibration's scale floor and the trajectory method's bias (≤ 0.5 % to 26 Hz,
-rig/sync_tracks.py).
+rig/analysis/sync_tracks.py).
 """
 
 from __future__ import annotations
@@ -23,10 +23,10 @@ import pandas as pd
 import pytest
 
 from drivers.sim.world import World
-from rig.measure import MeasureOptions, MeasureResult, measure_videos
+from rig.deploy.measure import MeasureOptions, MeasureResult, measure_videos
 from rig.stereo import fit_sine
 
-SYNC_BIAS = 0.005  # the trajectory method's relative amplitude bias up to 26 Hz (rig/sync_tracks.py)
+SYNC_BIAS = 0.005  # the trajectory method's relative amplitude bias up to 26 Hz (rig/analysis/sync_tracks.py)
 
 
 @pytest.fixture(scope="module")

@@ -13,8 +13,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from rig.measure_series import summarise
-from rig.measure_spectra import time_frequency, tone_peaks, welch
+from rig.deploy.series import summarise
+from rig.deploy.spectra import time_frequency, tone_peaks, welch
 from rig.stereo.spectrum import window_weights
 
 FS_HZ = 60.0

@@ -9,7 +9,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from rig.video_timing import VideoTimingError, coarse_offset
+from rig.deploy.video_timing import VideoTimingError, coarse_offset
 
 FPS = 60.0
 

@@ -10,10 +10,10 @@ import pytest
 
 from drivers.sim.clock import VirtualClock
 from drivers.sim.world import World, WorldLayout
-from rig.record import RunRecord
-from rig.record_reader import load_run
-from rig.video_clock import VideoClockError, relate_to_record
-from rig.video_markers import extract_video
+from rig.deploy.video_clock import VideoClockError, relate_to_record
+from rig.deploy.video_markers import extract_video
+from rig.record.reader import load_run
+from rig.record.writer import RunRecord
 
 MOVES = ((0.8, (350.0, 80.0, 300.0)), (1.9, (350.0, 80.0, 360.0)), (2.6, (350.0, -40.0, 330.0)))
 

@@ -3,7 +3,7 @@
 Tolerances are derived, never tuned: the amplitude's noise floor is the sine fit's own standard uncertainty
 (from its residuals), the calibration's scale floor is the largest relative length error of the plate's
 points when their exact images are triangulated with the calibration, and the sync method's bias at 5 Hz
-is < 0.1 % (rig/sync_tracks.py); the frequency's floor is the fit's standard uncertainty plus the
+is < 0.1 % (rig/analysis/sync_tracks.py); the frequency's floor is the fit's standard uncertainty plus the
 reference camera's clock-rate error.
 """
 
@@ -21,9 +21,9 @@ from camera_mkv import write_mkv
 from drivers.sim.clock import VirtualClock
 from drivers.sim.targets import ReferenceMarkers
 from rig.cli import main
-from rig.measure import MeasureError, MeasureOptions, measure_videos
-from rig.measure_series import SeriesError, reference_tracks
-from rig.record import RunRecord
+from rig.deploy.measure import MeasureError, MeasureOptions, measure_videos
+from rig.deploy.series import SeriesError, reference_tracks
+from rig.record.writer import RunRecord
 
 WINDOW = (0.6, 2.4)  # s on the left video's clock: the exciter runs from 0.4 s
 
@@ -211,7 +211,7 @@ def test_rotor_turning_from_the_first_frame_is_one_track_with_its_radius(site: d
     overlap = round((1.5 - 0.15) * 60)  # frames both cameras saw; the sync loses an edge frame or two
     assert row["n_samples"] >= overlap - 3, row["n_samples"]  # the whole record in one track
     radius = RotorTarget().radius_mm
-    bias = 4e-3  # the trajectory sync's amplitude bias bound up to 22 Hz (rig/sync_tracks.py)
+    bias = 4e-3  # the trajectory sync's amplitude bias bound up to 22 Hz (rig/analysis/sync_tracks.py)
     tol_mm = 4 * row["amplitude_std_mm"] + radius * (site["scale_floor"] + bias)
     assert abs(row["amplitude_mm"] - radius) <= tol_mm
     assert abs(row["frequency_hz"] - 10.0) <= 4 * row["frequency_std_hz"] + abs(left.clock_ppm) * 1e-5

@@ -10,9 +10,14 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from rig.onsite_calibration import OnsiteCalibrationError, calibrate_from_videos, load_target, still_segments
+from rig.deploy.onsite_calibration import (
+    OnsiteCalibrationError,
+    calibrate_from_videos,
+    load_target,
+    still_segments,
+)
+from rig.deploy.video_markers import ExtractOptions, extract_video
 from rig.stereo import DLTCamera
-from rig.video_markers import ExtractOptions, extract_video
 
 
 @pytest.fixture(scope="module")

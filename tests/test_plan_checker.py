@@ -1,4 +1,5 @@
-"""The plan checker (rig/plan.py): any plan within the limits passes, and any plan beyond limits is refused
+"""The plan checker (rig/run/plan.py): any plan within the limits passes, and any plan beyond limits is
+refused
 naming exactly the limits it breaks, their rig.toml fields and the parameters behind each value.
 
 The expectations are computed here, independently of the drivers' rules the checker uses: the limits of
@@ -15,8 +16,8 @@ import pytest
 from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
-from rig.config import default_config
-from rig.plan import ArmMoves, Plan, PlanRefused, PlanStep, Vibration, check_plan, validate_procedure
+from rig.config.rig_config import default_config
+from rig.run.plan import ArmMoves, Plan, PlanRefused, PlanStep, Vibration, check_plan, validate_procedure
 
 CONFIG = default_config()
 EXCITER = {"max_frequency_hz": 32.0, "max_displacement_mm": 10.0, "max_acceleration_m_s2": 250.0,

@@ -233,10 +233,10 @@ def test_the_mock_servers_count_the_requests_they_receive() -> None:
 def test_calibrate_carries_out_the_plan_that_was_checked(tmp_path: Path) -> None:
     """What the runner checked is what runs: the commanded arm poses are the plan's, in order."""
     from procedures import calibrate
-    from rig.catalogue import run_folders
-    from rig.config import load_config
-    from rig.procedure import validate_parameters
-    from rig.record import load_run
+    from rig.config.rig_config import load_config
+    from rig.record.catalogue import run_folders
+    from rig.record.writer import load_run
+    from rig.run.procedure import validate_parameters
 
     config = write_config(tmp_path)
     settings = {"frames_per_position": 2, "settle_s": 0.0}

@@ -1,7 +1,7 @@
 """``rig run plate`` and ``rig run rotation`` end to end on the simulated rig (calibrate → sync → the
 procedure's own recording → report, all through the real command), checked against the twin's truth.
 
-Truth comes from the twin's own target objects (``rig.station.world_layout`` of the configuration:
+Truth comes from the twin's own target objects (``rig.run.station.world_layout`` of the configuration:
 the plate's marker shape weights × the crank radius, the rotor's centre, axis and radius) and the
 commanded frequencies — never from the numbers the procedure itself recorded.
 
@@ -23,11 +23,11 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from rig.catalogue import run_folders
 from rig.cli import main
-from rig.config import load_config
-from rig.record import load_run, read_observations
-from rig.station import world_layout
+from rig.config.rig_config import load_config
+from rig.record.catalogue import run_folders
+from rig.record.writer import load_run, read_observations
+from rig.run.station import world_layout
 from tests.certify_support import depth_scale, read_json, still_pixel_noise_px, write_config
 
 CLOCK_PPM = 50e-6  # the twin's cameras' clocks are within ±50 ppm of the controller's
@@ -101,7 +101,7 @@ def test_run_plate_measures_every_markers_frequency_and_amplitude(tmp_path: Path
 
 def test_run_rotation_measures_the_rotor_radius_and_frequency(tmp_path: Path) -> None:
     from reports.motion import rotation_samples, rotation_summary
-    from rig.analysis import analyse
+    from rig.analysis.analyse import analyse
 
     config, run_dir = _run(tmp_path, "rotation", "record_s=1.5", f"rotation_hz={ROTOR_HZ}")
     rotor = world_layout(load_config(config)).targets.rotor

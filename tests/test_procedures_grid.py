@@ -1,4 +1,5 @@
-"""rig.plate_grid: the calibration plate's markers told from fixed references and ordered on their grid."""
+"""rig.deploy.plate_grid: the calibration plate's markers told from fixed references and ordered on their
+grid."""
 
 from __future__ import annotations
 
@@ -8,7 +9,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from rig.plate_grid import GridError, moving_points, order_grid
+from rig.deploy.plate_grid import GridError, moving_points, order_grid
 
 
 def _project(rows: int, cols: int, *, yaw_deg: float, pitch_deg: float, roll_deg: float, depth_mm: float,

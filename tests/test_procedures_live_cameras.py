@@ -22,7 +22,7 @@ import pytest
 
 from drivers.camera.opencv_device import OpenCVCamera
 from drivers.clock import WallClock
-from procedures._acquire import Acquirer, ReduceOptions
+from rig.run.acquire import Acquirer, ReduceOptions
 
 FPS = 100.0
 WIDTH_PX, HEIGHT_PX = 160, 120

@@ -18,7 +18,7 @@ from pathlib import Path
 
 import pytest
 
-from rig.record import load_run
+from rig.record.writer import load_run
 from tests.certify_support import write_config
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -32,11 +32,11 @@ from hypothesis import strategies as st
 from procedures._shaker import staircase_plan
 from procedures.sweep import Parameters, profile_of
 from reports.frequency import sweep_phase_rad
-from rig.catalogue import run_folders
 from rig.cli import main
-from rig.config import load_config
-from rig.record import load_run, read_observations
-from rig.station import world_layout
+from rig.config.rig_config import load_config
+from rig.record.catalogue import run_folders
+from rig.record.writer import load_run, read_observations
+from rig.run.station import world_layout
 from tests.certify_support import depth_scale, read_json, still_pixel_noise_px, write_config
 
 CLOCK_PPM = 50e-6

@@ -10,11 +10,11 @@ import pytest
 from drivers.denso.pose import rotation_matrix
 from drivers.mock import vp6242
 from procedures import accuracy, calibrate, certify, plate, sweep, sync
-from procedures._acquire import MarkerReducer, ReduceOptions, mean_positions
 from procedures._common import arm_marker_positions, plate_offsets_tool_mm
 from procedures._report import verdict_of
-from rig.config import default_config
-from rig.procedure import ParameterError
+from rig.config.rig_config import default_config
+from rig.run.acquire import MarkerReducer, ReduceOptions, mean_positions
+from rig.run.procedure import ParameterError
 
 
 def _frame(centres: list[tuple[float, float]], seed: int = 0) -> np.ndarray:

@@ -20,8 +20,8 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from rig.jsonenc import dumps, to_jsonable
-from rig.record import RecordError, RunRecord, TruncatedRecordWarning, load_run
+from rig.record.jsonenc import dumps, to_jsonable
+from rig.record.writer import RecordError, RunRecord, TruncatedRecordWarning, load_run
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -197,7 +197,7 @@ def test_observation_parts_and_leftover_tmp(tmp_path: Path) -> None:
 WRITER = textwrap.dedent("""
     import sys, time
     import numpy as np
-    from rig.record import RunRecord
+    from rig.record.writer import RunRecord
     class C:
         is_virtual = False
         def now_s(self): return time.monotonic()
@@ -234,7 +234,7 @@ def test_a_quiet_record_is_still_fsynced_within_the_interval(tmp_path: Path,
                                                              monkeypatch: pytest.MonkeyPatch) -> None:
     synced: list[int] = []
     real_fsync = os.fsync
-    monkeypatch.setattr("rig.record.os.fsync", lambda fd: (synced.append(fd), real_fsync(fd))[1])
+    monkeypatch.setattr("rig.record.writer.os.fsync", lambda fd: (synced.append(fd), real_fsync(fd))[1])
     rec = RunRecord.create(tmp_path, "quiet", {}, {}, FakeClock(), versions={}, fsync_interval_s=0.05)
     n_after_start = len(synced)
     rec.event("s", {"v": 1})  # within the interval of the start's fsync: not synced by the write itself

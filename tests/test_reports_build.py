@@ -325,7 +325,7 @@ class _StepContext:
     """The part of a procedure context the report step uses (a run folder and recorded steps)."""
 
     def __init__(self, run_dir: Path) -> None:
-        from rig.procedure import Step
+        from rig.run.procedure import Step
 
         self.run_dir, self.steps, self._step = run_dir, [], Step
 

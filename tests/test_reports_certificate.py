@@ -96,10 +96,10 @@ def test_defaults_and_derived_settings() -> None:
 
 
 def test_defaults_match_the_rig_configuration() -> None:
-    """The limits the reports assume are the same as rig.config's [criteria] defaults and keys."""
+    """The limits the reports assume are the same as rig.config.rig_config's [criteria] defaults and keys."""
     import dataclasses
 
-    from rig.config import CriteriaConfig
+    from rig.config.criteria import CriteriaConfig
 
     config_defaults = {f.name: f.default for f in dataclasses.fields(CriteriaConfig)}
     for key, value in config_defaults.items():

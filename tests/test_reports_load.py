@@ -1,4 +1,4 @@
-"""Loading a run folder into the reports' frames (through rig.record.load_run)."""
+"""Loading a run folder into the reports' frames (through rig.record.writer.load_run)."""
 
 from __future__ import annotations
 

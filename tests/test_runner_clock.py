@@ -1,4 +1,4 @@
-"""rig.clock: one interface over wall and virtual time."""
+"""rig.run.clock: one interface over wall and virtual time."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ import time
 
 import pytest
 
-from rig.clock import Clock, ClockError, VirtualClock, WallClock, make_clock
+from rig.run.clock import Clock, ClockError, VirtualClock, WallClock, make_clock
 
 
 def test_virtual_instant_clock_advances_without_waiting() -> None:

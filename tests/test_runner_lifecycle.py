@@ -16,10 +16,10 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from runner_dummy import FakeStation, make_module, station_factory
 
 from drivers.exciter.limits import MotionLimits
-from rig.config import default_config
-from rig.procedure import ParameterError, param, parse_set, validate_parameters
-from rig.record import load_run
-from rig.runner import Runner
+from rig.config.rig_config import default_config
+from rig.record.writer import load_run
+from rig.run.procedure import ParameterError, param, parse_set, validate_parameters
+from rig.run.runner import Runner
 
 
 def _runner(tmp_path: Path, module: types.ModuleType, **kw: Any) -> tuple[Runner, Path]:

@@ -10,11 +10,11 @@ from typing import Any
 import numpy as np
 
 from drivers.roles import Assignment, Role
-from rig.config import default_config
-from rig.readback import read_back
-from rig.record import load_run
-from rig.runner import Runner
-from rig.safety import SafeStateResult, make_safe
+from rig.config.rig_config import default_config
+from rig.record.writer import load_run
+from rig.run.readback import read_back
+from rig.run.runner import Runner
+from rig.run.safety import SafeStateResult, make_safe
 from tests.runner_dummy import make_module
 
 

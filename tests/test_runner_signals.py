@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 
-from rig.record import TruncatedRecordWarning, load_run
+from rig.record.writer import TruncatedRecordWarning, load_run
 
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parent

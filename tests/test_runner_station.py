@@ -14,9 +14,9 @@ from drivers.denso.arm import LimitError as ArmLimitError
 from drivers.exciter.limits import LimitError
 from drivers.sim.stereo_rig import default_camera_specs
 from drivers.sim.world import WorldLayout
-from rig.clock import make_clock
-from rig.config import default_config, override
-from rig.station import StationError, camera_specs, open_station, parse_address, world_layout
+from rig.config.rig_config import default_config, override
+from rig.run.clock import make_clock
+from rig.run.station import StationError, camera_specs, open_station, parse_address, world_layout
 
 
 def test_the_builtin_config_describes_the_twins_own_rig() -> None:

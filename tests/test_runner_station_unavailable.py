@@ -10,8 +10,8 @@ import subprocess
 import sys
 from pathlib import Path
 
-from rig.catalogue import run_folders
-from rig.record import load_run
+from rig.record.catalogue import run_folders
+from rig.record.writer import load_run
 from tests.certify_support import write_config
 
 ROOT = Path(__file__).resolve().parents[1]

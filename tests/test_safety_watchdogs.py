@@ -63,7 +63,7 @@ def test_without_the_client_watchdog_a_silent_client_keeps_the_controller() -> N
 def test_a_comm_timeout_the_heartbeat_probes_cannot_keep_alive_is_refused_by_the_configuration() -> None:
     import pytest
 
-    from rig.config import ConfigError, default_config, override
+    from rig.config.rig_config import ConfigError, default_config, override
 
     cfg = override(default_config(), "station.heartbeat_timeout_s", 5.0)  # idle drives probed every 1.25 s
     refused = (r"devices\.exciter\.comm_timeout_s: 2 s must exceed twice the heartbeat probe interval "

@@ -12,10 +12,10 @@ import pandas as pd
 import pytest
 from timing_synth import oscillation, rotor
 
+from rig.deploy.video_timing import estimate_video_timing
 from rig.stereo.dlt import DLTCamera
 from rig.stereo.errors import LineTimeNotObservableError, TimingError
 from rig.stereo.timing import estimate_offset
-from rig.video_timing import estimate_video_timing
 from tests.test_timing_joint import FS_HZ, _synthetic
 
 OFFSET_S, LINE_S = 0.0043, 12e-6

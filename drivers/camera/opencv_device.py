@@ -79,7 +79,7 @@ class OpenCVCamera(Camera):
     from (source, api) — ``cv2.VideoCapture`` by default.
 
     ``live = True``: frames stream while recording and must be consumed then (the queue is bounded);
-    consumers such as ``procedures._acquire.Acquirer`` read a live source during the recording.
+    consumers such as ``rig.run.acquire.Acquirer`` read a live source during the recording.
     """
 
     live = True

@@ -1,0 +1,386 @@
+"""Observations of a run folder → matched, time-aligned, triangulated 3-D tracks (``analyse``).
+
+The pure steps live in their own modules and work on DataFrames without a run folder (``rig measure``
+reuses them): :func:`rig.analysis.tracks2d.tracks_2d` (per camera, frame to frame),
+:func:`rig.analysis.pairing.pair_tracks`
+(cross-camera, median epipolar distance, optimal assignment, ambiguity flagged),
+:func:`rig.analysis.sync_tracks.row_corrected_times` (timing model) and
+:func:`rig.analysis.sync_tracks.triangulate_tracks`
+(sync methods ``trajectory`` (default), ``bandlimited``, ``cubic``, ``linear`` = the paper's).
+
+:func:`analyse` reads ``record.jsonl`` (through :func:`rig.record.writer.load_run`), ``observations/``,
+``calibration.json`` and ``timing.json``, analyses every recording segment (the step that recorded the
+observations, per session) and puts the tracks on the **controller clock** (contracts.md,
+"Analysis → reports"):
+
+- the timing model puts every observation on the reference camera's clock;
+- each ``camera`` event with ``action = "start"`` (contracts.md) relates a camera clock to the controller
+  clock: the controller time of the event and the camera time stamp of the first frame recorded after it.
+  That frame's exposure started within one frame period after the event, so its row-0 exposure start is
+  taken as event time + ½ frame period (uniform error ±T/2, standard uncertainty T/√12 ≈ 4.8 ms at 60 fps
+  per event; it shifts whole tracks in time, never their shape), and the instant the timing model gives
+  that row (the middle of its exposure) as that + ½ exposure (``rig["cameras"][name]["exposure_s"]``,
+  0 when the snapshot has none). When all start events of a session (every camera,
+  through the timing model) admit one constant or straight line — clocks continuous, drifting
+  linearly — within the ±T/2 band, each segment's offset is the midpoint of the interval those
+  relations allow there, with uncertainty width/√12 (a bound: averaging would assume the events'
+  phases against the frame grid random, which start events on a controller grid commensurate with the
+  frame period are not — a bias of ≈ 3 ms on the simulated certify run); otherwise each segment uses
+  its own events' interval, and a segment without any the median of the run's; without any event,
+  :class:`ClockMappingError`. ``Analysis.clock`` says which, with the standard
+  uncertainty;
+- pairing is restricted to a **volume**: the robot envelope box of the configuration snapshot
+  (``rig["limits"]["robot"]["envelope_*_mm"]``) joined with the reference markers' positions
+  (``rig["targets"]["references"]["positions_mm"]``), grown by ``volume_margin_mm``; pairs that would
+  triangulate outside it are wrong pairs (ghosts of markers on a common epipolar plane).
+
+Nothing is cached: every call recomputes from the files, so a changed file can never give stale tracks.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import warnings
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+from scipy.optimize import linprog
+
+from rig.analysis.errors import (
+    AnalysisError,
+    ClockMappingError,
+    MissingInputError,
+    MissingObservationsError,
+    NoPairableTracksError,
+)
+from rig.analysis.sync_tracks import (
+    SYNC_METHODS,
+    TRACK_COLUMNS,
+    pair_all,
+    prepare_observations,
+    timing_result,
+    triangulate_tracks,
+)
+from rig.analysis.tracks2d import tracks_2d
+from rig.record.reader import RecordError, load_run
+from rig.stereo.dlt import DLTCamera
+from rig.stereo.errors import StereoError
+from rig.stereo.timing import TimingResult
+
+# bound (ppm, rectangular) of a camera clock's rate error against the controller when the start events
+# cannot resolve it (consumer camera crystals: ±50 ppm); enters the offset's uncertainty away from t_mid
+UNRESOLVED_DRIFT_PPM = 50.0
+CALIBRATION_FILE = "calibration.json"
+TIMING_FILE = "timing.json"
+
+__all__ = ["SYNC_METHODS", "TRACK_COLUMNS", "Analysis", "analyse", "controller_offsets", "pairing_volume"]
+
+
+@dataclass
+class Analysis:
+    """The analysis of one run folder.
+
+    ``tracks``: ``TRACK_COLUMNS`` — segment (str), time_s (controller clock), track_id (int, unique within a
+    segment), x_mm, y_mm, z_mm, reprojection_px, n_cameras. ``timing`` / ``calibration``: the file contents
+    used. ``pairs``: every cross-camera pair (segment, session, camera, track_a, track_b, distance_px,
+    n_common, ambiguous, resolved). ``clock``: per (segment, session) the offset controller − reference
+    clock (s), its standard uncertainty ``u_offset_s`` and where it came from. ``notes``: what was skipped
+    and why.
+    """
+
+    tracks: pd.DataFrame
+    timing: dict[str, Any]
+    calibration: dict[str, Any]
+    sync: str
+    pairs: pd.DataFrame = field(default_factory=pd.DataFrame)
+    clock: pd.DataFrame = field(default_factory=pd.DataFrame)
+    notes: list[str] = field(default_factory=list)
+
+
+def _read_json(path: Path, what: str, how: str) -> dict[str, Any]:
+    if not path.is_file():
+        raise MissingInputError(f"{path}: no {what}; {how}")
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except json.JSONDecodeError as exc:
+        raise AnalysisError(f"{path}: not valid JSON ({exc.msg} at line {exc.lineno}); {how}") from exc
+    if not isinstance(data, dict):
+        raise AnalysisError(f"{path}: the top level must be a JSON object; {how}")
+    return data
+
+
+def load_cameras(calibration: dict[str, Any], path: Path | str = CALIBRATION_FILE) -> dict[str, DLTCamera]:
+    """camera name → :class:`DLTCamera` from the ``calibration.json`` content."""
+    entries = calibration.get("cameras")
+    if not isinstance(entries, dict) or len(entries) < 2:
+        raise AnalysisError(f"{path}: 'cameras' must map ≥ 2 camera names to DLT entries, got "
+                            f"{str(entries)[:80]}; run `rig run calibrate`")
+    out = {}
+    for name, entry in entries.items():
+        try:
+            out[str(name)] = DLTCamera.from_dict(entry)
+        except StereoError as exc:
+            raise AnalysisError(f"{path}: camera {name!r}: {exc}") from exc
+    return out
+
+
+def pairing_volume(rig: dict[str, Any], margin_mm: float = 150.0) -> tuple[tuple[float, float], ...] | None:
+    """Box (mm) where markers can be: robot envelope ∪ reference markers, grown by ``margin_mm``; None if
+    the snapshot has no envelope."""
+    try:
+        robot = rig["limits"]["robot"]
+        box = np.array([robot[f"envelope_{a}_mm"] for a in "xyz"], dtype=float)
+    except (KeyError, TypeError, ValueError):
+        return None
+    if box.shape != (3, 2) or not np.isfinite(box).all():
+        return None
+    refs = ((rig.get("targets") or {}).get("references") or {}).get("positions_mm") or []
+    pts = np.asarray(refs, dtype=float).reshape(-1, 3) if len(refs) else np.zeros((0, 3))
+    lo = np.min(np.vstack([box[:, 0], pts]), axis=0) - margin_mm
+    hi = np.max(np.vstack([box[:, 1], pts]), axis=0) + margin_mm
+    return tuple((float(a), float(b)) for a, b in zip(lo, hi, strict=True))
+
+
+def _frame_period_s(rig: dict[str, Any], camera: str, obs: pd.DataFrame) -> float:
+    fps = ((rig.get("cameras") or {}).get(camera) or {}).get("fps")
+    if isinstance(fps, int | float) and fps > 0:
+        return 1.0 / float(fps)
+    stamps = np.unique(obs["timestamp_s"].to_numpy(float)) if len(obs) else np.zeros(0)
+    steps = np.diff(stamps)
+    return float(np.median(steps)) if steps.size else 1.0 / 60.0
+
+
+def _exposure_s(rig: dict[str, Any], camera: str) -> float:
+    """The camera's exposure time (s) from the configuration snapshot; 0 when absent or not a number."""
+    e = ((rig.get("cameras") or {}).get(camera) or {}).get("exposure_s")
+    return float(e) if isinstance(e, int | float) and not isinstance(e, bool) and 0 <= e < 1 else 0.0
+
+
+def controller_offsets(camera_events: pd.DataFrame | None, timing: TimingResult,
+                       frame_period_s: dict[str, float],
+                       exposure_s: dict[str, float] | None = None) -> pd.DataFrame:
+    """One row per usable ``camera`` start event: segment, session, camera, offset_s (controller − reference).
+
+    ``camera_events``: the ``camera`` stream of :func:`rig.record.writer.load_run` (columns time_s, step,
+    session,
+    camera, action, first_timestamp_s; optional ``t_s`` = controller time of the start when the event is
+    written later, and ``segment`` when a step records several segments). ``exposure_s``: camera →
+    exposure time (s, default 0): the timing model's instants are mid-exposure. See the module docstring
+    for the ½-frame convention.
+    """
+    cols = ["segment", "session", "camera", "offset_s", "t_s", "period_s"]
+    if camera_events is None or camera_events.empty or "action" not in camera_events.columns:
+        return pd.DataFrame(columns=cols)
+    rows = []
+    for r in camera_events.to_dict("records"):
+        cam, first = r.get("camera"), _number(r.get("first_timestamp_s"))
+        t_start = _number(r.get("t_s"))
+        t_start = _number(r.get("time_s")) if t_start is None else t_start
+        if r.get("action") != "start" or cam not in timing.offset_s or first is None or t_start is None:
+            continue
+        t_ref = float(timing.times(cam, np.array([first]), np.array([0.0]))[0])
+        period = frame_period_s.get(cam, 1.0 / 60.0)
+        segment = r.get("segment") if isinstance(r.get("segment"), str) else r.get("step")
+        session = _number(r.get("session"))
+        mid_exposure = 0.5 * (exposure_s or {}).get(cam, 0.0)
+        rows.append((segment, 0 if session is None else int(session), cam,
+                     t_start + 0.5 * period + mid_exposure - t_ref, t_start, period))
+    return pd.DataFrame(rows, columns=cols)
+
+
+def _number(value: Any) -> float | None:
+    """A finite float, or None for None/NaN/non-numbers."""
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        return None
+    return v if math.isfinite(v) else None
+
+
+def _feasible_interval_s(t_s: np.ndarray, offset_s: np.ndarray, half_s: float, t_eval_s: float, *,
+                         t_mid_s: float, with_drift: bool) -> tuple[float, float] | None:
+    """[lo, hi] (s) of the offset at ``t_eval_s`` over every relation c (+ d·(t − t_mid)) that keeps all
+    events' offsets within ±``half_s`` of it; None when no relation does (the events disagree)."""
+    if not with_drift:
+        lo, hi = float(offset_s.max()) - half_s, float(offset_s.min()) + half_s
+        return (lo, hi) if lo <= hi else None
+    A = np.column_stack([np.ones_like(t_s), t_s - t_mid_s])
+    a_ub, b_ub = np.r_[-A, A], np.r_[half_s - offset_s, half_s + offset_s]
+    objective = np.array([1.0, t_eval_s - t_mid_s])
+    ends = []
+    for sign in (1.0, -1.0):
+        res = linprog(sign * objective, A_ub=a_ub, b_ub=b_ub, bounds=[(None, None)] * 2, method="highs")
+        if res.status != 0:
+            return None
+        ends.append(sign * float(res.fun))
+    return ends[0], ends[1]
+
+
+def _offset_for(offsets: pd.DataFrame, segment: str, session: int) -> tuple[float, float, str]:
+    """(offset_s, standard uncertainty s, source) of controller − reference clock for one segment.
+
+    Each start event's offset errs by at most ±T/2 (the first frame's exposure began within one period
+    after the event). When all start events of the session admit one relation (a constant, or a straight
+    line in controller time when they span long enough to resolve a drift of 20 ppm) within that band,
+    the offset at the segment is known to lie in the interval of every such relation's value there (a
+    set-membership bound, exact for bounded errors whatever the events' phases against the frame grid:
+    start events on a controller grid commensurate with the frame period, as on the simulated rig, do
+    not average their errors out); its midpoint is the estimate and (hi − lo)/√12 the standard
+    uncertainty (an unresolved drift adds ±``UNRESOLVED_DRIFT_PPM``·|t − t_mid|). Otherwise (a camera
+    clock restarted) the midpoint of the segment's own events' interval, else the median of the run's.
+    """
+    here = offsets[(offsets["segment"] == segment) & (offsets["session"] == session)]
+    same = offsets[offsets["session"] == session]
+    if len(same) >= 3:
+        t = same["t_s"].to_numpy(float)
+        period = float(same["period_s"].max())
+        t_mid = float(t.mean())
+        spread = float(np.sum((t - t_mid) ** 2))
+        # the drift is fitted only when the events span enough time to pin it to ≤ 20 ppm (1 σ)
+        with_drift = spread > 0 and period / math.sqrt(12.0 * spread) <= 20e-6
+        t_seg = float(here["t_s"].mean()) if len(here) else t_mid
+        half = 0.5 * period * 1.02 + 1e-7  # ±T/2, 2 % for the nominal period against the camera's own
+        ends = _feasible_interval_s(t, same["offset_s"].to_numpy(float), half, t_seg,
+                                    t_mid_s=t_mid, with_drift=with_drift)
+        if ends is not None:
+            lo, hi = ends
+            u = (hi - lo) / math.sqrt(12.0)
+            if not with_drift:  # an unresolved rate error of up to ±UNRESOLVED_DRIFT_PPM away from t_mid
+                u = math.hypot(u, UNRESOLVED_DRIFT_PPM * 1e-6 / math.sqrt(3.0) * abs(t_seg - t_mid))
+            return (0.5 * (lo + hi), u,
+                    f"fit of all {len(same)} camera start events of session {session} (interval bound, "
+                    f"{'drift fitted' if with_drift else 'drift not resolved, 0'}; offset within "
+                    f"{1e3 * (lo - 0.5 * (lo + hi)):+.2f}/{1e3 * (hi - 0.5 * (lo + hi)):+.2f} ms)")
+    if len(here):
+        half = 0.5 * float(here["period_s"].max())
+        off = here["offset_s"].to_numpy(float)
+        lo, hi = float(off.max()) - half, float(off.min()) + half
+        source = f"{len(here)} camera start event(s) of the segment"
+        if lo > hi:  # the segment's own events disagree too: their mean, ±T/√12
+            return float(off.mean()), half / math.sqrt(3.0), source
+        return 0.5 * (lo + hi), (hi - lo) / math.sqrt(12.0), source
+    if len(offsets):
+        u = float(offsets["period_s"].max()) / math.sqrt(12.0)
+        return (float(offsets["offset_s"].median()), u,
+                f"median of all {len(offsets)} camera start events of the run")
+    raise ClockMappingError(
+        f"segment {segment!r}: the record has no `camera` start events relating the camera clocks to the "
+        "controller clock (contracts.md); re-record the segment with a procedure that logs them"
+    )
+
+
+def analyse(
+    run_dir: str | Path,
+    *,
+    sync: str = "trajectory",
+    gate_px: float = 8.0,
+    track_gate_px: float = 25.0,
+    volume_margin_mm: float = 150.0,
+    knot_spacing_frames: float = 0.75,
+) -> Analysis:
+    """Analyse the run folder ``run_dir`` (see the module docstring); deterministic, nothing cached.
+
+    ``sync``: one of ``SYNC_METHODS``. ``gate_px``: epipolar gate of the cross-camera pairing (px).
+    ``track_gate_px``: frame-to-frame gate of the 2-D tracking (px).
+    Raises :class:`MissingInputError` (no calibration.json / timing.json / record),
+    :class:`MissingObservationsError` (a calibrated camera without observations, in the run or in a
+    segment), :class:`NoPairableTracksError`, :class:`ClockMappingError`, :class:`AnalysisError` for
+    malformed files.
+    """
+    if sync not in SYNC_METHODS:
+        raise AnalysisError(f"sync={sync!r}: allowed are {SYNC_METHODS}")
+    run_dir = Path(run_dir)
+    if not (run_dir / "record.jsonl").is_file():
+        raise MissingInputError(f"{run_dir}: not a run folder (no record.jsonl)")
+    calibration = _read_json(run_dir / CALIBRATION_FILE, "calibration",
+                             "run `rig run calibrate` (or copy the bench's calibration.json) first")
+    timing_dict = _read_json(run_dir / TIMING_FILE, "timing", "run `rig run sync` first")
+    cameras = load_cameras(calibration, run_dir / CALIBRATION_FILE)
+    timing = timing_result(timing_dict)
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            run = load_run(run_dir)
+    except RecordError as exc:
+        raise MissingInputError(f"{run_dir}: {exc}") from exc
+    rig = run.start.get("rig") or {}
+    for cam in cameras:
+        if cam not in timing.offset_s:
+            raise AnalysisError(f"{run_dir / TIMING_FILE}: camera {cam!r} of calibration.json has no offset "
+                                f"(timing.json has {sorted(timing.offset_s)}); run `rig run sync`")
+        if cam not in run.observations or run.observations[cam].empty:
+            raise MissingObservationsError(
+                f"{run_dir / 'observations' / cam}: camera {cam!r} of calibration.json has no observations; "
+                "check the camera and re-run the measuring procedure (`rig run <procedure>`)")
+    if timing.reference_camera not in cameras:
+        raise AnalysisError(f"{run_dir / TIMING_FILE}: reference camera {timing.reference_camera!r} is not "
+                            f"calibrated (calibration.json has {sorted(cameras)})")
+    periods = {c: _frame_period_s(rig, c, run.observations[c]) for c in cameras}
+    offsets = controller_offsets(run.events.get("camera"), timing, periods,
+                                 {c: _exposure_s(rig, c) for c in cameras})
+    volume = pairing_volume(rig, volume_margin_mm) if isinstance(rig, dict) else None
+    obs = {}
+    notes: list[str] = []
+    for cam in cameras:
+        o = run.observations[cam].copy()
+        finite = np.isfinite(o[["timestamp_s", "u_px", "v_px"]].to_numpy(float)).all(axis=1)
+        if not finite.all():
+            notes.append(f"camera {cam!r}: {int((~finite).sum())} observation(s) without a position left out")
+            o = o[finite]
+        if "session" not in o.columns:
+            o["session"] = 0
+        o["segment"] = o["segment"].astype(str)
+        obs[cam] = prepare_observations(o.drop(columns=["time_s", "track_id"], errors="ignore"), timing, cam)
+        obs[cam]["track_id"] = tracks_2d(obs[cam], gate_px=track_gate_px).to_numpy()
+    ref = timing.reference_camera
+    groups = sorted({(s, int(n)) for cam in cameras for s, n in zip(obs[cam]["segment"], obs[cam]["session"],
+                                                                     strict=True)})
+    tracks, pairs, clock = [], [], []
+    next_id: dict[str, int] = {}
+    for segment, session in groups:
+        sel = {c: o[(o["segment"] == segment) & (o["session"] == session)] for c, o in obs.items()}
+        empty = sorted(c for c, o in sel.items() if o.empty)
+        if empty:
+            raise MissingObservationsError(
+                f"segment {segment!r} (session {session}): camera(s) {empty} recorded no observations while "
+                f"{sorted(set(sel) - set(empty))} did; check the camera view and re-run that step")
+        p, more = pair_all(sel, cameras, ref, gate_px=gate_px, volume_mm=volume)
+        p.insert(1, "session", session)
+        pairs.append(p)
+        notes += more
+        if p.empty or not (~p["ambiguous"].astype(bool)).any():
+            notes.append(f"segment {segment!r} (session {session}): no pairable tracks")
+            continue
+        t = triangulate_tracks(sel, cameras, timing, sync=sync, reference=ref, pairs=p,
+                               knot_spacing_frames=knot_spacing_frames)
+        notes += t.attrs.get("notes", [])
+        if t.empty:
+            continue
+        offset, u_offset, source = _offset_for(offsets, segment, session)
+        clock.append((segment, session, offset, u_offset, source))
+        t = t.copy()
+        t["time_s"] = t["time_s"] + offset
+        t["segment"] = segment
+        t["track_id"] = t["track_id"].astype(np.int64) + next_id.get(segment, 0)
+        next_id[segment] = int(t["track_id"].max()) + 1  # sessions of a segment continue the numbering
+        tracks.append(t)
+    if not tracks:
+        raise NoPairableTracksError(
+            f"{run_dir}: no track of {ref!r} could be paired with another camera in any segment "
+            f"({', '.join(repr(s) for s, _ in groups)}); check that calibration.json and timing.json belong "
+            "to these cameras (`rig run calibrate`, `rig run sync`)")
+    out = pd.concat(tracks, ignore_index=True)
+    out = out.sort_values(["segment", "time_s", "track_id"], kind="stable", ignore_index=True)
+    return Analysis(
+        tracks=out[TRACK_COLUMNS],
+        timing=timing_dict,
+        calibration=calibration,
+        sync=sync,
+        pairs=pd.concat(pairs, ignore_index=True) if pairs else pd.DataFrame(),
+        clock=pd.DataFrame(clock, columns=["segment", "session", "offset_s", "u_offset_s", "source"]),
+        notes=notes,
+    )

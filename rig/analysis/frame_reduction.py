@@ -1,0 +1,203 @@
+"""Frames → marker observations, one frame at a time: the reduction shared by live recordings and video files.
+
+:class:`MarkerReducer` keeps the state of one camera stream: the first frame is searched whole
+(:func:`rig.stereo.detect_markers`), later frames only in a window around each marker's last position
+(:func:`rig.stereo.track_markers`), with a whole-frame search again when a marker is lost and every
+``redetect_every`` frames (markers entering the view). A marker that moved more than a quarter window in
+the last frame (a rotor, ≈ 100 px per frame at 10 Hz) is searched where the circle through its last three
+positions puts it (:func:`rig.analysis.tracks2d.circle_prediction`), so it is followed in its window rather
+than
+found by a whole-frame search every frame. ``mode="detect"`` searches every frame whole. Each marker gets a
+``track_2d`` number that it keeps while it is followed; a whole-frame detection hands the previous numbers
+on to the detections within half a window of where each was expected (one-to-one, Hungarian assignment),
+new markers get new numbers (a fast marker's first frames, before its motion is known, included: the 2-D
+tracking of :mod:`rig.analysis.tracks2d` joins them).
+
+Used by :mod:`rig.run.acquire` (cameras of the rig, reduced while recording) and
+:mod:`rig.deploy.video_markers` (video files of a deployment).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from scipy.optimize import linear_sum_assignment
+
+from rig.analysis.tracks2d import circle_prediction
+from rig.stereo import FLAG_LOST, detect_markers, track_markers, track_markers_sequence
+
+__all__ = ["DETECT_ONLY_KEYS", "TRACK_KEYS", "MarkerReducer", "ReduceOptions", "track_options"]
+
+#: distance (px) within which a lone leftover marker continues its motion history across a whole-frame search
+ACQUIRE_PX = 150.0
+#: largest motion (px per frame, in u and in v) of every marker for reduce_many to track a run of frames
+STILL_PX = 0.5
+#: keyword options that both :func:`detect_markers` and :func:`track_markers` take
+TRACK_KEYS = ("polarity", "min_area_px", "max_area_px", "min_roundness", "min_contrast", "centre",
+              "max_skewness", "outline_check", "max_edge_rms_px")
+#: keyword options of :func:`detect_markers` only (whole-frame search); not passed to the tracker
+DETECT_ONLY_KEYS = ("threshold", "roi", "downsample", "require")
+
+
+def track_options(detect: dict[str, Any]) -> dict[str, Any]:
+    """The part of ``detect`` (options of :func:`detect_markers`) that :func:`track_markers` accepts."""
+    return {k: v for k, v in detect.items() if k in TRACK_KEYS}
+
+
+@dataclass(frozen=True)
+class ReduceOptions:
+    """How frames become marker rows.
+
+    mode: "track" (detect once, then track; re-detect on loss) or "detect" (whole frame every time).
+    window_px: tracking window side (px, integer ≥ 7): twice the largest frame-to-frame motion plus a
+    marker diameter. redetect_every: frames between whole-frame detections in "track" mode (integer ≥ 1).
+    detect: keyword options of :func:`rig.stereo.detect_markers` (:data:`TRACK_KEYS` and
+    :data:`DETECT_ONLY_KEYS`); the tracker gets only the :data:`TRACK_KEYS` among them. An unknown key
+    raises ``ValueError`` here rather than ``TypeError`` at the first frame.
+    """
+
+    mode: str = "track"
+    window_px: int = 51
+    redetect_every: int = 30
+    detect: dict[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        if self.mode not in ("track", "detect"):
+            raise ValueError(f"mode={self.mode!r} not allowed; allowed: 'track' or 'detect'")
+        if int(self.window_px) != self.window_px or self.window_px < 7:
+            raise ValueError(f"window_px={self.window_px!r}: allowed: an integer ≥ 7")
+        if int(self.redetect_every) != self.redetect_every or self.redetect_every < 1:
+            raise ValueError(f"redetect_every={self.redetect_every!r}: allowed: an integer ≥ 1")
+        unknown = sorted(set(self.detect) - set(TRACK_KEYS) - set(DETECT_ONLY_KEYS))
+        if unknown:
+            raise ValueError(f"detect options {unknown} not known; allowed: "
+                             f"{', '.join(TRACK_KEYS + DETECT_ONLY_KEYS)}")
+
+
+class MarkerReducer:
+    """Per camera stream (and segment): frame → marker rows (``MARKER_DTYPE``) and their ``track_2d`` numbers.
+
+    first_id: the number the first new marker gets (continue a segment over several recordings).
+    """
+
+    def __init__(self, options: ReduceOptions, first_id: int = 0) -> None:
+        self.options = options
+        self._track_kw = track_options(options.detect)
+        self._uv = np.empty((0, 2))
+        self._ids = np.empty(0, dtype=np.int64)
+        self._next_id = int(first_id)
+        self._since_detect = 0
+        self._hist: list[list[np.ndarray]] = []  # last three positions of each marker row of ``_uv``
+        self.whole_frame_searches = 0  # frames searched whole (the costly path), for diagnostics
+
+    @property
+    def next_id(self) -> int:
+        """The number the next new marker gets (continue from it in a later recording of the segment)."""
+        return self._next_id
+
+    def _predicted(self, shape: tuple[int, ...]) -> np.ndarray:
+        """Where each followed marker should be in this frame: its last position, or — when it moved more
+        than a quarter window in the last frame (a rotor, ≈ 100 px per frame at 10 Hz) — the circle through
+        its last three positions turned on by the same angle (constant velocity if they are collinear)."""
+        out = self._uv.copy()
+        for j, h in enumerate(self._hist):
+            if len(h) < 2 or np.linalg.norm(h[-1] - h[-2]) <= self.options.window_px / 4:
+                continue
+            p = circle_prediction([0.0, 1.0, 2.0], h, 3.0) if len(h) == 3 else None
+            out[j] = p if p is not None else 2 * h[-1] - h[-2]
+        out[:, 0] = np.clip(out[:, 0], 0, shape[1] - 1)
+        out[:, 1] = np.clip(out[:, 1], 0, shape[0] - 1)
+        return out
+
+    def _associate(self, found: np.ndarray, predicted: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """For whole-frame detections: (track numbers, previous row continued or −1). A detection within half
+        a window of a marker's predicted position keeps its number; among the markers left on both sides, a
+        previous one and a detection within ``ACQUIRE_PX`` of each other, each the other's only candidate
+        there, are linked for the motion model only (a fast marker whose motion is not known yet: it gets a
+        new number now, and keeps the next one once its motion predicts it); else new."""
+        ids = np.full(len(found), -1, dtype=np.int64)
+        links = np.full(len(found), -1, dtype=np.int64)
+        uv = np.c_[found["u_px"], found["v_px"]]
+        if len(predicted) and len(uv):
+            cost = np.linalg.norm(uv[:, None, :] - predicted[None, :, :], axis=2)
+            r, c = linear_sum_assignment(cost)
+            ok = cost[r, c] <= self.options.window_px / 2
+            ids[r[ok]] = self._ids[c[ok]]
+            links[r[ok]] = c[ok]
+            free_d = np.flatnonzero(ids < 0)
+            free_p = np.setdiff1d(np.arange(len(predicted)), c[ok])
+            near = cost[np.ix_(free_d, free_p)] <= ACQUIRE_PX
+            lone = near & (near.sum(axis=1) == 1)[:, None] & (near.sum(axis=0) == 1)[None, :]
+            for di, pi in zip(*np.nonzero(lone), strict=True):
+                links[free_d[di]] = free_p[pi]
+        new = ids < 0
+        ids[new] = np.arange(self._next_id, self._next_id + int(new.sum()))
+        self._next_id += int(new.sum())
+        return ids, links
+
+    def reduce(self, image: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Marker rows of one 2-D uint8 frame (in stream order) and their ``track_2d`` numbers (int64)."""
+        opts = self.options
+        found: np.ndarray | None = None
+        ids: np.ndarray | None = None
+        predicted = self._predicted(image.shape)
+        links = np.arange(len(self._uv))
+        if opts.mode == "track" and len(self._uv) and self._since_detect < opts.redetect_every:
+            tracked = track_markers(image, predicted, window_px=opts.window_px, **self._track_kw)
+            if not np.any(tracked["flags"] & FLAG_LOST):
+                found, ids = tracked, self._ids
+                self._since_detect += 1
+        if found is None:
+            found = detect_markers(image, **opts.detect)
+            self.whole_frame_searches += 1
+            ids, links = self._associate(found, predicted)
+            self._since_detect = 1
+        assert ids is not None
+        self._uv = np.c_[found["u_px"], found["v_px"]]
+        self._ids = ids
+        self._hist = [[*(self._hist[k][-2:] if k >= 0 else []), uv]
+                      for k, uv in zip(links, self._uv, strict=True)]
+        return found, ids
+
+    def reduce_many(self, images: list[np.ndarray]) -> list[tuple[np.ndarray, np.ndarray]]:
+        """:meth:`reduce` of each frame in order — the same rows and numbers — with runs of frames in which
+        every marker is searched at its last position (none moved more than a quarter window, none off
+        the frame) tracked in one call (:func:`rig.stereo.track_markers_sequence`), when the markers were
+        nearly still in the last frame (< ``STILL_PX``: their windows stay put for several frames, where
+        the one call is cheaper per frame; with markers moving a pixel per frame it is dearer)."""
+        out: list[tuple[np.ndarray, np.ndarray]] = []
+        i = 0
+        while i < len(images):
+            n = min(len(images) - i, self.options.redetect_every - self._since_detect)
+            still = all(len(h) >= 2 and np.abs(h[-1] - h[-2]).max() < STILL_PX for h in self._hist)
+            if (self.options.mode == "track" and len(self._uv) and n > 1 and still
+                    and np.array_equal(self._predicted(images[i].shape), self._uv)):
+                i += self._track_run(images[i : i + n], out)
+            if i < len(images):
+                out.append(self.reduce(images[i]))
+                i += 1
+        return out
+
+    def _track_run(self, images: list[np.ndarray], out: list) -> int:
+        """Track frames of ``images`` in one call while :meth:`reduce` would search each at the previous
+        frame's positions; append their (rows, numbers) to ``out``; return how many were taken."""
+        rows = track_markers_sequence(images, self._uv, window_px=self.options.window_px, **self._track_kw)
+        height, width = images[0].shape
+        uv = np.stack([rows["u_px"], rows["v_px"]], axis=-1)  # (n, K, 2)
+        with np.errstate(invalid="ignore"):
+            step = np.linalg.norm(np.diff(np.concatenate([self._uv[None], uv]), axis=0), axis=2)
+            # frame f is taken when nothing is lost in it and it leaves reduce's prediction for frame
+            # f + 1 at the positions of frame f (no marker moved more than a quarter window, none is
+            # clipped to the frame); the first frame that does not is taken too when nothing is lost in it
+            lost = (rows["flags"] & FLAG_LOST).any(axis=1)
+            plain = ((step <= self.options.window_px / 4) & (uv[..., 0] >= 0) & (uv[..., 0] <= width - 1)
+                     & (uv[..., 1] >= 0) & (uv[..., 1] <= height - 1)).all(axis=1) & ~lost
+        taken = int(np.argmin(plain)) + (0 if lost[np.argmin(plain)] else 1) if not plain.all() else len(rows)
+        for rec in rows[:taken]:
+            self._since_detect += 1
+            self._uv = np.c_[rec["u_px"], rec["v_px"]]
+            self._hist = [[*h[-2:], u] for h, u in zip(self._hist, self._uv, strict=True)]
+            out.append((rec, self._ids))
+        return taken

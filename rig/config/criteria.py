@@ -1,0 +1,34 @@
+"""``[criteria]``: the certificate's acceptance thresholds and decision rule (the one source of their
+defaults)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from rig.config.schema import spec
+
+_POSITIVE = spec(lo=0.0, lo_open=True)
+
+
+@dataclass(frozen=True)
+class CriteriaConfig:
+    """Acceptance thresholds of the certificate (each a maximum unless named ``min_``)."""
+
+    calibration_rms_px: float = field(default=0.5, metadata=_POSITIVE)
+    position_rms_mm: float = field(default=0.5, metadata=_POSITIVE)
+    position_max_mm: float = field(default=1.5, metadata=_POSITIVE)
+    repeatability_mm: float = field(default=0.5, metadata=_POSITIVE)
+    amplitude_error_pct: float = field(default=5.0, metadata=spec(lo=0.0, lo_open=True, hi=100.0))
+    amplitude_error_up_to_hz: float = field(default=10.0, metadata=_POSITIVE)
+    min_usable_frequency_hz: float = field(default=10.0, metadata=_POSITIVE)
+    sync_uncertainty_ms: float = field(default=1.0, metadata=_POSITIVE)
+    frequency_error_pct: float = field(default=1.0, metadata=spec(lo=0.0, lo_open=True, hi=100.0))
+    radius_error_mm: float = field(default=0.5, metadata=_POSITIVE)
+    detection_pct: float = field(default=100.0, metadata=spec(lo=0.0, hi=100.0))
+    length_error_mm: float = field(default=1.0, metadata=_POSITIVE)
+    # settings of the decision (reports/certificate.py)
+    decision_rule: str = field(default="guarded", metadata=spec(choices=("guarded", "simple")))
+    reference_u_mm: float = field(default=0.02, metadata=spec(lo=0.0, hi=100.0))
+    fit_max_hz: float | None = field(default=None, metadata=_POSITIVE)
+    frequency_bin_hz: float = field(default=1.0, metadata=_POSITIVE)
+    identification_gate_mm: float = field(default=50.0, metadata=_POSITIVE)

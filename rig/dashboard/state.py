@@ -1,0 +1,229 @@
+"""What the live dashboard shows, folded from the run record's documents and the runner's progress.
+
+:class:`DashboardState` is fed in the run's own threads (:meth:`on_document` is a
+:meth:`rig.record.writer.RunRecord.add_observer` observer, :meth:`on_progress` the runner's progress
+callback); each
+call only updates a few fields under a lock and returns. Clients read it in their own threads with
+:meth:`patch`: the scalar fields plus, per plot, the points appended since the client's cursor. Plots are
+:class:`Series` of at most ``max_points`` rows (the oldest dropped), so memory is bounded whatever the run
+length and a slow client just gets a larger patch next time (nothing queues per client).
+
+Times are rig-clock seconds (``time_s`` of the documents; virtual on the simulated rig). The time remaining
+is the plan's estimate (:mod:`rig.run.plan`): the durations of the steps not yet begun, plus the current
+step's
+duration × (1 − its progress fraction) (or minus the rig time spent in it when no fraction is reported).
+Device states are what the procedures recorded (``arm``, ``exciter``, ``rotor``, ``generator`` events,
+``interlock`` documents, the ``stop``'s read-back): the dashboard sends nothing to a device.
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+from collections import deque
+from collections.abc import Callable
+from typing import Any
+
+__all__ = ["PLOTS", "DashboardState", "Series"]
+
+# plot name → its columns (the first is the x axis: rig time, s)
+PLOTS: dict[str, tuple[str, ...]] = {
+    "arm": ("t_s", "x_mm", "y_mm", "z_mm", "position_error_mm"),
+    "exciter": ("t_s", "setpoint_hz", "frequency_hz", "lag_hz"),
+    "rotor": ("t_s", "setpoint_hz", "frequency_hz", "lag_hz"),
+}
+DEVICE_STREAMS = ("exciter", "rotor", "generator")
+
+
+class Series:
+    """Append-only rows with absolute indices (0, 1, …); holds the last ``max_points`` rows."""
+
+    def __init__(self, columns: tuple[str, ...], max_points: int = 2000) -> None:
+        if max_points < 1:
+            raise ValueError(f"max_points {max_points!r} not allowed; allowed: ≥ 1")
+        self.columns = columns
+        self.rows: deque[list[float]] = deque(maxlen=max_points)
+        self.total = 0  # rows ever appended
+
+    def append(self, row: list[float]) -> None:
+        self.rows.append(row)
+        self.total += 1
+
+    def since(self, cursor: int) -> tuple[int, list[list[float]]]:
+        """(absolute index of the first row returned, the rows after ``cursor`` still held)."""
+        first_held = self.total - len(self.rows)
+        start = max(cursor, first_held)
+        return start, list(self.rows)[start - first_held:]
+
+
+class DashboardState:
+    """The dashboard's model (thread-safe); see the module docstring.
+
+    Args:
+        title: what the page calls the run (the procedure, or "preview").
+        plan_steps: ``(start document) -> [(step name, duration_s)]``, the plan of the run (None: unknown).
+        max_points: rows held per plot.
+    """
+
+    def __init__(self, title: str, *, plan_steps: Callable[[dict[str, Any]], list[tuple[str, float]]] | None
+                 = None, max_points: int = 2000) -> None:
+        self._lock = threading.Condition()
+        self._plan_steps = plan_steps
+        self.version = 0
+        self.fields: dict[str, Any] = {
+            "title": title, "run_id": None, "simulated": None, "steps": [], "current_step": None,
+            "progress": {"fraction": None, "message": ""}, "remaining_s": None, "time_s": None,
+            "devices": {}, "interlocks": [], "messages": [], "stop": None, "hints": None,
+        }
+        self.series = {name: Series(columns, max_points) for name, columns in PLOTS.items()}
+        self._step_begin_s: float | None = None
+
+    # ---------------------------------------------------------------- writers (the run's threads)
+    def _changed(self) -> None:
+        self.version += 1
+        self._lock.notify_all()
+
+    def on_document(self, doc: dict[str, Any]) -> None:
+        """Fold one record document in (a :meth:`RunRecord.add_observer` observer)."""
+        handlers = {"start": self._on_start, "step": self._on_step, "event": self._on_event,
+                    "interlock": self._on_interlock, "log": self._on_log, "stop": self._on_stop}
+        handler = handlers.get(doc["type"])
+        if handler is None:
+            return
+        with self._lock:
+            self.fields["time_s"] = doc.get("time_s")
+            handler(doc)
+            self._update_remaining()
+            self._changed()
+
+    def on_progress(self, fraction: float | None, message: str) -> None:
+        """The runner's progress callback: the current step's fraction (0–1 or None) and message."""
+        with self._lock:
+            self.fields["progress"] = {"fraction": fraction, "message": message}
+            self._update_remaining()
+            self._changed()
+
+    def set_hints(self, hints: dict[str, Any]) -> None:
+        """The preview's per-camera findings and hints (see :mod:`rig.preview`)."""
+        with self._lock:
+            self.fields["hints"] = hints
+            self._changed()
+
+    def _on_start(self, doc: dict[str, Any]) -> None:
+        f = self.fields
+        f["run_id"], f["title"] = doc.get("run_id"), doc.get("procedure") or f["title"]
+        f["simulated"] = bool(((doc.get("rig") or {}).get("station") or {}).get("simulated"))
+        done = set(doc.get("completed_steps") or [])
+        planned: list[tuple[str, float]] = []
+        if self._plan_steps is not None:
+            planned = self._plan_steps(doc)
+        f["steps"] = [{"name": name, "duration_s": float(d), "status": "done" if name in done else "pending"}
+                      for name, d in planned]
+
+    def _step(self, name: str) -> dict[str, Any]:
+        for step in self.fields["steps"]:
+            if step["name"] == name:
+                return step
+        step = {"name": name, "duration_s": 0.0, "status": "pending"}  # a step the plan does not time
+        self.fields["steps"].append(step)
+        return step
+
+    def _on_step(self, doc: dict[str, Any]) -> None:
+        step = self._step(str(doc["name"]))
+        if doc.get("status") == "begin":
+            step["status"] = "running"
+            self.fields["current_step"] = step["name"]
+            self.fields["progress"] = {"fraction": None, "message": ""}
+            self._step_begin_s = doc.get("time_s")
+        else:
+            step["status"] = "done"
+            if self.fields["current_step"] == step["name"]:
+                self.fields["current_step"] = None
+
+    def _on_event(self, doc: dict[str, Any]) -> None:
+        stream, data, t_s = doc.get("stream"), doc.get("data") or {}, float(doc.get("time_s") or 0.0)
+        devices = self.fields["devices"]
+        if stream == "arm":
+            pose = data.get("reported_pose") or data.get("commanded_pose") or []
+            devices["robot"] = {"pose": pose, "commanded_pose": data.get("commanded_pose"),
+                                "position_error_mm": data.get("position_error_mm")}
+            commanded = list(data.get("commanded_pose") or [math.nan] * 3)
+            err = data.get("position_error_mm")
+            self.series["arm"].append([t_s, *commanded[:3], math.nan if err is None else float(err)])
+        elif stream in DEVICE_STREAMS:
+            devices[stream] = {k: v for k, v in data.items() if not isinstance(v, dict | list)}
+            if stream in self.series and data.get("frequency_hz") is not None:
+                setpoint_hz, polled_hz = _num(data.get("setpoint_hz")), float(data["frequency_hz"])
+                self.series[stream].append([t_s, setpoint_hz, polled_hz, polled_hz - setpoint_hz])
+        elif stream == "devices":
+            self.fields["devices_snapshot"] = sorted(k for k in data if k not in ("error",))
+
+    def _on_interlock(self, doc: dict[str, Any]) -> None:
+        self.fields["interlocks"].append({"device": doc.get("device"), "reason": doc.get("reason")})
+
+    def _on_log(self, doc: dict[str, Any]) -> None:
+        if doc.get("level") in ("warning", "error", "critical", "info"):
+            self.fields["messages"] = [*self.fields["messages"][-19:],
+                                       {"level": doc.get("level"), "message": doc.get("message")}]
+
+    def _on_stop(self, doc: dict[str, Any]) -> None:
+        self.fields["stop"] = {k: doc.get(k) for k in ("exit_status", "reason", "outcome", "exit_code",
+                                                        "verdict", "safe_state", "safe_state_failures")}
+        self.fields["current_step"] = None
+        for step in self.fields["steps"]:
+            if step["status"] == "running":
+                step["status"] = "stopped"
+
+    def _update_remaining(self) -> None:
+        steps = self.fields["steps"]
+        if not steps:
+            self.fields["remaining_s"] = None
+            return
+        if self.fields["stop"] is not None:
+            self.fields["remaining_s"] = 0.0
+            return
+        remaining = sum(s["duration_s"] for s in steps if s["status"] == "pending")
+        current = next((s for s in steps if s["status"] == "running"), None)
+        if current is not None:
+            fraction = self.fields["progress"]["fraction"]
+            if fraction is not None:
+                remaining += current["duration_s"] * (1.0 - fraction)
+            elif self._step_begin_s is not None and self.fields["time_s"] is not None:
+                remaining += max(0.0, current["duration_s"] - (self.fields["time_s"] - self._step_begin_s))
+            else:
+                remaining += current["duration_s"]
+        self.fields["remaining_s"] = remaining
+
+    # ---------------------------------------------------------------- readers (the clients' threads)
+    def wait_change(self, seen_version: int, timeout_s: float) -> int:
+        """Block until the version differs from ``seen_version`` or ``timeout_s`` passed; the version."""
+        with self._lock:
+            self._lock.wait_for(lambda: self.version != seen_version, timeout=timeout_s)
+            return self.version
+
+    def patch(self, cursors: dict[str, int]) -> tuple[dict[str, Any], dict[str, int]]:
+        """The fields and, per plot, ``{"columns", "start", "rows"}`` after ``cursors`` (updated copy)."""
+        with self._lock:
+            out = {**self.fields, "version": self.version, "plots": {}}
+            new_cursors = dict(cursors)
+            for name, series in self.series.items():
+                start, rows = series.since(cursors.get(name, 0))
+                out["plots"][name] = {"columns": series.columns, "start": start, "rows": rows,
+                                      "total": series.total}
+                new_cursors[name] = series.total
+            return _deep_copy(out), new_cursors
+
+
+def _num(value: Any) -> float:
+    return math.nan if value is None else float(value)
+
+
+def _deep_copy(value: Any) -> Any:
+    """A copy made of plain containers (the caller serialises it outside the lock); NaN → None."""
+    if isinstance(value, dict):
+        return {k: _deep_copy(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [_deep_copy(v) for v in value]
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    return value

@@ -1,0 +1,151 @@
+"""Video file → marker observations (one row per marker per frame), with the file's frame-time report.
+
+Frames are decoded in order by :class:`drivers.camera.video_file.VideoFile` (container time stamps,
+duplicated and dropped frames reported, never shifted silently). Each frame is reduced at once to marker
+rows and its image dropped, by :class:`rig.analysis.frame_reduction.MarkerReducer` (the reduction the rig's
+own
+recordings use): the first frame is searched whole (:func:`rig.stereo.detect_markers`), later frames only
+in a window around each marker's last position (:func:`rig.stereo.track_markers`), with a whole-frame
+search again when a marker is lost and every ``redetect_every`` frames (markers entering the view).
+``mode="detect"`` searches every frame whole.
+
+Duplicated frames carry no new instant: their rows are kept with ``duplicate = True`` so that what was
+seen stays inspectable, and the analysis leaves them out. Columns (contracts.md, run-folder observations):
+``frame_index``, ``timestamp_s`` (the file's clock), ``u_px``, ``v_px``, ``area_px``, ``roundness``,
+``contrast``, ``flags``, ``duplicate``. Time spent decoding and extracting is measured (``timings_s``).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+from scipy.optimize import linear_sum_assignment
+
+from drivers.camera.video_file import FrameTimeReport, VideoFile, VideoTruncatedError
+from rig.analysis.frame_reduction import MarkerReducer, ReduceOptions
+from rig.stereo import MARKER_DTYPE
+
+__all__ = ["ExtractOptions", "VideoObservations", "extract_video"]
+
+_FIELDS = ("u_px", "v_px", "area_px", "roundness", "contrast")
+BATCH_FRAMES = 16  # frames decoded before they are reduced together (16 1080p frames: 33 MB)
+
+
+@dataclass(frozen=True)
+class ExtractOptions:
+    """How frames become marker rows.
+
+    ``mode``: "track" (search whole once, then near the last positions) or "detect" (whole frame every time).
+    ``window_px``: tracking window side (px): marker diameter + 8 px + twice the largest motion per frame.
+    ``redetect_every``: frames between whole-frame searches in "track" mode. ``detect``: keyword options of
+    :func:`rig.stereo.detect_markers` (polarity, min_area_px, min_contrast, …; the tracker gets only those
+    it takes, see :class:`rig.analysis.frame_reduction.ReduceOptions`). ``duplicate_policy`` and ``fps`` go to
+    :class:`VideoFile`.
+    """
+
+    mode: str = "track"
+    window_px: int = 41
+    redetect_every: int = 60
+    detect: dict[str, Any] = field(default_factory=dict)
+    duplicate_policy: str = "replace"
+    fps: float | None = None
+
+    def __post_init__(self) -> None:
+        if self.mode not in ("track", "detect"):
+            raise ValueError(f"mode={self.mode!r}; allowed: 'track' or 'detect'")
+        if int(self.window_px) != self.window_px or self.window_px < 7:
+            raise ValueError(f"window_px={self.window_px!r}; allowed: an integer ≥ 7")
+        if int(self.redetect_every) != self.redetect_every or self.redetect_every < 1:
+            raise ValueError(f"redetect_every={self.redetect_every!r}; allowed: an integer ≥ 1")
+        self.reduce_options()  # checks the detect options
+
+    def reduce_options(self) -> ReduceOptions:
+        """The frame-reduction part of these options."""
+        return ReduceOptions(mode=self.mode, window_px=self.window_px, redetect_every=self.redetect_every,
+                             detect=dict(self.detect))
+
+
+@dataclass
+class VideoObservations:
+    """Marker rows of one video, its frame-time report, its size, and where the time went (s)."""
+
+    camera: str
+    observations: pd.DataFrame
+    report: FrameTimeReport
+    width_px: int
+    height_px: int
+    fps: float
+    timings_s: dict[str, float]
+    error: str | None = None  # set when decoding stopped early (the rows read so far are kept)
+
+
+def _frame(parts: list[tuple[int, float, bool, np.ndarray]]) -> pd.DataFrame:
+    counts = [len(p[3]) for p in parts]
+    rec = np.concatenate([p[3] for p in parts]) if parts else np.empty(0, MARKER_DTYPE)
+    out: dict[str, Any] = {
+        "frame_index": np.repeat(np.array([p[0] for p in parts], dtype=np.int64), counts),
+        "timestamp_s": np.repeat(np.array([p[1] for p in parts], dtype=float), counts),
+    }
+    out.update({k: rec[k].astype(float) for k in _FIELDS})
+    out["flags"] = rec["flags"].astype(np.uint8)
+    out["duplicate"] = np.repeat(np.array([p[2] for p in parts], dtype=bool), counts)
+    return pd.DataFrame(out)
+
+
+def extract_video(path: str | Path, camera: str | None = None,
+                  options: ExtractOptions | None = None) -> VideoObservations:
+    """Marker observations of the video at ``path`` (see the module docstring).
+
+    A truncated or corrupt file does not raise here: the rows read so far are returned with ``error`` set
+    and ``report.truncated``; the caller decides (``rig measure`` keeps the partial result and says so).
+    Raises :class:`drivers.camera.video_file.VideoOpenError` when the file cannot be opened at all.
+    """
+    opts = options or ExtractOptions()
+    video = VideoFile(path, name=camera, fps=opts.fps, duplicate_policy=opts.duplicate_policy)
+    reducer = MarkerReducer(opts.reduce_options())
+    parts: list[tuple[int, float, bool, np.ndarray]] = []
+    t_extract = 0.0
+    error = None
+    t_all = time.perf_counter()
+    frames = video.frames()
+    batch: list[tuple[int, float, bool, np.ndarray]] = []  # frames reduced together (reduce_many)
+
+    def flush() -> float:
+        t0 = time.perf_counter()
+        reduced = reducer.reduce_many([image for *_, image in batch])
+        parts.extend((*info, found) for (*info, _), (found, _) in zip(batch, reduced, strict=True))
+        batch.clear()
+        return time.perf_counter() - t0
+
+    try:
+        for frame in frames:
+            duplicate = frame.index in video.duplicate_indices
+            batch.append((frame.index, frame.timestamp_s, duplicate, frame.image))
+            if len(batch) == BATCH_FRAMES:
+                t_extract += flush()
+    except VideoTruncatedError as exc:
+        error = str(exc)
+    t_extract += flush()
+    total = time.perf_counter() - t_all
+    obs = _frame(parts)
+    return VideoObservations(
+        camera=video.name, observations=obs, report=video.report, width_px=video.width_px,
+        height_px=video.height_px, fps=video.fps, error=error,
+        timings_s={"total": total, "extract": t_extract, "decode": total - t_extract,
+                   "frames": float(video.report.frames_read)})
+
+
+def associate(uv_prev: np.ndarray, uv_next: np.ndarray, gate_px: float) -> np.ndarray:
+    """Index into ``uv_prev`` of each row of ``uv_next`` within ``gate_px`` (one-to-one), −1 otherwise."""
+    out = np.full(len(uv_next), -1, dtype=np.int64)
+    if len(uv_prev) and len(uv_next):
+        cost = np.linalg.norm(uv_next[:, None, :] - uv_prev[None, :, :], axis=2)
+        r, c = linear_sum_assignment(cost)
+        ok = cost[r, c] <= gate_px
+        out[r[ok]] = c[ok]
+    return out

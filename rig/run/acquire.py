@@ -1,0 +1,216 @@
+"""Record the cameras during a motion and reduce every frame to marker observations as it is read.
+
+``Acquirer(ctx, options)`` is used once per procedure step::
+
+    acq = Acquirer(ctx, ReduceOptions(mode="track", window_px=51))
+    rec = acq.record("sweep", lambda: exciter.sweep(profile, on_sample=...))   # or a duration in s
+    rec.observations["left"]          # DataFrame of what was appended to observations/left/
+    acq.close()
+
+:meth:`Acquirer.record` starts every camera (``FrameSource.start``), runs the motion (a callable, or waits
+a duration with checkpoints), stops the cameras, and reduces each camera's frames in its own reader thread
+to marker rows as they are read (the image is dropped) with
+:class:`rig.analysis.frame_reduction.MarkerReducer`:
+the first frame of a segment is searched whole (:func:`rig.stereo.detect_markers`), later frames only near
+the markers' last positions (:func:`rig.stereo.track_markers`), with a whole-frame detection again when a
+marker is lost and every ``redetect_every`` frames (to pick up markers that entered the view).
+``mode="detect"`` searches every frame whole (for fast motion such as the rotor, ≈ 100 px per frame).
+
+When a camera is read depends on the source (its optional attribute ``live``):
+
+- a **live** device (``live = True``, e.g. :class:`drivers.camera.opencv_device.OpenCVCamera`) streams
+  into a bounded queue (120 frames = 2 s at 60 fps) that overflows when nobody reads it; its reader starts
+  right after its ``start()`` and reduces frames *during* the motion, so a recording of any length loses
+  nothing as long as the reduction keeps up with the frame rate (what it cannot keep up with the device
+  counts in ``stats.overflow``). An error of the stream (device unplugged) is raised when the motion ends.
+- any other source (``live`` absent or False: the simulated camera, which renders its recording after
+  ``stop()``, or a video file) is read after ``stop()``, by the same kind of reader, all cameras in parallel.
+
+While the readers finish after ``stop()``, the procedure's checkpoint is polled (every 0.2 s); an abort, or
+an error of any reader, stops all of them (frames not yet reduced are dropped, nothing is written).
+
+Rows go to the run folder's observations (``segment`` = the name given to ``record``) with an extra
+column ``track_2d`` (int: the same marker in consecutive frames of one camera and segment keeps its
+number). Each recording writes two ``camera`` events per camera relating the clocks: ``start`` with the
+rig time ``t_s`` of ``start()``, the first frame's index and camera time stamp; ``stop`` with ``t_s`` of
+``stop()``, the last frame's index and time stamp and the number of frames.
+"""
+
+from __future__ import annotations
+
+import threading
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any, Generic, TypeVar
+
+import numpy as np
+import pandas as pd
+
+from rig.analysis.frame_reduction import MarkerReducer, ReduceOptions
+from rig.run.frame_tap import FRAMES
+from rig.stereo import FLAG_LOST
+
+__all__ = ["Acquirer", "MarkerReducer", "Recording", "ReduceOptions"]
+
+T = TypeVar("T")
+_FIELDS = ("u_px", "v_px", "area_px", "roundness", "contrast")
+
+
+@dataclass
+class Recording(Generic[T]):
+    """One recording: the motion's return value, rig-clock start/stop of the cameras, the rows written."""
+
+    segment: str
+    result: T
+    t_start_s: float
+    t_stop_s: float
+    observations: dict[str, pd.DataFrame]
+
+
+def _rows_frame(parts: list[tuple[int, float, np.ndarray, np.ndarray]]) -> pd.DataFrame:
+    if not parts:
+        cols = {"frame_index": np.empty(0, np.int64), "timestamp_s": np.empty(0)}
+        cols.update({k: np.empty(0) for k in _FIELDS})
+        cols.update(flags=np.empty(0, np.uint8), track_2d=np.empty(0, np.int64))
+        return pd.DataFrame(cols)
+    counts = [len(p[2]) for p in parts]
+    rec = np.concatenate([p[2] for p in parts])
+    out = {"frame_index": np.repeat([p[0] for p in parts], counts).astype(np.int64),
+           "timestamp_s": np.repeat([p[1] for p in parts], counts).astype(float)}
+    out.update({k: rec[k].astype(float) for k in _FIELDS})
+    out["flags"] = rec["flags"].astype(np.uint8)
+    out["track_2d"] = np.concatenate([p[3] for p in parts]).astype(np.int64)
+    return pd.DataFrame(out)
+
+
+class Acquirer:
+    """Camera recordings of one procedure step (see the module docstring)."""
+
+    def __init__(self, ctx: Any, options: ReduceOptions | None = None) -> None:
+        self.ctx = ctx
+        self.options = options or ReduceOptions()
+        self.cameras: dict[str, Any] = dict(ctx.station.cameras)
+        if len(self.cameras) < 2:
+            raise RuntimeError(f"the station has {len(self.cameras)} camera(s); a stereo recording needs 2")
+        self._writers = {name: ctx.observation_writer(name) for name in self.cameras}
+        self._next_ids: dict[tuple[str, str], int] = {}
+        self.frames_processed = 0
+
+    def close(self) -> None:
+        for writer in self._writers.values():
+            writer.close()
+
+    def __enter__(self) -> Acquirer:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def _reader(self, name: str, segment: str, cancel: threading.Event) -> _Reader:
+        # track numbers continue over the recordings of one segment (a stopped camera may see a moved scene,
+        # so every recording starts with a whole-frame detection)
+        reducer = MarkerReducer(self.options, self._next_ids.get((name, segment), 0))
+        reader = _Reader(self.cameras[name], reducer, cancel)
+        reader.thread.start()
+        return reader
+
+    def _finish(self, readers: dict[str, _Reader], cancel: threading.Event) -> None:
+        """Wait for the readers, checkpointing; a reader's error or an abort stops all of them and raises."""
+        try:
+            while True:
+                for reader in readers.values():
+                    if reader.error is not None:
+                        raise reader.error
+                alive = [r for r in readers.values() if r.thread.is_alive()]
+                if not alive:
+                    return
+                alive[0].thread.join(timeout=0.2)
+                self.ctx.checkpoint()
+        except BaseException:
+            cancel.set()
+            for reader in readers.values():
+                reader.thread.join(timeout=2.0)
+            raise
+
+    def record(self, segment: str, motion: Callable[[], T] | float) -> Recording[T]:
+        """Record all cameras while ``motion()`` runs (or for ``motion`` seconds), reduce and write."""
+        if "#" in segment:
+            raise ValueError(f"segment {segment!r}: '#' is not allowed in a segment name")
+        ctx, clock = self.ctx, self.ctx.clock
+        ctx.checkpoint()
+        started: list[Any] = []
+        cancel = threading.Event()
+        readers: dict[str, _Reader] = {}
+        t_start = clock.now_s()
+        result: Any = None
+        completed = False
+        try:
+            for name, cam in self.cameras.items():
+                cam.start()
+                started.append(cam)
+                if getattr(cam, "live", False):  # its bounded queue must be read while it records
+                    readers[name] = self._reader(name, segment, cancel)
+            result = ctx.sleep_s(float(motion)) if not callable(motion) else motion()
+            completed = True
+        finally:
+            t_stop = clock.now_s()
+            for cam in started:
+                try:
+                    cam.stop()
+                except Exception as exc:  # keep the original error; a camera stop must not hide it
+                    ctx.log.warning("stopping camera %s failed: %s", cam.name, exc)
+            if not completed:
+                cancel.set()
+                for reader in readers.values():
+                    reader.thread.join(timeout=2.0)
+        for name in self.cameras:
+            if name not in readers:
+                readers[name] = self._reader(name, segment, cancel)
+        self._finish(readers, cancel)
+        observations = {}
+        for name in self.cameras:
+            parts = readers[name].parts
+            self._next_ids[(name, segment)] = readers[name].reducer.next_id
+            frame = _rows_frame(parts)
+            self._writers[name].append(frame, segment=segment)
+            observations[name] = frame.assign(segment=segment)
+            self.frames_processed += len(parts)
+            first, last = (parts[0], parts[-1]) if parts else ((None, None), (None, None))
+            ctx.event("camera", {"camera": name, "action": "start", "segment": segment, "t_s": t_start,
+                                 "first_index": first[0], "first_timestamp_s": first[1]})
+            ctx.event("camera", {"camera": name, "action": "stop", "segment": segment, "t_s": t_stop,
+                                 "last_index": last[0], "last_timestamp_s": last[1], "n_frames": len(parts)})
+        return Recording(segment, result, t_start, t_stop, observations)
+
+
+class _Reader:
+    """One camera's ``frames()`` reduced to rows in a daemon thread (a hung device cannot block the exit)."""
+
+    def __init__(self, camera: Any, reducer: MarkerReducer, cancel: threading.Event) -> None:
+        self.camera, self.reducer, self.cancel = camera, reducer, cancel
+        self.parts: list[tuple[int, float, np.ndarray, np.ndarray]] = []
+        self.error: BaseException | None = None
+        self.thread = threading.Thread(target=self._run, name=f"acquire-{camera.name}", daemon=True)
+
+    def _run(self) -> None:
+        try:
+            for frame in self.camera.frames():
+                if self.cancel.is_set():
+                    return
+                found, ids = self.reducer.reduce(frame.image)
+                keep = ~(found["flags"] & FLAG_LOST).astype(bool)
+                self.parts.append((int(frame.index), float(frame.timestamp_s), found[keep], ids[keep]))
+                if FRAMES.enabled:  # the live view's latest frame (a reference; see rig.run.frame_tap)
+                    FRAMES.offer(self.camera.name, frame.index, frame.image,
+                                 np.column_stack([found["u_px"][keep], found["v_px"][keep]]), ids[keep])
+        except BaseException as exc:  # handed to the recording's thread, which raises it
+            self.error = exc
+
+
+def mean_positions(obs: pd.DataFrame, *, min_frames: int = 1) -> pd.DataFrame:
+    """Per ``track_2d``: mean ``u_px``, ``v_px`` over the frames it was seen, and the frame count ``n``
+    (still targets: the average over the still frames); tracks seen in fewer than ``min_frames`` dropped."""
+    g = obs.groupby("track_2d", sort=True)
+    out = g.agg(u_px=("u_px", "mean"), v_px=("v_px", "mean"), n=("u_px", "size"),
+                u_std_px=("u_px", "std"), v_std_px=("v_px", "std")).reset_index()
+    return out[out["n"] >= min_frames].reset_index(drop=True)

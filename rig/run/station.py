@@ -1,0 +1,386 @@
+"""The station: builds the rig's devices from a :class:`rig.config.rig_config.RigConfig` and always tears
+them down.
+
+``with open_station(config, clock) as station:`` yields a :class:`Station` with
+
+- ``devices``: name → driver object for everything that moves (``robot`` → :class:`DensoArm`,
+  ``exciter`` → :class:`Exciter`, ``rotor`` → :class:`Rotor`, ``generator`` → :class:`Shaker` (SCPI
+  generator + amplifier + shaker));
+- ``cameras``: name → camera device (``FrameSource``: ``start()``, ``stop()``, ``frames()``);
+- ``roles``: name → the :class:`drivers.roles.Role` the station declares for each device and camera
+  (arm, vibration source, generator, camera); ``roster()`` lists them for the runner, which makes each
+  safe in the order of its role (:data:`drivers.roles.SHUTDOWN_ORDER`) — names decide nothing;
+- ``world``: the twin (:class:`drivers.sim.world.World`) on a simulated station, else None — procedures
+  must not use it for truth (truth is what they command, from the configuration); it exists for scene
+  changes a human would do on a real bench (mounting a target: ``station.mount(scene)``);
+- ``snapshot()`` for the run record and ``check_interlocks()`` for the runner's watchdog (which also
+  calls each device's ``heartbeat()``; ``station.heartbeat_timeout_s`` reaches every driver).
+
+The simulated rig is not a special code path for the drivers: for each device whose address is
+``mock://tcp`` or ``mock://pty`` the station starts the protocol-true mock server (b-CAP controller,
+Modbus VFD, SCPI generator) on 127.0.0.1 or a pty, bound to one twin world, substitutes the server's
+real address, and connects **the same driver over the same transport** as on a real bench. Everything
+started is shut down on exit, in reverse order, each step attempted even if another fails.
+
+``check_interlocks()`` is cheap and thread-safe (no device I/O; the drivers are not thread-safe): it
+reports a device whose transport was closed by a failure, a mock server whose thread died, an arm whose
+last reported pose lies outside the envelope, and an exciter/rotor whose setpoint breaks its limits.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from drivers.roles import Assignment, Device, Role
+from rig.config.address import parse_address
+from rig.config.rig_config import ConfigError, RigConfig
+from rig.config.schema import to_dict
+
+__all__ = ["Station", "StationError", "camera_specs", "open_station", "world_layout"]
+
+log = logging.getLogger("rig.run.station")
+SCENE_OF_TARGET = {"calibration_plate": "calibration_plate", "single_marker": "single_marker",
+                   "marker_frame": "marker_frame", "plate": "plate", "rotor": "rotor",
+                   "sweep_column": "sweep_column", "none": "none"}
+
+
+class StationError(RuntimeError):
+    """A device could not be built or reached; the message names it and its address."""
+
+
+@dataclass
+class Station:
+    config: RigConfig
+    clock: Any
+    world: Any = None
+    devices: dict[str, Any] = field(default_factory=dict)
+    cameras: dict[str, Any] = field(default_factory=dict)
+    roles: dict[str, Role] = field(default_factory=dict)  # device or camera → its declared role
+    addresses: dict[str, str] = field(default_factory=dict)  # device → address actually connected
+    unreachable: dict[str, str] = field(default_factory=dict)  # device → why (``keep_going`` only)
+    _closers: list[tuple[str, Callable[[], None]]] = field(default_factory=list, repr=False)
+    _liveness: list[tuple[str, Callable[[], str | None]]] = field(default_factory=list, repr=False)
+
+    def add(self, name: str, role: Role, device: Device, address: str | None = None) -> None:
+        """Declare a built device with its role (cameras go to ``cameras``, the rest to ``devices``)."""
+        (self.cameras if role is Role.CAMERA else self.devices)[name] = device
+        self.roles[name] = role
+        if address is not None:
+            self.addresses[name] = address
+
+    def roster(self) -> list[Assignment]:
+        """Every device and camera with its declared role (what the runner makes safe, in build order)."""
+        built = {**self.devices, **self.cameras}
+        return [Assignment(name, role, built[name]) for name, role in self.roles.items()]
+
+    def snapshot(self) -> dict[str, Any]:
+        """Addresses, roles and each driver's own configuration snapshot."""
+        return {"simulated": self.world is not None, "addresses": dict(self.addresses),
+                "roles": {name: role.value for name, role in self.roles.items()},
+                "devices": {name: dev.snapshot() for name, dev in self.devices.items()},
+                "cameras": sorted(self.cameras)}
+
+    def check_interlocks(self) -> list[tuple[str, str]]:
+        """Devices found lost without any I/O (see the module docstring)."""
+        trips = []
+        for name, probe in self._liveness:
+            reason = probe()
+            if reason:
+                trips.append((name, reason))
+        return trips
+
+    def mount(self, scene: str) -> None:
+        """Mount a target (``calibration_plate``, ``single_marker``, ``marker_frame``, ``plate``, ``rotor``,
+        ``sweep_column``, ``none``). On the twin this switches the scene at the current time; a real bench
+        has an operator do it (the procedure asks and waits), so this raises there."""
+        if self.world is None:
+            raise StationError(f"mount {scene!r}: a real bench needs the operator to mount the target")
+        self.world.set_scene(SCENE_OF_TARGET[scene])
+
+    def close(self) -> None:
+        while self._closers:
+            name, closer = self._closers.pop()
+            try:
+                closer()
+            except Exception as exc:
+                log.error("closing %s failed: %s", name, exc)
+
+
+# ------------------------------------------------------------------------------------------- twin
+def _tuples(value: Any) -> Any:
+    """Lists (from a config snapshot) back to tuples, recursively, as the twin's dataclasses hold them."""
+    return tuple(_tuples(v) for v in value) if isinstance(value, list) else value
+
+
+def world_layout(config: RigConfig) -> Any:
+    """The twin's :class:`WorldLayout` described by ``config`` (targets, home pose, crank radius)."""
+    from drivers.sim import targets as sim_targets
+    from drivers.sim.world import WorldLayout
+
+    tg = config.targets
+    classes = {"calibration_plate": sim_targets.CalibrationPlate, "single_marker": sim_targets.SingleMarker,
+               "marker_frame": sim_targets.MarkerFrame, "sweep_column": sim_targets.SweepColumn,
+               "plate": sim_targets.OscillatingPlate, "rotor": sim_targets.RotorTarget,
+               "references": sim_targets.ReferenceMarkers}
+    procedure_only = ("start_pose", "slide_positions_mm")
+    kwargs = {}
+    for name, cls in classes.items():
+        cfg = getattr(tg, name)
+        if cfg is not None:
+            kwargs[name] = cls(**{k: _tuples(v) for k, v in to_dict(cfg).items() if k not in procedure_only})
+    layout: dict[str, Any] = {"targets": sim_targets.TargetSet(**kwargs)}
+    if config.devices.robot is not None and config.devices.robot.home_pose is not None:
+        layout["robot_home_pose"] = tuple(config.devices.robot.home_pose)
+    if config.devices.exciter is not None and config.devices.exciter.crank_radius_mm is not None:
+        layout["crank_radius_mm"] = config.devices.exciter.crank_radius_mm
+    if config.sim is not None:
+        layout.update(robot_rot_speed_deg_s=config.sim.robot_rot_speed_deg_s,
+                      robot_rot_accel_deg_s2=config.sim.robot_rot_accel_deg_s2,
+                      initial_scene=config.sim.initial_scene)
+    return WorldLayout(**layout)
+
+
+def camera_specs(config: RigConfig) -> list[Any]:
+    """The twin's :class:`CameraSpec` of every ``sim`` camera of ``config``."""
+    from drivers.sim.render import NoiseModel
+    from drivers.sim.stereo_rig import CameraSpec
+
+    specs = []
+    for name, cam in config.cameras.items():
+        if cam.driver != "sim":
+            continue
+        sc = config.sim.cameras[name]  # type: ignore[union-attr] — the config cross-check guarantees it
+        values = to_dict(sc)
+        noise = NoiseModel(**values.pop("noise"))
+        values = {k: _tuples(v) for k, v in values.items()}
+        specs.append(CameraSpec(name=name, fps=cam.fps, exposure_s=cam.exposure_s, noise=noise, **values))
+    return specs
+
+
+# ------------------------------------------------------------------------------------------- builders
+def _build_robot(st: Station, cfg: RigConfig) -> None:
+    from drivers.denso.arm import BoxEnvelope, DensoArm
+    from drivers.denso.client import BcapClient
+    from drivers.denso.motion import WaitSettings
+    from drivers.transport import open_transport
+
+    rc, lim = cfg.devices.robot, cfg.limits.robot
+    assert rc is not None and lim is not None
+    addr = parse_address(rc.address, "devices.robot.address")
+    serial_line = addr["scheme"] == "serial" or addr.get("link") == "pty"
+    url = rc.address
+    if addr["scheme"] == "mock":
+        from drivers.mock.bcap_server import BcapMockServer
+
+        server = BcapMockServer(st.world.robot, st.clock, full_speed_mm_s=rc.full_speed_mm_s)
+        st._closers.append(("robot mock server", server.close))
+        if addr["link"] == "tcp":
+            url = f"tcp://127.0.0.1:{server.serve_tcp('127.0.0.1', 0)}"
+        else:
+            url = f"serial://{server.serve_pty()}?baud=115200"
+    transport = open_transport(url, timeout_s=rc.timeout_s)
+    client = BcapClient(transport, serial_line=serial_line, timeout_s=rc.timeout_s,
+                        rc7m=rc.controller == "rc7m",
+                        reopen=lambda: open_transport(url, timeout_s=rc.timeout_s))  # same line settings
+    # the link's transport, not the first one: a make-safe may have reconnected
+    st._closers.append(("robot transport", lambda: client.link.transport.close()))  # noqa: PLW0108
+    wait_mode = rc.wait_mode or ("blocking" if rc.controller == "rc7m" else "next")
+    arm = DensoArm(client, envelope=BoxEnvelope(lim.envelope_x_mm, lim.envelope_y_mm, lim.envelope_z_mm),
+                   max_speed_mm_s=lim.max_speed_mm_s, position_tolerance_mm=rc.position_tolerance_mm,
+                   clock=st.clock, full_speed_mm_s=rc.full_speed_mm_s,
+                   heartbeat_timeout_s=cfg.station.heartbeat_timeout_s,
+                   wait=WaitSettings(wait_mode=wait_mode, poll_interval_s=rc.busy_poll_interval_s))
+    arm.open()
+    st._closers.append(("robot session", arm.close))
+    st.add("robot", Role.ARM, arm, url)
+
+    def reported_pose_in_envelope() -> str | None:
+        last = arm.last_move
+        if last is None:
+            return None
+        try:
+            arm.envelope.check(np.asarray(last.reported_pose, dtype=float))
+        except ValueError as exc:
+            return f"reported pose {list(last.reported_pose)} outside the envelope: {exc}"
+        return None
+
+    st._liveness.append(("robot", reported_pose_in_envelope))
+    st._liveness.append(("robot", lambda: "b-CAP link closed"
+                         if getattr(client.link.transport, "closed", False) else None))
+
+
+def _build_vfd(st: Station, cfg: RigConfig, name: str) -> None:
+    from drivers.exciter.exciter import Exciter
+    from drivers.exciter.rotor import Rotor
+    from drivers.exciter.vfd import VfdDriver
+    from drivers.modbus_link import ModbusLink
+    from drivers.transport import TransportError
+
+    dc, lim = getattr(cfg.devices, name), getattr(cfg.limits, name)
+    regs = dc.resolved_register_map()
+    addr = parse_address(dc.address, f"devices.{name}.address")
+    url = dc.address
+    mock = addr["scheme"] == "mock"
+    if mock:
+        from drivers.mock.vfd_drive import DriveModel
+        from drivers.mock.vfd_server import VfdServer
+
+        drive = DriveModel(getattr(st.world, name), st.clock, register_map=regs, gear_ratio=dc.gear_ratio,
+                           max_output_hz=dc.max_output_hz)
+        server = VfdServer(drive, mode="tcp" if addr["link"] == "tcp" else "rtu").start()
+        st._closers.append((f"{name} mock server", server.stop))
+        url = server.url if addr["link"] == "tcp" else f"serial://{server.client_port}?baud=115200"
+        thread = server._thread
+        st._liveness.append((name, lambda: None if thread is None or thread.is_alive()
+                             else "mock server died"))
+    try:
+        client = ModbusLink(url, timeout_s=dc.timeout_s, retries=1)
+    except (TransportError, ValueError) as exc:
+        raise StationError(f"{name}: cannot connect to the drive at {url}: {exc}") from exc
+    st._closers.append((f"{name} Modbus client", client.close))
+    vfd = VfdDriver(client, regs, max_output_hz=dc.max_output_hz)
+    if not mock:
+        _arm_comm_timeout(st, name, vfd, dc.comm_timeout_s)
+    common = {"clock": st.clock, "limits": lim.motion_limits(), "gear_ratio": dc.gear_ratio,
+              "ramp_rate_hz_per_s": dc.ramp_rate_hz_per_s,
+              "heartbeat_timeout_s": cfg.station.heartbeat_timeout_s}
+    if name == "exciter":
+        axis: Any = Exciter(vfd, crank_radius_mm=dc.crank_radius_mm, **common)
+    else:
+        radius = cfg.targets.rotor.radius_mm if cfg.targets.rotor is not None else 0.0
+        axis = Rotor(vfd, marker_radius_mm=radius, **common)
+    st._closers.append((f"{name} stop", axis.close))
+    st.add(name, Role.VIBRATION_SOURCE, axis, url)
+
+    def setpoint_within_limits() -> str | None:
+        try:
+            axis.limits.check_point(axis.setpoint_hz, axis.amplitude_mm, f"{name} setpoint")
+        except ValueError as exc:
+            return str(exc)
+        return None
+
+    st._liveness.append((name, setpoint_within_limits))
+
+
+def _arm_comm_timeout(st: Station, name: str, vfd: Any, timeout_s: float) -> None:
+    """Arm the drive's own communication-loss stop (``devices.<name>.comm_timeout_s``) and disarm it on a
+    clean close (after the stop). Not done for ``mock://`` drives: they run in this process on its
+    virtual clock and die with it. (The configuration checked the time-out against the heartbeat probes.)"""
+    if not vfd.map.has_comm_timeout:
+        log.warning("%s: register map %r has no communication time-out registers: after a SIGKILL or a "
+                    "power loss the drive keeps running (set its time-out on the keypad)", name,
+                    vfd.map.model)
+        return
+    vfd.set_comm_timeout_s(timeout_s)
+    st._closers.append((f"{name} communication time-out off", lambda: vfd.set_comm_timeout_s(None)))
+
+
+def _build_generator(st: Station, cfg: RigConfig) -> None:
+    from drivers.exciter.generator import ScpiGenerator
+    from drivers.exciter.shaker import SensitivityTable, Shaker
+    from drivers.transport import Transport, open_transport
+
+    gc, lim = cfg.devices.generator, cfg.limits.generator
+    assert gc is not None and lim is not None
+    addr = parse_address(gc.address, "devices.generator.address")
+    url = gc.address
+    if addr["scheme"] == "mock":
+        from drivers.mock.generator_instrument import GeneratorInstrument
+        from drivers.mock.generator_server import GeneratorServer
+
+        instrument = GeneratorInstrument(st.world.shaker, st.clock,
+                                         sensitivity_mm_per_v=[tuple(p) for p in gc.sensitivity_mm_per_v])
+        server = GeneratorServer(instrument, mode=addr["link"]).start()
+        st._closers.append(("generator mock server", server.stop))
+        url = server.url if addr["link"] == "tcp" else f"serial://{server.client_port}?baud=115200"
+    def reopen() -> Transport:
+        return open_transport(url, timeout_s=gc.timeout_s)
+
+    generator = ScpiGenerator(reopen(), channel=gc.channel, timeout_s=gc.timeout_s, reopen=reopen)
+    st._closers.append(("generator transport", generator.close))
+    generator.identify()
+    shaker = Shaker(generator, clock=st.clock, limits=lim.motion_limits(),
+                    sensitivity=SensitivityTable(gc.sensitivity_mm_per_v),
+                    max_amplitude_vpp=gc.max_amplitude_vpp,
+                    amplitude_step_vpp=gc.amplitude_step_vpp, step_interval_s=gc.step_interval_s,
+                    heartbeat_timeout_s=cfg.station.heartbeat_timeout_s)
+    st._closers.append(("generator output off", shaker.close))
+    st.add("generator", Role.GENERATOR, shaker, url)
+    st._liveness.append(("generator", lambda: "SCPI link closed"
+                         if getattr(generator.transport, "closed", False) else None))
+
+
+def _build_cameras(st: Station, cfg: RigConfig) -> None:
+    for name, cam in cfg.cameras.items():
+        if cam.driver == "opencv":
+            from drivers.camera.opencv_device import OpenCVCamera
+
+            width, height = cam.resolution_px
+            st.add(name, Role.CAMERA, OpenCVCamera(name, cam.source, fps=cam.fps, width_px=width,
+                                                   height_px=height))
+        elif cam.driver == "file":
+            from drivers.camera.video_file import VideoFile, VideoFileError
+
+            try:
+                st.add(name, Role.CAMERA, VideoFile(cam.source, name=name, fps=cam.fps))
+            except VideoFileError as exc:
+                raise StationError(f"cameras.{name}.source: {exc}") from exc
+    if st.world is None:
+        return
+    from drivers.sim.source import SimFrameSource
+    from drivers.sim.stereo_rig import make_camera
+
+    for spec in camera_specs(cfg):
+        width, height = cfg.cameras[spec.name].resolution_px
+        st.add(spec.name, Role.CAMERA, SimFrameSource(make_camera(spec, st.world, width_px=width,
+                                                                  height_px=height)))
+
+
+@contextlib.contextmanager
+def open_station(config: RigConfig, clock: Any, *, keep_going: bool = False) -> Iterator[Station]:
+    """Build every configured device (starting mock servers on a simulated station); always tear down.
+
+    A device that cannot be built or reached raises :class:`StationError`, unless ``keep_going`` (what
+    ``rig check`` uses): then every device is tried independently, and those that failed are left out of
+    ``devices`` and listed in ``unreachable`` (name → the reason, naming the address)."""
+    station = Station(config, clock)
+    try:
+        if config.station.simulated:
+            from drivers.sim.world import World
+
+            if not getattr(clock, "is_virtual", False):
+                raise ConfigError("station.clock", "a simulated station needs the virtual clock")
+            seed = config.sim.seed if config.sim else 0
+            station.world = World(clock, seed=seed, layout=world_layout(config))
+        builders = (("robot", _build_robot), ("exciter", lambda s, c: _build_vfd(s, c, "exciter")),
+                    ("rotor", lambda s, c: _build_vfd(s, c, "rotor")), ("generator", _build_generator))
+        for name, build in builders:
+            if getattr(config.devices, name) is None:
+                continue
+            try:
+                try:
+                    build(station, config)
+                except (ConfigError, StationError):
+                    raise
+                except Exception as exc:
+                    raise StationError(f"{name} at {getattr(config.devices, name).address}: "
+                                       f"{type(exc).__name__}: {exc}") from exc
+            except StationError as exc:
+                if not keep_going:
+                    raise
+                station.unreachable[name] = str(exc)
+        try:
+            _build_cameras(station, config)
+        except StationError as exc:
+            if not keep_going:
+                raise
+            station.unreachable["cameras"] = str(exc)
+        yield station
+    finally:
+        station.close()
