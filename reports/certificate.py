@@ -1,8 +1,8 @@
 """The certificate: acceptance criteria, PASS/FAIL with the expanded uncertainty, and the decision rule.
 
-Limits come from the ``[criteria]`` table of ``rig.toml`` (``rig.config.rig_config.CriteriaConfig``; the run's
-``start.rig["criteria"]`` snapshot), merged over :data:`DEFAULT_LIMITS` (the same defaults), with a
-few report settings (:data:`DEFAULT_SETTINGS`) that may be added to that table. Every criterion reports
+Limits come from the ``[criteria]`` table of ``rig.toml`` (``rig.config.criteria.CriteriaConfig``; the run's
+``start.rig["criteria"]`` snapshot), merged over its defaults (:data:`DEFAULT_LIMITS`,
+:data:`DEFAULT_SETTINGS`, read from :mod:`rig.config.criteria`). Every criterion reports
 its measured value, limit, expanded uncertainty U = k·u (k = 2, or Student's t for fitted values with
 few degrees of freedom), its uncertainty budget and a decision.
 
@@ -26,6 +26,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from reports.errors import CriteriaError
+from rig.config.criteria import default_limits, default_settings
 
 
 @dataclass(frozen=True)
@@ -64,30 +65,9 @@ CRITERIA: tuple[CriterionSpec, ...] = (
 )
 CRITERION_IDS = tuple(c.id for c in CRITERIA)
 
-# Same defaults as rig.config.rig_config.CriteriaConfig; detection_pct and length_error_mm are the reports'
-# own.
-DEFAULT_LIMITS: dict[str, float] = {
-    "position_max_mm": 1.5,
-    "position_rms_mm": 0.5,
-    "detection_pct": 100.0,
-    "repeatability_mm": 0.5,
-    "length_error_mm": 1.0,
-    "amplitude_error_pct": 5.0,
-    "min_usable_frequency_hz": 10.0,
-    "frequency_error_pct": 1.0,
-    "radius_error_mm": 0.5,
-    "calibration_rms_px": 0.5,
-    "sync_uncertainty_ms": 1.0,
-}
-# Settings of the criteria table that are not limits.
-DEFAULT_SETTINGS: dict[str, Any] = {
-    "amplitude_error_up_to_hz": 10.0,  # amplitude_error_pct must hold from 0 up to this frequency
-    "decision_rule": "guarded",
-    "reference_u_mm": 0.02,  # standard uncertainty of a commanded position (robot AP / artefact), Type B
-    "fit_max_hz": None,  # highest bin frequency in the quadratic fit; defaults to fs/3 (away from Nyquist)
-    "frequency_bin_hz": 1.0,  # width of the sweep's frequency bins
-    "identification_gate_mm": 50.0,  # a track farther than this from a commanded marker is not that marker
-}
+# The defaults of [criteria] (rig.config.criteria is their one source).
+DEFAULT_LIMITS: dict[str, float] = default_limits()
+DEFAULT_SETTINGS: dict[str, Any] = default_settings()
 DECISION_RULES: dict[str, str] = {
     "guarded": (
         "Guarded acceptance, ILAC-G8:09/2019 §4.2.3, guard band w = U (k = 2): PASS only when the "

@@ -3,7 +3,9 @@ defaults)."""
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
+from typing import Any
 
 from rig.config.schema import spec
 
@@ -32,3 +34,20 @@ class CriteriaConfig:
     fit_max_hz: float | None = field(default=None, metadata=_POSITIVE)
     frequency_bin_hz: float = field(default=1.0, metadata=_POSITIVE)
     identification_gate_mm: float = field(default=50.0, metadata=_POSITIVE)
+
+
+# Fields of [criteria] that configure the decision rather than bound a measured value.
+SETTING_FIELDS = ("decision_rule", "amplitude_error_up_to_hz", "reference_u_mm", "fit_max_hz",
+                  "frequency_bin_hz", "identification_gate_mm")
+
+
+def default_limits() -> dict[str, float]:
+    """The default limit of every criterion, by criterion id (the certificate's ``limit``)."""
+    defaults = dataclasses.asdict(CriteriaConfig())
+    return {name: float(value) for name, value in defaults.items() if name not in SETTING_FIELDS}
+
+
+def default_settings() -> dict[str, Any]:
+    """The default settings of the decision (rule, reference uncertainty, fit band, bins, gate)."""
+    defaults = dataclasses.asdict(CriteriaConfig())
+    return {name: value for name, value in defaults.items() if name in SETTING_FIELDS}

@@ -4,9 +4,12 @@ acceleration and ramp limits."""
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from rig.config.schema import ConfigError, spec, to_dict
+
+if TYPE_CHECKING:
+    from drivers.denso.arm import BoxEnvelope
 
 
 @dataclass(frozen=True)
@@ -24,11 +27,12 @@ class RobotLimits:
                 raise ConfigError(f"limits.robot.envelope_{axis}_mm",
                                   f"[{lo:g}, {hi:g}]: allowed: [min, max] with min < max")
 
-    def envelope(self) -> Any:
+    def envelope(self) -> BoxEnvelope:
         """The arm driver's :class:`drivers.denso.arm.BoxEnvelope` of these limits."""
         from drivers.denso.arm import BoxEnvelope
 
-        return BoxEnvelope(self.envelope_x_mm, self.envelope_y_mm, self.envelope_z_mm)
+        x, y, z = self.envelope_x_mm, self.envelope_y_mm, self.envelope_z_mm
+        return BoxEnvelope((x[0], x[1]), (y[0], y[1]), (z[0], z[1]))
 
 
 @dataclass(frozen=True)

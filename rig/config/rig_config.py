@@ -145,14 +145,16 @@ def _cross_check(cfg: RigConfig) -> None:
             raise ConfigError(f"limits.{dev_name}", f"required when [devices.{dev_name}] is configured")
     if cfg.devices.robot is not None and cfg.limits.robot is None:
         raise ConfigError("limits.robot", "required when [devices.robot] is configured")
-    exc = cfg.devices.exciter
-    if exc is not None:
-        if exc.crank_radius_mm is None:
+    exciter = cfg.devices.exciter
+    if exciter is not None:
+        if exciter.crank_radius_mm is None:
             raise ConfigError("devices.exciter.crank_radius_mm", "required field missing (a number, mm)")
-        limit = cfg.limits.exciter.max_displacement_mm  # type: ignore[union-attr]
-        if exc.crank_radius_mm > limit:
+        if cfg.limits.exciter is None:
+            raise ConfigError("limits.exciter", "required when [devices.exciter] is configured")
+        limit = cfg.limits.exciter.max_displacement_mm
+        if exciter.crank_radius_mm > limit:
             raise ConfigError("devices.exciter.crank_radius_mm",
-                              f"{exc.crank_radius_mm:g} exceeds limits.exciter.max_displacement_mm = "
+                              f"{exciter.crank_radius_mm:g} exceeds limits.exciter.max_displacement_mm = "
                               f"{limit:g}")
     if cfg.station.simulated and cfg.sim is None:
         raise ConfigError("sim", "required when station.simulated = true")

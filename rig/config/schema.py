@@ -18,7 +18,12 @@ import math
 import types
 import typing
 from collections.abc import Callable
-from typing import Any
+from typing import TYPE_CHECKING, Any, TypeVar
+
+if TYPE_CHECKING:
+    from _typeshed import DataclassInstance
+
+T = TypeVar("T", bound="DataclassInstance")
 
 
 class ConfigError(ValueError):
@@ -104,7 +109,8 @@ def convert(value: Any, tp: Any, path: str, meta: dict[str, Any] | None = None) 
         if value is None:
             return None
         return convert(value, args[0], path, meta)
-    if dataclasses.is_dataclass(tp):
+    out: Any
+    if isinstance(tp, type) and dataclasses.is_dataclass(tp):
         out = build(tp, value, path)
     elif origin is tuple:
         if not isinstance(value, list):
@@ -136,7 +142,7 @@ def convert(value: Any, tp: Any, path: str, meta: dict[str, Any] | None = None) 
     return out
 
 
-def build(cls: type, table: Any, path: str) -> Any:
+def build(cls: type[T], table: Any, path: str) -> T:
     """Build dataclass ``cls`` from ``table``; unknown keys, missing keys and bad values raise."""
     if not isinstance(table, dict):
         raise ConfigError(path, f"{_describe(table)} has the wrong type; allowed: a table")
@@ -188,7 +194,7 @@ def describe(cls: type, path: str = "") -> list[dict[str, Any]]:
         tp = hints[f.name]
         args = [a for a in typing.get_args(tp) if a is not type(None)]
         inner = args[0] if typing.get_origin(tp) in (typing.Union, types.UnionType) and len(args) == 1 else tp
-        if dataclasses.is_dataclass(inner):
+        if isinstance(inner, type) and dataclasses.is_dataclass(inner):
             rows += describe(inner, name)
             continue
         if typing.get_origin(inner) is dict and dataclasses.is_dataclass(typing.get_args(inner)[1]):
