@@ -30,7 +30,7 @@ import numpy as np
 
 from rig.stereo.errors import InputArrayError, NoMarkersError
 from rig.stereo.markers_binarize import find_candidates
-from rig.stereo.markers_refine import Measured, measure_windows
+from rig.stereo.markers_refine import Images, Measured, measure_windows
 from rig.stereo.markers_roi import inside_any, parse_roi, roi_bounds
 
 MARKER_DTYPE = np.dtype([("u_px", "f8"), ("v_px", "f8"), ("area_px", "f8"), ("roundness", "f8"),
@@ -115,7 +115,7 @@ def _merge_sizes(sizes: np.ndarray) -> np.ndarray:
     return merged
 
 
-def _measure(gray, rows: np.ndarray, cols: np.ndarray, half: np.ndarray, *, dark: bool,
+def _measure(gray: Images, rows: np.ndarray, cols: np.ndarray, half: np.ndarray, *, dark: bool,
              fit_ellipse: bool = False, retries: int = 2, exact: bool = False,
              frame: np.ndarray | None = None) -> Measured:
     """Measure windows of several sizes (grouped on the size ladder); Measured for all, in input order.
@@ -133,17 +133,19 @@ def _measure(gray, rows: np.ndarray, cols: np.ndarray, half: np.ndarray, *, dark
         result = measure_windows(gray, rows, cols, int(groups[0]), dark=dark, fit_ellipse=fit_ellipse,
                                  frame=frame)
     else:
-        result = None
+        parts: Measured | None = None
         for size in groups:
             sel = np.nonzero(sizes == size)[0]
             part = measure_windows(gray, rows[sel], cols[sel], int(size), dark=dark, fit_ellipse=fit_ellipse,
                                    frame=None if frame is None else frame[sel])
-            result = _scatter(result, len(rows), sel, part)
+            parts = _scatter(parts, len(rows), sel, part)
+        assert parts is not None  # len(groups) > 1
+        result = parts
     return _retry_cramped(gray, rows, cols, sizes, result, dark=dark, fit_ellipse=fit_ellipse,
                           retries=retries, frame=frame)
 
 
-def _retry_cramped(gray, rows: np.ndarray, cols: np.ndarray, sizes: np.ndarray, result: Measured,
+def _retry_cramped(gray: Images, rows: np.ndarray, cols: np.ndarray, sizes: np.ndarray, result: Measured,
                    *, dark: bool, fit_ellipse: bool, retries: int,
                    frame: np.ndarray | None = None) -> Measured:
     """Measure the windows of ``result`` whose marker reaches the ring again, one ladder step larger."""
@@ -192,10 +194,13 @@ def _rows_from(m: Measured, centre: str, max_edge_rms_px: float, max_skewness: f
     return out
 
 
-def _passes(rec: np.ndarray, min_area_px, max_area_px, min_roundness, min_contrast) -> np.ndarray:
-    return (np.isfinite(rec["u_px"] + rec["v_px"])
+def _passes(rec: np.ndarray, min_area_px: float, max_area_px: float, min_roundness: float,
+            min_contrast: float) -> np.ndarray:
+    """Rows with a finite centre whose area, roundness and contrast pass the filters (bool mask)."""
+    ok: np.ndarray = (np.isfinite(rec["u_px"] + rec["v_px"])
             & (rec["area_px"] >= min_area_px) & (rec["area_px"] <= max_area_px)
             & (rec["roundness"] >= min_roundness) & (rec["contrast"] >= min_contrast))
+    return ok
 
 
 def detect_markers(
@@ -207,7 +212,7 @@ def detect_markers(
     max_area_px: float = 20000.0,
     min_roundness: float = 0.5,
     min_contrast: float = 20.0,
-    roi: Sequence | None = None,
+    roi: Sequence[object] | np.ndarray | None = None,
     centre: str = "centroid",
     downsample: int | None = None,
     max_skewness: float = MAX_SKEWNESS,
@@ -243,53 +248,18 @@ def detect_markers(
     gray = check_gray(gray)
     _check_options(polarity, centre, min_area_px=min_area_px, max_area_px=max_area_px,
                    min_roundness=min_roundness, min_contrast=min_contrast)
-    if isinstance(threshold, str) and threshold != "otsu":
-        raise InputArrayError(f"threshold={threshold!r}; use None (local), 'otsu' or a level in DN (0..255)")
-    if threshold is not None and not isinstance(threshold, str) and not (0 <= float(threshold) <= 255):
-        raise InputArrayError(f"threshold={threshold}; a fixed level must be within 0..255 DN")
-    if downsample is None:
-        factor = 4 if min_area_px / 16 >= 5 else 2 if min_area_px / 4 >= 5 else 1
-    elif downsample in (1, 2, 4):
-        factor = int(downsample)
-    else:
-        raise InputArrayError(f"downsample={downsample!r}; use 1, 2, 4 or None (automatic)")
+    factor = _binarize_factor(threshold, downsample, min_area_px)
     dark = polarity == "dark"
     regions = None if roi is None else parse_roi(roi)
-
-    search = gray
-    r_off = c_off = 0
-    if regions is not None:
-        x0, y0, x1, y1 = roi_bounds(regions)
-        margin = int(np.ceil(np.sqrt(max_area_px / np.pi))) + 8
-        c_off, r_off = max(int(np.floor(x0)) - margin, 0), max(int(np.floor(y0)) - margin, 0)
-        c_end = min(int(np.ceil(x1)) + margin + 1, gray.shape[1])
-        r_end = min(int(np.ceil(y1)) + margin + 1, gray.shape[0])
-        if c_end - c_off < 8 or r_end - r_off < 8:
-            return _none_found(require, "the regions of interest lie outside the frame")
-        search = gray[r_off:r_end, c_off:c_end]
-
+    area = _search_area(gray, regions, max_area_px)
+    if area is None:
+        return _none_found(require, "the regions of interest lie outside the frame")
+    r_off, c_off, search = area
     rows, cols, half = find_candidates(search, dark=dark, threshold=threshold, factor=factor,
-                                   min_area_px=min_area_px, max_area_px=max_area_px,
-                                   min_contrast=min_contrast, min_roundness=min_roundness)
+                                       min_area_px=min_area_px, max_area_px=max_area_px,
+                                       min_contrast=min_contrast, min_roundness=min_roundness)
     fit = centre == "ellipse" or outline_check
-    rows, cols = rows + r_off, cols + c_off
-    measured = _measure(gray, rows, cols, half, dark=dark, fit_ellipse=fit)
-    # a marker found off the centre of its window — the binarized blob held two markers that nearly
-    # touch, or an odd shape — is measured again in a window of its own, and the mirror image of its
-    # position about the blob's centre is searched for the other one (duplicates are dropped below)
-    with np.errstate(invalid="ignore"):
-        off = np.hypot(measured.u_px - cols, measured.v_px - rows) > np.maximum(2.0, 0.25 * half)
-        off &= np.isfinite(measured.area_px)
-    if off.any():
-        sel = np.nonzero(off)[0]
-        u_found, v_found = measured.u_px[sel], measured.v_px[sel]
-        size = np.ceil(np.sqrt(measured.area_px[sel] / np.pi)).astype(np.int64) + 6
-        again = _measure(gray, np.rint(np.concatenate([v_found, 2 * rows[sel] - v_found])).astype(np.int64),
-                         np.rint(np.concatenate([u_found, 2 * cols[sel] - u_found])).astype(np.int64),
-                         np.concatenate([size, size]), dark=dark, fit_ellipse=fit)
-        n_first, n_total = len(rows), len(rows) + len(sel)
-        grown = _scatter(None, n_total, np.arange(n_first), measured)
-        measured = _scatter(grown, n_total, np.concatenate([sel, n_first + np.arange(len(sel))]), again)
+    measured = _measure_candidates(gray, rows + r_off, cols + c_off, half, dark=dark, fit=fit)
     with np.errstate(invalid="ignore"):
         rec = _rows_from(measured, centre, max_edge_rms_px, max_skewness, fit)
         rec = rec[_passes(rec, min_area_px, max_area_px, min_roundness, min_contrast)]
@@ -298,6 +268,62 @@ def detect_markers(
     if len(rec) == 0:
         return _none_found(require, "no blob passed the area, roundness and contrast filters")
     return _drop_duplicates(rec)
+
+
+def _binarize_factor(threshold: float | str | None, downsample: int | None, min_area_px: float) -> int:
+    """The reduction (1, 2, 4) of the frame for binarization; InputArrayError names a bad option."""
+    if isinstance(threshold, str) and threshold != "otsu":
+        raise InputArrayError(f"threshold={threshold!r}; use None (local), 'otsu' or a level in DN (0..255)")
+    if threshold is not None and not isinstance(threshold, str) and not (0 <= float(threshold) <= 255):
+        raise InputArrayError(f"threshold={threshold}; a fixed level must be within 0..255 DN")
+    if downsample is None:  # the largest that keeps a marker of min_area_px at ≥ 5 reduced pixels
+        return 4 if min_area_px / 16 >= 5 else 2 if min_area_px / 4 >= 5 else 1
+    if downsample in (1, 2, 4):
+        return int(downsample)
+    raise InputArrayError(f"downsample={downsample!r}; use 1, 2, 4 or None (automatic)")
+
+
+def _search_area(gray: np.ndarray, regions: list[np.ndarray] | None,
+                 max_area_px: float) -> tuple[int, int, np.ndarray] | None:
+    """(row offset, column offset, view) of the part of ``gray`` to binarize: the bounding box of the
+    regions with a margin of a marker radius + 8 px (the whole frame without regions); None when the
+    regions lie outside the frame."""
+    if regions is None:
+        return 0, 0, gray
+    x0, y0, x1, y1 = roi_bounds(regions)
+    margin = int(np.ceil(np.sqrt(max_area_px / np.pi))) + 8
+    c_off, r_off = max(int(np.floor(x0)) - margin, 0), max(int(np.floor(y0)) - margin, 0)
+    c_end = min(int(np.ceil(x1)) + margin + 1, gray.shape[1])
+    r_end = min(int(np.ceil(y1)) + margin + 1, gray.shape[0])
+    if c_end - c_off < 8 or r_end - r_off < 8:
+        return None
+    return r_off, c_off, gray[r_off:r_end, c_off:c_end]
+
+
+def _measure_candidates(gray: np.ndarray, rows: np.ndarray, cols: np.ndarray, half: np.ndarray, *,
+                        dark: bool, fit: bool) -> Measured:
+    """Measure the candidate windows; a marker found off the centre of its window is measured again.
+
+    Off-centre means the binarized blob held two markers that nearly touch, or an odd shape: the marker
+    found is measured again in a window of its own, and the mirror image of its position about the
+    blob's centre is searched for the other one (duplicates are dropped by :func:`_drop_duplicates`).
+    Returns the first measurements followed by those of the off-centre ones (two per blob).
+    """
+    measured = _measure(gray, rows, cols, half, dark=dark, fit_ellipse=fit)
+    with np.errstate(invalid="ignore"):
+        off = np.hypot(measured.u_px - cols, measured.v_px - rows) > np.maximum(2.0, 0.25 * half)
+        off &= np.isfinite(measured.area_px)
+    if not off.any():
+        return measured
+    sel = np.nonzero(off)[0]
+    u_found, v_found = measured.u_px[sel], measured.v_px[sel]
+    size = np.ceil(np.sqrt(measured.area_px[sel] / np.pi)).astype(np.int64) + 6
+    again = _measure(gray, np.rint(np.concatenate([v_found, 2 * rows[sel] - v_found])).astype(np.int64),
+                     np.rint(np.concatenate([u_found, 2 * cols[sel] - u_found])).astype(np.int64),
+                     np.concatenate([size, size]), dark=dark, fit_ellipse=fit)
+    n_first, n_total = len(rows), len(rows) + len(sel)
+    grown = _scatter(None, n_total, np.arange(n_first), measured)
+    return _scatter(grown, n_total, np.concatenate([sel, n_first + np.arange(len(sel))]), again)
 
 
 def _drop_duplicates(rec: np.ndarray, reach: int = 8) -> np.ndarray:
@@ -387,8 +413,9 @@ class TrackOptions:
     max_edge_rms_px: float
 
     @classmethod
-    def checked(cls, *, window_px, polarity, min_area_px, max_area_px, min_roundness, min_contrast, centre,
-                max_skewness, outline_check, max_edge_rms_px) -> TrackOptions:
+    def checked(cls, *, window_px: int, polarity: str, min_area_px: float, max_area_px: float,
+                min_roundness: float, min_contrast: float, centre: str, max_skewness: float,
+                outline_check: bool, max_edge_rms_px: float) -> TrackOptions:
         """Options from :func:`track_markers`' keywords; InputArrayError names an invalid one."""
         _check_options(polarity, centre, min_area_px=min_area_px, max_area_px=max_area_px,
                        min_roundness=min_roundness, min_contrast=min_contrast)
@@ -400,7 +427,7 @@ class TrackOptions:
                    max_skewness=max_skewness, max_edge_rms_px=max_edge_rms_px)
 
 
-def track_rows(images, pred: np.ndarray, frame: np.ndarray | None, opt: TrackOptions) -> np.ndarray:
+def track_rows(images: Images, pred: np.ndarray, frame: np.ndarray | None, opt: TrackOptions) -> np.ndarray:
     """:func:`track_markers` of the predictions ``pred`` (N, 2) float64, checked: one row per prediction.
 
     ``images`` and ``frame`` as in :func:`rig.stereo.markers_refine.measure_windows` (``frame`` None: one
@@ -409,7 +436,7 @@ def track_rows(images, pred: np.ndarray, frame: np.ndarray | None, opt: TrackOpt
     """
     if len(pred) == 0:
         return np.empty(0, dtype=MARKER_DTYPE)
-    height, width = (images if frame is None else images[int(frame[0])]).shape
+    height, width = np.shape(images if frame is None else images[int(frame[0])])
     # usable predictions: inside the frame (NaN compares False, so it is unusable too)
     limit = np.array([width - 0.5, height - 0.5])
     all_usable = bool((pred > -0.5).all() and (pred < limit).all())

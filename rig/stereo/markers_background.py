@@ -40,7 +40,8 @@ def matmul_one_thread(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     rows = max(1, BLAS_SINGLE_THREAD_OPS // (b.shape[0] * b.shape[1]))
     k = a.shape[0]
     if k <= rows:
-        return a @ b
+        product: np.ndarray = a @ b
+        return product
     out = np.empty((k, b.shape[1]), dtype=np.result_type(a, b))
     main = k - k % rows
     np.matmul(a[:main].reshape(-1, rows, a.shape[1]), b, out=out[:main].reshape(-1, rows, b.shape[1]))
@@ -81,7 +82,8 @@ def ring_geometry(half_px: int) -> Ring:
                 design_t=np.ascontiguousarray(design.T, dtype=dtype))
 
 
-def ring_background(flat: np.ndarray, valid: np.ndarray | None, half_px: int):
+def ring_background(flat: np.ndarray, valid: np.ndarray | None,
+                    half_px: int) -> tuple[np.ndarray, np.ndarray]:
     """Background plane and noise of each window (K, W²) uint8 (``valid``: bool (K, W²) or None).
 
     Returns (coefficients float32 (K, 3) of a + b·x + c·y in DN, DN/px, DN/px; σ float32 (K,) in DN,
@@ -96,7 +98,7 @@ def ring_background(flat: np.ndarray, valid: np.ndarray | None, half_px: int):
     # plain least squares from the ring's moments m = Aᵀy and Σy²: coef = N⁻¹m (N diagonal), and the
     # residual sum of squares is Σy² − coef·m; uint8 values make every product and sum an integer,
     # exact in float32 while P·255² < 2²⁴ (rings of windows up to 33 px), else computed in float64
-    values = vals.astype(geo.dtype)
+    values: np.ndarray = vals.astype(geo.dtype)
     moments = matmul_one_thread(values, geo.design_t.T).astype(np.float64)
     coef = moments * geo.normal_inv
     rss = np.vecdot(values, values).astype(np.float64) - np.vecdot(coef, moments)
@@ -110,7 +112,7 @@ def ring_background(flat: np.ndarray, valid: np.ndarray | None, half_px: int):
     return coef, sigma
 
 
-def _robust(ring_vals: np.ndarray, ring_valid: np.ndarray, geo: Ring):
+def _robust(ring_vals: np.ndarray, ring_valid: np.ndarray, geo: Ring) -> tuple[np.ndarray, np.ndarray]:
     """The fit of windows reaching outside the image: ring values (K, P) uint8, invalid pixels ignored."""
     vals = np.where(ring_valid, ring_vals.astype(np.float32), np.nan)
     with warnings.catch_warnings():  # a ring wholly outside the frame: NaN, replaced just below
@@ -124,7 +126,7 @@ def _robust(ring_vals: np.ndarray, ring_valid: np.ndarray, geo: Ring):
     return coef.astype(np.float32), sigma.astype(np.float32)
 
 
-def _weighted_fit(values: np.ndarray, inlier: np.ndarray, geo: Ring):
+def _weighted_fit(values: np.ndarray, inlier: np.ndarray, geo: Ring) -> tuple[np.ndarray, np.ndarray]:
     """Plane fitted to the inlier ring values of each window: (coef (K, 3), σ (K,)), float64.
 
     Batched weighted normal equations (AᵀMA) coef = AᵀMy, M the inlier mask, solved in closed form

@@ -19,7 +19,7 @@ def noise_sigma(low: np.ndarray) -> float:
     diff = np.abs(low[::32, 1:].astype(np.int16) - low[::32, :-1]).ravel()
     hist = np.bincount(diff, minlength=256)
     median = np.searchsorted(np.cumsum(hist), diff.size / 2.0)
-    return max(1.4826 * float(median) / np.sqrt(2.0), 0.5)
+    return max(1.4826 * float(median) / float(np.sqrt(2.0)), 0.5)
 
 
 def reduce_frame(gray: np.ndarray, factor: int, min_contrast: float) -> tuple[np.ndarray, float]:
@@ -45,7 +45,8 @@ def reduce_frame(gray: np.ndarray, factor: int, min_contrast: float) -> tuple[np
 
 
 def find_candidates(gray: np.ndarray, *, dark: bool, threshold: float | str | None, factor: int,
-                    min_area_px: float, max_area_px: float, min_contrast: float, min_roundness: float):
+                    min_area_px: float, max_area_px: float, min_contrast: float,
+                    min_roundness: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Blobs of the binarized frame reduced ``factor`` (1, 2, 4) times.
 
     Returns full-resolution integer window centres (rows, cols) and window half sizes, int64 arrays.
@@ -59,13 +60,14 @@ def find_candidates(gray: np.ndarray, *, dark: bool, threshold: float | str | No
         block = max(3, min(block, 2 * ((min(low.shape) - 1) // 2) + 1))
         offset = int(np.ceil(max(0.5 * min_contrast, 4.0 * sigma)))
         # foreground: brighter than the local mean (box of `block` reduced pixels) by more than `offset`
-        level = cv2.add(cv2.blur(low, (block, block), borderType=cv2.BORDER_REPLICATE), min(offset, 255))
+        level = cv2.add(cv2.blur(low, (block, block), borderType=cv2.BORDER_REPLICATE),
+                        np.array([min(offset, 255)], dtype=np.float64))  # a 1-element array: a scalar
         binary = cv2.compare(low, level, cv2.CMP_GT)
     elif threshold == "otsu":
         _, binary = cv2.threshold(low, 0, 1, cv2.THRESH_BINARY | cv2.THRESH_OTSU)
     else:
-        level = 255.0 - float(threshold) if dark else float(threshold)
-        _, binary = cv2.threshold(low, level, 1, cv2.THRESH_BINARY)
+        level_dn = 255.0 - float(threshold) if dark else float(threshold)
+        _, binary = cv2.threshold(low, level_dn, 1, cv2.THRESH_BINARY)
     # outer contours of the blobs (faster than connectedComponentsWithStats on a mostly empty frame)
     contours, _ = cv2.findContours(binary, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
     empty = np.zeros(0, dtype=np.int64)

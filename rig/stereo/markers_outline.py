@@ -13,7 +13,7 @@ import cv2
 import numpy as np
 
 
-def edge_points(d: np.ndarray, level: np.ndarray):
+def edge_points(d: np.ndarray, level: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Sub-pixel crossings of ``d`` (K, W, W) through ``level`` (K,): (window index, x, y) in window px."""
     a = d - level[:, None, None]
     below = a < 0
@@ -29,7 +29,8 @@ def edge_points(d: np.ndarray, level: np.ndarray):
     return k_all[order], x_all[order], y_all[order], step[order]
 
 
-def fit_ellipses(k_idx: np.ndarray, x: np.ndarray, y: np.ndarray, step: np.ndarray, n: int):
+def fit_ellipses(k_idx: np.ndarray, x: np.ndarray, y: np.ndarray, step: np.ndarray,
+                 n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Ellipse fitted to each window's edge points: centre (n, 2), RMS point distance (n,), NaN if < 6
     points, and the RMS distance that pixel noise of σ = 1 DN alone would give (n,).
 

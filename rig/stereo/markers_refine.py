@@ -31,6 +31,7 @@ Coordinates: pixel centres are integers, the centre of the top-left pixel is (0,
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import cv2
@@ -38,6 +39,9 @@ import numpy as np
 
 from rig.stereo.markers_background import RING_PX, matmul_one_thread, ring_background
 from rig.stereo.markers_outline import edge_points, fit_ellipses
+
+#: one frame (2-D uint8), or frames (a sequence, or a 3-D stack) addressed by a frame index per window
+Images = np.ndarray | Sequence[np.ndarray]
 
 NOISE_FLOOR_K = 3.0  # support and weight threshold, in units of the window's background noise σ
 PLATEAU_LEVEL = 0.85  # contrast = mean signal of the support pixels above this fraction of the peak
@@ -103,7 +107,8 @@ def _geometry(half_px: int) -> _Geometry:
     return _GEOMETRY[half_px]
 
 
-def gather_frames(images, frame: np.ndarray, rows: np.ndarray, cols: np.ndarray, half_px: int):
+def gather_frames(images: Images, frame: np.ndarray, rows: np.ndarray, cols: np.ndarray,
+                  half_px: int) -> tuple[np.ndarray, np.ndarray | None]:
     """:func:`gather_windows` of windows in several frames: window i lies in ``images[frame[i]]``.
 
     ``frame`` must be non-decreasing (windows grouped by frame); one gather per frame.
@@ -112,7 +117,7 @@ def gather_frames(images, frame: np.ndarray, rows: np.ndarray, cols: np.ndarray,
         return gather_windows(images[int(frame[0])], rows, cols, half_px)
     w = 2 * half_px + 1
     stack = np.empty((len(rows), w, w), dtype=np.uint8)
-    valid = None
+    valid: np.ndarray | None = None
     bounds = np.flatnonzero(np.diff(frame)) + 1
     for lo, hi in zip(np.r_[0, bounds], np.r_[bounds, len(rows)], strict=True):
         _, part_valid = gather_windows(images[int(frame[lo])], rows[lo:hi], cols[lo:hi], half_px,
@@ -125,7 +130,7 @@ def gather_frames(images, frame: np.ndarray, rows: np.ndarray, cols: np.ndarray,
 
 
 def gather_windows(image: np.ndarray, rows: np.ndarray, cols: np.ndarray, half_px: int,
-                   out: np.ndarray | None = None):
+                   out: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray | None]:
     """Stack the windows centred on integer ``(rows, cols)``: (uint8 (K, W, W), valid bool (K, W, W) | None).
 
     Out-of-image pixels repeat the nearest edge pixel and are False in ``valid`` (None when every window
@@ -180,7 +185,8 @@ def _select_support(strong: np.ndarray, d: np.ndarray, half_px: int, dist2: np.n
     labels = labels.reshape(k, w, w)
     own = labels[:, half_px, half_px].copy()
     if own.all():  # the usual case: every window's centre pixel lies on its marker
-        return labels == own[:, None, None]
+        mine: np.ndarray = labels == own[:, None, None]
+        return mine
     missing = np.nonzero(own == 0)[0]
     # centre pixel is background: the region of the strong pixel nearest the centre, among pixels
     # at least half as strong as the window's strongest (so noise specks are never chosen)
@@ -190,10 +196,11 @@ def _select_support(strong: np.ndarray, d: np.ndarray, half_px: int, dist2: np.n
     score = np.where(bright, dist2[None], np.inf).reshape(len(missing), -1)
     best = score.argmin(axis=1)
     own[missing] = labels[missing].reshape(len(missing), -1)[np.arange(len(missing)), best]
-    return (labels == own[:, None, None]) & (own[:, None, None] != 0)
+    support: np.ndarray = (labels == own[:, None, None]) & (own[:, None, None] != 0)
+    return support
 
 
-def _moment_shape(raw_m: np.ndarray):
+def _moment_shape(raw_m: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Centroid offsets, roundness and skewness from raw moments (K, 10) of (1, x, y, xx, xy, yy, xxx, ...).
 
     skewness = (μ30² + 3μ21² + 3μ12² + μ03²) / det(Σ)^(3/2) from the central moments: Mardia's b1 for a
@@ -219,7 +226,7 @@ def _moment_shape(raw_m: np.ndarray):
 
 
 @np.errstate(invalid="ignore", divide="ignore")
-def measure_windows(image, rows: np.ndarray, cols: np.ndarray, half_px: int, *,
+def measure_windows(image: Images, rows: np.ndarray, cols: np.ndarray, half_px: int, *,
                     dark: bool, fit_ellipse: bool = False, frame: np.ndarray | None = None) -> Measured:
     """Measure the marker in each window centred on the integer pixel ``(rows[i], cols[i])``.
 
@@ -234,7 +241,7 @@ def measure_windows(image, rows: np.ndarray, cols: np.ndarray, half_px: int, *,
     w = 2 * half_px + 1
     geo = _geometry(half_px)
     if frame is None:
-        raw, valid = gather_windows(image, rows, cols, half_px)
+        raw, valid = gather_windows(np.asarray(image), rows, cols, half_px)
     else:
         raw, valid = gather_frames(image, frame, rows, cols, half_px)
     if dark:
@@ -264,7 +271,7 @@ def measure_windows(image, rows: np.ndarray, cols: np.ndarray, half_px: int, *,
     area = raw_m[:, 0] / peak
     saturated = (support & (flat == 255)).any(axis=1) if raw.max() == 255 else np.zeros(n, bool)
     cramped = raw_m[:, 10] > 0  # weight on the ring's inner edge: the marker reaches the ring
-    border = np.zeros(n, dtype=bool) if valid is None else ~valid.all(axis=(1, 2))
+    border = np.zeros(n, dtype=bool) if valid is None else np.logical_not(valid.all(axis=(1, 2)))
 
     u_e, v_e, edge_rms, edge_noise = np.full((4, n), np.nan)
     if fit_ellipse and n:

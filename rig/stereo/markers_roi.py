@@ -15,7 +15,7 @@ import numpy as np
 from rig.stereo.errors import InputArrayError
 
 
-def parse_roi(roi: Sequence) -> list[np.ndarray]:
+def parse_roi(roi: Sequence[object] | np.ndarray) -> list[np.ndarray]:
     """Validate ``roi`` and return each region as a closed polygon, float64 (N, 2) of (x, y) vertices."""
     if isinstance(roi, np.ndarray) and roi.ndim == 1:
         roi = [roi]
@@ -63,7 +63,8 @@ def _on_segment(x: np.ndarray, y: np.ndarray, a: np.ndarray, b: np.ndarray) -> n
     scale = max(abs(bx - ax), abs(by - ay), 1.0)
     within = ((x >= min(ax, bx) - 1e-9) & (x <= max(ax, bx) + 1e-9)
               & (y >= min(ay, by) - 1e-9) & (y <= max(ay, by) + 1e-9))
-    return within & (np.abs(cross) <= 1e-9 * scale * scale)
+    on: np.ndarray = within & (np.abs(cross) <= 1e-9 * scale * scale)
+    return on
 
 
 def inside_polygon(u_px: np.ndarray, v_px: np.ndarray, polygon: np.ndarray) -> np.ndarray:
