@@ -98,6 +98,7 @@ sys.path.insert(0, str(ROOT / "tests"))
 from marker_images import Disc, render  # noqa: E402
 
 from rig.stereo import detect_markers, track_markers, track_markers_sequence  # noqa: E402
+from rig.stereo.markers_binarize import find_candidates  # noqa: E402
 
 SHAPE = (1080, 1920)
 CLOCKS = {"wall": time.perf_counter, "cpu": time.thread_time}  # cpu: this thread's CPU time
@@ -165,6 +166,18 @@ def ours_track(img, prev):
     return np.stack([r["u_px"], r["v_px"]], axis=1)
 
 
+def ours_track_one(img, prev):
+    """Tracking of the first marker alone: the fixed cost of a call, whatever the number of markers."""
+    return ours_track(img, prev[:1])
+
+
+def ours_binarize(img, _prev):
+    """The binarization stage of ours/full alone: candidate window centres (integer px, not measured)."""
+    limits = {k: DETECT_KW[k] for k in ("min_area_px", "max_area_px", "min_contrast")}
+    rows, cols, _ = find_candidates(img, dark=False, threshold=None, factor=4, min_roundness=0.5, **limits)
+    return np.stack([cols, rows], axis=1).astype(np.float64)
+
+
 def ours_sequence(frames, start):
     """All frames of a round in one call, windows held while a marker stays within HOLD_PX of the centre."""
     r = track_markers_sequence(frames, start, window_px=TRACK_WINDOW_PX, hold_px=HOLD_PX, **DETECT_KW)
@@ -172,9 +185,12 @@ def ours_sequence(frames, start):
 
 
 SEQUENCE = "ours/seq"  # timed once per round over all its frames (time per frame = total / frames)
+ONE = "ours/track1"  # one marker tracked (its errors are against that marker's truth alone)
 METHODS = {
     "ours/full": ours_full,
     "ours/track": ours_track,
+    ONE: ours_track_one,
+    "ours/binarize": ours_binarize,
     SEQUENCE: ours_sequence,
     "sbd/default": sbd({}),
     "sbd/tuned": sbd({"minThreshold": 50, "maxThreshold": 170}),
@@ -252,7 +268,7 @@ def report(times: dict[str, np.ndarray], results: dict[str, list[np.ndarray]], t
         ratios = [np.median(times[r] / t) for r in refs]
         errs, missed, false = [], 0, 0
         for f, found in enumerate(results[name], start=1):
-            e, m, fa = errors(found, truth[f])
+            e, m, fa = errors(found, truth[f][:1] if name == ONE else truth[f])
             errs.append(e)
             missed += m
             false += fa

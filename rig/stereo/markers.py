@@ -189,8 +189,9 @@ def _rows_from(m: Measured, centre: str, max_edge_rms_px: float, max_skewness: f
     if fitted:
         edge_limit2 = max_edge_rms_px**2 + (EDGE_NOISE_FACTOR * m.edge_noise_px) ** 2
         occluded |= m.edge_rms_px**2 > edge_limit2
-    out["flags"] = (m.border.view(np.uint8) * np.uint8(FLAG_BORDER) + occluded.view(np.uint8) * np.uint8(
-        FLAG_OCCLUDED) + m.saturated.view(np.uint8) * np.uint8(FLAG_SATURATED))
+    # bits 0, 1, 2 in one call: FLAG_BORDER, FLAG_OCCLUDED, FLAG_SATURATED
+    out["flags"] = np.packbits(np.stack([m.border, occluded, m.saturated], axis=1), axis=1,
+                               bitorder="little")[:, 0]
     return out
 
 
