@@ -9,6 +9,8 @@ previous frame's result.
 Methods, timed in the same run:
   ours/full      rig.stereo.detect_markers on the whole frame
   ours/track     rig.stereo.track_markers around the previous frame's centres, one call per frame
+  ours/track1    ours/track of the first marker alone: the fixed cost of a call, whatever the markers
+  ours/binarize  ours/full's binarization stage alone (candidate windows, integer px, not measured)
   ours/seq       rig.stereo.track_markers_sequence: all frames of a round in one call, a marker's window
                  kept while the marker stays within 1 px of its centre (hold_px=1); time per frame =
                  the call's time / frames
@@ -29,55 +31,59 @@ core (OpenCV's SimpleBlobDetector uses the second core; a quiet machine's wall f
 Run: .venv/bin/python benchmarks/markers.py [--rounds N] [--frames N] [--clock both|cpu|wall]
 [--scene both|drift|vibration] [--markers 12 30]
 
-Figures (2-core VM shared with 7 other sessions, load average 13–20 during the runs; --clock cpu, 5
-rounds of 30 frames, three runs; ms/frame = best-round median; × = paired speed-up over sbd/default and
-sbd/tuned; ranges over the runs). "before" is 6282ad7 (its own benchmark: 10 frames, drift only, no
-ours/seq), one run under the same load:
+Figures (2-core VM shared with 7 other sessions, load average 10–13 during the CPU runs; --clock cpu, 5
+rounds of 30 frames; before = 675ac55, after = this version, two runs of each alternating, the same
+script; ms/frame = best-round median; × = paired speed-up over sbd/default / sbd/tuned; ranges over the
+runs; K = markers):
 
-  scene      markers  method       before                     after (this version)            target
-  drift      12       ours/full    1.32 ms  7.4× / 5.2×       1.36–1.48 ms  7.2–7.4× / 5.0–5.1×  ≥ 10× / 6×
-  drift      12       ours/track   0.38 ms  24.2× / 17.5×     0.40–0.59 ms  20–25× / 13–18×      ≥ 30× tuned
-  drift      12       ours/seq                                0.65–0.75 ms  12–16× / 9–11×
-  drift      30       ours/full    1.53 ms  7.2× / 5.3×       1.55–1.83 ms  6.9–7.0× / 5.0–5.2×  ≥ 10× / 6×
-  drift      30       ours/track   0.56 ms  19.5× / 14.0×     0.56–0.84 ms  16–18× / 11.6–13.5×  ≥ 30× tuned
-  drift      30       ours/seq                                0.83–1.09 ms  10–13× / 7.4–9.2×
-  vibration  12       ours/full                               1.29–1.54 ms  6.7–7.2× / 4.7–5.1×
-  vibration  12       ours/track                              0.37–0.59 ms  18–26× / 12.8–18.3×
-  vibration  12       ours/seq                                0.22–0.26 ms  36–43× / 25.5–30.2×  ≥ 30× tuned
-  vibration  30       ours/track                              0.56–0.76 ms  15.5–19× / 11.4–14×
-  vibration  30       ours/seq                                0.35–0.45 ms  25–30× / 18.4–22.3×  ≥ 30× tuned
-  sbd/tuned: 7.4–8.0 ms (12, drift), 8.0–9.0 ms (30, drift), 6.5–7.6 / 7.8–8.9 ms (vibration). Centroid
-  RMS (unchanged): ours 0.0065–0.0070 px (full, track and seq alike); sbd 0.0104–0.0108 px; thr+cc
-  0.05–0.06 px. One-call-per-frame tracking and full-frame detection are unchanged within the run-to-run
-  spread at this load (before: one run).
-  A fourth run as the load fell (load average 0.5 at its start, 2.5 at its end), CPU time, × sbd/default /
-  sbd/tuned: drift 12: full 7.1 / 5.1, track 26.1 / 18.5, seq 16.4 / 11.6; drift 30: full 6.9 / 5.0, track
-  19.0 / 13.9, seq 13.2 / 9.6; vibration 12: track 23.3 / 16.8, seq 42.9 / 30.5 (0.221 ms); vibration 30:
-  track 17.3 / 12.6, seq 28.7 / 20.8 (0.361 ms). Its wall pass (other sessions back on the second core by
-  then, sbd/tuned 6.6–9.3 ms wall): full 5.0–6.6× sbd/tuned, 6.8–10.0× sbd/default; track 12.4–20.4×;
-  seq 8.0–11.0× (drift), 24.6–31.0× (vibration).
+  scene      K   method         before: ×default / ×tuned    after: ms/frame   ×default / ×tuned
+  drift      12  ours/full      6.8–6.9 / 4.8                1.48–1.73 ms      7.1–7.4 / 5.0–5.2
+  drift      12  ours/track     18.8–21.4 / 13.5–14.9        0.41–0.49 ms      21.1–24.6 / 15.0–17.6
+  drift      12  ours/track1    28.6–31.4 / 20.2–21.7        0.25–0.34 ms      31.4–40.5 / 22.2–28.2
+  drift      12  ours/binarize  16.4–16.9 / 11.4–11.8        0.57–0.68 ms      17.8–19.3 / 12.5–13.5
+  drift      12  ours/seq       12.7–13.3 / 8.7–9.3          0.74–0.76 ms      12.7–14.6 / 8.9–10.2
+  drift      30  ours/full      6.7–7.2 / 4.8–5.1            1.84–2.47 ms      7.3–7.6 / 5.2–5.5
+  drift      30  ours/track     16.6–21.3 / 12.0–14.8        0.68–0.98 ms      17.6–18.1 / 12.8–12.9
+  drift      30  ours/seq       10.6–13.4 / 7.7–9.5          1.23–1.33 ms      9.7–11.0 / 7.1–7.9
+  vibration  12  ours/full      7.0 / 4.8–4.9                1.54–1.74 ms      7.4–7.5 / 5.1–5.3
+  vibration  12  ours/track     21.6–23.6 / 15.1–16.1        0.47–0.60 ms      23.2–23.7 / 15.2–16.5
+  vibration  12  ours/seq       38.4–40.8 / 26.4–28.8        0.25–0.30 ms      40.1–40.7 / 27.9–28.6
+  vibration  30  ours/track     17.2–17.7 / 12.3–12.5        0.66–0.93 ms      16.5–19.0 / 12.6–13.8
+  vibration  30  ours/track1    35.1–37.4 / 25.5–27.1        0.28–0.44 ms      34.1–42.3 / 25.7–29.9
+  vibration  30  ours/seq       28.7–29.1 / 20.2–21.5        0.42–0.52 ms      28.6–33.1 / 20.6–24.0
+  sbd/tuned 7.8–12.6 ms, sbd/default 11.1–17.7 ms per frame. Centroid RMS: ours 0.0061–0.0070 px (every
+  variant, before and after alike: the rows are bit-identical), sbd 0.0104–0.0108 px, thr+cc 0.05–0.06 px.
+  The after/before differences (a few per cent) are within the run-to-run spread at this load: this
+  version changed the code's structure (named stages, strict types) and trimmed a few calls, not its cost.
 
-Wall time (--clock wall, OpenCV on both cores, one run after the CPU pass): not a fair figure at load 13–20 —
-the sbd variants' second thread is starved (sbd/tuned 24–33 ms/frame, 3–4× its CPU time), so the ratios
-inflate (ours/full 7–14×, ours/track 37–52× sbd/tuned), and a 30-frame ours/seq call is preempted many
-times (9–20×). The wall-time ratios of a quiet machine remain to be measured.
+Wall time (--clock wall, one run of each after the CPU runs, load average 16–21): not a fair figure — the
+sbd variants' second thread is starved (sbd/tuned 30–64 ms wall, 3–6× its CPU time), so the ratios
+inflate (before: ours/full 9–21× sbd/tuned, ours/track 54–80×). A quiet machine's wall ratios remain to
+be measured (the issue's one: full frame 3.7× sbd/tuned on a quiet 2-core machine).
 
-Targets: full frame ≥ 10× sbd/default and ≥ 6× sbd/tuned — NOT met (≈ 7× / 5×, as before). Tracking
-≥ 30× sbd/tuned — met only by ours/seq on the vibration scene with 12 markers (25.5–30.2×: at the target
-in the best run), not with 30 (18–22×), nor on the drift scene, nor by one-call-per-frame tracking
-(12–18×, as before). Why: per tracked window ~10 µs of CPU at this load (gather, ring sort and robust
-plane, connected components, moments, plateau: ~15 passes over 1,089 pixels in numpy) plus ~0.25 ms of
-fixed cost per call (~120 small numpy calls); track_markers_sequence pays the fixed cost once per run of
-frames (1.6–1.8× faster than one call per frame on the vibration scene), but a marker moving ≥ 1 px per
-frame needs its own round every frame (the drift scene: there the sequence is slower than one call per
-frame by its bookkeeping). Cutting the per-window passes needs compiled code, which rig.stereo (numpy,
-scipy, cv2 only) does not allow; no cv2 primitive computes the robust ring plane or the masked moments of
-many windows in one call. rig measure / rig batch (MarkerReducer.reduce_many on 16 decoded frames) use
-the exact frame-by-frame windows (hold_px None), so they gain only where markers keep their rounded
-centres for several frames.
-Found and fixed on the way: with 30 markers the moment product (30 × 1,089 × 11) crossed OpenBLAS's
-threading threshold; its threads spun on the busy machine, and their work escaped the CPU-time clock
-(the old 30-marker figures were flattered). Products are now split below the threshold.
+Targets: full frame ≥ 10× sbd/default and ≥ 6× sbd/tuned — NOT met (≈ 7.1–7.6× / 5.0–5.5×). Tracking one
+call per frame ≥ 30× sbd/tuned — NOT met (12.6–17.6×); ours/seq reaches 28–29× on the vibration scene with
+12 markers, not with 30 (21–24×) nor on the drift scene. Centroid RMS ≤ 0.01 px — met.
+What limits them (after runs):
+  - tracking: a call for ONE marker (ours/track1) already costs 0.25–0.48 ms = 22–30× sbd/tuned, so its
+    fixed cost alone fills the 30× budget (sbd/tuned / 30 = 0.26–0.42 ms); each further marker adds
+    ≈ 14 µs (0.16–0.49 ms for 11 or 29 more). The fixed cost is ~150 numpy/cv2 calls of ~1–3 µs each
+    (check, gather, ring plane and robust spread, support labelling, moments, shape, plateau, flags,
+    filters), every one on arrays of K rows; the interleaved order (each call after a SimpleBlobDetector
+    run has flushed the caches) doubles it against a warm loop (--order blocked).
+  - full frame: its binarization stage alone (ours/binarize: reduce ×4, local-mean threshold, contours)
+    costs 0.57–0.92 ms = 12.5–14.3× sbd/tuned, ~40 % of ours/full; the rest is one measuring call
+    (the fixed cost above) and the candidates' bookkeeping. 6× sbd/tuned would need ≤ 1.3–1.5 ms.
+  - tried and measured, not kept: cv2.adaptiveThreshold for blur + offset + compare (identical output,
+    2× slower: 0.39 vs 0.19 ms); the local mean on a further-reduced frame (INTER_AREA resize: 0.28 vs
+    0.16 ms; pyrDown ×2: no gain); cv2.resize INTER_NEAREST_EXACT instead of the strided subsample (no
+    gain); np.take or per-window slices instead of the strided-view gather (3–9× slower).
+  Reaching the targets needs the per-window work of a call in one compiled kernel (a few calls per frame
+  instead of ~150); numpy and OpenCV offer no primitive for the robust ring plane, the centre-connected
+  support and the masked moments of many windows at once.
+rig measure / rig batch (MarkerReducer.reduce_many on 16 decoded frames) use the exact frame-by-frame
+windows (hold_px None), so ours/seq's gain applies there only where markers keep their rounded centres for
+several frames.
 """
 
 from __future__ import annotations
