@@ -57,9 +57,10 @@ runs; K = markers):
   version changed the code's structure (named stages, strict types) and trimmed a few calls, not its cost.
 
 Wall time (--clock wall, one run of each after the CPU runs, load average 16–21): not a fair figure — the
-sbd variants' second thread is starved (sbd/tuned 30–64 ms wall, 3–6× its CPU time), so the ratios
-inflate (before: ours/full 9–21× sbd/tuned, ours/track 54–80×). A quiet machine's wall ratios remain to
-be measured (the issue's one: full frame 3.7× sbd/tuned on a quiet 2-core machine).
+sbd variants' second thread is starved (sbd/tuned 30–90 ms wall, 3–10× its CPU time), so the ratios
+inflate (ours/full 9–33× sbd/tuned, ours/track 54–112×, before and after alike; the after run was
+stopped after three of its four cases). A quiet machine's wall ratios remain to be measured (the issue
+reports 3.7× sbd/default for the full frame on a quiet 2-core machine, against 6.1× in CPU time).
 
 Targets: full frame ≥ 10× sbd/default and ≥ 6× sbd/tuned — NOT met (≈ 7.1–7.6× / 5.0–5.5×). Tracking one
 call per frame ≥ 30× sbd/tuned — NOT met (12.6–17.6×); ours/seq reaches 28–29× on the vibration scene with
