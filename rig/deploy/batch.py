@@ -120,6 +120,10 @@ def plan(manifest: BatchManifest) -> tuple[list[Task], list[Segment]]:
 
 
 # ---------------------------------------------------------------------------- one task (on a worker)
+def _write_text(path: Path, text: str) -> None:
+    path.write_text(text, encoding="utf-8")
+
+
 def _write_atomic(path: Path, write: Callable[[Path], None]) -> None:
     """Write ``path`` through a temporary name in its folder, then rename
     (:func:`rig.record.atomic.atomic_path`)."""
@@ -179,7 +183,7 @@ def run_task(task: Task, out_dir: str) -> dict[str, Any]:
                "problems": result.problems, "timing": timing,
                "targets": int((summary["role"] == "target").sum()) if "role" in summary else None}
     _write_atomic(out / "tasks" / f"{task.task_id}.json",
-                  lambda p: p.write_text(json.dumps(outcome, indent=1), encoding="utf-8"))
+                  lambda p: _write_text(p, json.dumps(outcome, indent=1)))
     return outcome
 
 

@@ -49,7 +49,7 @@ from rig.stereo.errors import StereoError
 __all__ = ["DISTORTION_MODELS", "OnsiteCalibrationError", "PlateTarget", "calibrate_from_videos",
            "load_target", "still_segments"]
 
-DISTORTION_MODELS = {"none": False, "k1": "k1", "k1k2": "k1k2", "full": True}
+DISTORTION_MODELS: dict[str, bool | str] = {"none": False, "k1": "k1", "k1k2": "k1k2", "full": True}
 
 
 class OnsiteCalibrationError(ValueError):
@@ -77,10 +77,7 @@ def load_target(path: str | Path) -> PlateTarget:
     plate = doc.get("plate")
     if not isinstance(plate, dict):
         raise OnsiteCalibrationError(f"{path}: [plate] missing; allowed: rows = int ≥ 2, cols = int ≥ 2")
-    rows, cols = plate.get("rows"), plate.get("cols")
-    for key, v in (("rows", rows), ("cols", cols)):
-        if not isinstance(v, int) or isinstance(v, bool) or v < 2:
-            raise OnsiteCalibrationError(f"{path}: plate.{key} = {v!r}; allowed: an integer ≥ 2")
+    rows, cols = _grid_size(path, plate, "rows"), _grid_size(path, plate, "cols")
     positions = doc.get("positions")
     if not isinstance(positions, list) or len(positions) < 2:
         count = len(positions) if isinstance(positions, list) else 0
@@ -99,7 +96,15 @@ def load_target(path: str | Path) -> PlateTarget:
                 f"[x, y, z] points in mm (rows × cols = {rows} × {cols}, node r·cols + c)")
         out.append(arr)
     _check_in_depth(path, np.concatenate(out))
-    return PlateTarget(rows=int(rows), cols=int(cols), positions_mm=tuple(out))
+    return PlateTarget(rows=rows, cols=cols, positions_mm=tuple(out))
+
+
+def _grid_size(path: Path, plate: dict[str, object], key: str) -> int:
+    """``plate.rows`` / ``plate.cols`` of a target file: an integer ≥ 2."""
+    value = plate.get(key)
+    if not isinstance(value, int) or isinstance(value, bool) or value < 2:
+        raise OnsiteCalibrationError(f"{path}: plate.{key} = {value!r}; allowed: an integer ≥ 2")
+    return value
 
 
 def _check_in_depth(path: Path, xyz_mm: np.ndarray) -> None:

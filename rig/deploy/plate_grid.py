@@ -18,6 +18,7 @@ grid carries the columns when ``cols > rows``.
 from __future__ import annotations
 
 import itertools
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import cv2
@@ -54,7 +55,7 @@ def _points(uv_px: object, name: str = "uv_px") -> np.ndarray:
     return uv
 
 
-def moving_points(uv_per_position: list[object], *, still_px: float = 2.0) -> list[np.ndarray]:
+def moving_points(uv_per_position: Sequence[np.ndarray], *, still_px: float = 2.0) -> list[np.ndarray]:
     """Indices of the moving blobs of each position.
 
     ``uv_per_position``: one (N_i, 2) array per slid position (blob centres, px, e.g. averaged over the

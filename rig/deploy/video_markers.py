@@ -118,7 +118,8 @@ def extract_video(path: str | Path, camera: str | None = None,
     def flush() -> float:
         t0 = time.perf_counter()
         reduced = reducer.reduce_many([image for *_, image in batch])
-        parts.extend((*info, found) for (*info, _), (found, _) in zip(batch, reduced, strict=True))
+        parts.extend((index, timestamp_s, duplicate, found)
+                     for (index, timestamp_s, duplicate, _), (found, _) in zip(batch, reduced, strict=True))
         batch.clear()
         return time.perf_counter() - t0
 
