@@ -131,6 +131,12 @@ class VfdServer:
         return f"tcp://{self.host}:{self.port}" if self.mode == "tcp" else self.client_port
 
     @property
+    def serving(self) -> bool:
+        """The serving thread (TCP accept loop or RTU loop) is alive: False before :meth:`start` and once
+        it died or stopped."""
+        return self._thread is not None and self._thread.is_alive()
+
+    @property
     def connection_threads(self) -> int:
         """TCP connection threads still alive."""
         with self._conn_lock:

@@ -15,7 +15,7 @@ A procedure is a plain module (``procedures/<name>.py``) with three things::
         spacing: str = field(default="linear", metadata=param(choices=("linear", "log")))
 
     def run(ctx: Context, params: Parameters) -> dict | None:
-        exciter = ctx.device("exciter")
+        exciter = ctx.exciter()                 # typed: the station's Exciter (ParameterError if none)
         with ctx.step("ramp") as step:          # recorded begin/done; skipped on --resume if done
             if not step.skipped:
                 ...
@@ -45,27 +45,42 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import logging
 import os
 import tomllib
 import types
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol, TypeVar
 
+from drivers.denso.arm import DensoArm
+from drivers.exciter.axis import VfdAxis
+from drivers.exciter.exciter import Exciter
+from drivers.exciter.rotor import Rotor
+from drivers.exciter.shaker import Shaker
+from drivers.roles import Camera, Device
+from drivers.sim.clock import VirtualClock
+from rig.config.rig_config import RigConfig
 from rig.config.schema import ConfigError, build, spec, to_dict
+from rig.record.observations import ObservationWriter
+from rig.record.writer import RunRecord
+from rig.run.clock import Clock
 
 __all__ = [
     "Abort",
     "Context",
     "InterlockTripped",
     "ParameterError",
+    "StationView",
     "Step",
     "param",
     "parameter_table",
     "parse_set",
     "validate_parameters",
 ]
+
+D = TypeVar("D", bound=Device)
 
 param = spec  # same metadata as the configuration schema: lo, hi, lo_open, choices, length, check, doc
 
@@ -120,11 +135,12 @@ def parse_set(items: list[str]) -> dict[str, Any]:
     return out
 
 
-def validate_parameters(module: types.ModuleType, overrides: dict[str, Any] | None = None) -> Any:
+def validate_parameters(module: types.ModuleType, overrides: dict[str, Any] | None = None) -> object:
     """Build ``module.Parameters`` from its defaults and ``overrides``; raise :class:`ParameterError`."""
     check_procedure_module(module)
     try:
-        return build(module.Parameters, dict(overrides or {}), module.NAME)
+        parameters: object = build(module.Parameters, dict(overrides or {}), module.NAME)
+        return parameters
     except ParameterError:
         raise
     except ConfigError as exc:
@@ -166,6 +182,26 @@ class Step:
         return rel
 
 
+class StationView(Protocol):
+    """What a procedure sees of the station (:class:`rig.run.station.Station`): its devices and cameras
+    by name, whether it is the simulated twin, and target mounting."""
+
+    @property
+    def devices(self) -> Mapping[str, Device]: ...
+
+    @property
+    def cameras(self) -> Mapping[str, Camera]: ...
+
+    @property
+    def simulated(self) -> bool:
+        """True on the twin (targets are mounted by :meth:`mount`), False on a real bench."""
+        ...
+
+    def mount(self, scene: str) -> None:
+        """Mount a target on the twin (a real bench raises: the operator mounts it)."""
+        ...
+
+
 class Context:
     """What a procedure sees. Built by the runner; see the module docstring for the rules.
 
@@ -173,10 +209,13 @@ class Context:
     :class:`rig.config.rig_config.RigConfig`),
     ``clock`` (rig time), ``record`` (the :class:`rig.record.writer.RunRecord`), ``run_dir``, ``params``,
     ``resumed`` (True in a ``--resume`` session), ``log`` (a :class:`logging.Logger`).
+    Devices come typed by what the procedure needs of them: :meth:`arm`, :meth:`exciter`, :meth:`rotor`,
+    :meth:`vfd_axis`, :meth:`shaker` (:meth:`device` gives any device by name, as the runner knows it).
     """
 
-    def __init__(self, *, station: Any, config: Any, clock: Any, record: Any, params: Any, log: Any,
-                 checkpoint: Callable[[], None], progress: Callable[[float | None, str], None]) -> None:
+    def __init__(self, *, station: StationView, config: RigConfig, clock: Clock, record: RunRecord,
+                 params: object, log: logging.Logger, checkpoint: Callable[[], None],
+                 progress: Callable[[float | None, str], None]) -> None:
         self.station = station
         self.config = config
         self.clock = clock
@@ -205,12 +244,12 @@ class Context:
         end = self.clock.now_s() + float(duration_s)
         self.checkpoint()
         while (remaining := end - self.clock.now_s()) > 0:
-            self.clock.sleep_s(min(remaining, slice_s) if not getattr(self.clock, "is_instant", False)
-                               else remaining)
+            instant = isinstance(self.clock, VirtualClock) and self.clock.is_instant
+            self.clock.sleep_s(remaining if instant else min(remaining, slice_s))
             self.checkpoint()
 
     # -- devices
-    def device(self, name: str) -> Any:
+    def device(self, name: str) -> Device:
         """The device ``name`` of the station; :class:`ParameterError` if this rig has none."""
         devices = self.station.devices
         if name not in devices:
@@ -219,12 +258,44 @@ class Context:
                                                     f"configuration lacks (has: {have})")
         return devices[name]
 
+    def _device_of(self, name: str, kind: type[D]) -> D:
+        device = self.device(name)
+        if not isinstance(device, kind):
+            raise TypeError(f"devices.{name} is a {type(device).__name__}; the procedure needs a "
+                            f"{kind.__name__}")
+        return device
+
+    def arm(self) -> DensoArm:
+        """The robot arm (``[devices.robot]``)."""
+        return self._device_of("robot", DensoArm)
+
+    def vfd_axis(self, name: str) -> VfdAxis:
+        """The VFD axis ``name`` (``exciter`` or ``rotor``)."""
+        return self._device_of(name, VfdAxis)
+
+    def exciter(self) -> Exciter:
+        """The crank exciter (``[devices.exciter]``)."""
+        return self._device_of("exciter", Exciter)
+
+    def rotor(self) -> Rotor:
+        """The rotor (``[devices.rotor]``)."""
+        return self._device_of("rotor", Rotor)
+
+    def shaker(self) -> Shaker:
+        """The function generator + amplifier + shaker (``[devices.generator]``)."""
+        return self._device_of("generator", Shaker)
+
+    @property
+    def cameras(self) -> Mapping[str, Camera]:
+        """The station's cameras by name."""
+        return self.station.cameras
+
     # -- record
     def event(self, stream: str, data: dict[str, Any]) -> int:
         """Record an event of ``stream`` (see the streams of ``docs/contracts.md``); returns its seq."""
         return self.record.event(stream, data)
 
-    def observation_writer(self, camera: str, **kwargs: Any) -> Any:
+    def observation_writer(self, camera: str, **kwargs: Any) -> ObservationWriter:
         """A :class:`rig.record.writer.ObservationWriter` for ``camera``, tagged with the current step."""
         return self.record.observation_writer(camera, **kwargs)
 
@@ -261,7 +332,7 @@ class Context:
         """Absolute path inside the run folder (refuses paths that would leave it)."""
         return self.record.path_for(relative_path)
 
-    def write_json(self, relative_path: str, obj: Any) -> str:
+    def write_json(self, relative_path: str, obj: object) -> str:
         """Write ``obj`` as JSON into the run folder atomically (tmp + fsync + rename); return the path."""
         from rig.record.atomic import write_json
         from rig.record.jsonenc import to_jsonable

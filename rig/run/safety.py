@@ -28,7 +28,7 @@ from drivers.denso.arm import LimitError as ArmLimitError
 from drivers.exciter.limits import LimitError as ExciterLimitError
 from drivers.roles import Assignment, shutdown_rank
 from rig.config.schema import ConfigError
-from rig.run.procedure import Abort, InterlockTripped
+from rig.run.procedure import Abort, InterlockTripped, StationView
 
 log = logging.getLogger("rig.run.safety")
 
@@ -53,10 +53,9 @@ def abort_reason(signal_name: str) -> str:
     return f"aborted by {signal_name}"
 
 
-class StationLike(Protocol):
-    """What the runner needs of a station (:class:`rig.run.station.Station` and the tests' stations)."""
-
-    devices: dict[str, Any]
+class StationLike(StationView, Protocol):
+    """What the runner needs of a station (:class:`rig.run.station.Station` and the tests' stations), on
+    top of what the procedure sees of it."""
 
     def roster(self) -> list[Assignment]:
         """Every device the runner must make safe, with its declared role (cameras included)."""

@@ -33,14 +33,24 @@ import contextlib
 import logging
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from drivers.roles import Assignment, Device, Role
+from drivers.clock import Clock
+from drivers.roles import Assignment, Camera, Device, Role
 from rig.config.address import parse_address
-from rig.config.rig_config import ConfigError, RigConfig
-from rig.config.schema import to_dict
+from rig.config.devices import VfdConfig
+from rig.config.limits import VibrationLimits
+from rig.config.rig_config import RigConfig
+from rig.config.schema import ConfigError, to_dict
+
+if TYPE_CHECKING:
+    from drivers.exciter.axis import VfdAxis
+    from drivers.exciter.vfd import VfdDriver
+    from drivers.sim.bodies import OscillatorBody
+    from drivers.sim.stereo_rig import CameraSpec
+    from drivers.sim.world import World, WorldLayout
 
 __all__ = ["Station", "StationError", "camera_specs", "open_station", "world_layout"]
 
@@ -56,23 +66,37 @@ class StationError(RuntimeError):
 
 @dataclass
 class Station:
+    """The built devices (see the module docstring); built by :func:`open_station`."""
+
     config: RigConfig
-    clock: Any
-    world: Any = None
-    devices: dict[str, Any] = field(default_factory=dict)
-    cameras: dict[str, Any] = field(default_factory=dict)
+    clock: Clock
+    world: World | None = None
+    devices: dict[str, Device] = field(default_factory=dict)
+    cameras: dict[str, Camera] = field(default_factory=dict)
     roles: dict[str, Role] = field(default_factory=dict)  # device or camera → its declared role
     addresses: dict[str, str] = field(default_factory=dict)  # device → address actually connected
     unreachable: dict[str, str] = field(default_factory=dict)  # device → why (``keep_going`` only)
     _closers: list[tuple[str, Callable[[], None]]] = field(default_factory=list, repr=False)
     _liveness: list[tuple[str, Callable[[], str | None]]] = field(default_factory=list, repr=False)
 
+    @property
+    def simulated(self) -> bool:
+        """True on the twin (a world is attached), False on a real bench."""
+        return self.world is not None
+
     def add(self, name: str, role: Role, device: Device, address: str | None = None) -> None:
-        """Declare a built device with its role (cameras go to ``cameras``, the rest to ``devices``)."""
-        (self.cameras if role is Role.CAMERA else self.devices)[name] = device
+        """Declare a built device (not a camera: :meth:`add_camera`) with its role and address."""
+        if role is Role.CAMERA:
+            raise ValueError(f"{name}: cameras are added with add_camera()")
+        self.devices[name] = device
         self.roles[name] = role
         if address is not None:
             self.addresses[name] = address
+
+    def add_camera(self, name: str, camera: Camera) -> None:
+        """Declare a built camera (role :attr:`Role.CAMERA`)."""
+        self.cameras[name] = camera
+        self.roles[name] = Role.CAMERA
 
     def roster(self) -> list[Assignment]:
         """Every device and camera with its declared role (what the runner makes safe, in build order)."""
@@ -118,7 +142,7 @@ def _tuples(value: Any) -> Any:
     return tuple(_tuples(v) for v in value) if isinstance(value, list) else value
 
 
-def world_layout(config: RigConfig) -> Any:
+def world_layout(config: RigConfig) -> WorldLayout:
     """The twin's :class:`WorldLayout` described by ``config`` (targets, home pose, crank radius)."""
     from drivers.sim import targets as sim_targets
     from drivers.sim.world import WorldLayout
@@ -131,7 +155,7 @@ def world_layout(config: RigConfig) -> Any:
     procedure_only = ("start_pose", "slide_positions_mm")
     kwargs = {}
     for name, cls in classes.items():
-        cfg = getattr(tg, name)
+        cfg = getattr(tg, name)  # the [targets.<name>] field named by the table above
         if cfg is not None:
             kwargs[name] = cls(**{k: _tuples(v) for k, v in to_dict(cfg).items() if k not in procedure_only})
     layout: dict[str, Any] = {"targets": sim_targets.TargetSet(**kwargs)}
@@ -146,7 +170,7 @@ def world_layout(config: RigConfig) -> Any:
     return WorldLayout(**layout)
 
 
-def camera_specs(config: RigConfig) -> list[Any]:
+def camera_specs(config: RigConfig) -> list[CameraSpec]:
     """The twin's :class:`CameraSpec` of every ``sim`` camera of ``config``."""
     from drivers.sim.render import NoiseModel
     from drivers.sim.stereo_rig import CameraSpec
@@ -155,7 +179,8 @@ def camera_specs(config: RigConfig) -> list[Any]:
     for name, cam in config.cameras.items():
         if cam.driver != "sim":
             continue
-        sc = config.sim.cameras[name]  # type: ignore[union-attr] — the config cross-check guarantees it
+        assert config.sim is not None, "the configuration's cross-check gives every sim camera [sim.cameras]"
+        sc = config.sim.cameras[name]
         values = to_dict(sc)
         noise = NoiseModel(**values.pop("noise"))
         values = {k: _tuples(v) for k, v in values.items()}
@@ -165,7 +190,7 @@ def camera_specs(config: RigConfig) -> list[Any]:
 
 # ------------------------------------------------------------------------------------------- builders
 def _build_robot(st: Station, cfg: RigConfig) -> None:
-    from drivers.denso.arm import BoxEnvelope, DensoArm
+    from drivers.denso.arm import DensoArm
     from drivers.denso.client import BcapClient
     from drivers.denso.motion import WaitSettings
     from drivers.transport import open_transport
@@ -173,12 +198,14 @@ def _build_robot(st: Station, cfg: RigConfig) -> None:
     rc, lim = cfg.devices.robot, cfg.limits.robot
     assert rc is not None and lim is not None
     addr = parse_address(rc.address, "devices.robot.address")
+    world = st.world
     serial_line = addr["scheme"] == "serial" or addr.get("link") == "pty"
     url = rc.address
     if addr["scheme"] == "mock":
         from drivers.mock.bcap_server import BcapMockServer
 
-        server = BcapMockServer(st.world.robot, st.clock, full_speed_mm_s=rc.full_speed_mm_s)
+        assert world is not None, "a mock:// address needs the simulated station (configuration check)"
+        server = BcapMockServer(world.robot, st.clock, full_speed_mm_s=rc.full_speed_mm_s)
         st._closers.append(("robot mock server", server.close))
         if addr["link"] == "tcp":
             url = f"tcp://127.0.0.1:{server.serve_tcp('127.0.0.1', 0)}"
@@ -191,7 +218,7 @@ def _build_robot(st: Station, cfg: RigConfig) -> None:
     # the link's transport, not the first one: a make-safe may have reconnected
     st._closers.append(("robot transport", lambda: client.link.transport.close()))  # noqa: PLW0108
     wait_mode = rc.wait_mode or ("blocking" if rc.controller == "rc7m" else "next")
-    arm = DensoArm(client, envelope=BoxEnvelope(lim.envelope_x_mm, lim.envelope_y_mm, lim.envelope_z_mm),
+    arm = DensoArm(client, envelope=lim.envelope(),
                    max_speed_mm_s=lim.max_speed_mm_s, position_tolerance_mm=rc.position_tolerance_mm,
                    clock=st.clock, full_speed_mm_s=rc.full_speed_mm_s,
                    heartbeat_timeout_s=cfg.station.heartbeat_timeout_s,
@@ -211,18 +238,20 @@ def _build_robot(st: Station, cfg: RigConfig) -> None:
         return None
 
     st._liveness.append(("robot", reported_pose_in_envelope))
-    st._liveness.append(("robot", lambda: "b-CAP link closed"
-                         if getattr(client.link.transport, "closed", False) else None))
+    st._liveness.append(("robot", lambda: "b-CAP link closed" if client.link.transport.closed else None))
 
 
-def _build_vfd(st: Station, cfg: RigConfig, name: str) -> None:
+def _build_vfd(st: Station, cfg: RigConfig, name: str, *, dc: VfdConfig | None, lim: VibrationLimits | None,
+               body: OscillatorBody | None) -> None:
+    """Build the VFD axis ``name`` (``exciter`` or ``rotor``) from its device and limits sections; ``body``
+    is the twin's body it drives (None on a real bench)."""
     from drivers.exciter.exciter import Exciter
     from drivers.exciter.rotor import Rotor
     from drivers.exciter.vfd import VfdDriver
     from drivers.modbus_link import ModbusLink
     from drivers.transport import TransportError
 
-    dc, lim = getattr(cfg.devices, name), getattr(cfg.limits, name)
+    assert dc is not None and lim is not None, "the configuration check pairs devices and limits"
     regs = dc.resolved_register_map()
     addr = parse_address(dc.address, f"devices.{name}.address")
     url = dc.address
@@ -231,14 +260,13 @@ def _build_vfd(st: Station, cfg: RigConfig, name: str) -> None:
         from drivers.mock.vfd_drive import DriveModel
         from drivers.mock.vfd_server import VfdServer
 
-        drive = DriveModel(getattr(st.world, name), st.clock, register_map=regs, gear_ratio=dc.gear_ratio,
+        assert body is not None, "a mock:// address needs the simulated station (configuration check)"
+        drive = DriveModel(body, st.clock, register_map=regs, gear_ratio=dc.gear_ratio,
                            max_output_hz=dc.max_output_hz)
         server = VfdServer(drive, mode="tcp" if addr["link"] == "tcp" else "rtu").start()
         st._closers.append((f"{name} mock server", server.stop))
         url = server.url if addr["link"] == "tcp" else f"serial://{server.client_port}?baud=115200"
-        thread = server._thread
-        st._liveness.append((name, lambda: None if thread is None or thread.is_alive()
-                             else "mock server died"))
+        st._liveness.append((name, lambda: None if server.serving else "mock server died"))
     try:
         client = ModbusLink(url, timeout_s=dc.timeout_s, retries=1)
     except (TransportError, ValueError) as exc:
@@ -250,8 +278,10 @@ def _build_vfd(st: Station, cfg: RigConfig, name: str) -> None:
     common = {"clock": st.clock, "limits": lim.motion_limits(), "gear_ratio": dc.gear_ratio,
               "ramp_rate_hz_per_s": dc.ramp_rate_hz_per_s,
               "heartbeat_timeout_s": cfg.station.heartbeat_timeout_s}
+    axis: VfdAxis
     if name == "exciter":
-        axis: Any = Exciter(vfd, crank_radius_mm=dc.crank_radius_mm, **common)
+        assert dc.crank_radius_mm is not None, "the configuration check requires the exciter's crank radius"
+        axis = Exciter(vfd, crank_radius_mm=dc.crank_radius_mm, **common)
     else:
         radius = cfg.targets.rotor.radius_mm if cfg.targets.rotor is not None else 0.0
         axis = Rotor(vfd, marker_radius_mm=radius, **common)
@@ -268,7 +298,7 @@ def _build_vfd(st: Station, cfg: RigConfig, name: str) -> None:
     st._liveness.append((name, setpoint_within_limits))
 
 
-def _arm_comm_timeout(st: Station, name: str, vfd: Any, timeout_s: float) -> None:
+def _arm_comm_timeout(st: Station, name: str, vfd: VfdDriver, timeout_s: float) -> None:
     """Arm the drive's own communication-loss stop (``devices.<name>.comm_timeout_s``) and disarm it on a
     clean close (after the stop). Not done for ``mock://`` drives: they run in this process on its
     virtual clock and die with it. (The configuration checked the time-out against the heartbeat probes.)"""
@@ -294,8 +324,9 @@ def _build_generator(st: Station, cfg: RigConfig) -> None:
         from drivers.mock.generator_instrument import GeneratorInstrument
         from drivers.mock.generator_server import GeneratorServer
 
+        assert st.world is not None, "a mock:// address needs the simulated station (configuration check)"
         instrument = GeneratorInstrument(st.world.shaker, st.clock,
-                                         sensitivity_mm_per_v=[tuple(p) for p in gc.sensitivity_mm_per_v])
+                                         sensitivity_mm_per_v=[(p[0], p[1]) for p in gc.sensitivity_mm_per_v])
         server = GeneratorServer(instrument, mode=addr["link"]).start()
         st._closers.append(("generator mock server", server.stop))
         url = server.url if addr["link"] == "tcp" else f"serial://{server.client_port}?baud=115200"
@@ -312,8 +343,7 @@ def _build_generator(st: Station, cfg: RigConfig) -> None:
                     heartbeat_timeout_s=cfg.station.heartbeat_timeout_s)
     st._closers.append(("generator output off", shaker.close))
     st.add("generator", Role.GENERATOR, shaker, url)
-    st._liveness.append(("generator", lambda: "SCPI link closed"
-                         if getattr(generator.transport, "closed", False) else None))
+    st._liveness.append(("generator", lambda: "SCPI link closed" if generator.transport.closed else None))
 
 
 def _build_cameras(st: Station, cfg: RigConfig) -> None:
@@ -322,13 +352,13 @@ def _build_cameras(st: Station, cfg: RigConfig) -> None:
             from drivers.camera.opencv_device import OpenCVCamera
 
             width, height = cam.resolution_px
-            st.add(name, Role.CAMERA, OpenCVCamera(name, cam.source, fps=cam.fps, width_px=width,
-                                                   height_px=height))
+            st.add_camera(name, OpenCVCamera(name, cam.source, fps=cam.fps, width_px=width,
+                                             height_px=height))
         elif cam.driver == "file":
             from drivers.camera.video_file import VideoFile, VideoFileError
 
             try:
-                st.add(name, Role.CAMERA, VideoFile(cam.source, name=name, fps=cam.fps))
+                st.add_camera(name, VideoFile(cam.source, name=name, fps=cam.fps))
             except VideoFileError as exc:
                 raise StationError(f"cameras.{name}.source: {exc}") from exc
     if st.world is None:
@@ -338,12 +368,30 @@ def _build_cameras(st: Station, cfg: RigConfig) -> None:
 
     for spec in camera_specs(cfg):
         width, height = cfg.cameras[spec.name].resolution_px
-        st.add(spec.name, Role.CAMERA, SimFrameSource(make_camera(spec, st.world, width_px=width,
-                                                                  height_px=height)))
+        st.add_camera(spec.name, SimFrameSource(make_camera(spec, st.world, width_px=width,
+                                                            height_px=height)))
+
+
+def _builders(st: Station, cfg: RigConfig) -> list[tuple[str, str, Callable[[], None]]]:
+    """(name, address, build) of every configured device, in build order."""
+    dev, lim = cfg.devices, cfg.limits
+    bodies = (None, None) if st.world is None else (st.world.exciter, st.world.rotor)
+    out: list[tuple[str, str, Callable[[], None]]] = []
+    if dev.robot is not None:
+        out.append(("robot", dev.robot.address, lambda: _build_robot(st, cfg)))
+    if dev.exciter is not None:
+        out.append(("exciter", dev.exciter.address, lambda: _build_vfd(
+            st, cfg, "exciter", dc=dev.exciter, lim=lim.exciter, body=bodies[0])))
+    if dev.rotor is not None:
+        out.append(("rotor", dev.rotor.address, lambda: _build_vfd(
+            st, cfg, "rotor", dc=dev.rotor, lim=lim.rotor, body=bodies[1])))
+    if dev.generator is not None:
+        out.append(("generator", dev.generator.address, lambda: _build_generator(st, cfg)))
+    return out
 
 
 @contextlib.contextmanager
-def open_station(config: RigConfig, clock: Any, *, keep_going: bool = False) -> Iterator[Station]:
+def open_station(config: RigConfig, clock: Clock, *, keep_going: bool = False) -> Iterator[Station]:
     """Build every configured device (starting mock servers on a simulated station); always tear down.
 
     A device that cannot be built or reached raises :class:`StationError`, unless ``keep_going`` (what
@@ -352,25 +400,21 @@ def open_station(config: RigConfig, clock: Any, *, keep_going: bool = False) -> 
     station = Station(config, clock)
     try:
         if config.station.simulated:
+            from drivers.sim.clock import VirtualClock
             from drivers.sim.world import World
 
-            if not getattr(clock, "is_virtual", False):
+            if not isinstance(clock, VirtualClock):
                 raise ConfigError("station.clock", "a simulated station needs the virtual clock")
             seed = config.sim.seed if config.sim else 0
             station.world = World(clock, seed=seed, layout=world_layout(config))
-        builders = (("robot", _build_robot), ("exciter", lambda s, c: _build_vfd(s, c, "exciter")),
-                    ("rotor", lambda s, c: _build_vfd(s, c, "rotor")), ("generator", _build_generator))
-        for name, build in builders:
-            if getattr(config.devices, name) is None:
-                continue
+        for name, address, build in _builders(station, config):
             try:
                 try:
-                    build(station, config)
+                    build()
                 except (ConfigError, StationError):
                     raise
                 except Exception as exc:
-                    raise StationError(f"{name} at {getattr(config.devices, name).address}: "
-                                       f"{type(exc).__name__}: {exc}") from exc
+                    raise StationError(f"{name} at {address}: {type(exc).__name__}: {exc}") from exc
             except StationError as exc:
                 if not keep_going:
                     raise
