@@ -115,6 +115,7 @@ class Camera(Device, Protocol):
     width_px: int
     height_px: int
     fps: float
+    live: bool = False  # True: frames stream into a bounded queue during the recording and must be read then
 
     def start(self) -> None: ...
 

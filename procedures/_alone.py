@@ -8,19 +8,22 @@ from typing import Any, TypeVar
 
 from procedures import calibrate, sync
 from procedures._report import evaluated_summary, report_step
+from rig.config.rig_config import RigConfig
 from rig.run.plan import Plan
+from rig.run.procedure import Context
 
 T = TypeVar("T")
+P = TypeVar("P")
 
 
-def alone_plan(procedure: str, own: Plan, config: Any) -> Plan:
+def alone_plan(procedure: str, own: Plan, config: RigConfig) -> Plan:
     """The plan of a measurement procedure run on its own: calibrate and sync (their defaults), then its
     own steps."""
     return Plan(procedure, calibrate.plan(calibrate.Parameters(), config).steps
                 + sync.plan(sync.Parameters(), config).steps + own.steps)
 
 
-def run_alone(ctx: Any, params: Any, run_steps: Callable[[Any, Any], T]) -> tuple[T, dict[str, Any]]:
+def run_alone(ctx: Context, params: P, run_steps: Callable[[Context, P], T]) -> tuple[T, dict[str, Any]]:
     """A measurement procedure run on its own (``rig run NAME``; its whole plan, :func:`alone_plan`, was
     checked against the limits before the station was opened): calibrate and sync in the same run folder,
     the procedure's own steps and the report. Returns what ``run_steps`` returned and the procedure's

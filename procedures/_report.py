@@ -14,6 +14,8 @@ from __future__ import annotations
 
 from typing import Any
 
+from rig.run.procedure import Context
+
 __all__ = ["evaluated_summary", "report_step", "verdict_of"]
 
 
@@ -38,7 +40,7 @@ def evaluated_summary(result: dict[str, Any]) -> str:
     return f"report {result['report']}; " + (", ".join(done) if done else "no acceptance criterion evaluated")
 
 
-def report_step(ctx: Any, *, make_figures: bool = True,
+def report_step(ctx: Context, *, make_figures: bool = True,
                 compare: tuple[str, ...] = ("linear",)) -> dict[str, Any]:
     """Build the report as step ``report``; return the verdict dict (``passed``, ``summary``, paths).
     ``compare``: sync methods analysed beside the primary one (default: the paper's ``linear``)."""

@@ -13,9 +13,11 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
+
+from drivers.exciter.shaker import Shaker
+from rig.run.procedure import Context
 
 __all__ = ["StaircaseRun", "follow_staircase", "staircase_plan"]
 
@@ -57,7 +59,7 @@ class StaircaseRun:
     amplitude_vpp: list[float]
 
 
-def follow_staircase(ctx: Any, shaker: Any, plan: Sequence[tuple[float, float]], *, total_s: float,
+def follow_staircase(ctx: Context, shaker: Shaker, plan: Sequence[tuple[float, float]], *, total_s: float,
                      amplitude_mm: float, on_step: Callable[[], None] | None = None) -> StaircaseRun:
     """Start the shaker at the first step's frequency (amplitude ramped up), then retune at every step's
     time (rig clock, waiting through ``ctx.sleep_s``, an abort point), hold the last until ``total_s``,

@@ -32,12 +32,14 @@ from procedures._common import (
     fastest_fps,
     mount,
     record_still,
+    required,
     speed_from,
-    target_of,
 )
+from rig.config.rig_config import RigConfig
+from rig.config.targets import MeasurementVolume, TargetsConfig
 from rig.run.acquire import Acquirer, ReduceOptions
 from rig.run.plan import ArmMoves, Plan
-from rig.run.procedure import param
+from rig.run.procedure import Context, param
 
 NAME = "accuracy"
 DESCRIPTION = "Known marker poses over the volume, ISO 9283 cycles, marker frame → error versus position."
@@ -60,7 +62,7 @@ class Parameters:
                                                                   doc="arm speed (default: the limit)"))
 
 
-def _orientation(config: Any) -> np.ndarray:
+def _orientation(config: RigConfig) -> np.ndarray:
     robot = config.devices.robot
     if robot is not None and robot.home_pose is not None:
         return np.asarray(robot.home_pose[3:], dtype=float)
@@ -68,13 +70,14 @@ def _orientation(config: Any) -> np.ndarray:
     return np.asarray(plate.start_pose[3:] if plate is not None else (90.0, 0.0, 90.0), dtype=float)
 
 
-def flange_pose_for(marker_mm: np.ndarray, offset_tool_mm: np.ndarray, orientation_deg: np.ndarray) -> list:
+def flange_pose_for(marker_mm: np.ndarray, offset_tool_mm: np.ndarray,
+                    orientation_deg: np.ndarray) -> list[float]:
     """Flange pose putting a tool-frame ``offset_tool_mm`` at base-frame ``marker_mm`` (orientation fixed)."""
-    o = np.asarray(arm_marker_positions([0, 0, 0, *orientation_deg], {"m": offset_tool_mm})["m"])
+    o = np.asarray(arm_marker_positions(np.r_[0.0, 0.0, 0.0, orientation_deg], {"m": offset_tool_mm})["m"])
     return [*(np.asarray(marker_mm, float) - o).tolist(), *orientation_deg.tolist()]
 
 
-def grid_targets(volume: Any, points: int, fraction: float) -> list[np.ndarray]:
+def grid_targets(volume: MeasurementVolume, points: int, fraction: float) -> list[np.ndarray]:
     """``points``³ marker positions (mm) spanning ``fraction`` of the volume, x fastest."""
     if points == 0:
         return []
@@ -83,7 +86,7 @@ def grid_targets(volume: Any, points: int, fraction: float) -> list[np.ndarray]:
     return [c + h * np.array([x, y, z]) for z, y, x in itertools.product(*axes[::-1])]
 
 
-def iso_targets(volume: Any, fraction: float) -> dict[str, np.ndarray]:
+def iso_targets(volume: MeasurementVolume, fraction: float) -> dict[str, np.ndarray]:
     """ISO 9283 poses P1–P5 (mm): P1 the centre, P2–P5 on a diagonal plane at ``fraction`` of the
     half-diagonal (0.8 = 10 % of the diagonal from the corners)."""
     c, h = np.asarray(volume.centre_mm, float), 0.5 * fraction * np.asarray(volume.size_mm, float)
@@ -92,7 +95,8 @@ def iso_targets(volume: Any, fraction: float) -> dict[str, np.ndarray]:
     return out
 
 
-def frame_flange_poses(volume: Any, offsets: np.ndarray, orientation: np.ndarray, n: int) -> list[list]:
+def frame_flange_poses(volume: MeasurementVolume, offsets: np.ndarray, orientation: np.ndarray,
+                       n: int) -> list[list[float]]:
     """``n`` flange poses of the marker frame, its centroid at the volume centre then at ± a quarter of
     the volume along alternating diagonals."""
     c, q = np.asarray(volume.centre_mm, float), 0.25 * np.asarray(volume.size_mm, float)
@@ -101,13 +105,14 @@ def frame_flange_poses(volume: Any, offsets: np.ndarray, orientation: np.ndarray
     return [flange_pose_for(c + shifts[k % len(shifts)], centroid, orientation) for k in range(n)]
 
 
-def visits(params: Parameters, config: Any) -> dict[str, list[tuple[list, str, int]]]:
+def visits(params: Parameters, config: RigConfig) -> dict[str, list[tuple[list[float], str, int]]]:
     """Every pose of the three steps as (flange pose, target name, cycle)."""
-    volume = target_of(config, "volume")
+    volume = required(config.targets.volume, "targets.volume")
     orient = _orientation(config)
-    out: dict[str, list[tuple[list, str, int]]] = {step: [] for step in SCENES}
+    out: dict[str, list[tuple[list[float], str, int]]] = {step: [] for step in SCENES}
     if params.grid_points or params.cycles:
-        single = np.asarray(target_of(config, "single_marker").offset_tool_mm, float)
+        single = np.asarray(required(config.targets.single_marker, "targets.single_marker").offset_tool_mm,
+                            float)
         for k, m in enumerate(grid_targets(volume, params.grid_points, params.grid_fraction)):
             out["accuracy_grid"].append((flange_pose_for(m, single, orient), f"G{k:03d}", 0))
         iso = iso_targets(volume, params.grid_fraction)
@@ -115,7 +120,7 @@ def visits(params: Parameters, config: Any) -> dict[str, list[tuple[list, str, i
             for name in ISO_ORDER:
                 out["accuracy_iso9283"].append((flange_pose_for(iso[name], single, orient), name, cycle))
     if params.frame_poses:
-        frame = target_of(config, "marker_frame")
+        frame = required(config.targets.marker_frame, "targets.marker_frame")
         offsets = np.asarray(frame.offsets_mm, float)
         for k, pose in enumerate(frame_flange_poses(volume, offsets, orient, params.frame_poses)):
             out["accuracy_frame"].append((pose, f"F{k}", 0))
@@ -130,7 +135,7 @@ POSES_FROM = {"accuracy_grid": "accuracy.grid_points = {p.grid_points}, accuracy
                                 "targets.marker_frame"}
 
 
-def own_plan(params: Parameters, config: Any) -> Plan:
+def own_plan(params: Parameters, config: RigConfig) -> Plan:
     """The three accuracy steps (those with poses): every flange pose and the arm speed."""
     hold_s = params.settle_s + (params.frames_per_pose + 1.5) / fastest_fps(config)
     steps = []
@@ -142,12 +147,12 @@ def own_plan(params: Parameters, config: Any) -> Plan:
     return Plan(NAME, tuple(steps))
 
 
-def plan(params: Parameters, config: Any) -> Plan:
+def plan(params: Parameters, config: RigConfig) -> Plan:
     """calibrate, sync, then the accuracy steps; nothing is connected."""
     return alone_plan(NAME, own_plan(params, config), config)
 
 
-def _marker_offsets(targets: Any) -> dict[str, dict[str, list[float]]]:
+def _marker_offsets(targets: TargetsConfig) -> dict[str, dict[str, list[float]]]:
     """Per mounted target, its markers' tool-frame offsets (mm) by marker id (none if not configured)."""
     single, frame = targets.single_marker, targets.marker_frame
     return {"single_marker": {"arm": list(single.offset_tool_mm)} if single is not None else {},
@@ -155,9 +160,9 @@ def _marker_offsets(targets: Any) -> dict[str, dict[str, list[float]]]:
             if frame is not None else {}}
 
 
-def run_steps(ctx: Any, params: Parameters) -> int:
+def run_steps(ctx: Context, params: Parameters) -> int:
     """The three accuracy steps (each skipped on --resume when done); returns the number of visits."""
-    arm = ctx.device("robot")
+    arm = ctx.arm()
     steps = visits(params, ctx.config)  # the poses of own_plan, checked before the station was opened
     offsets = _marker_offsets(ctx.config.targets)
     total = sum(len(v) for v in steps.values())
@@ -183,6 +188,6 @@ def run_steps(ctx: Any, params: Parameters) -> int:
     return total
 
 
-def run(ctx: Any, params: Parameters) -> dict[str, Any]:
+def run(ctx: Context, params: Parameters) -> dict[str, Any]:
     n, result = run_alone(ctx, params, run_steps)
     return {**result, "summary": f"{n} poses visited; {result['summary']}"}

@@ -25,19 +25,20 @@ from procedures._common import (
     plate_offsets_tool_mm,
     read_run_json,
     record_still,
-    require_target,
+    required,
     speed_from,
-    target_of,
 )
+from rig.config.rig_config import RigConfig
+from rig.config.targets import CalibrationPlateTarget
 from rig.deploy.plate_grid import GridError, moving_points, order_grid
 from rig.run.acquire import Acquirer, ReduceOptions, mean_positions
 from rig.run.plan import ArmMoves, Plan
-from rig.run.procedure import ParameterError, param
+from rig.run.procedure import Context, ParameterError, param
 from rig.stereo import calibrate_dlt
 
 NAME = "calibrate"
 DESCRIPTION = "Slide the calibration plate to known positions with the arm; one DLT per camera."
-DISTORTION = {"none": False, "k1": "k1", "k1k2": "k1k2", "full": True}
+DISTORTION: dict[str, bool | str] = {"none": False, "k1": "k1", "k1k2": "k1k2", "full": True}
 
 
 @dataclass(frozen=True)
@@ -55,14 +56,14 @@ class Parameters:
                                                          doc="lens distortion terms fitted"))
 
 
-def plate_poses(plate: Any, slides_mm: tuple[float, ...]) -> list[list[float]]:
+def plate_poses(plate: CalibrationPlateTarget, slides_mm: tuple[float, ...]) -> list[list[float]]:
     """Flange poses of the slid positions: ``start_pose`` moved by each slide along tool z (mm)."""
     start = np.asarray(plate.start_pose, dtype=float)
     z_tool = np.asarray(arm_marker_positions(start, {"z": [0.0, 0.0, 1.0]})["z"]) - start[:3]
     return [np.r_[start[:3] + s * z_tool, start[3:]].tolist() for s in slides_mm]
 
 
-def _control_points(positions: list[dict[str, Any]], camera: str, plate: Any,
+def _control_points(positions: list[dict[str, Any]], camera: str, plate: CalibrationPlateTarget,
                     min_frames: int) -> tuple[np.ndarray, np.ndarray, list[float]]:
     """(xyz_mm, uv_px, grid residual per position) of one camera over all positions."""
     means = [mean_positions(p["observations"][camera], min_frames=min_frames) for p in positions]
@@ -82,7 +83,7 @@ def _control_points(positions: list[dict[str, Any]], camera: str, plate: Any,
     return np.concatenate(xyz), np.concatenate(uv), resid
 
 
-def slides_of(params: Parameters, plate: Any) -> tuple[tuple[float, ...], str]:
+def slides_of(params: Parameters, plate: CalibrationPlateTarget) -> tuple[tuple[float, ...], str]:
     """The plate slides (mm along tool z) and what they come from (the parameter or the rig's)."""
     if params.slide_positions_mm:
         slides, source = tuple(params.slide_positions_mm), "calibrate.slide_positions_mm"
@@ -95,9 +96,9 @@ def slides_of(params: Parameters, plate: Any) -> tuple[tuple[float, ...], str]:
     return slides, f"{source} = {[float(s) for s in slides]} mm"
 
 
-def plan(params: Parameters, config: Any) -> Plan:
+def plan(params: Parameters, config: RigConfig) -> Plan:
     """The slid plate's flange poses and the arm speed (step ``calibrate``); nothing is connected."""
-    plate = target_of(config, "calibration_plate")
+    plate = required(config.targets.calibration_plate, "targets.calibration_plate")
     slides, source = slides_of(params, plate)
     poses = tuple(tuple(p) for p in plate_poses(plate, slides))
     hold_s = params.settle_s + (params.frames_per_position + 1.5) / fastest_fps(config)
@@ -106,10 +107,10 @@ def plan(params: Parameters, config: Any) -> Plan:
     return Plan(NAME, (arm_step("calibrate", moves, config),))
 
 
-def calibrate_cameras(ctx: Any, params: Parameters) -> dict[str, Any]:
+def calibrate_cameras(ctx: Context, params: Parameters) -> dict[str, Any]:
     """Acquire the slid plate and fit every camera; return the ``calibration.json`` content."""
-    plate = require_target(ctx, "calibration_plate")
-    arm = ctx.device("robot")
+    plate = required(ctx.config.targets.calibration_plate, "targets.calibration_plate")
+    arm = ctx.arm()
     slides, _ = slides_of(params, plate)
     poses = plan(params, ctx.config).moves("calibrate").poses
     mount(ctx, "calibration_plate")
@@ -128,10 +129,11 @@ def calibrate_cameras(ctx: Any, params: Parameters) -> dict[str, Any]:
             positions.append({"points": points, "observations": rec.observations, "slide_mm": slides[i]})
     cameras, grid = {}, {}
     min_frames = max(1, params.frames_per_position // 2)
-    for name in ctx.station.cameras:
+    for name in ctx.cameras:
         xyz, uv, resid = _control_points(positions, name, plate, min_frames)
+        width_px, height_px = ctx.config.cameras[name].resolution_px
         cam = calibrate_dlt(xyz, uv, refine=params.refine, distortion=DISTORTION[params.distortion],
-                            image_size=tuple(ctx.config.cameras[name].resolution_px))
+                            image_size=(width_px, height_px))
         cameras[name] = cam.to_dict()
         grid[name] = resid
         ctx.log.info("camera %s: %d control points, reprojection RMS %.3f px", name, len(xyz), cam.rms_px)
@@ -151,15 +153,16 @@ def calibration_summary(calibration: dict[str, Any]) -> tuple[float, str]:
     return max(rms.values()), f"reprojection RMS {text}"
 
 
-def run_step(ctx: Any, params: Parameters) -> dict[str, Any]:
+def run_step(ctx: Context, params: Parameters) -> dict[str, Any]:
     """The ``calibrate`` step (skipped on --resume when done); returns the calibration."""
     with ctx.step("calibrate") as step:
         if not step.skipped:
             step.output(ctx.write_json("calibration.json", calibrate_cameras(ctx, params)))
-    return read_run_json(ctx, "calibration.json")
+    calibration: dict[str, Any] = read_run_json(ctx, "calibration.json")
+    return calibration
 
 
-def run(ctx: Any, params: Parameters) -> dict[str, Any]:
+def run(ctx: Context, params: Parameters) -> dict[str, Any]:
     calibration = run_step(ctx, params)
     worst, summary = calibration_summary(calibration)
     limit = ctx.config.criteria.calibration_rms_px

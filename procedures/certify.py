@@ -17,13 +17,17 @@ chain (grid 2³, 3 cycles, 2 frame poses, sweep 2 → 12 Hz in 8 s, no compariso
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, TypedDict, TypeVar
 
 from procedures import accuracy, calibrate, sweep, sync
 from procedures._report import report_step
+from rig.config.rig_config import RigConfig
 from rig.run.plan import Plan
-from rig.run.procedure import ParameterError, param
+from rig.run.procedure import Context, ParameterError, param
+
+P = TypeVar("P")
 
 NAME = "certify"
 DESCRIPTION = "The whole certification: calibrate, sync, accuracy, sweep, report, certificate."
@@ -72,26 +76,39 @@ PARAMETER_NAMES = {"sweep.start_hz": "certify.sweep_start_hz", "sweep.max_hz": "
                    "calibrate.slide_positions_mm": "certify.calibrate_slide_positions_mm"}
 
 
-def sub_parameters(params: Parameters) -> dict[str, Any]:
+class SubParameters(TypedDict):
+    """The parameters of the four procedures certify runs."""
+
+    calibrate: calibrate.Parameters
+    sync: sync.Parameters
+    accuracy: accuracy.Parameters
+    sweep: sweep.Parameters
+
+
+def sub_parameters(params: Parameters) -> SubParameters:
     """The four procedures' parameters: the preset, then the explicit overrides."""
     chosen = {k: dict(v) for k, v in PRESETS[params.preset].items()}
-    overrides = {"sweep": {"start_hz": params.sweep_start_hz, "max_hz": params.sweep_max_hz,
-                           "duration_s": params.sweep_duration_s},
-                 "accuracy": {"grid_points": params.accuracy_grid_points, "cycles": params.accuracy_cycles},
-                 "calibrate": {"slide_positions_mm": params.calibrate_slide_positions_mm or None}}
+    overrides: dict[str, dict[str, object]] = {
+        "sweep": {"start_hz": params.sweep_start_hz, "max_hz": params.sweep_max_hz,
+                  "duration_s": params.sweep_duration_s},
+        "accuracy": {"grid_points": params.accuracy_grid_points, "cycles": params.accuracy_cycles},
+        "calibrate": {"slide_positions_mm": params.calibrate_slide_positions_mm or None}}
     for name, values in overrides.items():
         chosen[name].update({k: v for k, v in values.items() if v is not None})
-    modules = {"calibrate": calibrate, "sync": sync, "accuracy": accuracy, "sweep": sweep}
-    out = {}
-    for name, module in modules.items():
+
+    def build(name: str, parameters: Callable[..., P]) -> P:
         try:
-            out[name] = module.Parameters(**chosen[name])
+            return parameters(**chosen[name])
         except ValueError as exc:
             raise ParameterError(f"certify.{name}", str(exc)) from exc
-    return out
+
+    return SubParameters(calibrate=build("calibrate", calibrate.Parameters),
+                         sync=build("sync", sync.Parameters),
+                         accuracy=build("accuracy", accuracy.Parameters),
+                         sweep=build("sweep", sweep.Parameters))
 
 
-def plan(params: Parameters, config: Any) -> Plan:
+def plan(params: Parameters, config: RigConfig) -> Plan:
     """Every step of the certification (calibrate, sync, accuracy, sweep), from the preset and the
     overrides; the runner checks it as a whole before any device is connected."""
     sub = sub_parameters(params)
@@ -100,10 +117,11 @@ def plan(params: Parameters, config: Any) -> Plan:
     return Plan(NAME, steps).renamed(PARAMETER_NAMES)
 
 
-def run(ctx: Any, params: Parameters) -> dict[str, Any]:
+def run(ctx: Context, params: Parameters) -> dict[str, Any]:
     sub = sub_parameters(params)  # their whole plan (:func:`plan`) was checked before the station opened
     ctx.log.info("certify (%s): %s", params.preset,
-                 {k: dataclasses.asdict(v) for k, v in sub.items()})
+                 {"calibrate": dataclasses.asdict(sub["calibrate"]), "sync": dataclasses.asdict(sub["sync"]),
+                  "accuracy": dataclasses.asdict(sub["accuracy"]), "sweep": dataclasses.asdict(sub["sweep"])})
     calibrate.run_step(ctx, sub["calibrate"])
     sync.run_step(ctx, sub["sync"])
     accuracy.run_steps(ctx, sub["accuracy"])

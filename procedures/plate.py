@@ -26,18 +26,19 @@ import numpy as np
 from procedures._alone import alone_plan, run_alone
 from procedures._common import (
     amplitude_of,
-    drive_of,
     hold_polling,
     mount,
     poll_event,
-    require_target,
+    required,
+    run_at,
     stop_polled,
-    target_of,
     vfd_config,
 )
-from rig.run.acquire import Acquirer, ReduceOptions
+from rig.config.rig_config import RigConfig
+from rig.config.targets import PlateTarget
+from rig.run.acquire import Acquirer, Recording, ReduceOptions
 from rig.run.plan import Plan, PlanStep, Vibration, shaker_limits
-from rig.run.procedure import ParameterError, param
+from rig.run.procedure import Context, ParameterError, param
 
 NAME = "plate"
 DESCRIPTION = "Oscillating plate at about 3.5 Hz: trajectories of every marker (Figs. 4-8)."
@@ -53,7 +54,7 @@ class Parameters:
         lo=0.001, hi=50.0, doc="tip displacement with body = \"shaker\", mm (the exciter's: its crank)"))
 
 
-def marker_amplitudes_mm(plate: Any, tip_mm: float) -> dict[str, float]:
+def marker_amplitudes_mm(plate: PlateTarget, tip_mm: float) -> dict[str, float]:
     """Amplitude of every plate marker (mm): tip amplitude × (3ξ² − ξ³)/2 at its distance from the clamp."""
     out = {}
     for r in range(plate.rows):
@@ -63,7 +64,7 @@ def marker_amplitudes_mm(plate: Any, tip_mm: float) -> dict[str, float]:
     return out
 
 
-def _shaker_vibration(params: Parameters, config: Any) -> Vibration:
+def _shaker_vibration(params: Parameters, config: RigConfig) -> Vibration:
     """The shaker at ``frequency_hz`` and ``shaker_amplitude_mm`` (volts from the sensitivity table)."""
     shaker = shaker_limits(config)
     f, amp, table = params.frequency_hz, params.shaker_amplitude_mm, shaker.sensitivity
@@ -76,9 +77,9 @@ def _shaker_vibration(params: Parameters, config: Any) -> Vibration:
                      f"plate.shaker_amplitude_mm = {amp:g} mm", amplitude_vpp=(vpp, vpp))
 
 
-def own_plan(params: Parameters, config: Any, *, step_name: str = "plate") -> Plan:
+def own_plan(params: Parameters, config: RigConfig, *, step_name: str = "plate") -> Plan:
     """Step ``plate``: its driving device at ``frequency_hz`` for ``record_s`` s."""
-    body = target_of(config, "plate").body
+    body = required(config.targets.plate, "targets.plate").body
     if body == "shaker":
         vibration = _shaker_vibration(params, config)
         ramp_s = 0.0
@@ -93,49 +94,59 @@ def own_plan(params: Parameters, config: Any, *, step_name: str = "plate") -> Pl
     return Plan(NAME, (PlanStep(step_name, params.record_s + ramp_s, vibration=vibration),))
 
 
-def plan(params: Parameters, config: Any) -> Plan:
+def plan(params: Parameters, config: RigConfig) -> Plan:
     """calibrate, sync, then step ``plate``; nothing is connected."""
     return alone_plan(NAME, own_plan(params, config), config)
 
 
-def run_step(ctx: Any, params: Parameters, *, step_name: str = "plate") -> None:
+def run_step(ctx: Context, params: Parameters, *, step_name: str = "plate") -> None:
     with ctx.step(step_name) as step:
         if step.skipped:
             return
         planned = own_plan(params, ctx.config, step_name=step_name).vibration(step_name)
         frequency_hz, record_s = planned.profile[0][1], planned.profile[-1][0]
-        plate = require_target(ctx, "plate")
-        drive = drive_of(ctx, plate)
-        shaker = plate.body == "shaker"
-        stream = "generator" if shaker else "exciter"
+        plate = required(ctx.config.targets.plate, "targets.plate")
+        if plate.body == "shaker":
+            shaker = ctx.shaker()
+            mount(ctx, "plate")
+            shaker.start(frequency_hz, planned.amplitude_mm)
+            poll_event(ctx, "generator", shaker.read_state())
+            with Acquirer(ctx, ReduceOptions(mode="track", window_px=41)) as acq:
+                held = acq.record(step_name, lambda: hold_polling(
+                    ctx, shaker.read_state, "generator", record_s=record_s,
+                    poll_interval_s=params.poll_interval_s))
+            # the displacement of the volts the generator reports at the frequency it reports
+            _plate_event(ctx, plate, held, [s.frequency_hz for s in held.result], setpoint_hz=frequency_hz,
+                         tip_mm=float(np.mean([s.displacement_mm for s in held.result])),
+                         extra={"body": "shaker",
+                                "amplitude_vpp": float(np.mean([s.amplitude_vpp for s in held.result]))})
+            shaker.stop()  # amplitude ramped down, output OFF
+            poll_event(ctx, "generator", shaker.read_state())
+            return
+        drive = ctx.vfd_axis(plate.body)
         mount(ctx, "plate")
-        if shaker:
-            drive.start(frequency_hz, planned.amplitude_mm)
-            poll_event(ctx, stream, drive.read_state())
-        else:
-            poll_event(ctx, stream, drive.set_frequency(frequency_hz, wait=True))
+        run_at(ctx, drive, "exciter", frequency_hz)
         with Acquirer(ctx, ReduceOptions(mode="track", window_px=41)) as acq:
             rec = acq.record(step_name, lambda: hold_polling(
-                ctx, drive, stream, record_s=record_s, poll_interval_s=params.poll_interval_s,
-                read=drive.read_state if shaker else None))
-        # shaker: the displacement of the volts the generator reports at the frequency it reports
-        tip_mm = float(np.mean([s.displacement_mm for s in rec.result])) if shaker else drive.amplitude_mm
-        axis = plate.axis if plate.axis is not None else plate.normal
-        amplitudes = marker_amplitudes_mm(plate, tip_mm)
-        extra = {"body": "shaker", "amplitude_vpp": float(np.mean([s.amplitude_vpp for s in rec.result]))} \
-            if shaker else {}
-        ctx.event("plate", {"t_start_s": rec.t_start_s, "t_stop_s": rec.t_stop_s,
-                            "frequency_hz": float(np.mean([s.frequency_hz for s in rec.result])),
-                            "setpoint_hz": frequency_hz, "amplitude_mm": tip_mm,
-                            "axis": [float(v) / float(np.linalg.norm(axis)) for v in axis],
-                            "marker_ids": list(amplitudes), "marker_amplitudes_mm": amplitudes,
-                            "segment": step_name, **extra})
-        if shaker:
-            drive.stop()  # amplitude ramped down, output OFF
-            poll_event(ctx, stream, drive.read_state())
-        else:
-            stop_polled(ctx, drive, stream)
+                ctx, drive.read_sample, "exciter", record_s=record_s, poll_interval_s=params.poll_interval_s))
+        _plate_event(ctx, plate, rec, [s.frequency_hz for s in rec.result], setpoint_hz=frequency_hz,
+                     tip_mm=drive.amplitude_mm, extra={})
+        stop_polled(ctx, drive, "exciter")
 
 
-def run(ctx: Any, params: Parameters) -> dict[str, Any]:
+def _plate_event(ctx: Context, plate: PlateTarget, rec: Recording[Any], polled_hz: list[float], *,
+                 setpoint_hz: float, tip_mm: float, extra: dict[str, Any]) -> None:
+    """The ``plate`` truth event of recording ``rec`` (its polled frequencies ``polled_hz``, the tip
+    amplitude ``tip_mm`` and each marker's, the axis)."""
+    axis = plate.axis if plate.axis is not None else plate.normal
+    amplitudes = marker_amplitudes_mm(plate, tip_mm)
+    ctx.event("plate", {"t_start_s": rec.t_start_s, "t_stop_s": rec.t_stop_s,
+                        "frequency_hz": float(np.mean(polled_hz)),
+                        "setpoint_hz": setpoint_hz, "amplitude_mm": tip_mm,
+                        "axis": [float(v) / float(np.linalg.norm(axis)) for v in axis],
+                        "marker_ids": list(amplitudes), "marker_amplitudes_mm": amplitudes,
+                        "segment": rec.segment, **extra})
+
+
+def run(ctx: Context, params: Parameters) -> dict[str, Any]:
     return run_alone(ctx, params, run_step)[1]

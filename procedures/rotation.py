@@ -15,9 +15,10 @@ from typing import Any
 
 from procedures._alone import alone_plan, run_alone
 from procedures.sync import rotor_step, spin_and_record
+from rig.config.rig_config import RigConfig
 from rig.run.acquire import Acquirer, ReduceOptions
 from rig.run.plan import Plan
-from rig.run.procedure import param
+from rig.run.procedure import Context, param
 
 NAME = "rotation"
 DESCRIPTION = "Marker on the rotor at 10 Hz: trajectory, radius and frequency (Figs. 10-15)."
@@ -30,17 +31,17 @@ class Parameters:
     poll_interval_s: float = field(default=0.25, metadata=param(lo=0.01, hi=10.0, doc="rotor polls, s"))
 
 
-def own_plan(params: Parameters, config: Any, *, step_name: str = "rotation") -> Plan:
+def own_plan(params: Parameters, config: RigConfig, *, step_name: str = "rotation") -> Plan:
     return Plan(NAME, (rotor_step(step_name, config, rotation_hz=params.rotation_hz,
                                   record_s=params.record_s, source="rotation.rotation_hz"),))
 
 
-def plan(params: Parameters, config: Any) -> Plan:
+def plan(params: Parameters, config: RigConfig) -> Plan:
     """calibrate, sync, then step ``rotation`` (the rotor at ``rotation_hz``); nothing is connected."""
     return alone_plan(NAME, own_plan(params, config), config)
 
 
-def run_step(ctx: Any, params: Parameters, *, step_name: str = "rotation") -> None:
+def run_step(ctx: Context, params: Parameters, *, step_name: str = "rotation") -> None:
     with ctx.step(step_name) as step:
         if step.skipped:
             return
@@ -49,5 +50,5 @@ def run_step(ctx: Any, params: Parameters, *, step_name: str = "rotation") -> No
             spin_and_record(ctx, acq, step_name, planned, poll_interval_s=params.poll_interval_s)
 
 
-def run(ctx: Any, params: Parameters) -> dict[str, Any]:
+def run(ctx: Context, params: Parameters) -> dict[str, Any]:
     return run_alone(ctx, params, run_step)[1]

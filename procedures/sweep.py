@@ -29,25 +29,29 @@ cameras record the whole sweep.
 
 from __future__ import annotations
 
+import dataclasses
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
-from drivers.exciter.sweep import LogSweep, PointsSweep, SweepProfile
+from drivers.exciter.shaker import Shaker
+from drivers.exciter.sweep import FrequencySample, LogSweep, PointsSweep, SweepProfile
 from procedures._alone import alone_plan, run_alone
 from procedures._common import (
     amplitude_of,
-    drive_of,
     mount,
     poll_event,
-    require_target,
+    required,
+    run_at,
     stop_polled,
-    target_of,
     vfd_config,
 )
 from procedures._shaker import follow_staircase, staircase_plan
+from rig.config.rig_config import RigConfig
+from rig.config.targets import SweepColumnTarget
 from rig.run.acquire import Acquirer, ReduceOptions
 from rig.run.plan import GeneratorSweep, Plan, PlanStep, Vibration, shaker_limits
-from rig.run.procedure import ParameterError, param
+from rig.run.procedure import Context, ParameterError, param
 
 FLAT_SENSITIVITY_TOLERANCE = 0.005  # max (s_max − s_min)/s_min of the shaker table over a sweep (0.5 %)
 NAME = "sweep"
@@ -88,25 +92,27 @@ def profile_of(params: Parameters) -> SweepProfile:
     return PointsSweep(rise)
 
 
-def _origins(params: Parameters) -> dict[str, str]:
-    return {"frequency_from": f"sweep.max_hz = {params.max_hz:g} Hz",
-            "slope_from": f"sweep.start_hz = {params.start_hz:g} Hz, sweep.max_hz = {params.max_hz:g} Hz, "
-                          f"sweep.duration_s = {params.duration_s:g} s, sweep.shape = {params.shape}"}
+def _origins(params: Parameters) -> tuple[str, str]:
+    """What the frequency and the slope follow from (the ``frequency_from``, ``slope_from`` of the plan)."""
+    return (f"sweep.max_hz = {params.max_hz:g} Hz",
+            f"sweep.start_hz = {params.start_hz:g} Hz, sweep.max_hz = {params.max_hz:g} Hz, "
+            f"sweep.duration_s = {params.duration_s:g} s, sweep.shape = {params.shape}")
 
 
-def _exciter_vibration(params: Parameters, body: str, config: Any) -> tuple[Vibration, float]:
+def _exciter_vibration(params: Parameters, body: str, config: RigConfig) -> tuple[Vibration, float]:
     """The VFD-driven column: the profile's setpoints every ``update_interval_s`` at the body's amplitude;
     the duration adds the ramp to ``start_hz`` and the stop at the drive's configured rate."""
     profile = profile_of(params)
     amplitude_mm, amplitude_from = amplitude_of(config, body)
     ramp = vfd_config(config, body).ramp_rate_hz_per_s
+    frequency_from, slope_from = _origins(params)
     vibration = Vibration(body, tuple(profile.points(params.update_interval_s)), amplitude_mm,
-                          amplitude_from=amplitude_from, max_slope_hz_per_s=profile.max_slope_hz_per_s(),
-                          **_origins(params))
+                          frequency_from=frequency_from, amplitude_from=amplitude_from,
+                          max_slope_hz_per_s=profile.max_slope_hz_per_s(), slope_from=slope_from)
     return vibration, profile.duration_s + (params.start_hz + params.max_hz) / ramp
 
 
-def _shaker_vibration(params: Parameters, config: Any) -> Vibration:
+def _shaker_vibration(params: Parameters, config: RigConfig) -> Vibration:
     """The shaker at ``shaker_amplitude_mm``: the generator's own sweep at constant volts (linear, log:
     the sensitivity table must be flat over it), or a staircase of CW steps with the volts of each
     (fig17). Outside the table, or a table not flat enough: ParameterError (exit 4)."""
@@ -119,13 +125,15 @@ def _shaker_vibration(params: Parameters, config: Any) -> Vibration:
                              f"{table.f_min_hz:g}..{table.f_max_hz:g} Hz (no extrapolation)")
     profile = profile_of(params)
     points = profile.points(params.update_interval_s)
-    common = {"amplitude_mm": amp, "amplitude_from": f"sweep.shaker_amplitude_mm = {amp:g} mm",
-              "max_slope_hz_per_s": profile.max_slope_hz_per_s(), **_origins(params)}
+    frequency_from, slope_from = _origins(params)
+    common = Vibration("generator", tuple(points), amp, frequency_from=frequency_from,
+                       amplitude_from=f"sweep.shaker_amplitude_mm = {amp:g} mm",
+                       max_slope_hz_per_s=profile.max_slope_hz_per_s(), slope_from=slope_from)
     if params.shape == "fig17":  # stepped: every step's frequency with the volts for the amplitude there
         steps = staircase_plan(points, params.update_interval_s)
         stairs = [(t, f) for t, f in steps] + [(points[-1][0], steps[-1][1])]
-        return Vibration("generator", tuple(stairs),
-                         amplitude_vpp=tuple(shaker.amplitude_vpp_for(f, amp) for _, f in stairs), **common)
+        return dataclasses.replace(common, profile=tuple(stairs),
+                                   amplitude_vpp=tuple(shaker.amplitude_vpp_for(f, amp) for _, f in stairs))
     knots = [f0, f1, *(f for f, _ in table.points if f0 < f < f1)]
     sens = [table.mm_per_v(f) for f in knots]
     spread = (max(sens) - min(sens)) / min(sens)
@@ -136,13 +144,13 @@ def _shaker_vibration(params: Parameters, config: Any) -> Vibration:
                              f"constant: at most {100 * FLAT_SENSITIVITY_TOLERANCE:g} % is allowed (narrow "
                              "the sweep, use shape = \"fig17\" — stepped, volts per step — or the exciter)")
     vpp = shaker.amplitude_vpp_for(f0, amp)
-    return Vibration("generator", tuple(points), amplitude_vpp=tuple(vpp for _ in points),
-                     generator_sweep=GeneratorSweep(f0, f1, params.duration_s, params.shape, vpp), **common)
+    return dataclasses.replace(common, amplitude_vpp=tuple(vpp for _ in points),
+                               generator_sweep=GeneratorSweep(f0, f1, params.duration_s, params.shape, vpp))
 
 
-def own_plan(params: Parameters, config: Any, *, step_name: str = "sweep") -> Plan:
+def own_plan(params: Parameters, config: RigConfig, *, step_name: str = "sweep") -> Plan:
     """Step ``sweep``: the column's driving device over the whole profile (hold included)."""
-    body = target_of(config, "sweep_column").body
+    body = required(config.targets.sweep_column, "targets.sweep_column").body
     if body == "shaker":
         vibration = _shaker_vibration(params, config)
         duration_s = vibration.duration_s
@@ -151,28 +159,28 @@ def own_plan(params: Parameters, config: Any, *, step_name: str = "sweep") -> Pl
     return Plan(NAME, (PlanStep(step_name, duration_s, vibration=vibration),))
 
 
-def plan(params: Parameters, config: Any) -> Plan:
+def plan(params: Parameters, config: RigConfig) -> Plan:
     """calibrate, sync, then step ``sweep``; nothing is connected."""
     return alone_plan(NAME, own_plan(params, config), config)
 
 
-def run_step(ctx: Any, params: Parameters, *, step_name: str = "sweep") -> None:
+def run_step(ctx: Context, params: Parameters, *, step_name: str = "sweep") -> None:
     """Carry the sweep out as step ``step_name`` (skipped on --resume when done)."""
     with ctx.step(step_name) as step:
         if step.skipped:
             return
         planned = own_plan(params, ctx.config, step_name=step_name).vibration(step_name)
-        column = require_target(ctx, "sweep_column")
+        column = required(ctx.config.targets.sweep_column, "targets.sweep_column")
         if column.body == "shaker":
             _run_shaker(ctx, params, column, step_name)
             return
         profile = PointsSweep(planned.profile)  # the setpoints checked before the station was opened
-        exciter = drive_of(ctx, column)
+        exciter = ctx.vfd_axis(column.body)
         mount(ctx, "sweep_column")
         ctx.progress(None, f"sweep: exciter to {profile.start_hz:g} Hz")
-        poll_event(ctx, "exciter", exciter.set_frequency(profile.start_hz, wait=True))
+        run_at(ctx, exciter, "exciter", profile.start_hz)
 
-        def on_sample(sample: Any) -> None:
+        def on_sample(sample: FrequencySample) -> None:
             poll_event(ctx, "exciter", sample)
             ctx.progress(min(1.0, sample.frequency_hz / profile.stop_hz),
                          f"sweep: {sample.frequency_hz:.2f} Hz")
@@ -189,9 +197,9 @@ def run_step(ctx: Any, params: Parameters, *, step_name: str = "sweep") -> None:
         stop_polled(ctx, exciter, "exciter")
 
 
-def _run_shaker(ctx: Any, params: Parameters, column: Any, step_name: str) -> None:
+def _run_shaker(ctx: Context, params: Parameters, column: SweepColumnTarget, step_name: str) -> None:
     """The generator's own sweep at constant displacement; ``generator`` events polled throughout."""
-    shaker = drive_of(ctx, column)
+    shaker = ctx.shaker()
     mount(ctx, "sweep_column")
     f0, f1, T = params.start_hz, params.max_hz, params.duration_s
 
@@ -224,8 +232,8 @@ def _run_shaker(ctx: Any, params: Parameters, column: Any, step_name: str) -> No
     poll_event(ctx, "generator", shaker.read_state())  # the sweep ended with amplitude down, output OFF
 
 
-def _run_shaker_steps(ctx: Any, params: Parameters, column: Any, shaker: Any, *, step_name: str,
-                      on_poll: Any) -> None:
+def _run_shaker_steps(ctx: Context, params: Parameters, column: SweepColumnTarget, shaker: Shaker, *,
+                      step_name: str, on_poll: Callable[[], None]) -> None:
     """The Fig. 17 points profile as timed frequency steps (:mod:`procedures._shaker`)."""
     profile = profile_of(params)
     points = profile.points(params.update_interval_s)
@@ -248,5 +256,5 @@ def _run_shaker_steps(ctx: Any, params: Parameters, column: Any, shaker: Any, *,
     poll_event(ctx, "generator", shaker.read_state())  # after the stop: amplitude down, output OFF
 
 
-def run(ctx: Any, params: Parameters) -> dict[str, Any]:
+def run(ctx: Context, params: Parameters) -> dict[str, Any]:
     return run_alone(ctx, params, run_step)[1]

@@ -19,22 +19,24 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from drivers.exciter.sweep import FrequencySample
 from procedures._common import (
     amplitude_of,
     fastest_fps,
     hold_polling,
     load_calibration,
     mount,
-    poll_event,
     read_run_json,
-    require_target,
+    required,
+    run_at,
     stop_polled,
-    target_of,
     vfd_config,
 )
-from rig.run.acquire import Acquirer, ReduceOptions
+from rig.config.rig_config import RigConfig
+from rig.config.targets import RotorTarget
+from rig.run.acquire import Acquirer, Recording, ReduceOptions
 from rig.run.plan import Plan, PlanStep, Vibration
-from rig.run.procedure import param
+from rig.run.procedure import Context, param
 from rig.stereo import DLTCamera, TimingError
 from rig.stereo.timing import estimate_offset
 
@@ -58,7 +60,7 @@ def _static_tracks(obs: pd.DataFrame, n_frames: int, still_px: float = 1.5) -> n
     rounded = obs.assign(ku=(obs["u_px"] / still_px).round(), kv=(obs["v_px"] / still_px).round())
     g = rounded.groupby(["ku", "kv"]).agg(u=("u_px", "mean"), v=("v_px", "mean"), n=("u_px", "size"))
     cand = g[g["n"] >= 0.4 * n_frames][["u", "v"]].to_numpy(float)
-    keep = []
+    keep: list[np.ndarray] = []
     for p in cand:  # merge cells split by the rounding
         if not any(np.hypot(*(p - q)) < 2 * still_px for q in keep):
             keep.append(p)
@@ -89,8 +91,8 @@ def offset_guess_s(events: list[dict[str, Any]], reference: str, other: str) -> 
     return float(first[reference] - first[other])
 
 
-def estimate_timing(calibration: dict[str, Any], rec: Any, camera_events: list[dict[str, Any]], *,
-                    params: Parameters, rotor: Any, fps: float) -> dict[str, Any]:
+def estimate_timing(calibration: dict[str, Any], rec: Recording[Any], camera_events: list[dict[str, Any]],
+                    *, params: Parameters, rotor: RotorTarget, fps: float) -> dict[str, Any]:
     """timing.json content from the rotor recording (joint method; the rotor method for comparison)."""
     names = list(calibration["cameras"])[:2]
     ref, other = names
@@ -123,10 +125,11 @@ def estimate_timing(calibration: dict[str, Any], rec: Any, camera_events: list[d
     return timing
 
 
-def rotor_step(name: str, config: Any, *, rotation_hz: float, record_s: float, source: str) -> PlanStep:
+def rotor_step(name: str, config: RigConfig, *, rotation_hz: float, record_s: float,
+               source: str) -> PlanStep:
     """The rotor spun at ``rotation_hz`` for ``record_s`` s (``source``: the parameter naming it), with the
     spin-up and stop at the drive's configured ramp in the duration."""
-    target_of(config, "rotor")
+    required(config.targets.rotor, "targets.rotor")
     radius_mm, radius_from = amplitude_of(config, "rotor")
     ramp = vfd_config(config, "rotor").ramp_rate_hz_per_s
     vibration = Vibration("rotor", ((0.0, rotation_hz), (record_s, rotation_hz)), radius_mm,
@@ -135,16 +138,16 @@ def rotor_step(name: str, config: Any, *, rotation_hz: float, record_s: float, s
     return PlanStep(name, record_s + 2 * rotation_hz / ramp, vibration=vibration)
 
 
-def spin_and_record(ctx: Any, acq: Acquirer, segment: str, planned: Vibration, *,
-                    poll_interval_s: float) -> tuple[Any, list[dict[str, Any]]]:
+def spin_and_record(ctx: Context, acq: Acquirer, segment: str, planned: Vibration, *,
+                    poll_interval_s: float) -> tuple[Recording[list[FrequencySample]], list[dict[str, Any]]]:
     """Spin the rotor up to the ``planned`` frequency, record the planned time (polling it), record
     ``rotation`` truth, stop it."""
-    rotor_cfg = require_target(ctx, "rotor")
-    rotor = ctx.device("rotor")
+    rotor_cfg = required(ctx.config.targets.rotor, "targets.rotor")
+    rotor = ctx.rotor()
     (_, rotation_hz), (record_s, _) = planned.profile[0], planned.profile[-1]
     mount(ctx, "rotor")
-    poll_event(ctx, "rotor", rotor.set_rotation_hz(rotation_hz, wait=True))
-    rec = acq.record(segment, lambda: hold_polling(ctx, rotor, "rotor", record_s=record_s,
+    run_at(ctx, rotor, "rotor", rotation_hz)
+    rec = acq.record(segment, lambda: hold_polling(ctx, rotor.read_sample, "rotor", record_s=record_s,
                                                    poll_interval_s=poll_interval_s))
     freq = float(np.mean([s.frequency_hz for s in rec.result]))
     ctx.event("rotation", {"t_start_s": rec.t_start_s, "t_stop_s": rec.t_stop_s, "frequency_hz": freq,
@@ -157,13 +160,13 @@ def spin_and_record(ctx: Any, acq: Acquirer, segment: str, planned: Vibration, *
     return rec, events
 
 
-def plan(params: Parameters, config: Any) -> Plan:
+def plan(params: Parameters, config: RigConfig) -> Plan:
     """Step ``sync``: the rotor at ``rotation_hz`` for ``record_s`` s; nothing is connected."""
     return Plan(NAME, (rotor_step("sync", config, rotation_hz=params.rotation_hz, record_s=params.record_s,
                                   source="sync.rotation_hz"),))
 
 
-def run_step(ctx: Any, params: Parameters) -> dict[str, Any]:
+def run_step(ctx: Context, params: Parameters) -> dict[str, Any]:
     """The ``sync`` step (skipped on --resume when done); returns the timing."""
     with ctx.step("sync") as step:
         if not step.skipped:
@@ -174,12 +177,13 @@ def run_step(ctx: Any, params: Parameters) -> dict[str, Any]:
                 rec, events = spin_and_record(ctx, acq, "sync", planned,
                                               poll_interval_s=params.poll_interval_s)
             timing = estimate_timing(calibration, rec, events, params=params,
-                                     rotor=require_target(ctx, "rotor"), fps=fps)
+                                     rotor=required(ctx.config.targets.rotor, "targets.rotor"), fps=fps)
             step.output(ctx.write_json("timing.json", timing))
-    return read_run_json(ctx, "timing.json")
+    recorded: dict[str, Any] = read_run_json(ctx, "timing.json")
+    return recorded
 
 
-def run(ctx: Any, params: Parameters) -> dict[str, Any]:
+def run(ctx: Context, params: Parameters) -> dict[str, Any]:
     from procedures import calibrate
 
     calibrate.run_step(ctx, calibrate.Parameters())

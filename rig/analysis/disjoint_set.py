@@ -3,15 +3,18 @@
 from __future__ import annotations
 
 from collections.abc import Hashable
+from typing import Generic, TypeVar
+
+N = TypeVar("N", bound=Hashable)
 
 
-class DisjointSet:
+class DisjointSet(Generic[N]):
     """Union–find with path halving; a node joins the forest the first time it is named."""
 
     def __init__(self) -> None:
-        self._parent: dict[Hashable, Hashable] = {}
+        self._parent: dict[N, N] = {}
 
-    def find(self, node: Hashable) -> Hashable:
+    def find(self, node: N) -> N:
         """The representative of ``node``'s set."""
         parent = self._parent
         parent.setdefault(node, node)
@@ -20,10 +23,10 @@ class DisjointSet:
             node = parent[node]
         return node
 
-    def union(self, a: Hashable, b: Hashable) -> None:
+    def union(self, a: N, b: N) -> None:
         """Merge the sets of ``a`` and ``b``."""
         self._parent[self.find(a)] = self.find(b)
 
-    def nodes(self) -> list[Hashable]:
+    def nodes(self) -> list[N]:
         """Every node named so far, in the order first named."""
         return list(self._parent)

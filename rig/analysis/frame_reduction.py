@@ -191,7 +191,7 @@ class MarkerReducer:
             # frame f is taken when nothing is lost in it and it leaves reduce's prediction for frame
             # f + 1 at the positions of frame f (no marker moved more than a quarter window, none is
             # clipped to the frame); the first frame that does not is taken too when nothing is lost in it
-            lost = (rows["flags"] & FLAG_LOST).any(axis=1)
+            lost = np.asarray((rows["flags"] & FLAG_LOST).any(axis=1), dtype=bool)
             plain = ((step <= self.options.window_px / 4) & (uv[..., 0] >= 0) & (uv[..., 0] <= width - 1)
                      & (uv[..., 1] >= 0) & (uv[..., 1] <= height - 1)).all(axis=1) & ~lost
         taken = int(np.argmin(plain)) + (0 if lost[np.argmin(plain)] else 1) if not plain.all() else len(rows)

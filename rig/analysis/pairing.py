@@ -282,7 +282,7 @@ def _resolve_by_order(pairs: pd.DataFrame, cand: pd.DataFrame, ta: dict[int, _Tr
              for r in feas.itertuples()}
     amb = pairs[pairs["ambiguous"]]
     # clusters: connected components of the feasible-candidate graph, seeded by ambiguous pairs
-    sets = DisjointSet()
+    sets: DisjointSet[tuple[str, int]] = DisjointSet()
     members_a = set(amb["track_a"].astype(int))
     members_b = set(amb["track_b"].astype(int))
     changed = True

@@ -209,10 +209,10 @@ def triangulate_tracks(
 
 def _components(pairs: pd.DataFrame, ref_obs: pd.DataFrame) -> list[tuple[str, dict[str, set[int]]]]:
     """Connected components of the pair graph: (segment, {camera or "": track ids}) — "" = reference."""
-    sets = DisjointSet()
+    sets: DisjointSet[tuple[str, int]] = DisjointSet()
     for r in pairs.itertuples():
         sets.union(("", int(r.track_a)), (str(r.camera), int(r.track_b)))
-    comps: dict[object, dict[str, set[int]]] = {}
+    comps: dict[tuple[str, int], dict[str, set[int]]] = {}
     for node in sets.nodes():
         comps.setdefault(sets.find(node), {}).setdefault(node[0], set()).add(node[1])
     seg_of = {}
@@ -300,8 +300,8 @@ def _ideal(cam: DLTCamera, t: np.ndarray, uv: np.ndarray) -> tuple[np.ndarray, n
 def _by_trajectory(t_a, uv_a, pieces, cams, *, ref, others, knot_spacing_frames, penalty):
     period = float(np.median(np.diff(t_a))) if t_a.size > 1 else 1.0 / 60.0
     covered = np.zeros((t_a.size, len(others)), dtype=bool)
-    data_t = {c: [] for c in others}
-    data_uv = {c: [] for c in others}
+    data_t: dict[str, list[np.ndarray]] = {c: [] for c in others}
+    data_uv: dict[str, list[np.ndarray]] = {c: [] for c in others}
     for k, c in enumerate(others):
         for t_b, uv_b in pieces[c]:
             covered[:, k] |= (t_a >= t_b[0]) & (t_a <= t_b[-1])

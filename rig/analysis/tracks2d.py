@@ -209,7 +209,7 @@ def _track_group(obs: pd.DataFrame, gate: float, max_gap: int, min_length: int,
         prev_stamp = now
         s_now = now / period
         alive = [i for i in range(len(ids)) if s_now - slots[i][-1] <= max_gap + 1.5]
-        ids, slots, hist = ([x[i] for i in alive] for x in (ids, slots, hist))
+        ids, slots, hist = [ids[i] for i in alive], [slots[i] for i in alive], [hist[i] for i in alive]
         det = uv[rows]
         assigned = np.full(len(rows), -1)
         if ids:
@@ -252,9 +252,9 @@ def _track_group(obs: pd.DataFrame, gate: float, max_gap: int, min_length: int,
     tracked = labels >= 0
     uniq, counts = np.unique(labels[tracked], return_counts=True)
     keep = set(uniq[counts >= min_length].tolist())
-    first_pos = {}
+    first_pos: dict[int, int] = {}
     for pos in order:
         lab = labels[pos]
         if lab in keep and lab not in first_pos:
             first_pos[lab] = len(first_pos)
-    return np.array([first_pos.get(lab, NOT_TRACKED) for lab in labels], dtype=np.int64), len(first_pos)
+    return np.array([first_pos.get(int(lab), NOT_TRACKED) for lab in labels], dtype=np.int64), len(first_pos)

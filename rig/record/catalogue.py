@@ -130,6 +130,12 @@ def _freshness(run_dir: Path) -> str:
     return ";".join(parts)
 
 
+def _section(document: dict[str, Any], key: str) -> dict[str, Any]:
+    """``document[key]`` when it is a JSON object, else an empty one."""
+    value = document.get(key)
+    return value if isinstance(value, dict) else {}
+
+
 def _number(value: Any) -> float | None:
     return float(value) if isinstance(value, int | float) and not isinstance(value, bool) else None
 
@@ -146,8 +152,8 @@ def read_entry(run_dir: str | os.PathLike[str]) -> RunEntry:
     if not starts:
         raise RecordError(f"{run_dir / RECORD_NAME} has no start document")
     first, last_stop = starts[0], (stops[-1] if stops else {})
-    rig = starts[-1].get("rig") if isinstance(starts[-1].get("rig"), dict) else {}
-    station = rig.get("station") if isinstance(rig.get("station"), dict) else {}
+    rig = _section(starts[-1], "rig")
+    station = _section(rig, "station")
     certificate = _certificate(run_dir)
     criteria = tuple(
         Criterion(criterion=str(c.get("id")), description=str(c.get("description", "")),
@@ -157,7 +163,7 @@ def read_entry(run_dir: str | os.PathLike[str]) -> RunEntry:
                   status=str(c.get("status", "")))
         for c in certificate.get("criteria", []) if isinstance(c, dict) and c.get("id")
     )
-    cameras = rig.get("cameras") if isinstance(rig.get("cameras"), dict) else {}
+    cameras = _section(rig, "cameras")
     simulated = bool(certificate.get("simulated", station.get("simulated")) or any(
         isinstance(c, dict) and c.get("driver") == "sim" for c in cameras.values()))
     return RunEntry(

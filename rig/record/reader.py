@@ -144,10 +144,10 @@ class Run:
         return [d for d in self.documents if d.get("type") == "event" and d.get("stream") == stream]
 
 
-def _superseded(steps: list[dict[str, Any]]) -> set[tuple[str, int]]:
+def _superseded(steps: list[dict[str, Any]]) -> set[tuple[str | None, int]]:
     """(step, session) pairs whose work was redone and completed in a later session."""
-    done_in: dict[str, set[int]] = {}
-    begun_in: dict[str, set[int]] = {}
+    done_in: dict[str | None, set[int]] = {}
+    begun_in: dict[str | None, set[int]] = {}
     for doc in steps:
         target = done_in if doc.get("status") == "done" else begun_in
         target.setdefault(doc.get("name"), set()).add(int(doc.get("session", 0)))

@@ -16,14 +16,14 @@ the markers' last positions (:func:`rig.stereo.track_markers`), with a whole-fra
 marker is lost and every ``redetect_every`` frames (to pick up markers that entered the view).
 ``mode="detect"`` searches every frame whole (for fast motion such as the rotor, ≈ 100 px per frame).
 
-When a camera is read depends on the source (its optional attribute ``live``):
+When a camera is read depends on the source (:attr:`drivers.roles.Camera.live`):
 
 - a **live** device (``live = True``, e.g. :class:`drivers.camera.opencv_device.OpenCVCamera`) streams
   into a bounded queue (120 frames = 2 s at 60 fps) that overflows when nobody reads it; its reader starts
   right after its ``start()`` and reduces frames *during* the motion, so a recording of any length loses
   nothing as long as the reduction keeps up with the frame rate (what it cannot keep up with the device
   counts in ``stats.overflow``). An error of the stream (device unplugged) is raised when the motion ends.
-- any other source (``live`` absent or False: the simulated camera, which renders its recording after
+- any other source (``live`` False: the simulated camera, which renders its recording after
   ``stop()``, or a video file) is read after ``stop()``, by the same kind of reader, all cameras in parallel.
 
 While the readers finish after ``stop()``, the procedure's checkpoint is polled (every 0.2 s); an abort, or
@@ -41,13 +41,16 @@ from __future__ import annotations
 import threading
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any, Generic, TypeVar
+from typing import Any, Generic, TypeVar, overload
 
 import numpy as np
 import pandas as pd
 
+from drivers.roles import Camera
 from rig.analysis.frame_reduction import MarkerReducer, ReduceOptions
+from rig.record.observations import ObservationWriter
 from rig.run.frame_tap import FRAMES
+from rig.run.procedure import Context
 from rig.stereo import FLAG_LOST
 
 __all__ = ["Acquirer", "MarkerReducer", "Recording", "ReduceOptions"]
@@ -86,13 +89,14 @@ def _rows_frame(parts: list[tuple[int, float, np.ndarray, np.ndarray]]) -> pd.Da
 class Acquirer:
     """Camera recordings of one procedure step (see the module docstring)."""
 
-    def __init__(self, ctx: Any, options: ReduceOptions | None = None) -> None:
+    def __init__(self, ctx: Context, options: ReduceOptions | None = None) -> None:
         self.ctx = ctx
         self.options = options or ReduceOptions()
-        self.cameras: dict[str, Any] = dict(ctx.station.cameras)
+        self.cameras: dict[str, Camera] = dict(ctx.station.cameras)
         if len(self.cameras) < 2:
             raise RuntimeError(f"the station has {len(self.cameras)} camera(s); a stereo recording needs 2")
-        self._writers = {name: ctx.observation_writer(name) for name in self.cameras}
+        self._writers: dict[str, ObservationWriter] = {name: ctx.observation_writer(name)
+                                                       for name in self.cameras}
         self._next_ids: dict[tuple[str, str], int] = {}
         self.frames_processed = 0
 
@@ -132,13 +136,19 @@ class Acquirer:
                 reader.thread.join(timeout=2.0)
             raise
 
-    def record(self, segment: str, motion: Callable[[], T] | float) -> Recording[T]:
+    @overload
+    def record(self, segment: str, motion: float) -> Recording[None]: ...
+
+    @overload
+    def record(self, segment: str, motion: Callable[[], T]) -> Recording[T]: ...
+
+    def record(self, segment: str, motion: Callable[[], T] | float) -> Recording[Any]:
         """Record all cameras while ``motion()`` runs (or for ``motion`` seconds), reduce and write."""
         if "#" in segment:
             raise ValueError(f"segment {segment!r}: '#' is not allowed in a segment name")
         ctx, clock = self.ctx, self.ctx.clock
         ctx.checkpoint()
-        started: list[Any] = []
+        started: list[Camera] = []
         cancel = threading.Event()
         readers: dict[str, _Reader] = {}
         t_start = clock.now_s()
@@ -148,9 +158,12 @@ class Acquirer:
             for name, cam in self.cameras.items():
                 cam.start()
                 started.append(cam)
-                if getattr(cam, "live", False):  # its bounded queue must be read while it records
+                if cam.live:  # its bounded queue must be read while it records
                     readers[name] = self._reader(name, segment, cancel)
-            result = ctx.sleep_s(float(motion)) if not callable(motion) else motion()
+            if callable(motion):
+                result = motion()
+            else:
+                ctx.sleep_s(float(motion))
             completed = True
         finally:
             t_stop = clock.now_s()
@@ -180,13 +193,13 @@ class Acquirer:
                                  "first_index": first[0], "first_timestamp_s": first[1]})
             ctx.event("camera", {"camera": name, "action": "stop", "segment": segment, "t_s": t_stop,
                                  "last_index": last[0], "last_timestamp_s": last[1], "n_frames": len(parts)})
-        return Recording(segment, result, t_start, t_stop, observations)
+        return Recording(segment, result, t_start, t_stop, observations)  # result: None for a duration
 
 
 class _Reader:
     """One camera's ``frames()`` reduced to rows in a daemon thread (a hung device cannot block the exit)."""
 
-    def __init__(self, camera: Any, reducer: MarkerReducer, cancel: threading.Event) -> None:
+    def __init__(self, camera: Camera, reducer: MarkerReducer, cancel: threading.Event) -> None:
         self.camera, self.reducer, self.cancel = camera, reducer, cancel
         self.parts: list[tuple[int, float, np.ndarray, np.ndarray]] = []
         self.error: BaseException | None = None

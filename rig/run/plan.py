@@ -23,7 +23,7 @@ import re
 import types
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, TypeVar
 
 from drivers.denso.arm import BoxEnvelope, check_speed
 from drivers.denso.arm import LimitError as ArmLimitError
@@ -31,6 +31,9 @@ from drivers.denso.pose import check_pose
 from drivers.exciter.limits import LimitCheck, LimitError, MotionLimits
 from drivers.exciter.shaker import SensitivityTable, ShakerLimits
 from drivers.exciter.vfd import check_output_hz
+from rig.config.devices import VfdConfig
+from rig.config.limits import VibrationLimits
+from rig.config.rig_config import RigConfig
 from rig.run.procedure import ParameterError
 
 __all__ = ["ArmMoves", "GeneratorSweep", "Plan", "PlanCheck", "PlanRefused", "PlanStep", "Vibration",
@@ -93,6 +96,9 @@ class Vibration:
         return self.profile[-1][0] - self.profile[0][0]
 
 
+_Part = TypeVar("_Part", ArmMoves, Vibration)
+
+
 @dataclass(frozen=True)
 class PlanStep:
     """One recorded step: its name (the run's step and segment), what it moves, how long it lasts (s,
@@ -146,14 +152,15 @@ class Plan:
         def text(value: str) -> str:
             return pattern.sub(lambda m: names[m.group(0)], value) if pattern else value
 
-        def fix(part: Any) -> Any:
-            if part is None:
-                return None
+        def fix(part: _Part) -> _Part:
             origins = [f.name for f in dataclasses.fields(part) if f.name.endswith("_from")]
-            return dataclasses.replace(part, **{name: text(getattr(part, name)) for name in origins})
+            # every ``*_from`` field, read by the name dataclasses.fields gives
+            changes: dict[str, Any] = {name: text(getattr(part, name)) for name in origins}
+            return dataclasses.replace(part, **changes)
 
-        return Plan(self.procedure, tuple(dataclasses.replace(s, arm=fix(s.arm), vibration=fix(s.vibration))
-                                          for s in self.steps))
+        return Plan(self.procedure, tuple(dataclasses.replace(
+            s, arm=None if s.arm is None else fix(s.arm),
+            vibration=None if s.vibration is None else fix(s.vibration)) for s in self.steps))
 
 
 @dataclass(frozen=True)
@@ -207,7 +214,7 @@ class PlanRefused(ParameterError):  # noqa: N818 — a refusal, as ParameterErro
 
 
 # ------------------------------------------------------------------------------------------------ limits
-def robot_envelope(config: Any) -> BoxEnvelope:
+def robot_envelope(config: RigConfig) -> BoxEnvelope:
     """The arm driver's envelope of ``[limits.robot]`` (ParameterError when absent)."""
     lim = config.limits.robot
     if lim is None:
@@ -217,17 +224,30 @@ def robot_envelope(config: Any) -> BoxEnvelope:
     return envelope
 
 
-def _motion_limits(config: Any, device: str) -> MotionLimits:
-    if getattr(config.devices, device) is None:
+def _vfd_config(config: RigConfig, device: str) -> VfdConfig | None:
+    """``[devices.exciter]`` or ``[devices.rotor]`` (``device`` names a VFD-driven source)."""
+    return {"exciter": config.devices.exciter, "rotor": config.devices.rotor}[device]
+
+
+def _motion_limits(config: RigConfig, device: str) -> MotionLimits:
+    """``[limits.<device>]`` of a vibration source (exciter, rotor, generator) as the drivers' limits;
+    ParameterError when the configuration lacks ``[devices.<device>]``."""
+    configured = config.devices.generator if device == "generator" else _vfd_config(config, device)
+    if configured is None:
         raise ParameterError(f"devices.{device}", f"the plan needs [devices.{device}], which this rig "
                                                   "configuration lacks")
-    return getattr(config.limits, device).motion_limits()
+    limits: VibrationLimits | None = {"exciter": config.limits.exciter, "rotor": config.limits.rotor,
+                                      "generator": config.limits.generator}[device]
+    assert limits is not None, "the configuration check pairs every device with its limits"
+    return limits.motion_limits()
 
 
-def shaker_limits(config: Any) -> ShakerLimits:
+def shaker_limits(config: RigConfig) -> ShakerLimits:
     """The shaker's :class:`ShakerLimits` of the configuration (ParameterError without a generator)."""
+    motion = _motion_limits(config, "generator")
     gen = config.devices.generator
-    return ShakerLimits(_motion_limits(config, "generator"), SensitivityTable(gen.sensitivity_mm_per_v),
+    assert gen is not None  # _motion_limits raised otherwise
+    return ShakerLimits(motion, SensitivityTable(gen.sensitivity_mm_per_v),
                         gen.max_amplitude_vpp)
 
 
@@ -250,13 +270,13 @@ def _pose_text(pose: tuple[float, ...]) -> str:
     return "[" + ", ".join(f"{round(v, 9) + 0.0:.6g}" for v in pose) + "]"  # + 0.0: no "-0"
 
 
-def _arm_checks(step: str, arm: ArmMoves, config: Any) -> list[PlanCheck]:
+def _arm_checks(step: str, arm: ArmMoves, config: RigConfig) -> list[PlanCheck]:
     envelope = robot_envelope(config)
     rows: list[PlanCheck] = []
     n = len(arm.poses)
-    centre = [0.5 * sum(getattr(envelope, a)) for a in ("x_mm", "y_mm", "z_mm")]
-    for k, axis in enumerate(("x_mm", "y_mm", "z_mm")):
-        lo, hi = getattr(envelope, axis)
+    bounds = {"x_mm": envelope.x_mm, "y_mm": envelope.y_mm, "z_mm": envelope.z_mm}
+    centre = [0.5 * sum(b) for b in bounds.values()]
+    for k, (axis, (lo, hi)) in enumerate(bounds.items()):
         per_pose = []
         for i, pose in enumerate(arm.poses):
             probe = [*centre, 0.0, 0.0, 0.0]  # this axis alone, by the driver's own check
@@ -275,6 +295,7 @@ def _arm_checks(step: str, arm: ArmMoves, config: Any) -> list[PlanCheck]:
             rows.append(PlanCheck(step, "arm", exc.axis, exc.value, exc.allowed[1], "deg",
                                   "the arm driver's orientation range", arm.poses_from, False,
                                   where=f"pose {i + 1} of {n} {_pose_text(pose)}", lower=exc.allowed[0]))
+    assert config.limits.robot is not None  # robot_envelope refused the plan otherwise
     limit = config.limits.robot.max_speed_mm_s
     speed = limit if arm.speed_mm_s is None else arm.speed_mm_s
     rows.append(PlanCheck(step, "arm", "speed", speed, limit, "mm/s", "limits.robot.max_speed_mm_s",
@@ -298,7 +319,7 @@ def _origin(vib: Vibration, quantity: str) -> str:
     return f"{vib.frequency_from} with {vib.amplitude_from}"
 
 
-def _vibration_checks(step: str, vib: Vibration, config: Any) -> list[PlanCheck]:
+def _vibration_checks(step: str, vib: Vibration, config: RigConfig) -> list[PlanCheck]:
     limits = _motion_limits(config, vib.device)
     shaker = shaker_limits(config) if vib.amplitude_vpp else None
     by_quantity: dict[str, list[PlanCheck]] = {}
@@ -332,9 +353,10 @@ def _vibration_checks(step: str, vib: Vibration, config: Any) -> list[PlanCheck]
     return rows
 
 
-def _drive_output_check(step: str, vib: Vibration, config: Any) -> PlanCheck:
+def _drive_output_check(step: str, vib: Vibration, config: RigConfig) -> PlanCheck:
     """The VFD's output at the highest planned frequency (× gear ratio) against its ``max_output_hz``."""
-    dev = getattr(config.devices, vib.device)
+    dev = _vfd_config(config, vib.device)
+    assert dev is not None  # _motion_limits refused the plan otherwise
     output_hz = vib.frequency_range_hz[1] * dev.gear_ratio
     passed = _passes(check_output_hz, output_hz, dev.max_output_hz)
     return PlanCheck(step, vib.device, "drive output", output_hz, dev.max_output_hz, "Hz",
@@ -343,7 +365,7 @@ def _drive_output_check(step: str, vib: Vibration, config: Any) -> PlanCheck:
                      passed)
 
 
-def check_plan(plan: Plan, config: Any) -> list[PlanCheck]:
+def check_plan(plan: Plan, config: RigConfig) -> list[PlanCheck]:
     """Every limit against the plan (nothing is connected); one row per quantity, device and step."""
     rows: list[PlanCheck] = []
     for step in plan.steps:
@@ -354,7 +376,7 @@ def check_plan(plan: Plan, config: Any) -> list[PlanCheck]:
     return rows
 
 
-def plan_of(module: types.ModuleType, params: Any, config: Any) -> Plan | None:
+def plan_of(module: types.ModuleType, params: object, config: RigConfig) -> Plan | None:
     """The procedure's plan (its ``plan(params, config)``), or None for a module without one (a user's
     procedure file: then only the drivers' checks at each command guard it)."""
     make = getattr(module, "plan", None)
@@ -369,7 +391,7 @@ def plan_of(module: types.ModuleType, params: Any, config: Any) -> Plan | None:
     return plan
 
 
-def validate_procedure(module: types.ModuleType, params: Any, config: Any) -> list[PlanCheck]:
+def validate_procedure(module: types.ModuleType, params: object, config: RigConfig) -> list[PlanCheck]:
     """Compute and check the procedure's whole plan; :class:`PlanRefused` (exit 4) on any violation."""
     plan = plan_of(module, params, config)
     if plan is None:

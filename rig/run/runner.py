@@ -42,11 +42,15 @@ import sys
 import threading
 import types
 from collections.abc import Callable, Iterator
+from contextlib import AbstractContextManager
 from dataclasses import dataclass
 from pathlib import Path
+from types import FrameType
 from typing import Any
 
+from drivers.clock import Clock
 from drivers.roles import Assignment
+from rig.config.rig_config import RigConfig
 from rig.config.schema import ConfigError, to_dict
 from rig.record.jsonenc import dumps
 from rig.record.writer import RecordError, RunRecord, parse_record
@@ -83,7 +87,7 @@ class RunOutcome:
     outcome: str
     reason: str
     run_dir: Path | None = None
-    result: Any = None
+    result: object = None
 
 
 class _Control:
@@ -112,7 +116,8 @@ class Runner:
         observers: ``(document) -> None`` offered every record document (:meth:`RunRecord.add_observer`).
     """
 
-    def __init__(self, module: types.ModuleType, *, config: Any, station_factory: Callable[[Any, Any], Any],
+    def __init__(self, module: types.ModuleType, *, config: RigConfig,
+                 station_factory: Callable[[RigConfig, Clock], AbstractContextManager[StationLike]],
                  runs_dir: str | Path | None = None,
                  progress: Callable[[float | None, str], None] | None = None, handle_signals: bool = True,
                  watchdog_period_s: float = 0.25, log_level: int = logging.INFO,
@@ -169,7 +174,7 @@ class Runner:
             raise Abort(c.abort_reason)
 
     # ------------------------------------------------------------------ signals
-    def _on_stop_signal(self, signum: int, frame: Any) -> None:
+    def _on_stop_signal(self, signum: int, frame: FrameType | None) -> None:
         """SIGINT, SIGTERM, SIGHUP, SIGQUIT alike: the first asks for an abort at the next checkpoint, the
         second aborts at once (:class:`Interrupted`); during cleanup they only say to wait."""
         c = self._control
@@ -187,7 +192,7 @@ class Runner:
             return
         raise Interrupted(name)
 
-    def _on_sigusr1(self, signum: int, frame: Any) -> None:
+    def _on_sigusr1(self, signum: int, frame: FrameType | None) -> None:
         c = self._control
         if c.interlock is not None and not c.in_cleanup:
             raise InterlockTripped(*c.interlock)
@@ -246,7 +251,7 @@ class Runner:
                 return _io_fault_after_stop(outcome, exc)
             return outcome
 
-    def _run_and_close_station(self, record: RunRecord, clock: Any, params: Any,
+    def _run_and_close_station(self, record: RunRecord, clock: Clock, params: object,
                                file_only: Callable[[str, BaseException], None]) -> RunOutcome:
         try:
             station_cm = self.station_factory(self.config, clock)
@@ -262,7 +267,7 @@ class Runner:
             except Exception as exc:
                 log.error("closing the station failed: %s", exc, exc_info=True)
 
-    def _open_record(self, clock: Any, params: Any, resume_dir: Path | None) -> RunRecord:
+    def _open_record(self, clock: Clock, params: object, resume_dir: Path | None) -> RunRecord:
         """The run folder and its start document, written before any device is reached."""
         snapshot = self.config.snapshot()
         devices = {"connected": False}  # the station's snapshot follows as the ``devices`` event
@@ -314,8 +319,8 @@ class Runner:
             raise RecordError(f"{resume_dir} is a {start.get('procedure')!r} run, not {self.module.NAME!r}")
         return validate_parameters(self.module, start.get("parameters") or {}), resume_dir
 
-    def _run_with_station(self, record: RunRecord, station: StationLike, clock: Any,
-                          params: Any) -> RunOutcome:
+    def _run_with_station(self, record: RunRecord, station: StationLike, clock: Clock,
+                          params: object) -> RunOutcome:
         roster = station.roster()  # every device with its declared role, fixed for the run
         try:  # a snapshot failure must not prevent making safe
             station_snapshot: dict[str, Any] = station.snapshot()
@@ -331,7 +336,7 @@ class Runner:
                       log=logging.getLogger(f"procedures.{self.module.NAME}"),
                       checkpoint=lambda: self._checkpoint(station, roster), progress=self.progress)
         error: BaseException | None = None
-        result: Any = None
+        result: object = None
         try:
             watchdog.start()
             self._checkpoint(station, roster)
@@ -380,7 +385,7 @@ class Runner:
         return tripped
 
     def _finish(self, record: RunRecord, roster: list[Assignment], error: BaseException | None,
-                result: Any) -> RunOutcome:
+                result: object) -> RunOutcome:
         # a late interlock (tripped after the procedure returned) still counts, and so does an abort
         # requested during a step without checkpoints (the report): the run did not finish as asked
         if error is None and self._control.interlock is not None:
@@ -478,13 +483,12 @@ def _verdict_word(passed: bool | None, certificate: str | None) -> str | None:
     return None if passed is None else ("pass" if passed else "fail")
 
 
-def _verdict(result: Any) -> tuple[bool | None, str]:
-    if result is None:
-        return None, ""
+def _verdict(result: object) -> tuple[bool | None, str]:
+    """(passed, summary) of a procedure's result: a dict (``passed``, ``summary``), a bool, or None (no
+    verdict; so is any other value)."""
     if isinstance(result, bool):
         return result, ""
     if isinstance(result, dict):
         passed = result.get("passed")
         return (None if passed is None else bool(passed)), str(result.get("summary", ""))
-    passed = getattr(result, "passed", None)
-    return (None if passed is None else bool(passed)), str(getattr(result, "summary", ""))
+    return None, ""
