@@ -220,6 +220,74 @@ def _feasible_interval_s(t_s: np.ndarray, offset_s: np.ndarray, half_s: float, t
     return ends[0], ends[1]
 
 
+def _prepared_observations(observations: dict[str, pd.DataFrame], cameras: dict[str, DLTCamera],
+                           timing: TimingResult, track_gate_px: float,
+                           notes: list[str]) -> dict[str, pd.DataFrame]:
+    """Per camera: its observations with a position (the others counted in ``notes``), on the reference
+    camera's clock (:func:`prepare_observations`), each with its 2-D track id (:func:`tracks_2d`)."""
+    obs = {}
+    for cam in cameras:
+        o = observations[cam].copy()
+        finite = np.isfinite(o[["timestamp_s", "u_px", "v_px"]].to_numpy(float)).all(axis=1)
+        if not finite.all():
+            notes.append(f"camera {cam!r}: {int((~finite).sum())} observation(s) without a position left out")
+            o = o[finite]
+        if "session" not in o.columns:
+            o["session"] = 0
+        o["segment"] = o["segment"].astype(str)
+        obs[cam] = prepare_observations(o.drop(columns=["time_s", "track_id"], errors="ignore"), timing, cam)
+        obs[cam]["track_id"] = tracks_2d(obs[cam], gate_px=track_gate_px).to_numpy()
+    return obs
+
+
+class _SegmentAnalysis:
+    """The segments of one analysis, added one (segment, session) at a time: pairs the cameras' tracks,
+    triangulates them and puts them on the controller clock; collects ``tracks``, ``pairs``, ``clock`` rows
+    (segment, session, offset_s, u_offset_s, source) and appends to ``notes``."""
+
+    def __init__(self, obs: dict[str, pd.DataFrame], cameras: dict[str, DLTCamera], timing: TimingResult,
+                 offsets: pd.DataFrame, notes: list[str], *, sync: str, gate_px: float,
+                 volume_mm: tuple[tuple[float, float], ...] | None, knot_spacing_frames: float) -> None:
+        self.obs, self.cameras, self.timing, self.offsets, self.notes = obs, cameras, timing, offsets, notes
+        self.sync, self.gate_px, self.volume_mm = sync, gate_px, volume_mm
+        self.knot_spacing_frames = knot_spacing_frames
+        self.tracks: list[pd.DataFrame] = []
+        self.pairs: list[pd.DataFrame] = []
+        self.clock: list[tuple[str, int, float, float, str]] = []
+        self._next_id: dict[str, int] = {}  # sessions of a segment continue the track numbering
+
+    def add(self, segment: str, session: int) -> None:
+        """Analyse one recording (``segment`` of ``session``); MissingObservationsError when a camera
+        recorded nothing in it while another did."""
+        ref = self.timing.reference_camera
+        sel = {c: o[(o["segment"] == segment) & (o["session"] == session)] for c, o in self.obs.items()}
+        empty = sorted(c for c, o in sel.items() if o.empty)
+        if empty:
+            raise MissingObservationsError(
+                f"segment {segment!r} (session {session}): camera(s) {empty} recorded no observations while "
+                f"{sorted(set(sel) - set(empty))} did; check the camera view and re-run that step")
+        p, more = pair_all(sel, self.cameras, ref, gate_px=self.gate_px, volume_mm=self.volume_mm)
+        p.insert(1, "session", session)
+        self.pairs.append(p)
+        self.notes += more
+        if p.empty or not (~p["ambiguous"].astype(bool)).any():
+            self.notes.append(f"segment {segment!r} (session {session}): no pairable tracks")
+            return
+        t = triangulate_tracks(sel, self.cameras, self.timing, sync=self.sync, reference=ref, pairs=p,
+                               knot_spacing_frames=self.knot_spacing_frames)
+        self.notes += t.attrs.get("notes", [])
+        if t.empty:
+            return
+        offset, u_offset, source = _offset_for(self.offsets, segment, session)
+        self.clock.append((segment, session, offset, u_offset, source))
+        t = t.copy()
+        t["time_s"] = t["time_s"] + offset
+        t["segment"] = segment
+        t["track_id"] = t["track_id"].astype(np.int64) + self._next_id.get(segment, 0)
+        self._next_id[segment] = int(t["track_id"].max()) + 1
+        self.tracks.append(t)
+
+
 def _offset_for(offsets: pd.DataFrame, segment: str, session: int) -> tuple[float, float, str]:
     """(offset_s, standard uncertainty s, source) of controller − reference clock for one segment.
 
@@ -323,51 +391,16 @@ def analyse(
     offsets = controller_offsets(run.events.get("camera"), timing, periods,
                                  {c: _exposure_s(rig, c) for c in cameras})
     volume = pairing_volume(rig, volume_margin_mm) if isinstance(rig, dict) else None
-    obs = {}
     notes: list[str] = []
-    for cam in cameras:
-        o = run.observations[cam].copy()
-        finite = np.isfinite(o[["timestamp_s", "u_px", "v_px"]].to_numpy(float)).all(axis=1)
-        if not finite.all():
-            notes.append(f"camera {cam!r}: {int((~finite).sum())} observation(s) without a position left out")
-            o = o[finite]
-        if "session" not in o.columns:
-            o["session"] = 0
-        o["segment"] = o["segment"].astype(str)
-        obs[cam] = prepare_observations(o.drop(columns=["time_s", "track_id"], errors="ignore"), timing, cam)
-        obs[cam]["track_id"] = tracks_2d(obs[cam], gate_px=track_gate_px).to_numpy()
+    obs = _prepared_observations(run.observations, cameras, timing, track_gate_px, notes)
     ref = timing.reference_camera
     groups = sorted({(s, int(n)) for cam in cameras for s, n in zip(obs[cam]["segment"], obs[cam]["session"],
                                                                      strict=True)})
-    tracks, pairs, clock = [], [], []
-    next_id: dict[str, int] = {}
+    segments = _SegmentAnalysis(obs, cameras, timing, offsets, notes, sync=sync, gate_px=gate_px,
+                                volume_mm=volume, knot_spacing_frames=knot_spacing_frames)
     for segment, session in groups:
-        sel = {c: o[(o["segment"] == segment) & (o["session"] == session)] for c, o in obs.items()}
-        empty = sorted(c for c, o in sel.items() if o.empty)
-        if empty:
-            raise MissingObservationsError(
-                f"segment {segment!r} (session {session}): camera(s) {empty} recorded no observations while "
-                f"{sorted(set(sel) - set(empty))} did; check the camera view and re-run that step")
-        p, more = pair_all(sel, cameras, ref, gate_px=gate_px, volume_mm=volume)
-        p.insert(1, "session", session)
-        pairs.append(p)
-        notes += more
-        if p.empty or not (~p["ambiguous"].astype(bool)).any():
-            notes.append(f"segment {segment!r} (session {session}): no pairable tracks")
-            continue
-        t = triangulate_tracks(sel, cameras, timing, sync=sync, reference=ref, pairs=p,
-                               knot_spacing_frames=knot_spacing_frames)
-        notes += t.attrs.get("notes", [])
-        if t.empty:
-            continue
-        offset, u_offset, source = _offset_for(offsets, segment, session)
-        clock.append((segment, session, offset, u_offset, source))
-        t = t.copy()
-        t["time_s"] = t["time_s"] + offset
-        t["segment"] = segment
-        t["track_id"] = t["track_id"].astype(np.int64) + next_id.get(segment, 0)
-        next_id[segment] = int(t["track_id"].max()) + 1  # sessions of a segment continue the numbering
-        tracks.append(t)
+        segments.add(segment, session)
+    tracks, pairs, clock = segments.tracks, segments.pairs, segments.clock
     if not tracks:
         raise NoPairableTracksError(
             f"{run_dir}: no track of {ref!r} could be paired with another camera in any segment "
