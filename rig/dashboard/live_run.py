@@ -13,18 +13,21 @@ import logging
 import sys
 import types
 from collections.abc import Callable
-from typing import Any
+from typing import Any, TextIO
 
+from rig.config.rig_config import RigConfig
 from rig.dashboard.server import DashboardServer
 from rig.dashboard.state import DashboardState
 from rig.run.frame_tap import FRAMES
+from rig.run.runner import Runner
 
 __all__ = ["LiveDashboard", "plan_steps"]
 
 log = logging.getLogger("rig.dashboard.server")
 
 
-def plan_steps(module: types.ModuleType, config: Any, parameters: dict[str, Any]) -> list[tuple[str, float]]:
+def plan_steps(module: types.ModuleType, config: RigConfig,
+               parameters: dict[str, Any]) -> list[tuple[str, float]]:
     """``[(step, duration_s)]`` of the procedure's plan for these recorded parameters ([] without a plan)."""
     from rig.run.plan import plan_of
     from rig.run.procedure import validate_parameters
@@ -40,8 +43,8 @@ def plan_steps(module: types.ModuleType, config: Any, parameters: dict[str, Any]
 class LiveDashboard:
     """See the module docstring. ``host``/``port``/``allow_remote`` as :class:`DashboardServer`."""
 
-    def __init__(self, module: types.ModuleType, config: Any, *, host: str = "127.0.0.1", port: int = 0,
-                 allow_remote: bool = False, stream: Any = None) -> None:
+    def __init__(self, module: types.ModuleType, config: RigConfig, *, host: str = "127.0.0.1", port: int = 0,
+                 allow_remote: bool = False, stream: TextIO | None = None) -> None:
         self.state = DashboardState(module.NAME, plan_steps=lambda start: plan_steps(
             module, config, start.get("parameters") or {}))
         self.server = DashboardServer(self.state, host=host, port=port, allow_remote=allow_remote,
@@ -50,7 +53,7 @@ class LiveDashboard:
         self._request_abort: Callable[[str], None] | None = None
         self.started = False
 
-    def attach(self, runner: Any) -> None:
+    def attach(self, runner: Runner) -> None:
         self._request_abort = runner.request_abort
 
     def _abort(self, reason: str) -> None:
