@@ -202,8 +202,8 @@ class _Handler(BaseHTTPRequestHandler):
         self.close_connection = True
         client = id(self)
         cursors: dict[str, int] = {}
-        seen_frames: dict[str, int] = {}
         seen, idle_s = -1, 0.0
+        seen_frames: dict[str, int] = {}
         d.sent_versions[client] = -1
         try:
             while not d.closing.is_set():
