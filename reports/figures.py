@@ -7,6 +7,7 @@ byte-identical PNG files.
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 import matplotlib
 
@@ -21,9 +22,12 @@ from reports import frequency
 from reports.tables import ReportTables
 from rig.record.atomic import atomic_path
 
+if TYPE_CHECKING:
+    from matplotlib.typing import RcKeyType
+
 DPI = 110
 COLORS = {"primary": "#1f5fa8", "linear": "#c0392b", "theory": "#6c6c6c", "ok": "#2e8b57", "tol": "#d4a017"}
-STYLE = {
+STYLE: dict[RcKeyType, Any] = {
     "axes.grid": True,
     "grid.alpha": 0.3,
     "axes.spines.top": False,
@@ -353,7 +357,7 @@ def fig_spectrum(t: ReportTables) -> Figure | None:
 def fig_rotation_radius(t: ReportTables) -> Figure | None:
     """Measured radius of rotation over time against the reference radius (Fig. 14)."""
     rs = t.rotation_samples
-    if rs is None or rs.empty:
+    if rs is None or rs.empty or t.rotation is None:
         return None
     fig, axes = new_figure(size=(7.5, 3.2))
     ax = axes[0, 0]

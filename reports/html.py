@@ -103,7 +103,7 @@ def _length_line(lengths: pd.DataFrame) -> str:
 
 def _timing_details(timing: dict[str, Any]) -> str:
     """The scalar diagnostics of the sync fit (``details`` of timing.json), as one short line."""
-    details = timing.get("details") if isinstance(timing.get("details"), dict) else {}
+    details = d if isinstance(d := timing.get("details"), dict) else {}
     items = [
         f"{html.escape(str(k))} = {_fmt(v)}"
         for k, v in sorted(details.items())

@@ -63,12 +63,9 @@ class ReportTables:
 def camera_fps(rig: dict[str, Any], timing: dict[str, Any] | None) -> tuple[float, str]:
     """Camera frame rate from the rig snapshot (``cameras.<name>.fps``) or timing.json; else 60 fps."""
     cams = rig.get("cameras")
-    values = []
-    if isinstance(cams, dict):
-        values = [c.get("fps") for c in cams.values() if isinstance(c, dict)]
-    elif isinstance(cams, list):
-        values = [c.get("fps") for c in cams if isinstance(c, dict)]
-    values = [float(v) for v in values if isinstance(v, (int, float)) and v > 0]
+    entries = list(cams.values()) if isinstance(cams, dict) else cams if isinstance(cams, list) else []
+    raw = [c.get("fps") for c in entries if isinstance(c, dict)]
+    values = [float(v) for v in raw if isinstance(v, (int, float)) and v > 0]
     if values:
         return float(np.median(values)), "rig.cameras.*.fps"
     if timing and isinstance(timing.get("fps"), (int, float)):
