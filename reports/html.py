@@ -118,7 +118,8 @@ def _vertical(values: dict[str, Any]) -> str:
     return table(frame, text_cols=("quantity",))
 
 
-def _figure(pngs: dict[str, bytes], name: str, caption: str) -> str:
+def figure(pngs: dict[str, bytes], name: str, caption: str) -> str:
+    """The PNG ``pngs[name]`` embedded as base64 with its caption; empty when there is no such figure."""
     if name not in pngs:
         return ""
     data = base64.b64encode(pngs[name]).decode("ascii")
@@ -303,8 +304,8 @@ def _position_section(t: ReportTables, pngs: dict[str, bytes], tables_html: dict
         f"<p>{s['n_matched']} of {s['n_commanded']} commanded marker poses measured. "
         f"|error|: mean {_fmt(s['mean_mm'])} mm, "
         f"RMS {_fmt(s['rms_mm'])} mm, 95th percentile {_fmt(s['p95_mm'])} mm, max {_fmt(s['max_mm'])} mm.</p>"
-        + _figure(pngs, "error_vectors", "Error vectors at the commanded positions (scaled up)")
-        + _figure(
+        + figure(pngs, "error_vectors", "Error vectors at the commanded positions (scaled up)")
+        + figure(
             pngs,
             "error_vs_position",
             "|error| against the distance from the cameras and off the viewing axis",
@@ -338,7 +339,7 @@ def _frequency_section(
         "curves are the exact amplitude loss of linear interpolation of one camera's image coordinates; "
         "in 3D only a geometry-weighted share of it appears — about half for a symmetric pair and motion "
         "across the lines of sight (dash-dotted).</p>"
-        + _figure(
+        + figure(
             pngs,
             "amplitude_error_vs_frequency",
             "Amplitude error and phase versus frequency, per sync method",
@@ -353,7 +354,7 @@ def _frequency_section(
         "ahead of the commanded profile); the notes say when only the commanded profile was available.</p>"
         + "<p class='note'>± on c0 and c2: 95 % confidence half-widths (Student's t); on the limit: its"
         " expanded uncertainty from the fit covariance.</p>"
-        + _figure(pngs, "sweep_time_frequency", "Frequency of the sweep over time (paper Fig. 17)")
+        + figure(pngs, "sweep_time_frequency", "Frequency of the sweep over time (paper Fig. 17)")
         + "<details><summary>Per-bin values (mean over markers)</summary>"
         + table(tables_html["sweep_means"], text_cols=("sync_method",))
         + "</details></section>"
@@ -370,11 +371,11 @@ def _motion_section(t: ReportTables, pngs: dict[str, bytes], tables_html: dict[s
     return (
         "<section id='motion'><h2>Steady motion: plate and rotor</h2>"
         + "".join(motion)
-        + _figure(
+        + figure(
             pngs, "trajectory", "Trajectory X(t), Y(t), Z(t) and an enlarged 5 s segment (paper Figs. 5–8)"
         )
-        + _figure(pngs, "rotation_radius", "Measured radius of rotation (paper Fig. 14)")
-        + _figure(pngs, "spectrum", "Spectrum of the rotor marker's height (paper Fig. 15)")
+        + figure(pngs, "rotation_radius", "Measured radius of rotation (paper Fig. 14)")
+        + figure(pngs, "spectrum", "Spectrum of the rotor marker's height (paper Fig. 15)")
         + ("" if motion or "trajectory" in pngs else "<p class='note'>No steady-motion data in this run.</p>")
         + "</section>"
     )
