@@ -37,6 +37,7 @@ sys.path.insert(0, str(ROOT / "tests"))
 import measure_twin as mt  # noqa: E402
 
 from drivers.camera.video_file import VideoFile  # noqa: E402
+from reports.measurement import write_measurement_report  # noqa: E402
 from rig.deploy.measure import MeasureOptions, measure_videos  # noqa: E402
 from rig.deploy.onsite_calibration import calibrate_from_videos, write_calibration  # noqa: E402
 from rig.deploy.video_markers import extract_video  # noqa: E402
@@ -140,10 +141,13 @@ def run(folder: Path, paths: tuple[Path, Path], calibration: Path, seconds: floa
         cpu, wall_x = cpu_both(fn, paths)
         print(f"  {name:<25} {cpu / video_s:6.3f} = {cpu / cpu_decode:5.2f} × baseline   "
               f"(wall {wall_x:.2f} s)")
-    opts = MeasureOptions(make_figures=True, window_s=(0.6, seconds - 0.1))
+    opts = MeasureOptions(window_s=(0.6, seconds - 0.1))
     c0, t0 = time.process_time(), time.perf_counter()
     res = measure_videos({"left": paths[0], "right": paths[1]}, calibration, folder / "out",
                          timing=folder / "timing.json", options=opts, force=True)  # --keep: rerun
+    t_report = time.perf_counter()
+    write_measurement_report(folder / "out")  # as `rig measure` does: the command renders the report
+    res.timings_s["step_report"] = time.perf_counter() - t_report
     cpu_measure, wall = time.process_time() - c0, time.perf_counter() - t0
     print(f"  rig measure --timing      {cpu_measure / video_s:6.3f} = {cpu_measure / cpu_decode:5.2f} × "
           "baseline   (target ≤ 1.3×)")
@@ -162,7 +166,7 @@ def run(folder: Path, paths: tuple[Path, Path], calibration: Path, seconds: floa
 
     t0 = time.perf_counter()
     res2 = measure_videos({"left": paths[0], "right": paths[1]}, calibration, folder / "out_est",
-                          options=MeasureOptions(make_figures=False, window_s=opts.window_s), force=True)
+                          options=MeasureOptions(window_s=opts.window_s), force=True)
     wall2 = time.perf_counter() - t0
     print(f"\nrig measure --estimate-timing: wall {wall2:.2f} s = {video_s / wall2:.2f} × real time; "
           f"offset {res2.timing['offset_s']['right']:+.6f} s "

@@ -23,7 +23,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from importlib import metadata
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol
 
 import numpy as np
 import pandas as pd
@@ -39,7 +39,44 @@ DEFAULT_SYNC = "trajectory"
 CERTIFICATE_NAME = "certificate.json"
 REVISIONS_DIR = "revisions"
 COMPARISON_SYNC = "linear"
-Analyse = Callable[..., Any]  # analyse(run_dir, *, sync=...) -> object with .tracks, .timing, .calibration
+
+
+class AnalysisResult(Protocol):
+    """What a report uses of one sync method's analysis (:class:`rig.analysis.Analysis`)."""
+
+    @property
+    def tracks(self) -> pd.DataFrame: ...
+
+    @property
+    def timing(self) -> dict[str, Any]: ...  # timing.json as used (empty: the run folder's)
+
+    @property
+    def calibration(self) -> dict[str, Any]: ...  # calibration.json as used (empty: the run folder's)
+
+
+class Analyse(Protocol):
+    """``rig.analysis.analyse``: the analysis of a run folder with one sync method."""
+
+    def __call__(self, run_dir: Path, *, sync: str) -> AnalysisResult: ...
+
+
+@dataclass(frozen=True)
+class Analyses:
+    """The analysis of every sync method that worked (the primary first) and notes on those that failed."""
+
+    primary: str
+    by_method: dict[str, AnalysisResult]
+    notes: list[str]
+
+
+@dataclass(frozen=True)
+class Report:
+    """What a report writes: the certificate, the tables and their CSV frames by name."""
+
+    certificate: dict[str, Any]
+    tables: ReportTables
+    frames: dict[str, pd.DataFrame]
+    acceptance: dict[str, Any]
 
 
 @dataclass(frozen=True)
@@ -56,6 +93,30 @@ class ReportResult:
     notes: list[str] = field(default_factory=list)
     revision: Path | None = None  # the revision folder when the run's certificate was already issued
     changes: dict[str, Any] | None = None  # a revision's differences from the issued certificate
+
+
+@dataclass(frozen=True)
+class Written:
+    """The files :func:`_write_outputs` wrote."""
+
+    report_html: Path
+    certificate_json: Path
+    tables: dict[str, Path]
+    figures: dict[str, Path]
+
+    def moved(self, old: Path, new: Path) -> Written:
+        """The same files after their folder ``old`` was renamed to ``new``."""
+        def move(path: Path) -> Path:
+            return new / path.relative_to(old)
+
+        return Written(move(self.report_html), move(self.certificate_json),
+                       {k: move(v) for k, v in self.tables.items()},
+                       {k: move(v) for k, v in self.figures.items()})
+
+    def fields(self) -> dict[str, Any]:
+        """As keyword arguments of :class:`ReportResult`."""
+        return {"report_html": self.report_html, "certificate_json": self.certificate_json,
+                "tables": self.tables, "figures": self.figures}
 
 
 def _software_version() -> str:
@@ -90,12 +151,8 @@ def write_csv(df: pd.DataFrame, path: Path) -> None:
 
 
 def _default_analyse() -> Analyse:
-    try:
-        from rig.analysis.analyse import analyse
-    except ImportError as exc:
-        raise ReportError(
-            f"rig.analysis.analyse is not available ({exc}); pass analysis=... to build_report"
-        ) from exc
+    from rig.analysis.analyse import analyse
+
     return analyse
 
 
@@ -132,23 +189,65 @@ def build_report(
     An ``OSError`` while writing (full disk, read-only folder) propagates; no output is left half-written.
     """
     run = load_record(run_dir)
-    run_dir = run.run_dir
     acceptance = acceptance_from_config(run.rig)
-    analysis_cfg = run.rig.get("analysis") if isinstance(run.rig.get("analysis"), dict) else {}
-    primary = sync or analysis_cfg.get("sync") or DEFAULT_SYNC
-    results, notes = _analyse_all(run_dir, [primary, *[m for m in compare if m != primary]],
-                                  analysis or _default_analyse())
-    main = results[primary]
-    t = compute_tables(
+    primary = sync or _configured_sync(run.rig)
+    analyses = _analyse_all(run.run_dir, [primary, *[m for m in compare if m != primary]],
+                            analysis or _default_analyse())
+    t = _tables(run, analyses, acceptance)
+    revision = _next_revision(run.run_dir, primary)  # None: this report issues the certificate
+    notes = analyses.notes + _notes(run, t, in_run=in_run) + ([revision.note] if revision else [])
+    report = _certify(run, t, analyses, acceptance, notes, in_run=in_run)
+    cert = report.certificate
+    if revision is None:
+        written = _write_outputs(run.run_dir, report, make_figures=make_figures,
+                                 before_certificate=before_issue)
+        return ReportResult(run.run_dir, cert["result"], cert, notes=notes, **written.fields())
+    changes = certificate_changes(revision.issued, cert, revision=revision.number, sync=primary)
+    written = _write_revision(run.run_dir, revision, report, changes, make_figures=make_figures)
+    return ReportResult(run.run_dir, cert["result"], cert, notes=notes, changes=changes,
+                        revision=revision.folder(run.run_dir), **written.fields())
+
+
+def _configured_sync(rig: dict[str, Any]) -> str:
+    """The snapshot's ``analysis.sync``, else :data:`DEFAULT_SYNC`."""
+    analysis_cfg = rig.get("analysis")
+    configured = analysis_cfg.get("sync") if isinstance(analysis_cfg, dict) else None
+    return str(configured or DEFAULT_SYNC)
+
+
+def _analyse_all(run_dir: Path, methods: list[str], analyse: Analyse) -> Analyses:
+    """The analysis of every method that worked (the first, primary, must) and notes on the rest."""
+    notes: list[str] = []
+    results: dict[str, AnalysisResult] = {}
+    for method in methods:
+        try:
+            results[method] = analyse(run_dir, sync=method)
+        except Exception as exc:
+            if method == methods[0]:
+                if isinstance(exc, ValueError | OSError):  # the analysis' own errors name the cause
+                    raise AnalysisFailedError(f"analysis with sync '{method}' failed: {exc}") from exc
+                raise
+            notes.append(f"comparison sync '{method}' failed: {type(exc).__name__}: {exc}")
+    return Analyses(methods[0], results, notes)
+
+
+def _tables(run: RunData, analyses: Analyses, acceptance: dict[str, Any]) -> ReportTables:
+    """The report's tables from the tracks of every method, with the primary method's timing/calibration."""
+    main = analyses.by_method[analyses.primary]
+    return compute_tables(
         run,
-        {m: r.tracks for m, r in results.items()},
+        {m: r.tracks for m, r in analyses.by_method.items()},
         acceptance,
         gate_mm=float(acceptance["identification_gate_mm"]),
         bin_hz=float(acceptance["frequency_bin_hz"]),
-        timing=getattr(main, "timing", None) or run.timing,
-        calibration=getattr(main, "calibration", None) or run.calibration,
+        timing=main.timing or run.timing,
+        calibration=main.calibration or run.calibration,
     )
-    notes += [f"quadratic fit, sync '{m}': {msg}" for m, msg in sorted(t.fit_notes.items())]
+
+
+def _notes(run: RunData, t: ReportTables, *, in_run: bool) -> list[str]:
+    """The tables' notes and what the record says of how the run ended."""
+    notes = [f"quadratic fit, sync '{m}': {msg}" for m, msg in sorted(t.fit_notes.items())]
     notes += t.notes
     if run.stop is None and in_run:
         notes.append("built as the run's last step, before its stop document (which records how it ended)")
@@ -159,59 +258,22 @@ def build_report(
         )
     if run.truncated_last_line:
         notes.append("the record's last line was cut short (the run was killed); it was ignored")
-    issued = issued_certificate(run_dir)
-    revision = None if issued is None else _next_revision(run_dir, primary)
-    if revision is not None:
-        notes.append(
-            f"revision {revision.number} (sync '{primary}') of this run's report: the issued certificate "
-            f"(certificate.json of the run folder, result {issued.get('result')}) is unchanged"
-        )
+    return notes
+
+
+def _certify(run: RunData, t: ReportTables, analyses: Analyses, acceptance: dict[str, Any], notes: list[str],
+             *, in_run: bool) -> Report:
+    """The measured values, the certificate deciding on them and the CSV tables."""
     measured = measured_values(t, acceptance)
-    conditions = _conditions(run, t, primary, results, notes, in_run=in_run)
-    cert = _clean(build_certificate(measured, acceptance, conditions, _extra(t, primary)))
-    frames = _table_frames(t, measured, acceptance)
-    if revision is None:
-        written = _write_outputs(run_dir, cert, t, frames, acceptance, make_figures=make_figures,
-                                 before_certificate=before_issue)
-        return ReportResult(run_dir=run_dir, result=cert["result"], certificate=cert, notes=notes, **written)
-    changes = certificate_changes(issued, cert, revision=revision.number, sync=primary)
-    staging = run_dir / REVISIONS_DIR / f".staging-{revision.name}-{os.getpid()}"
-    try:
-        staging.mkdir(parents=True)
-        written = _write_outputs(staging, cert, t, frames, acceptance, make_figures=make_figures)
-        write_json(staging / "changes.json", changes, indent=2, sort_keys=True, ensure_ascii=False)
-        final = run_dir / REVISIONS_DIR / revision.name
-        if final.exists():
-            raise ReportError(f"{final} appeared while this revision was built (another `rig report` of "
-                              "the same run?); run it again")
-        os.rename(staging, final)
-        fsync_dir(final.parent)
-    except BaseException:
-        shutil.rmtree(staging, ignore_errors=True)
-        raise
-    moved = {k: _moved(v, staging, final) for k, v in written.items()}
-    return ReportResult(run_dir=run_dir, result=cert["result"], certificate=cert, notes=notes,
-                        revision=final, changes=changes, **moved)
+    conditions = _conditions(run, t, analyses, notes, in_run=in_run)
+    cert = _clean(build_certificate(measured, acceptance, conditions, _extra(t, analyses.primary)))
+    return Report(cert, t, _table_frames(t, measured, acceptance), acceptance)
 
 
-def _analyse_all(run_dir: Path, methods: list[str], analyse: Analyse) -> tuple[dict[str, Any], list[str]]:
-    """{method: analysis} for every method that worked (the first, primary, must) and notes on the rest."""
-    notes: list[str] = []
-    results: dict[str, Any] = {}
-    for method in methods:
-        try:
-            results[method] = analyse(run_dir, sync=method)
-        except Exception as exc:
-            if method == methods[0]:
-                if isinstance(exc, ValueError | OSError):  # the analysis' own errors name the cause
-                    raise AnalysisFailedError(f"analysis with sync '{method}' failed: {exc}") from exc
-                raise
-            notes.append(f"comparison sync '{method}' failed: {type(exc).__name__}: {exc}")
-    return results, notes
-
-
-def _conditions(run: RunData, t: ReportTables, primary: str, results: dict[str, Any],
-                notes: list[str], *, in_run: bool) -> dict[str, Any]:
+def _conditions(run: RunData, t: ReportTables, analyses: Analyses, notes: list[str], *,
+                in_run: bool) -> dict[str, Any]:
+    """The certificate's conditions: the run, how it ended, the methods, the software, the rig."""
+    primary = analyses.primary
     stop = run.stop or {}
     return {
         "run_id": run.run_id,
@@ -221,7 +283,7 @@ def _conditions(run: RunData, t: ReportTables, primary: str, results: dict[str, 
         "stop_reason": stop.get("reason") if not (in_run and run.stop is None) else "finishing normally",
         "clock": run.start.get("clock"),
         "sync_method": primary,
-        "compared_sync_methods": [m for m in results if m != primary],
+        "compared_sync_methods": [m for m in analyses.by_method if m != primary],
         "camera_fps": t.fs_hz,
         "camera_fps_source": t.fs_source,
         "calibration_convention": (run.calibration or {}).get("convention"),
@@ -293,11 +355,11 @@ POSE_COLUMNS = ["index", "cycle", "target", "marker_id", "x_cmd_mm", "y_cmd_mm",
                 "ey_mm", "ez_mm", "error_mm", "u_error_mm", "n_samples", "distance_mm", "off_axis_mm"]
 
 
-def _write_outputs(out_dir: Path, cert: dict[str, Any], t: ReportTables, frames: dict[str, pd.DataFrame],
-                   acceptance: dict[str, Any], *, make_figures: bool,
-                   before_certificate: Callable[[], None] | None = None) -> dict[str, Any]:
+def _write_outputs(out_dir: Path, report: Report, *, make_figures: bool,
+                   before_certificate: Callable[[], None] | None = None) -> Written:
     """Write tables, figures, report.html and — last, after ``before_certificate()`` — certificate.json into
-    ``out_dir`` (each file atomically); return the paths as :class:`ReportResult` fields."""
+    ``out_dir`` (each file atomically)."""
+    cert, t, frames, acceptance = report.certificate, report.tables, report.frames, report.acceptance
     tables_dir, figures_dir = out_dir / "tables", out_dir / "figures"
     tables_dir.mkdir(exist_ok=True)
     figures_dir.mkdir(exist_ok=True)
@@ -328,24 +390,27 @@ def _write_outputs(out_dir: Path, cert: dict[str, Any], t: ReportTables, frames:
     if before_certificate is not None:
         before_certificate()
     cert_path = write_json(out_dir / CERTIFICATE_NAME, cert, indent=2, sort_keys=True, ensure_ascii=False)
-    return {"report_html": html_path, "certificate_json": cert_path, "tables": table_paths,
-            "figures": figure_paths}
-
-
-def _moved(value: Any, old: Path, new: Path) -> Any:
-    """``value`` (a path or {name: path}) with the folder ``old`` replaced by ``new``."""
-    if isinstance(value, dict):
-        return {k: new / v.relative_to(old) for k, v in value.items()}
-    return new / value.relative_to(old)
+    return Written(html_path, cert_path, table_paths, figure_paths)
 
 
 # ------------------------------------------------------------------------------------------ revisions
 @dataclass(frozen=True)
 class Revision:
-    """A revision's number (1, 2, …) and folder name ``<n>-<sync>`` under ``revisions/``."""
+    """A revision's number (1, 2, …), folder name ``<n>-<sync>`` under ``revisions/`` and the issued
+    certificate it leaves unchanged."""
 
     number: int
     name: str
+    sync: str
+    issued: dict[str, Any]
+
+    def folder(self, run_dir: Path) -> Path:
+        return run_dir / REVISIONS_DIR / self.name
+
+    @property
+    def note(self) -> str:
+        return (f"revision {self.number} (sync '{self.sync}') of this run's report: the issued certificate "
+                f"(certificate.json of the run folder, result {self.issued.get('result')}) is unchanged")
 
 
 def issued_certificate(run_dir: str | Path) -> dict[str, Any] | None:
@@ -365,12 +430,37 @@ def issued_certificate(run_dir: str | Path) -> dict[str, Any] | None:
     return doc
 
 
-def _next_revision(run_dir: Path, sync: str) -> Revision:
+def _next_revision(run_dir: Path, sync: str) -> Revision | None:
+    """The next revision of the run's report, or None when its certificate is not issued yet."""
+    issued = issued_certificate(run_dir)
+    if issued is None:
+        return None
     folder = run_dir / REVISIONS_DIR
     numbers = [int(m.group(1)) for p in (folder.iterdir() if folder.is_dir() else ())
                if (m := re.match(r"(\d+)-", p.name))]
     number = max(numbers, default=0) + 1
-    return Revision(number, f"{number}-{sync}")
+    return Revision(number, f"{number}-{sync}", sync, issued)
+
+
+def _write_revision(run_dir: Path, revision: Revision, report: Report, changes: dict[str, Any], *,
+                    make_figures: bool) -> Written:
+    """Write a revision's outputs and ``changes.json`` into a hidden staging folder, then rename it into
+    place whole as ``revisions/<n>-<sync>/``; nothing is left behind on failure."""
+    staging = run_dir / REVISIONS_DIR / f".staging-{revision.name}-{os.getpid()}"
+    final = revision.folder(run_dir)
+    try:
+        staging.mkdir(parents=True)
+        written = _write_outputs(staging, report, make_figures=make_figures)
+        write_json(staging / "changes.json", changes, indent=2, sort_keys=True, ensure_ascii=False)
+        if final.exists():
+            raise ReportError(f"{final} appeared while this revision was built (another `rig report` of "
+                              "the same run?); run it again")
+        os.rename(staging, final)
+        fsync_dir(final.parent)
+    except BaseException:
+        shutil.rmtree(staging, ignore_errors=True)
+        raise
+    return written.moved(staging, final)
 
 
 def certificate_changes(issued: dict[str, Any], revised: dict[str, Any], *, revision: int,

@@ -221,8 +221,8 @@ def is_simulated(rig: dict[str, Any] | None) -> bool:
     told from a bench by its configuration; its ``station.simulated`` is false, and so is this.
     """
     rig = rig or {}
-    station = rig.get("station") if isinstance(rig.get("station"), dict) else {}
-    cameras = rig.get("cameras") if isinstance(rig.get("cameras"), dict) else {}
+    station = s if isinstance(s := rig.get("station"), dict) else {}
+    cameras = c if isinstance(c := rig.get("cameras"), dict) else {}
     sim_camera = any(isinstance(c, dict) and c.get("driver") == "sim" for c in cameras.values())
     return bool(station.get("simulated")) or sim_camera
 

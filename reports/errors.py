@@ -8,7 +8,7 @@ class ReportError(ValueError):
 
 
 class RunFolderError(ReportError):
-    """The run folder is missing, unreadable or lacks a required document or field."""
+    """The run folder (or ``rig measure`` folder) is missing, unreadable or lacks a required document."""
 
 
 class CriteriaError(ReportError):

@@ -7,6 +7,7 @@ byte-identical PNG files.
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 import matplotlib
 
@@ -14,15 +15,19 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
 import pandas as pd
+from matplotlib.axes import Axes
 from matplotlib.figure import Figure
 
 from reports import frequency
 from reports.tables import ReportTables
 from rig.record.atomic import atomic_path
 
+if TYPE_CHECKING:
+    from matplotlib.typing import RcKeyType
+
 DPI = 110
 COLORS = {"primary": "#1f5fa8", "linear": "#c0392b", "theory": "#6c6c6c", "ok": "#2e8b57", "tol": "#d4a017"}
-STYLE = {
+STYLE: dict[RcKeyType, Any] = {
     "axes.grid": True,
     "grid.alpha": 0.3,
     "axes.spines.top": False,
@@ -186,85 +191,9 @@ def fig_amplitude_error(t: ReportTables, tolerance_pct: float) -> Figure | None:
     fig, axes = new_figure(2, 1, size=(10.0, 6.2), sharex=True, height_ratios=[2.2, 1])
     ax, axp = axes[0, 0], axes[1, 0]
     f_max = float(t.sweep_bins["frequency_hz"].max())
-    f = np.linspace(0, f_max, 300)
-    ax.axhspan(
-        -tolerance_pct,
-        tolerance_pct,
-        color=COLORS["tol"],
-        alpha=0.10,
-        lw=0,
-        label=f"tolerance ±{tolerance_pct:g} %",
-    )
-    if t.alpha is not None:
-        ax.plot(
-            f,
-            frequency.theory_linear_pct(f, t.fs_hz, t.alpha),
-            ls="--",
-            color=COLORS["theory"],
-            lw=1.2,
-            label=f"theory, one camera interpolated, α = {t.alpha:.2f}",
-        )
-        ax.plot(
-            f,
-            0.5 * frequency.theory_linear_pct(f, t.fs_hz, t.alpha),
-            ls="-.",
-            color=COLORS["theory"],
-            lw=1.0,
-            label="theory in 3D, cameras weighted equally",
-        )
-    ax.plot(
-        f,
-        frequency.theory_linear_pct(f, t.fs_hz),
-        ls=":",
-        color=COLORS["theory"],
-        lw=1.2,
-        label="theory, one camera interpolated, mean over α",
-    )
+    _plot_tolerance_and_theory(ax, t, tolerance_pct, np.linspace(0, f_max, 300))
     for method in t.sync_methods:
-        color = _method_color(method, t.primary_sync)
-        g = t.sweep_bins[t.sweep_bins["sync_method"] == method]
-        m = g.groupby("bin", sort=True).agg(
-            f=("frequency_hz", "mean"),
-            e=("amplitude_error_pct", "mean"),
-            u=("u_amplitude_error_pct", "mean"),
-            ph=("phase_deg", "mean"),
-        )
-        ax.errorbar(
-            m["f"],
-            m["e"],
-            yerr=2 * m["u"],
-            fmt="o",
-            ms=3.5,
-            color=color,
-            capsize=1.5,
-            label=f"measured, sync '{method}'",
-        )
-        axp.plot(m["f"], m["ph"], "o-", ms=3, lw=1, color=color, label=method)
-        fit = t.fits.get(method)
-        if fit is not None:
-            ff = np.linspace(0, fit.f_max_hz, 200)
-            band = fit.t_factor * fit.u_predict(ff)
-            ax.plot(
-                ff,
-                fit.predict(ff),
-                color=color,
-                lw=1.6,
-                label=f"fit e = {fit.c0:.3f} {fit.c2:+.4g}·f²  (R² = {fit.r2:.3f})",
-            )
-            ax.fill_between(ff, fit.predict(ff) - band, fit.predict(ff) + band, color=color, alpha=0.15, lw=0)
-        lim = t.limits.get(method)
-        if lim is not None and lim.reached:
-            ax.axvline(lim.limit_hz, color=color, lw=1, ls="-.")
-            near_right = lim.limit_hz > 0.8 * f_max
-            ax.annotate(
-                f"{lim.limit_hz:.1f} Hz",
-                (lim.limit_hz, tolerance_pct),
-                xytext=(-3 if near_right else 3, 4),
-                textcoords="offset points",
-                ha="right" if near_right else "left",
-                color=color,
-                fontsize=8.5,
-            )
+        _plot_method_bins(ax, axp, t, method, tolerance_pct=tolerance_pct, f_max_hz=f_max)
     lo = min(-2 * tolerance_pct, float(t.sweep_bins["amplitude_error_pct"].min()) - tolerance_pct)
     ax.set_ylim(max(lo, -105), max(2 * tolerance_pct, float(t.sweep_bins["amplitude_error_pct"].max()) + 1))
     ax.set_xlim(0, f_max * 1.03)
@@ -278,6 +207,87 @@ def fig_amplitude_error(t: ReportTables, tolerance_pct: float) -> Figure | None:
     axp.set_ylabel("phase (deg)\nrel. first bin")
     axp.set_xlabel("frequency (Hz)")
     return fig
+
+
+def _plot_tolerance_and_theory(ax: Axes, t: ReportTables, tolerance_pct: float, f_hz: np.ndarray) -> None:
+    """The tolerance band and the amplitude loss of linear interpolation (paper's theory) over ``f_hz``."""
+    ax.axhspan(
+        -tolerance_pct,
+        tolerance_pct,
+        color=COLORS["tol"],
+        alpha=0.10,
+        lw=0,
+        label=f"tolerance ±{tolerance_pct:g} %",
+    )
+    if t.alpha is not None:
+        ax.plot(
+            f_hz,
+            frequency.theory_linear_pct(f_hz, t.fs_hz, t.alpha),
+            ls="--",
+            color=COLORS["theory"],
+            lw=1.2,
+            label=f"theory, one camera interpolated, α = {t.alpha:.2f}",
+        )
+        ax.plot(
+            f_hz,
+            0.5 * frequency.theory_linear_pct(f_hz, t.fs_hz, t.alpha),
+            ls="-.",
+            color=COLORS["theory"],
+            lw=1.0,
+            label="theory in 3D, cameras weighted equally",
+        )
+    ax.plot(
+        f_hz,
+        frequency.theory_linear_pct(f_hz, t.fs_hz),
+        ls=":",
+        color=COLORS["theory"],
+        lw=1.2,
+        label="theory, one camera interpolated, mean over α",
+    )
+
+
+def _plot_method_bins(
+    ax: Axes, axp: Axes, t: ReportTables, method: str, *, tolerance_pct: float, f_max_hz: float
+) -> None:
+    """One sync method: per-bin error (±2u) and phase, its quadratic fit with the 95 % band, its limit."""
+    color = _method_color(method, t.primary_sync)
+    g = t.sweep_bins[t.sweep_bins["sync_method"] == method]
+    m = g.groupby("bin", sort=True).agg(
+        f=("frequency_hz", "mean"),
+        e=("amplitude_error_pct", "mean"),
+        u=("u_amplitude_error_pct", "mean"),
+        ph=("phase_deg", "mean"),
+    )
+    ax.errorbar(
+        m["f"], m["e"], yerr=2 * m["u"], fmt="o", ms=3.5, color=color, capsize=1.5,
+        label=f"measured, sync '{method}'",
+    )
+    axp.plot(m["f"], m["ph"], "o-", ms=3, lw=1, color=color, label=method)
+    fit = t.fits.get(method)
+    if fit is not None:
+        ff = np.linspace(0, fit.f_max_hz, 200)
+        band = fit.t_factor * fit.u_predict(ff)
+        ax.plot(
+            ff,
+            fit.predict(ff),
+            color=color,
+            lw=1.6,
+            label=f"fit e = {fit.c0:.3f} {fit.c2:+.4g}·f²  (R² = {fit.r2:.3f})",
+        )
+        ax.fill_between(ff, fit.predict(ff) - band, fit.predict(ff) + band, color=color, alpha=0.15, lw=0)
+    lim = t.limits.get(method)
+    if lim is not None and lim.reached:
+        ax.axvline(lim.limit_hz, color=color, lw=1, ls="-.")
+        near_right = lim.limit_hz > 0.8 * f_max_hz
+        ax.annotate(
+            f"{lim.limit_hz:.1f} Hz",
+            (lim.limit_hz, tolerance_pct),
+            xytext=(-3 if near_right else 3, 4),
+            textcoords="offset points",
+            ha="right" if near_right else "left",
+            color=color,
+            fontsize=8.5,
+        )
 
 
 def fig_time_frequency(t: ReportTables) -> Figure | None:
@@ -347,7 +357,7 @@ def fig_spectrum(t: ReportTables) -> Figure | None:
 def fig_rotation_radius(t: ReportTables) -> Figure | None:
     """Measured radius of rotation over time against the reference radius (Fig. 14)."""
     rs = t.rotation_samples
-    if rs is None or rs.empty:
+    if rs is None or rs.empty or t.rotation is None:
         return None
     fig, axes = new_figure(size=(7.5, 3.2))
     ax = axes[0, 0]

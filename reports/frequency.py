@@ -19,6 +19,7 @@ amplitude, so e < 0 and grows quadratically in magnitude, notes §5).
 from __future__ import annotations
 
 import itertools
+from typing import TypeGuard
 
 import numpy as np
 import pandas as pd
@@ -172,7 +173,8 @@ def _setpoint(p: dict) -> float:
     return float(v) if _is_number(v) else float("nan")
 
 
-def _is_number(v: object) -> bool:
+def _is_number(v: object) -> TypeGuard[int | float]:
+    """A finite int or float (not a bool)."""
     return isinstance(v, int | float) and not isinstance(v, bool) and bool(np.isfinite(v))
 
 
@@ -218,7 +220,7 @@ def _fit_bin(t: np.ndarray, x: np.ndarray, phi: np.ndarray) -> tuple[float, floa
     a, b = coef[0], coef[1]
     amp = float(np.hypot(a, b))
     grad = np.array([a, b]) / amp if amp > 0 else np.array([np.sqrt(0.5), np.sqrt(0.5)])
-    u_amp = float(np.sqrt(max(grad @ cov[:2, :2] @ grad, 0.0)))
+    u_amp = float(np.sqrt(max(float(grad @ cov[:2, :2] @ grad), 0.0)))
     return amp, u_amp, float(np.arctan2(a, b))
 
 

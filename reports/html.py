@@ -103,7 +103,7 @@ def _length_line(lengths: pd.DataFrame) -> str:
 
 def _timing_details(timing: dict[str, Any]) -> str:
     """The scalar diagnostics of the sync fit (``details`` of timing.json), as one short line."""
-    details = timing.get("details") if isinstance(timing.get("details"), dict) else {}
+    details = d if isinstance(d := timing.get("details"), dict) else {}
     items = [
         f"{html.escape(str(k))} = {_fmt(v)}"
         for k, v in sorted(details.items())
@@ -118,7 +118,8 @@ def _vertical(values: dict[str, Any]) -> str:
     return table(frame, text_cols=("quantity",))
 
 
-def _figure(pngs: dict[str, bytes], name: str, caption: str) -> str:
+def figure(pngs: dict[str, bytes], name: str, caption: str) -> str:
+    """The PNG ``pngs[name]`` embedded as base64 with its caption; empty when there is no such figure."""
     if name not in pngs:
         return ""
     data = base64.b64encode(pngs[name]).decode("ascii")
@@ -242,35 +243,69 @@ def render(
     tables_html: dict[str, pd.DataFrame],
 ) -> str:
     """The whole page as a string (deterministic for the same inputs)."""
-    cond = cert["conditions"]
-    tol = float(acceptance["amplitude_error_pct"])
     simulated = bool(cert.get("simulated"))
-    title = "Certification report (simulated rig)" if simulated else "Certification report"
     parts = [
+        _header(cert, t, simulated=simulated),
+        NAV,
+        _simulated_banner(cert) if simulated else "",
+        _verdict(cert, t, float(acceptance["amplitude_error_pct"])),
+        "<section>" + _cards(cert) + "</section>",
+        _certificate_section(cert),
+        _position_section(t, pngs, tables_html),
+        _frequency_section(t, pngs, tables_html, bin_hz=float(acceptance["frequency_bin_hz"])),
+        _motion_section(t, pngs, tables_html),
+        _calibration_section(t, tables_html),
+        _conditions_section(cert["conditions"]),
+    ]
+    return page(f"{cert['result']} — {cert['conditions'].get('run_id')}", parts)
+
+
+def page(title: str, parts: list[str]) -> str:
+    """A self-contained HTML page of the company's stylesheet: ``parts`` (HTML) one per line in ``<main>``."""
+    return (
+        "<!DOCTYPE html><html lang='en'><head><meta charset='utf-8'>"
+        "<meta name='viewport' content='width=device-width, initial-scale=1'>"
+        f"<title>{html.escape(title)}</title><style>{CSS}</style></head><body><main>"
+        + "\n".join(parts)
+        + "</main></body></html>\n"
+    )
+
+
+NAV = (
+    "<nav><a href='#cert'>Certificate</a><a href='#pos'>Position</a><a href='#freq'>Frequency</a>"
+    "<a href='#motion'>Steady motion</a><a href='#cal'>Calibration &amp; sync</a>"
+    "<a href='#cond'>Conditions</a></nav>"
+)
+
+
+def _header(cert: dict[str, Any], t: ReportTables, *, simulated: bool) -> str:
+    cond = cert["conditions"]
+    title = "Certification report (simulated rig)" if simulated else "Certification report"
+    return (
         f"<header><h1>{title} — {html.escape(str(cond.get('run_id')))}</h1>"
         f"<div class='sub'>procedure {html.escape(str(cond.get('procedure')))} · run started "
         f"{html.escape(str(cond.get('date_utc')))} · sync method '{html.escape(t.primary_sync)}' · "
-        f"software {html.escape(str(cond.get('report_software')))}</div></header>",
-        "<nav><a href='#cert'>Certificate</a><a href='#pos'>Position</a><a href='#freq'>Frequency</a>"
-        "<a href='#motion'>Steady motion</a><a href='#cal'>Calibration &amp; sync</a>"
-        "<a href='#cond'>Conditions</a></nav>",
-        _simulated_banner(cert) if simulated else "",
-        _verdict(cert, t, tol),
-        "<section>" + _cards(cert) + "</section>",
-    ]
-    parts.append(
+        f"software {html.escape(str(cond.get('report_software')))}</div></header>"
+    )
+
+
+def _certificate_section(cert: dict[str, Any]) -> str:
+    return (
         f"<section id='cert'><h2>Certificate</h2>{_criteria_table(cert)}<p class='note'><b>Decision rule."
         f"</b> {html.escape(cert['decision_rule']['text'])} U is the expanded uncertainty, k its coverage "
         "factor (2, or Student's t for fitted values with few degrees of freedom).</p></section>"
     )
+
+
+def _position_section(t: ReportTables, pngs: dict[str, bytes], tables_html: dict[str, pd.DataFrame]) -> str:
     s = t.position_summary
-    parts.append(
+    return (
         "<section id='pos'><h2>Error versus position</h2>"
         f"<p>{s['n_matched']} of {s['n_commanded']} commanded marker poses measured. "
         f"|error|: mean {_fmt(s['mean_mm'])} mm, "
         f"RMS {_fmt(s['rms_mm'])} mm, 95th percentile {_fmt(s['p95_mm'])} mm, max {_fmt(s['max_mm'])} mm.</p>"
-        + _figure(pngs, "error_vectors", "Error vectors at the commanded positions (scaled up)")
-        + _figure(
+        + figure(pngs, "error_vectors", "Error vectors at the commanded positions (scaled up)")
+        + figure(
             pngs,
             "error_vs_position",
             "|error| against the distance from the cameras and off the viewing axis",
@@ -288,10 +323,15 @@ def render(
         + table(tables_html["poses"], text_cols=("target", "marker_id"))
         + "</details></section>"
     )
+
+
+def _frequency_section(
+    t: ReportTables, pngs: dict[str, bytes], tables_html: dict[str, pd.DataFrame], *, bin_hz: float
+) -> str:
     fit_rows = tables_html["fits"]
-    parts.append(
+    return (
         "<section id='freq'><h2>Error versus frequency</h2>"
-        f"<p>The sweep is cut into {float(acceptance['frequency_bin_hz']):g} Hz bins; in each, the measured "
+        f"<p>The sweep is cut into {bin_hz:g} Hz bins; in each, the measured "
         "displacement along the exciter axis is fitted with the reference phase (three-parameter sine fit). "
         "The relative amplitude error is fitted by weighted least squares with e(f) = c0 + c2·f² "
         f"over bins up to {t.fit_max_hz:.1f} Hz (default fs/3, away from Nyquist; fs = {t.fs_hz:g} fps). "
@@ -299,7 +339,7 @@ def render(
         "curves are the exact amplitude loss of linear interpolation of one camera's image coordinates; "
         "in 3D only a geometry-weighted share of it appears — about half for a symmetric pair and motion "
         "across the lines of sight (dash-dotted).</p>"
-        + _figure(
+        + figure(
             pngs,
             "amplitude_error_vs_frequency",
             "Amplitude error and phase versus frequency, per sync method",
@@ -314,29 +354,36 @@ def render(
         "ahead of the commanded profile); the notes say when only the commanded profile was available.</p>"
         + "<p class='note'>± on c0 and c2: 95 % confidence half-widths (Student's t); on the limit: its"
         " expanded uncertainty from the fit covariance.</p>"
-        + _figure(pngs, "sweep_time_frequency", "Frequency of the sweep over time (paper Fig. 17)")
+        + figure(pngs, "sweep_time_frequency", "Frequency of the sweep over time (paper Fig. 17)")
         + "<details><summary>Per-bin values (mean over markers)</summary>"
         + table(tables_html["sweep_means"], text_cols=("sync_method",))
         + "</details></section>"
     )
+
+
+def _motion_section(t: ReportTables, pngs: dict[str, bytes], tables_html: dict[str, pd.DataFrame]) -> str:
     motion = []
-    if tables_html.get("plate") is not None and not tables_html["plate"].empty:
-        motion.append("<h3>Oscillating plate</h3>" + table(tables_html["plate"], text_cols=("track",)))
+    plate = tables_html.get("plate")
+    if plate is not None and not plate.empty:
+        motion.append("<h3>Oscillating plate</h3>" + table(plate, text_cols=("track",)))
     if t.rotation_summary:
         motion.append("<h3>Rotor</h3>" + _vertical(t.rotation_summary))
-    parts.append(
+    return (
         "<section id='motion'><h2>Steady motion: plate and rotor</h2>"
         + "".join(motion)
-        + _figure(
+        + figure(
             pngs, "trajectory", "Trajectory X(t), Y(t), Z(t) and an enlarged 5 s segment (paper Figs. 5–8)"
         )
-        + _figure(pngs, "rotation_radius", "Measured radius of rotation (paper Fig. 14)")
-        + _figure(pngs, "spectrum", "Spectrum of the rotor marker's height (paper Fig. 15)")
+        + figure(pngs, "rotation_radius", "Measured radius of rotation (paper Fig. 14)")
+        + figure(pngs, "spectrum", "Spectrum of the rotor marker's height (paper Fig. 15)")
         + ("" if motion or "trajectory" in pngs else "<p class='note'>No steady-motion data in this run.</p>")
         + "</section>"
     )
+
+
+def _calibration_section(t: ReportTables, tables_html: dict[str, pd.DataFrame]) -> str:
     timing = t.timing or {}
-    parts.append(
+    return (
         "<section id='cal'><h2>Calibration and synchronization</h2><h3>Calibration residuals per camera</h3>"
         + table(tables_html["calibration"], text_cols=("camera",))
         + "<h3>Synchronization</h3>"
@@ -345,51 +392,36 @@ def render(
         f"{html.escape(str(timing.get('reference_camera', '—')))}; u_…: standard uncertainties. "
         f"{_timing_details(timing)}</p></section>"
     )
+
+
+def _conditions_section(cond: dict[str, Any]) -> str:
+    """The run's conditions (scalar fields), notes, measurands and the rig snapshot with versions."""
+    fields = {
+        k: ", ".join(map(str, v)) if isinstance(v, list) else v
+        for k, v in cond.items()
+        if not isinstance(v, dict) and k != "notes"
+    }
+    measurands = pd.DataFrame(
+        [
+            {"item": k, "value": json.dumps(v, sort_keys=True, ensure_ascii=False, default=str)}
+            for k, v in (cond.get("measurands") or {}).items()
+        ],
+        columns=["item", "value"],
+    )
+    snapshot = json.dumps(
+        {"rig": cond.get("rig"), "versions": cond.get("versions")}, indent=2, sort_keys=True, default=str
+    )
     notes = "".join(f"<li>{html.escape(n)}</li>" for n in cond.get("notes", []))
-    parts.append(
+    return (
         "<section id='cond'><h2>Conditions</h2>"
         + table(
-            pd.DataFrame(
-                [
-                    {
-                        k: ", ".join(map(str, v)) if isinstance(v, list) else v
-                        for k, v in cond.items()
-                        if not isinstance(v, dict) and k != "notes"
-                    }
-                ]
-            )
-            .T.reset_index()
-            .set_axis(["field", "value"], axis=1),
+            pd.DataFrame([fields]).T.reset_index().set_axis(["field", "value"], axis=1),
             text_cols=("field", "value"),
         )
         + (f"<ul class='note'>{notes}</ul>" if notes else "")
         + "<h3>Measurands and conditions</h3>"
-        + table(
-            pd.DataFrame(
-                [
-                    {"item": k, "value": json.dumps(v, sort_keys=True, ensure_ascii=False, default=str)}
-                    for k, v in (cond.get("measurands") or {}).items()
-                ],
-                columns=["item", "value"],
-            ),
-            text_cols=("item", "value"),
-        )
+        + table(measurands, text_cols=("item", "value"))
         + "<details><summary>Rig snapshot and software versions</summary><pre>"
-        + html.escape(
-            json.dumps(
-                {"rig": cond.get("rig"), "versions": cond.get("versions")},
-                indent=2,
-                sort_keys=True,
-                default=str,
-            )
-        )
+        + html.escape(snapshot)
         + "</pre></details></section>"
-    )
-    title = f"{cert['result']} — {cond.get('run_id')}"
-    return (
-        "<!DOCTYPE html><html lang='en'><head><meta charset='utf-8'>"
-        "<meta name='viewport' content='width=device-width, initial-scale=1'>"
-        f"<title>{html.escape(title)}</title><style>{CSS}</style></head><body><main>"
-        + "\n".join(parts)
-        + "</main></body></html>\n"
     )

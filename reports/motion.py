@@ -112,6 +112,11 @@ def _identify(
     return {tracks[r]: ids[c] for r, c in zip(r_idx, c_idx, strict=True) if dist[r, c] <= gate_mm}
 
 
+PLATE_COLUMNS = ["track", "marker_id", "n_samples", "frequency_ref_hz", "frequency_meas_hz", "u_frequency_hz",
+                 "frequency_error_pct", "amplitude_ref_mm", "amplitude_meas_mm", "u_amplitude_mm",
+                 "amplitude_error_pct"]
+
+
 def plate_table(
     tracks: pd.DataFrame, plate: dict, geometry: dict | None = None, *, gate_mm: float = DEFAULT_ROTOR_GATE_MM
 ) -> pd.DataFrame:
@@ -164,20 +169,7 @@ def plate_table(
                 "amplitude_error_pct": 100 * (amp - a_ref) / a_ref,
             }
         )
-    cols = [
-        "track",
-        "marker_id",
-        "n_samples",
-        "frequency_ref_hz",
-        "frequency_meas_hz",
-        "u_frequency_hz",
-        "frequency_error_pct",
-        "amplitude_ref_mm",
-        "amplitude_meas_mm",
-        "u_amplitude_mm",
-        "amplitude_error_pct",
-    ]
-    return pd.DataFrame(rows, columns=cols)
+    return pd.DataFrame(rows, columns=PLATE_COLUMNS)
 
 
 def rotation_samples(

@@ -124,7 +124,9 @@ def position_summary(errors: pd.DataFrame) -> dict[str, float]:
     """Mean, RMS, max and 95th percentile (linear interpolation) of ``error_mm`` over matched poses, in mm."""
     e = errors["error_mm"].to_numpy(float)
     found = e[np.isfinite(e)]
-    summary = {"n_commanded": len(e), "n_matched": len(found), "n_missing": int(len(e) - len(found))}
+    summary: dict[str, float] = {
+        "n_commanded": len(e), "n_matched": len(found), "n_missing": int(len(e) - len(found))
+    }
     if len(found):
         summary |= {
             "mean_mm": float(found.mean()),

@@ -16,26 +16,26 @@ from reports.tables import ReportTables
 
 def fits_frame(t: ReportTables) -> pd.DataFrame:
     """Per sync method: fit coefficients with 95 % intervals, R², the usable limit and the track delay."""
-    rows = []
+    rows: list[dict[str, Any]] = []
     for method in t.sync_methods:
         fit, lim = t.fits.get(method), t.limits.get(method)
-        if fit is None:
+        if fit is None or lim is None:  # a fit always comes with its limit
             rows.append({"sync_method": method, "note": t.fit_notes.get(method, "no sweep data")})
             continue
-        d = fit.to_dict()
+        (c0_low, c0_high), (c2_low, c2_high) = fit.ci("c0"), fit.ci("c2")
         rows.append(
             {
                 "sync_method": method,
-                "c0_pct": d["c0"],
-                "c0_ci_low_pct": d["c0_ci"][0],
-                "c0_ci_high_pct": d["c0_ci"][1],
-                "c2_pct_per_hz2": d["c2"],
-                "c2_ci_low_pct_per_hz2": d["c2_ci"][0],
-                "c2_ci_high_pct_per_hz2": d["c2_ci"][1],
-                "confidence": d["confidence"],
-                "r2": d["r2"],
-                "chi2_reduced": d["chi2_reduced"],
-                "n_points": d["n_points"],
+                "c0_pct": fit.c0,
+                "c0_ci_low_pct": c0_low,
+                "c0_ci_high_pct": c0_high,
+                "c2_pct_per_hz2": fit.c2,
+                "c2_ci_low_pct_per_hz2": c2_low,
+                "c2_ci_high_pct_per_hz2": c2_high,
+                "confidence": fit.confidence,
+                "r2": fit.r2,
+                "chi2_reduced": fit.chi2_reduced,
+                "n_points": fit.n_points,
                 "fit_max_hz": fit.f_max_hz,
                 "tolerance_pct": lim.tolerance,
                 "usable_limit_hz": lim.limit_hz,
@@ -50,7 +50,7 @@ def fits_frame(t: ReportTables) -> pd.DataFrame:
 
 def measurands(t: ReportTables, rig: dict[str, Any]) -> dict[str, Any]:
     """What was measured and under which conditions (GUM §10): cameras, volume, sweep, plate, rotor."""
-    cams = rig.get("cameras") if isinstance(rig.get("cameras"), dict) else {}
+    cams = c if isinstance(c := rig.get("cameras"), dict) else {}
     out: dict[str, Any] = {
         "cameras": {
             n: {k: c.get(k) for k in ("fps", "exposure_s", "resolution_px", "driver") if k in c}
@@ -83,10 +83,10 @@ def measurands(t: ReportTables, rig: dict[str, Any]) -> dict[str, Any]:
 
 def fits_display(t: ReportTables) -> pd.DataFrame:
     """The fit table for the page: coefficients with their intervals as text, the usable limit with U."""
-    rows = []
+    rows: list[dict[str, Any]] = []
     for method in t.sync_methods:
         fit, lim = t.fits.get(method), t.limits.get(method)
-        if fit is None:
+        if fit is None or lim is None:  # a fit always comes with its limit
             rows.append({"sync method": method, "c0 (%)": t.fit_notes.get(method, "no sweep data")})
             continue
         h0, h2 = fit.t_factor * fit.u_c0, fit.t_factor * fit.u_c2  # 95 % half-widths
@@ -128,7 +128,7 @@ def timing_frame(timing: dict[str, Any] | None) -> pd.DataFrame:
     """Per camera: offset (s), line time (s) and clock drift (ppm) of timing.json, each with its standard
     uncertainty (``uncertainty.<quantity>`` as {camera: value}, or one value for all; NaN where absent)."""
     timing = timing or {}
-    unc = timing.get("uncertainty") if isinstance(timing.get("uncertainty"), dict) else {}
+    unc = u if isinstance(u := timing.get("uncertainty"), dict) else {}
     cams = sorted(set((timing.get("offset_s") or {}) | (timing.get("line_time_s") or {})))
     quantities = ("offset_s", "line_time_s", "drift_ppm")
 

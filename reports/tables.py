@@ -63,12 +63,9 @@ class ReportTables:
 def camera_fps(rig: dict[str, Any], timing: dict[str, Any] | None) -> tuple[float, str]:
     """Camera frame rate from the rig snapshot (``cameras.<name>.fps``) or timing.json; else 60 fps."""
     cams = rig.get("cameras")
-    values = []
-    if isinstance(cams, dict):
-        values = [c.get("fps") for c in cams.values() if isinstance(c, dict)]
-    elif isinstance(cams, list):
-        values = [c.get("fps") for c in cams if isinstance(c, dict)]
-    values = [float(v) for v in values if isinstance(v, (int, float)) and v > 0]
+    entries = list(cams.values()) if isinstance(cams, dict) else cams if isinstance(cams, list) else []
+    raw = [c.get("fps") for c in entries if isinstance(c, dict)]
+    values = [float(v) for v in raw if isinstance(v, (int, float)) and v > 0]
     if values:
         return float(np.median(values)), "rig.cameras.*.fps"
     if timing and isinstance(timing.get("fps"), (int, float)):
@@ -93,40 +90,27 @@ def compute_tables(
     timing: dict[str, Any] | None = None,
     calibration: dict[str, Any] | None = None,
 ) -> ReportTables:
-    """Compute every table. ``timing``/``calibration`` default to the run folder's files."""
+    """Compute every table. ``timing``/``calibration`` default to the run folder's files.
+
+    Stages: static poses → sweep bins → per-method fits and usable limits → plate → rotation →
+    trajectory of the most moving marker."""
     if not tracks_by_method:
         raise FitError("tracks_by_method must hold at least the primary sync method")
     methods = list(tracks_by_method)
-    primary = methods[0]
-    tracks = tracks_by_method[primary]
+    tracks = tracks_by_method[methods[0]]
     timing = run.timing if timing is None else timing
     calibration = run.calibration if calibration is None else calibration
     fs_hz, fs_source = camera_fps(run.rig, timing)
     centres = camera_centres_mm(calibration)
-
     poses = position.add_geometry(
         position.position_errors(position.match_static(tracks, accuracy_poses(run.events), gate_mm=gate_mm)),
         centres,
     )
-
     sweeps = stream_events(run.events, "sweep")
     sweep = sweeps[-1] if sweeps else None  # the last: a procedure's own step follows its preparation
-    parts = []
-    reference_note = ""
-    if sweep is not None:
-        # the phase reference is the crank's polled actual frequency, not the commanded profile it leads
-        reference, source = frequency.reference_sweep(sweep, stream_events(run.events, "exciter"))
-        reference_note = f"sweep phase reference: {source}"
-        for method, tr in tracks_by_method.items():
-            parts.append(
-                frequency.amplitude_by_bin(
-                    frequency.sweep_samples(tr, reference), reference, sync_method=method, bin_hz=bin_hz
-                )
-            )
-    bins = pd.concat(parts, ignore_index=True) if parts else pd.DataFrame(columns=frequency.BIN_COLUMNS)
-    fit_max_hz = float(acceptance.get("fit_max_hz") or fs_hz / 3)
+    bins, reference_note = _sweep_bins(run, sweep, tracks_by_method, bin_hz)
     out = ReportTables(
-        primary_sync=primary,
+        primary_sync=methods[0],
         sync_methods=methods,
         fs_hz=fs_hz,
         fs_source=fs_source,
@@ -138,7 +122,7 @@ def compute_tables(
         sweep=sweep,
         sweep_bins=bins,
         sweep_means=frequency.bin_means(bins),
-        fit_max_hz=fit_max_hz,
+        fit_max_hz=float(acceptance.get("fit_max_hz") or fs_hz / 3),
         calibration=calibration_residuals(calibration),
         timing=timing,
         centres_mm=centres,
@@ -146,44 +130,8 @@ def compute_tables(
     if reference_note:
         out.notes.append(reference_note)
     for method in methods:
-        b = bins[bins["sync_method"] == method]
-        if b["frequency_hz"].nunique() >= 2:
-            # phase = const − 360°·f·τ for tracks delayed by τ against the rig clock: one slope, an
-            # intercept per track (each track's phase is relative to its own first bin)
-            df = b["frequency_hz"] - b.groupby("track")["frequency_hz"].transform("mean")
-            dp = b["phase_deg"] - b.groupby("track")["phase_deg"].transform("mean")
-            slope = float((df * dp).sum() / (df**2).sum())
-            out.track_delay_ms[method] = -slope / 360.0 * 1000.0
-        sel = bins[(bins["sync_method"] == method) & (bins["frequency_hz"] <= fit_max_hz)]
-        try:
-            fit = fit_quadratic(sel["frequency_hz"], sel["amplitude_error_pct"], sel["u_amplitude_error_pct"])
-        except FitError as exc:
-            out.fit_notes[method] = str(exc)
-            continue
-        out.fits[method] = fit
-        # per bin: mean over tracks; u = the tracks' mean u (they share the timing errors: not averaged down)
-        cols = ["frequency_hz", "amplitude_error_pct", "u_amplitude_error_pct"]
-        per_bin = b.groupby("bin", sort=True)[cols].mean()
-        out.limits[method] = usable_limit_with_bins(
-            fit,
-            per_bin["frequency_hz"].to_numpy(),
-            per_bin["amplitude_error_pct"].to_numpy(),
-            float(acceptance["amplitude_error_pct"]),
-            u_bins=per_bin["u_amplitude_error_pct"].to_numpy(),
-            guard_k=2.0 if acceptance.get("decision_rule", "guarded") == "guarded" else 0.0,
-        )
-
-    plates = stream_events(run.events, "plate")
-    if plates:
-        out.plate_event = plates[0]
-        geometry = (
-            (run.rig.get("targets") or {}).get("plate") if isinstance(run.rig.get("targets"), dict) else None
-        )
-        tables = [
-            motion.plate_table(tracks, p, geometry, gate_mm=gate_mm).assign(event=i)
-            for i, p in enumerate(plates)
-        ]
-        out.plate = pd.concat(tables, ignore_index=True)
+        _fit_method(out, method, acceptance)
+    _plate_tables(out, run, tracks, gate_mm)
     rotations = stream_events(run.events, "rotation")
     if len(sweeps) > 1 or len(rotations) > 1:
         out.notes.append(
@@ -191,15 +139,81 @@ def compute_tables(
             "the report analyses the last of each (the procedure's own step; earlier ones prepared it)"
         )
     if rotations:
-        out.rotation = rotations[-1]  # `rig run rotation`: its own step, not the sync step's rotor run
-        out.rotation_samples = motion.rotation_samples(tracks, out.rotation)
-        out.rotation_summary = motion.rotation_summary(out.rotation_samples, out.rotation)
-        if len(out.rotation_samples) >= 8:
-            out.spectrum = motion.amplitude_spectrum(
-                out.rotation_samples["time_s"], out.rotation_samples["z_mm"]
-            )
+        _rotation_tables(out, tracks, rotations[-1])  # `rig run rotation`: its own step, not the sync's
     out.trajectory, out.trajectory_source = _trajectory(tracks, out.plate_event, sweep, out.rotation_samples)
     return out
+
+
+def _sweep_bins(
+    run: RunData, sweep: dict[str, Any] | None, tracks_by_method: dict[str, pd.DataFrame], bin_hz: float
+) -> tuple[pd.DataFrame, str]:
+    """Amplitude and phase per frequency bin, track and sync method of the sweep; the reference's note."""
+    if sweep is None:
+        return pd.DataFrame(columns=frequency.BIN_COLUMNS), ""
+    # the phase reference is the crank's polled actual frequency, not the commanded profile it leads
+    reference, source = frequency.reference_sweep(sweep, stream_events(run.events, "exciter"))
+    parts = [
+        frequency.amplitude_by_bin(
+            frequency.sweep_samples(tr, reference), reference, sync_method=method, bin_hz=bin_hz
+        )
+        for method, tr in tracks_by_method.items()
+    ]
+    return pd.concat(parts, ignore_index=True), f"sweep phase reference: {source}"
+
+
+def _fit_method(out: ReportTables, method: str, acceptance: dict[str, Any]) -> None:
+    """One sync method's track delay, quadratic fit and usable frequency limit (or why not) into ``out``."""
+    bins = out.sweep_bins
+    b = bins[bins["sync_method"] == method]
+    if b["frequency_hz"].nunique() >= 2:
+        # phase = const − 360°·f·τ for tracks delayed by τ against the rig clock: one slope, an
+        # intercept per track (each track's phase is relative to its own first bin)
+        df = b["frequency_hz"] - b.groupby("track")["frequency_hz"].transform("mean")
+        dp = b["phase_deg"] - b.groupby("track")["phase_deg"].transform("mean")
+        slope = float((df * dp).sum() / (df**2).sum())
+        out.track_delay_ms[method] = -slope / 360.0 * 1000.0
+    sel = bins[(bins["sync_method"] == method) & (bins["frequency_hz"] <= out.fit_max_hz)]
+    try:
+        fit = fit_quadratic(sel["frequency_hz"], sel["amplitude_error_pct"], sel["u_amplitude_error_pct"])
+    except FitError as exc:
+        out.fit_notes[method] = str(exc)
+        return
+    out.fits[method] = fit
+    # per bin: mean over tracks; u = the tracks' mean u (they share the timing errors: not averaged down)
+    cols = ["frequency_hz", "amplitude_error_pct", "u_amplitude_error_pct"]
+    per_bin = b.groupby("bin", sort=True)[cols].mean()
+    out.limits[method] = usable_limit_with_bins(
+        fit,
+        per_bin["frequency_hz"].to_numpy(),
+        per_bin["amplitude_error_pct"].to_numpy(),
+        float(acceptance["amplitude_error_pct"]),
+        u_bins=per_bin["u_amplitude_error_pct"].to_numpy(),
+        guard_k=2.0 if acceptance.get("decision_rule", "guarded") == "guarded" else 0.0,
+    )
+
+
+def _plate_tables(out: ReportTables, run: RunData, tracks: pd.DataFrame, gate_mm: float) -> None:
+    """The plate's per-track vibration table of every plate event (and the first event) into ``out``."""
+    plates = stream_events(run.events, "plate")
+    if not plates:
+        return
+    out.plate_event = plates[0]
+    targets = run.rig.get("targets")
+    geometry = (targets or {}).get("plate") if isinstance(targets, dict) else None
+    tables = [
+        motion.plate_table(tracks, p, geometry, gate_mm=gate_mm).assign(event=i) for i, p in enumerate(plates)
+    ]
+    out.plate = pd.concat(tables, ignore_index=True)
+
+
+def _rotation_tables(out: ReportTables, tracks: pd.DataFrame, rotation: dict[str, Any]) -> None:
+    """The rotor marker's samples, summary and (from 8 samples) amplitude spectrum into ``out``."""
+    out.rotation = rotation
+    samples = motion.rotation_samples(tracks, rotation)
+    out.rotation_samples = samples
+    out.rotation_summary = motion.rotation_summary(samples, rotation)
+    if len(samples) >= 8:
+        out.spectrum = motion.amplitude_spectrum(samples["time_s"], samples["z_mm"])
 
 
 def _trajectory(
@@ -233,6 +247,9 @@ def _finite(x: float) -> bool:
     return x is not None and math.isfinite(x)
 
 
+REFERENCE = ("reference position (robot AP / artefact)", "B")
+
+
 def measured_values(t: ReportTables, acceptance: dict[str, Any]) -> dict[str, Measured | None]:
     """The certificate's measured values with their uncertainty budgets (k = 2 unless a t-factor applies).
 
@@ -240,100 +257,143 @@ def measured_values(t: ReportTables, acceptance: dict[str, Any]) -> dict[str, Me
     component ``reference_u_mm`` is the standard uncertainty of a commanded position (robot accuracy or
     artefact calibration), taken as independent per pose.
     """
-    u_ref = float(acceptance["reference_u_mm"])
-    ref = ("reference position (robot AP / artefact)", "B")
+    u_ref_mm = float(acceptance["reference_u_mm"])
     m: dict[str, Measured | None] = {}
-    p = t.poses.dropna(subset=["error_mm"])
-    if len(t.poses):
-        m["detection_pct"] = Measured(100.0 * len(p) / len(t.poses), 0.0, note="counted; no uncertainty")
-    if len(p):
-        e = p["error_mm"].to_numpy(float)
-        u_a = np.nan_to_num(p["u_error_mm"].to_numpy(float))
-        i = int(np.argmax(e))
-        m["position_max_mm"] = Measured.from_budget(
-            float(e[i]),
-            [("mean of the static samples", "A", float(u_a[i])), (*ref, u_ref)],
-            note=f"pose {p['index'].iloc[i]}, marker {p['marker_id'].iloc[i]} "
-            f"({int(p['n_samples'].iloc[i])} samples)",
+    m.update(_position_values(t.poses, u_ref_mm))
+    m.update(_repeatability_value(t.iso9283))
+    m.update(_length_value(t.lengths, u_ref_mm))
+    m.update(_sweep_values(t, float(acceptance["amplitude_error_up_to_hz"]), u_ref_mm))
+    m.update(_steady_values(t, u_ref_mm))
+    if t.calibration is not None and len(t.calibration) and t.calibration["rms_px"].notna().any():
+        m["calibration_rms_px"] = Measured(
+            float(t.calibration["rms_px"].max()), 0.0, note="from calibration.json"
         )
-        rms = float(np.sqrt(np.mean(e**2)))
-        w = e / (len(e) * rms) if rms > 0 else np.full(len(e), 1 / np.sqrt(len(e)))  # ∂rms/∂e_i
-        m["position_rms_mm"] = Measured.from_budget(
-            rms,
-            [
-                ("means of the static samples", "A", float(np.sqrt(np.sum((w * u_a) ** 2)))),
-                (*ref, float(u_ref * np.sqrt(np.sum(w**2)))),
-            ],
-            note=f"{len(e)} marker poses",
-        )
-    rp = t.iso9283.dropna(subset=["rp_l_mm"])
-    if len(rp):
-        j = int(np.argmax(rp["rp_l_mm"].to_numpy(float)))
-        row = rp.iloc[j]
-        n, sd = int(row["n_cycles"]), float(row["s_l_mm"])
-        m["repeatability_mm"] = Measured.from_budget(
-            float(row["rp_l_mm"]),
-            [
-                ("mean distance l̄ (s/√n)", "A", sd / math.sqrt(n)),
-                ("3·S_l (3·s/√(2(n−1)))", "A", 3 * sd / math.sqrt(2 * (n - 1))),
-            ],
-            note=f"target {row['target']}, marker {row['marker_id']}, {n} cycles",
-        )
-    if len(t.lengths):
-        dl = t.lengths["length_error_mm"].abs().to_numpy(float)
-        k = int(np.argmax(dl))
-        m["length_error_mm"] = Measured.from_budget(
-            float(dl[k]),
-            [
-                ("means of the two endpoints", "A", float(t.lengths["u_length_mm"].iloc[k])),
-                # a rigid artefact carries robot pose errors along: only its marker coordinates count
-                ("marker coordinates on the artefact (two endpoints)", "B", math.sqrt(2) * u_ref),
-            ],
-            note=f"{len(dl)} test lengths; worst {t.lengths['marker_a'].iloc[k]}–"
-            f"{t.lengths['marker_b'].iloc[k]} in pose {t.lengths['index'].iloc[k]}",
-        )
+    u_off = ((t.timing or {}).get("uncertainty") or {}).get("offset_s")
+    if isinstance(u_off, dict):
+        vals = [float(v) for v in u_off.values() if isinstance(v, (int, float))]
+        u_off = max(vals) if vals else None
+    if isinstance(u_off, (int, float)):
+        m["sync_uncertainty_ms"] = Measured(1000 * float(u_off), 0.0, note="from timing.json")
+    return m
+
+
+def _position_values(poses: pd.DataFrame, u_ref_mm: float) -> dict[str, Measured]:
+    """Detection rate, largest and RMS position error of the static poses."""
+    m: dict[str, Measured] = {}
+    p = poses.dropna(subset=["error_mm"])
+    if len(poses):
+        m["detection_pct"] = Measured(100.0 * len(p) / len(poses), 0.0, note="counted; no uncertainty")
+    if not len(p):
+        return m
+    e = p["error_mm"].to_numpy(float)
+    u_a = np.nan_to_num(p["u_error_mm"].to_numpy(float))
+    i = int(np.argmax(e))
+    m["position_max_mm"] = Measured.from_budget(
+        float(e[i]),
+        [("mean of the static samples", "A", float(u_a[i])), (*REFERENCE, u_ref_mm)],
+        note=f"pose {p['index'].iloc[i]}, marker {p['marker_id'].iloc[i]} "
+        f"({int(p['n_samples'].iloc[i])} samples)",
+    )
+    rms = float(np.sqrt(np.mean(e**2)))
+    w = e / (len(e) * rms) if rms > 0 else np.full(len(e), 1 / np.sqrt(len(e)))  # ∂rms/∂e_i
+    m["position_rms_mm"] = Measured.from_budget(
+        rms,
+        [
+            ("means of the static samples", "A", float(np.sqrt(np.sum((w * u_a) ** 2)))),
+            (*REFERENCE, float(u_ref_mm * np.sqrt(np.sum(w**2)))),
+        ],
+        note=f"{len(e)} marker poses",
+    )
+    return m
+
+
+def _repeatability_value(iso9283: pd.DataFrame) -> dict[str, Measured]:
+    """The largest ISO 9283 position repeatability RP_l over targets and markers."""
+    rp = iso9283.dropna(subset=["rp_l_mm"])
+    if not len(rp):
+        return {}
+    row = rp.iloc[int(np.argmax(rp["rp_l_mm"].to_numpy(float)))]
+    n, sd = int(row["n_cycles"]), float(row["s_l_mm"])
+    return {"repeatability_mm": Measured.from_budget(
+        float(row["rp_l_mm"]),
+        [
+            ("mean distance l̄ (s/√n)", "A", sd / math.sqrt(n)),
+            ("3·S_l (3·s/√(2(n−1)))", "A", 3 * sd / math.sqrt(2 * (n - 1))),
+        ],
+        note=f"target {row['target']}, marker {row['marker_id']}, {n} cycles",
+    )}
+
+
+def _length_value(lengths: pd.DataFrame, u_ref_mm: float) -> dict[str, Measured]:
+    """The largest test-length error between two markers of one pose."""
+    if not len(lengths):
+        return {}
+    dl = lengths["length_error_mm"].abs().to_numpy(float)
+    k = int(np.argmax(dl))
+    return {"length_error_mm": Measured.from_budget(
+        float(dl[k]),
+        [
+            ("means of the two endpoints", "A", float(lengths["u_length_mm"].iloc[k])),
+            # a rigid artefact carries robot pose errors along: only its marker coordinates count
+            ("marker coordinates on the artefact (two endpoints)", "B", math.sqrt(2) * u_ref_mm),
+        ],
+        note=f"{len(dl)} test lengths; worst {lengths['marker_a'].iloc[k]}–"
+        f"{lengths['marker_b'].iloc[k]} in pose {lengths['index'].iloc[k]}",
+    )}
+
+
+def _sweep_values(t: ReportTables, f_up_hz: float, u_ref_mm: float) -> dict[str, Measured]:
+    """The primary method's worst amplitude error over 0–``f_up_hz`` and its usable frequency limit."""
     fit = t.fits.get(t.primary_sync)
-    if fit is not None:
-        f_up = float(acceptance["amplitude_error_up_to_hz"])
-        # |c0 + c2·f²| is largest at f = 0 or f = f_up (monotone in f²)
-        f_worst = f_up if abs(fit.predict(f_up)) >= abs(fit.c0) else 0.0
-        note = (
-            f"sync '{t.primary_sync}', worst at {f_worst:g} Hz of 0–{f_up:g} Hz; fit "
-            f"{fit.f_min_hz:.1f}–{fit.f_max_hz:.1f} Hz; k = t(0.975, {fit.dof})"
+    if fit is None or t.sweep is None:
+        return {}
+    # |c0 + c2·f²| is largest at f = 0 or f = f_up (monotone in f²)
+    f_worst = f_up_hz if abs(fit.predict(f_up_hz)) >= abs(fit.c0) else 0.0
+    note = (
+        f"sync '{t.primary_sync}', worst at {f_worst:g} Hz of 0–{f_up_hz:g} Hz; fit "
+        f"{fit.f_min_hz:.1f}–{fit.f_max_hz:.1f} Hz; k = t(0.975, {fit.dof})"
+    )
+    if f_up_hz > fit.f_max_hz:
+        note += "; extrapolated beyond the fitted range"
+    amplitude = Measured.from_budget(
+        float(abs(fit.predict(f_worst))),
+        [
+            ("quadratic fit (scaled covariance)", "A", float(fit.u_predict(f_worst))),
+            ("reference amplitude (crank radius)", "B", 100 * u_ref_mm / float(t.sweep["amplitude_mm"])),
+        ],
+        k=fit.t_factor,
+        note=note,
+    )
+    return {"amplitude_error_pct": amplitude, "min_usable_frequency_hz": _usable_limit_value(
+        t.limits[t.primary_sync], fit.t_factor)}
+
+
+def _usable_limit_value(lim: UsableLimit, t_factor: float) -> Measured:
+    """The usable frequency limit: from the fit (delta-method uncertainty) or a lower bound."""
+    if lim.reached and lim.source != "fit":
+        return Measured(
+            lim.limit_hz,
+            0.0,
+            note=f"last bin beyond the fitted range with |e| ≤ {lim.tolerance:g} %; "
+            "the next bin exceeds it (a lower bound at bin resolution)",
         )
-        if f_up > fit.f_max_hz:
-            note += "; extrapolated beyond the fitted range"
-        m["amplitude_error_pct"] = Measured.from_budget(
-            float(abs(fit.predict(f_worst))),
-            [
-                ("quadratic fit (scaled covariance)", "A", float(fit.u_predict(f_worst))),
-                ("reference amplitude (crank radius)", "B", 100 * u_ref / float(t.sweep["amplitude_mm"])),
-            ],
-            k=fit.t_factor,
-            note=note,
+    if lim.reached:
+        return Measured.from_budget(
+            lim.limit_hz,
+            [("quadratic fit (delta method)", "A", lim.u_limit_hz)],
+            k=t_factor,
+            note=f"|e| reaches {lim.tolerance:g} % here",
         )
-        lim = t.limits[t.primary_sync]
-        if lim.reached and lim.source != "fit":
-            m["min_usable_frequency_hz"] = Measured(
-                lim.limit_hz,
-                0.0,
-                note=f"last bin beyond the fitted range with |e| ≤ {lim.tolerance:g} %; "
-                "the next bin exceeds it (a lower bound at bin resolution)",
-            )
-        elif lim.reached:
-            m["min_usable_frequency_hz"] = Measured.from_budget(
-                lim.limit_hz,
-                [("quadratic fit (delta method)", "A", lim.u_limit_hz)],
-                k=fit.t_factor,
-                note=f"|e| reaches {lim.tolerance:g} % here",
-            )
-        else:
-            m["min_usable_frequency_hz"] = Measured(
-                lim.limit_hz,
-                0.0,
-                note=f"|e| stays below {lim.tolerance:g} % up to the highest tested frequency "
-                "(a lower bound)",
-            )
+    return Measured(
+        lim.limit_hz,
+        0.0,
+        note=f"|e| stays below {lim.tolerance:g} % up to the highest tested frequency (a lower bound)",
+    )
+
+
+def _steady_values(t: ReportTables, u_ref_mm: float) -> dict[str, Measured]:
+    """The worst steady-motion frequency error (plate tracks, rotor) and the rotor radius error."""
+    m: dict[str, Measured] = {}
     freq = _frequency_errors(t)
     if freq:
         worst = max(freq, key=lambda r: abs(r[1]))
@@ -346,19 +406,12 @@ def measured_values(t: ReportTables, acceptance: dict[str, Any]) -> dict[str, Me
     if rs and _finite(rs.get("radius_error_mm", float("nan"))):
         m["radius_error_mm"] = Measured.from_budget(
             abs(rs["radius_error_mm"]),
-            [("mean radius (s/√n)", "A", float(rs["u_radius_mm"])), ("rotor centre and radius", "B", u_ref)],
+            [
+                ("mean radius (s/√n)", "A", float(rs["u_radius_mm"])),
+                ("rotor centre and radius", "B", u_ref_mm),
+            ],
             note=f"{rs['n_samples']} samples",
         )
-    if t.calibration is not None and len(t.calibration) and t.calibration["rms_px"].notna().any():
-        m["calibration_rms_px"] = Measured(
-            float(t.calibration["rms_px"].max()), 0.0, note="from calibration.json"
-        )
-    u_off = ((t.timing or {}).get("uncertainty") or {}).get("offset_s")
-    if isinstance(u_off, dict):
-        vals = [float(v) for v in u_off.values() if isinstance(v, (int, float))]
-        u_off = max(vals) if vals else None
-    if isinstance(u_off, (int, float)):
-        m["sync_uncertainty_ms"] = Measured(1000 * float(u_off), 0.0, note="from timing.json")
     return m
 
 

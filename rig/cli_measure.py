@@ -63,6 +63,7 @@ def _position(text: str) -> tuple[float, float, float]:
 
 
 def cmd_measure(args: argparse.Namespace) -> int:
+    from reports.measurement import write_measurement_report
     from rig.deploy.measure import MeasureError, MeasureOptions, measure_videos
     from rig.deploy.video_markers import ExtractOptions
 
@@ -92,6 +93,7 @@ def cmd_measure(args: argparse.Namespace) -> int:
     except (MeasureError, VideoFileError, OutputRefusedError) as exc:
         print(f"rig measure: {exc}", file=sys.stderr)
         return EXIT_BAD_INPUT
+    write_measurement_report(args.out)  # rig.deploy may not import reports: the command layer renders
     targets = result.summary[result.summary["role"] == "target"]
     for r in targets.itertuples():
         f = getattr(r, "frequency_hz", float("nan"))

@@ -91,7 +91,7 @@ def test_batch_gives_the_results_of_rig_measure_per_segment(archive: Archive, lo
     assert set(segments["pair"].astype(str)) == {"p1", "p2"} and segments["task_id"].nunique() == 5
     (task, *_), _ = plan(load_manifest(archive.manifest))
     alone = measure_videos({"left": task.left, "right": task.right}, archive.calibration, tmp_path / "alone",
-                           options=MeasureOptions(make_figures=False))
+                           options=MeasureOptions())
     mine = segments[segments["task_id"] == task.task_id].sort_values("track_id")
     expected = alone.summary.sort_values("track_id")
     for column in ("amplitude_mm", "frequency_hz", "rms_mm", "x_mm", "z_mm"):

@@ -40,7 +40,7 @@ def _measure(site: dict, folder: Path, world: World, *, duration_s: float = 2.5,
     paths = mt.write_pair(left, right, folder, fourcc="MJPG", ext="avi", t_left_s=(0.0, duration_s),
                           t_right_s=(right_start_s, right_start_s + duration_s))
     res = measure_videos({"left": paths[0], "right": paths[1]}, site["calibration"], folder / "out",
-                         options=MeasureOptions(sync=sync, make_figures=False))
+                         options=MeasureOptions(sync=sync))
     return res, mt.truth_timing(left, right, 0.0, right_start_s)
 
 

@@ -20,6 +20,7 @@ from camera_mkv import write_mkv
 
 from drivers.sim.clock import VirtualClock
 from drivers.sim.targets import ReferenceMarkers
+from reports.measurement import write_measurement_report
 from rig.cli import main
 from rig.deploy.measure import MeasureError, MeasureOptions, measure_videos
 from rig.deploy.series import SeriesError, reference_tracks
@@ -103,7 +104,7 @@ def test_estimated_timing_finds_the_offset_and_the_result(site: dict, tmp_path: 
     left, right = mt.camera_pair(world)
     paths = mt.write_pair(left, right, tmp_path)
     res = measure_videos({"left": paths[0], "right": paths[1]}, site["calibration"], tmp_path / "out",
-                         options=MeasureOptions(window_s=WINDOW, make_figures=False))
+                         options=MeasureOptions(window_s=WINDOW))
     truth = mt.truth_timing(left, right, 0.0, 0.15)["offset_s"]["right"]
     # the motion's start resolves the whole periods; the line time is not observable from a column whose
     # rows move alike in both views, so the offset's uncertainty holds its share
@@ -143,6 +144,7 @@ def test_duplicated_and_dropped_frames_are_reported_and_the_result_holds(site: d
     assert [d["missing_frames"] for d in frames["right"]["dropped"]] == [2, 1]
     assert len(frames["right"]["duplicated"]) == 1
     assert any("duplicated" in n for n in res.notes) and any("dropped" in n for n in res.notes)
+    write_measurement_report(tmp_path / "out")  # as `rig measure` does after the measurement
     html = (tmp_path / "out" / "report.html").read_text()
     assert "Duplicated frames and their evidence" in html and "sensor noise not renewed" in html
     _check_targets(res.summary, left.clock_ppm, site["scale_floor"])
@@ -204,7 +206,7 @@ def test_rotor_turning_from_the_first_frame_is_one_track_with_its_radius(site: d
     timing = tmp_path / "timing.json"
     timing.write_text(json.dumps(mt.truth_timing(left, right, 0.0, 0.15)))
     res = measure_videos({"left": paths[0], "right": paths[1]}, site["calibration"], tmp_path / "out",
-                         timing=timing, options=MeasureOptions(make_figures=False))
+                         timing=timing, options=MeasureOptions())
     targets = res.summary[res.summary["role"] == "target"]
     assert len(targets) == 1 and (res.summary["role"] == "reference").sum() == 4
     row = targets.iloc[0]

@@ -159,7 +159,7 @@ def run_task(task: Task, out_dir: str) -> dict[str, Any]:
     work = out / "work" / task.task_id
     result = measure_videos({"left": task.left, "right": task.right}, task.calibration, work,
                             options=MeasureOptions(sync=task.sync, reference_markers=task.reference_markers,
-                                                   static_mm=task.static_mm, make_figures=False),
+                                                   static_mm=task.static_mm),
                             force=True)  # the task's own work folder: a retry replaces what it left
     timing = _timing_columns(result.timing, "left")
     video_s = float(result.displacement["time_s"].max() - result.displacement["time_s"].min()) \

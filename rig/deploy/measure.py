@@ -1,4 +1,4 @@
-"""``rig measure``: two videos of a vibrating structure + a calibration → displacement, spectra, report.
+"""``rig measure``: two videos of a vibrating structure + a calibration → displacement and spectra.
 
 Pipeline (every step reuses the shared modules):
 
@@ -18,9 +18,11 @@ frames
    frequency, four-parameter sine fit at it (amplitude and frequency with standard uncertainties); the
    Welch spectrum, every significant tone (amplitude, frequency, active interval) and the STFT table
    (:mod:`rig.deploy.spectra`: several modes, successive tones, sweeps);
-6. ``DIR``: ``tables/*.csv`` (units in column names), ``figures/*.png``, ``report.html``,
-   ``timing.json``, ``measure.json`` (inputs, frame reports, notes); with a run record (``--record``), the
-   controller's clock too (:mod:`rig.deploy.video_clock`, ``clock.json``, ``controller_time_s`` columns).
+6. ``DIR``: ``tables/*.csv`` (units in column names), ``timing.json``, ``frames.json``, ``measure.json``
+   (inputs, frame reports, notes); with a run record (``--record``), the controller's clock too
+   (:mod:`rig.deploy.video_clock`, ``clock.json``, ``controller_time_s`` columns). The report
+   (``figures/*.png``, ``report.html``) is rendered from this folder by :mod:`reports.measurement`, which
+   the command (:mod:`rig.cli_measure`) calls after the measurement.
 
 Times in the outputs are seconds on the reference video's clock (its presentation time stamps).
 A truncated or corrupt video does not stop the measurement: the frames read are used, the problem is in
@@ -87,7 +89,6 @@ class MeasureOptions:
     max_offset_s: float = 10.0  # the cameras started within prior_offset_s ± this (s)
     prior_offset_s: float = 0.0
     extract: ExtractOptions = field(default_factory=ExtractOptions)
-    make_figures: bool = True
 
 
 @dataclass
@@ -347,12 +348,6 @@ def _measure(job: _Job, vos: dict[str, VideoObservations], notes: list[str], pro
     timings.update({f"step_{name}": t - stamps[i][1] for i, (name, t) in enumerate(stamps[1:])})
     result = MeasureResult(out, tracks, displacement, series.summary, series.spectra, timing_dict, reports,
                            files, notes, problems, timings, series.peaks, series.time_frequency)
-    if opts.make_figures:
-        from rig.deploy.measure_report import write_report
-
-        t_report = time.perf_counter()
-        files.update(write_report(result, {n: str(p) for n, p in paths.items()}, str(calibration)))
-        timings["step_report"] = time.perf_counter() - t_report
     meta = {"videos": {n: str(p) for n, p in paths.items()}, "calibration": str(calibration),
             "timing": str(timing) if timing else "estimated", "sync": opts.sync,
             "reference_camera": reference,

@@ -1,0 +1,219 @@
+"""``report.html`` and ``figures/*.png`` of a ``rig measure`` folder, from the files the measurement wrote.
+
+The measurement (:mod:`rig.deploy.measure`) writes its tables, ``frames.json``, ``timing.json`` and
+``measure.json``; this renders them with the certification report's page, stylesheet and figure style
+(:mod:`reports.html`, :mod:`reports.figures`): summary per track, significant tones, displacement and
+spectrum figures, frame reports, timing, notes. The folder is only read, except for the two outputs, so
+the report can be rebuilt from it. Deterministic: the same folder gives byte-identical files.
+"""
+
+from __future__ import annotations
+
+import html
+import json
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import pandas as pd
+from matplotlib.figure import Figure
+
+from reports import figures
+from reports.errors import RunFolderError
+from reports.html import figure, page, table
+from reports.summaries import timing_frame
+from rig.record.atomic import write_text
+
+__all__ = ["Measurement", "load_measurement", "write_measurement_report"]
+
+SUMMARY_COLUMNS = ("track_id", "role", "x_mm", "y_mm", "z_mm", "n_samples", "dominant_frequency_hz",
+                   "frequency_hz", "frequency_std_hz", "amplitude_mm", "amplitude_std_mm",
+                   "half_peak_to_peak_mm", "rms_mm")
+MAX_DUPLICATES_SHOWN = 40  # the rest are in frames.json
+CAPTIONS = {"displacement": "Displacement relative to the reference markers",
+            "spectrum": "Amplitude spectrum along each track's principal direction"}
+
+
+@dataclass(frozen=True)
+class Measurement:
+    """What the report shows of a measurement folder. Times in s on the reference video's clock."""
+
+    out_dir: Path
+    videos: dict[str, str]  # camera name → video path
+    calibration: str
+    notes: list[str]
+    problems: list[str]  # unreadable or truncated inputs: the results use the frames that could be read
+    summary: pd.DataFrame  # one row per 3-D track (tables/summary.csv)
+    displacement: pd.DataFrame  # tables/displacement.csv
+    spectra: pd.DataFrame  # tables/spectra.csv
+    peaks: pd.DataFrame  # significant tones per target track (tables/peaks.csv)
+    frame_reports: dict[str, dict[str, Any]]  # frames.json: per camera
+    timing: dict[str, Any]  # timing.json
+
+    @property
+    def targets(self) -> pd.DataFrame:
+        """The summary rows of the moving (target) tracks."""
+        return self.summary[self.summary["role"] == "target"]
+
+
+def _json(path: Path) -> dict[str, Any]:
+    try:
+        doc = json.loads(path.read_text(encoding="utf-8"))
+    except FileNotFoundError as exc:
+        raise RunFolderError(f"{path}: missing; is {path.parent} the --out folder of `rig measure`?") from exc
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise RunFolderError(f"{path}: not valid JSON ({exc})") from exc
+    if not isinstance(doc, dict):
+        raise RunFolderError(f"{path}: the top level must be a JSON object")
+    return doc
+
+
+def _csv(path: Path) -> pd.DataFrame:
+    """A table of the folder; a table without rows or columns (no tones found) is empty."""
+    if not path.is_file():
+        raise RunFolderError(f"{path}: missing; is {path.parent.parent} the --out folder of `rig measure`?")
+    try:
+        return pd.read_csv(path)
+    except pd.errors.EmptyDataError:
+        return pd.DataFrame()
+
+
+def load_measurement(out_dir: str | Path) -> Measurement:
+    """Read the measurement folder ``out_dir`` (the ``--out`` of ``rig measure``)."""
+    out = Path(out_dir)
+    meta = _json(out / "measure.json")
+    tables = out / "tables"
+    return Measurement(
+        out_dir=out,
+        videos={str(k): str(v) for k, v in (meta.get("videos") or {}).items()},
+        calibration=str(meta.get("calibration")),
+        notes=[str(n) for n in meta.get("notes") or []],
+        problems=[str(p) for p in meta.get("problems") or []],
+        summary=_csv(tables / "summary.csv"),
+        displacement=_csv(tables / "displacement.csv"),
+        spectra=_csv(tables / "spectra.csv"),
+        peaks=_csv(tables / "peaks.csv"),
+        frame_reports=_json(out / "frames.json"),
+        timing=_json(out / "timing.json"),
+    )
+
+
+def write_measurement_report(out_dir: str | Path) -> dict[str, Path]:
+    """Write ``figures/<name>.png`` and ``report.html`` into the measurement folder ``out_dir`` (each file
+    atomically); return {``figure_<name>``: path, ``report``: path}."""
+    m = load_measurement(out_dir)
+    figures_dir = m.out_dir / "figures"
+    figures_dir.mkdir(exist_ok=True)
+    files: dict[str, Path] = {}
+    pngs: dict[str, bytes] = {}
+    for name, fig in (("displacement", fig_displacement(m)), ("spectrum", fig_spectrum(m))):
+        if fig is not None:
+            files[f"figure_{name}"] = figures_dir / f"{name}.png"
+            figures.save_png(fig, files[f"figure_{name}"])
+            pngs[name] = files[f"figure_{name}"].read_bytes()
+    files["report"] = write_text(m.out_dir / "report.html", render(m, pngs))
+    return files
+
+
+# ------------------------------------------------------------------------------------------------ figures
+def fig_displacement(m: Measurement) -> Figure | None:
+    """Each target's displacement along its principal direction over time."""
+    targets = m.targets.dropna(subset=["direction_x"]) if "direction_x" in m.summary else m.targets.iloc[:0]
+    if targets.empty:
+        return None
+    fig, axes = figures.new_figure(size=(10.0, 4.0))
+    ax = axes[0, 0]
+    for r in targets.itertuples():
+        g = m.displacement[m.displacement["track_id"] == r.track_id]
+        d = g["dx_mm"] * r.direction_x + g["dy_mm"] * r.direction_y + g["dz_mm"] * r.direction_z
+        ax.plot(g["time_s"], d, lw=0.9, label=f"track {r.track_id}")
+    ax.set_xlabel("time (s, reference video clock)")
+    ax.set_ylabel("displacement along its principal direction (mm)")
+    ax.legend(ncols=4)
+    return fig
+
+
+def fig_spectrum(m: Measurement) -> Figure | None:
+    """Each target's amplitude spectrum along its principal direction."""
+    sel = m.spectra[m.spectra["track_id"].isin(set(m.targets["track_id"]))] if len(m.spectra) else m.spectra
+    if sel.empty:
+        return None
+    fig, axes = figures.new_figure(size=(10.0, 4.0))
+    ax = axes[0, 0]
+    for track_id, g in sel.groupby("track_id"):
+        ax.plot(g["frequency_hz"], g["amplitude_mm"], lw=0.9, label=f"track {track_id}")
+    ax.set_xlabel("frequency (Hz)")
+    ax.set_ylabel("amplitude (mm)")
+    ax.legend(ncols=4)
+    return fig
+
+
+# ---------------------------------------------------------------------------------------------------- page
+def render(m: Measurement, pngs: dict[str, bytes]) -> str:
+    """The whole page as a string (deterministic for the same folder)."""
+    shown = "".join(figure(pngs, name, caption) for name, caption in CAPTIONS.items())
+    parts = [_header(m), _problems_section(m), _summary_section(m), _peaks_section(m),
+             f"<section><h2>Displacement and spectrum</h2>{shown}</section>" if shown else "",
+             _frames_section(m), _timing_section(m), _notes_section(m)]
+    return page("rig measure — displacement measurement", [p for p in parts if p])
+
+
+def _header(m: Measurement) -> str:
+    videos = ", ".join(f"{html.escape(n)} = {html.escape(p)}" for n, p in m.videos.items())
+    return (f"<header><h1>Displacement measurement</h1><div class='sub'>videos: {videos}; calibration: "
+            f"{html.escape(m.calibration)}</div></header>")
+
+
+def _problems_section(m: Measurement) -> str:
+    if not m.problems:
+        return ""
+    lines = "".join(f"<p><span class='badge FAIL'>problem</span> {html.escape(p)}</p>" for p in m.problems)
+    return (f"<section><h2>Problems with the inputs</h2>{lines}"
+            "<p class='note'>The results below use the frames that could be read.</p></section>")
+
+
+def _summary_section(m: Measurement) -> str:
+    cols = [c for c in SUMMARY_COLUMNS if c in m.summary.columns]
+    return "<section><h2>Summary per track</h2>" + table(m.summary[cols], digits=5, text_cols=("role",)) \
+        + "</section>"
+
+
+def _peaks_section(m: Measurement) -> str:
+    if m.peaks.empty:
+        return ""
+    peaks = m.peaks.drop(columns=["welch_amplitude_mm"], errors="ignore")
+    return ("<section><h2>Significant tones per target track</h2><p class='note'>Sine fit over each tone's "
+            "active interval (from the STFT), the other tones subtracted; significant above the Welch noise "
+            "floor (false-alarm probability per spectrum in the notes)</p>"
+            + table(peaks, digits=5) + "</section>")
+
+
+def _frames_section(m: Measurement) -> str:
+    """Frames read, duplicated, undecided and dropped per camera; the first duplicates with their evidence."""
+    frames = pd.DataFrame([{"camera": n, "frames_read": r.get("frames_read"),
+                            "duplicated": len(r.get("duplicated") or []),
+                            "undecided": len(r.get("undecided") or []), "dropped": r.get("missing_frames"),
+                            "truncated": str(r.get("truncated")), "duration_s": r.get("duration_s")}
+                           for n, r in m.frame_reports.items()])
+    evidence = pd.DataFrame([{"camera": n, "index": d.get("index"), "pts_s": d.get("pts_s"),
+                              "evidence": d.get("evidence")}
+                             for n, r in m.frame_reports.items() for d in r.get("duplicated") or []],
+                            columns=["camera", "index", "pts_s", "evidence"])
+    shown = evidence.head(MAX_DUPLICATES_SHOWN)
+    duplicates = ("" if shown.empty else "<h3>Duplicated frames and their evidence</h3>"
+                  + table(shown, digits=5, text_cols=("camera", "evidence"))
+                  + f"<p class='note'>{len(shown)} of {len(evidence)}; all of them in frames.json</p>")
+    return ("<section><h2>Frames</h2>" + table(frames, digits=5, text_cols=("camera", "truncated"))
+            + duplicates + "</section>")
+
+
+def _timing_section(m: Measurement) -> str:
+    t = m.timing
+    return ("<section><h2>Timing</h2>" + table(timing_frame(t), digits=6, text_cols=("camera",))
+            + f"<p class='note'>method: {html.escape(str(t.get('method', '—')))}; reference camera: "
+            f"{html.escape(str(t.get('reference_camera', '—')))}; u_…: standard uncertainties.</p></section>")
+
+
+def _notes_section(m: Measurement) -> str:
+    notes = "".join(f"<li>{html.escape(n)}</li>" for n in m.notes)
+    return f"<section><h2>Notes</h2><ul class='note'>{notes}</ul></section>" if notes else ""
