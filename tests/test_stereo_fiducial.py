@@ -75,8 +75,9 @@ def test_fit_recovers_the_offset_within_its_uncertainty(  # noqa: PLR0917 (hypot
     t_ref = float(np.median(s))
     b = synthetic_brightness(s, edges, offset_s=offset, rate=ppm * 1e-6, t_ref_s=t_ref, time_constant_s=tc,
                              noise_dn=0.5, seed=seed)
+    # the LED's datasheet rise time (10–90 %) of a first-order rise: 2.2 time constants
     fit = fit_fiducial_clock(RowSamples(s, b, EXPOSURE_S), edges, prior_offset_s=offset + prior_error,
-                             prior_half_width_s=0.0085, t_ref_s=t_ref)
+                             prior_half_width_s=0.0085, rise_time_s=2.2 * tc, t_ref_s=t_ref)
     assert fit.rate_fitted and fit.n_edges_seen >= 2
     assert abs(fit.offset_s - offset) <= 3.0 * fit.u_offset_s
     assert abs(fit.rate - ppm * 1e-6) <= 5.0 * fit.u_rate + 1e-9

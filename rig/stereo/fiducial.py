@@ -9,8 +9,10 @@ which an edge crosses the LED's rows dates it again.
 Model fitted (:func:`fit_fiducial_clock`), controller time t_c of camera time t:
 ``t_c = t + offset_s + rate·(t − t_ref_s)``. The LED's light is a linear ramp of duration ``rise_time_s``
 starting at each drive edge (a linear response: rising and falling ramps add), so the mean level of a
-row is in closed form (:func:`mean_levels`), and a row's brightness is ``b_off + gain·level``. The
-parameters (offset, rate, rise time, b_off, gain) are fitted by least squares over every row sample,
+row is in closed form (:func:`mean_levels`), and a row's brightness is ``b_off + gain·level``. The rise
+time is the LED's (its datasheet's 10–90 %), not fitted: a ramp short against the exposure changes a
+row's level only through its centre of light, e + rise/2, so rise and offset cannot be told apart. The
+parameters (offset, rate, b_off, gain) are fitted by least squares over the rows near the edges,
 after a coarse search of the offset over the prior interval (the current start-event bound), with the
 rate held at 0 unless the edges seen span long enough to resolve it. The pattern must not repeat within
 the prior interval, otherwise the offset is ambiguous (:class:`AmbiguousOffsetError`). The drive's
@@ -41,7 +43,7 @@ __all__ = ["DriveEdges", "FiducialClock", "RowSamples", "fit_fiducial_clock", "m
 
 # the rate (drift) is fitted only when the edges seen span at least this long (camera clock, s)
 MIN_RATE_SPAN_S = 2.0
-# bound on the fitted ramp duration (s): an LED rises in ns–µs; 1 ms would be a wrong configuration
+# bound on the LED's rise time (s): an LED rises in ns–µs; 1 ms would be a wrong configuration
 MAX_RISE_TIME_S = 1e-3
 _F = NDArray[np.float64]
 
@@ -246,13 +248,14 @@ def _edges_seen(rows: RowSamples, edges: DriveEdges, offset_s: float, rise_time_
 
 
 def fit_fiducial_clock(rows: RowSamples, edges: DriveEdges, *, prior_offset_s: float,
-                       prior_half_width_s: float, rise_time_guess_s: float = 1e-5,
+                       prior_half_width_s: float, rise_time_s: float = 1e-5,
                        t_ref_s: float | None = None) -> FiducialClock:
     """Fit the camera clock against the controller's (see the module docstring).
 
     ``prior_offset_s`` ± ``prior_half_width_s``: the interval (controller − camera, s) the offset is known
     to lie in beforehand (e.g. the start events' ±½ frame); the drive pattern must not repeat within it.
-    ``t_ref_s`` (camera clock): where the offset is stated (default: the middle of the rows' span).
+    ``rise_time_s``: the LED's rise time (s, 0 ≤ rise ≤ 1 ms). ``t_ref_s`` (camera clock): where the offset
+    is stated (default: the middle of the rows' span).
     Raises TooFewSamplesError (fewer than 8 rows or no row lit part-way), AmbiguousOffsetError,
     NoCommonMotionError (no edge within the recording).
     """
@@ -268,7 +271,9 @@ def fit_fiducial_clock(rows: RowSamples, edges: DriveEdges, *, prior_offset_s: f
             f"the drive pattern repeats every {1e3 * repeat:.3f} ms, within the prior interval "
             f"±{1e3 * prior_half_width_s:.3f} ms: drive the LED with a period > "
             f"{2e3 * prior_half_width_s:.3f} ms")
-    rise0 = min(max(rise_time_guess_s, 0.0), MAX_RISE_TIME_S)
+    if not (math.isfinite(rise_time_s) and 0.0 <= rise_time_s <= MAX_RISE_TIME_S):
+        raise InputArrayError(f"rise_time_s must be within 0..{MAX_RISE_TIME_S} s, got {rise_time_s!r}")
+    rise0 = float(rise_time_s)
     t_ref = float(np.median(rows.start_s)) if t_ref_s is None else float(t_ref_s)
     off0 = _coarse_offset_s(rows, edges, prior_offset_s, prior_half_width_s, rise0)
     n_seen, transition = _edges_seen(rows, edges, off0, rise0)
@@ -283,33 +288,31 @@ def fit_fiducial_clock(rows: RowSamples, edges: DriveEdges, *, prior_offset_s: f
 
     def residuals(p: _F) -> _F:
         rate = p[1] * 1e-6 if fit_rate else 0.0
-        level = mean_levels(used.start_s + off0 + p[0] * scale + rate * dt, used.exposure_s, edges,
-                            p[2] * scale)
+        level = mean_levels(used.start_s + off0 + p[0] * scale + rate * dt, used.exposure_s, edges, rise0)
         return _affine(level, used.brightness_dn)[2]
 
-    x0 = np.array([0.0, 0.0, rise0 / scale])
-    upper = np.array([prior_half_width_s / scale + 1.0, 1e3, MAX_RISE_TIME_S / scale])
-    sol = least_squares(residuals, x0, bounds=(-upper * np.array([1.0, 1.0, 0.0]), upper),
-                        x_scale=np.array([0.1, 10.0, 0.1]), diff_step=1e-6)
+    upper = np.array([prior_half_width_s / scale + 1.0, 1e3])
+    sol = least_squares(residuals, np.zeros(2), bounds=(-upper, upper), x_scale=np.array([0.1, 10.0]),
+                        diff_step=1e-6)
     return _result(used, edges, sol.x, sol.jac, sol.fun, off0=off0, scale=scale, t_ref=t_ref,
-                   fit_rate=fit_rate, n_rows=rows.start_s.size)
+                   fit_rate=fit_rate, rise_s=rise0, n_rows=rows.start_s.size)
 
 
 def _result(used: RowSamples, edges: DriveEdges, x: _F, jac: _F, res: _F, *, off0: float, scale: float,
-            t_ref: float, fit_rate: bool, n_rows: int) -> FiducialClock:
+            t_ref: float, fit_rate: bool, rise_s: float, n_rows: int) -> FiducialClock:
     """The fitted clock with its covariance (Jacobian, residual variance; b_off and gain profiled out).
 
-    The ramp is a model: a real rise (first order, or an LED driver's delay curve) puts the light's centre
-    anywhere within the fitted ramp (a monotone rise whose light the ramp matches has its centre there),
-    a rectangular ± rise/2 about the ramp's centre: the shape term rise/(2√3) of the offset's uncertainty."""
-    cols = [0, 1, 2] if fit_rate else [0, 2]
+    The ramp is a model: a real rise (first order, or an LED driver's delay curve) of that rise time has
+    its centre of light anywhere within the ramp, a rectangular ± rise/2 about the ramp's centre: the
+    shape term rise/(2√3) of the offset's uncertainty."""
+    cols = [0, 1] if fit_rate else [0]
     j = jac[:, cols]
     dof = max(res.size - len(cols) - 2, 1)
     sigma2 = float(res @ res) / dof
     cov = np.linalg.pinv(j.T @ j) * sigma2
     u_fit = math.sqrt(max(float(cov[0, 0]), 0.0)) * scale
     u_rate = math.sqrt(max(float(cov[1, 1]), 0.0)) * 1e-6 if fit_rate else 0.0
-    offset, rise = off0 + float(x[0]) * scale, float(x[2]) * scale
+    offset, rise = off0 + float(x[0]) * scale, rise_s
     u_shape = rise / (2.0 * math.sqrt(3.0))
     n_seen, transition = _edges_seen(used, edges, offset, rise)
     return FiducialClock(
