@@ -39,7 +39,8 @@ from scipy.optimize import least_squares
 
 from rig.stereo.errors import AmbiguousOffsetError, InputArrayError, NoCommonMotionError, TooFewSamplesError
 
-__all__ = ["DriveEdges", "FiducialClock", "RowSamples", "fit_fiducial_clock", "mean_levels", "row_profile"]
+__all__ = ["DriveEdges", "FiducialClock", "RowSamples", "fit_fiducial_clock", "mean_levels", "row_profile",
+           "square_wave_edges"]
 
 # the rate (drift) is fitted only when the edges seen span at least this long (camera clock, s)
 MIN_RATE_SPAN_S = 2.0
@@ -320,3 +321,20 @@ def _result(used: RowSamples, edges: DriveEdges, x: _F, jac: _F, res: _F, *, off
         rate=float(x[1]) * 1e-6 if fit_rate else 0.0, u_rate=u_rate, rate_fitted=fit_rate, t_ref_s=t_ref,
         rise_time_s=rise, n_rows=n_rows, n_transition_rows=int(transition.sum()), n_edges_seen=n_seen,
         residual_dn=math.sqrt(sigma2))
+
+
+def square_wave_edges(origin_s: float, frequency_hz: float, t_start_s: float, t_stop_s: float, *,
+                      u_origin_s: float = 0.0) -> DriveEdges:
+    """Edges of a square wave (high over the first half of each cycle) started at phase 0 at ``origin_s``
+    (s, the controller's clock), within [t_start_s, t_stop_s]: rising at origin + k/f, falling half a
+    period later (k ≥ 0). ``u_origin_s``: standard uncertainty of the origin, that of every edge."""
+    if not (math.isfinite(frequency_hz) and frequency_hz > 0):
+        raise InputArrayError(f"frequency_hz must be a finite number > 0, got {frequency_hz!r}")
+    half = 0.5 / frequency_hz
+    first = max(0, math.ceil((t_start_s - origin_s) / half))
+    last = math.floor((t_stop_s - origin_s) / half)
+    if last < first:
+        raise InputArrayError(f"no edge of the {frequency_hz:g} Hz square wave started at {origin_s!r} s "
+                              f"within [{t_start_s!r}, {t_stop_s!r}] s")
+    k = np.arange(first, last + 1)
+    return DriveEdges((origin_s + k * half).astype(np.float64), k % 2 == 0, u_origin_s)
