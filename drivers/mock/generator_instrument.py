@@ -92,6 +92,7 @@ class GeneratorInstrument:
         self._replies_pending = 0
         self._reset_state()
         self._commands = self._command_table()
+        self._update_sync(self.clock.now_s())  # powered on: the oscillator runs, sync on
 
     # state ---------------------------------------------------------------------------------------------
     def _reset_state(self) -> None:
