@@ -67,7 +67,8 @@ def test_each_camera_clock_from_the_recorded_rows_matches_the_twin() -> None:
         stamp = float(rows["timestamp_s"].median())
         rate = cam.fps * cam.frame_period_true_s
         truth = cam.start_offset_s + (stamp - cam.timestamp_origin_s) * rate - stamp
-        fit = camera_clock(rows, start, line_time_s=cam.line_time_s, exposure_s=cam.exposure_s,
+        fit = camera_clock([(start, rows)], row_start_s=lambda ts, r, c=cam: ts + r * c.line_time_s,
+                           exposure_s=cam.exposure_s,
                            prior_offset_s=truth - 0.45 / cam.fps, prior_half_width_s=0.51 / cam.fps,
                            rise_time_s=1.1e-5)
         at_stamp = fit.offset_s + fit.rate * (stamp - fit.t_ref_s)
@@ -85,10 +86,10 @@ def test_bad_records_are_refused_with_the_reason() -> None:
     start = FiducialStart.from_event({"t_sent_s": 1.0, "t_confirmed_s": 1.002, "frequency_hz": 10.27})
     assert start.origin_s == pytest.approx(1.001) and start.u_origin_s == pytest.approx(0.002 / 12**0.5)
     with pytest.raises(AnalysisError, match="missing column"):
-        camera_clock(pd.DataFrame({"frame_index": [0]}), start, line_time_s=1e-5, exposure_s=1e-4,
+        camera_clock([(start, pd.DataFrame({"frame_index": [0]}))], row_start_s=np.add, exposure_s=1e-4,
                      prior_offset_s=0.0, prior_half_width_s=0.008, rise_time_s=1e-5)
     rows = pd.DataFrame({"frame_index": np.repeat(np.arange(60), 10), "timestamp_s": np.repeat(
         np.arange(60) / 60, 10), "row_px": np.tile(np.arange(10), 60), "brightness_dn": 30.0})
     with pytest.raises(AnalysisError, match="repeats every"):  # 100 Hz repeats within a ±½-frame prior
-        camera_clock(rows, FiducialStart(0.0, 0.0, 100.0), line_time_s=1e-5, exposure_s=1e-4,
+        camera_clock([(FiducialStart(0.0, 0.0, 100.0), rows)], row_start_s=np.add, exposure_s=1e-4,
                      prior_offset_s=0.0, prior_half_width_s=0.0085, rise_time_s=1e-5)

@@ -29,6 +29,11 @@ observations, per session) and puts the tracks on the **controller clock** (cont
   its own events' interval, and a segment without any the median of the run's; without any event,
   :class:`ClockMappingError`. ``Analysis.clock`` says which, with the standard
   uncertainty;
+- with a timing fiducial recorded (``[fiducial]``; ``fiducial`` events and ``fiducial/`` row files of
+  :mod:`rig.run.fiducial`), the reference camera's clock is dated from the LED's edges instead
+  (:mod:`rig.analysis.fiducial`: offset and rate, to microseconds plus how well the controller knows its
+  edges), the start events' interval only telling its edges apart; a segment whose fiducial is missing
+  or unusable keeps the start events, with a note saying why;
 - pairing is restricted to a **volume**: the robot envelope box of the configuration snapshot
   (``rig["limits"]["robot"]["envelope_*_mm"]``) joined with the reference markers' positions
   (``rig["targets"]["references"]["positions_mm"]``), grown by ``volume_margin_mm``; pairs that would
@@ -57,6 +62,7 @@ from rig.analysis.errors import (
     MissingObservationsError,
     NoPairableTracksError,
 )
+from rig.analysis.fiducial import clock_row, segment_clock
 from rig.analysis.sync_tracks import (
     SYNC_METHODS,
     TRACK_COLUMNS,
@@ -69,6 +75,7 @@ from rig.analysis.tracks2d import tracks_2d
 from rig.record.reader import RecordError, load_run
 from rig.stereo.dlt import DLTCamera
 from rig.stereo.errors import StereoError
+from rig.stereo.fiducial import FiducialClock
 from rig.stereo.timing import TimingResult
 
 # bound (ppm, rectangular) of a camera clock's rate error against the controller when the start events
@@ -273,6 +280,18 @@ def _offset_for(offsets: pd.DataFrame, segment: str, session: int) -> tuple[floa
     )
 
 
+def _fiducial_clock(run_dir: Path, events: pd.DataFrame | None, segment: str, session: int, *,
+                    timing: TimingResult, exposure_s: float, offset_s: float, u_offset_s: float,
+                    period_s: float) -> tuple[FiducialClock | None, str]:
+    """The reference camera's clock from the timing fiducial (:mod:`rig.analysis.fiducial`), its edges told
+    apart by the start events' interval (the offset ± √3 u, at least ±½ frame); (None, why) without one."""
+    ref = timing.reference_camera
+    return segment_clock(run_dir, events, segment, session, ref,
+                         row_start_s=lambda ts, row: timing.times(ref, ts, row), exposure_s=exposure_s,
+                         prior_offset_s=offset_s - 0.5 * exposure_s,
+                         prior_half_width_s=max(math.sqrt(3.0) * u_offset_s, 0.51 * period_s))
+
+
 def analyse(
     run_dir: str | Path,
     *,
@@ -361,9 +380,18 @@ def analyse(
         if t.empty:
             continue
         offset, u_offset, source = _offset_for(offsets, segment, session)
+        rate, t_ref = 0.0, 0.0
+        fid, why = _fiducial_clock(run_dir, run.events.get("fiducial"), segment, session, timing=timing,
+                                   exposure_s=_exposure_s(rig, ref), offset_s=offset, u_offset_s=u_offset,
+                                   period_s=periods[ref])
+        if why:
+            notes.append(f"segment {segment!r} (session {session}): {why}")
+        if fid is not None:  # the controller's clock from the LED's edges instead of the start events
+            offset, u_offset = fid.offset_s + 0.5 * _exposure_s(rig, ref), fid.u_offset_s
+            rate, t_ref, source = fid.rate, fid.t_ref_s, clock_row(ref, fid)["source"]
         clock.append((segment, session, offset, u_offset, source))
         t = t.copy()
-        t["time_s"] = t["time_s"] + offset
+        t["time_s"] = t["time_s"] + offset + rate * (t["time_s"] - t_ref)
         t["segment"] = segment
         t["track_id"] = t["track_id"].astype(np.int64) + next_id.get(segment, 0)
         next_id[segment] = int(t["track_id"].max()) + 1  # sessions of a segment continue the numbering

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -23,11 +24,12 @@ import pandas as pd
 
 from rig.analysis.errors import AnalysisError
 from rig.stereo.errors import StereoError
-from rig.stereo.fiducial import FiducialClock, RowSamples, fit_fiducial_clock, square_wave_edges
+from rig.stereo.fiducial import DriveEdges, FiducialClock, RowSamples, fit_fiducial_clock, square_wave_edges
 
-__all__ = ["ROW_COLUMNS", "FiducialStart", "camera_clock", "clock_row"]
+__all__ = ["ROWS_DIR", "ROW_COLUMNS", "FiducialStart", "camera_clock", "clock_row", "segment_clock"]
 
 ROW_COLUMNS = ("frame_index", "timestamp_s", "row_px", "brightness_dn")
+ROWS_DIR = "fiducial"  # run folder: fiducial/<camera>/<segment>.<n>.parquet (rig.run.fiducial)
 METHOD = "fiducial"
 
 
@@ -64,32 +66,93 @@ class FiducialStart:
         return (self.t_confirmed_s - self.t_sent_s) / math.sqrt(12.0)
 
 
-def camera_clock(rows: pd.DataFrame, start: FiducialStart, *, line_time_s: float, exposure_s: float,
-                 prior_offset_s: float, prior_half_width_s: float, rise_time_s: float) -> FiducialClock:
-    """Fit controller − camera clock from one camera's LED rows (``ROW_COLUMNS``) of one recording.
-
-    Raises AnalysisError naming what is missing, or the stereo core's reason (ambiguous prior, no edge
-    seen) as an AnalysisError.
-    """
+def _check_rows(rows: pd.DataFrame) -> None:
     missing = [c for c in ROW_COLUMNS if c not in rows.columns]
     if missing:
         raise AnalysisError(f"fiducial rows: missing column(s) {', '.join(missing)}")
     if rows.empty:
         raise AnalysisError("fiducial rows: none recorded (is the LED region inside the image?)")
-    start_s = (rows["timestamp_s"].to_numpy(float) + rows["row_px"].to_numpy(float) * line_time_s)
-    order = np.argsort(start_s, kind="stable")
-    samples = RowSamples(start_s[order], rows["brightness_dn"].to_numpy(float)[order], exposure_s)
-    # edges over the recording mapped to the controller's clock through the prior (± its width and a frame)
-    margin_s = prior_half_width_s + exposure_s + 1.0
-    t0 = float(samples.start_s[0]) + prior_offset_s - margin_s
-    t1 = float(samples.start_s[-1]) + prior_offset_s + margin_s
+
+
+def _edges(recordings: list[tuple[FiducialStart, np.ndarray]], prior_offset_s: float,
+           margin_s: float) -> DriveEdges:
+    """The sync edges (controller clock) over every recording's rows, each from its own start."""
+    times, rising, u = [], [], 0.0
+    for start, row_start_s in recordings:
+        t0 = max(float(row_start_s.min()) + prior_offset_s - margin_s, start.origin_s)
+        t1 = float(row_start_s.max()) + prior_offset_s + margin_s
+        e = square_wave_edges(start.origin_s, start.frequency_hz, t0, t1, u_origin_s=start.u_origin_s)
+        times.append(e.times_s)
+        rising.append(e.rising)
+        u = max(u, start.u_origin_s)
+    t, r = np.concatenate(times), np.concatenate(rising)
+    keep = np.concatenate([[True], np.diff(t) > 0]) if t.size else np.zeros(0, bool)
+    order = np.argsort(t[keep], kind="stable")
+    return DriveEdges(t[keep][order], r[keep][order], u)
+
+
+def camera_clock(recordings: list[tuple[FiducialStart, pd.DataFrame]], *, row_start_s: Any,
+                 exposure_s: float, prior_offset_s: float, prior_half_width_s: float,
+                 rise_time_s: float) -> FiducialClock:
+    """Fit controller − camera clock from one camera's LED rows (``ROW_COLUMNS``) of one or more
+    recordings, each with the fiducial start it was recorded under.
+
+    ``row_start_s(timestamp_s, row_px)`` → the rows' exposure starts on the camera's (or the timing
+    model's) clock, e.g. ``timestamp + row · line time``. Raises AnalysisError naming what is missing,
+    or the stereo core's reason (ambiguous prior, no edge seen).
+    """
+    starts, bright, spans = [], [], []
+    for start, rows in recordings:
+        _check_rows(rows)
+        s = np.asarray(row_start_s(rows["timestamp_s"].to_numpy(float), rows["row_px"].to_numpy(float)),
+                       dtype=float)
+        starts.append(s)
+        bright.append(rows["brightness_dn"].to_numpy(float))
+        spans.append((start, s))
+    if not starts:
+        raise AnalysisError("fiducial rows: no recording")
+    s, b = np.concatenate(starts), np.concatenate(bright)
+    order = np.argsort(s, kind="stable")
+    samples = RowSamples(s[order], b[order], exposure_s)
     try:
-        edges = square_wave_edges(start.origin_s, start.frequency_hz, max(t0, start.origin_s), t1,
-                                  u_origin_s=start.u_origin_s)
+        edges = _edges(spans, prior_offset_s, prior_half_width_s + exposure_s + 1.0)
         return fit_fiducial_clock(samples, edges, prior_offset_s=prior_offset_s,
                                   prior_half_width_s=prior_half_width_s, rise_time_s=rise_time_s)
     except StereoError as exc:
         raise AnalysisError(f"fiducial: {exc}") from exc
+
+
+def segment_clock(run_dir: Path, events: pd.DataFrame | None, segment: str, session: int, camera: str, *,
+                  row_start_s: Any, exposure_s: float, prior_offset_s: float,
+                  prior_half_width_s: float) -> tuple[FiducialClock | None, str]:
+    """The fiducial's clock of ``camera`` over one segment's recordings, from the record's ``fiducial``
+    events (``start`` then ``rows`` per recording; ``unavailable``/``invalid`` ones are skipped) and the
+    row files; (None, why) when the segment has none usable — the caller keeps the start events."""
+    if events is None or events.empty or "action" not in events.columns:
+        return None, ""
+    sessions = events["session"].fillna(0).astype(int) if "session" in events.columns else 0
+    here = events[(events["segment"].astype(str) == segment) & (sessions == session)]
+    recordings: list[tuple[FiducialStart, pd.DataFrame]] = []
+    start: FiducialStart | None = None
+    rise = None
+    for event in here.to_dict("records"):
+        action = event.get("action")
+        if action == "start":
+            start, rise = FiducialStart.from_event(event), event.get("rise_time_s")
+        elif action in ("unavailable", "invalid"):
+            start = None
+        elif action == "rows" and event.get("camera") == camera and start is not None:
+            recordings.append((start, pd.read_parquet(run_dir / str(event.get("file")))))
+    if not recordings:
+        why = "; ".join(str(r) for r in here.get("reason", pd.Series(dtype=object)).dropna())
+        return None, f"timing fiducial not used ({why})" if why else ""
+    try:
+        fit = camera_clock(recordings, row_start_s=row_start_s, exposure_s=exposure_s,
+                           prior_offset_s=prior_offset_s, prior_half_width_s=prior_half_width_s,
+                           rise_time_s=float(rise) if isinstance(rise, int | float) else 1e-5)
+    except AnalysisError as exc:
+        return None, f"timing fiducial not used: {exc}"
+    return fit, ""
 
 
 def clock_row(camera: str, fit: FiducialClock) -> dict[str, Any]:
