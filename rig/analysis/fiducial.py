@@ -76,11 +76,17 @@ def _check_rows(rows: pd.DataFrame) -> None:
 
 def _edges(recordings: list[tuple[FiducialStart, np.ndarray]], prior_offset_s: float,
            margin_s: float) -> DriveEdges:
-    """The sync edges (controller clock) over every recording's rows, each from its own start."""
+    """The sync edges (controller clock) over every recording's rows, each from its own start and only
+    until the next start restarts the wave."""
     times, rising, u = [], [], 0.0
-    for start, row_start_s in recordings:
+    recordings = sorted(recordings, key=lambda r: r[0].origin_s)
+    for k, (start, row_start_s) in enumerate(recordings):
         t0 = max(float(row_start_s.min()) + prior_offset_s - margin_s, start.origin_s)
         t1 = float(row_start_s.max()) + prior_offset_s + margin_s
+        if k + 1 < len(recordings):
+            t1 = min(t1, recordings[k + 1][0].origin_s - 1e-9)
+        if t1 <= t0:
+            continue
         e = square_wave_edges(start.origin_s, start.frequency_hz, t0, t1, u_origin_s=start.u_origin_s)
         times.append(e.times_s)
         rising.append(e.rising)
@@ -115,7 +121,7 @@ def camera_clock(recordings: list[tuple[FiducialStart, pd.DataFrame]], *, row_st
     order = np.argsort(s, kind="stable")
     samples = RowSamples(s[order], b[order], exposure_s)
     try:
-        edges = _edges(spans, prior_offset_s, prior_half_width_s + exposure_s + 1.0)
+        edges = _edges(spans, prior_offset_s, prior_half_width_s + exposure_s + 0.05)
         return fit_fiducial_clock(samples, edges, prior_offset_s=prior_offset_s,
                                   prior_half_width_s=prior_half_width_s, rise_time_s=rise_time_s)
     except StereoError as exc:

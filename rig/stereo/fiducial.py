@@ -44,6 +44,8 @@ __all__ = ["DriveEdges", "FiducialClock", "RowSamples", "fit_fiducial_clock", "m
 
 # the rate (drift) is fitted only when the edges seen span at least this long (camera clock, s)
 MIN_RATE_SPAN_S = 2.0
+# rows lit part-way (at the fitted offset) that a fit needs: fewer date no edge
+MIN_TRANSITION_ROWS = 3
 # bound on the LED's rise time (s): an LED rises in ns–µs; 1 ms would be a wrong configuration
 MAX_RISE_TIME_S = 1e-3
 _F = NDArray[np.float64]
@@ -307,15 +309,23 @@ def _result(used: RowSamples, edges: DriveEdges, x: _F, jac: _F, res: _F, *, off
     its centre of light anywhere within the ramp, a rectangular ± rise/2 about the ramp's centre: the
     shape term rise/(2√3) of the offset's uncertainty."""
     cols = [0, 1] if fit_rate else [0]
+    offset, rise = off0 + float(x[0]) * scale, rise_s
+    n_seen, transition = _edges_seen(used, edges, offset, rise)
+    if n_seen == 0 or int(transition.sum()) < MIN_TRANSITION_ROWS:
+        raise TooFewSamplesError(
+            f"{int(transition.sum())} LED row(s) lit part-way by {n_seen} edge(s) at the fitted offset; need "
+            f"≥ {MIN_TRANSITION_ROWS}: record longer (the edges must cross the LED's rows during an "
+            "exposure)")
     j = jac[:, cols]
     dof = max(res.size - len(cols) - 2, 1)
     sigma2 = float(res @ res) / dof
-    cov = np.linalg.pinv(j.T @ j) * sigma2
+    normal = j.T @ j
+    if not np.all(np.isfinite(normal)) or np.linalg.cond(normal) > 1e12 or normal[0, 0] <= 0:
+        raise TooFewSamplesError("the LED's rows do not determine the offset (flat fit): record longer")
+    cov = np.linalg.inv(normal) * sigma2
     u_fit = math.sqrt(max(float(cov[0, 0]), 0.0)) * scale
     u_rate = math.sqrt(max(float(cov[1, 1]), 0.0)) * 1e-6 if fit_rate else 0.0
-    offset, rise = off0 + float(x[0]) * scale, rise_s
     u_shape = rise / (2.0 * math.sqrt(3.0))
-    n_seen, transition = _edges_seen(used, edges, offset, rise)
     return FiducialClock(
         offset_s=offset, u_offset_s=math.sqrt(u_fit**2 + u_shape**2 + edges.u_s**2), u_fit_s=u_fit,
         rate=float(x[1]) * 1e-6 if fit_rate else 0.0, u_rate=u_rate, rate_fitted=fit_rate, t_ref_s=t_ref,
