@@ -130,3 +130,21 @@ def test_row_profile_is_the_row_mean_of_the_region_clipped_to_the_image() -> Non
     assert np.allclose(mean, img[18:20, 25:30].mean(axis=1))
     with pytest.raises(InputArrayError, match="outside"):
         row_profile(img, (40, 0, 50, 5))
+
+
+def test_a_wrong_line_time_in_the_row_instants_is_measured_and_corrected() -> None:
+    """The rows' instants assume a line time 455 ns/row (3.3 %) short, as the joint timing model had it on
+    rig certify; the LED's rows (400–520) measure the difference, and the offset at another row has it."""
+    k = np.arange(int(6.0 * FPS))
+    rows = np.tile(np.arange(400, 520), k.size).astype(float)
+    true_start = (k[:, None] / FPS + np.arange(400, 520)[None, :] * LINE_S).ravel()
+    assumed_start = true_start - 455e-9 * rows
+    edges = square_edges(-0.2, PULSE_PERIOD_S, 140)
+    b = synthetic_brightness(true_start, edges, offset_s=0.003, rate=0.0, t_ref_s=3.0, time_constant_s=5e-6,
+                             noise_dn=0.5, seed=3)
+    fit = fit_fiducial_clock(RowSamples(assumed_start, b, EXPOSURE_S, rows), edges, prior_offset_s=0.0,
+                             prior_half_width_s=0.0085, rise_time_s=1.1e-5, t_ref_s=3.0)
+    assert fit.line_time_fitted
+    assert abs(fit.line_time_error_s - 455e-9) <= 5.0 * fit.u_line_time_error_s
+    offset_row0, u_row0 = fit.offset_at_row_s(0.0)  # the instant of row 0 needs the whole correction
+    assert abs(offset_row0 - 0.003) <= 3.0 * u_row0 < 2e-5

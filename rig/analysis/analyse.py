@@ -387,7 +387,9 @@ def analyse(
         if why:
             notes.append(f"segment {segment!r} (session {session}): {why}")
         if fid is not None:  # the controller's clock from the LED's edges instead of the start events
-            offset, u_offset = fid.offset_s + 0.5 * _exposure_s(rig, ref), fid.u_offset_s
+            # stated at the reference camera's median marker row (the line time's correction applies there)
+            offset, u_offset = fid.offset_at_row_s(float(sel[ref]["v_px"].median()))
+            offset += 0.5 * _exposure_s(rig, ref)
             rate, t_ref, source = fid.rate, fid.t_ref_s, clock_row(ref, fid)["source"]
         clock.append((segment, session, offset, u_offset, source))
         t = t.copy()

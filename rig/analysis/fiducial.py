@@ -107,19 +107,20 @@ def camera_clock(recordings: list[tuple[FiducialStart, pd.DataFrame]], *, row_st
     model's) clock, e.g. ``timestamp + row · line time``. Raises AnalysisError naming what is missing,
     or the stereo core's reason (ambiguous prior, no edge seen).
     """
-    starts, bright, spans = [], [], []
+    starts, bright, spans, rows_px = [], [], [], []
     for start, rows in recordings:
         _check_rows(rows)
         s = np.asarray(row_start_s(rows["timestamp_s"].to_numpy(float), rows["row_px"].to_numpy(float)),
                        dtype=float)
         starts.append(s)
         bright.append(rows["brightness_dn"].to_numpy(float))
+        rows_px.append(rows["row_px"].to_numpy(float))
         spans.append((start, s))
     if not starts:
         raise AnalysisError("fiducial rows: no recording")
     s, b = np.concatenate(starts), np.concatenate(bright)
     order = np.argsort(s, kind="stable")
-    samples = RowSamples(s[order], b[order], exposure_s)
+    samples = RowSamples(s[order], b[order], exposure_s, np.concatenate(rows_px)[order])
     try:
         edges = _edges(spans, prior_offset_s, prior_half_width_s + exposure_s + 0.05)
         return fit_fiducial_clock(samples, edges, prior_offset_s=prior_offset_s,
@@ -158,15 +159,20 @@ def segment_clock(run_dir: Path, events: pd.DataFrame | None, segment: str, sess
                            rise_time_s=float(rise) if isinstance(rise, int | float) else 1e-5)
     except AnalysisError as exc:
         return None, f"timing fiducial not used: {exc}"
+    if not fit.line_time_fitted:  # the offset holds at the LED's rows only; the markers' are elsewhere
+        return None, (f"timing fiducial not used: {fit.n_edges_seen} edge(s) in {fit.n_transition_rows} rows "
+                      "cannot fit the line time that carries its offset from the LED's rows to the markers'")
     return fit, ""
 
 
 def clock_row(camera: str, fit: FiducialClock) -> dict[str, Any]:
     """The fit as a row of the analysis's clock table: offset at ``t_ref_s`` and how it was found."""
+    line = (f"; the timing model's line time corrected by {fit.line_time_error_s * 1e9:+.3f} ± "
+            f"{fit.u_line_time_error_s * 1e9:.3f} ns/row" if fit.line_time_fitted else "")
     drift = f"rate {fit.rate * 1e6:+.3f} ± {fit.u_rate * 1e6:.3f} ppm" if fit.rate_fitted else \
         "rate not resolved (edges seen over too short a span), 0"
     return {"camera": camera, "offset_s": fit.offset_s, "u_offset_s": fit.u_offset_s, "t_ref_s": fit.t_ref_s,
             "rate": fit.rate, "method": METHOD,
             "source": f"timing fiducial: {fit.n_edges_seen} edges in {fit.n_transition_rows} rows lit "
                       f"part-way (fit ±{1e6 * fit.u_fit_s:.2f} µs; LED rise and edge knowledge included; "
-                      f"{drift})"}
+                      f"{drift}{line})"}

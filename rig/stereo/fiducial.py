@@ -44,6 +44,8 @@ __all__ = ["DriveEdges", "FiducialClock", "RowSamples", "fit_fiducial_clock", "m
 
 # the rate (drift) is fitted only when the edges seen span at least this long (camera clock, s)
 MIN_RATE_SPAN_S = 2.0
+# the line time is fitted when the rows lit part-way span at least this many rows (and 2 edges are seen)
+MIN_LINE_TIME_SPAN_PX = 50.0
 # rows lit part-way (at the fitted offset) that a fit needs: fewer date no edge
 MIN_TRANSITION_ROWS = 3
 # bound on the LED's rise time (s): an LED rises in ns–µs; 1 ms would be a wrong configuration
@@ -96,11 +98,14 @@ class DriveEdges:
 @dataclass(frozen=True)
 class RowSamples:
     """LED brightness per image row: ``start_s`` (camera clock, start of that row's exposure),
-    ``brightness_dn`` (mean of the LED's pixels in that row), ``exposure_s`` (> 0, the rows' exposure)."""
+    ``brightness_dn`` (mean of the LED's pixels in that row), ``exposure_s`` (> 0, the rows' exposure),
+    ``row_px`` (optional: the rows' indices; given, the fit also corrects the line time that ``start_s``
+    assumed, when the LED spans enough rows)."""
 
     start_s: _F
     brightness_dn: _F
     exposure_s: float
+    row_px: _F | None = None
 
     def __post_init__(self) -> None:
         s = np.asarray(self.start_s, dtype=float)
@@ -114,11 +119,22 @@ class RowSamples:
             raise InputArrayError(f"exposure_s must be a finite number > 0, got {self.exposure_s!r}")
         object.__setattr__(self, "start_s", s)
         object.__setattr__(self, "brightness_dn", b)
+        if self.row_px is not None:
+            r = np.asarray(self.row_px, dtype=float)
+            if r.shape != s.shape or not np.all(np.isfinite(r)):
+                raise InputArrayError(f"row_px must be finite and of start_s's length, got shape {r.shape}")
+            object.__setattr__(self, "row_px", r)
+
+    def subset(self, keep: NDArray[np.bool_]) -> RowSamples:
+        return RowSamples(self.start_s[keep], self.brightness_dn[keep], self.exposure_s,
+                          None if self.row_px is None else self.row_px[keep])
 
 
 @dataclass(frozen=True)
 class FiducialClock:
-    """Controller time of a camera's clock: t_c = t + offset_s + rate·(t − t_ref_s) (all s, camera clock t).
+    """Controller time of a camera's clock: t_c = t + offset_s + rate·(t − t_ref_s) (all s, camera clock t),
+    plus ``line_time_error_s``·(row − ``row_ref_px``) for a row's instant when the line time was fitted
+    (``line_time_fitted``; the offset is then stated at ``row_ref_px``, the mean lit-part-way row).
 
     ``u_offset_s``: standard uncertainty of the offset at ``t_ref_s`` (fit ⊕ edge knowledge);
     ``u_fit_s`` the fit's part; ``rate_fitted`` False when the edges seen spanned too little time to
@@ -138,6 +154,16 @@ class FiducialClock:
     n_transition_rows: int
     n_edges_seen: int
     residual_dn: float
+    line_time_fitted: bool = False
+    line_time_error_s: float = 0.0
+    u_line_time_error_s: float = 0.0
+    row_ref_px: float = 0.0
+
+    def offset_at_row_s(self, row_px: float) -> tuple[float, float]:
+        """(offset, standard uncertainty) s at ``t_ref_s`` for an instant of image row ``row_px``."""
+        d = row_px - self.row_ref_px if self.line_time_fitted else 0.0
+        return (self.offset_s + self.line_time_error_s * d,
+                math.hypot(self.u_offset_s, self.u_line_time_error_s * d))
 
     def controller_time_s(self, camera_time_s: ArrayLike) -> _F:
         t = np.asarray(camera_time_s, dtype=float)
@@ -241,7 +267,8 @@ def _near_edges(rows: RowSamples, edges: DriveEdges, offset_s: float, margin_s: 
     return hi > lo
 
 
-def _edges_seen(rows: RowSamples, edges: DriveEdges, offset_s: float, rise_time_s: float) -> tuple[int, _F]:
+def _edges_seen(rows: RowSamples, edges: DriveEdges, offset_s: float | _F,
+                rise_time_s: float) -> tuple[int, _F]:
     """(number of distinct edges lit part-way in some row, mask of transition rows) at this offset."""
     a = rows.start_s + offset_s
     lo = np.searchsorted(edges.times_s, a - rise_time_s, side="left")
@@ -284,33 +311,40 @@ def fit_fiducial_clock(rows: RowSamples, edges: DriveEdges, *, prior_offset_s: f
         raise TooFewSamplesError("no LED row is lit part-way through its exposure: no edge to date")
     seen_t = rows.start_s[transition > 0]
     fit_rate = n_seen >= 2 and float(np.ptp(seen_t)) >= MIN_RATE_SPAN_S
-    near = _near_edges(rows, edges, off0, 4.0 * (rows.exposure_s + rise0))
-    used = RowSamples(rows.start_s[near], rows.brightness_dn[near], rows.exposure_s)
+    fit_line = rows.row_px is not None and n_seen >= 2 and \
+        float(np.ptp(rows.row_px[transition > 0])) >= MIN_LINE_TIME_SPAN_PX
+    row_ref = float(np.mean(rows.row_px[transition > 0])) if fit_line and rows.row_px is not None else 0.0
+    used = rows.subset(_near_edges(rows, edges, off0, 4.0 * (rows.exposure_s + rise0)))
     dt = used.start_s - t_ref
+    drow = used.row_px - row_ref if fit_line and used.row_px is not None else np.zeros_like(dt)
     scale = rows.exposure_s  # offsets and the ramp in exposures, the rate in ppm: well-conditioned steps
 
     def residuals(p: _F) -> _F:
         rate = p[1] * 1e-6 if fit_rate else 0.0
-        level = mean_levels(used.start_s + off0 + p[0] * scale + rate * dt, used.exposure_s, edges, rise0)
+        shift = off0 + p[0] * scale + rate * dt + p[2] * 1e-9 * drow  # line time error in ns per row
+        level = mean_levels(used.start_s + shift, used.exposure_s, edges, rise0)
         return _affine(level, used.brightness_dn)[2]
 
-    upper = np.array([prior_half_width_s / scale + 1.0, 1e3])
-    sol = least_squares(residuals, np.zeros(2), bounds=(-upper, upper), x_scale=np.array([0.1, 10.0]),
+    upper = np.array([prior_half_width_s / scale + 1.0, 1e3, 1e3])
+    sol = least_squares(residuals, np.zeros(3), bounds=(-upper, upper), x_scale=np.array([0.1, 10.0, 1.0]),
                         diff_step=1e-6)
     return _result(used, edges, sol.x, sol.jac, sol.fun, off0=off0, scale=scale, t_ref=t_ref,
-                   fit_rate=fit_rate, rise_s=rise0, n_rows=rows.start_s.size)
+                   fit_rate=fit_rate, fit_line=fit_line, row_ref=row_ref, rise_s=rise0,
+                   n_rows=rows.start_s.size)
 
 
 def _result(used: RowSamples, edges: DriveEdges, x: _F, jac: _F, res: _F, *, off0: float, scale: float,
-            t_ref: float, fit_rate: bool, rise_s: float, n_rows: int) -> FiducialClock:
+            t_ref: float, fit_rate: bool, fit_line: bool, row_ref: float, rise_s: float,
+            n_rows: int) -> FiducialClock:
     """The fitted clock with its covariance (Jacobian, residual variance; b_off and gain profiled out).
 
     The ramp is a model: a real rise (first order, or an LED driver's delay curve) of that rise time has
     its centre of light anywhere within the ramp, a rectangular ± rise/2 about the ramp's centre: the
     shape term rise/(2√3) of the offset's uncertainty."""
-    cols = [0, 1] if fit_rate else [0]
+    cols = [0, *([1] if fit_rate else []), *([2] if fit_line else [])]
     offset, rise = off0 + float(x[0]) * scale, rise_s
-    n_seen, transition = _edges_seen(used, edges, offset, rise)
+    drow = used.row_px - row_ref if fit_line and used.row_px is not None else 0.0
+    n_seen, transition = _edges_seen(used, edges, offset + float(x[2]) * 1e-9 * drow, rise)
     if n_seen == 0 or int(transition.sum()) < MIN_TRANSITION_ROWS:
         raise TooFewSamplesError(
             f"{int(transition.sum())} LED row(s) lit part-way by {n_seen} edge(s) at the fitted offset; need "
@@ -325,12 +359,15 @@ def _result(used: RowSamples, edges: DriveEdges, x: _F, jac: _F, res: _F, *, off
     cov = np.linalg.inv(normal) * sigma2
     u_fit = math.sqrt(max(float(cov[0, 0]), 0.0)) * scale
     u_rate = math.sqrt(max(float(cov[1, 1]), 0.0)) * 1e-6 if fit_rate else 0.0
+    u_line = math.sqrt(max(float(cov[-1, -1]), 0.0)) * 1e-9 if fit_line else 0.0
     u_shape = rise / (2.0 * math.sqrt(3.0))
     return FiducialClock(
         offset_s=offset, u_offset_s=math.sqrt(u_fit**2 + u_shape**2 + edges.u_s**2), u_fit_s=u_fit,
         rate=float(x[1]) * 1e-6 if fit_rate else 0.0, u_rate=u_rate, rate_fitted=fit_rate, t_ref_s=t_ref,
         rise_time_s=rise, n_rows=n_rows, n_transition_rows=int(transition.sum()), n_edges_seen=n_seen,
-        residual_dn=math.sqrt(sigma2))
+        residual_dn=math.sqrt(sigma2), line_time_fitted=fit_line,
+        line_time_error_s=float(x[2]) * 1e-9 if fit_line else 0.0, u_line_time_error_s=u_line,
+        row_ref_px=row_ref)
 
 
 def square_wave_edges(origin_s: float, frequency_hz: float, t_start_s: float, t_stop_s: float, *,
