@@ -318,16 +318,21 @@ def fit_fiducial_clock(rows: RowSamples, edges: DriveEdges, *, prior_offset_s: f
     dt = used.start_s - t_ref
     drow = used.row_px - row_ref if fit_line and used.row_px is not None else np.zeros_like(dt)
     scale = rows.exposure_s  # offsets and the ramp in exposures, the rate in ppm: well-conditioned steps
+    # times relative to the first row (controller edges shifted by the coarse offset too), so that the
+    # finite-difference steps (≥ 1e-11 s) stay far above the rounding of clocks that read 10⁶ s
+    t_base = float(used.start_s[0])
+    s_rel = used.start_s - t_base
+    edges_rel = DriveEdges(edges.times_s - (t_base + off0), edges.rising, edges.u_s)
 
     def residuals(p: _F) -> _F:
         rate = p[1] * 1e-6 if fit_rate else 0.0
-        shift = off0 + p[0] * scale + rate * dt + p[2] * 1e-9 * drow  # line time error in ns per row
-        level = mean_levels(used.start_s + shift, used.exposure_s, edges, rise0)
+        shift = p[0] * scale + rate * dt + p[2] * 1e-9 * drow  # line time error in ns per row
+        level = mean_levels(s_rel + shift, used.exposure_s, edges_rel, rise0)
         return _affine(level, used.brightness_dn)[2]
 
     upper = np.array([prior_half_width_s / scale + 1.0, 1e3, 1e3])
     sol = least_squares(residuals, np.zeros(3), bounds=(-upper, upper), x_scale=np.array([0.1, 10.0, 1.0]),
-                        diff_step=1e-6)
+                        diff_step=1e-4)
     return _result(used, edges, sol.x, sol.jac, sol.fun, off0=off0, scale=scale, t_ref=t_ref,
                    fit_rate=fit_rate, fit_line=fit_line, row_ref=row_ref, rise_s=rise0,
                    n_rows=rows.start_s.size)
@@ -354,7 +359,9 @@ def _result(used: RowSamples, edges: DriveEdges, x: _F, jac: _F, res: _F, *, off
     dof = max(res.size - len(cols) - 2, 1)
     sigma2 = float(res @ res) / dof
     normal = j.T @ j
-    if not np.all(np.isfinite(normal)) or np.linalg.cond(normal) > 1e12 or normal[0, 0] <= 0:
+    diag = np.diag(normal)
+    if not np.all(np.isfinite(normal)) or np.any(diag <= 0) or \
+            np.linalg.cond(normal / np.sqrt(np.outer(diag, diag))) > 1e10:  # scale-free: the correlations
         raise TooFewSamplesError("the LED's rows do not determine the offset (flat fit): record longer")
     cov = np.linalg.inv(normal) * sigma2
     u_fit = math.sqrt(max(float(cov[0, 0]), 0.0)) * scale
