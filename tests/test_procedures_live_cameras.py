@@ -86,6 +86,7 @@ class Ctx:
 
     def __init__(self, cameras: dict[str, Any]) -> None:
         self.station = SimpleNamespace(cameras=cameras)
+        self.config = SimpleNamespace(fiducial=None)  # no timing fiducial configured
         self.clock = WallClock()
         self.log = logging.getLogger("test")
         self.events: list[dict[str, Any]] = []

@@ -394,6 +394,18 @@ class ScpiGenerator:
         self.write(f"{self.source}:SWE:TIME", time_s)
         self.write(f"TRIG{self.channel}:SOUR", "IMM")
 
+    def set_sync(self, on: bool) -> None:
+        """``OUTPn:SYNC ON|OFF``: the Sync connector (it drives a timing fiducial LED when one is wired)."""
+        self.write(f"{self.output_node}:SYNC", "ON" if on else "OFF")
+
+    def sync_enabled(self) -> bool:
+        """``OUTPn:SYNC?``."""
+        return self._ask(f"{self.output_node}:SYNC?", parse_bool)
+
+    def synchronize_phase(self) -> None:
+        """``SOURn:PHAS:SYNC``: the waveform (and its sync edges) restarts at phase 0 when executed."""
+        self.write(f"{self.source}:PHAS:SYNC")
+
     def set_sweep(self, on: bool) -> None:
         self.write(f"{self.source}:SWE:STAT", "ON" if on else "OFF")
 

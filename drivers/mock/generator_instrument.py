@@ -1,7 +1,8 @@
 """The simulated function generator (Keysight 33521B-like, one channel) behind the SCPI mock server.
 
 :meth:`GeneratorInstrument.handle_line` takes one program message and returns the reply line (or
-``None`` when it held no query). State changes move the twin's shaker: with the output ON and a sine
+``None`` when it held no query). State changes move the twin's shaker (and a timing fiducial LED on the
+sync output, below): with the output ON and a sine
 selected, the shaker vibrates at the generator frequency (or sweeps, repeating, as with trigger IMM) with
 peak displacement ``s(f) · V_peak`` where ``s`` is the amplifier + shaker sensitivity (mm per V peak) —
 the physics, given to the mock like the rig's calibration table — and ``V_peak`` the real voltage at the
@@ -15,6 +16,16 @@ displayed value doubles from 50 Ω to INF while the real output stays (Keysight 
 frequency (the twin's amplitude is piecewise constant; exact for a flat sensitivity table). Non-sine
 functions leave the shaker at rest. The status model (error queue, ESR/ESE/SRE/STB) is
 :mod:`drivers.mock.scpi_status`.
+
+Sync output and the timing fiducial: ``OUTPut:SYNC ON|OFF`` switches the rear Sync connector (on after
+``*RST``, as on the 33500); with a ``sync_led`` (:class:`drivers.sim.fiducial.SyncLed`) it drives that
+LED with the carrier's square wave (high over phase 0…π) whatever the main output's state — the
+instrument's oscillator runs at the set frequency (or sweep) also with OUTPut OFF, so the fiducial can
+blink with the shaker at rest. ``PHASe:SYNChronize`` restarts the oscillator at phase 0 at the instant
+the command is executed: the controller, which knows when it sent it and when ``*OPC?`` came back,
+knows every later sync edge in its own clock to within that round trip. (UNVERIFIED against a real
+33521B: that Sync runs with the output off, and carrier sync during a sweep; the 33500's default sync
+in a sweep marks the sweep's start instead.)
 """
 
 from __future__ import annotations
@@ -24,12 +35,13 @@ import re
 import threading
 from collections import deque
 from collections.abc import Callable
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 
 from drivers.mock.scpi_parser import Pattern, ScpiCommandError, Unit, split_units
 from drivers.mock.scpi_status import ERROR_QUEUE_DEPTH, StatusModel
+from drivers.sim.fiducial import SyncLed
 
 __all__ = ["ERROR_QUEUE_DEPTH", "LINES_KEPT", "GeneratorInstrument"]
 
@@ -64,9 +76,11 @@ class GeneratorInstrument:
 
     def __init__(self, body: Any, clock: Any, *,
                  sensitivity_mm_per_v: list[tuple[float, float]] | None = None,
-                 identity: str = IDN) -> None:
+                 identity: str = IDN, sync_led: SyncLed | None = None) -> None:
         self.body = body
         self.clock = clock
+        self.sync_led = sync_led
+        self._sync_state: tuple[object, bool] | None = None
         table = sensitivity_mm_per_v or [(1.0, 0.5), (100.0, 0.5)]
         self._sens_f = np.array([p[0] for p in table], float)
         self._sens_s = np.array([p[1] for p in table], float)
@@ -78,6 +92,7 @@ class GeneratorInstrument:
         self._replies_pending = 0
         self._reset_state()
         self._commands = self._command_table()
+        self._update_sync(self.clock.now_s())  # powered on: the oscillator runs, sync on
 
     # state ---------------------------------------------------------------------------------------------
     def _reset_state(self) -> None:
@@ -94,6 +109,7 @@ class GeneratorInstrument:
         self.sweep_spacing = "LIN"
         self.sweep_time_s = 1.0
         self.trigger_source = "IMM"
+        self.sync_on = True
 
     @property
     def errors(self) -> deque[tuple[int, str]]:
@@ -112,9 +128,36 @@ class GeneratorInstrument:
     def sensitivity(self, f_hz: float) -> float:
         return float(np.interp(f_hz, self._sens_f, self._sens_s))
 
+    def _update_sync(self, t: float) -> None:
+        """The oscillator (running whatever the output state) and the sync output drive the fiducial LED."""
+        led = self.sync_led
+        if led is None:
+            return
+        spacing: Literal["linear", "log"] = "log" if self.sweep_spacing == "LOG" else "linear"
+        state = ((self.sweep_start_hz, self.sweep_stop_hz, self.sweep_time_s, spacing) if self.sweep_on
+                 else (self.frequency_hz,), self.sync_on)
+        if state == self._sync_state:  # unchanged: no new segment in the oscillator's bounded history
+            return
+        if state[0] != (self._sync_state or (None,))[0]:
+            if self.sweep_on:
+                led.waveform.sweep(t, self.sweep_start_hz, self.sweep_stop_hz, self.sweep_time_s, spacing,
+                                   repeat=True)
+            else:
+                led.waveform.set_frequency(t, self.frequency_hz)
+        led.set_enabled(t, self.sync_on)
+        self._sync_state = state
+
+    def _synchronize_phase(self) -> None:
+        """``PHASe:SYNChronize``: the oscillator restarts at phase 0 now."""
+        if self.sync_led is not None:
+            self.sync_led.restart_phase(self.clock.now_s())
+            self._sync_state = None  # the new oscillator takes the state at the next update
+            self._update_sync(self.clock.now_s())
+
     def _update_body(self) -> None:
         """Move the twin to the instrument's state: O(1) per call (a sweep is one repeating segment)."""
         t = self.clock.now_s()
+        self._update_sync(t)
         active = self.output and self.function == "SIN"
         f_ref = self.sweep_start_hz if self.sweep_on else self.frequency_hz
         self.body.set_amplitude(t, self.sensitivity(f_ref) * self.real_vpeak() if active else 0.0)
@@ -316,6 +359,9 @@ class GeneratorInstrument:
              lambda: "1" if self.sweep_on else "0"),
             (Pattern("OUTPut#[:STATe]"), lambda u: self._set("output", self._bool(u)),
              lambda: "1" if self.output else "0"),
+            (Pattern("OUTPut#:SYNC[:STATe]"), lambda u: self._set("sync_on", self._bool(u)),
+             lambda: "1" if self.sync_on else "0"),
+            (Pattern("[SOURce#:]PHASe:SYNChronize"), lambda u: self._synchronize_phase(), None),
             (Pattern("OUTPut#:LOAD"), self._set_load,
              lambda: "9.9E+37" if math.isinf(self.load_ohm) else _fmt(self.load_ohm)),
             (Pattern("TRIGger#:SOURce"),

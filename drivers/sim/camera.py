@@ -22,6 +22,7 @@ import cv2
 import numpy as np
 import pandas as pd
 
+from drivers.sim.fiducial import SyncLed
 from drivers.sim.render import (
     NoiseModel,
     conic_extents,
@@ -283,7 +284,30 @@ class SimCamera:
         ids = self.world.marker_ids_at(t0 + 0.5 * self.readout_s)
         if ids:
             self._draw(frame, ids, t0, rng)
+        for led in self.world.leds:
+            self._draw_led(frame, led, t0, rng)
         return frame
+
+    def _draw_led(self, frame: np.ndarray, led: SyncLed, t0: float, rng: np.random.Generator) -> None:
+        """Add a timing fiducial: its projected rectangle (area-covered at 1/16 px) lit per row by the mean
+        of its light over that row's exposure (rolling shutter: rows see the edges at their own times)."""
+        corners = led.corners_mm()
+        if np.any(self._depth(corners) <= 1.0):
+            return
+        uv = self.project(corners)
+        x_lo, y_lo = (int(max(math.floor(v), 0)) for v in uv.min(axis=0))
+        x_hi, y_hi = int(min(math.ceil(uv[:, 0].max()), self.width_px - 1)), int(
+            min(math.ceil(uv[:, 1].max()), self.height_px - 1))
+        if x_hi < x_lo or y_hi < y_lo:
+            return
+        mask = np.zeros((y_hi - y_lo + 1, x_hi - x_lo + 1), dtype=np.uint8)
+        pts = np.rint((uv - [x_lo, y_lo]) * 16).astype(np.int32)
+        cv2.fillConvexPoly(mask, pts, 255, lineType=cv2.LINE_AA, shift=4)
+        rows = np.arange(y_lo, y_hi + 1)
+        level = led.mean_levels((t0 + rows * self.line_time_s).astype(np.float64), self.exposure_s)
+        scale = led.contrast_dn / max(self.noise.marker_level_dn - self.noise.background_level_dn, 1.0)
+        cov = (mask.astype(np.float32) / 255.0) * (level[:, None] * scale).astype(np.float32)
+        self._blend(frame, cov[None], np.array([y_lo]), np.array([x_lo]), rng)
 
     def _draw(self, frame: np.ndarray, ids: list[str], t0: float, rng: np.random.Generator) -> None:
         h, w, lt, te = self.height_px, self.width_px, self.line_time_s, self.exposure_s

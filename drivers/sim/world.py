@@ -16,6 +16,7 @@ import numpy as np
 
 from drivers.sim.bodies import OscillatorBody, RobotBody, SimCommandError
 from drivers.sim.clock import VirtualClock
+from drivers.sim.fiducial import SyncLed
 from drivers.sim.targets import TargetSet, unit
 
 __all__ = ["SCENES", "World", "WorldLayout"]
@@ -71,6 +72,14 @@ class World:
         self._scenes: tuple[tuple[float, str], ...] = ((-math.inf, lay.initial_scene),)
         self._lock = threading.Lock()
         self._plans: dict[tuple[str, ...], list] = {}
+        self.leds: tuple[SyncLed, ...] = ()  # timing fiducials in view (drivers.sim.fiducial)
+
+    def add_led(self, led: SyncLed) -> SyncLed:
+        """Put a timing fiducial LED into the world (the cameras render it in every scene)."""
+        if any(other.name == led.name for other in self.leds):
+            raise ValueError(f"an LED named {led.name!r} is already in the world")
+        self.leds = (*self.leds, led)
+        return led
 
     def _build(self, tg: TargetSet) -> tuple[dict[str, _Marker], dict[str, list[str]]]:
         markers: dict[str, _Marker] = {}

@@ -29,6 +29,11 @@ observations, per session) and puts the tracks on the **controller clock** (cont
   its own events' interval, and a segment without any the median of the run's; without any event,
   :class:`ClockMappingError`. ``Analysis.clock`` says which, with the standard
   uncertainty;
+- with a timing fiducial recorded (``[fiducial]``; ``fiducial`` events and ``fiducial/`` row files of
+  :mod:`rig.run.fiducial`), the reference camera's clock is dated from the LED's edges instead
+  (:mod:`rig.analysis.fiducial`: offset and rate, to microseconds plus how well the controller knows its
+  edges), the start events' interval only telling its edges apart; a segment whose fiducial is missing
+  or unusable keeps the start events, with a note saying why;
 - pairing is restricted to a **volume**: the robot envelope box of the configuration snapshot
   (``rig["limits"]["robot"]["envelope_*_mm"]``) joined with the reference markers' positions
   (``rig["targets"]["references"]["positions_mm"]``), grown by ``volume_margin_mm``; pairs that would
@@ -42,6 +47,7 @@ from __future__ import annotations
 import json
 import math
 import warnings
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -57,6 +63,7 @@ from rig.analysis.errors import (
     MissingObservationsError,
     NoPairableTracksError,
 )
+from rig.analysis.fiducial import clock_row, segment_clock
 from rig.analysis.sync_tracks import (
     SYNC_METHODS,
     TRACK_COLUMNS,
@@ -69,6 +76,7 @@ from rig.analysis.tracks2d import tracks_2d
 from rig.record.reader import RecordError, load_run
 from rig.stereo.dlt import DLTCamera
 from rig.stereo.errors import StereoError
+from rig.stereo.fiducial import FiducialClock
 from rig.stereo.timing import TimingResult
 
 # bound (ppm, rectangular) of a camera clock's rate error against the controller when the start events
@@ -240,15 +248,30 @@ def _prepared_observations(observations: dict[str, pd.DataFrame], cameras: dict[
     return obs
 
 
+@dataclass(frozen=True)
+class SegmentClock:
+    """Controller time of a segment's reference-camera time: t_controller = t + offset_s + rate·(t − t_ref_s);
+    ``u_offset_s`` its standard uncertainty (s), ``source`` how it was found."""
+
+    offset_s: float
+    u_offset_s: float
+    source: str
+    rate: float = 0.0
+    t_ref_s: float = 0.0
+
+
+SegmentDating = Callable[[str, int, dict[str, pd.DataFrame]], SegmentClock]
+
+
 class _SegmentAnalysis:
     """The segments of one analysis, added one (segment, session) at a time: pairs the cameras' tracks,
     triangulates them and puts them on the controller clock; collects ``tracks``, ``pairs``, ``clock`` rows
     (segment, session, offset_s, u_offset_s, source) and appends to ``notes``."""
 
     def __init__(self, obs: dict[str, pd.DataFrame], cameras: dict[str, DLTCamera], timing: TimingResult,
-                 offsets: pd.DataFrame, notes: list[str], *, sync: str, gate_px: float,
+                 date: SegmentDating, notes: list[str], *, sync: str, gate_px: float,
                  volume_mm: tuple[tuple[float, float], ...] | None, knot_spacing_frames: float) -> None:
-        self.obs, self.cameras, self.timing, self.offsets, self.notes = obs, cameras, timing, offsets, notes
+        self.obs, self.cameras, self.timing, self.date, self.notes = obs, cameras, timing, date, notes
         self.sync, self.gate_px, self.volume_mm = sync, gate_px, volume_mm
         self.knot_spacing_frames = knot_spacing_frames
         self.tracks: list[pd.DataFrame] = []
@@ -278,10 +301,10 @@ class _SegmentAnalysis:
         self.notes += t.attrs.get("notes", [])
         if t.empty:
             return
-        offset, u_offset, source = _offset_for(self.offsets, segment, session)
-        self.clock.append((segment, session, offset, u_offset, source))
+        clock = self.date(segment, session, sel)
+        self.clock.append((segment, session, clock.offset_s, clock.u_offset_s, clock.source))
         t = t.copy()
-        t["time_s"] = t["time_s"] + offset
+        t["time_s"] = t["time_s"] + clock.offset_s + clock.rate * (t["time_s"] - clock.t_ref_s)
         t["segment"] = segment
         t["track_id"] = t["track_id"].astype(np.int64) + self._next_id.get(segment, 0)
         self._next_id[segment] = int(t["track_id"].max()) + 1
@@ -341,6 +364,18 @@ def _offset_for(offsets: pd.DataFrame, segment: str, session: int) -> tuple[floa
     )
 
 
+def _fiducial_clock(run_dir: Path, events: pd.DataFrame | None, segment: str, session: int, *,
+                    timing: TimingResult, exposure_s: float, offset_s: float, u_offset_s: float,
+                    period_s: float) -> tuple[FiducialClock | None, str]:
+    """The reference camera's clock from the timing fiducial (:mod:`rig.analysis.fiducial`), its edges told
+    apart by the start events' interval (the offset ± √3 u, at least ±½ frame); (None, why) without one."""
+    ref = timing.reference_camera
+    return segment_clock(run_dir, events, segment, session, ref,
+                         row_start_s=lambda ts, row: timing.times(ref, ts, row), exposure_s=exposure_s,
+                         prior_offset_s=offset_s - 0.5 * exposure_s,
+                         prior_half_width_s=max(math.sqrt(3.0) * u_offset_s, 0.51 * period_s))
+
+
 def analyse(
     run_dir: str | Path,
     *,
@@ -396,7 +431,23 @@ def analyse(
     ref = timing.reference_camera
     groups = sorted({(s, int(n)) for cam in cameras for s, n in zip(obs[cam]["segment"], obs[cam]["session"],
                                                                      strict=True)})
-    segments = _SegmentAnalysis(obs, cameras, timing, offsets, notes, sync=sync, gate_px=gate_px,
+    def date(segment: str, session: int, sel: dict[str, pd.DataFrame]) -> SegmentClock:
+        """The start events' offset, or the timing fiducial's clock when one was recorded (stated at the
+        reference camera's median marker row, where the line time's correction applies)."""
+        offset, u_offset, source = _offset_for(offsets, segment, session)
+        exposure_s = _exposure_s(rig, ref)
+        fid, why = _fiducial_clock(run_dir, run.events.get("fiducial"), segment, session, timing=timing,
+                                   exposure_s=exposure_s, offset_s=offset, u_offset_s=u_offset,
+                                   period_s=periods[ref])
+        if why:
+            notes.append(f"segment {segment!r} (session {session}): {why}")
+        if fid is None:
+            return SegmentClock(offset, u_offset, source)
+        offset, u_offset = fid.offset_at_row_s(float(sel[ref]["v_px"].median()))
+        return SegmentClock(offset + 0.5 * exposure_s, u_offset, clock_row(ref, fid)["source"], fid.rate,
+                            fid.t_ref_s)
+
+    segments = _SegmentAnalysis(obs, cameras, timing, date, notes, sync=sync, gate_px=gate_px,
                                 volume_mm=volume, knot_spacing_frames=knot_spacing_frames)
     for segment, session in groups:
         segments.add(segment, session)

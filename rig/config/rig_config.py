@@ -22,6 +22,8 @@ complete, commented example):
 - ``[limits.robot]`` envelope and speed; ``[limits.exciter|rotor|generator]`` frequency, displacement,
   acceleration (2πf)²·x and ramp-rate limits (as :class:`drivers.exciter.limits.MotionLimits`).
 - ``[criteria]`` acceptance thresholds of the certificate and its decision rule.
+- ``[fiducial]`` the timing fiducial LED (generator sync output, its image region per camera):
+  :mod:`rig.config.fiducial`; absent = the start-event method relates the clocks.
 - ``[analysis]`` ``sync`` method of the analysis (``trajectory`` default; ``linear`` = the paper's).
 - ``[sim]`` the twin's hidden truth (only for a simulated station): camera intrinsics, distortion,
   poses, clock errors, rolling-shutter line time, noise, seed.
@@ -43,6 +45,7 @@ from rig.config.analysis import AnalysisConfig
 from rig.config.cameras import CameraConfig
 from rig.config.criteria import CriteriaConfig
 from rig.config.devices import DEVICE_NAMES, DevicesConfig, VfdConfig
+from rig.config.fiducial import FiducialConfig, check_fiducial
 from rig.config.limits import LimitsConfig
 from rig.config.schema import ConfigError, build, to_dict
 from rig.config.sim import SimConfig
@@ -61,6 +64,7 @@ class RigConfig:
     limits: LimitsConfig
     criteria: CriteriaConfig = field(default_factory=CriteriaConfig)
     analysis: AnalysisConfig = field(default_factory=AnalysisConfig)
+    fiducial: FiducialConfig | None = None
     sim: SimConfig | None = None
     source: str = field(default="", init=False, compare=False)
 
@@ -182,6 +186,29 @@ def _cross_check(cfg: RigConfig) -> None:
         raise ConfigError("station.clock", "'virtual' is only allowed when station.simulated = true")
     _check_distinct_endpoints(cfg)
     _check_configured_poses(cfg)
+    _check_fiducial(cfg)
+
+
+def _check_fiducial(cfg: RigConfig) -> None:
+    """``[fiducial]`` against the cameras, the generator that drives it and, simulated, the twin's LED."""
+    fid = cfg.fiducial
+    if fid is None:
+        if cfg.sim is not None and cfg.sim.fiducial is not None:
+            raise ConfigError("sim.fiducial", "a twin LED without [fiducial]: configure [fiducial] (its "
+                                              "regions and generator) or remove [sim.fiducial]")
+        return
+    check_fiducial(fid, cfg.cameras)
+    gen = getattr(cfg.devices, fid.device)
+    if gen is None:
+        raise ConfigError("fiducial.device", f"{fid.device!r} drives the LED but [devices.{fid.device}] is "
+                                             "not configured")
+    if fid.channel != gen.channel:
+        raise ConfigError("fiducial.channel", f"{fid.channel}: the LED is on the sync output of "
+                                              f"devices.{fid.device}.channel = {gen.channel}; allowed: "
+                                              f"{gen.channel}")
+    if cfg.station.simulated and (cfg.sim is None or cfg.sim.fiducial is None):
+        raise ConfigError("sim.fiducial", "required when [fiducial] is configured on a simulated station "
+                                          "(where the twin's LED is)")
 
 
 def config_from_dict(table: dict[str, Any], source: str = "<dict>") -> RigConfig:

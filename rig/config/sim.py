@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+from rig.config.fiducial import SimFiducialConfig
 from rig.config.schema import spec
 from rig.config.targets import VEC3_MM
 
@@ -55,3 +56,4 @@ class SimConfig:
     initial_scene: str = field(default="calibration_plate", metadata=spec(choices=(
         "calibration_plate", "single_marker", "marker_frame", "plate", "rotor", "sweep_column", "none")))
     cameras: dict[str, SimCameraConfig] = field(default_factory=dict)
+    fiducial: SimFiducialConfig | None = None

@@ -49,9 +49,11 @@ import pandas as pd
 from drivers.roles import Camera
 from rig.analysis.frame_reduction import MarkerReducer, ReduceOptions
 from rig.record.observations import ObservationWriter
+from rig.run.fiducial import FiducialRecording
 from rig.run.frame_tap import FRAMES
 from rig.run.procedure import Context
 from rig.stereo import FLAG_LOST
+from rig.stereo.fiducial import row_profile
 
 __all__ = ["Acquirer", "MarkerReducer", "Recording", "ReduceOptions"]
 
@@ -99,6 +101,9 @@ class Acquirer:
                                                        for name in self.cameras}
         self._next_ids: dict[tuple[str, str], int] = {}
         self.frames_processed = 0
+        fiducial = ctx.config.fiducial
+        self.fiducial = FiducialRecording(ctx, fiducial) if fiducial is not None else None
+        self._regions: dict[str, tuple[int, int, int, int]] = {}  # of the recording in progress
 
     def close(self) -> None:
         for writer in self._writers.values():
@@ -114,7 +119,7 @@ class Acquirer:
         # track numbers continue over the recordings of one segment (a stopped camera may see a moved scene,
         # so every recording starts with a whole-frame detection)
         reducer = MarkerReducer(self.options, self._next_ids.get((name, segment), 0))
-        reader = _Reader(self.cameras[name], reducer, cancel)
+        reader = _Reader(self.cameras[name], reducer, cancel, self._regions.get(name))
         reader.thread.start()
         return reader
 
@@ -151,6 +156,8 @@ class Acquirer:
         started: list[Camera] = []
         cancel = threading.Event()
         readers: dict[str, _Reader] = {}
+        fiducial_on = self.fiducial is not None and self.fiducial.start(segment)
+        self._regions = self.fiducial.regions if fiducial_on and self.fiducial is not None else {}
         t_start = clock.now_s()
         result: Any = None
         completed = False
@@ -193,15 +200,20 @@ class Acquirer:
                                  "first_index": first[0], "first_timestamp_s": first[1]})
             ctx.event("camera", {"camera": name, "action": "stop", "segment": segment, "t_s": t_stop,
                                  "last_index": last[0], "last_timestamp_s": last[1], "n_frames": len(parts)})
+        if fiducial_on and self.fiducial is not None:
+            self.fiducial.finish(segment, {name: readers[name].led_rows for name in self._regions})
         return Recording(segment, result, t_start, t_stop, observations)  # result: None for a duration
 
 
 class _Reader:
     """One camera's ``frames()`` reduced to rows in a daemon thread (a hung device cannot block the exit)."""
 
-    def __init__(self, camera: Camera, reducer: MarkerReducer, cancel: threading.Event) -> None:
+    def __init__(self, camera: Camera, reducer: MarkerReducer, cancel: threading.Event,
+                 led_region: tuple[int, int, int, int] | None = None) -> None:
         self.camera, self.reducer, self.cancel = camera, reducer, cancel
         self.parts: list[tuple[int, float, np.ndarray, np.ndarray]] = []
+        self.led_region = led_region  # the timing fiducial's rows are kept (rig.run.fiducial)
+        self.led_rows: list[tuple[int, float, np.ndarray, np.ndarray]] = []
         self.error: BaseException | None = None
         self.thread = threading.Thread(target=self._run, name=f"acquire-{camera.name}", daemon=True)
 
@@ -213,6 +225,9 @@ class _Reader:
                 found, ids = self.reducer.reduce(frame.image)
                 keep = ~(found["flags"] & FLAG_LOST).astype(bool)
                 self.parts.append((int(frame.index), float(frame.timestamp_s), found[keep], ids[keep]))
+                if self.led_region is not None:
+                    rows, mean = row_profile(frame.image, self.led_region)
+                    self.led_rows.append((int(frame.index), float(frame.timestamp_s), rows, mean))
                 if FRAMES.enabled:  # the live view's latest frame (a reference; see rig.run.frame_tap)
                     FRAMES.offer(self.camera.name, frame.index, frame.image,
                                  np.column_stack([found["u_px"][keep], found["v_px"][keep]]), ids[keep])

@@ -142,6 +142,17 @@ def _tuples(value: Any) -> Any:
     return tuple(_tuples(v) for v in value) if isinstance(value, list) else value
 
 
+def _add_fiducial_led(world: World, config: RigConfig) -> None:
+    """The twin's timing fiducial LED (``[sim.fiducial]``), lit by the generator mock's sync output."""
+    sim = config.sim.fiducial if config.sim is not None else None
+    if config.fiducial is None or sim is None:
+        return
+    from drivers.sim.fiducial import SyncLed
+
+    world.add_led(SyncLed("fiducial", sim.centre_mm, sim.half_u_mm, sim.half_v_mm,
+                          time_constant_s=sim.time_constant_s, contrast_dn=sim.contrast_dn))
+
+
 def world_layout(config: RigConfig) -> WorldLayout:
     """The twin's :class:`WorldLayout` described by ``config`` (targets, home pose, crank radius)."""
     from drivers.sim import targets as sim_targets
@@ -325,8 +336,10 @@ def _build_generator(st: Station, cfg: RigConfig) -> None:
         from drivers.mock.generator_server import GeneratorServer
 
         assert st.world is not None, "a mock:// address needs the simulated station (configuration check)"
+        leds = st.world.leds
         instrument = GeneratorInstrument(st.world.shaker, st.clock,
-                                         sensitivity_mm_per_v=[(p[0], p[1]) for p in gc.sensitivity_mm_per_v])
+                                         sensitivity_mm_per_v=[(p[0], p[1]) for p in gc.sensitivity_mm_per_v],
+                                         sync_led=leds[0] if leds else None)
         server = GeneratorServer(instrument, mode=addr["link"]).start()
         st._closers.append(("generator mock server", server.stop))
         url = server.url if addr["link"] == "tcp" else f"serial://{server.client_port}?baud=115200"
@@ -407,6 +420,7 @@ def open_station(config: RigConfig, clock: Clock, *, keep_going: bool = False) -
                 raise ConfigError("station.clock", "a simulated station needs the virtual clock")
             seed = config.sim.seed if config.sim else 0
             station.world = World(clock, seed=seed, layout=world_layout(config))
+            _add_fiducial_led(station.world, config)
         for name, address, build in _builders(station, config):
             try:
                 try:

@@ -1,0 +1,104 @@
+"""The timing fiducial during a recording: start its sync square wave, keep the LED's rows, check it held.
+
+Used by :class:`rig.run.acquire.Acquirer` when ``[fiducial]`` is configured. Before the cameras start,
+:meth:`FiducialRecording.start` sets the generator's frequency with its output OFF (nothing moves:
+only the Sync connector, and with it the LED, follows the oscillator), switches sync on and restarts the
+phase with ``PHASe:SYNChronize``, bracketed by the controller's clock before the command and after
+``*OPC?``; a ``fiducial`` event (action ``start``) records the bracket and the frequency. A generator whose
+output is on drives the shaker: its sync follows the shaker's frequency, so the fiducial is not used for
+that recording (action ``unavailable``, with the reason) and the start-event method remains. After the
+recording, :meth:`FiducialRecording.finish` checks that the generator still runs the fiducial's
+frequency with its output off (else the edges the controller predicts are wrong: action ``invalid``) and
+writes the LED's rows of every camera to ``fiducial/<camera>/<segment>.<n>.parquet`` (atomically;
+columns :data:`rig.analysis.fiducial.ROW_COLUMNS`), named in the ``fiducial`` event (action ``rows``).
+"""
+
+from __future__ import annotations
+
+import re
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from rig.analysis.fiducial import ROW_COLUMNS, ROWS_DIR
+from rig.record.atomic import atomic_path
+
+__all__ = ["FiducialRecording"]
+
+
+class FiducialRecording:
+    """One recording's fiducial (see the module docstring); ``regions`` camera → (x0, y0, x1, y1) px."""
+
+    def __init__(self, ctx: Any, config: Any) -> None:
+        self.ctx, self.config = ctx, config
+        self.regions: dict[str, tuple[int, int, int, int]] = {
+            name: (int(r[0]), int(r[1]), int(r[2]), int(r[3])) for name, r in config.regions_px.items()}
+        device = ctx.station.devices.get(config.device)
+        self.generator = getattr(device, "generator", None)
+        self.running = False
+        self._count: dict[tuple[str, str], int] = {}
+
+    def start(self, segment: str) -> bool:
+        """Start the square wave if the generator is idle; True when the fiducial runs for this recording."""
+        gen, cfg, clock = self.generator, self.config, self.ctx.clock
+        if gen is None:
+            return self._unavailable(segment, f"devices.{cfg.device} is not connected")
+        if gen.output():
+            return self._unavailable(segment, f"devices.{cfg.device}'s output is on (it drives the shaker, "
+                                              "so its sync follows the shaker's frequency)")
+        gen.set_frequency_hz(cfg.frequency_hz)
+        gen.set_sync(True)
+        t_sent = clock.now_s()
+        gen.synchronize_phase()
+        gen.wait_complete()
+        t_confirmed = clock.now_s()
+        self.ctx.event("fiducial", {"action": "start", "segment": segment, "t_sent_s": t_sent,
+                                    "t_confirmed_s": t_confirmed, "frequency_hz": cfg.frequency_hz,
+                                    "channel": cfg.channel, "rise_time_s": cfg.rise_time_s})
+        self.running = True
+        return True
+
+    def _unavailable(self, segment: str, reason: str) -> bool:
+        self.ctx.event("fiducial", {"action": "unavailable", "segment": segment, "reason": reason})
+        self.running = False
+        return False
+
+    def finish(self, segment: str, rows: dict[str, list[tuple[int, float, np.ndarray, np.ndarray]]]) -> None:
+        """Check the square wave held, then write each camera's rows and name them in an event."""
+        if not self.running:
+            return
+        self.running = False
+        gen = self.generator
+        assert gen is not None
+        frequency = gen.frequency_hz()
+        if gen.output() or abs(frequency - self.config.frequency_hz) > 1e-9 * self.config.frequency_hz:
+            self.ctx.event("fiducial", {"action": "invalid", "segment": segment, "reason": (
+                f"the generator ran at {frequency:g} Hz with its output {'on' if gen.output() else 'off'} "
+                "after the recording: its sync edges were not the fiducial's")})
+            return
+        for camera, parts in rows.items():
+            frame = _rows_frame(parts)
+            n = self._count.get((camera, segment), 0)
+            self._count[(camera, segment)] = n + 1
+            relative = f"{ROWS_DIR}/{camera}/{_safe(segment)}.{n}.parquet"
+            path = self.ctx.run_dir / relative
+            path.parent.mkdir(parents=True, exist_ok=True)
+            with atomic_path(path) as tmp:
+                frame.to_parquet(tmp, index=False)
+            self.ctx.event("fiducial", {"action": "rows", "segment": segment, "camera": camera,
+                                        "file": relative, "n_frames": len(parts)})
+
+
+def _safe(segment: str) -> str:
+    return re.sub(r"[^A-Za-z0-9_.-]", "_", segment) or "segment"
+
+
+def _rows_frame(parts: list[tuple[int, float, np.ndarray, np.ndarray]]) -> pd.DataFrame:
+    if not parts:
+        return pd.DataFrame({c: pd.Series(dtype=float) for c in ROW_COLUMNS})
+    return pd.DataFrame({
+        "frame_index": np.concatenate([np.full(p[2].size, p[0], dtype=np.int64) for p in parts]),
+        "timestamp_s": np.concatenate([np.full(p[2].size, p[1]) for p in parts]),
+        "row_px": np.concatenate([p[2] for p in parts]).astype(np.int64),
+        "brightness_dn": np.concatenate([p[3] for p in parts]).astype(float)})

@@ -1,0 +1,150 @@
+"""rig.stereo.fiducial: ramp-model levels, and the camera clock fitted from LED rows against known edges."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import Phase, given, settings
+from hypothesis import strategies as st
+
+from rig.stereo.errors import AmbiguousOffsetError, InputArrayError, NoCommonMotionError, TooFewSamplesError
+from rig.stereo.fiducial import DriveEdges, RowSamples, fit_fiducial_clock, mean_levels, row_profile
+
+FPS, HEIGHT = 60.0, 1080
+LINE_S = 0.9 / FPS / HEIGHT
+EXPOSURE_S = 1 / 6000
+# incommensurate with the frame period, so that edges walk through the frame and cross the LED's rows
+PULSE_PERIOD_S = 0.0973
+
+
+def square_edges(first_s: float, period_s: float, n: int, u_s: float = 0.0) -> DriveEdges:
+    t = first_s + 0.5 * period_s * np.arange(n)
+    return DriveEdges(t, np.arange(n) % 2 == 0, u_s)
+
+
+def led_rows(seconds: float, rows: tuple[int, int] = (400, 520)) -> np.ndarray:
+    """Camera-clock exposure starts of the LED's rows in every frame (frame k stamped k/fps)."""
+    k = np.arange(int(seconds * FPS))
+    return (k[:, None] / FPS + np.arange(*rows)[None, :] * LINE_S).ravel()
+
+
+def brute_levels(start_s: np.ndarray, exposure_s: float, edges: DriveEdges, rise_s: float) -> np.ndarray:
+    """The same mean level by sampling the ramp waveform densely (midpoint rule, 4000 samples)."""
+    tau = start_s[:, None] + (np.arange(4000) + 0.5)[None, :] / 4000 * exposure_s
+    level = np.full(tau.shape, edges.initial_level)
+    for e, sign in zip(edges.times_s, edges.signs, strict=True):
+        ramp = np.clip((tau - e) / rise_s, 0, 1) if rise_s > 0 else (tau >= e).astype(float)
+        level += sign * ramp
+    return level.mean(axis=1)
+
+
+@settings(max_examples=40, deadline=None)
+@given(first=st.floats(0.0, 0.01), period=st.floats(2e-3, 0.05), rise=st.floats(0.0, 2e-4),
+       exposure=st.floats(2e-5, 2e-3), starts=st.lists(st.floats(-0.01, 0.1), min_size=1, max_size=30))
+def test_mean_levels_match_the_sampled_ramp_waveform(first: float, period: float, rise: float,
+                                                      exposure: float, starts: list[float]) -> None:
+    edges = square_edges(first, period, 8)
+    s = np.array(starts)
+    got = mean_levels(s, exposure, edges, rise)
+    assert np.all(got >= -1e-12) and np.all(got <= 1 + 1e-12)
+    assert np.allclose(got, brute_levels(s, exposure, edges, rise), atol=2e-3)
+
+
+def synthetic_brightness(start_s: np.ndarray, edges: DriveEdges, *, offset_s: float, rate: float,
+                         t_ref_s: float, time_constant_s: float, noise_dn: float, seed: int) -> np.ndarray:
+    """LED rows as a first-order (exponential) rise renders them, not the fit's ramp, plus read noise."""
+    tc = start_s + offset_s + rate * (start_s - t_ref_s)
+
+    def light(x: np.ndarray) -> np.ndarray:  # ∫ (1 − e^(−u/T)) du from 0 to x, 0 before the edge
+        xp = np.maximum(x, 0.0)
+        return np.where(x > 0, xp - time_constant_s * -np.expm1(-xp / time_constant_s), 0.0)
+
+    level = np.full(tc.shape, edges.initial_level)
+    for e, sign in zip(edges.times_s, edges.signs, strict=True):
+        level += sign * (light(tc + EXPOSURE_S - e) - light(tc - e)) / EXPOSURE_S
+    return 30.0 + 180.0 * level + np.random.default_rng(seed).normal(0.0, noise_dn, tc.size)
+
+
+@settings(max_examples=12, deadline=None, phases=[Phase.explicit, Phase.generate])
+@given(offset=st.floats(-0.008, 0.008), prior_error=st.floats(-0.008, 0.008), first=st.floats(0.0, 0.05),
+       ppm=st.floats(-60.0, 60.0), tc=st.floats(1e-6, 2e-5), seed=st.integers(0, 2**16))
+def test_fit_recovers_the_offset_within_its_uncertainty(  # noqa: PLR0917 (hypothesis draws)
+        offset: float, prior_error: float, first: float, ppm: float, tc: float, seed: int) -> None:
+    s = led_rows(6.0)
+    edges = square_edges(first - 0.2, PULSE_PERIOD_S, 140)
+    t_ref = float(np.median(s))
+    b = synthetic_brightness(s, edges, offset_s=offset, rate=ppm * 1e-6, t_ref_s=t_ref, time_constant_s=tc,
+                             noise_dn=0.5, seed=seed)
+    # the LED's datasheet rise time (10–90 %) of a first-order rise: 2.2 time constants
+    fit = fit_fiducial_clock(RowSamples(s, b, EXPOSURE_S), edges, prior_offset_s=offset + prior_error,
+                             prior_half_width_s=0.0085, rise_time_s=2.2 * tc, t_ref_s=t_ref)
+    assert fit.rate_fitted and fit.n_edges_seen >= 2
+    assert abs(fit.offset_s - offset) <= 3.0 * fit.u_offset_s
+    assert abs(fit.rate - ppm * 1e-6) <= 5.0 * fit.u_rate + 1e-9
+    assert fit.u_offset_s < 2e-5  # the issue's target is 5e-5 s; the fit alone is far inside it
+    # the residual is the noise rendered, plus the ramp's misfit of the first-order rise
+    assert 0.45 < fit.residual_dn < 1.0
+
+
+def test_edge_knowledge_enters_the_uncertainty() -> None:
+    s = led_rows(3.0)
+    edges = square_edges(0.013, PULSE_PERIOD_S, 80, u_s=3e-5)
+    b = synthetic_brightness(s, edges, offset_s=0.002, rate=0.0, t_ref_s=1.5, time_constant_s=5e-6,
+                             noise_dn=0.5, seed=1)
+    fit = fit_fiducial_clock(RowSamples(s, b, EXPOSURE_S), edges, prior_offset_s=0.0,
+                             prior_half_width_s=0.0085)
+    assert fit.u_offset_s >= 3e-5 > fit.u_fit_s
+    assert not fit.rate_fitted or fit.n_edges_seen >= 2
+
+
+def test_a_pattern_repeating_within_the_prior_is_refused_with_the_reason() -> None:
+    s = led_rows(1.0)
+    edges = square_edges(0.0, 0.01, 200)  # repeats every 10 ms: a ±8.5 ms prior cannot tell which edge
+    with pytest.raises(AmbiguousOffsetError, match=r"repeats every 10\.000 ms"):
+        fit_fiducial_clock(RowSamples(s, np.zeros(s.size), EXPOSURE_S), edges, prior_offset_s=0.0,
+                           prior_half_width_s=0.0085)
+
+
+def test_no_edge_in_the_recording_is_refused() -> None:
+    s = led_rows(1.0)
+    edges = square_edges(50.0, 0.1, 4)  # all edges long after the recording
+    with pytest.raises(NoCommonMotionError, match="no drive edge"):
+        fit_fiducial_clock(RowSamples(s, 30 + np.random.default_rng(0).normal(0, 1, s.size), EXPOSURE_S),
+                           edges, prior_offset_s=0.0, prior_half_width_s=0.0085)
+
+
+def test_bad_inputs_name_the_field() -> None:
+    with pytest.raises(InputArrayError, match="strictly increasing"):
+        DriveEdges(np.array([0.0, 0.0]), np.array([True, False]))
+    with pytest.raises(InputArrayError, match="exposure_s"):
+        RowSamples(np.zeros(3), np.zeros(3), 0.0)
+    with pytest.raises(TooFewSamplesError, match="≥ 8"):
+        fit_fiducial_clock(RowSamples(np.zeros(3), np.zeros(3), 1e-4), square_edges(0, 0.1, 4),
+                           prior_offset_s=0.0, prior_half_width_s=0.008)
+
+
+def test_row_profile_is_the_row_mean_of_the_region_clipped_to_the_image() -> None:
+    img = np.arange(20 * 30, dtype=np.uint8).reshape(20, 30)
+    rows, mean = row_profile(img, (25, 18, 40, 25))
+    assert rows.tolist() == [18, 19]
+    assert np.allclose(mean, img[18:20, 25:30].mean(axis=1))
+    with pytest.raises(InputArrayError, match="outside"):
+        row_profile(img, (40, 0, 50, 5))
+
+
+def test_a_wrong_line_time_in_the_row_instants_is_measured_and_corrected() -> None:
+    """The rows' instants assume a line time 455 ns/row (3.3 %) short, as the joint timing model had it on
+    rig certify; the LED's rows (400–520) measure the difference, and the offset at another row has it."""
+    k = np.arange(int(6.0 * FPS))
+    rows = np.tile(np.arange(400, 520), k.size).astype(float)
+    true_start = (k[:, None] / FPS + np.arange(400, 520)[None, :] * LINE_S).ravel()
+    assumed_start = true_start - 455e-9 * rows
+    edges = square_edges(-0.2, PULSE_PERIOD_S, 140)
+    b = synthetic_brightness(true_start, edges, offset_s=0.003, rate=0.0, t_ref_s=3.0, time_constant_s=5e-6,
+                             noise_dn=0.5, seed=3)
+    fit = fit_fiducial_clock(RowSamples(assumed_start, b, EXPOSURE_S, rows), edges, prior_offset_s=0.0,
+                             prior_half_width_s=0.0085, rise_time_s=1.1e-5, t_ref_s=3.0)
+    assert fit.line_time_fitted
+    assert abs(fit.line_time_error_s - 455e-9) <= 5.0 * fit.u_line_time_error_s
+    offset_row0, u_row0 = fit.offset_at_row_s(0.0)  # the instant of row 0 needs the whole correction
+    assert abs(offset_row0 - 0.003) <= 3.0 * u_row0 < 2e-5
