@@ -11,9 +11,9 @@ import sys
 
 from reports.build import COMPARISON_SYNC, build_report
 from reports.errors import ReportError
+from rig.config.analysis import SYNC_METHODS
 
 EXIT_CODES = {"PASS": 0, "FAIL": 1, "INCOMPLETE": 2}
-SYNC_METHODS = ("trajectory", "bandlimited", "cubic", "linear")
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -31,10 +31,11 @@ import types
 from pathlib import Path
 from typing import Any, NoReturn
 
-from rig.config.rig_config import ConfigError, load_config
-from rig.record.reader import RecordError
+# only light modules here (tests/test_cli_start.py): the heavy ones are imported by the commands that use them
+from rig.config.rig_config import load_config
+from rig.config.schema import ConfigError
+from rig.run.exit_codes import EXIT_ABORTED, EXIT_BAD_INPUT, EXIT_FAULT, STOP_SIGNALS, Interrupted
 from rig.run.procedure import ParameterError, check_procedure_module, parameter_table, parse_set
-from rig.run.safety import EXIT_ABORTED, EXIT_BAD_INPUT, EXIT_FAULT, STOP_SIGNALS, Interrupted
 
 log = logging.getLogger("rig.cli")
 MOCK_MODULES = {"robot": ("drivers.mock.bcap_server", []),
@@ -162,6 +163,7 @@ def _index_in_catalogue(run_dir: Path) -> None:
     import sqlite3
 
     from rig.record.catalogue import index_run
+    from rig.record.reader import RecordError
 
     try:
         index_run(run_dir)
@@ -587,7 +589,7 @@ def _main(argv: list[str] | None) -> int:
                 **DEPLOYMENT_COMMANDS}
     try:
         return commands[args.command](args)
-    except (ConfigError, ParameterError, RecordError) as exc:
+    except ConfigError as exc:  # ParameterError is one
         print(f"rig: bad input: {exc}", file=sys.stderr)
         return EXIT_BAD_INPUT
     except KeyboardInterrupt as exc:
@@ -597,6 +599,13 @@ def _main(argv: list[str] | None) -> int:
     except OSError as exc:
         print(f"rig: I/O fault: {_one_line(exc)}", file=sys.stderr)
         return EXIT_FAULT
+    except Exception as exc:
+        from rig.record.reader import RecordError  # here, not at the top: it imports pandas
+
+        if not isinstance(exc, RecordError):
+            raise
+        print(f"rig: bad input: {exc}", file=sys.stderr)
+        return EXIT_BAD_INPUT
 
 
 def _one_line(exc: OSError) -> str:

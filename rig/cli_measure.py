@@ -13,17 +13,8 @@ import sys
 from collections.abc import Callable
 from pathlib import Path
 
-from drivers.camera.video_file import VideoFileError
-from rig.deploy.measure import MEASURE_SYNC
-from rig.deploy.onsite_calibration import (
-    DISTORTION_MODELS,
-    OnsiteCalibrationError,
-    calibrate_from_videos,
-    residual_summary,
-    write_calibration,
-)
-from rig.record.out_guard import OutputRefusedError, check_out_file
-from rig.run.safety import EXIT_BAD_INPUT
+from rig.deploy.choices import DISTORTION_MODELS, MEASURE_SYNC
+from rig.run.exit_codes import EXIT_BAD_INPUT
 
 __all__ = ["COMMANDS", "add_parsers", "cmd_calibrate", "cmd_measure"]
 
@@ -40,6 +31,15 @@ def _names(args: argparse.Namespace) -> list[str]:
 
 
 def cmd_calibrate(args: argparse.Namespace) -> int:
+    from drivers.camera.video_file import VideoFileError
+    from rig.deploy.onsite_calibration import (
+        OnsiteCalibrationError,
+        calibrate_from_videos,
+        residual_summary,
+        write_calibration,
+    )
+    from rig.record.out_guard import OutputRefusedError, check_out_file
+
     names = _names(args)
     try:
         check_out_file(args.out, force=args.force)  # before the videos are decoded
@@ -63,9 +63,11 @@ def _position(text: str) -> tuple[float, float, float]:
 
 
 def cmd_measure(args: argparse.Namespace) -> int:
+    from drivers.camera.video_file import VideoFileError
     from reports.measurement import write_measurement_report
     from rig.deploy.measure import MeasureError, MeasureOptions, measure_videos
     from rig.deploy.video_markers import ExtractOptions
+    from rig.record.out_guard import OutputRefusedError
 
     names = _names(args)
     refs: str | tuple[tuple[float, float, float], ...]

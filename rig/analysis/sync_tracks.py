@@ -31,6 +31,7 @@ from rig.analysis.disjoint_set import DisjointSet
 from rig.analysis.errors import AnalysisError
 from rig.analysis.pairing import pair_tracks
 from rig.analysis.tracks2d import check_observations, segment_keys, tracks_2d
+from rig.config.analysis import SYNC_METHODS
 from rig.stereo.dlt import DLTCamera
 from rig.stereo.errors import StereoError
 from rig.stereo.resample import resample
@@ -38,7 +39,6 @@ from rig.stereo.timing import TimingResult
 from rig.stereo.trajectory import fit_spline_trajectory
 from rig.stereo.triangulate import as_camera, triangulate
 
-SYNC_METHODS = ("trajectory", "bandlimited", "cubic", "linear")
 #: Second-difference penalty of the trajectory spline (relative to the pixel-scaled equations). Smaller is
 #: less amplitude bias and more noise; at 1e-4 (twin, 30 s sweep, σ = 0.1 px) the bias is ≤ 0.4 % up to
 #: 22 Hz and ≈ 0.5 % at 26 Hz, and a still marker's noise is 2 % above that at 1e-3 (bias −1.8 % at 26 Hz).

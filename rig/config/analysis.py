@@ -6,6 +6,9 @@ from dataclasses import dataclass, field
 
 from rig.config.schema import spec
 
+SYNC_METHODS = ("trajectory", "bandlimited", "cubic", "linear")
+"""How 3-D tracks are timed (:mod:`rig.analysis.sync_tracks`); ``linear`` is the paper's."""
+
 
 @dataclass(frozen=True)
 class AnalysisConfig:
@@ -13,5 +16,4 @@ class AnalysisConfig:
     the
     paper's interpolation of camera B to camera A's instants; the others are ours)."""
 
-    sync: str = field(default="trajectory", metadata=spec(choices=("trajectory", "bandlimited", "cubic",
-                                                                    "linear")))
+    sync: str = field(default="trajectory", metadata=spec(choices=SYNC_METHODS))

@@ -44,12 +44,12 @@ from drivers.camera.video_file import VideoFile
 from rig.analysis.analyse import load_cameras
 from rig.analysis.errors import AnalysisError
 from rig.analysis.sync_tracks import (
-    SYNC_METHODS,
     pair_all,
     prepare_observations,
     timing_result,
     triangulate_tracks,
 )
+from rig.deploy.choices import MEASURE_SYNC
 from rig.deploy.series import SeriesError, reference_tracks, stabilised_displacement, summarise
 from rig.deploy.video_markers import ExtractOptions, VideoObservations, extract_video
 from rig.deploy.video_timing import VideoTimingError, estimate_video_timing, rotor_timing, tracked
@@ -61,10 +61,6 @@ from rig.stereo.errors import StereoError
 __all__ = ["MEASURE_RESULTS", "MEASURE_SYNC", "MeasureError", "MeasureOptions", "MeasureResult",
            "measure_videos"]
 
-#: ``--sync``: how the 3-D tracks are timed. The interpolation methods of :mod:`rig.analysis.sync_tracks`, or
-#: ``rotor``: the timing from the paper's rotating-marker phase method (row-corrected; a marker turning at
-#: constant speed in view), 3-D by the trajectory method.
-MEASURE_SYNC = (*SYNC_METHODS, "rotor")
 
 FPS_TOLERANCE = 0.01  # relative: two cameras at one nominal rate differ by ppm, never by 1 %
 MEASURE_RESULTS = ("measure.json", "report.html", "timing.json", "frames.json", "clock.json", "tables",

@@ -39,6 +39,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from rig.deploy.choices import DISTORTION_MODELS
 from rig.deploy.plate_grid import GridError, moving_points, order_grid
 from rig.deploy.video_markers import ExtractOptions, associate, extract_video
 from rig.record.atomic import write_json
@@ -48,8 +49,6 @@ from rig.stereo.errors import StereoError
 
 __all__ = ["DISTORTION_MODELS", "OnsiteCalibrationError", "PlateTarget", "calibrate_from_videos",
            "load_target", "still_segments"]
-
-DISTORTION_MODELS: dict[str, bool | str] = {"none": False, "k1": "k1", "k1k2": "k1k2", "full": True}
 
 
 class OnsiteCalibrationError(ValueError):

@@ -17,7 +17,6 @@ recorded by the runner). Names never decide anything.
 from __future__ import annotations
 
 import logging
-import signal
 import threading
 import traceback
 from collections.abc import Callable, Sequence
@@ -28,22 +27,18 @@ from drivers.denso.arm import LimitError as ArmLimitError
 from drivers.exciter.limits import LimitError as ExciterLimitError
 from drivers.roles import Assignment, shutdown_rank
 from rig.config.schema import ConfigError
+from rig.run.exit_codes import (  # noqa: F401 — re-exported: the runner's outcomes map to them
+    EXIT_ABORTED,
+    EXIT_BAD_INPUT,
+    EXIT_CERTIFICATE_FAILED,
+    EXIT_FAULT,
+    EXIT_PASS,
+    STOP_SIGNALS,
+    Interrupted,
+)
 from rig.run.procedure import Abort, InterlockTripped, StationView
 
 log = logging.getLogger("rig.run.safety")
-
-EXIT_PASS, EXIT_CERTIFICATE_FAILED, EXIT_ABORTED, EXIT_FAULT, EXIT_BAD_INPUT = 0, 1, 2, 3, 4
-STOP_SIGNALS: tuple[signal.Signals, ...] = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP, signal.SIGQUIT)
-"""Every catchable way a user, a terminal or a supervisor (systemd, docker, a CI timeout) ends ``rig``:
-all go through the same safe stop."""
-
-
-class Interrupted(KeyboardInterrupt):
-    """A second stop signal: abort at once. ``signal_name`` e.g. ``"SIGTERM"``."""
-
-    def __init__(self, signal_name: str = "SIGINT") -> None:
-        super().__init__(signal_name)
-        self.signal_name = signal_name
 
 
 def abort_reason(signal_name: str) -> str:
