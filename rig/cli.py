@@ -28,6 +28,7 @@ import signal
 import sys
 import threading
 import types
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any, NoReturn
 
@@ -84,37 +85,10 @@ def load_procedure(name_or_path: str) -> types.ModuleType:
     return available[name_or_path]
 
 
-# ---------------------------------------------------------------------------- progress
-class ProgressBar:
-    """Plain one-line progress on stderr; silent when stderr is not a terminal."""
-
-    def __init__(self, stream: Any = None, enabled: bool | None = None, width: int = 30) -> None:
-        self.stream = stream or sys.stderr
-        self.enabled = self.stream.isatty() if enabled is None else enabled
-        self.width = width
-        self._shown = False
-
-    def __call__(self, fraction: float | None, message: str) -> None:
-        if not self.enabled:
-            return
-        if fraction is None:
-            line = f"[{'?' * self.width}]      {message}"
-        else:
-            filled = round(fraction * self.width)
-            line = f"[{'#' * filled}{'-' * (self.width - filled)}] {fraction * 100:5.1f}% {message}"
-        self.stream.write("\r" + line[:120].ljust(120))
-        self.stream.flush()
-        self._shown = True
-
-    def close(self) -> None:
-        if self._shown:
-            self.stream.write("\n")
-            self.stream.flush()
-            self._shown = False
-
-
 # ---------------------------------------------------------------------------- commands
 def _run_procedure(module: types.ModuleType, args: argparse.Namespace) -> int:
+    from rig.dashboard.live_run import run_state
+    from rig.dashboard.terminal import TerminalProgress
     from rig.run.runner import Runner
     from rig.run.station import open_station
 
@@ -122,24 +96,69 @@ def _run_procedure(module: types.ModuleType, args: argparse.Namespace) -> int:
     overrides = parse_set(args.set or [])
     if args.dry_run:
         return _dry_run(module, config, overrides, resume=args.resume)
-    bar = ProgressBar()
     live = _live_dashboard(module, config, args)
+    state = live.state if live else run_state(module, config)
+    terminal = TerminalProgress(state)
     runner = Runner(module, config=config, station_factory=open_station, runs_dir=args.runs_dir,
-                    progress=live.progress(bar) if live else bar, observers=(live.observe,) if live else ())
+                    progress=live.progress(terminal.progress) if live else _then(state.on_progress,
+                                                                                 terminal.progress),
+                    observers=(live.observe if live else state.on_document, terminal.observe))
     if live:
         live.attach(runner)
     try:
         outcome = runner.run(overrides, resume=args.resume)
     finally:
-        bar.close()
+        terminal.close()
         if live:
             live.close()
     if outcome.run_dir:
         _index_in_catalogue(Path(outcome.run_dir))
+        _print_summary(Path(outcome.run_dir))
     where = f" — {outcome.run_dir}" if outcome.run_dir else ""
     print(f"rig: {module.NAME}: {outcome.outcome} (exit {outcome.exit_code}): {outcome.reason}{where}",
           file=sys.stderr if outcome.exit_code else sys.stdout, flush=True)
     return outcome.exit_code
+
+
+def _then(first: Callable[[float | None, str], None],
+          second: Callable[[float | None, str], None]) -> Callable[[float | None, str], None]:
+    """A progress callback calling ``first`` then ``second``."""
+    def both(fraction: float | None, message: str) -> None:
+        first(fraction, message)
+        second(fraction, message)
+    return both
+
+
+def _print_summary(run_dir: Path) -> None:
+    """The closing table: each criterion of the certificate (value, U, limit, decision), then the folder."""
+    from rig.record.catalogue import read_entry
+    from rig.record.reader import RecordError
+
+    try:
+        entry = read_entry(run_dir)
+    except (RecordError, OSError) as exc:
+        log.warning("no summary of %s: %s", run_dir, exc)
+        return
+    if entry.criteria:
+        print(f"certificate: {entry.result}" + (" (simulated rig — not a certificate of hardware)"
+                                                 if entry.simulated else ""))
+        print(criteria_table(entry.criteria))
+    print(f"run folder: {run_dir}")
+
+
+def criteria_table(criteria: Sequence[Any]) -> str:
+    """Criteria (:class:`rig.record.catalogue.Criterion`) as an aligned text table: value, expanded
+    uncertainty U, limit, decision."""
+    rows = [("criterion", "value", "U", "unit", "limit", "decision")]
+    for c in criteria:
+        rows.append((c.criterion, "-" if c.value is None else f"{c.value:.4g}",
+                     "-" if c.expanded_uncertainty is None else f"{c.expanded_uncertainty:.2g}", c.unit or "",
+                     "-" if c.limit_value is None else f"{c.comparison} {c.limit_value:g}", c.status))
+    widths = [max(len(r[i]) for r in rows) for i in range(len(rows[0]))]
+    right = {1, 2}  # numbers right-aligned
+    return "\n".join("  " + "  ".join(cell.rjust(w) if i in right else cell.ljust(w)
+                                       for i, (cell, w) in enumerate(zip(row, widths, strict=True))).rstrip()
+                     for row in rows)
 
 
 def _live_dashboard(module: types.ModuleType, config: Any, args: argparse.Namespace) -> Any:
@@ -370,11 +389,8 @@ def _show_run(runs_dir: Path, run: str) -> int:
     print(f"  started {entry.started_utc}, stopped {entry.stopped_utc or '(no stop document)'}: "
           f"{entry.exit_status or '-'} {entry.stop_reason or ''}".rstrip())
     print(f"  certificate: {entry.result or 'none issued'}")
-    for c in entry.criteria:
-        value = "-" if c.value is None else f"{c.value:.4g}"
-        u = "" if c.expanded_uncertainty is None else f" ± {c.expanded_uncertainty:.2g}"
-        limit = "-" if c.limit_value is None else f"{c.comparison} {c.limit_value:g}"
-        print(f"    {c.criterion:26s} {value:>10s}{u:10s} {c.unit:4s} limit {limit:10s} {c.status}")
+    if entry.criteria:
+        print(criteria_table(entry.criteria))
     return 0
 
 

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import pytest
 
-from rig.cli import ProgressBar, main
+from rig.cli import main
 from rig.record.catalogue import run_folders
 from rig.record.writer import load_run
 
@@ -157,25 +157,3 @@ def test_ctrl_c_mid_run_stops_the_exciter_and_exits_2(tmp_path: Path) -> None:
     assert any(re.fullmatch(r"exciter: (safe_state|stop)\(\) done", m) for m in messages)
     assert any(re.fullmatch(r"robot: (safe_state|halt)\(\) done", m) for m in messages)
     assert "vibrate" not in run.steps_completed
-
-
-def test_progress_bar_only_on_a_terminal() -> None:
-    class Sink:
-        def __init__(self, tty: bool) -> None:
-            self.text, self.tty = "", tty
-
-        def write(self, s: str) -> None:
-            self.text += s
-
-        def flush(self) -> None:
-            pass
-
-        def isatty(self) -> bool:
-            return self.tty
-
-    off, on = Sink(False), Sink(True)
-    ProgressBar(off)(0.5, "half")
-    bar = ProgressBar(on)
-    bar(0.5, "half")
-    bar.close()
-    assert off.text == "" and "50.0% half" in on.text and on.text.endswith("\n")

@@ -21,7 +21,7 @@ from rig.dashboard.state import DashboardState
 from rig.run.frame_tap import FRAMES
 from rig.run.runner import Runner
 
-__all__ = ["LiveDashboard", "plan_steps"]
+__all__ = ["LiveDashboard", "plan_steps", "run_state"]
 
 log = logging.getLogger("rig.dashboard.server")
 
@@ -40,13 +40,18 @@ def plan_steps(module: types.ModuleType, config: RigConfig,
     return [] if plan is None else [(s.name, float(s.duration_s)) for s in plan.steps]
 
 
+def run_state(module: types.ModuleType, config: RigConfig) -> DashboardState:
+    """The state of one run of ``module``, its steps timed by the plan (the page and the terminal read it)."""
+    return DashboardState(module.NAME, plan_steps=lambda start: plan_steps(
+        module, config, start.get("parameters") or {}))
+
+
 class LiveDashboard:
     """See the module docstring. ``host``/``port``/``allow_remote`` as :class:`DashboardServer`."""
 
     def __init__(self, module: types.ModuleType, config: RigConfig, *, host: str = "127.0.0.1", port: int = 0,
                  allow_remote: bool = False, stream: TextIO | None = None) -> None:
-        self.state = DashboardState(module.NAME, plan_steps=lambda start: plan_steps(
-            module, config, start.get("parameters") or {}))
+        self.state = run_state(module, config)
         self.server = DashboardServer(self.state, host=host, port=port, allow_remote=allow_remote,
                                       on_abort=self._abort)
         self.stream = stream or sys.stderr

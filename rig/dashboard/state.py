@@ -22,9 +22,10 @@ import math
 import threading
 from collections import deque
 from collections.abc import Callable
+from dataclasses import dataclass
 from typing import Any
 
-__all__ = ["PLOTS", "DashboardState", "Series"]
+__all__ = ["PLOTS", "DashboardState", "Overview", "Series"]
 
 # plot name → its columns (the first is the x axis: rig time, s)
 PLOTS: dict[str, tuple[str, ...]] = {
@@ -54,6 +55,40 @@ class Series:
         first_held = self.total - len(self.rows)
         start = max(cursor, first_held)
         return start, list(self.rows)[start - first_held:]
+
+
+@dataclass(frozen=True)
+class Overview:
+    """Where the run is, as the page's progress section shows it (the terminal draws the same)."""
+
+    step: str | None  # the running step (None between steps and after the stop)
+    step_number: int | None  # 1-based position of ``step`` among the plan's steps
+    step_names: tuple[str, ...]  # the plan's steps in order (and any step it did not time, as it began)
+    step_durations_s: tuple[float, ...]  # the plan's estimate of each (rig time; 0 for an untimed step)
+    fraction: float | None  # of ``step``, as reported by the procedure (None: not reported)
+    message: str
+    remaining_s: float | None  # the plan's estimate (see the module docstring); None without a plan
+    total_s: float  # the plan's whole duration
+
+    @property
+    def step_count(self) -> int:
+        return len(self.step_names)
+
+    def number_of(self, step: str) -> int | None:
+        """The 1-based position of ``step`` in the plan (None: not a step of it)."""
+        return self.step_names.index(step) + 1 if step in self.step_names else None
+
+    def duration_of(self, step: str) -> float | None:
+        """The plan's estimate of ``step`` (s of rig time; None: not a step of it)."""
+        number = self.number_of(step)
+        return None if number is None else self.step_durations_s[number - 1]
+
+    @property
+    def overall_fraction(self) -> float | None:
+        """The share of the plan's duration done (0–1), None without a plan."""
+        if self.remaining_s is None or self.total_s <= 0:
+            return None
+        return min(1.0, max(0.0, 1.0 - self.remaining_s / self.total_s))
 
 
 class DashboardState:
@@ -195,6 +230,19 @@ class DashboardState:
         self.fields["remaining_s"] = remaining
 
     # ---------------------------------------------------------------- readers (the clients' threads)
+    def overview(self) -> Overview:
+        """The progress section's figures, consistent with each other (read under the lock)."""
+        with self._lock:
+            steps, current = self.fields["steps"], self.fields["current_step"]
+            number = next((i + 1 for i, s in enumerate(steps) if s["name"] == current), None)
+            progress = self.fields["progress"]
+            return Overview(step=current, step_number=number, step_names=tuple(s["name"] for s in steps),
+                            step_durations_s=tuple(float(s["duration_s"]) for s in steps),
+                            fraction=progress["fraction"] if current else None,
+                            message=progress["message"] if current else "",
+                            remaining_s=self.fields["remaining_s"],
+                            total_s=sum(s["duration_s"] for s in steps))
+
     def wait_change(self, seen_version: int, timeout_s: float) -> int:
         """Block until the version differs from ``seen_version`` or ``timeout_s`` passed; the version."""
         with self._lock:

@@ -1,0 +1,147 @@
+"""The run's progress on the terminal, drawn from the dashboard's state (:class:`DashboardState`): the same
+step count and time remaining (the plan's estimate, :mod:`rig.run.plan`) as the page.
+
+On a terminal (stderr a tty), one line redrawn in place, at most every ``redraw_s`` of the injected clock::
+
+    [#########---------------------]  31 % step 2 of 5: sync 40 % · ≈ 3 min 10 s left · spinning
+
+Otherwise (output captured: a file, CI, journald) plain lines, never a carriage return: one when a step
+begins, one when it is done, and one per 10 % of a long step (planned ≥ ``long_step_s``), each prefixed with
+the time since the run began by the injected clock::
+
+    rig: +   12 s step 2 of 5: sync began (planned ≈ 1 min 30 s; ≈ 4 min 10 s left)
+
+Feed it after the state: ``observe`` is a record observer placed after the state's own, ``progress`` the
+runner's progress callback called after :meth:`DashboardState.on_progress`.
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+import time
+from collections.abc import Callable
+from typing import Any, TextIO
+
+from rig.dashboard.state import DashboardState, Overview
+
+__all__ = ["TerminalProgress", "duration_text"]
+
+LINE_WIDTH = 120
+
+
+def duration_text(seconds: float | None) -> str:
+    """``"3 min 05 s"`` / ``"42 s"`` as the page writes it; ``"—"`` for None."""
+    if seconds is None or not math.isfinite(seconds):
+        return "—"
+    s = max(0, round(seconds))
+    minutes, rest = divmod(s, 60)
+    return f"{minutes} min {rest:02d} s" if minutes else f"{rest} s"
+
+
+class TerminalProgress:
+    """See the module docstring.
+
+    Args:
+        state: the run's dashboard state (already fed the document or progress this is called with).
+        stream: where to write (default ``sys.stderr``).
+        is_terminal: draw in place (True) or write log lines (False); default ``stream.isatty()``.
+        clock: monotonic seconds (injected in tests), for the redraw rate and the elapsed time.
+        long_step_s: a step planned at least this long (rig time, s) is logged per 10 %.
+        redraw_s: the least time between two in-place redraws of a step's progress.
+    """
+
+    def __init__(self, state: DashboardState, stream: TextIO | None = None, *,
+                 is_terminal: bool | None = None, clock: Callable[[], float] = time.monotonic,
+                 long_step_s: float = 30.0, redraw_s: float = 0.1, width: int = 30) -> None:
+        self.state = state
+        self.stream = stream or sys.stderr
+        self.is_terminal = self.stream.isatty() if is_terminal is None else is_terminal
+        self.clock = clock
+        self.long_step_s = long_step_s
+        self.redraw_s = redraw_s
+        self.width = width
+        self._began_s: float | None = None
+        self._last_draw_s = -math.inf
+        self._logged_tenths: dict[str, int] = {}  # step → the last 10 % mark logged
+        self._shown = False
+
+    # ---------------------------------------------------------------- inputs
+    def observe(self, document: dict[str, Any]) -> None:
+        """A record observer (after the state's): a step's begin and end."""
+        if self._began_s is None and document.get("type") == "start":
+            self._began_s = self.clock()
+        if document.get("type") != "step":
+            return
+        name, begun = str(document.get("name")), document.get("status") == "begin"
+        overview = self.state.overview()
+        if self.is_terminal:
+            self._draw(overview)
+            return
+        planned = "" if not begun else f"planned ≈ {duration_text(overview.duration_of(name))}; "
+        self._log(f"{self._step_label(overview, name)} {'began' if begun else 'done'} "
+                  f"({planned}≈ {duration_text(overview.remaining_s)} left)")
+
+    def progress(self, fraction: float | None, message: str) -> None:
+        """The runner's progress callback (after the state's): the running step's fraction and message."""
+        overview = self.state.overview()
+        if self.is_terminal:
+            now = self.clock()
+            if now - self._last_draw_s >= self.redraw_s:
+                self._last_draw_s = now
+                self._draw(overview)
+            return
+        step = overview.step
+        if step is None or fraction is None or (overview.duration_of(step) or 0.0) < self.long_step_s:
+            return
+        tenths = math.floor(fraction * 10 + 1e-9)  # 10 %, 20 %, … 90 %; the step's end has its own line
+        if tenths >= 10 or tenths <= self._logged_tenths.get(step, 0):
+            return
+        self._logged_tenths[step] = tenths
+        text = f" — {message}" if message else ""
+        self._log(f"{self._step_label(overview, step)} {tenths * 10} %{text} "
+                  f"(≈ {duration_text(overview.remaining_s)} left)")
+
+    def close(self) -> None:
+        """End the in-place line (before anything else is printed)."""
+        if self._shown:
+            self.stream.write("\n")
+            self.stream.flush()
+            self._shown = False
+
+    # ---------------------------------------------------------------- drawing
+    @staticmethod
+    def _step_label(overview: Overview, step: str) -> str:
+        number = overview.number_of(step)
+        if number is None:
+            return f"step {step}"
+        # without a plan the steps are known only as they begin: no "of n"
+        return (f"step {number} of {overview.step_count}: {step}" if overview.total_s > 0
+                else f"step {number}: {step}")
+
+    def _log(self, text: str) -> None:
+        elapsed = 0.0 if self._began_s is None else self.clock() - self._began_s
+        self.stream.write(f"rig: +{duration_text(elapsed):>10s} {text}\n")
+        self.stream.flush()
+
+    def _draw(self, overview: Overview) -> None:
+        overall = overview.overall_fraction
+        if overall is None:
+            bar = "?" * self.width
+            head = f"[{bar}]     "
+        else:
+            filled = round(overall * self.width)
+            head = f"[{'#' * filled}{'-' * (self.width - filled)}] {overall * 100:3.0f} %"
+        if overview.step is None:
+            where = "between steps"
+        else:
+            where = self._step_label(overview, overview.step)
+            if overview.fraction is not None:
+                where += f" {overview.fraction * 100:.0f} %"
+        parts = [f"{head} {where}", f"≈ {duration_text(overview.remaining_s)} left"]
+        if overview.message:
+            parts.append(overview.message)
+        line = " · ".join(parts)
+        self.stream.write("\r" + line[:LINE_WIDTH].ljust(LINE_WIDTH))
+        self.stream.flush()
+        self._shown = True
