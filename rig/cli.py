@@ -33,6 +33,7 @@ from pathlib import Path
 from typing import Any, NoReturn
 
 # only light modules here (tests/test_cli_start.py): the heavy ones are imported by the commands that use them
+from rig.cli_logging import configure_logging
 from rig.config.rig_config import load_config
 from rig.config.schema import ConfigError
 from rig.run.exit_codes import EXIT_ABORTED, EXIT_BAD_INPUT, EXIT_FAULT, STOP_SIGNALS, Interrupted
@@ -488,7 +489,8 @@ def build_parser() -> argparse.ArgumentParser:
     """Return the top-level argument parser with one sub-command per verb (sub-parsers are
     :class:`_Parser` too: argparse makes them of the parent's class)."""
     parser = _Parser(prog="rig", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("-v", "--verbose", action="count", default=0, help="more log output (-vv: debug)")
+    parser.add_argument("-v", "--verbose", action="count", default=0, help="more log output, third-party "
+                        "libraries' (FFmpeg, OpenCV, pymodbus, Dask) included (-vv: debug)")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     p = sub.add_parser("certify", help="run the whole certification", description=cmd_certify.__doc__ or
                        "Run the certify procedure: calibrate, sync, accuracy, sweep, report, certificate.")
@@ -588,12 +590,7 @@ def _main(argv: list[str] | None) -> int:
     parser = build_parser()
     argv = list(sys.argv[1:] if argv is None else argv)
     args = parser.parse_args(argv)
-    level = (logging.WARNING, logging.INFO, logging.DEBUG)[min(args.verbose, 2)]
-    logging.basicConfig(level=level, format="%(levelname)s %(name)s: %(message)s", stream=sys.stderr)
-    logging.raiseExceptions = False  # a log line lost to a full disk is not worth a traceback per line
-    for handler in logging.getLogger().handlers:  # the console keeps its level when rig.log wants more
-        if isinstance(handler, logging.StreamHandler) and not isinstance(handler, logging.FileHandler):
-            handler.setLevel(level)
+    configure_logging(args.verbose, sys.stderr)
     if args.command is None:
         parser.print_help()
         return 0

@@ -20,7 +20,7 @@ LAYERS: tuple[tuple[str, ...], ...] = (
     ("rig.dashboard",),
     ("reports",),
     ("procedures",),
-    ("rig.cli", "rig.cli_measure", "rig.preview", "rig.demo"),
+    ("rig.cli", "rig.cli_measure", "rig.cli_logging", "rig.preview", "rig.demo"),
 )
 # Packages of one layer that must not import each other either.
 SIBLINGS_APART = {("rig.record", "rig.config"), ("rig.run", "rig.deploy")}

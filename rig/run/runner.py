@@ -216,8 +216,7 @@ class Runner:
         a procedure failure; the exit code says what happened)."""
         try:
             params, resume_dir = self._validate(overrides, resume)
-        except (ConfigError, RecordError) as exc:
-            log.error("%s", exc)
+        except (ConfigError, RecordError) as exc:  # the outcome's reason says it (rig prints it once)
             return RunOutcome(EXIT_BAD_INPUT, None, "bad_input", str(exc))
         clock = make_clock(self.config.station.clock == "virtual",
                            rate=self.config.sim.rate if self.config.sim is not None else None)
