@@ -37,6 +37,9 @@ PAGE_STATE = """!document.getElementById("step-text") ? "null" : JSON.stringify(
   arm: Number(document.getElementById('plot-arm').dataset.points),
   exciter: Number(document.getElementById('plot-exciter').dataset.points),
   rotor: Number(document.getElementById('plot-rotor').dataset.points),
+  arm_error: Number(document.getElementById('plot-arm-error').dataset.points),
+  exciter_vs_f: Number(document.getElementById('plot-exciter-lag').dataset.points),
+  rotor_phase: Number(document.getElementById('plot-rotor-phase').dataset.points),
   cameras: [...document.querySelectorAll('#cameras img')].filter(i => i.naturalWidth > 0).length,
   devices: document.getElementById('devices').textContent,
   banner: getComputedStyle(document.getElementById('sim-banner')).display,
@@ -112,12 +115,14 @@ def test_dashboard_follows_certify_and_its_abort_stops_it_safely(chromium: str, 
             assert [s.split(":")[0] for s in first["steps"]][:2] == ["calibrate", "sync"]
             calibrating = _wait(page, proc, "the arm's moves", lambda s: s["arm"] >= 2)
             _shot(page, tmp_path, "1-calibrate")
-            syncing = _wait(page, proc, "the rotor's frequencies and a camera frame",
-                            lambda s: s["rotor"] >= 3 and s["cameras"] >= 1)
+            assert calibrating["arm_error"] >= 1  # the arm's own position error, per move
+            syncing = _wait(page, proc, "the rotor's frequencies, its phase and a camera frame",
+                            lambda s: s["rotor"] >= 3 and s["rotor_phase"] >= 3 and s["cameras"] >= 1)
             _shot(page, tmp_path, "2-sync")
             sweeping = _wait(page, proc, "the sweep", lambda s: s["exciter"] >= 10 and "sweep" in s["step"])
-            later = _wait(page, proc, "the sweep's plot growing",
-                          lambda s: s["exciter"] > sweeping["exciter"] + 5)
+            later = _wait(page, proc, "the sweep's plots growing",
+                          lambda s: s["exciter"] > sweeping["exciter"] + 5
+                          and s["exciter_vs_f"] > sweeping["exciter_vs_f"] + 5)
             image = _shot(page, tmp_path, "3-sweep")
             assert calibrating["arm"] <= syncing["arm"] and later["cameras"] == 2
             assert "exciter" in later["devices"] and "frequency_hz" in later["devices"]

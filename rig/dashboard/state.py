@@ -32,6 +32,9 @@ PLOTS: dict[str, tuple[str, ...]] = {
     "arm": ("t_s", "x_mm", "y_mm", "z_mm", "position_error_mm"),
     "exciter": ("t_s", "setpoint_hz", "frequency_hz", "lag_hz"),
     "rotor": ("t_s", "setpoint_hz", "frequency_hz", "lag_hz"),
+    # the rotor's turning phase as its drive reports it: 360° × ∫ polled frequency dt (trapezoids between
+    # polls, from the first poll of a spin), wrapped to [0, 360); the sync step's truth
+    "rotor_phase": ("t_s", "phase_deg"),
 }
 DEVICE_STREAMS = ("exciter", "rotor", "generator")
 
@@ -112,6 +115,8 @@ class DashboardState:
         }
         self.series = {name: Series(columns, max_points) for name, columns in PLOTS.items()}
         self._step_begin_s: float | None = None
+        self._rotor_last: tuple[float, float] | None = None  # (t_s, frequency_hz) of the last rotor poll
+        self._rotor_phase_deg = 0.0
 
     # ---------------------------------------------------------------- writers (the run's threads)
     def _changed(self) -> None:
@@ -190,8 +195,21 @@ class DashboardState:
             if stream in self.series and data.get("frequency_hz") is not None:
                 setpoint_hz, polled_hz = _num(data.get("setpoint_hz")), float(data["frequency_hz"])
                 self.series[stream].append([t_s, setpoint_hz, polled_hz, polled_hz - setpoint_hz])
+                if stream == "rotor":
+                    self._rotor_phase(t_s, polled_hz)
         elif stream == "devices":
             self.fields["devices_snapshot"] = sorted(k for k in data if k not in ("error",))
+
+    def _rotor_phase(self, t_s: float, frequency_hz: float) -> None:
+        """Advance the rotor's phase to ``t_s`` and plot it; a spin begins at the first poll after a stop."""
+        last = self._rotor_last
+        if last is None or (last[1] == 0.0 and frequency_hz == 0.0) or t_s < last[0]:
+            self._rotor_phase_deg = 0.0
+        else:
+            self._rotor_phase_deg += 360.0 * 0.5 * (last[1] + frequency_hz) * (t_s - last[0])
+        self._rotor_last = (t_s, frequency_hz)
+        if frequency_hz != 0.0 or (last is not None and last[1] != 0.0):
+            self.series["rotor_phase"].append([t_s, self._rotor_phase_deg % 360.0])
 
     def _on_interlock(self, doc: dict[str, Any]) -> None:
         self.fields["interlocks"].append({"device": doc.get("device"), "reason": doc.get("reason")})
