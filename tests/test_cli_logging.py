@@ -107,3 +107,20 @@ def test_two_equal_camera_names_are_bad_input(tmp_path: Path, capsys: pytest.Cap
     assert main(["calibrate", "a.mp4", "b.mp4", "--target", "t.toml", "--names", "cam", "cam"]) == 4
     err = capsys.readouterr().err
     assert err == "rig: bad input: --names: cam cam: give two different camera names\n"
+
+
+DASK = textwrap.dedent("""\
+    import logging, sys
+    from rig.cli_logging import configure_logging
+    configure_logging(int(sys.argv[1]), sys.stderr)
+    import distributed  # its own stderr handler, configured from dask's config when imported
+    print(logging.getLevelName(logging.getLogger("distributed").level))
+""")
+
+
+@pytest.mark.parametrize(("verbose", "level"), [(0, "ERROR"), (1, "INFO")])
+def test_dask_distributed_logs_errors_only_by_default(verbose: int, level: str) -> None:
+    env = {k: v for k, v in os.environ.items() if not k.startswith("DASK_")}
+    done = subprocess.run([sys.executable, "-c", DASK, str(verbose)], env={**env, "PYTHONPATH": str(ROOT)},
+                          capture_output=True, text=True, timeout=300, check=True)
+    assert done.stdout.strip() == level
