@@ -107,7 +107,20 @@ def test_without_a_plan_steps_are_counted_as_they_begin() -> None:
     term = TerminalProgress(state, stream, clock=FakeClock())
     for doc in ({"type": "start", "time_s": 0.0}, _step("move", "begin", 0.0)):
         _doc(state, term, doc)
-    assert stream.getvalue() == "rig: +       0 s step 1: move began (planned ≈ 0 s; ≈ 0 s left)\n"
+    assert stream.getvalue() == "rig: +       0 s step 1: move began (≈ 0 s left)\n"
+
+
+def test_a_step_the_plan_does_not_time_is_counted_where_it_runs() -> None:
+    """``rig run sync`` calibrates first when it has no calibration: a step outside sync's plan."""
+    state = DashboardState("sync", plan_steps=lambda start: [("sync", 13.0)])
+    stream = FakeStream(tty=False)
+    term = TerminalProgress(state, stream, clock=FakeClock())
+    for doc in ({"type": "start", "time_s": 0.0}, _step("calibrate", "begin", 0.0),
+                _step("calibrate", "done", 3.0), _step("sync", "begin", 3.0)):
+        _doc(state, term, doc)
+    assert [line.split(" step ", 1)[1] for line in stream.getvalue().splitlines()] == [
+        "1 of 2: calibrate began (≈ 13 s left)", "1 of 2: calibrate done (≈ 13 s left)",
+        "2 of 2: sync began (planned ≈ 13 s; ≈ 13 s left)"]
 
 
 @pytest.mark.parametrize(("seconds", "text"),

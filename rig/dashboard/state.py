@@ -32,9 +32,10 @@ PLOTS: dict[str, tuple[str, ...]] = {
     "arm": ("t_s", "x_mm", "y_mm", "z_mm", "position_error_mm"),
     "exciter": ("t_s", "setpoint_hz", "frequency_hz", "lag_hz"),
     "rotor": ("t_s", "setpoint_hz", "frequency_hz", "lag_hz"),
-    # the rotor's turning phase as its drive reports it: 360° × ∫ polled frequency dt (trapezoids between
-    # polls, from the first poll of a spin), wrapped to [0, 360); the sync step's truth
-    "rotor_phase": ("t_s", "phase_deg"),
+    # the rotor's phase as its drive reports it, unwrapped, in turns: ∫ polled frequency dt (trapezoids
+    # between polls) since the spin began; the sync step's truth. Not wrapped to 360°: the drive is polled a
+    # few times a second and the rotor turns up to tens of times a second, so a wrapped phase would alias
+    "rotor_phase": ("t_s", "turns"),
 }
 DEVICE_STREAMS = ("exciter", "rotor", "generator")
 
@@ -116,7 +117,7 @@ class DashboardState:
         self.series = {name: Series(columns, max_points) for name, columns in PLOTS.items()}
         self._step_begin_s: float | None = None
         self._rotor_last: tuple[float, float] | None = None  # (t_s, frequency_hz) of the last rotor poll
-        self._rotor_phase_deg = 0.0
+        self._rotor_turns = 0.0
 
     # ---------------------------------------------------------------- writers (the run's threads)
     def _changed(self) -> None:
@@ -164,8 +165,12 @@ class DashboardState:
         for step in self.fields["steps"]:
             if step["name"] == name:
                 return step
-        step = {"name": name, "duration_s": 0.0, "status": "pending"}  # a step the plan does not time
-        self.fields["steps"].append(step)
+        # a step the plan does not time (the calibration a procedure run alone does first): in the order it
+        # runs, before the steps not yet begun
+        step = {"name": name, "duration_s": 0.0, "status": "pending"}
+        steps = self.fields["steps"]
+        first_pending = next((i for i, s in enumerate(steps) if s["status"] == "pending"), len(steps))
+        steps.insert(first_pending, step)
         return step
 
     def _on_step(self, doc: dict[str, Any]) -> None:
@@ -204,12 +209,12 @@ class DashboardState:
         """Advance the rotor's phase to ``t_s`` and plot it; a spin begins at the first poll after a stop."""
         last = self._rotor_last
         if last is None or (last[1] == 0.0 and frequency_hz == 0.0) or t_s < last[0]:
-            self._rotor_phase_deg = 0.0
+            self._rotor_turns = 0.0
         else:
-            self._rotor_phase_deg += 360.0 * 0.5 * (last[1] + frequency_hz) * (t_s - last[0])
+            self._rotor_turns += 0.5 * (last[1] + frequency_hz) * (t_s - last[0])
         self._rotor_last = (t_s, frequency_hz)
         if frequency_hz != 0.0 or (last is not None and last[1] != 0.0):
-            self.series["rotor_phase"].append([t_s, self._rotor_phase_deg % 360.0])
+            self.series["rotor_phase"].append([t_s, self._rotor_turns])
 
     def _on_interlock(self, doc: dict[str, Any]) -> None:
         self.fields["interlocks"].append({"device": doc.get("device"), "reason": doc.get("reason")})

@@ -78,7 +78,8 @@ class TerminalProgress:
         if self.is_terminal:
             self._draw(overview)
             return
-        planned = "" if not begun else f"planned ≈ {duration_text(overview.duration_of(name))}; "
+        duration_s = overview.duration_of(name) or 0.0
+        planned = f"planned ≈ {duration_text(duration_s)}; " if begun and duration_s > 0 else ""
         self._log(f"{self._step_label(overview, name)} {'began' if begun else 'done'} "
                   f"({planned}≈ {duration_text(overview.remaining_s)} left)")
 
