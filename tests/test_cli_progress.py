@@ -97,6 +97,10 @@ def test_a_terminal_gets_one_line_redrawn_at_most_every_redraw_interval() -> Non
     assert last.startswith("[" + "#" * 17 + "-" * 13 + "]  58 % "
                            "step 2 of 2: sweep 50 % · ≈ 50 s left · at 15 Hz")
     assert "\n" not in stream.getvalue()
+    drawn = stream.getvalue().count("\r")
+    clock.now_s += 0.1  # any document redraws (throttled): a step without a fraction counts down by rig time
+    _doc(state, term, {"type": "event", "time_s": 60.0, "stream": "exciter", "data": {}})
+    assert stream.getvalue().count("\r") == drawn + 1
     term.close()
     assert stream.getvalue().endswith("\n")
 

@@ -72,6 +72,8 @@ class TerminalProgress:
         if self._began_s is None and document.get("type") == "start":
             self._began_s = self.clock()
         if document.get("type") != "step":
+            if self.is_terminal:  # the rig time moved on: the time remaining of a step without a fraction
+                self._draw_throttled()
             return
         name, begun = str(document.get("name")), document.get("status") == "begin"
         overview = self.state.overview()
@@ -85,13 +87,10 @@ class TerminalProgress:
 
     def progress(self, fraction: float | None, message: str) -> None:
         """The runner's progress callback (after the state's): the running step's fraction and message."""
-        overview = self.state.overview()
         if self.is_terminal:
-            now = self.clock()
-            if now - self._last_draw_s >= self.redraw_s:
-                self._last_draw_s = now
-                self._draw(overview)
+            self._draw_throttled()
             return
+        overview = self.state.overview()
         step = overview.step
         if step is None or fraction is None or (overview.duration_of(step) or 0.0) < self.long_step_s:
             return
@@ -124,6 +123,12 @@ class TerminalProgress:
         elapsed = 0.0 if self._began_s is None else self.clock() - self._began_s
         self.stream.write(f"rig: +{duration_text(elapsed):>10s} {text}\n")
         self.stream.flush()
+
+    def _draw_throttled(self) -> None:
+        now = self.clock()
+        if now - self._last_draw_s >= self.redraw_s:
+            self._last_draw_s = now
+            self._draw(self.state.overview())
 
     def _draw(self, overview: Overview) -> None:
         overall = overview.overall_fraction
