@@ -37,7 +37,6 @@ from rig.cli_logging import configure_logging
 from rig.config.rig_config import load_config
 from rig.config.schema import ConfigError
 from rig.run.exit_codes import EXIT_ABORTED, EXIT_BAD_INPUT, EXIT_FAULT, STOP_SIGNALS, Interrupted
-from rig.run.procedure import ParameterError, check_procedure_module, parameter_table, parse_set
 
 log = logging.getLogger("rig.cli")
 MOCK_MODULES = {"robot": ("drivers.mock.bcap_server", []),
@@ -46,10 +45,19 @@ MOCK_MODULES = {"robot": ("drivers.mock.bcap_server", []),
                 "generator": ("drivers.mock.generator_server", [])}
 
 
+def _bad_input(field: str, message: str) -> Exception:
+    """A :class:`rig.run.procedure.ParameterError` (exit 4), its module imported only when one is raised: it
+    imports the drivers and the record writer, which ``rig --help`` does without."""
+    from rig.run.procedure import ParameterError
+
+    return ParameterError(field, message)
+
+
 # ---------------------------------------------------------------------------- procedures
 def discover_procedures() -> dict[str, types.ModuleType]:
     """Every module of the ``procedures`` package that defines ``NAME``, ``Parameters`` and ``run``."""
     import procedures
+    from rig.run.procedure import check_procedure_module
 
     found: dict[str, types.ModuleType] = {}
     for info in pkgutil.iter_modules(procedures.__path__):
@@ -66,10 +74,12 @@ def discover_procedures() -> dict[str, types.ModuleType]:
 
 def load_procedure(name_or_path: str) -> types.ModuleType:
     """A procedure by name (``rig list``) or from a ``.py`` file; ParameterError if there is none."""
+    from rig.run.procedure import check_procedure_module
+
     if name_or_path.endswith(".py"):
         path = Path(name_or_path)
         if not path.is_file():
-            raise ParameterError("PROCEDURE", f"{name_or_path!r}: no such file")
+            raise _bad_input("PROCEDURE", f"{name_or_path!r}: no such file")
         spec = importlib.util.spec_from_file_location(f"rig_user_procedure_{path.stem}", path)
         module = importlib.util.module_from_spec(spec)  # type: ignore[arg-type]
         sys.modules[module.__name__] = module  # dataclasses resolve string annotations through it
@@ -77,11 +87,11 @@ def load_procedure(name_or_path: str) -> types.ModuleType:
         try:
             check_procedure_module(module)
         except TypeError as exc:
-            raise ParameterError("PROCEDURE", str(exc)) from exc
+            raise _bad_input("PROCEDURE", str(exc)) from exc
         return module
     available = discover_procedures()
     if name_or_path not in available:
-        raise ParameterError("PROCEDURE", f"{name_or_path!r} is not a procedure; allowed: "
+        raise _bad_input("PROCEDURE", f"{name_or_path!r} is not a procedure; allowed: "
                                           f"{', '.join(available) or '(none installed)'} or a .py file")
     return available[name_or_path]
 
@@ -90,6 +100,7 @@ def load_procedure(name_or_path: str) -> types.ModuleType:
 def _run_procedure(module: types.ModuleType, args: argparse.Namespace) -> int:
     from rig.dashboard.live_run import run_state
     from rig.dashboard.terminal import TerminalProgress
+    from rig.run.procedure import parse_set
     from rig.run.runner import Runner
     from rig.run.station import open_station
 
@@ -174,7 +185,7 @@ def _live_dashboard(module: types.ModuleType, config: Any, args: argparse.Namesp
         return LiveDashboard(module, config, host=host, port=args.dashboard_port,
                              allow_remote=args.dashboard_host is not None)
     except DashboardError as exc:
-        raise ParameterError("--dashboard-port", str(exc)) from exc
+        raise _bad_input("--dashboard-port", str(exc)) from exc
 
 
 def _index_in_catalogue(run_dir: Path) -> None:
@@ -197,7 +208,7 @@ def _dry_run(module: types.ModuleType, config: Any, overrides: dict[str, Any], *
     from rig.run.procedure import validate_parameters
 
     if resume:
-        raise ParameterError("--dry-run", "not with --resume (a resumed run keeps its checked plan)")
+        raise _bad_input("--dry-run", "not with --resume (a resumed run keeps its checked plan)")
     plan = plan_of(module, validate_parameters(module, overrides), config)
     if plan is None:
         print(f"rig: {module.NAME} declares no plan (no plan(params, config) in its module): nothing to "
@@ -217,13 +228,13 @@ def cmd_run(args: argparse.Namespace) -> int:
     name = args.procedure
     if name is None:
         if not args.resume:
-            raise ParameterError("PROCEDURE", "missing; give a procedure name or file (or --resume RUN)")
+            raise _bad_input("PROCEDURE", "missing; give a procedure name or file (or --resume RUN)")
         from rig.record.writer import parse_record
 
         docs = parse_record(Path(args.resume) / "record.jsonl").documents
         name = next((d.get("procedure") for d in docs if d.get("type") == "start"), None)
         if not isinstance(name, str):
-            raise ParameterError("--resume", f"{args.resume!r} has no start document naming its procedure")
+            raise _bad_input("--resume", f"{args.resume!r} has no start document naming its procedure")
     return _run_procedure(load_procedure(name), args)
 
 
@@ -235,7 +246,7 @@ def cmd_report(args: argparse.Namespace) -> int:
     """Issue the run's certificate, or — when it was issued — write a revision beside it and say so."""
     run_dir = Path(args.run)
     if not (run_dir / "record.jsonl").is_file():
-        raise ParameterError("RUN", f"{args.run!r} is not a run folder (no record.jsonl)")
+        raise _bad_input("RUN", f"{args.run!r} is not a run folder (no record.jsonl)")
     from reports.build import build_report
     from reports.errors import ReportError
 
@@ -316,7 +327,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
 
     folder = Path(args.dir)
     if folder.exists() and any(folder.iterdir()):
-        raise ParameterError("DIR", f"{args.dir!r} is not empty; give a new or empty folder for the demo")
+        raise _bad_input("DIR", f"{args.dir!r} is not empty; give a new or empty folder for the demo")
     files = write_demo(folder)
     print(f"rig demo: sample videos from the digital twin in {folder} (what they show: {files.truth_txt})")
     print("calibrate the camera pair from the plate videos, then measure the vibrating column:")
@@ -336,7 +347,7 @@ def cmd_preview(args: argparse.Namespace) -> int:
                             allow_remote=args.dashboard_host is not None, interval_s=args.interval_s,
                             max_updates=args.updates)
     except DashboardError as exc:
-        raise ParameterError("--dashboard-host", str(exc)) from exc
+        raise _bad_input("--dashboard-host", str(exc)) from exc
     except KeyboardInterrupt:
         print("rig preview: stopped", file=sys.stderr)
         return 0
@@ -354,7 +365,7 @@ def cmd_runs(args: argparse.Namespace) -> int:
     from rig.record import catalogue
 
     if args.action in ("show", "trend") and not args.target:
-        raise ParameterError("RUN|SETUP", f"`rig runs {args.action}` needs "
+        raise _bad_input("RUN|SETUP", f"`rig runs {args.action}` needs "
                                           f"{'a run' if args.action == 'show' else 'a setup name'}")
     runs_dir = _runs_dir(args)
     synced = catalogue.sync(runs_dir)
@@ -384,7 +395,7 @@ def _show_run(runs_dir: Path, run: str) -> int:
 
     entry = find_run(runs_dir, run)
     if entry is None:
-        raise ParameterError("RUN", f"{run!r} is not a run folder in {runs_dir} (see `rig runs`)")
+        raise _bad_input("RUN", f"{run!r} is not a run folder in {runs_dir} (see `rig runs`)")
     print(f"run {entry.run_id} — {entry.folder}")
     print(f"  setup {entry.setup!r}, procedure {entry.procedure}, simulated {entry.simulated}")
     print(f"  started {entry.started_utc}, stopped {entry.stopped_utc or '(no stop document)'}: "
@@ -401,7 +412,7 @@ def _show_trend(runs_dir: Path, setup: str, out_dir: Path) -> int:
 
     frame = trend_frame(list_runs(runs_dir, setup=setup))
     if frame.empty:
-        raise ParameterError("SETUP", f"no certificate of setup {setup!r} in {runs_dir} (see `rig runs`)")
+        raise _bad_input("SETUP", f"no certificate of setup {setup!r} in {runs_dir} (see `rig runs`)")
     table = frame.pivot_table(index=["started_utc", "run_id"], columns="criterion", values="value",
                               aggfunc="first", sort=False)
     print(table.to_string(float_format=lambda v: f"{v:.4g}"))
@@ -420,7 +431,7 @@ def cmd_batch(args: argparse.Namespace) -> int:
     try:
         manifest = load_manifest(args.manifest)
     except ManifestError as exc:
-        raise ParameterError(f"MANIFEST {exc.field}", str(exc).split(": ", 1)[-1]) from exc
+        raise _bad_input(f"MANIFEST {exc.field}", str(exc).split(": ", 1)[-1]) from exc
     out = Path(args.out)
     report = run_batch(manifest, out, scheduler=args.scheduler, n_workers=args.workers,
                        show_progress=sys.stderr.isatty())
@@ -439,6 +450,8 @@ def cmd_batch(args: argparse.Namespace) -> int:
 
 
 def cmd_list(args: argparse.Namespace) -> int:
+    from rig.run.procedure import parameter_table
+
     procedures = discover_procedures()
     if not procedures:
         print("no procedures installed (the procedures/ package is empty)")

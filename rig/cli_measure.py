@@ -15,7 +15,6 @@ from pathlib import Path
 
 from rig.deploy.choices import DISTORTION_MODELS, MEASURE_SYNC
 from rig.run.exit_codes import EXIT_BAD_INPUT
-from rig.run.procedure import ParameterError
 
 __all__ = ["COMMANDS", "add_parsers", "cmd_calibrate", "cmd_measure"]
 
@@ -27,6 +26,8 @@ markers_mm = [[x, y, z], ...] (rows × cols points in mm, node r·cols + c)."""
 def _names(args: argparse.Namespace) -> list[str]:
     names = list(args.names or ("left", "right"))
     if len(names) != 2 or names[0] == names[1]:
+        from rig.run.procedure import ParameterError
+
         raise ParameterError("--names", f"{' '.join(names)}: give two different camera names")
     return names
 
