@@ -44,7 +44,7 @@ def _once(command: list[str], env: dict[str, str]) -> tuple[float, float]:
     """(wall s, CPU s) of one run of ``command``."""
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
     t0 = time.perf_counter()
-    subprocess.run(command, env=env, stdout=subprocess.DEVNULL, check=True)
+    subprocess.run(command, env=env, cwd=ROOT, stdout=subprocess.DEVNULL, check=True)  # -m/-c: cwd first
     wall = time.perf_counter() - t0
     after = resource.getrusage(resource.RUSAGE_CHILDREN)
     return wall, (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
@@ -64,8 +64,8 @@ def main(argv: list[str] | None = None) -> int:
             base_wall, base_cpu = wall, max(cpu, 1e-3)
             extra = ""
         else:
-            done = subprocess.run([sys.executable, "-c", MODULES, *command[3:]], env=env, capture_output=True,
-                                  text=True, check=True)
+            done = subprocess.run([sys.executable, "-c", MODULES, *command[3:]], env=env, cwd=ROOT,
+                                  capture_output=True, text=True, check=True)
             count, heavy = json.loads(done.stdout.splitlines()[-1])
             extra = f"  {count} modules, heavy: {', '.join(heavy) or 'none'}"
         print(f"{name:16s} wall {wall:6.3f} s ({wall / base_wall:5.1f}×)  CPU {cpu:6.3f} s "
