@@ -30,19 +30,29 @@ import threading
 import types
 from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import Any, NoReturn
+from typing import TYPE_CHECKING, Any, NoReturn
 
 # only light modules here (tests/test_cli_start.py): the heavy ones are imported by the commands that use them
 from rig.cli_logging import configure_logging
-from rig.config.rig_config import load_config
 from rig.config.schema import ConfigError
 from rig.run.exit_codes import EXIT_ABORTED, EXIT_BAD_INPUT, EXIT_FAULT, STOP_SIGNALS, Interrupted
+
+if TYPE_CHECKING:
+    from rig.config.rig_config import RigConfig
 
 log = logging.getLogger("rig.cli")
 MOCK_MODULES = {"robot": ("drivers.mock.bcap_server", []),
                 "exciter": ("drivers.mock.vfd_server", ["--body", "exciter"]),
                 "rotor": ("drivers.mock.vfd_server", ["--body", "rotor"]),
                 "generator": ("drivers.mock.generator_server", [])}
+
+
+def load_config(path: str | None) -> RigConfig:
+    """:func:`rig.config.rig_config.load_config`, imported when a command needs the configuration (some of its
+    sections import numpy)."""
+    from rig.config.rig_config import load_config as load
+
+    return load(path)
 
 
 def _bad_input(field: str, message: str) -> Exception:
