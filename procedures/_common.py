@@ -20,6 +20,7 @@ from drivers.exciter.axis import VfdAxis
 from rig.config.devices import VfdConfig
 from rig.config.rig_config import RigConfig
 from rig.config.targets import CalibrationPlateTarget
+from rig.record.events import ArmEvent
 from rig.run.acquire import Acquirer, Recording
 from rig.run.plan import ArmMoves, PlanStep
 from rig.run.procedure import Context, ParameterError
@@ -133,9 +134,9 @@ def move_arm(ctx: Context, arm: DensoArm, pose: Sequence[float],
     """Move the arm (limits checked by the driver before sending), record the ``arm`` event, checkpoint."""
     ctx.checkpoint()
     result = arm.move_to(list(pose), speed_mm_s)
-    ctx.event("arm", {"commanded_pose": result.commanded_pose, "reported_pose": result.reported_pose,
-                      "t_start_s": result.t_start_s, "t_end_s": result.t_end_s,
-                      "position_error_mm": result.position_error_mm})
+    ctx.event("arm", ArmEvent(
+        commanded_pose=list(result.commanded_pose), reported_pose=list(result.reported_pose),
+        t_start_s=result.t_start_s, t_end_s=result.t_end_s, position_error_mm=result.position_error_mm))
     ctx.checkpoint()
     return result
 

@@ -37,6 +37,7 @@ from procedures._common import (
 )
 from rig.config.rig_config import RigConfig
 from rig.config.targets import MeasurementVolume, TargetsConfig
+from rig.record.events import AccuracyPoseEvent
 from rig.run.acquire import Acquirer, ReduceOptions
 from rig.run.plan import ArmMoves, Plan
 from rig.run.procedure import Context, param
@@ -180,10 +181,10 @@ def run_steps(ctx: Context, params: Parameters) -> int:
                     ctx.progress(index / total, f"{step_name}: {target} (cycle {cycle})")
                     rec = record_still(ctx, acq, arm, pose, step_name, frames=params.frames_per_pose,
                                        settle_s=params.settle_s, speed_mm_s=params.speed_mm_s)
-                    ctx.event("accuracy_pose", {
-                        "index": index, "cycle": cycle, "target": target, "t_start_s": rec.t_start_s,
-                        "t_stop_s": rec.t_stop_s, "pose": pose, "segment": step_name,
-                        "markers": arm_marker_positions(pose, offsets[SCENES[step_name]])})
+                    ctx.event("accuracy_pose", AccuracyPoseEvent(
+                        index=index, cycle=cycle, target=target, t_start_s=rec.t_start_s,
+                        t_stop_s=rec.t_stop_s, pose=list(pose), segment=step_name,
+                        markers=arm_marker_positions(pose, offsets[SCENES[step_name]])))
                     index += 1
     return total
 

@@ -31,6 +31,7 @@ from procedures._common import (
 from rig.config.rig_config import RigConfig
 from rig.config.targets import CalibrationPlateTarget
 from rig.deploy.plate_grid import GridError, moving_points, order_grid
+from rig.record.events import CalibrationPositionEvent
 from rig.run.acquire import Acquirer, ReduceOptions, mean_positions
 from rig.run.plan import ArmMoves, Plan
 from rig.run.procedure import Context, ParameterError, param
@@ -122,10 +123,9 @@ def calibrate_cameras(ctx: Context, params: Parameters) -> dict[str, Any]:
             rec = record_still(ctx, acq, arm, pose, "calibrate", frames=params.frames_per_position,
                                settle_s=params.settle_s, speed_mm_s=params.speed_mm_s)
             points = arm_marker_positions(pose, offsets)
-            ctx.event("calibration_position", {"index": i, "t_start_s": rec.t_start_s,
-                                               "t_stop_s": rec.t_stop_s,
-                                               "pose": list(pose), "slide_mm": slides[i],
-                                               "points": points})
+            ctx.event("calibration_position", CalibrationPositionEvent(
+                index=i, t_start_s=rec.t_start_s, t_stop_s=rec.t_stop_s, pose=list(pose),
+                slide_mm=slides[i], points=points))
             positions.append({"points": points, "observations": rec.observations, "slide_mm": slides[i]})
     cameras, grid = {}, {}
     min_frames = max(1, params.frames_per_position // 2)

@@ -36,6 +36,7 @@ from procedures._common import (
 )
 from rig.config.rig_config import RigConfig
 from rig.config.targets import PlateTarget
+from rig.record.events import PlateEvent
 from rig.run.acquire import Acquirer, Recording, ReduceOptions
 from rig.run.plan import Plan, PlanStep, Vibration, shaker_limits
 from rig.run.procedure import Context, ParameterError, param
@@ -140,12 +141,11 @@ def _plate_event(ctx: Context, plate: PlateTarget, rec: Recording[Any], polled_h
     amplitude ``tip_mm`` and each marker's, the axis)."""
     axis = plate.axis if plate.axis is not None else plate.normal
     amplitudes = marker_amplitudes_mm(plate, tip_mm)
-    ctx.event("plate", {"t_start_s": rec.t_start_s, "t_stop_s": rec.t_stop_s,
-                        "frequency_hz": float(np.mean(polled_hz)),
-                        "setpoint_hz": setpoint_hz, "amplitude_mm": tip_mm,
-                        "axis": [float(v) / float(np.linalg.norm(axis)) for v in axis],
-                        "marker_ids": list(amplitudes), "marker_amplitudes_mm": amplitudes,
-                        "segment": rec.segment, **extra})
+    ctx.event("plate", PlateEvent(
+        t_start_s=rec.t_start_s, t_stop_s=rec.t_stop_s, frequency_hz=float(np.mean(polled_hz)),
+        setpoint_hz=setpoint_hz, amplitude_mm=tip_mm,
+        axis=[float(v) / float(np.linalg.norm(axis)) for v in axis], marker_ids=list(amplitudes),
+        marker_amplitudes_mm=amplitudes, segment=rec.segment, **extra))
 
 
 def run(ctx: Context, params: Parameters) -> dict[str, Any]:

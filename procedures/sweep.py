@@ -49,6 +49,7 @@ from procedures._common import (
 from procedures._shaker import follow_staircase, staircase_plan
 from rig.config.rig_config import RigConfig
 from rig.config.targets import SweepColumnTarget
+from rig.record.events import SweepEvent
 from rig.run.acquire import Acquirer, ReduceOptions
 from rig.run.plan import GeneratorSweep, Plan, PlanStep, Vibration, shaker_limits
 from rig.run.procedure import Context, ParameterError, param
@@ -189,11 +190,11 @@ def run_step(ctx: Context, params: Parameters, *, step_name: str = "sweep") -> N
             rec = acq.record(step_name, lambda: exciter.sweep(
                 profile, update_interval_s=params.update_interval_s, on_sample=on_sample))
         result = rec.result
-        ctx.event("sweep", {"t_start_s": result.t_start_s, "t_stop_s": result.t_stop_s,
-                            "amplitude_mm": exciter.amplitude_mm, "axis": list(column.axis),
-                            "marker_ids": [f"col{k}" for k in range(column.count)],
-                            "profile": [list(p) for p in result.profile], "segment": step_name,
-                            "recording": [rec.t_start_s, rec.t_stop_s]})
+        ctx.event("sweep", SweepEvent(
+            t_start_s=result.t_start_s, t_stop_s=result.t_stop_s, amplitude_mm=exciter.amplitude_mm,
+            axis=list(column.axis), marker_ids=[f"col{k}" for k in range(column.count)],
+            profile=[list(p) for p in result.profile], segment=step_name,
+            recording=[rec.t_start_s, rec.t_stop_s]))
         stop_polled(ctx, exciter, "exciter")
 
 
@@ -220,15 +221,14 @@ def _run_shaker(ctx: Context, params: Parameters, column: SweepColumnTarget, ste
     # (chord error of the log law ≤ (ln(f1/f0)·Δ/T)²/8 relative: 6e-6 for the defaults; ≤ 2000 points)
     law = LogSweep(f0, f1, T).points(max(0.05, T / 2000)) if params.shape == "log" else [(0.0, f0), (T, f1)]
     profile = [[t0 + t, f] for t, f in law] + [list(p) for p in result.profile if p[0] > t0 + T]
-    ctx.event("sweep", {"t_start_s": t0, "t_stop_s": result.t_stop_s,
-                        "amplitude_mm": params.shaker_amplitude_mm, "axis": list(column.axis),
-                        "marker_ids": [f"col{k}" for k in range(column.count)],
-                        "profile": profile, "segment": step_name, "recording": [rec.t_start_s, rec.t_stop_s],
-                        "body": "shaker", "amplitude_vpp": result.amplitude_vpp, "spacing": result.spacing,
-                        "profile_source": "commanded: the generator's built-in sweep (start, stop, time, "
-                                          "spacing; phase-continuous), which it does not report "
-                                          "instant by instant; its reported settings and state are the "
-                                          "generator events"})
+    ctx.event("sweep", SweepEvent(
+        t_start_s=t0, t_stop_s=result.t_stop_s, amplitude_mm=params.shaker_amplitude_mm,
+        axis=list(column.axis), marker_ids=[f"col{k}" for k in range(column.count)], profile=profile,
+        segment=step_name, recording=[rec.t_start_s, rec.t_stop_s], body="shaker",
+        amplitude_vpp=result.amplitude_vpp, spacing=result.spacing,
+        profile_source="commanded: the generator's built-in sweep (start, stop, time, spacing; "
+                       "phase-continuous), which it does not report instant by instant; its reported "
+                       "settings and state are the generator events"))
     poll_event(ctx, "generator", shaker.read_state())  # the sweep ended with amplitude down, output OFF
 
 
@@ -243,16 +243,16 @@ def _run_shaker_steps(ctx: Context, params: Parameters, column: SweepColumnTarge
             ctx, shaker, plan, total_s=points[-1][0], amplitude_mm=params.shaker_amplitude_mm,
             on_step=on_poll))
     result = rec.result
-    ctx.event("sweep", {"t_start_s": result.t_start_s, "t_stop_s": result.t_stop_s,
-                        "amplitude_mm": params.shaker_amplitude_mm, "axis": list(column.axis),
-                        "marker_ids": [f"col{k}" for k in range(column.count)],
-                        "profile": [list(p) for p in result.profile], "segment": step_name,
-                        "recording": [rec.t_start_s, rec.t_stop_s], "body": "shaker",
-                        "amplitude_vpp": result.amplitude_vpp, "spacing": "steps",
-                        "profile_source": f"commanded staircase: phase-continuous CW frequency steps every "
-                                          f"{params.update_interval_s:g} s, each at the Fig. 17 profile's "
-                                          "mean frequency over its step (volts per step from the "
-                                          "sensitivity table), at the times the commands were sent"})
+    ctx.event("sweep", SweepEvent(
+        t_start_s=result.t_start_s, t_stop_s=result.t_stop_s, amplitude_mm=params.shaker_amplitude_mm,
+        axis=list(column.axis), marker_ids=[f"col{k}" for k in range(column.count)],
+        profile=[list(p) for p in result.profile], segment=step_name,
+        recording=[rec.t_start_s, rec.t_stop_s], body="shaker", amplitude_vpp=result.amplitude_vpp,
+        spacing="steps",
+        profile_source=f"commanded staircase: phase-continuous CW frequency steps every "
+                       f"{params.update_interval_s:g} s, each at the Fig. 17 profile's mean frequency over "
+                       "its step (volts per step from the sensitivity table), at the times the commands "
+                       "were sent"))
     poll_event(ctx, "generator", shaker.read_state())  # after the stop: amplitude down, output OFF
 
 

@@ -34,6 +34,7 @@ from procedures._common import (
 )
 from rig.config.rig_config import RigConfig
 from rig.config.targets import RotorTarget
+from rig.record.events import RotationEvent
 from rig.run.acquire import Acquirer, Recording, ReduceOptions
 from rig.run.plan import Plan, PlanStep, Vibration
 from rig.run.procedure import Context, param
@@ -150,10 +151,10 @@ def spin_and_record(ctx: Context, acq: Acquirer, segment: str, planned: Vibratio
     rec = acq.record(segment, lambda: hold_polling(ctx, rotor.read_sample, "rotor", record_s=record_s,
                                                    poll_interval_s=poll_interval_s))
     freq = float(np.mean([s.frequency_hz for s in rec.result]))
-    ctx.event("rotation", {"t_start_s": rec.t_start_s, "t_stop_s": rec.t_stop_s, "frequency_hz": freq,
-                           "setpoint_hz": rotation_hz, "radius_mm": rotor_cfg.radius_mm,
-                           "centre_mm": list(rotor_cfg.centre_mm), "axis": list(rotor_cfg.axis),
-                           "marker_ids": ["rotor"], "segment": segment})
+    ctx.event("rotation", RotationEvent(
+        t_start_s=rec.t_start_s, t_stop_s=rec.t_stop_s, frequency_hz=freq, setpoint_hz=rotation_hz,
+        radius_mm=rotor_cfg.radius_mm, centre_mm=list(rotor_cfg.centre_mm), axis=list(rotor_cfg.axis),
+        marker_ids=["rotor"], segment=segment))
     stop_polled(ctx, rotor, "rotor")
     events = [{"camera": n, "action": "start", "first_timestamp_s": float(o["timestamp_s"].min())}
               for n, o in rec.observations.items() if len(o)]

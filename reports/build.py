@@ -5,11 +5,11 @@ Evidence is immutable: the first report of a run issues its certificate (written
 outputs plus ``changes.json``), built in a hidden staging folder and renamed into place whole. Every file
 is written atomically (:mod:`rig.record.atomic`).
 
-A thin layer: load the record (:mod:`reports.load`), run the analysis once per sync method (the primary
-one, then ``"linear"``, the paper's, for comparison), compute the tables (:mod:`reports.tables`), write
-them. Outputs are deterministic: the same run folder gives byte-identical CSV, JSON, PNG and HTML (floats
-written to 9 significant digits in CSV and 10 in JSON; PNG without a software/date stamp; the only date
-is the run's own start time).
+A thin layer: load the run folder once (:mod:`reports.load`), run the analysis on it once per sync
+method (the primary one, then ``"linear"``, the paper's, for comparison), compute the tables
+(:mod:`reports.tables`), write them. Outputs are deterministic: the same run folder gives byte-identical
+CSV, JSON, PNG and HTML (floats written to 9 significant digits in CSV and 10 in JSON; PNG without a
+software/date stamp; the only date is the run's own start time).
 """
 
 from __future__ import annotations
@@ -32,8 +32,9 @@ from reports import figures, html, summaries
 from reports.certificate import acceptance_from_config, build_certificate, evaluate
 from reports.errors import AnalysisFailedError, ReportError
 from reports.load import RunData, load_record
-from reports.tables import ReportTables, compute_tables, measured_values
+from reports.tables import ReportTables, compute_tables, controller_clock, measured_values
 from rig.record.atomic import atomic_path, fsync_dir, write_json, write_text
+from rig.record.folder import RunFolder
 
 DEFAULT_SYNC = "trajectory"
 CERTIFICATE_NAME = "certificate.json"
@@ -48,16 +49,16 @@ class AnalysisResult(Protocol):
     def tracks(self) -> pd.DataFrame: ...
 
     @property
-    def timing(self) -> dict[str, Any]: ...  # timing.json as used (empty: the run folder's)
+    def clock(self) -> pd.DataFrame: ...  # controller − reference camera clock per segment, with u
 
     @property
-    def calibration(self) -> dict[str, Any]: ...  # calibration.json as used (empty: the run folder's)
+    def notes(self) -> list[str]: ...  # what the analysis skipped and why
 
 
 class Analyse(Protocol):
-    """``rig.analysis.analyse``: the analysis of a run folder with one sync method."""
+    """``rig.analysis.analyse``: the run folder as read once → its analysis with one sync method."""
 
-    def __call__(self, run_dir: Path, *, sync: str) -> AnalysisResult: ...
+    def __call__(self, source: RunFolder, *, sync: str) -> AnalysisResult: ...
 
 
 @dataclass(frozen=True)
@@ -191,7 +192,7 @@ def build_report(
     run = load_record(run_dir)
     acceptance = acceptance_from_config(run.rig)
     primary = sync or _configured_sync(run.rig)
-    analyses = _analyse_all(run.run_dir, [primary, *[m for m in compare if m != primary]],
+    analyses = _analyse_all(run.folder, [primary, *[m for m in compare if m != primary]],
                             analysis or _default_analyse())
     t = _tables(run, analyses, acceptance)
     revision = _next_revision(run.run_dir, primary)  # None: this report issues the certificate
@@ -215,13 +216,16 @@ def _configured_sync(rig: dict[str, Any]) -> str:
     return str(configured or DEFAULT_SYNC)
 
 
-def _analyse_all(run_dir: Path, methods: list[str], analyse: Analyse) -> Analyses:
-    """The analysis of every method that worked (the first, primary, must) and notes on the rest."""
+def _analyse_all(folder: RunFolder, methods: list[str], analyse: Analyse) -> Analyses:
+    """The analysis of every method that worked (the first, primary, must), its notes and notes on the
+    rest."""
     notes: list[str] = []
     results: dict[str, AnalysisResult] = {}
     for method in methods:
         try:
-            results[method] = analyse(run_dir, sync=method)
+            results[method] = analyse(folder, sync=method)
+            if method == methods[0]:
+                notes += [f"analysis, sync '{method}': {n}" for n in results[method].notes]
         except Exception as exc:
             if method == methods[0]:
                 if isinstance(exc, ValueError | OSError):  # the analysis' own errors name the cause
@@ -232,7 +236,7 @@ def _analyse_all(run_dir: Path, methods: list[str], analyse: Analyse) -> Analyse
 
 
 def _tables(run: RunData, analyses: Analyses, acceptance: dict[str, Any]) -> ReportTables:
-    """The report's tables from the tracks of every method, with the primary method's timing/calibration."""
+    """The report's tables from the tracks of every method, with the primary method's controller clock."""
     main = analyses.by_method[analyses.primary]
     return compute_tables(
         run,
@@ -240,8 +244,7 @@ def _tables(run: RunData, analyses: Analyses, acceptance: dict[str, Any]) -> Rep
         acceptance,
         gate_mm=float(acceptance["identification_gate_mm"]),
         bin_hz=float(acceptance["frequency_bin_hz"]),
-        timing=main.timing or run.timing,
-        calibration=main.calibration or run.calibration,
+        clock=main.clock,
     )
 
 
@@ -286,8 +289,8 @@ def _conditions(run: RunData, t: ReportTables, analyses: Analyses, notes: list[s
         "compared_sync_methods": [m for m in analyses.by_method if m != primary],
         "camera_fps": t.fs_hz,
         "camera_fps_source": t.fs_source,
-        "calibration_convention": (run.calibration or {}).get("convention"),
-        "timing_method": (t.timing or {}).get("method"),
+        "calibration_convention": run.calibration.convention if run.calibration else None,
+        "timing_method": t.timing.method if t.timing else None,
         "report_software": _software_version(),
         "versions": run.start.get("versions"),
         "measurands": summaries.measurands(t, run.rig),
@@ -298,6 +301,7 @@ def _conditions(run: RunData, t: ReportTables, analyses: Analyses, notes: list[s
 
 def _extra(t: ReportTables, primary: str) -> dict[str, Any]:
     return {
+        "controller_clock": controller_clock(t.clock),
         "usable_frequency": {
             m: {
                 "tolerance_pct": lim.tolerance,

@@ -101,9 +101,8 @@ def _length_line(lengths: pd.DataFrame) -> str:
     )
 
 
-def _timing_details(timing: dict[str, Any]) -> str:
+def _timing_details(details: dict[str, Any]) -> str:
     """The scalar diagnostics of the sync fit (``details`` of timing.json), as one short line."""
-    details = d if isinstance(d := timing.get("details"), dict) else {}
     items = [
         f"{html.escape(str(k))} = {_fmt(v)}"
         for k, v in sorted(details.items())
@@ -382,15 +381,15 @@ def _motion_section(t: ReportTables, pngs: dict[str, bytes], tables_html: dict[s
 
 
 def _calibration_section(t: ReportTables, tables_html: dict[str, pd.DataFrame]) -> str:
-    timing = t.timing or {}
+    timing = t.timing
     return (
         "<section id='cal'><h2>Calibration and synchronization</h2><h3>Calibration residuals per camera</h3>"
         + table(tables_html["calibration"], text_cols=("camera",))
         + "<h3>Synchronization</h3>"
         + table(tables_html["timing"], digits=6, text_cols=("camera",))
-        + f"<p class='note'>method: {html.escape(str(timing.get('method', '—')))}; reference camera: "
-        f"{html.escape(str(timing.get('reference_camera', '—')))}; u_…: standard uncertainties. "
-        f"{_timing_details(timing)}</p></section>"
+        + f"<p class='note'>method: {html.escape(timing.method if timing else '—')}; reference camera: "
+        f"{html.escape(timing.reference_camera if timing else '—')}; u_…: standard uncertainties. "
+        f"{_timing_details(timing.details if timing else {})}</p></section>"
     )
 
 

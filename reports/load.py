@@ -1,9 +1,9 @@
 """Load a run folder into tidy pandas frames for the reports (units in column names).
 
 The reports read only the run folder (DESIGN.md): ``record.jsonl`` (start, events, stop),
-``calibration.json`` and ``timing.json``. The 3D tracks come from ``rig.analysis.analyse`` and are passed in
-separately, so every table function here and in the sibling modules is a pure function of frames and
-dicts.
+``calibration.json`` and ``timing.json``, read once and decoded (:mod:`rig.record.folder`). The 3D
+tracks come from ``rig.analysis.analyse`` (given the folder as read) and are passed in separately, so
+every table function here and in the sibling modules is a pure function of frames and decoded files.
 
 Truth streams become one row per commanded item:
 
@@ -14,38 +14,51 @@ Truth streams become one row per commanded item:
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 import numpy as np
 import pandas as pd
 
 from reports.errors import RunFolderError
-from rig.record.writer import RecordError, load_run
+from rig.record.events import AccuracyPoseEvent, Event, EventSchemaError
+from rig.record.folder import Calibration, RunFolder, SideFileError, load_folder
+from rig.record.reader import RECORD_NAME as RECORD_FILE
+from rig.record.reader import RecordError
+from rig.stereo.timing import TimingResult
 
-RECORD_FILE = "record.jsonl"
-CALIBRATION_FILE = "calibration.json"
-TIMING_FILE = "timing.json"
+EventT = TypeVar("EventT", bound=Event)
 
 
 @dataclass(frozen=True)
 class RunData:
-    """The parsed run record: start/stop documents, the event table and the side files.
+    """The parsed run record: start/stop documents, the event table and the decoded side files.
 
     ``events`` has columns ``stream`` (str), ``seq`` (int), ``time_s`` (float, rig clock) and ``data``
-    (dict), sorted by ``(stream, seq)``. ``calibration`` / ``timing`` are ``None`` when the file is absent.
+    (dict), sorted by ``(stream, seq)``. ``folder``: the run folder as read once (record, observations,
+    calibration, timing), which the analysis takes. ``calibration`` / ``timing`` are ``None`` when the file
+    is absent.
     """
 
-    run_dir: Path
+    folder: RunFolder
     start: dict[str, Any]
     stop: dict[str, Any] | None
     events: pd.DataFrame
-    calibration: dict[str, Any] | None = None
-    timing: dict[str, Any] | None = None
     documents: list[dict[str, Any]] = field(default_factory=list)
     truncated_last_line: bool = False
+
+    @property
+    def run_dir(self) -> Path:
+        return self.folder.run_dir
+
+    @property
+    def calibration(self) -> Calibration | None:
+        return self.folder.calibration
+
+    @property
+    def timing(self) -> TimingResult | None:
+        return self.folder.timing
 
     @property
     def run_id(self) -> str:
@@ -63,7 +76,7 @@ class RunData:
 
 
 def load_record(run_dir: str | Path) -> RunData:
-    """Read a run folder's record, calibration and timing through :func:`rig.record.writer.load_run`.
+    """Read a run folder once (:func:`rig.record.folder.load_folder`): record, calibration and timing.
 
     Events of steps that were superseded by a resumed session are left out (``load_run``'s default);
     the event ``data`` dicts are kept unflattened. A truncated last line is tolerated by ``load_run``
@@ -73,9 +86,10 @@ def load_record(run_dir: str | Path) -> RunData:
     if not (run_dir / RECORD_FILE).is_file():
         raise RunFolderError(f"{run_dir}: not a run folder (no {RECORD_FILE})")
     try:
-        run = load_run(run_dir)
-    except RecordError as exc:
+        folder = load_folder(run_dir)
+    except (RecordError, SideFileError) as exc:
         raise RunFolderError(str(exc)) from exc
+    run = folder.run
     rows = []
     for stream, frame in sorted(run.events.items()):
         kept = {(int(s), int(ss)) for s, ss in zip(frame["seq"], frame["session"].fillna(0), strict=True)}
@@ -92,27 +106,13 @@ def load_record(run_dir: str | Path) -> RunData:
     events = pd.DataFrame(rows, columns=["stream", "seq", "time_s", "data"])
     events = events.sort_values(["stream", "seq"], kind="stable").reset_index(drop=True)
     return RunData(
-        run_dir=run_dir,
+        folder=folder,
         start=run.start,
         stop=run.stop,
         events=events,
-        calibration=_read_json(run_dir / CALIBRATION_FILE),
-        timing=_read_json(run_dir / TIMING_FILE),
         documents=run.documents,
         truncated_last_line=run.truncated_last_line,
     )
-
-
-def _read_json(path: Path) -> dict[str, Any] | None:
-    if not path.is_file():
-        return None
-    try:
-        data = json.loads(path.read_text(encoding="utf-8"))
-    except json.JSONDecodeError as exc:
-        raise RunFolderError(f"{path}: not valid JSON ({exc.msg})") from exc
-    if not isinstance(data, dict):
-        raise RunFolderError(f"{path}: the top level must be a JSON object")
-    return data
 
 
 def _float(value: Any) -> float:
@@ -125,32 +125,41 @@ def stream_events(events: pd.DataFrame, stream: str) -> list[dict[str, Any]]:
     return [dict(d) for d in sel["data"]]
 
 
+def typed_events(events: pd.DataFrame, kind: type[EventT]) -> list[EventT]:
+    """The events of ``kind``'s stream decoded (:mod:`rig.record.events`), in ``seq`` order; a document that
+    does not match the schema raises :class:`RunFolderError` naming it."""
+    sel = events[events["stream"] == kind.STREAM].sort_values("seq", kind="stable")
+    out = []
+    for seq, data in zip(sel["seq"], sel["data"], strict=True):
+        try:
+            out.append(kind.from_dict(dict(data)))
+        except EventSchemaError as exc:
+            raise RunFolderError(f"{kind.STREAM} event {seq}: {exc}") from exc
+    return out
+
+
 def accuracy_poses(events: pd.DataFrame) -> pd.DataFrame:
     """One row per (``accuracy_pose`` event, commanded marker), commanded coordinates in mm."""
     rows = []
-    for ev in stream_events(events, "accuracy_pose"):
-        for key in ("index", "t_start_s", "t_stop_s", "markers"):
-            if key not in ev:
-                raise RunFolderError(f"accuracy_pose event {ev.get('index', '?')}: missing field '{key}'")
-        for marker_id, xyz in sorted(ev["markers"].items()):
-            xyz_mm = np.asarray(xyz, dtype=float)
-            if xyz_mm.shape != (3,):
+    for ev in typed_events(events, AccuracyPoseEvent):
+        for marker_id, xyz in sorted(ev.markers.items()):
+            if len(xyz) != 3:
                 raise RunFolderError(
-                    f"accuracy_pose event {ev['index']}: markers[{marker_id!r}] must be [x, y, z] mm, "
+                    f"accuracy_pose event {ev.index}: markers[{marker_id!r}] must be [x, y, z] mm, "
                     f"got {xyz!r}"
                 )
             rows.append(
                 {
-                    "index": int(ev["index"]),
-                    "cycle": int(ev.get("cycle", 0)),
-                    "target": str(ev.get("target", ev["index"])),
+                    "index": ev.index,
+                    "cycle": ev.cycle,
+                    "target": ev.target if ev.target is not None else str(ev.index),
                     "marker_id": str(marker_id),
-                    "segment": str(ev.get("segment") or ""),
-                    "t_start_s": float(ev["t_start_s"]),
-                    "t_stop_s": float(ev["t_stop_s"]),
-                    "x_cmd_mm": xyz_mm[0],
-                    "y_cmd_mm": xyz_mm[1],
-                    "z_cmd_mm": xyz_mm[2],
+                    "segment": ev.segment or "",
+                    "t_start_s": ev.t_start_s,
+                    "t_stop_s": ev.t_stop_s,
+                    "x_cmd_mm": xyz[0],
+                    "y_cmd_mm": xyz[1],
+                    "z_cmd_mm": xyz[2],
                 }
             )
     cols = [
@@ -168,10 +177,10 @@ def accuracy_poses(events: pd.DataFrame) -> pd.DataFrame:
     return pd.DataFrame(rows, columns=cols)
 
 
-def camera_centres_mm(calibration: dict[str, Any] | None) -> dict[str, np.ndarray]:
+def camera_centres_mm(calibration: Calibration | None) -> dict[str, np.ndarray]:
     """Projection centres of the calibrated cameras, from each DLT matrix P (3×4): C = −M⁻¹·p₄, in mm."""
     centres: dict[str, np.ndarray] = {}
-    for name, cam in sorted(((calibration or {}).get("cameras") or {}).items()):
+    for name, cam in sorted((calibration.cameras if calibration else {}).items()):
         P = np.asarray(cam.get("P"), dtype=float) if isinstance(cam, dict) and "P" in cam else None
         if P is None or P.shape != (3, 4):
             continue
@@ -183,10 +192,10 @@ def camera_centres_mm(calibration: dict[str, Any] | None) -> dict[str, np.ndarra
     return centres
 
 
-def calibration_residuals(calibration: dict[str, Any] | None) -> pd.DataFrame:
+def calibration_residuals(calibration: Calibration | None) -> pd.DataFrame:
     """Per-camera calibration summary: ``camera``, ``n_points``, ``rms_px``, ``max_px`` (NaN: unknown)."""
     rows = []
-    for name, cam in sorted(((calibration or {}).get("cameras") or {}).items()):
+    for name, cam in sorted((calibration.cameras if calibration else {}).items()):
         res = (
             np.asarray(cam.get("residuals_px", []), dtype=float).reshape(-1, 2)
             if isinstance(cam, dict)

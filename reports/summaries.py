@@ -12,6 +12,7 @@ import numpy as np
 import pandas as pd
 
 from reports.tables import ReportTables
+from rig.stereo.timing import TimingResult
 
 
 def fits_frame(t: ReportTables) -> pd.DataFrame:
@@ -124,25 +125,20 @@ def length_summary(lengths: pd.DataFrame) -> pd.DataFrame:
     ).reset_index()
 
 
-def timing_frame(timing: dict[str, Any] | None) -> pd.DataFrame:
+def timing_frame(timing: TimingResult | None) -> pd.DataFrame:
     """Per camera: offset (s), line time (s) and clock drift (ppm) of timing.json, each with its standard
-    uncertainty (``uncertainty.<quantity>`` as {camera: value}, or one value for all; NaN where absent)."""
-    timing = timing or {}
-    unc = u if isinstance(u := timing.get("uncertainty"), dict) else {}
-    cams = sorted(set((timing.get("offset_s") or {}) | (timing.get("line_time_s") or {})))
+    uncertainty (NaN where absent)."""
     quantities = ("offset_s", "line_time_s", "drift_ppm")
-
-    def num(value: Any) -> float:
-        return (
-            float(value) if isinstance(value, (int, float)) and not isinstance(value, bool) else float("nan")
-        )
-
+    columns = ["camera", *[c for q in quantities for c in (q, f"u_{q}")]]
+    if timing is None:
+        return pd.DataFrame(columns=columns)
+    nan = float("nan")
     rows = []
-    for c in cams:
+    for c in sorted(set(timing.offset_s) | set(timing.line_time_s)):
         row: dict[str, Any] = {"camera": c}
-        for q in quantities:
-            row[q] = num((timing.get(q) or {}).get(c))
-            u = unc.get(q)
-            row[f"u_{q}"] = num(u.get(c) if isinstance(u, dict) else u)
+        values_by_q = (timing.offset_s, timing.line_time_s, timing.drift_ppm)
+        for q, values in zip(quantities, values_by_q, strict=True):
+            row[q] = values.get(c, nan)
+            row[f"u_{q}"] = timing.uncertainty.get(q, {}).get(c, nan)
         rows.append(row)
-    return pd.DataFrame(rows, columns=["camera", *[c for q in quantities for c in (q, f"u_{q}")]])
+    return pd.DataFrame(rows, columns=columns)

@@ -18,9 +18,18 @@ import pandas as pd
 from reports import frequency, motion, position
 from reports.certificate import Measured
 from reports.errors import FitError
-from reports.load import RunData, accuracy_poses, calibration_residuals, camera_centres_mm, stream_events
+from reports.load import (
+    RunData,
+    accuracy_poses,
+    calibration_residuals,
+    camera_centres_mm,
+    stream_events,
+    typed_events,
+)
 from reports.quadfit import QuadraticFit, UsableLimit, fit_quadratic, usable_limit_with_bins
 from reports.select import event_window
+from rig.record.events import SweepEvent
+from rig.stereo.timing import TimingResult
 
 DEFAULT_FPS = 60.0
 
@@ -56,27 +65,26 @@ class ReportTables:
     trajectory_source: str = ""
     spectrum: pd.DataFrame | None = None
     calibration: pd.DataFrame | None = None
-    timing: dict[str, Any] | None = None
+    timing: TimingResult | None = None
+    clock: pd.DataFrame | None = None  # the analysis' controller-clock offsets (Analysis.clock)
     centres_mm: dict[str, np.ndarray] = field(default_factory=dict)
 
 
-def camera_fps(rig: dict[str, Any], timing: dict[str, Any] | None) -> tuple[float, str]:
-    """Camera frame rate from the rig snapshot (``cameras.<name>.fps``) or timing.json; else 60 fps."""
+def camera_fps(rig: dict[str, Any]) -> tuple[float, str]:
+    """Camera frame rate from the rig snapshot (``cameras.<name>.fps``); else 60 fps."""
     cams = rig.get("cameras")
     entries = list(cams.values()) if isinstance(cams, dict) else cams if isinstance(cams, list) else []
     raw = [c.get("fps") for c in entries if isinstance(c, dict)]
     values = [float(v) for v in raw if isinstance(v, (int, float)) and v > 0]
     if values:
         return float(np.median(values)), "rig.cameras.*.fps"
-    if timing and isinstance(timing.get("fps"), (int, float)):
-        return float(timing["fps"]), "timing.json fps"
     return DEFAULT_FPS, "default (no fps in the rig snapshot)"
 
 
-def _alpha(timing: dict[str, Any] | None, fs_hz: float) -> float | None:
-    offsets = (timing or {}).get("offset_s") or {}
-    ref = (timing or {}).get("reference_camera")
-    others = [float(v) for k, v in sorted(offsets.items()) if k != ref and isinstance(v, (int, float))]
+def _alpha(timing: TimingResult | None, fs_hz: float) -> float | None:
+    if timing is None:
+        return None
+    others = [v for k, v in sorted(timing.offset_s.items()) if k != timing.reference_camera]
     return frequency.fractional_delay(others[0], fs_hz) if others else None
 
 
@@ -87,10 +95,10 @@ def compute_tables(
     *,
     gate_mm: float = position.DEFAULT_GATE_MM,
     bin_hz: float = frequency.DEFAULT_BIN_HZ,
-    timing: dict[str, Any] | None = None,
-    calibration: dict[str, Any] | None = None,
+    clock: pd.DataFrame | None = None,
 ) -> ReportTables:
-    """Compute every table. ``timing``/``calibration`` default to the run folder's files.
+    """Compute every table. ``clock``: the primary analysis' controller-clock offsets (``Analysis.clock``:
+    ``segment``, ``session``, ``offset_s``, ``u_offset_s``, ``source``).
 
     Stages: static poses → sweep bins → per-method fits and usable limits → plate → rotation →
     trajectory of the most moving marker."""
@@ -98,16 +106,16 @@ def compute_tables(
         raise FitError("tracks_by_method must hold at least the primary sync method")
     methods = list(tracks_by_method)
     tracks = tracks_by_method[methods[0]]
-    timing = run.timing if timing is None else timing
-    calibration = run.calibration if calibration is None else calibration
-    fs_hz, fs_source = camera_fps(run.rig, timing)
+    timing, calibration = run.timing, run.calibration
+    fs_hz, fs_source = camera_fps(run.rig)
     centres = camera_centres_mm(calibration)
     poses = position.add_geometry(
         position.position_errors(position.match_static(tracks, accuracy_poses(run.events), gate_mm=gate_mm)),
         centres,
     )
-    sweeps = stream_events(run.events, "sweep")
-    sweep = sweeps[-1] if sweeps else None  # the last: a procedure's own step follows its preparation
+    sweeps = typed_events(run.events, SweepEvent)
+    # the last: a procedure's own step follows its preparation
+    sweep = sweeps[-1].to_dict() if sweeps else None
     bins, reference_note = _sweep_bins(run, sweep, tracks_by_method, bin_hz)
     out = ReportTables(
         primary_sync=methods[0],
@@ -125,6 +133,7 @@ def compute_tables(
         fit_max_hz=float(acceptance.get("fit_max_hz") or fs_hz / 3),
         calibration=calibration_residuals(calibration),
         timing=timing,
+        clock=clock,
         centres_mm=centres,
     )
     if reference_note:
@@ -268,12 +277,9 @@ def measured_values(t: ReportTables, acceptance: dict[str, Any]) -> dict[str, Me
         m["calibration_rms_px"] = Measured(
             float(t.calibration["rms_px"].max()), 0.0, note="from calibration.json"
         )
-    u_off = ((t.timing or {}).get("uncertainty") or {}).get("offset_s")
-    if isinstance(u_off, dict):
-        vals = [float(v) for v in u_off.values() if isinstance(v, (int, float))]
-        u_off = max(vals) if vals else None
-    if isinstance(u_off, (int, float)):
-        m["sync_uncertainty_ms"] = Measured(1000 * float(u_off), 0.0, note="from timing.json")
+    sync = sync_uncertainty(t.timing, t.clock)
+    if sync is not None:
+        m["sync_uncertainty_ms"] = sync
     return m
 
 
@@ -413,6 +419,41 @@ def _steady_values(t: ReportTables, u_ref_mm: float) -> dict[str, Measured]:
             note=f"{rs['n_samples']} samples",
         )
     return m
+
+
+def sync_uncertainty(timing: TimingResult | None, clock: pd.DataFrame | None) -> Measured | None:
+    """The largest camera offset uncertainty of timing.json (ms; camera ↔ reference camera: what the
+    triangulation of moving markers depends on), None when timing.json gives none. The note names the
+    controller-clock offset's worst uncertainty (reference camera ↔ controller, :func:`controller_clock`),
+    which shifts whole tracks against the commanded truth in time but not the cameras against each other;
+    it is reported beside the criterion, not in it (its 1 ms limit is for the cameras' sync)."""
+    u_cam = timing.uncertainty.get("offset_s", {}) if timing is not None else {}
+    if not u_cam:
+        return None
+    camera = max(u_cam, key=lambda c: u_cam[c])
+    note = f"camera {camera!r}, from timing.json"
+    worst = _worst_clock(clock)
+    if worst is not None:
+        note += (f"; controller clock ↔ reference camera (not in this value): u = "
+                 f"{1000 * float(worst['u_offset_s']):.3g} ms at worst (segment {worst['segment']!r})")
+    # the value is itself a standard uncertainty; its own uncertainty is not evaluated (u = 0)
+    return Measured(1000 * u_cam[camera], 0.0, note=note)
+
+
+def _worst_clock(clock: pd.DataFrame | None) -> pd.Series | None:
+    if clock is None or not len(clock):
+        return None
+    return clock.loc[clock["u_offset_s"].astype(float).idxmax()]
+
+
+def controller_clock(clock: pd.DataFrame | None) -> list[dict[str, Any]]:
+    """Per analysed segment: the controller − reference camera clock offset (s), its standard uncertainty
+    (s) and how it was found (the analysis' ``Analysis.clock``), for the certificate."""
+    if clock is None:
+        return []
+    return [{"segment": str(r["segment"]), "session": int(r["session"]), "offset_s": float(r["offset_s"]),
+             "u_offset_s": float(r["u_offset_s"]), "source": str(r["source"])}
+            for r in clock.to_dict("records")]
 
 
 def _frequency_errors(t: ReportTables) -> list[tuple[str, float, float]]:

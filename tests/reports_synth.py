@@ -271,11 +271,16 @@ class FakeAnalysis:
     """Stands in for ``rig.analysis.analyse.Analysis`` (same attributes)."""
 
     tracks: pd.DataFrame
-    timing: dict = field(default_factory=lambda: dict(TIMING))
-    calibration: dict = field(default_factory=lambda: dict(CALIBRATION))
+    clock: pd.DataFrame = field(default_factory=lambda: pd.DataFrame(CLOCK))
+    notes: list[str] = field(default_factory=list)
 
 
-def fake_analyse(run_dir: Path, *, sync: str) -> FakeAnalysis:
+# the controller-clock offset of the synthetic tracks (they are on the controller clock already)
+CLOCK = {"segment": ["sweep"], "session": [0], "offset_s": [0.0], "u_offset_s": [1.0e-4],
+         "source": ["synthetic"]}
+
+
+def fake_analyse(run_dir: object, *, sync: str) -> FakeAnalysis:
     """An injected analysis step: the synthetic tracks of ``sync``."""
     if sync not in SWEEP_COEFFS:
         raise ValueError(f"sync must be one of {sorted(SWEEP_COEFFS)}, got {sync!r}")

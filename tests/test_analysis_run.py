@@ -47,8 +47,8 @@ def test_tracks_are_on_the_controller_clock_within_the_stated_bound(run):
     a = analyse(run_dir)
     assert list(a.tracks.columns) == TRACK_COLUMNS
     assert set(a.tracks["segment"]) == {"still", "shake"}
-    assert a.sync == "trajectory" and a.timing["reference_camera"] == "left"
-    assert set(a.calibration["cameras"]) == {"left", "right"}
+    assert a.sync == "trajectory" and a.timing.reference_camera == "left"
+    assert set(a.calibration.cameras) == {"left", "right"}
     for seg in ("still", "shake"):
         assert a.tracks.loc[a.tracks["segment"] == seg, "track_id"].nunique() == 9  # 5 column + 4 references
         row = a.clock[a.clock["segment"] == seg].iloc[0]

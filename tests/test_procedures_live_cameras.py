@@ -22,6 +22,7 @@ import pytest
 
 from drivers.camera.opencv_device import OpenCVCamera
 from drivers.clock import WallClock
+from rig.record.events import Event
 from rig.run.acquire import Acquirer, ReduceOptions
 
 FPS = 100.0
@@ -98,8 +99,8 @@ class Ctx:
     def sleep_s(self, duration_s: float) -> None:
         time.sleep(duration_s)
 
-    def event(self, stream: str, data: dict[str, Any]) -> int:
-        self.events.append({"stream": stream, **data})
+    def event(self, stream: str, data: dict[str, Any] | Event) -> int:
+        self.events.append({"stream": stream, **(data.to_dict() if isinstance(data, Event) else data)})
         return len(self.events)
 
     def observation_writer(self, camera: str) -> Writer:

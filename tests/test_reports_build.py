@@ -75,7 +75,12 @@ def test_certificate_values(built) -> None:
     assert rows["min_usable_frequency_hz"]["value"] == pytest.approx(max(synth.SWEEP_FREQS_HZ))
     assert rows["radius_error_mm"]["value"] == pytest.approx(0.3, abs=1e-9)
     assert rows["calibration_rms_px"]["value"] == pytest.approx(0.31)
-    assert rows["sync_uncertainty_ms"]["value"] == pytest.approx(0.02)
+    # timing.json's camera offset (0.02 ms); the analysis' controller clock is named beside it
+    sync = rows["sync_uncertainty_ms"]
+    assert sync["value"] == pytest.approx(0.02) and "controller clock" in sync["note"]
+    assert "u = 0.1 ms at worst (segment 'sweep')" in sync["note"]
+    assert cert["controller_clock"] == [{"segment": "sweep", "session": 0, "offset_s": 0.0,
+                                         "u_offset_s": pytest.approx(1e-4), "source": "synthetic"}]
     assert rows["detection_pct"]["value"] == 100.0
     lin = cert["usable_frequency"]["linear"]
     c0l, c2l = synth.SWEEP_COEFFS["linear"]
@@ -349,7 +354,7 @@ def test_the_report_step_issues_the_certificate_once(tmp_path: Path, monkeypatch
 
     run = synth.write_run(tmp_path / "run_step")
     ctx = _StepContext(run)
-    monkeypatch.setattr(build_module, "_default_analyse", lambda: synth.fake_analyse)
+    monkeypatch.setattr(build_module, "analyse", synth.fake_analyse)
     first = _report.report_step(ctx, make_figures=False)
     issued = (run / "certificate.json").read_bytes()
     assert first["passed"] and ctx.steps == [("report", ["report.html", "certificate.json"])]

@@ -11,6 +11,7 @@ import reports_synth as synth
 
 from reports.errors import RunFolderError
 from reports.load import accuracy_poses, calibration_residuals, load_record, stream_events
+from rig.record.folder import Calibration
 
 
 def test_events_and_side_files(tmp_path: Path) -> None:
@@ -26,7 +27,8 @@ def test_events_and_side_files(tmp_path: Path) -> None:
     poses = accuracy_poses(run.events)
     assert len(poses) == len(synth.accuracy_events()) * len(synth.FRAME_MARKERS_MM)
     assert {"x_cmd_mm", "y_cmd_mm", "z_cmd_mm", "t_start_s", "t_stop_s"} <= set(poses.columns)
-    assert run.calibration["convention"] == "homogeneous-svd" and run.timing["reference_camera"] == "left"
+    assert run.calibration is not None and run.calibration.convention == "homogeneous-svd"
+    assert run.timing is not None and run.timing.reference_camera == "left"
     res = calibration_residuals(run.calibration).set_index("camera")
     assert res.loc["right", "rms_px"] == pytest.approx(0.31)
     assert res.loc["left", "max_px"] == pytest.approx(0.2)
@@ -79,4 +81,4 @@ def test_camera_centres_need_a_valid_p() -> None:
     from reports.load import camera_centres_mm
 
     calib = {"cameras": {"a": {"P": np.zeros((3, 4)).tolist()}, "b": {"P": [[1, 2]]}, "c": {}}}
-    assert camera_centres_mm(calib) == {}
+    assert camera_centres_mm(Calibration.from_dict(calib)) == {}

@@ -10,6 +10,7 @@ import reports_synth as synth
 from reports import position
 from reports.errors import ReportError
 from reports.load import accuracy_poses, camera_centres_mm
+from rig.record.folder import Calibration
 
 TOL = 1e-9  # exact data: only rounding
 
@@ -117,7 +118,7 @@ def test_noise_gives_type_a_uncertainty(poses: pd.DataFrame) -> None:
 
 
 def test_geometry_columns() -> None:
-    centres = camera_centres_mm(synth.CALIBRATION)
+    centres = camera_centres_mm(Calibration.from_dict(synth.CALIBRATION))
     for name, c in synth.CAMERA_CENTRES_MM.items():
         np.testing.assert_allclose(centres[name], c, atol=1e-6)
     frame = pd.DataFrame({"x_cmd_mm": [0.0, 100.0], "y_cmd_mm": [0.0, 0.0], "z_cmd_mm": [300.0, 300.0]})

@@ -8,8 +8,9 @@ reuses them): :func:`rig.analysis.tracks2d.tracks_2d` (per camera, frame to fram
 :func:`rig.analysis.sync_tracks.triangulate_tracks`
 (sync methods ``trajectory`` (default), ``bandlimited``, ``cubic``, ``linear`` = the paper's).
 
-:func:`analyse` reads ``record.jsonl`` (through :func:`rig.record.writer.load_run`), ``observations/``,
-``calibration.json`` and ``timing.json``, analyses every recording segment (the step that recorded the
+:func:`analyse` takes a run folder read once (:func:`rig.record.folder.load_folder`: ``record.jsonl``,
+``observations/``, ``calibration.json`` and ``timing.json``, decoded) or its path, analyses every
+recording segment (the step that recorded the
 observations, per session) and puts the tracks on the **controller clock** (contracts.md,
 "Analysis → reports"):
 
@@ -39,14 +40,12 @@ observations, per session) and puts the tracks on the **controller clock** (cont
   (``rig["targets"]["references"]["positions_mm"]``), grown by ``volume_margin_mm``; pairs that would
   triangulate outside it are wrong pairs (ghosts of markers on a common epipolar plane).
 
-Nothing is cached: every call recomputes from the files, so a changed file can never give stale tracks.
+Nothing is cached: a call with a path reads the files again, so a changed file can never give stale tracks.
 """
 
 from __future__ import annotations
 
-import json
 import math
-import warnings
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -69,11 +68,19 @@ from rig.analysis.sync_tracks import (
     TRACK_COLUMNS,
     pair_all,
     prepare_observations,
-    timing_result,
     triangulate_tracks,
 )
 from rig.analysis.tracks2d import tracks_2d
-from rig.record.reader import RecordError, load_run
+from rig.record.folder import (
+    CALIBRATION_FILE,
+    RECORD_NAME,
+    TIMING_FILE,
+    Calibration,
+    RunFolder,
+    SideFileError,
+    load_folder,
+)
+from rig.record.reader import RecordError
 from rig.stereo.dlt import DLTCamera
 from rig.stereo.errors import StereoError
 from rig.stereo.fiducial import FiducialClock
@@ -82,8 +89,6 @@ from rig.stereo.timing import TimingResult
 # bound (ppm, rectangular) of a camera clock's rate error against the controller when the start events
 # cannot resolve it (consumer camera crystals: ±50 ppm); enters the offset's uncertainty away from t_mid
 UNRESOLVED_DRIFT_PPM = 50.0
-CALIBRATION_FILE = "calibration.json"
-TIMING_FILE = "timing.json"
 
 __all__ = ["SYNC_METHODS", "TRACK_COLUMNS", "Analysis", "analyse", "controller_offsets", "pairing_volume"]
 
@@ -93,7 +98,7 @@ class Analysis:
     """The analysis of one run folder.
 
     ``tracks``: ``TRACK_COLUMNS`` — segment (str), time_s (controller clock), track_id (int, unique within a
-    segment), x_mm, y_mm, z_mm, reprojection_px, n_cameras. ``timing`` / ``calibration``: the file contents
+    segment), x_mm, y_mm, z_mm, reprojection_px, n_cameras. ``timing`` / ``calibration``: the decoded files
     used. ``pairs``: every cross-camera pair (segment, session, camera, track_a, track_b, distance_px,
     n_common, ambiguous, resolved). ``clock``: per (segment, session) the offset controller − reference
     clock (s), its standard uncertainty ``u_offset_s`` and where it came from. ``notes``: what was skipped
@@ -101,24 +106,24 @@ class Analysis:
     """
 
     tracks: pd.DataFrame
-    timing: dict[str, Any]
-    calibration: dict[str, Any]
+    timing: TimingResult
+    calibration: Calibration
     sync: str
     pairs: pd.DataFrame = field(default_factory=pd.DataFrame)
     clock: pd.DataFrame = field(default_factory=pd.DataFrame)
     notes: list[str] = field(default_factory=list)
 
 
-def _read_json(path: Path, what: str, how: str) -> dict[str, Any]:
-    if not path.is_file():
-        raise MissingInputError(f"{path}: no {what}; {how}")
+def _load(run_dir: Path) -> RunFolder:
+    """The run folder read (:func:`rig.record.folder.load_folder`), its errors as the analysis' own."""
+    if not (run_dir / RECORD_NAME).is_file():
+        raise MissingInputError(f"{run_dir}: not a run folder (no {RECORD_NAME})")
     try:
-        data = json.loads(path.read_text(encoding="utf-8"))
-    except json.JSONDecodeError as exc:
-        raise AnalysisError(f"{path}: not valid JSON ({exc.msg} at line {exc.lineno}); {how}") from exc
-    if not isinstance(data, dict):
-        raise AnalysisError(f"{path}: the top level must be a JSON object; {how}")
-    return data
+        return load_folder(run_dir, quiet=True)
+    except RecordError as exc:
+        raise MissingInputError(f"{run_dir}: {exc}") from exc
+    except SideFileError as exc:
+        raise AnalysisError(str(exc)) from exc
 
 
 def load_cameras(calibration: dict[str, Any], path: Path | str = CALIBRATION_FILE) -> dict[str, DLTCamera]:
@@ -377,7 +382,7 @@ def _fiducial_clock(run_dir: Path, events: pd.DataFrame | None, segment: str, se
 
 
 def analyse(
-    run_dir: str | Path,
+    source: str | Path | RunFolder,
     *,
     sync: str = "trajectory",
     gate_px: float = 8.0,
@@ -385,8 +390,10 @@ def analyse(
     volume_margin_mm: float = 150.0,
     knot_spacing_frames: float = 0.75,
 ) -> Analysis:
-    """Analyse the run folder ``run_dir`` (see the module docstring); deterministic, nothing cached.
+    """Analyse a run folder (see the module docstring); deterministic, nothing cached.
 
+    ``source``: the folder's path, or the folder already read (:func:`rig.record.folder.load_folder`; the
+    reports read it once and analyse it with several sync methods).
     ``sync``: one of ``SYNC_METHODS``. ``gate_px``: epipolar gate of the cross-camera pairing (px).
     ``track_gate_px``: frame-to-frame gate of the 2-D tracking (px).
     Raises :class:`MissingInputError` (no calibration.json / timing.json / record),
@@ -396,20 +403,15 @@ def analyse(
     """
     if sync not in SYNC_METHODS:
         raise AnalysisError(f"sync={sync!r}: allowed are {SYNC_METHODS}")
-    run_dir = Path(run_dir)
-    if not (run_dir / "record.jsonl").is_file():
-        raise MissingInputError(f"{run_dir}: not a run folder (no record.jsonl)")
-    calibration = _read_json(run_dir / CALIBRATION_FILE, "calibration",
-                             "run `rig run calibrate` (or copy the bench's calibration.json) first")
-    timing_dict = _read_json(run_dir / TIMING_FILE, "timing", "run `rig run sync` first")
-    cameras = load_cameras(calibration, run_dir / CALIBRATION_FILE)
-    timing = timing_result(timing_dict)
-    try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")
-            run = load_run(run_dir)
-    except RecordError as exc:
-        raise MissingInputError(f"{run_dir}: {exc}") from exc
+    folder = source if isinstance(source, RunFolder) else _load(Path(source))
+    run, run_dir = folder.run, folder.run_dir
+    if folder.calibration is None:
+        raise MissingInputError(f"{run_dir / CALIBRATION_FILE}: no calibration; run `rig run calibrate` (or "
+                                "copy the bench's calibration.json) first")
+    if folder.timing is None:
+        raise MissingInputError(f"{run_dir / TIMING_FILE}: no timing; run `rig run sync` first")
+    calibration, timing = folder.calibration, folder.timing
+    cameras = load_cameras(calibration.to_dict(), run_dir / CALIBRATION_FILE)
     rig = run.start.get("rig") or {}
     for cam in cameras:
         if cam not in timing.offset_s:
@@ -461,7 +463,7 @@ def analyse(
     out = out.sort_values(["segment", "time_s", "track_id"], kind="stable", ignore_index=True)
     return Analysis(
         tracks=out[TRACK_COLUMNS],
-        timing=timing_dict,
+        timing=timing,
         calibration=calibration,
         sync=sync,
         pairs=pd.concat(pairs, ignore_index=True) if pairs else pd.DataFrame(),

@@ -150,7 +150,7 @@ def _superseded(steps: list[dict[str, Any]]) -> set[tuple[str | None, int]]:
     begun_in: dict[str | None, set[int]] = {}
     for doc in steps:
         target = done_in if doc.get("status") == "done" else begun_in
-        target.setdefault(doc.get("name"), set()).add(int(doc.get("session", 0)))
+        target.setdefault(str(doc.get("name")), set()).add(int(doc.get("session", 0)))
     out = set()
     for name, sessions in begun_in.items():
         done = done_in.get(name, set())

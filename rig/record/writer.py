@@ -44,6 +44,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any, Protocol
 
+from rig.record.events import Event, InterlockDocument, StartDocument, StopDocument
 from rig.record.jsonenc import to_jsonable
 from rig.record.observations import ObservationWriter, read_observations
 from rig.record.reader import (
@@ -160,11 +161,11 @@ class RunRecord:
         run_dir.mkdir(parents=True, exist_ok=False)
         rec = cls(run_dir, clock, session=0, fsync_interval_s=fsync_interval_s, seq={}, num_events=0,
                   completed={}, procedure=procedure, parameters=dict(parameters))
-        rec._write("start", {"run_id": rec.run_id, "uid": uid, "procedure": procedure,
-                             "parameters": parameters, "rig": rig_snapshot,
-                             "versions": collect_versions() if versions is None else versions,
-                             "clock": "virtual" if clock.is_virtual else "wall", "resume": False,
-                             **start_fields}, sync=True)
+        rec._write("start", StartDocument(
+            run_id=rec.run_id, uid=uid, procedure=procedure, parameters=parameters, rig=rig_snapshot,
+            versions=collect_versions() if versions is None else versions,
+            clock="virtual" if clock.is_virtual else "wall", resume=False, extra=start_fields).to_dict(),
+            sync=True)
         return rec
 
     @classmethod
@@ -201,11 +202,11 @@ class RunRecord:
         rec = cls(run_dir, clock, session=len(starts), fsync_interval_s=fsync_interval_s, seq=seq,
                   num_events=sum(1 for d in docs if d.get("type") == "event"), completed=completed,
                   procedure=str(first["procedure"]), parameters=dict(first.get("parameters") or {}))
-        rec._write("start", {"run_id": rec.run_id, "uid": first.get("uid"), "procedure": rec.procedure,
-                             "parameters": rec.parameters, "rig": rig_snapshot,
-                             "versions": collect_versions() if versions is None else versions,
-                             "clock": "virtual" if clock.is_virtual else "wall", "resume": True,
-                             "completed_steps": sorted(completed), **start_fields}, sync=True)
+        rec._write("start", StartDocument(
+            run_id=rec.run_id, uid=first.get("uid"), procedure=rec.procedure, parameters=rec.parameters,
+            rig=rig_snapshot, versions=collect_versions() if versions is None else versions,
+            clock="virtual" if clock.is_virtual else "wall", resume=True, completed_steps=sorted(completed),
+            extra=start_fields).to_dict(), sync=True)
         if parsed.truncated_last_line:
             rec.log("warning", "previous session ended mid-line; its truncated last line was removed: "
                     + parsed.partial_bytes.decode("utf-8", errors="replace"))
@@ -219,7 +220,7 @@ class RunRecord:
             doc = {"type": doc_type, "time_s": float(self.clock.now_s()),
                    "wall_utc": _dt.datetime.now(_dt.UTC).isoformat(timespec="microseconds"),
                    "session": self.session, **fields}
-            clean = to_jsonable(doc)
+            clean: dict[str, Any] = to_jsonable(doc)
             text = json.dumps(clean, ensure_ascii=False, separators=(",", ":"), allow_nan=False)
             line = text.encode("utf-8") + b"\n"
             self._fh.write(line)
@@ -272,8 +273,14 @@ class RunRecord:
             if self.current_step == name:
                 self.current_step = None
 
-    def event(self, stream: str, data: dict[str, Any]) -> int:
-        """Record one event of ``stream`` with ``data``; return its ``seq`` (0, 1, … per stream)."""
+    def event(self, stream: str, data: dict[str, Any] | Event) -> int:
+        """Record one event of ``stream`` with ``data`` (a typed :class:`rig.record.events.Event` of that
+        stream, or a free-form dict for streams without a schema); return its ``seq`` (0, 1, … per stream)."""
+        if isinstance(data, Event):
+            if stream != data.STREAM:
+                raise ValueError(f"a {type(data).__name__} is an event of stream {data.STREAM!r}, "
+                                 f"not {stream!r}")
+            data = data.to_dict()
         if not isinstance(data, dict):
             raise TypeError(f"event data for stream {stream!r} must be a dict, not {type(data).__name__}")
         with self._lock:
@@ -285,7 +292,7 @@ class RunRecord:
 
     def interlock(self, device: str, reason: str) -> None:
         """Record an interlock trip on ``device`` (fsync'ed at once)."""
-        self._write("interlock", {"device": device, "reason": reason}, sync=True)
+        self._write("interlock", InterlockDocument(device, reason).to_dict(), sync=True)
 
     def log(self, level: str, message: str) -> None:
         """Record a log message; ``level`` is one of debug, info, warning, error, critical."""
@@ -302,8 +309,8 @@ class RunRecord:
                 raise RecordError(f"{self.path}: stop already written for session {self.session}")
             for writer in self._writers:
                 writer.close()
-            self._write("stop", {"exit_status": exit_status, "reason": reason,
-                                 "num_events": self.num_events, **fields}, sync=True)
+            self._write("stop", StopDocument(exit_status, reason, self.num_events, extra=fields).to_dict(),
+                        sync=True)
             self._stopped = True
 
     @property

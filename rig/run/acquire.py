@@ -48,6 +48,7 @@ import pandas as pd
 
 from drivers.roles import Camera
 from rig.analysis.frame_reduction import MarkerReducer, ReduceOptions
+from rig.record.events import CameraEvent
 from rig.record.observations import ObservationWriter
 from rig.run.fiducial import FiducialRecording
 from rig.run.frame_tap import FRAMES
@@ -196,10 +197,10 @@ class Acquirer:
             observations[name] = frame.assign(segment=segment)
             self.frames_processed += len(parts)
             first, last = (parts[0], parts[-1]) if parts else ((None, None), (None, None))
-            ctx.event("camera", {"camera": name, "action": "start", "segment": segment, "t_s": t_start,
-                                 "first_index": first[0], "first_timestamp_s": first[1]})
-            ctx.event("camera", {"camera": name, "action": "stop", "segment": segment, "t_s": t_stop,
-                                 "last_index": last[0], "last_timestamp_s": last[1], "n_frames": len(parts)})
+            ctx.event("camera", CameraEvent(name, "start", segment, t_start, first_index=first[0],
+                                            first_timestamp_s=first[1]))
+            ctx.event("camera", CameraEvent(name, "stop", segment, t_stop, last_index=last[0],
+                                            last_timestamp_s=last[1], n_frames=len(parts)))
         if fiducial_on and self.fiducial is not None:
             self.fiducial.finish(segment, {name: readers[name].led_rows for name in self._regions})
         return Recording(segment, result, t_start, t_stop, observations)  # result: None for a duration

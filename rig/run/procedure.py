@@ -63,6 +63,7 @@ from drivers.roles import Camera, Device
 from drivers.sim.clock import VirtualClock
 from rig.config.rig_config import RigConfig
 from rig.config.schema import ConfigError, build, spec, to_dict
+from rig.record.events import Event
 from rig.record.observations import ObservationWriter
 from rig.record.writer import RunRecord
 from rig.run.clock import Clock
@@ -291,8 +292,9 @@ class Context:
         return self.station.cameras
 
     # -- record
-    def event(self, stream: str, data: dict[str, Any]) -> int:
-        """Record an event of ``stream`` (see the streams of ``docs/contracts.md``); returns its seq."""
+    def event(self, stream: str, data: dict[str, Any] | Event) -> int:
+        """Record an event of ``stream`` (see the streams of ``docs/contracts.md``; typed ones in
+        :mod:`rig.record.events`); returns its seq."""
         return self.record.event(stream, data)
 
     def observation_writer(self, camera: str, **kwargs: Any) -> ObservationWriter:
