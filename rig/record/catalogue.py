@@ -140,12 +140,6 @@ def _number(value: Any) -> float | None:
     return float(value) if isinstance(value, int | float) and not isinstance(value, bool) else None
 
 
-def _section(doc: dict[str, Any], key: str) -> dict[str, Any]:
-    """``doc[key]`` when it is an object, else ``{}``."""
-    value = doc.get(key)
-    return value if isinstance(value, dict) else {}
-
-
 def read_entry(run_dir: str | os.PathLike[str]) -> RunEntry:
     """The catalogue entry of one run folder, read from its record and issued certificate.
 

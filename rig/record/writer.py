@@ -66,6 +66,7 @@ __all__ = [
     "TruncatedRecordWarning",
     "collect_versions",
     "load_run",
+    "parse_record",
     "read_observations",
 ]
 
