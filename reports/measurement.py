@@ -23,7 +23,7 @@ from reports.errors import RunFolderError
 from reports.html import figure, page, table
 from reports.summaries import timing_frame
 from rig.record.atomic import write_text
-from rig.record.folder import read_timing
+from rig.stereo.errors import StereoError
 from rig.stereo.timing import TimingResult
 
 __all__ = ["Measurement", "load_measurement", "write_measurement_report"]
@@ -50,7 +50,7 @@ class Measurement:
     spectra: pd.DataFrame  # tables/spectra.csv
     peaks: pd.DataFrame  # significant tones per target track (tables/peaks.csv)
     frame_reports: dict[str, dict[str, Any]]  # frames.json: per camera
-    timing: TimingResult | None  # timing.json, decoded
+    timing: TimingResult  # timing.json, decoded
 
     @property
     def targets(self) -> pd.DataFrame:
@@ -68,6 +68,13 @@ def _json(path: Path) -> dict[str, Any]:
     if not isinstance(doc, dict):
         raise RunFolderError(f"{path}: the top level must be a JSON object")
     return doc
+
+
+def _timing(path: Path) -> TimingResult:
+    try:
+        return TimingResult.from_dict(_json(path))
+    except StereoError as exc:
+        raise RunFolderError(f"{path}: {exc}") from exc
 
 
 def _csv(path: Path) -> pd.DataFrame:
@@ -96,7 +103,7 @@ def load_measurement(out_dir: str | Path) -> Measurement:
         spectra=_csv(tables / "spectra.csv"),
         peaks=_csv(tables / "peaks.csv"),
         frame_reports=_json(out / "frames.json"),
-        timing=read_timing(out),
+        timing=_timing(out / "timing.json"),
     )
 
 
@@ -212,8 +219,8 @@ def _frames_section(m: Measurement) -> str:
 def _timing_section(m: Measurement) -> str:
     t = m.timing
     return ("<section><h2>Timing</h2>" + table(timing_frame(t), digits=6, text_cols=("camera",))
-            + f"<p class='note'>method: {html.escape(t.method if t else '—')}; reference camera: "
-            f"{html.escape(t.reference_camera if t else '—')}; u_…: standard uncertainties.</p></section>")
+            + f"<p class='note'>method: {html.escape(t.method)}; reference camera: "
+            f"{html.escape(t.reference_camera)}; u_…: standard uncertainties.</p></section>")
 
 
 def _notes_section(m: Measurement) -> str:
