@@ -354,7 +354,7 @@ def test_the_report_step_issues_the_certificate_once(tmp_path: Path, monkeypatch
 
     run = synth.write_run(tmp_path / "run_step")
     ctx = _StepContext(run)
-    monkeypatch.setattr(build_module, "analyse", synth.fake_analyse)
+    monkeypatch.setattr(build_module, "_default_analyse", lambda: synth.fake_analyse)
     first = _report.report_step(ctx, make_figures=False)
     issued = (run / "certificate.json").read_bytes()
     assert first["passed"] and ctx.steps == [("report", ["report.html", "certificate.json"])]
