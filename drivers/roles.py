@@ -24,6 +24,7 @@ from typing import TYPE_CHECKING, Any, Protocol
 
 if TYPE_CHECKING:
     import numpy as np
+    from numpy.typing import NDArray
 
     from drivers.camera.base import Frame
 
@@ -99,7 +100,7 @@ class Arm(Device, Protocol):
     """The robot arm. ``read_back`` gives ``pose`` and ``moved_mm`` (motion over a short interval: 0 for
     a halted arm)."""
 
-    def position(self) -> np.ndarray:
+    def position(self) -> NDArray[np.float64]:
         """Current flange pose (6,): x, y, z mm; rx, ry, rz deg."""
         ...
 

@@ -11,6 +11,7 @@ from dataclasses import dataclass
 from typing import Protocol, runtime_checkable
 
 import numpy as np
+from numpy.typing import NDArray
 
 __all__ = ["Frame", "FrameSource"]
 
@@ -26,7 +27,7 @@ class Frame:
 
     index: int
     timestamp_s: float
-    image: np.ndarray
+    image: NDArray[np.uint8]
     exposure_s: float | None = None
 
     def __post_init__(self) -> None:

@@ -314,7 +314,7 @@ class BcapClient:
 
         A dead link (closed or unresponsive) stops the sequence early: further calls could only time out.
         """
-        steps = []
+        steps: list[tuple[str, Callable[[], object]]] = []
         if self.h_busy is not None:
             handle, self.h_busy = self.h_busy, None
             steps.append(("Variable_Release @BUSY_STATUS", lambda: self.variable_release(handle)))

@@ -74,7 +74,7 @@ class Variant:
 EMPTY = Variant(VT_EMPTY)
 
 
-def _check_int(vt: int, value: Any) -> int:
+def _check_int(vt: int, value: object) -> int:
     if isinstance(value, bool) or not isinstance(value, int):
         raise ValueError(f"VARIANT vt={vt}: value {value!r} must be an int")
     low, high = _INT_RANGES[vt]

@@ -37,7 +37,7 @@ class SensitivityTable:
     strictly increasing frequencies and positive sensitivities; linear between points."""
 
     def __init__(self, points: Sequence[Sequence[float]]) -> None:
-        pts = []
+        pts: list[tuple[float, float]] = []
         for i, p in enumerate(points):
             if len(p) != 2:
                 raise ValueError(f"sensitivity[{i}]={p!r}: must be a (f_hz, mm_per_v) pair")

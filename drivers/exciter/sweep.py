@@ -119,7 +119,7 @@ class LogSweep(SweepProfile):
 
     def frequency_hz(self, t_s: float) -> float:
         u = min(max(t_s / self.duration_s, 0.0), 1.0)
-        return self.start_hz * (self.stop_hz / self.start_hz) ** u
+        return self.start_hz * math.pow(self.stop_hz / self.start_hz, u)
 
     def max_slope_hz_per_s(self) -> float:
         k = abs(math.log(self.stop_hz / self.start_hz)) / self.duration_s

@@ -443,7 +443,8 @@ def main(argv: list[str] | None = None, prog: str | None = None) -> int:
         regs = replace(DELTA_MAP, unit_id=DEFAULT_UNITS[args.body] if args.unit is None else args.unit)
     except ValueError as exc:
         parser.error(str(exc))
-    drive = DriveModel(getattr(world, args.body), world.clock, register_map=regs, gear_ratio=args.gear_ratio,
+    body = {"exciter": world.exciter, "rotor": world.rotor}[args.body]  # the --body choices
+    drive = DriveModel(body, world.clock, register_map=regs, gear_ratio=args.gear_ratio,
                        max_output_hz=args.max_output_hz, watchdog_s=args.watchdog_s)
     mode = "rtu" if (args.rtu or args.serial) else "tcp"
     with VfdServer(drive, mode=mode, port=args.port, serial_port=args.serial, baudrate=args.baud,
