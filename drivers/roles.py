@@ -83,8 +83,9 @@ class VibrationSource(Device, Protocol):
         """The last commanded mechanical frequency (Hz; 0 after a stop)."""
         ...
 
-    def stop(self, *, wait: bool = True) -> Any:
-        """Command a stop (the drive decelerates on its ramp); with ``wait``, until at rest."""
+    def stop(self, *, wait: bool = True) -> object:
+        """Command a stop (the drive decelerates on its ramp); with ``wait``, until at rest. The runner
+        ignores what it returns."""
         ...
 
 

@@ -40,13 +40,13 @@ from collections import deque
 from collections.abc import Iterator
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any, cast
+from typing import Any, TypedDict, cast
 
 import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from drivers.camera.base import Frame
+from drivers.camera.base import Frame, FrameGap
 from drivers.roles import Camera
 
 __all__ = ["DUPLICATE_POLICIES", "FrameTimeReport", "VideoFile", "VideoFileError", "VideoOpenError",
@@ -71,6 +71,13 @@ class VideoTruncatedError(VideoFileError):
         super().__init__(message)
         self.report = report
         self.frames_read = report.frames_read
+
+
+class StampCorrection(TypedDict):
+    """From frame ``from_index`` on, ``shift_s`` is added to the time stamps (duplicate policy "insert")."""
+
+    from_index: int
+    shift_s: float
 
 
 @dataclass
@@ -99,8 +106,8 @@ class FrameTimeReport:
     luma_plane: bool = False
     duplicated: list[dict[str, Any]] = field(default_factory=list)
     undecided: list[int] = field(default_factory=list)
-    dropped: list[dict[str, Any]] = field(default_factory=list)
-    corrections: list[dict[str, Any]] = field(default_factory=list)
+    dropped: list[FrameGap] = field(default_factory=list)
+    corrections: list[StampCorrection] = field(default_factory=list)
     non_monotonic: list[int] = field(default_factory=list)
     truncated: bool = False
     error: str | None = None
@@ -276,7 +283,7 @@ class DuplicateJudge:
 
 
 def find_gaps(timestamps_s: NDArray[np.float64], period_s: float,
-              gap_tolerance: float = 0.5) -> list[dict[str, Any]]:
+              gap_tolerance: float = 0.5) -> list[FrameGap]:
     """Gaps longer than (1 + gap_tolerance) periods in increasing time stamps: after which index, how long,
     how many frames are missing (``round(gap/period) − 1``, at least 1)."""
     t = np.asarray(timestamps_s, dtype=float)
@@ -285,7 +292,7 @@ def find_gaps(timestamps_s: NDArray[np.float64], period_s: float,
     if not 0.0 < gap_tolerance < 1.0:
         raise ValueError(f"gap_tolerance must be within (0, 1) frame periods, got {gap_tolerance!r}")
     gaps = np.diff(t)
-    out = []
+    out: list[FrameGap] = []
     for i in np.nonzero(gaps > (1.0 + gap_tolerance) * period_s)[0]:
         missing = max(1, round(gaps[i] / period_s) - 1)
         out.append({"after_index": int(i), "gap_s": float(gaps[i]), "missing_frames": missing})

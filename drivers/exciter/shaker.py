@@ -22,14 +22,17 @@ import itertools
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass
-from typing import Any
+from typing import Any, TypeVar
 
+from drivers.clock import Clock
 from drivers.exciter.generator import GeneratorError, SafeOffOutcome, ScpiGenerator
 from drivers.exciter.limits import LimitError, MotionLimits
 from drivers.heartbeat import Heartbeat
 from drivers.roles import Generator
 
 __all__ = ["GeneratorSample", "SensitivityTable", "Shaker", "ShakerLimits", "ShakerSweep"]
+
+_R = TypeVar("_R")
 
 
 class SensitivityTable:
@@ -182,7 +185,7 @@ class Shaker(Generator):
     links) to confirm the output OFF.
     """
 
-    def __init__(self, generator: ScpiGenerator, *, clock: Any, limits: MotionLimits,
+    def __init__(self, generator: ScpiGenerator, *, clock: Clock, limits: MotionLimits,
                  sensitivity: SensitivityTable, max_amplitude_vpp: float = 10.0,
                  min_amplitude_vpp: float = 0.01,
                  amplitude_step_vpp: float = 0.5, step_interval_s: float = 0.1,
@@ -231,9 +234,10 @@ class Shaker(Generator):
         self.checks.check_sweep(start_hz, stop_hz, duration_s, spacing, amplitude_vpp)
 
     # operations ---------------------------------------------------------------------------------------------
-    def _guarded(self, fn: Any, *args: Any) -> Any:
+    def _guarded(self, fn: Callable[[], _R]) -> _R:
+        """``fn()``; a generator failure aborts the output first and says so in the error."""
         try:
-            return fn(*args)
+            return fn()
         except GeneratorError as exc:
             note = self._abort_note()
             exc.args = (f"{exc.args[0]}; {note}",)

@@ -23,7 +23,12 @@ import itertools
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from typing import Any, Protocol
+from typing import TYPE_CHECKING, Any, Protocol
+
+from drivers.clock import Clock
+
+if TYPE_CHECKING:
+    import pandas as pd
 
 __all__ = ["FrequencyActuator", "FrequencySample", "LinearSweep", "LogSweep", "PointsSweep",
            "SweepProfile", "SweepResult", "run_sweep"]
@@ -204,7 +209,8 @@ class SweepResult:
     profile: list[tuple[float, float]]
     samples: list[FrequencySample]
 
-    def to_dataframe(self) -> Any:
+    def to_dataframe(self) -> pd.DataFrame:
+        """The polled samples, one row each (t_s, frequency_hz, setpoint_hz, status)."""
         import pandas as pd
 
         return pd.DataFrame([vars(s) for s in self.samples],
@@ -218,7 +224,7 @@ class FrequencyActuator(Protocol):
     fixed rate (then only setpoints are written and the profile must not be steeper than it).
     """
 
-    clock: Any
+    clock: Clock
 
     def fixed_ramp_rate_hz_per_s(self) -> float | None: ...        # None: the ramp rate can be written
     def write_ramp_rate_hz_per_s(self, rate_hz_per_s: float) -> None: ...

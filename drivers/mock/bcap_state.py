@@ -121,11 +121,17 @@ class ControllerState:
         self.errors: History[tuple[int, str]] = History(MAX_ERRORS)  # (code, message), oldest first
         self.move_error: int | None = None  # fault injection: HRESULT returned by every Move
         self.moves: History[AcceptedMove] = History(MAX_MOVES)  # for tests and the CLI
+        # b-CAP function ID → its handler; any other ID is answered E_NOTIMPL
+        self._handlers: dict[int, Callable[[list[w.Value]], Outcome]] = {
+            1: self._f1, 2: self._f2, 3: self._f3, 4: self._f4, 7: self._f7, 8: self._f8, 9: self._f9,
+            13: self._f13, 17: self._f17, 62: self._f62, 64: self._f64, 70: self._f70, 72: self._f72,
+            74: self._f74, 76: self._f76, 84: self._f84, 88: self._f88, 99: self._f99, 101: self._f101,
+            102: self._f102, 111: self._f111,
+        }
 
     # ------------------------------------------------------------------------------------- dispatch
     def execute(self, function_id: int, args: list[w.Value]) -> Outcome:
-        handler: Callable[[list[w.Value]], Outcome] | None = getattr(
-            self, f"_f{function_id}", None)
+        handler = self._handlers.get(function_id)
         try:
             if handler is None:
                 raise CallFailed(w.E_NOTIMPL, f"function {function_id} is not implemented by the mock")
