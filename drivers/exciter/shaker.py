@@ -25,7 +25,7 @@ from dataclasses import asdict, dataclass
 from typing import Any, TypeVar
 
 from drivers.clock import Clock
-from drivers.exciter.generator import GeneratorError, SafeOffOutcome, ScpiGenerator
+from drivers.exciter.generator import GeneratorError, SafeOffOutcome, ScpiGenerator, SweepSettings
 from drivers.exciter.limits import LimitError, MotionLimits
 from drivers.heartbeat import Heartbeat
 from drivers.roles import Generator
@@ -117,9 +117,10 @@ class GeneratorSample:
     output_on: bool
     sweep_on: bool
     displacement_mm: float
-    sweep: dict[str, Any] | None = None
+    sweep: SweepSettings | None = None
 
     def as_event(self) -> dict[str, Any]:
+        """The ``generator`` event payload (``sweep`` as a table; None fields left out)."""
         return {k: v for k, v in asdict(self).items() if v is not None}
 
 
@@ -315,9 +316,9 @@ class Shaker(Generator):
         t_before = self.clock.now_s()
         output_on, frequency_hz, vpp = g.output(), g.frequency_hz(), g.amplitude_vpp()
         sweep_on = g.sweep_enabled()
-        sweep = asdict(g.sweep_settings()) if sweep_on else None
+        sweep = g.sweep_settings() if sweep_on else None
         t_after = self.clock.now_s()
-        f_ref = sweep["start_hz"] if sweep is not None else frequency_hz  # what the volts were set for
+        f_ref = sweep.start_hz if sweep is not None else frequency_hz  # what the volts were set for
         inside = self.sensitivity.f_min_hz <= f_ref <= self.sensitivity.f_max_hz
         disp = self.displacement_mm(f_ref, vpp) if output_on and inside else (
             0.0 if not output_on else math.nan)
