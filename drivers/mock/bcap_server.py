@@ -49,6 +49,7 @@ from collections import OrderedDict
 from dataclasses import dataclass
 from types import TracebackType
 
+from drivers.clock import Clock
 from drivers.mock import bcap_wire as w
 from drivers.mock._serve import (
     accept_loop,
@@ -247,8 +248,8 @@ class _Session:
             self._drop_connection()
             return
         if outcome.motion_end_s is not None and not w.failed(outcome.hresult):
-            if self.server.instant:
-                self.server.clock.advance_to(outcome.motion_end_s)
+            if self.server.instant_clock is not None:
+                self.server.instant_clock.advance_to(outcome.motion_end_s)
             elif not self._wait_for_rest(packet):
                 return
         if function == SERVICE_STOP:  # the client is done (all a serial line can say): controller free,
@@ -348,7 +349,7 @@ class BcapMockServer:
 
     Args:
         robot: the simulated robot body (``world.robot``).
-        clock: the twin's clock (``world.clock``); in its instant mode a Move advances it to the move's end.
+        clock: the rig clock (``world.clock``); an instant :class:`VirtualClock` is advanced to a Move's end.
         full_speed_mm_s, full_accel_mm_s2: what 100 % speed / acceleration mean on this controller.
         faults: fault switches (shared, may be changed while serving).
         client_watchdog: a client that set a WDT in Service_Start and then sends nothing for
@@ -357,7 +358,7 @@ class BcapMockServer:
             connection). On in the stand-alone mock; off by default (in-process mocks die with the client).
     """
 
-    def __init__(self, robot: RobotBodyLike, clock: VirtualClock, *, full_speed_mm_s: float = 1000.0,
+    def __init__(self, robot: RobotBodyLike, clock: Clock, *, full_speed_mm_s: float = 1000.0,
                  full_accel_mm_s2: float = 5000.0, faults: Faults | None = None,
                  client_watchdog: bool = False) -> None:
         self.clock = clock
@@ -366,7 +367,8 @@ class BcapMockServer:
         self.faults = faults or Faults()
         self.client_watchdog = client_watchdog
         self.lock = threading.RLock()
-        self.instant = clock.is_instant
+        # an instant virtual clock is advanced to a blocking move's end; any other clock is waited on
+        self.instant_clock = clock if isinstance(clock, VirtualClock) and clock.is_instant else None
         self._sessions: list[_Session] = []
         self._active: _Session | None = None
         self._listener: socket.socket | None = None

@@ -44,7 +44,7 @@ from drivers.mock.scpi_status import ERROR_QUEUE_DEPTH, StatusModel
 from drivers.sim.fiducial import SyncLed
 
 if TYPE_CHECKING:
-    from drivers.sim.clock import VirtualClock
+    from drivers.clock import Clock
     from drivers.sim.oscillator import OscillatorBody
 
 _Command = tuple[Pattern, Callable[[Unit], None] | None, Callable[[], str] | None]
@@ -81,7 +81,7 @@ class GeneratorInstrument:
     the newest :data:`LINES_KEPT`.
     """
 
-    def __init__(self, body: OscillatorBody, clock: VirtualClock, *,
+    def __init__(self, body: OscillatorBody, clock: Clock, *,
                  sensitivity_mm_per_v: list[tuple[float, float]] | None = None,
                  identity: str = IDN, sync_led: SyncLed | None = None) -> None:
         self.body = body
