@@ -24,6 +24,7 @@ from typing import TYPE_CHECKING, Any, Protocol
 
 if TYPE_CHECKING:
     import numpy as np
+    from numpy.typing import NDArray
 
     from drivers.camera.base import Frame
 
@@ -82,8 +83,9 @@ class VibrationSource(Device, Protocol):
         """The last commanded mechanical frequency (Hz; 0 after a stop)."""
         ...
 
-    def stop(self, *, wait: bool = True) -> Any:
-        """Command a stop (the drive decelerates on its ramp); with ``wait``, until at rest."""
+    def stop(self, *, wait: bool = True) -> object:
+        """Command a stop (the drive decelerates on its ramp); with ``wait``, until at rest. The runner
+        ignores what it returns."""
         ...
 
 
@@ -99,7 +101,7 @@ class Arm(Device, Protocol):
     """The robot arm. ``read_back`` gives ``pose`` and ``moved_mm`` (motion over a short interval: 0 for
     a halted arm)."""
 
-    def position(self) -> np.ndarray:
+    def position(self) -> NDArray[np.float64]:
         """Current flange pose (6,): x, y, z mm; rx, ry, rz deg."""
         ...
 

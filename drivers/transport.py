@@ -25,19 +25,20 @@ import contextlib
 import logging
 import math
 import socket
+import sys
 import time
 from types import TracebackType
-from typing import Protocol, runtime_checkable
+from typing import Protocol, TypedDict, runtime_checkable
 from urllib.parse import parse_qs, urlsplit
 
 import serial
 
-try:  # termios errors (not OSError) escape pyserial on a hung-up tty
+if sys.platform == "win32":  # pragma: no cover
+    _SERIAL_ERRORS: tuple[type[Exception], ...] = (serial.SerialException, OSError)
+else:  # termios errors (not OSError) escape pyserial on a hung-up tty
     from termios import error as _TermiosError  # noqa: N812
-except ImportError:  # pragma: no cover - Windows
-    _TermiosError = OSError  # type: ignore[misc,assignment]
 
-_SERIAL_ERRORS = (serial.SerialException, OSError, _TermiosError)
+    _SERIAL_ERRORS = (serial.SerialException, OSError, _TermiosError)
 
 log = logging.getLogger(__name__)
 
@@ -332,8 +333,17 @@ class SerialTransport(_BufferedTransport):
             self._serial.close()
 
 
-def _serial_options(query: str, url: str) -> dict[str, object]:
-    options: dict[str, object] = {}
+class SerialOptions(TypedDict, total=False):
+    """Line settings of a ``serial://`` address (the keywords of :class:`SerialTransport`)."""
+
+    baudrate: int
+    parity: str
+    stopbits: float
+    bytesize: int
+
+
+def _serial_options(query: str, url: str) -> SerialOptions:
+    options: SerialOptions = {}
     for key, values in parse_qs(query, keep_blank_values=True, strict_parsing=False).items():
         value = values[-1]
         if key in ("baud", "baudrate"):
@@ -373,7 +383,7 @@ def open_transport(url: str, timeout_s: float = 3.0) -> TcpTransport | UdpTransp
         path = parts.netloc + parts.path if parts.netloc else parts.path
         if not path:
             raise ValueError(f"{url!r}: a serial address is serial:///dev/ttyUSB0?baud=115200")
-        return SerialTransport(path, timeout_s=timeout_s, **_serial_options(parts.query, url))  # type: ignore[arg-type]
+        return SerialTransport(path, timeout_s=timeout_s, **_serial_options(parts.query, url))
     if scheme in ("socket", "loop", "rfc2217", "spy"):
         return SerialTransport(url, timeout_s=timeout_s)
     if url.startswith("/") or url.upper().startswith("COM"):

@@ -70,7 +70,7 @@ def test_set_frequency_then_linear_sweep_to_30_hz(mode: str) -> None:
     with vfd_rig(mode, gear_ratio=GEAR) as rig:
         reached = rig.exciter.set_frequency(10.0)
         assert reached is not None and reached.frequency_hz == pytest.approx(10.0, abs=Q_HZ)
-        assert rig.world.exciter.frequency_hz(rig.run.clock.now_s()) == pytest.approx(10.0, abs=Q_HZ)
+        assert rig.world.exciter.frequency_hz(rig.clock.now_s()) == pytest.approx(10.0, abs=Q_HZ)
         seen: list[FrequencySample] = []
         profile = LinearSweep(10.0, 30.0, 20.0)
         result = rig.exciter.sweep(profile, update_interval_s=UPDATE_S, on_sample=seen.append)
@@ -79,7 +79,7 @@ def test_set_frequency_then_linear_sweep_to_30_hz(mode: str) -> None:
         assert rig.exciter.vibration_hz() == pytest.approx(30.0, abs=Q_HZ)
         rest = rig.exciter.stop()
         assert rest is not None and rest.frequency_hz == 0.0 and rest.status == "stopped"
-        assert rig.world.exciter.frequency_hz(rig.run.clock.now_s()) == 0.0
+        assert rig.world.exciter.frequency_hz(rig.clock.now_s()) == 0.0
 
 
 def test_log_sweep_over_rtu() -> None:
@@ -103,7 +103,7 @@ def test_fig17_like_points_profile_over_tcp() -> None:
 def test_exciter_displacement_amplitude_is_the_crank_radius() -> None:
     with vfd_rig("tcp", gear_ratio=GEAR) as rig:
         rig.exciter.set_frequency(8.0)
-        t = rig.run.clock.now_s() + np.linspace(0, 1.0, 2001)
+        t = rig.clock.now_s() + np.linspace(0, 1.0, 2001)
         x = np.asarray(rig.world.exciter.displacement_mm(t))
         assert np.max(np.abs(x)) == pytest.approx(rig.exciter.crank_radius_mm, rel=1e-4)
 
@@ -136,7 +136,7 @@ def test_rotor_at_10_hz_on_unit_2() -> None:
 def test_sweep_rejects_a_profile_steeper_than_a_fixed_ramp_drive() -> None:
     no_ramp = RegisterMap(accel_time=None, decel_time=None)
     with vfd_rig("tcp", gear_ratio=GEAR) as rig:
-        exciter = Exciter(VfdDriver(rig.client, no_ramp, max_output_hz=60.0), clock=rig.run.clock,
+        exciter = Exciter(VfdDriver(rig.client, no_ramp, max_output_hz=60.0), clock=rig.clock,
                           limits=EXCITER_LIMITS, crank_radius_mm=4.0, gear_ratio=GEAR,
                           fixed_drive_ramp_rate_hz_per_s=1.5)  # 1 Hz/s of vibration
         before = rig.drive.request_count
@@ -151,7 +151,7 @@ def test_safe_state_brings_the_twin_to_rest_and_heartbeat_reports_faults(mode: s
         rig.exciter.set_frequency(12.0)
         assert rig.exciter.heartbeat() is True
         rig.exciter.safe_state()
-        t = rig.run.clock.now_s()
+        t = rig.clock.now_s()
         assert rig.world.exciter.frequency_hz(t) == 0.0
         assert rig.drive.regs[DELTA_MAP.freq_set] == 0 and not rig.drive.running
         rig.exciter.set_frequency(12.0)
@@ -195,4 +195,4 @@ def test_stop_after_a_trip_waits_for_rest_instead_of_failing() -> None:
         rig.drive.trip(0x41)
         rest = rig.exciter.stop()
         assert rest is not None and rest.frequency_hz == 0.0 and rest.status == "fault 65"
-        assert rig.world.exciter.frequency_hz(rig.run.clock.now_s()) == 0.0
+        assert rig.world.exciter.frequency_hz(rig.clock.now_s()) == 0.0

@@ -114,11 +114,11 @@ def standalone(tmp_path: Path) -> Iterator[StandaloneRig]:
 
 
 def _start_rig(rig: StandaloneRig, *settings: str) -> tuple[subprocess.Popen[str], Path]:
-    argv = [sys.executable, "-m", "rig.cli", "run", str(SPIN), "--config", str(rig.config.rig_config),
+    argv = [sys.executable, "-m", "rig.cli", "run", str(SPIN), "--config", str(rig.config),
             "--runs-dir", str(rig.runs), "--no-dashboard"]
     for s in settings:
         argv += ["--set", s]
-    proc = subprocess.Popen(argv, cwd=rig.config.rig_config.parent, env=_env(), stdout=subprocess.PIPE,
+    proc = subprocess.Popen(argv, cwd=rig.config.parent, env=_env(), stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True)
     deadline = time.monotonic() + WAIT_S
     while time.monotonic() < deadline:

@@ -103,7 +103,7 @@ def test_drive_overload_during_a_sweep_raises_a_fault_and_stops(mode: str) -> No
             rig.exciter.sweep(LinearSweep(5.0, 30.0, 15.0))
         assert info.value.fault_code == FAULT_OVERLOAD
         assert info.value.stop_attempted and info.value.stop_ok
-        t = rig.run.clock.now_s()
+        t = rig.clock.now_s()
         f_trip = 60 * 0.5**0.5 / 1.5
         assert rig.drive.fault_time_s is not None
         assert rig.world.exciter.frequency_hz(rig.drive.fault_time_s) == pytest.approx(f_trip, rel=1e-9)
@@ -115,7 +115,7 @@ def test_drive_overload_during_a_sweep_raises_a_fault_and_stops(mode: str) -> No
 def test_watchdog_trip_is_reported_on_the_next_poll(mode: str) -> None:
     with vfd_rig(mode, timeout_s=TIMEOUT_S, watchdog_s=0.5) as rig:
         rig.exciter.set_frequency(5.0)  # polls every 0.25 s: the watchdog stays fed
-        rig.run.clock.sleep_s(2.0)  # the procedure goes silent
+        rig.clock.sleep_s(2.0)  # the procedure goes silent
         with pytest.raises(VfdFaultError, match="CE10") as info:
             rig.exciter.read_sample()
         assert info.value.fault_code == FAULT_WATCHDOG

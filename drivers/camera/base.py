@@ -8,11 +8,21 @@ from __future__ import annotations
 
 from collections.abc import Iterator
 from dataclasses import dataclass
-from typing import Protocol, runtime_checkable
+from typing import Protocol, TypedDict, runtime_checkable
 
 import numpy as np
+from numpy.typing import NDArray
 
-__all__ = ["Frame", "FrameSource"]
+__all__ = ["Frame", "FrameGap", "FrameSource"]
+
+
+class FrameGap(TypedDict):
+    """A gap between consecutive time stamps longer than the tolerance: ``missing_frames`` =
+    ``round(gap_s / period) − 1`` (at least 1) frames were not delivered after frame ``after_index``."""
+
+    after_index: int
+    gap_s: float
+    missing_frames: int
 
 
 @dataclass(frozen=True)
@@ -26,7 +36,7 @@ class Frame:
 
     index: int
     timestamp_s: float
-    image: np.ndarray
+    image: NDArray[np.uint8]
     exposure_s: float | None = None
 
     def __post_init__(self) -> None:

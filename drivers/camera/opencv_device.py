@@ -26,15 +26,34 @@ import threading
 import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any, Protocol
 
 import cv2
 import numpy as np
 
-from drivers.camera.base import Frame
+if TYPE_CHECKING:
+    from cv2.typing import MatLike
+
+from drivers.camera.base import Frame, FrameGap
 from drivers.roles import Camera
 
-__all__ = ["CameraDeviceError", "CaptureStats", "OpenCVCamera", "parse_source"]
+__all__ = ["CameraDeviceError", "Capture", "CaptureStats", "OpenCVCamera", "open_capture", "parse_source"]
+
+
+class Capture(Protocol):
+    """What :class:`OpenCVCamera` needs of a capture object (``cv2.VideoCapture`` provides it)."""
+
+    def isOpened(self) -> bool: ...  # noqa: N802 (OpenCV's name)
+    def set(self, prop_id: int, value: float) -> bool: ...
+    def get(self, prop_id: int) -> float: ...
+    def grab(self) -> bool: ...
+    def retrieve(self) -> tuple[bool, MatLike | None]: ...
+    def release(self) -> None: ...
+
+
+def open_capture(source: str | int, api: int) -> Capture:
+    """``cv2.VideoCapture(source, api)``: the default capture factory."""
+    return cv2.VideoCapture(source, api)
 
 
 class CameraDeviceError(RuntimeError):
@@ -59,7 +78,7 @@ class CaptureStats:
     """What the grabbing thread saw: frames delivered, device drops (gaps), queue overflows (slow reader)."""
 
     delivered: int = 0
-    dropped: list[dict[str, Any]] = field(default_factory=list)  # {"after_index", "gap_s", "missing_frames"}
+    dropped: list[FrameGap] = field(default_factory=list)
     overflow: list[int] = field(default_factory=list)  # indices discarded because the queue was full
     first_timestamp_s: float | None = None
     last_timestamp_s: float | None = None
@@ -87,7 +106,7 @@ class OpenCVCamera(Camera):
     def __init__(self, name: str, source: str | int, *, fps: float = 60.0, width_px: int = 1920,
                  height_px: int = 1080, queue_frames: int = 120, gap_tolerance: float = 0.5,
                  clock: Callable[[], float] = time.monotonic, api: int = cv2.CAP_ANY,
-                 capture_factory: Callable[[Any, int], Any] = cv2.VideoCapture) -> None:
+                 capture_factory: Callable[[str | int, int], Capture | None] = open_capture) -> None:
         if not (math.isfinite(fps) and 0 < fps <= 10000):
             raise ValueError(f"fps={fps!r}; allowed: within (0, 10000] Hz")
         if width_px < 16 or height_px < 16:
@@ -103,7 +122,6 @@ class OpenCVCamera(Camera):
         self._queue: queue.Queue[Frame] = queue.Queue(maxsize=int(queue_frames))
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
-        self._cap: Any = None
         self.stats = CaptureStats()
 
     @property
@@ -146,11 +164,12 @@ class OpenCVCamera(Camera):
             cap.release()
             raise CameraDeviceError(f"camera {self.name!r}: requested {self.fps:g} fps, the device gives "
                                     f"{granted_fps:g}; configure fps to match")
-        self._cap, self.stats = cap, CaptureStats()
+        self.stats = CaptureStats()
         self._stop.clear()
         while not self._queue.empty():
             self._queue.get_nowait()
-        self._thread = threading.Thread(target=self._grab_loop, name=f"grab-{self.name}", daemon=True)
+        self._thread = threading.Thread(target=self._grab_loop, args=(cap,), name=f"grab-{self.name}",
+                                        daemon=True)
         self._thread.start()
 
     def _put(self, frame: Frame) -> None:
@@ -165,8 +184,8 @@ class OpenCVCamera(Camera):
                 except queue.Empty:
                     pass
 
-    def _grab_loop(self) -> None:
-        cap, period = self._cap, 1.0 / self.fps
+    def _grab_loop(self, cap: Capture) -> None:
+        period = 1.0 / self.fps
         index, prev = 0, None
         try:
             while not self._stop.is_set():

@@ -40,12 +40,13 @@ from collections import deque
 from collections.abc import Iterator
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, TypedDict, cast
 
 import cv2
 import numpy as np
+from numpy.typing import NDArray
 
-from drivers.camera.base import Frame
+from drivers.camera.base import Frame, FrameGap
 from drivers.roles import Camera
 
 __all__ = ["DUPLICATE_POLICIES", "FrameTimeReport", "VideoFile", "VideoFileError", "VideoOpenError",
@@ -70,6 +71,13 @@ class VideoTruncatedError(VideoFileError):
         super().__init__(message)
         self.report = report
         self.frames_read = report.frames_read
+
+
+class StampCorrection(TypedDict):
+    """From frame ``from_index`` on, ``shift_s`` is added to the time stamps (duplicate policy "insert")."""
+
+    from_index: int
+    shift_s: float
 
 
 @dataclass
@@ -98,8 +106,8 @@ class FrameTimeReport:
     luma_plane: bool = False
     duplicated: list[dict[str, Any]] = field(default_factory=list)
     undecided: list[int] = field(default_factory=list)
-    dropped: list[dict[str, Any]] = field(default_factory=list)
-    corrections: list[dict[str, Any]] = field(default_factory=list)
+    dropped: list[FrameGap] = field(default_factory=list)
+    corrections: list[StampCorrection] = field(default_factory=list)
     non_monotonic: list[int] = field(default_factory=list)
     truncated: bool = False
     error: str | None = None
@@ -157,12 +165,12 @@ def _quiet(step: int) -> None:
 class _Decoded:
     index: int
     pts_s: float
-    image: np.ndarray
-    half: np.ndarray  # the image averaged over 2×2 pixels (the change maps are computed on it)
-    change: np.ndarray | None = None  # 8×8-block mean |image − previous image|, DN
+    image: NDArray[np.uint8]
+    half: NDArray[np.uint8]  # the image averaged over 2×2 pixels (the change maps are computed on it)
+    change: NDArray[np.float32] | None = None  # 8×8-block mean |image − previous image|, DN
 
 
-def _ratio_where_moved(change: np.ndarray, motion: np.ndarray) -> float:
+def _ratio_where_moved(change: NDArray[np.float32], motion: NDArray[np.float32]) -> float:
     """Mean of ``change`` over the blocks where ``motion`` reaches half its largest value, relative to the
     mean of ``motion`` there: ≈ 0 when the image did not change where the neighbour's markers moved."""
     where = motion >= 0.5 * float(motion.max())
@@ -177,21 +185,26 @@ class _Stamps:
     shift_s: float = 0.0
 
 
-def _half(image: np.ndarray) -> np.ndarray:
+def _half(image: NDArray[np.uint8]) -> NDArray[np.uint8]:
     """The image averaged over 2×2 pixels (uint8): a quarter of the pixels for the change maps."""
     h, w = image.shape
-    return cv2.resize(image, (max(1, w // 2), max(1, h // 2)), interpolation=cv2.INTER_AREA)
+    # cv2.resize keeps the dtype (OpenCV's stubs type every result as MatLike)
+    return cast(NDArray[np.uint8], cv2.resize(image, (max(1, w // 2), max(1, h // 2)),
+                                              interpolation=cv2.INTER_AREA))
 
 
-def _block_change(a_half: np.ndarray, b_half: np.ndarray) -> np.ndarray:
+def _block_change(a_half: NDArray[np.uint8], b_half: NDArray[np.uint8]) -> NDArray[np.float32]:
     """Mean absolute difference per 8×8 block of the full image (float32 DN, to 1/16 DN) from the two
     half-size images: two exact 2× area reductions of 16 × |a − b| (fast paths, no rounding loss)."""
     d = cv2.absdiff(a_half, b_half).astype(np.uint16)
     d <<= 4
     for _ in range(2):
         h, w = d.shape
-        d = cv2.resize(d, (max(1, w // 2), max(1, h // 2)), interpolation=cv2.INTER_AREA)
-    return d.astype(np.float32) * np.float32(1 / 16)
+        d = cast(NDArray[np.uint16], cv2.resize(d, (max(1, w // 2), max(1, h // 2)),
+                                                interpolation=cv2.INTER_AREA))
+    change = d.astype(np.float32)
+    change *= np.float32(1 / 16)
+    return change
 
 
 class DuplicateJudge:
@@ -234,7 +247,8 @@ class DuplicateJudge:
         typical = float(np.median(self._floors)) if len(self._floors) >= 3 else None
         out = {"change_dn": s_k, "noise_floor_dn": floor, "typical_noise_dn": typical,
                "change_before_dn": float(prev.change.max()) if prev.change is not None else None,
-               "change_after_dn": float(nxt.change.max()) if nxt is not None else None,
+               "change_after_dn": (float(nxt.change.max()) if nxt is not None and nxt.change is not None
+                                   else None),
                "change_across_dn": None, "identity_ratio": None, "across_ratio": None}
         if typical is not None and typical >= self.MIN_FLOOR_DN and floor < self.noise_ratio * typical:
             return {**out, "evidence": f"sensor noise not renewed: median block change {floor:.1f} DN < "
@@ -268,7 +282,8 @@ class DuplicateJudge:
             self._floors.pop()
 
 
-def find_gaps(timestamps_s: np.ndarray, period_s: float, gap_tolerance: float = 0.5) -> list[dict[str, Any]]:
+def find_gaps(timestamps_s: NDArray[np.float64], period_s: float,
+              gap_tolerance: float = 0.5) -> list[FrameGap]:
     """Gaps longer than (1 + gap_tolerance) periods in increasing time stamps: after which index, how long,
     how many frames are missing (``round(gap/period) − 1``, at least 1)."""
     t = np.asarray(timestamps_s, dtype=float)
@@ -277,7 +292,7 @@ def find_gaps(timestamps_s: np.ndarray, period_s: float, gap_tolerance: float = 
     if not 0.0 < gap_tolerance < 1.0:
         raise ValueError(f"gap_tolerance must be within (0, 1) frame periods, got {gap_tolerance!r}")
     gaps = np.diff(t)
-    out = []
+    out: list[FrameGap] = []
     for i in np.nonzero(gaps > (1.0 + gap_tolerance) * period_s)[0]:
         missing = max(1, round(gaps[i] / period_s) - 1)
         out.append({"after_index": int(i), "gap_s": float(gaps[i]), "missing_frames": missing})
@@ -361,14 +376,16 @@ class VideoFile(Camera):
     def snapshot(self) -> dict[str, Any]:
         return {"driver": "file", "path": str(self.path)}
 
-    def _gray(self, cap: cv2.VideoCapture) -> np.ndarray | None:
+    def _gray(self, cap: cv2.VideoCapture) -> NDArray[np.uint8] | None:
+        """The decoded image as 2-D gray levels; OpenCV decodes 8-bit video to uint8 (its stubs say only
+        MatLike) and :class:`Frame` refuses any other dtype."""
         ok, img = cap.retrieve()
         if not ok or img is None:
             return None
         if img.ndim == 2 and img.shape == (self.height_px, self.width_px):
-            return img
+            return cast(NDArray[np.uint8], img)
         if img.ndim == 3:
-            return cv2.cvtColor(img, cv2.COLOR_BGR2GRAY)
+            return cast(NDArray[np.uint8], cv2.cvtColor(img, cv2.COLOR_BGR2GRAY))
         return None
 
     def _luma_capture(self) -> tuple[cv2.VideoCapture, bool]:
@@ -421,7 +438,7 @@ class VideoFile(Camera):
 
     def _grab(self, cap: cv2.VideoCapture, rep: FrameTimeReport) -> Iterator[_Decoded]:
         """Decoded frames in order with their time stamps and block change to the previous frame."""
-        prev: np.ndarray | None = None  # half-size previous image
+        prev: NDArray[np.uint8] | None = None  # half-size previous image
         index = 0
         try:
             while cap.grab():

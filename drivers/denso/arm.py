@@ -24,6 +24,7 @@ from types import TracebackType
 from typing import Any
 
 import numpy as np
+from numpy.typing import NDArray
 
 from drivers.clock import Clock
 from drivers.denso import bcap
@@ -104,7 +105,7 @@ class OrientationLimits:
         for name in ("rx_deg", "ry_deg", "rz_deg"):
             object.__setattr__(self, name, _range(getattr(self, name), name))
 
-    def check(self, pose: np.ndarray) -> None:
+    def check(self, pose: NDArray[np.float64]) -> None:
         for name, value in zip(("rx_deg", "ry_deg", "rz_deg"), pose[3:6], strict=True):
             _check(name, float(value), getattr(self, name))
 
@@ -122,7 +123,7 @@ class BoxEnvelope:
         for name in ("x_mm", "y_mm", "z_mm"):
             object.__setattr__(self, name, _range(getattr(self, name), name))
 
-    def check(self, pose: np.ndarray) -> None:
+    def check(self, pose: NDArray[np.float64]) -> None:
         for name, value in zip(("x_mm", "y_mm", "z_mm"), pose[:3], strict=True):
             _check(name, float(value), getattr(self, name))
         self.orientation.check(pose)
@@ -143,12 +144,12 @@ class CylinderEnvelope:
             raise ValueError(f"inner_radius_mm={self.inner_radius_mm}, radius_mm={self.radius_mm}: "
                              "need 0 <= inner < radius")
 
-    def check(self, pose: np.ndarray) -> None:
+    def check(self, pose: NDArray[np.float64]) -> None:
         _check("radius_mm", math.hypot(pose[0], pose[1]), (self.inner_radius_mm, self.radius_mm))
         _check("z_mm", float(pose[2]), self.z_mm)
         self.orientation.check(pose)
 
-    def check_path(self, start: np.ndarray, end: np.ndarray) -> None:
+    def check_path(self, start: NDArray[np.float64], end: NDArray[np.float64]) -> None:
         """A straight move between two allowed poses may still cut through the inner (forbidden) core."""
         if self.inner_radius_mm <= 0:
             return
@@ -235,7 +236,8 @@ class DensoArm(Arm):
         self.fig: int = -1
         # RC7M: NEXT + @BUSY_STATUS is documented for RC8 only (bcap.md §12): blocking by default
         self.wait = wait or WaitSettings(wait_mode="blocking" if client.rc7m else "next")
-        self._pose_known: np.ndarray | None = None  # last pose read from CurPos (None after a failed move)
+        # last pose read from CurPos (None after a failed move)
+        self._pose_known: NDArray[np.float64] | None = None
         self.halts_sent = 0  # Robot_Halts accepted or unanswered, any thread (a move halted under way)
         if not (math.isfinite(make_safe_deadline_s) and make_safe_deadline_s > 0):
             raise ValueError(f"make_safe_deadline_s={make_safe_deadline_s}: must be > 0 s")
@@ -267,7 +269,7 @@ class DensoArm(Arm):
         self.close()
 
     # ------------------------------------------------------------------------------------- limits
-    def check_pose(self, pose: Sequence[float] | np.ndarray) -> np.ndarray:
+    def check_pose(self, pose: Sequence[float] | NDArray[np.float64]) -> NDArray[np.float64]:
         """Validate a target against the envelope; return it as an array (6,). Sends nothing."""
         target = check_pose(pose)
         self.envelope.check(target)
@@ -281,7 +283,7 @@ class DensoArm(Arm):
         self.speed_mm_s = self.check_speed(speed_mm_s)
 
     # ------------------------------------------------------------------------------------- motion
-    def move_to(self, pose: Sequence[float] | np.ndarray, speed_mm_s: float | None = None, *,
+    def move_to(self, pose: Sequence[float] | NDArray[np.float64], speed_mm_s: float | None = None, *,
                 linear: bool | None = None) -> MoveResult:
         """Move the flange to ``pose`` and verify the reported pose; returns when the arm is at rest.
 
@@ -292,12 +294,13 @@ class DensoArm(Arm):
         speed = self.check_speed(self.speed_mm_s if speed_mm_s is None else speed_mm_s)
         linear = self.linear if linear is None else linear
         polling = self.wait.wait_mode == "next"
-        annulus = isinstance(self.envelope, CylinderEnvelope) and self.envelope.inner_radius_mm > 0
+        annulus = (self.envelope if isinstance(self.envelope, CylinderEnvelope)
+                   and self.envelope.inner_radius_mm > 0 else None)
         start = self._pose_known  # the start of the move's time bound and of the path check
-        if start is None and (polling or (linear and annulus)):
+        if start is None and (polling or (linear and annulus is not None)):
             start = self.position()
-        if linear and annulus and start is not None:
-            self.envelope.check_path(start, target)  # never moves before the check
+        if linear and annulus is not None and start is not None:
+            annulus.check_path(start, target)  # never moves before the check
         percent = speed / self.full_speed_mm_s * 100.0
         halts_before = self.halts_sent
         t_start = self.clock.now_s()
@@ -335,7 +338,7 @@ class DensoArm(Arm):
                 f"{angle_error:.3f} deg (tolerance {self.orientation_tolerance_deg:g} deg)")
         return result
 
-    def position(self) -> np.ndarray:
+    def position(self) -> NDArray[np.float64]:
         """Current flange pose (6,) from ``CurPos``: x, y, z mm; rx, ry, rz deg."""
         values = self.client.cur_pos()
         if len(values) > 6:

@@ -15,7 +15,6 @@ from __future__ import annotations
 import struct
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
-from typing import Any
 
 from drivers.denso.hresult import E_TOO_MUCH_DATA, S_EXECUTING, BcapError, BcapProtocolError, to_signed
 from drivers.denso.variant import Variant, decode_variant, encode_variant, to_variant
@@ -87,7 +86,7 @@ class Packet:
         return self.code == S_EXECUTING and not self.args
 
 
-def encode_packet(serial: int, reserved: int, code: int, args: Iterable[Any] = (), *,
+def encode_packet(serial: int, reserved: int, code: int, args: Iterable[object] = (), *,
                   serial_line: bool = False, max_length: int | None = None) -> bytes:
     """Bytes of one packet. ``args`` are :class:`Variant` or plain values (mapped by ``to_variant``).
 

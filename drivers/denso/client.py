@@ -103,7 +103,7 @@ class BcapClient:
         self._robot_name = "Arm"
 
     # low level ------------------------------------------------------------------------------------
-    def call(self, function_id: int, args: Sequence[Any] = (), *, timeout_s: float | None = None,
+    def call(self, function_id: int, args: Sequence[object] = (), *, timeout_s: float | None = None,
              idempotent: bool = False, attempts: int | None = None) -> Variant:
         """One call; returns the first reply argument (EMPTY when there is none). ``idempotent``: a read
         or a halt, which the link may ask again after a timeout (:class:`BcapLink`)."""
@@ -170,7 +170,7 @@ class BcapClient:
                                     "Controller_GetRobot")
         return self.h_robot
 
-    def controller_execute(self, command: str, param: Any = None, *, idempotent: bool = False) -> Variant:
+    def controller_execute(self, command: str, param: object = None, *, idempotent: bool = False) -> Variant:
         return self.call(bcap.CONTROLLER_EXECUTE, [self._ctrl(), command, param], idempotent=idempotent)
 
     def clear_error(self) -> None:
@@ -187,7 +187,7 @@ class BcapClient:
         return str(self.controller_execute("GetErrorDescription", Variant(VT_I4, to_signed(code))).value)
 
     # robot ----------------------------------------------------------------------------------------
-    def robot_execute(self, command: str, param: Any = None, *, timeout_s: float | None = None,
+    def robot_execute(self, command: str, param: object = None, *, timeout_s: float | None = None,
                       idempotent: bool = False) -> Variant:
         return self.call(bcap.ROBOT_EXECUTE, [self._robot(), command, param], timeout_s=timeout_s,
                          idempotent=idempotent)
@@ -314,7 +314,7 @@ class BcapClient:
 
         A dead link (closed or unresponsive) stops the sequence early: further calls could only time out.
         """
-        steps = []
+        steps: list[tuple[str, Callable[[], object]]] = []
         if self.h_busy is not None:
             handle, self.h_busy = self.h_busy, None
             steps.append(("Variable_Release @BUSY_STATUS", lambda: self.variable_release(handle)))

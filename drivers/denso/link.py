@@ -20,7 +20,6 @@ from __future__ import annotations
 import logging
 import time
 from collections.abc import Callable, Sequence
-from typing import Any
 
 from drivers.denso.bcap import (
     SERIAL_MAX_PACKET,
@@ -134,7 +133,7 @@ class BcapLink:
     def last_serial(self) -> int:
         return self._serial
 
-    def call(self, function_id: int, args: Sequence[Any] = (), *, timeout_s: float | None = None,
+    def call(self, function_id: int, args: Sequence[object] = (), *, timeout_s: float | None = None,
              attempts: int | None = None, idempotent: bool = False) -> list[Variant]:
         """Send one request and return the reply's arguments; a failure HRESULT raises :class:`BcapError`.
         ``attempts`` (1..``retries``) caps the attempts of this call (the heartbeat probe makes one);

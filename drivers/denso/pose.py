@@ -6,11 +6,12 @@ import math
 from collections.abc import Sequence
 
 import numpy as np
+from numpy.typing import NDArray
 
 AXES = ("x_mm", "y_mm", "z_mm", "rx_deg", "ry_deg", "rz_deg")
 
 
-def check_pose(pose: Sequence[float] | np.ndarray) -> np.ndarray:
+def check_pose(pose: Sequence[float] | NDArray[np.float64]) -> NDArray[np.float64]:
     """The pose as a float array (6,); raise ValueError naming the bad value."""
     values = np.asarray(pose, dtype=float).ravel()
     if values.shape != (6,):
@@ -21,18 +22,19 @@ def check_pose(pose: Sequence[float] | np.ndarray) -> np.ndarray:
     return values
 
 
-def rotation_matrix(rx_deg: float, ry_deg: float, rz_deg: float) -> np.ndarray:
+def rotation_matrix(rx_deg: float, ry_deg: float, rz_deg: float) -> NDArray[np.float64]:
     """Rotation (tool → base) of Denso angles: R = Rz(rz)·Ry(ry)·Rx(rx)."""
     ax, ay, az = (math.radians(v) for v in (rx_deg, ry_deg, rz_deg))
     cx, sx, cy, sy = math.cos(ax), math.sin(ax), math.cos(ay), math.sin(ay)
     cz, sz = math.cos(az), math.sin(az)
-    rx = np.array([[1, 0, 0], [0, cx, -sx], [0, sx, cx]])
-    ry = np.array([[cy, 0, sy], [0, 1, 0], [-sy, 0, cy]])
-    rz = np.array([[cz, -sz, 0], [sz, cz, 0], [0, 0, 1]])
+    rx = np.array([[1, 0, 0], [0, cx, -sx], [0, sx, cx]], dtype=np.float64)
+    ry = np.array([[cy, 0, sy], [0, 1, 0], [-sy, 0, cy]], dtype=np.float64)
+    rz = np.array([[cz, -sz, 0], [sz, cz, 0], [0, 0, 1]], dtype=np.float64)
     return rz @ ry @ rx
 
 
-def orientation_error_deg(a: Sequence[float], b: Sequence[float]) -> float:
+def orientation_error_deg(a: Sequence[float] | NDArray[np.float64],
+                          b: Sequence[float] | NDArray[np.float64]) -> float:
     """Angle (deg, 0..180) of the rotation between the orientations of poses ``a`` and ``b``.
 
     Euler angles are not unique (rx=180 and rx=-180 are the same); this compares the rotations.

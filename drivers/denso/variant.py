@@ -74,7 +74,7 @@ class Variant:
 EMPTY = Variant(VT_EMPTY)
 
 
-def _check_int(vt: int, value: Any) -> int:
+def _check_int(vt: int, value: object) -> int:
     if isinstance(value, bool) or not isinstance(value, int):
         raise ValueError(f"VARIANT vt={vt}: value {value!r} must be an int")
     low, high = _INT_RANGES[vt]
@@ -83,7 +83,7 @@ def _check_int(vt: int, value: Any) -> int:
     return value
 
 
-def _pack_scalar(vt: int, value: Any) -> bytes:
+def _pack_scalar(vt: int, value: object) -> bytes:
     """Data bytes of one scalar (without vt/count)."""
     if vt in (VT_EMPTY, VT_NULL):
         return b""
@@ -109,7 +109,7 @@ def _pack_scalar(vt: int, value: Any) -> bytes:
     return struct.pack(_FIXED[vt], _check_int(vt, value))
 
 
-def encode_variant(value: Any) -> bytes:
+def encode_variant(value: object) -> bytes:
     """VARIANT bytes (vt, count, data) of a :class:`Variant` or a plain Python value."""
     var = value if isinstance(value, Variant) else to_variant(value)
     vt = var.vt
@@ -126,7 +126,7 @@ def encode_variant(value: Any) -> bytes:
     return struct.pack("<HI", vt, len(items)) + body
 
 
-def to_variant(value: Any) -> Variant:
+def to_variant(value: object) -> Variant:
     """The reference client's mapping of a plain Python value to a typed VARIANT."""
     if isinstance(value, Variant):
         return value

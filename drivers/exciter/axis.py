@@ -15,19 +15,32 @@ from __future__ import annotations
 import contextlib
 import math
 from collections.abc import Callable
-from typing import Any
+from typing import Any, TypedDict
 
+from drivers.clock import Clock
 from drivers.exciter.limits import MotionLimits
 from drivers.exciter.sweep import FrequencySample, SweepProfile, SweepResult, run_sweep
 from drivers.exciter.vfd import VfdDriver, VfdError
 from drivers.heartbeat import Heartbeat
 from drivers.roles import VibrationSource
 
-__all__ = ["VfdAxis", "VfdTimeoutError"]
+__all__ = ["AxisOptions", "VfdAxis", "VfdTimeoutError"]
 
 
 class VfdTimeoutError(VfdError):
     """The drive did not reach the commanded frequency (or standstill) in the expected time."""
+
+
+class AxisOptions(TypedDict, total=False):
+    """The optional keywords of :class:`VfdAxis` that the exciter and the rotor pass through."""
+
+    direction: str
+    tolerance_hz: float
+    poll_interval_s: float
+    settle_margin_s: float
+    fixed_drive_ramp_rate_hz_per_s: float | None
+    reset_faults: bool
+    heartbeat_timeout_s: float
 
 
 class VfdAxis(VibrationSource):
@@ -48,7 +61,7 @@ class VfdAxis(VibrationSource):
 
     kind = "axis"
 
-    def __init__(self, vfd: VfdDriver, *, clock: Any, limits: MotionLimits, gear_ratio: float = 1.0,
+    def __init__(self, vfd: VfdDriver, *, clock: Clock, limits: MotionLimits, gear_ratio: float = 1.0,
                  amplitude_mm: float, ramp_rate_hz_per_s: float, direction: str = "forward",
                  tolerance_hz: float = 0.02, poll_interval_s: float = 0.05, settle_margin_s: float = 2.0,
                  fixed_drive_ramp_rate_hz_per_s: float | None = None, reset_faults: bool = False,

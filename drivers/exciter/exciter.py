@@ -8,9 +8,10 @@ and equal to the crank radius (from the rig configuration), so the peak accelera
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Unpack
 
-from drivers.exciter.axis import VfdAxis
+from drivers.clock import Clock
+from drivers.exciter.axis import AxisOptions, VfdAxis
 from drivers.exciter.limits import MotionLimits
 from drivers.exciter.vfd import VfdDriver
 
@@ -27,8 +28,9 @@ class Exciter(VfdAxis):
 
     kind = "exciter"
 
-    def __init__(self, vfd: VfdDriver, *, clock: Any, limits: MotionLimits, crank_radius_mm: float,
-                 gear_ratio: float = 1.0, ramp_rate_hz_per_s: float = 1.0, **kwargs: Any) -> None:
+    def __init__(self, vfd: VfdDriver, *, clock: Clock, limits: MotionLimits, crank_radius_mm: float,
+                 gear_ratio: float = 1.0, ramp_rate_hz_per_s: float = 1.0,
+                 **kwargs: Unpack[AxisOptions]) -> None:
         if not crank_radius_mm > 0:
             raise ValueError(f"crank_radius_mm={crank_radius_mm!r}: must be > 0 mm")
         super().__init__(vfd, clock=clock, limits=limits, gear_ratio=gear_ratio, amplitude_mm=crank_radius_mm,

@@ -202,8 +202,9 @@ def register_map_from_dict(table: dict[str, Any], base: RegisterMap = DELTA_MAP)
     unknown = sorted(set(table) - allowed)
     if unknown:
         raise ValueError(f"unknown register map keys {unknown}; allowed: {sorted(allowed)}")
-    values = {k: (None if isinstance(v, str) and v.lower() == "none" and k != "model" else v)
-              for k, v in table.items()}
+    # TOML values, any type: RegisterMap.__post_init__ checks each field
+    values: dict[str, Any] = {k: (None if isinstance(v, str) and v.lower() == "none" and k != "model" else v)
+                              for k, v in table.items()}
     return dataclasses.replace(base, **values)
 
 

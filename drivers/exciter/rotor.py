@@ -6,10 +6,12 @@ with the marker radius as the displacement: centripetal acceleration (2πf)²·r
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Unpack
 
-from drivers.exciter.axis import VfdAxis
+from drivers.clock import Clock
+from drivers.exciter.axis import AxisOptions, VfdAxis
 from drivers.exciter.limits import MotionLimits
+from drivers.exciter.sweep import FrequencySample
 from drivers.exciter.vfd import VfdDriver
 
 __all__ = ["Rotor"]
@@ -25,8 +27,9 @@ class Rotor(VfdAxis):
 
     kind = "rotor"
 
-    def __init__(self, vfd: VfdDriver, *, clock: Any, limits: MotionLimits, marker_radius_mm: float,
-                 gear_ratio: float = 1.0, ramp_rate_hz_per_s: float = 2.0, **kwargs: Any) -> None:
+    def __init__(self, vfd: VfdDriver, *, clock: Clock, limits: MotionLimits, marker_radius_mm: float,
+                 gear_ratio: float = 1.0, ramp_rate_hz_per_s: float = 2.0,
+                 **kwargs: Unpack[AxisOptions]) -> None:
         super().__init__(vfd, clock=clock, limits=limits, gear_ratio=gear_ratio,
                          amplitude_mm=marker_radius_mm, ramp_rate_hz_per_s=ramp_rate_hz_per_s, **kwargs)
 
@@ -38,6 +41,6 @@ class Rotor(VfdAxis):
         """Actual rotation rate (revolutions per second) from the drive's output frequency."""
         return self.frequency_hz()
 
-    def set_rotation_hz(self, rotation_hz: float, *, wait: bool = True) -> Any:
+    def set_rotation_hz(self, rotation_hz: float, *, wait: bool = True) -> FrequencySample | None:
         """Spin at ``rotation_hz`` revolutions per second (limits checked first)."""
         return self.set_frequency(rotation_hz, wait=wait)

@@ -22,14 +22,17 @@ import itertools
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass
-from typing import Any
+from typing import Any, TypeVar
 
-from drivers.exciter.generator import GeneratorError, SafeOffOutcome, ScpiGenerator
+from drivers.clock import Clock
+from drivers.exciter.generator import GeneratorError, SafeOffOutcome, ScpiGenerator, SweepSettings
 from drivers.exciter.limits import LimitError, MotionLimits
 from drivers.heartbeat import Heartbeat
 from drivers.roles import Generator
 
 __all__ = ["GeneratorSample", "SensitivityTable", "Shaker", "ShakerLimits", "ShakerSweep"]
+
+_R = TypeVar("_R")
 
 
 class SensitivityTable:
@@ -37,7 +40,7 @@ class SensitivityTable:
     strictly increasing frequencies and positive sensitivities; linear between points."""
 
     def __init__(self, points: Sequence[Sequence[float]]) -> None:
-        pts = []
+        pts: list[tuple[float, float]] = []
         for i, p in enumerate(points):
             if len(p) != 2:
                 raise ValueError(f"sensitivity[{i}]={p!r}: must be a (f_hz, mm_per_v) pair")
@@ -114,9 +117,10 @@ class GeneratorSample:
     output_on: bool
     sweep_on: bool
     displacement_mm: float
-    sweep: dict[str, Any] | None = None
+    sweep: SweepSettings | None = None
 
     def as_event(self) -> dict[str, Any]:
+        """The ``generator`` event payload (``sweep`` as a table; None fields left out)."""
         return {k: v for k, v in asdict(self).items() if v is not None}
 
 
@@ -182,7 +186,7 @@ class Shaker(Generator):
     links) to confirm the output OFF.
     """
 
-    def __init__(self, generator: ScpiGenerator, *, clock: Any, limits: MotionLimits,
+    def __init__(self, generator: ScpiGenerator, *, clock: Clock, limits: MotionLimits,
                  sensitivity: SensitivityTable, max_amplitude_vpp: float = 10.0,
                  min_amplitude_vpp: float = 0.01,
                  amplitude_step_vpp: float = 0.5, step_interval_s: float = 0.1,
@@ -231,9 +235,10 @@ class Shaker(Generator):
         self.checks.check_sweep(start_hz, stop_hz, duration_s, spacing, amplitude_vpp)
 
     # operations ---------------------------------------------------------------------------------------------
-    def _guarded(self, fn: Any, *args: Any) -> Any:
+    def _guarded(self, fn: Callable[[], _R]) -> _R:
+        """``fn()``; a generator failure aborts the output first and says so in the error."""
         try:
-            return fn(*args)
+            return fn()
         except GeneratorError as exc:
             note = self._abort_note()
             exc.args = (f"{exc.args[0]}; {note}",)
@@ -311,9 +316,9 @@ class Shaker(Generator):
         t_before = self.clock.now_s()
         output_on, frequency_hz, vpp = g.output(), g.frequency_hz(), g.amplitude_vpp()
         sweep_on = g.sweep_enabled()
-        sweep = asdict(g.sweep_settings()) if sweep_on else None
+        sweep = g.sweep_settings() if sweep_on else None
         t_after = self.clock.now_s()
-        f_ref = sweep["start_hz"] if sweep is not None else frequency_hz  # what the volts were set for
+        f_ref = sweep.start_hz if sweep is not None else frequency_hz  # what the volts were set for
         inside = self.sensitivity.f_min_hz <= f_ref <= self.sensitivity.f_max_hz
         disp = self.displacement_mm(f_ref, vpp) if output_on and inside else (
             0.0 if not output_on else math.nan)

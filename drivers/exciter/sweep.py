@@ -23,7 +23,12 @@ import itertools
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from typing import Any, Protocol
+from typing import TYPE_CHECKING, Any, Protocol
+
+from drivers.clock import Clock
+
+if TYPE_CHECKING:
+    import pandas as pd
 
 __all__ = ["FrequencyActuator", "FrequencySample", "LinearSweep", "LogSweep", "PointsSweep",
            "SweepProfile", "SweepResult", "run_sweep"]
@@ -119,7 +124,7 @@ class LogSweep(SweepProfile):
 
     def frequency_hz(self, t_s: float) -> float:
         u = min(max(t_s / self.duration_s, 0.0), 1.0)
-        return self.start_hz * (self.stop_hz / self.start_hz) ** u
+        return self.start_hz * math.pow(self.stop_hz / self.start_hz, u)
 
     def max_slope_hz_per_s(self) -> float:
         k = abs(math.log(self.stop_hz / self.start_hz)) / self.duration_s
@@ -204,7 +209,8 @@ class SweepResult:
     profile: list[tuple[float, float]]
     samples: list[FrequencySample]
 
-    def to_dataframe(self) -> Any:
+    def to_dataframe(self) -> pd.DataFrame:
+        """The polled samples, one row each (t_s, frequency_hz, setpoint_hz, status)."""
         import pandas as pd
 
         return pd.DataFrame([vars(s) for s in self.samples],
@@ -218,7 +224,7 @@ class FrequencyActuator(Protocol):
     fixed rate (then only setpoints are written and the profile must not be steeper than it).
     """
 
-    clock: Any
+    clock: Clock
 
     def fixed_ramp_rate_hz_per_s(self) -> float | None: ...        # None: the ramp rate can be written
     def write_ramp_rate_hz_per_s(self, rate_hz_per_s: float) -> None: ...

@@ -20,7 +20,10 @@ import signal
 import socket
 import threading
 from collections.abc import Callable
-from typing import Any
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from drivers.sim.world import World
 
 log = logging.getLogger("drivers.mock")
 
@@ -88,7 +91,7 @@ def standalone_parser(module: str, description: str, *, default_port: int,
 
 
 def start_standalone(parser: argparse.ArgumentParser,
-                     argv: list[str] | None) -> tuple[argparse.Namespace, Any]:
+                     argv: list[str] | None) -> tuple[argparse.Namespace, World]:
     """Parse ``argv``, log INFO to stderr, and build the server's own simulated world (seed 0) on a virtual
     clock paced at ``--rate``; return (options, world)."""
     from drivers.sim.clock import VirtualClock

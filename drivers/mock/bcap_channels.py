@@ -110,7 +110,7 @@ class UdpChannel(Channel):
     def __init__(self, host: str, port: int) -> None:
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         self.sock.bind((host, port))
-        self.port = self.sock.getsockname()[1]
+        self.port: int = self.sock.getsockname()[1]
         self.name = f"udp:{host}:{self.port}"
         self.peer: tuple[str, int] | None = None
 

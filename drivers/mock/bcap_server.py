@@ -48,8 +48,8 @@ import time
 from collections import OrderedDict
 from dataclasses import dataclass
 from types import TracebackType
-from typing import Any
 
+from drivers.clock import Clock
 from drivers.mock import bcap_wire as w
 from drivers.mock._serve import (
     accept_loop,
@@ -61,6 +61,7 @@ from drivers.mock._serve import (
 )
 from drivers.mock.bcap_channels import Channel, PtyChannel, TcpChannel, UdpChannel
 from drivers.mock.bcap_state import ControllerState, History, RobotBodyLike
+from drivers.sim.clock import VirtualClock
 
 log = logging.getLogger(__name__)
 CACHE_SIZE = 32
@@ -109,7 +110,7 @@ FAULT_KINDS = {  # --fault KIND[:PARAM] → (Faults fields set, default PARAM, h
 }
 
 
-def parse_fault(text: str) -> tuple[str, Any]:
+def parse_fault(text: str) -> tuple[str, int | float]:
     """``KIND[:PARAM]`` → (Faults field, value); argparse-style ``ValueError`` naming the allowed kinds."""
     kind, _, param = text.partition(":")
     if kind not in FAULT_KINDS:
@@ -118,7 +119,7 @@ def parse_fault(text: str) -> tuple[str, Any]:
     if not param:
         return name, default
     try:
-        value: Any = float(param) if isinstance(default, float) else int(param, 0)
+        value: int | float = float(param) if isinstance(default, float) else int(param, 0)
     except ValueError:
         raise ValueError(f"fault {kind}:{param}: PARAM must be a {type(default).__name__}") from None
     if value < 0 and kind != "move-error":
@@ -126,7 +127,7 @@ def parse_fault(text: str) -> tuple[str, Any]:
     return name, value
 
 
-def _fault_arg(text: str) -> tuple[str, Any]:
+def _fault_arg(text: str) -> tuple[str, int | float]:
     try:
         return parse_fault(text)
     except ValueError as exc:
@@ -247,8 +248,8 @@ class _Session:
             self._drop_connection()
             return
         if outcome.motion_end_s is not None and not w.failed(outcome.hresult):
-            if self.server.instant:
-                self.server.clock.advance_to(outcome.motion_end_s)
+            if self.server.instant_clock is not None:
+                self.server.instant_clock.advance_to(outcome.motion_end_s)
             elif not self._wait_for_rest(packet):
                 return
         if function == SERVICE_STOP:  # the client is done (all a serial line can say): controller free,
@@ -348,7 +349,7 @@ class BcapMockServer:
 
     Args:
         robot: the simulated robot body (``world.robot``).
-        clock: the rig clock (``world.clock``); instant mode if it has ``is_instant`` true.
+        clock: the rig clock (``world.clock``); an instant :class:`VirtualClock` is advanced to a Move's end.
         full_speed_mm_s, full_accel_mm_s2: what 100 % speed / acceleration mean on this controller.
         faults: fault switches (shared, may be changed while serving).
         client_watchdog: a client that set a WDT in Service_Start and then sends nothing for
@@ -357,7 +358,7 @@ class BcapMockServer:
             connection). On in the stand-alone mock; off by default (in-process mocks die with the client).
     """
 
-    def __init__(self, robot: RobotBodyLike, clock: Any, *, full_speed_mm_s: float = 1000.0,
+    def __init__(self, robot: RobotBodyLike, clock: Clock, *, full_speed_mm_s: float = 1000.0,
                  full_accel_mm_s2: float = 5000.0, faults: Faults | None = None,
                  client_watchdog: bool = False) -> None:
         self.clock = clock
@@ -366,24 +367,26 @@ class BcapMockServer:
         self.faults = faults or Faults()
         self.client_watchdog = client_watchdog
         self.lock = threading.RLock()
-        self.instant = bool(getattr(clock, "is_instant", False))
+        # an instant virtual clock is advanced to a blocking move's end; any other clock is waited on
+        self.instant_clock = clock if isinstance(clock, VirtualClock) and clock.is_instant else None
         self._sessions: list[_Session] = []
         self._active: _Session | None = None
         self._listener: socket.socket | None = None
         self._closing = threading.Event()
         self.port: int | None = None
         # (serial, reserved, function ID) as received, the newest MAX_REQUESTS_KEPT
-        self.requests: History = History(MAX_REQUESTS_KEPT)
+        self.requests: History[tuple[int, int, int]] = History(MAX_REQUESTS_KEPT)
 
     def serve_tcp(self, host: str = "127.0.0.1", port: int = 0) -> int:
         """Listen on ``host:port`` (a loopback address; port 0 = ephemeral); return the bound port."""
         host = require_loopback(host)
         self._listener = socket.create_server((host, port))
-        self.port = self._listener.getsockname()[1]
+        bound_port: int = self._listener.getsockname()[1]
+        self.port = bound_port
         threading.Thread(target=accept_loop, args=(self._listener, self._closing, self._on_connection),
                          kwargs={"poll_s": 0.1}, name="bcap-accept", daemon=True).start()
-        log.info("b-CAP mock listening on tcp://%s:%d", host, self.port)
-        return self.port
+        log.info("b-CAP mock listening on tcp://%s:%d", host, bound_port)
+        return bound_port
 
     def serve_udp(self, host: str = "127.0.0.1", port: int = 0) -> int:
         """Serve b-CAP over UDP (503-byte packets, retry cache) on loopback ``host``; return the port."""

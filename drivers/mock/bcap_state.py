@@ -15,10 +15,12 @@ from __future__ import annotations
 import logging
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
-from typing import Any, Protocol
+from typing import Protocol, TypedDict, TypeVar
 
 import numpy as np
+from numpy.typing import NDArray
 
+from drivers.clock import Clock
 from drivers.mock import bcap_wire as w
 from drivers.mock import vp6242
 from drivers.mock.bcap_args import (
@@ -47,15 +49,28 @@ MAX_ERRORS = 100              # our choice: the controller keeps the newest erro
 MAX_MOVES = 10_000            # our choice: the accepted-move log for tests and the CLI
 
 
-class History(list):  # type: ignore[type-arg]
+_T = TypeVar("_T")
+
+
+class AcceptedMove(TypedDict):
+    """One Move the controller accepted (times on the twin's clock)."""
+
+    t_start_s: float
+    t_end_s: float
+    pose: list[float]  # x, y, z mm; rx, ry, rz deg
+    speed_mm_s: float
+    linear: bool
+
+
+class History(list[_T]):
     """A list that keeps only its newest ``limit`` items (``dropped`` counts the others)."""
 
-    def __init__(self, limit: int, items: Iterable[Any] = ()) -> None:
+    def __init__(self, limit: int, items: Iterable[_T] = ()) -> None:
         super().__init__(items)
         self.limit = limit
         self.dropped = 0
 
-    def append(self, item: Any) -> None:
+    def append(self, item: _T) -> None:
         super().append(item)
         if len(self) > self.limit:
             excess = len(self) - self.limit
@@ -64,15 +79,11 @@ class History(list):  # type: ignore[type-arg]
 
 
 class RobotBodyLike(Protocol):
-    def pose_at(self, t_s: float) -> np.ndarray: ...
-    def move(self, t_start_s: float, target_pose: Any, speed_mm_s: float, accel_mm_s2: float,
+    def pose_at(self, t_s: float) -> NDArray[np.float64]: ...
+    def move(self, t_start_s: float, target_pose: NDArray[np.float64], speed_mm_s: float, accel_mm_s2: float,
              linear: bool = True) -> float: ...
     def halt(self, t_s: float) -> None: ...
     def is_moving(self, t_s: float) -> bool: ...
-
-
-class ClockLike(Protocol):
-    def now_s(self) -> float: ...
 
 
 @dataclass
@@ -90,7 +101,7 @@ class ControllerState:
     ``full_speed_mm_s`` / ``full_accel_mm_s2`` are what 100 % speed / acceleration mean on this controller.
     """
 
-    def __init__(self, robot: RobotBodyLike, clock: ClockLike, *, full_speed_mm_s: float = 1000.0,
+    def __init__(self, robot: RobotBodyLike, clock: Clock, *, full_speed_mm_s: float = 1000.0,
                  full_accel_mm_s2: float = 5000.0) -> None:
         self.robot = robot
         self.clock = clock
@@ -107,14 +118,20 @@ class ControllerState:
         self.ext_speed_percent = 100.0
         self.ext_accel_percent = 100.0
         self.fig = 5
-        self.errors: History = History(MAX_ERRORS)  # (code, message), oldest first
+        self.errors: History[tuple[int, str]] = History(MAX_ERRORS)  # (code, message), oldest first
         self.move_error: int | None = None  # fault injection: HRESULT returned by every Move
-        self.moves: History = History(MAX_MOVES)  # accepted moves (for tests and the CLI)
+        self.moves: History[AcceptedMove] = History(MAX_MOVES)  # for tests and the CLI
+        # b-CAP function ID → its handler; any other ID is answered E_NOTIMPL
+        self._handlers: dict[int, Callable[[list[w.Value]], Outcome]] = {
+            1: self._f1, 2: self._f2, 3: self._f3, 4: self._f4, 7: self._f7, 8: self._f8, 9: self._f9,
+            13: self._f13, 17: self._f17, 62: self._f62, 64: self._f64, 70: self._f70, 72: self._f72,
+            74: self._f74, 76: self._f76, 84: self._f84, 88: self._f88, 99: self._f99, 101: self._f101,
+            102: self._f102, 111: self._f111,
+        }
 
     # ------------------------------------------------------------------------------------- dispatch
     def execute(self, function_id: int, args: list[w.Value]) -> Outcome:
-        handler: Callable[[list[w.Value]], Outcome] | None = getattr(
-            self, f"_f{function_id}", None)
+        handler = self._handlers.get(function_id)
         try:
             if handler is None:
                 raise CallFailed(w.E_NOTIMPL, f"function {function_id} is not implemented by the mock")

@@ -97,7 +97,7 @@ class Packet:
 
 
 # ------------------------------------------------------------------------------------------ VARIANT
-def _element(vt: int, value: Any) -> bytes:
+def _element(vt: int, value: object) -> bytes:
     if vt == BSTR:
         raw = str(value).encode("utf-16-le", "surrogatepass")
         return struct.pack("<I", len(raw)) + raw

@@ -35,13 +35,20 @@ import re
 import threading
 from collections import deque
 from collections.abc import Callable
-from typing import Any, Literal
+from typing import TYPE_CHECKING, Literal
 
 import numpy as np
 
 from drivers.mock.scpi_parser import Pattern, ScpiCommandError, Unit, split_units
 from drivers.mock.scpi_status import ERROR_QUEUE_DEPTH, StatusModel
 from drivers.sim.fiducial import SyncLed
+
+if TYPE_CHECKING:
+    from drivers.clock import Clock
+    from drivers.sim.oscillator import OscillatorBody
+
+_Command = tuple[Pattern, Callable[[Unit], None] | None, Callable[[], str] | None]
+"""(pattern, setter(unit), query() -> reply) of one SCPI command."""
 
 __all__ = ["ERROR_QUEUE_DEPTH", "LINES_KEPT", "GeneratorInstrument"]
 
@@ -74,7 +81,7 @@ class GeneratorInstrument:
     the newest :data:`LINES_KEPT`.
     """
 
-    def __init__(self, body: Any, clock: Any, *,
+    def __init__(self, body: OscillatorBody, clock: Clock, *,
                  sensitivity_mm_per_v: list[tuple[float, float]] | None = None,
                  identity: str = IDN, sync_led: SyncLed | None = None) -> None:
         self.body = body
@@ -162,7 +169,7 @@ class GeneratorInstrument:
         f_ref = self.sweep_start_hz if self.sweep_on else self.frequency_hz
         self.body.set_amplitude(t, self.sensitivity(f_ref) * self.real_vpeak() if active else 0.0)
         if self.sweep_on and active:
-            spacing = "log" if self.sweep_spacing == "LOG" else "linear"
+            spacing: Literal["linear", "log"] = "log" if self.sweep_spacing == "LOG" else "linear"
             self.body.sweep(t, self.sweep_start_hz, self.sweep_stop_hz, self.sweep_time_s, spacing,
                             repeat=True)
         else:
@@ -253,7 +260,7 @@ class GeneratorInstrument:
         raise ScpiCommandError(-224, "Illegal parameter value")
 
     # commands -------------------------------------------------------------------------------------------
-    def _set(self, name: str, value: Any) -> None:
+    def _set(self, name: str, value: float | str) -> None:
         setattr(self, name, value)
         self._update_body()
 
@@ -295,7 +302,7 @@ class GeneratorInstrument:
             raise ScpiCommandError(-221, "Settings conflict")
         self._set("sweep_spacing", value)
 
-    def _status_commands(self) -> list[tuple[Pattern, Any, Any]]:
+    def _status_commands(self) -> list[_Command]:
         """IEEE 488.2 common commands and the SCPI-99 SYSTem items."""
         s = self.status
 
@@ -332,7 +339,7 @@ class GeneratorInstrument:
             (Pattern("SYSTem:LOCal"), lambda u: None, None),
         ]
 
-    def _command_table(self) -> list[tuple[Pattern, Any, Any]]:
+    def _command_table(self) -> list[_Command]:
         """(pattern, setter(unit), query() -> str)."""
         def freq(attr: str, default: float) -> tuple[Callable[[Unit], None], Callable[[], str]]:
             def setter(u: Unit) -> None:

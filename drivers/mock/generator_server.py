@@ -49,7 +49,6 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from types import TracebackType
-from typing import Any
 
 from drivers.mock._serve import (
     accept_loop,
@@ -268,7 +267,7 @@ class GeneratorServer:
             self._spawn(self._pty_loop)
         return self
 
-    def _spawn(self, target: Any, *args: Any) -> None:
+    def _spawn(self, target: Callable[..., object], *args: object) -> None:
         thread = threading.Thread(target=target, args=args, daemon=True, name=f"scpi-mock {target.__name__}")
         thread.start()
         self._threads.append(thread)

@@ -31,10 +31,14 @@ from __future__ import annotations
 import logging
 import math
 import threading
-from typing import Any
+from typing import TYPE_CHECKING
 
 from drivers.exciter.register_map import DELTA_MAP, RegisterMap
 from drivers.modbus import ExceptionCode
+
+if TYPE_CHECKING:
+    from drivers.clock import Clock
+    from drivers.sim.oscillator import OscillatorBody
 
 __all__ = ["FAULT_OVERLOAD", "FAULT_OVERSPEED", "FAULT_WATCHDOG", "DriveModel"]
 
@@ -56,7 +60,7 @@ class DriveModel:
     current that trips overload (None: off).
     """
 
-    def __init__(self, body: Any, clock: Any, *, register_map: RegisterMap = DELTA_MAP,
+    def __init__(self, body: OscillatorBody, clock: Clock, *, register_map: RegisterMap = DELTA_MAP,
                  gear_ratio: float = 1.0, max_output_hz: float = 50.0, accel_time_s: float = 10.0,
                  decel_time_s: float = 10.0, watchdog_s: float | None = None,
                  overspeed_hz: float | None = None, no_load_current_a: float = 0.8,

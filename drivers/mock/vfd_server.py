@@ -34,6 +34,7 @@ import logging
 import select
 import socket
 import threading
+from collections.abc import Callable
 from types import TracebackType
 
 import serial
@@ -163,8 +164,8 @@ class VfdServer:
         self._spawn(self._housekeeping, "vfd-mock housekeeping")
         return self
 
-    def _spawn(self, target: object, name: str) -> threading.Thread:
-        thread = threading.Thread(target=target, name=name, daemon=True)  # type: ignore[arg-type]
+    def _spawn(self, target: Callable[[], object], name: str) -> threading.Thread:
+        thread = threading.Thread(target=target, name=name, daemon=True)
         self._threads.append(thread)
         thread.start()
         return thread
@@ -402,9 +403,11 @@ class VfdServer:
         if reply is None:
             return
         self._delay(due)
+        port = self._serial
+        assert port is not None  # RTU requests come only from the serial line (_serve_rtu)
         for data in self._outgoing(rtu_adu(unit, reply), due):
             with self._write_lock:
-                self._serial.write(data)  # type: ignore[union-attr]
+                port.write(data)
             self.replies_sent += 1
 
 
@@ -443,7 +446,8 @@ def main(argv: list[str] | None = None, prog: str | None = None) -> int:
         regs = replace(DELTA_MAP, unit_id=DEFAULT_UNITS[args.body] if args.unit is None else args.unit)
     except ValueError as exc:
         parser.error(str(exc))
-    drive = DriveModel(getattr(world, args.body), world.clock, register_map=regs, gear_ratio=args.gear_ratio,
+    body = {"exciter": world.exciter, "rotor": world.rotor}[args.body]  # the --body choices
+    drive = DriveModel(body, world.clock, register_map=regs, gear_ratio=args.gear_ratio,
                        max_output_hz=args.max_output_hz, watchdog_s=args.watchdog_s)
     mode = "rtu" if (args.rtu or args.serial) else "tcp"
     with VfdServer(drive, mode=mode, port=args.port, serial_port=args.serial, baudrate=args.baud,

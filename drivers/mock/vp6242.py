@@ -22,6 +22,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+from numpy.typing import NDArray
 
 from drivers.denso.pose import rotation_matrix
 
@@ -48,7 +49,7 @@ class Reach:
     violation: str | None
 
 
-def solve(pose: np.ndarray | list[float]) -> Reach:
+def solve(pose: NDArray[np.float64] | list[float]) -> Reach:
     """Approximate J1, J2, J3, J5 for a P pose (x, y, z mm; rx, ry, rz deg) and check the limits."""
     x, y, z, rx, ry, rz = (float(v) for v in pose[:6])
     approach = rotation_matrix(rx, ry, rz)[:, 2]

@@ -22,6 +22,7 @@ import threading
 from dataclasses import dataclass
 
 import numpy as np
+from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
 from drivers.sim.errors import SimCommandError, _finite
@@ -30,9 +31,11 @@ from drivers.sim.oscillator import OscillatorBody  # re-exported: the bodies of 
 __all__ = ["OscillatorBody", "RobotBody", "SimCommandError", "euler_deg_to_matrix", "trapezoid_duration_s"]
 
 
-def euler_deg_to_matrix(rxyz_deg: np.ndarray) -> np.ndarray:
+def euler_deg_to_matrix(rxyz_deg: NDArray[np.float64]) -> NDArray[np.float64]:
     """Rotation matrix (…, 3, 3) of Denso angles rx, ry, rz in degrees: R = Rz·Ry·Rx (fixed axes)."""
-    return Rotation.from_euler("xyz", np.asarray(rxyz_deg, float), degrees=True).as_matrix()
+    rotation = Rotation.from_euler("xyz", np.asarray(rxyz_deg, float), degrees=True)
+    matrix: NDArray[np.float64] = rotation.as_matrix()
+    return matrix
 
 
 def trapezoid_duration_s(distance: float, speed: float, accel: float) -> tuple[float, float, float]:
@@ -45,7 +48,7 @@ def trapezoid_duration_s(distance: float, speed: float, accel: float) -> tuple[f
     return v_peak / accel, 0.0, v_peak
 
 
-def _rodrigues(rotvec: np.ndarray) -> np.ndarray:
+def _rodrigues(rotvec: NDArray[np.float64]) -> NDArray[np.float64]:
     """Rotation matrices (N, 3, 3) of rotation vectors (N, 3) (radians)."""
     theta = np.linalg.norm(rotvec, axis=1)
     safe = np.where(theta > 1e-12, theta, 1.0)
@@ -54,7 +57,8 @@ def _rodrigues(rotvec: np.ndarray) -> np.ndarray:
     kx[:, 0, 1], kx[:, 0, 2], kx[:, 1, 2] = -k[:, 2], k[:, 1], -k[:, 0]
     kx[:, 1, 0], kx[:, 2, 0], kx[:, 2, 1] = k[:, 2], -k[:, 1], k[:, 0]
     s, c = np.sin(theta)[:, None, None], (1.0 - np.cos(theta))[:, None, None]
-    return np.eye(3) + s * kx + c * (kx @ kx)
+    matrices: NDArray[np.float64] = np.eye(3) + s * kx + c * (kx @ kx)
+    return matrices
 
 
 @dataclass(frozen=True)
@@ -63,18 +67,18 @@ class _Move:
 
     t_start_s: float
     t_end_s: float
-    p0_mm: np.ndarray
-    dp_mm: np.ndarray
+    p0_mm: NDArray[np.float64]
+    dp_mm: NDArray[np.float64]
     r0: Rotation
-    rotvec: np.ndarray  # rotation from start to target orientation, base frame, as r0⁻¹·r1 rotation vector
+    rotvec: NDArray[np.float64]  # rotation from start to target orientation, base frame, as r0⁻¹·r1 rotvec
     phases: tuple[tuple[float, float, float, float], ...]  # (t0, s0, v0 per s, a per s²)
     s_end: float
     decel_norm: float  # per s² (for halt)
-    rest_pose: np.ndarray  # (6,) pose at rest after the move
+    rest_pose: NDArray[np.float64]  # (6,) pose at rest after the move
     linear: bool
-    rest_rot: np.ndarray  # (3, 3) rotation at rest after the move
+    rest_rot: NDArray[np.float64]  # (3, 3) rotation at rest after the move
 
-    def s_at(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def s_at(self, t: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """Path parameter s and its rate ds/dt at times t (clamped to the move's interval)."""
         tc = np.clip(t, self.t_start_s, self.t_end_s)
         table = np.array(self.phases)
@@ -96,19 +100,20 @@ class RobotBody:
     (end pose and duration are right; the path between differs on a real arm).
     """
 
-    def __init__(self, home_pose: np.ndarray | tuple[float, ...] = (350.0, 0.0, 300.0, 90.0, 0.0, 90.0),
+    def __init__(self,
+                 home_pose: NDArray[np.float64] | tuple[float, ...] = (350.0, 0.0, 300.0, 90.0, 0.0, 90.0),
                  *, rot_speed_deg_s: float = 120.0, rot_accel_deg_s2: float = 480.0) -> None:
         self._home = self._check_pose(home_pose, "home_pose")
         self._home_rot = euler_deg_to_matrix(self._home[3:])
         self.rot_speed_deg_s = _finite(rot_speed_deg_s, "rot_speed_deg_s", positive=True)
         self.rot_accel_deg_s2 = _finite(rot_accel_deg_s2, "rot_accel_deg_s2", positive=True)
         self._moves: tuple[_Move, ...] = ()
-        self._starts_cache: tuple[tuple[_Move, ...] | None, np.ndarray] = (None, np.zeros(0))
+        self._starts_cache: tuple[tuple[_Move, ...] | None, NDArray[np.float64]] = (None, np.zeros(0))
         self._last_command_s = -math.inf
         self._lock = threading.Lock()
 
     @staticmethod
-    def _check_pose(pose: np.ndarray | tuple[float, ...], name: str) -> np.ndarray:
+    def _check_pose(pose: NDArray[np.float64] | tuple[float, ...], name: str) -> NDArray[np.float64]:
         p = np.asarray(pose, dtype=float)
         if p.shape != (6,) or not np.all(np.isfinite(p)):
             raise SimCommandError(f"{name} must be 6 finite numbers (x, y, z mm, rx, ry, rz deg), "
@@ -126,7 +131,7 @@ class RobotBody:
     def last_command_s(self) -> float:
         return self._last_command_s
 
-    def move(self, t_start_s: float, target_pose: np.ndarray | tuple[float, ...], speed_mm_s: float,
+    def move(self, t_start_s: float, target_pose: NDArray[np.float64] | tuple[float, ...], speed_mm_s: float,
              accel_mm_s2: float, linear: bool = True) -> float:
         """Start a move at ``t_start_s`` to ``target_pose``; return the time it ends (at rest).
 
@@ -185,7 +190,7 @@ class RobotBody:
             self._moves = (*self._moves[:-1], cut)
 
     @staticmethod
-    def _interp_pose(mv: _Move, s: np.ndarray) -> np.ndarray:
+    def _interp_pose(mv: _Move, s: NDArray[np.float64]) -> NDArray[np.float64]:
         pos = mv.p0_mm + s[:, None] * mv.dp_mm
         rot = mv.r0 * Rotation.from_rotvec(s[:, None] * mv.rotvec)
         return np.concatenate([pos, rot.as_euler("xyz", degrees=True)], axis=1)
@@ -199,7 +204,7 @@ class RobotBody:
         moves = self._moves
         return moves[-1].t_end_s if moves else -math.inf
 
-    def _segments(self, t: np.ndarray) -> tuple[tuple[_Move, ...], np.ndarray]:
+    def _segments(self, t: NDArray[np.float64]) -> tuple[tuple[_Move, ...], NDArray[np.intp]]:
         moves = self._moves
         cached = self._starts_cache  # start times of the current move tuple, rebuilt when it changes
         if cached[0] is not moves:
@@ -208,7 +213,7 @@ class RobotBody:
         idx = np.searchsorted(cached[1], t, side="right") - 1 if moves else np.full(t.shape, -1)
         return moves, idx
 
-    def pose_at(self, t_s: float | np.ndarray) -> np.ndarray:
+    def pose_at(self, t_s: float | NDArray[np.float64]) -> NDArray[np.float64]:
         """Pose (6,) — or (N, 6) for N times — in the Denso convention; at rest, the commanded pose."""
         t = np.asarray(t_s, dtype=float)
         flat = np.atleast_1d(t).ravel()
@@ -225,7 +230,7 @@ class RobotBody:
             out[sel] = vals
         return out[0] if t.ndim == 0 else out.reshape((*t.shape, 6))
 
-    def transform_at(self, t_s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def transform_at(self, t_s: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """Flange position (N, 3) mm and rotation matrices (N, 3, 3) (tool → base) at times t_s (N,)."""
         flat = np.atleast_1d(np.asarray(t_s, dtype=float)).ravel()
         moves, idx = self._segments(flat)

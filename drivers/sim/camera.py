@@ -21,6 +21,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pandas as pd
+from numpy.typing import NDArray
 
 from drivers.sim.fiducial import SyncLed
 from drivers.sim.render import (
@@ -40,7 +41,7 @@ _NORMAL_POOL = 1 << 20
 
 
 def look_at(eye_mm: Iterable[float], target_mm: Iterable[float],
-            up: Iterable[float] = (0.0, 0.0, 1.0)) -> tuple[np.ndarray, np.ndarray]:
+            up: Iterable[float] = (0.0, 0.0, 1.0)) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """OpenCV pose (rvec, tvec mm; base → camera) of a camera at ``eye_mm`` looking at ``target_mm``."""
     eye, tgt, upv = (np.asarray(v, float) for v in (eye_mm, target_mm, up))
     z = tgt - eye
@@ -51,7 +52,8 @@ def look_at(eye_mm: Iterable[float], target_mm: Iterable[float],
     x /= np.linalg.norm(x)
     rot = np.stack([x, np.cross(z, x), z])  # rows: camera axes in base coordinates
     rvec, _ = cv2.Rodrigues(rot)
-    return rvec.ravel(), -rot @ eye
+    tvec: NDArray[np.float64] = -rot @ eye
+    return np.asarray(rvec, dtype=np.float64).ravel(), tvec
 
 
 class SimCamera:
@@ -117,8 +119,8 @@ class SimCamera:
         self._n_indexed = 0
         self._sensor_of_index = self._index_buffer[:0]  # delivered index → sensor frame
         self._chunks = 0
-        self._pool: np.ndarray | None = None
-        self._normal_pool: np.ndarray | None = None
+        self._pool: NDArray[np.uint8] | None = None
+        self._normal_pool: NDArray[np.float32] | None = None
         self._index_lock = threading.RLock()  # the frame map and the noise pools are built lazily
 
     # ------------------------------------------------------------------ clock and frame indices
@@ -191,18 +193,21 @@ class SimCamera:
         return range(first, max(first, stop))
 
     # ------------------------------------------------------------------ projection and truth
-    def project(self, points_mm: np.ndarray) -> np.ndarray:
+    def project(self, points_mm: NDArray[np.float64]) -> NDArray[np.float64]:
         """Pixels (..., 2) of base-frame points (..., 3) through ``cv2.projectPoints`` (with distortion)."""
         return project_points(np.asarray(points_mm, float), self.rvec, self.tvec, self.camera_matrix,
                               self.distortion)
 
-    def _depth(self, points_mm: np.ndarray) -> np.ndarray:
-        return points_mm @ self.rotation[2] + self.tvec[2]
+    def _depth(self, points_mm: NDArray[np.float64]) -> NDArray[np.float64]:
+        depth_mm: NDArray[np.float64] = points_mm @ self.rotation[2] + self.tvec[2]
+        return depth_mm
 
     @staticmethod
-    def _faces_camera(normals_cam: np.ndarray, centres_cam: np.ndarray) -> np.ndarray:
+    def _faces_camera(normals_cam: NDArray[np.float64],
+                      centres_cam: NDArray[np.float64]) -> NDArray[np.bool_]:
         """True where the disc's front faces the camera at more than ~1° from edge-on."""
-        cos = -np.sum(normals_cam * centres_cam, axis=-1) / np.linalg.norm(centres_cam, axis=-1)
+        cos: NDArray[np.float64] = (-np.sum(normals_cam * centres_cam, axis=-1)
+                                    / np.linalg.norm(centres_cam, axis=-1))
         return cos > 0.02
 
     def truth_observations(self, t_start_s: float, t_stop_s: float,
@@ -253,7 +258,7 @@ class SimCamera:
         return out.sort_values(["frame_index", "marker_id"], kind="stable", ignore_index=True)[cols]
 
     # ------------------------------------------------------------------ rendering
-    def _background(self, rng: np.random.Generator) -> np.ndarray:
+    def _background(self, rng: np.random.Generator) -> NDArray[np.uint8]:
         if self._pool is None:
             with self._index_lock:
                 if self._pool is None:
@@ -263,7 +268,7 @@ class SimCamera:
         b, r, c = rng.integers(self._pool.shape[0]), rng.integers(m), rng.integers(m)
         return self._pool[b, r : r + self.height_px, c : c + self.width_px].copy()
 
-    def _normals(self, n: int, rng: np.random.Generator) -> np.ndarray:
+    def _normals(self, n: int, rng: np.random.Generator) -> NDArray[np.float32]:
         """n standard normal numbers: a slice at a random offset of a pre-drawn pool (fresh if n is large)."""
         if self._normal_pool is None:
             with self._index_lock:
@@ -275,7 +280,7 @@ class SimCamera:
         start = int(rng.integers(_NORMAL_POOL - n))
         return self._normal_pool[start : start + n]
 
-    def render(self, frame_index: int) -> np.ndarray:
+    def render(self, frame_index: int) -> NDArray[np.uint8]:
         """Frame ``frame_index`` as the sensor recorded it: (height, width) uint8, deterministic per seed."""
         k = self.sensor_frame(frame_index)
         t0 = self.start_offset_s + k * self.frame_period_true_s
@@ -288,7 +293,7 @@ class SimCamera:
             self._draw_led(frame, led, t0, rng)
         return frame
 
-    def _draw_led(self, frame: np.ndarray, led: SyncLed, t0: float, rng: np.random.Generator) -> None:
+    def _draw_led(self, frame: NDArray[np.uint8], led: SyncLed, t0: float, rng: np.random.Generator) -> None:
         """Add a timing fiducial: its projected rectangle (area-covered at 1/16 px) lit per row by the mean
         of its light over that row's exposure (rolling shutter: rows see the edges at their own times)."""
         corners = led.corners_mm()
@@ -309,7 +314,7 @@ class SimCamera:
         cov = (mask.astype(np.float32) / 255.0) * (level[:, None] * scale).astype(np.float32)
         self._blend(frame, cov[None], np.array([y_lo]), np.array([x_lo]), rng)
 
-    def _draw(self, frame: np.ndarray, ids: list[str], t0: float, rng: np.random.Generator) -> None:
+    def _draw(self, frame: NDArray[np.uint8], ids: list[str], t0: float, rng: np.random.Generator) -> None:
         h, w, lt, te = self.height_px, self.width_px, self.line_time_s, self.exposure_s
         world = self.world
         # 1. motion around mid-readout → predicted row where each centre is seen (one Newton step of the
@@ -379,8 +384,8 @@ class SimCamera:
                                    width_px=wp, psf_sigma_px=self.psf_sigma_px)
             self._blend(frame, cov, y_lo[sel], x_lo[sel], rng)
 
-    def _blend(self, frame: np.ndarray, cov: np.ndarray, r0: np.ndarray, c0: np.ndarray,
-               rng: np.random.Generator) -> None:
+    def _blend(self, frame: NDArray[np.uint8], cov: NDArray[np.float32], r0: NDArray[np.int_],
+               c0: NDArray[np.int_], rng: np.random.Generator) -> None:
         """Add marker signal (coverage × contrast) plus its extra shot noise onto the noisy background."""
         sig = cov * np.float32(self.noise.marker_level_dn - self.noise.background_level_dn)
         if self.noise.shot_noise_dn2_per_dn > 0:
@@ -404,7 +409,7 @@ class SimCamera:
         at the nominal fps; return the number of frames written. Raises OSError if OpenCV cannot open it."""
         if len(fourcc) != 4:
             raise ValueError(f"fourcc must be 4 characters such as 'mp4v' or 'MJPG', got {fourcc!r}")
-        writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*fourcc), self.fps,
+        writer = cv2.VideoWriter(str(path), cv2.VideoWriter.fourcc(*fourcc), self.fps,
                                  (self.width_px, self.height_px), True)
         if not writer.isOpened():
             raise OSError(f"OpenCV cannot write {str(path)!r} with fourcc {fourcc!r}")

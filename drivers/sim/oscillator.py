@@ -19,6 +19,7 @@ import threading
 from typing import Literal
 
 import numpy as np
+from numpy.typing import NDArray
 
 from drivers.sim.errors import SimCommandError, _finite
 
@@ -74,12 +75,12 @@ class OscillatorBody:
         self._history_start_s = -math.inf  # earliest time still answerable
         self._last_command_s = -math.inf
         self._lock = threading.Lock()
-        self._table_cache: tuple[tuple[_Seg, ...] | None, np.ndarray] = (None, np.zeros((0, 6)))
-        self._amp_cache: tuple[tuple[tuple[float, float], ...] | None, np.ndarray, np.ndarray] = (
-            None, np.zeros(0), np.zeros(0))
+        self._table_cache: tuple[tuple[_Seg, ...] | None, NDArray[np.float64]] = (None, np.zeros((0, 6)))
+        self._amp_cache: tuple[tuple[tuple[float, float], ...] | None, NDArray[np.float64],
+                               NDArray[np.float64]] = (None, np.zeros(0), np.zeros(0))
 
     # -- evaluation
-    def _table(self, segs: tuple[_Seg, ...]) -> np.ndarray:
+    def _table(self, segs: tuple[_Seg, ...]) -> NDArray[np.float64]:
         cached = self._table_cache  # (segments, their array): rebuilt only when the segments change
         if cached[0] is segs:
             return cached[1]
@@ -87,12 +88,13 @@ class OscillatorBody:
         self._table_cache = (segs, arr)
         return arr
 
-    def _check_history(self, t: np.ndarray) -> None:
+    def _check_history(self, t: NDArray[np.float64]) -> None:
         if t.size and float(np.min(t)) < self._history_start_s:
             raise SimCommandError(f"{self.name}: t_s={float(np.min(t))!r} is before the kept history "
                                   f"(from {self._history_start_s!r} s; at most {self.max_segments} segments)")
 
-    def _eval(self, segs: tuple[_Seg, ...], t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def _eval(self, segs: tuple[_Seg, ...],
+              t: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         self._check_history(t)
         arr = self._table(segs)
         k = np.clip(np.searchsorted(arr[:, 0], t, side="right") - 1, 0, len(segs) - 1)
@@ -111,8 +113,8 @@ class OscillatorBody:
         return f, phi0 + 2.0 * np.pi * integral
 
     @staticmethod
-    def _integrals(kind: np.ndarray, f0: np.ndarray, c: np.ndarray,
-                   tau: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def _integrals(kind: NDArray[np.float64], f0: NDArray[np.float64], c: NDArray[np.float64],
+                   tau: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         f = np.where(kind == _LINEAR, f0 + c * tau, f0)
         integral = np.where(kind == _LINEAR, f0 * tau + 0.5 * c * tau * tau, f0 * tau)
         log = kind == _LOG
@@ -123,17 +125,17 @@ class OscillatorBody:
             integral = np.where(log, f0 * np.expm1(np.where(log, cl * tau, 0.0)) / cl, integral)
         return f, integral
 
-    def frequency_hz(self, t_s: float | np.ndarray) -> float | np.ndarray:
+    def frequency_hz(self, t_s: float | NDArray[np.float64]) -> float | NDArray[np.float64]:
         t = np.asarray(t_s, dtype=float)
         f = self._eval(self._segs, t)[0]
         return float(f) if t.ndim == 0 else f
 
-    def phase_rad(self, t_s: float | np.ndarray) -> float | np.ndarray:
+    def phase_rad(self, t_s: float | NDArray[np.float64]) -> float | NDArray[np.float64]:
         t = np.asarray(t_s, dtype=float)
         p = self._eval(self._segs, t)[1]
         return float(p) if t.ndim == 0 else p
 
-    def amplitude_at_mm(self, t_s: float | np.ndarray) -> float | np.ndarray:
+    def amplitude_at_mm(self, t_s: float | NDArray[np.float64]) -> float | NDArray[np.float64]:
         t = np.asarray(t_s, dtype=float)
         self._check_history(t)
         amps = self._amps
@@ -145,13 +147,13 @@ class OscillatorBody:
         out = vals[np.maximum(np.searchsorted(starts, t, side="right") - 1, 0)]
         return float(out) if t.ndim == 0 else out
 
-    def displacement_mm(self, t_s: float | np.ndarray) -> float | np.ndarray:
+    def displacement_mm(self, t_s: float | NDArray[np.float64]) -> float | NDArray[np.float64]:
         """A(t)·sin φ(t) in mm."""
         t = np.asarray(t_s, dtype=float)
         out = np.asarray(self.amplitude_at_mm(t)) * np.sin(self._eval(self._segs, t)[1])
         return float(out) if t.ndim == 0 else out
 
-    def angle_deg(self, t_s: float | np.ndarray) -> float | np.ndarray:
+    def angle_deg(self, t_s: float | NDArray[np.float64]) -> float | NDArray[np.float64]:
         """φ(t) in degrees (unwrapped; for the rotor)."""
         t = np.asarray(t_s, dtype=float)
         out = np.degrees(self._eval(self._segs, t)[1])

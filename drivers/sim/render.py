@@ -29,6 +29,7 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
+from numpy.typing import NDArray
 
 __all__ = [
     "NoiseModel", "conic_extents", "coverage_patches", "disc_conics", "exposure_samples", "project_points",
@@ -67,12 +68,13 @@ class NoiseModel:
             raise ValueError(f"pool_frames and pool_margin_px must be ≥ 1, got {self.pool_frames}, "
                              f"{self.pool_margin_px}")
 
-    def sigma_dn(self, level_dn: np.ndarray | float) -> np.ndarray:
+    def sigma_dn(self, level_dn: NDArray[np.float64] | float) -> NDArray[np.float64]:
         """Standard deviation of a pixel of mean ``level_dn`` (before quantisation)."""
         lv = np.maximum(np.asarray(level_dn, float), 0.0)
-        return np.sqrt(self.read_noise_dn**2 + self.shot_noise_dn2_per_dn * lv)
+        sigma: NDArray[np.float64] = np.sqrt(self.read_noise_dn**2 + self.shot_noise_dn2_per_dn * lv)
+        return sigma
 
-    def background_pool(self, height_px: int, width_px: int, seed: int) -> np.ndarray:
+    def background_pool(self, height_px: int, width_px: int, seed: int) -> NDArray[np.uint8]:
         """(pool_frames, height + margin, width + margin) uint8 noisy background frames."""
         rng = np.random.default_rng(seed)
         m = self.pool_margin_px
@@ -84,14 +86,14 @@ class NoiseModel:
         return noise.astype(np.uint8)
 
 
-def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+def _cross(a: NDArray[np.float64], b: NDArray[np.float64]) -> NDArray[np.float64]:
     """Row-wise cross product of (M, 3) arrays (np.cross has a large per-call overhead)."""
     return np.column_stack([a[:, 1] * b[:, 2] - a[:, 2] * b[:, 1], a[:, 2] * b[:, 0] - a[:, 0] * b[:, 2],
                             a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]])
 
 
-def disc_conics(centres_cam: np.ndarray, normals_cam: np.ndarray, radii_mm: np.ndarray,
-                jac_px: np.ndarray) -> np.ndarray:
+def disc_conics(centres_cam: NDArray[np.float64], normals_cam: NDArray[np.float64],
+                radii_mm: NDArray[np.float64], jac_px: NDArray[np.float64]) -> NDArray[np.float64]:
     """Conics (M, 3, 3) of discs in pixel offsets from their projected centres, scaled so that C[2, 2] = −1.
 
     ``centres_cam`` (M, 3) and ``normals_cam`` (M, 3) in camera coordinates (mm), ``jac_px`` (M, 2, 2): the
@@ -110,11 +112,11 @@ def disc_conics(centres_cam: np.ndarray, normals_cam: np.ndarray, radii_mm: np.n
     t[:, :2, :2] = np.linalg.inv(jac_px)
     t[:, :2, 2] = q0
     t[:, 2, 2] = 1.0
-    c_pix = np.einsum("mji,mjk,mkl->mil", t, c_norm, t)
+    c_pix: NDArray[np.float64] = np.einsum("mji,mjk,mkl->mil", t, c_norm, t)
     return c_pix / -c_pix[:, 2:3, 2:3]
 
 
-def conic_extents(conics: np.ndarray) -> np.ndarray:
+def conic_extents(conics: NDArray[np.float64]) -> NDArray[np.float64]:
     """Bounding boxes (M, 4): x_min, x_max, y_min, y_max of the conics (pixel offsets)."""
     dual = np.linalg.inv(conics)
     out = np.empty((len(conics), 4))
@@ -127,15 +129,16 @@ def conic_extents(conics: np.ndarray) -> np.ndarray:
     return out
 
 
-def exposure_samples(motion_px: np.ndarray) -> np.ndarray:
+def exposure_samples(motion_px: NDArray[np.float64]) -> NDArray[np.int_]:
     """Number K of instants per row exposure for ``motion_px`` of image motion during it (powers of two,
     so that samples are ≤ 0.2 px apart; at most 64)."""
     need = np.maximum(1.0, np.asarray(motion_px, float) / SAMPLE_SPACING_PX)
-    return np.minimum(MAX_EXPOSURE_SAMPLES, 2 ** np.ceil(np.log2(need)).astype(int))
+    samples: NDArray[np.int_] = np.minimum(MAX_EXPOSURE_SAMPLES, 2 ** np.ceil(np.log2(need)).astype(int))
+    return samples
 
 
-def coverage_patches(conics: np.ndarray, centres_px: np.ndarray, row0: np.ndarray, col0: np.ndarray, *,
-                     width_px: int, psf_sigma_px: float) -> np.ndarray:
+def coverage_patches(conics: NDArray[np.float64], centres_px: NDArray[np.float64], row0: NDArray[np.int_],
+                     col0: NDArray[np.int_], *, width_px: int, psf_sigma_px: float) -> NDArray[np.float32]:
     """Fraction of each pixel covered by the disc, averaged over exposure samples: (M, Hp, Wp) float32.
 
     ``centres_px`` (M, Hp, K, 2): projected disc centre for patch row r (image row row0 + r) at sample k.
@@ -159,17 +162,16 @@ def coverage_patches(conics: np.ndarray, centres_px: np.ndarray, row0: np.ndarra
     e = np.arange(width_px, dtype=np.float32) - np.float32(0.5)
     cov = np.minimum(xr, e + 1.0) - np.maximum(xl, e)
     np.maximum(cov, 0.0, out=cov)
-    out = cov.sum(axis=(2, 3)) * np.float32(1.0 / (cov.shape[2] * cov.shape[3]))
+    out: NDArray[np.float32] = cov.sum(axis=(2, 3)) * np.float32(1.0 / (cov.shape[2] * cov.shape[3]))
     if psf_sigma_px > 0:  # patches have ≥ 3σ of empty border, so one separable pass over the stack is exact
-        flat = out.reshape(m * hp, width_px)
-        flat = cv2.GaussianBlur(flat, (0, 0), sigmaX=psf_sigma_px, sigmaY=psf_sigma_px,
-                                borderType=cv2.BORDER_CONSTANT)
-        out = flat.reshape(m, hp, width_px)
+        flat = cv2.GaussianBlur(out.reshape(m * hp, width_px), (0, 0), sigmaX=psf_sigma_px,
+                                sigmaY=psf_sigma_px, borderType=cv2.BORDER_CONSTANT)
+        out = np.asarray(flat, dtype=np.float32).reshape(m, hp, width_px)  # (float32 in, float32 out)
     return out
 
 
-def project_points(points: np.ndarray, rvec: np.ndarray, tvec: np.ndarray, camera_matrix: np.ndarray,
-                   dist: np.ndarray) -> np.ndarray:
+def project_points(points: NDArray[np.float64], rvec: NDArray[np.float64], tvec: NDArray[np.float64],
+                   camera_matrix: NDArray[np.float64], dist: NDArray[np.float64]) -> NDArray[np.float64]:
     """``cv2.projectPoints`` on (..., 3) points → (..., 2) pixels."""
     flat = np.ascontiguousarray(points.reshape(-1, 3), dtype=np.float64)
     if flat.shape[0] == 0:

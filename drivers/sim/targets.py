@@ -15,6 +15,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
+from numpy.typing import NDArray
 
 __all__ = [
     "CalibrationPlate", "MarkerFrame", "OscillatingPlate", "ReferenceMarkers", "RotorTarget", "SingleMarker",
@@ -22,7 +23,7 @@ __all__ = [
 ]
 
 
-def unit(v: tuple[float, float, float] | np.ndarray, name: str = "vector") -> np.ndarray:
+def unit(v: tuple[float, float, float] | NDArray[np.float64], name: str = "vector") -> NDArray[np.float64]:
     """``v`` normalised to length 1; ValueError naming ``name`` if it is zero or not 3 finite numbers."""
     a = np.asarray(v, dtype=float)
     n = float(np.linalg.norm(a)) if a.shape == (3,) else 0.0
@@ -55,7 +56,7 @@ class CalibrationPlate:
             raise ValueError(f"marker_diameter_mm={self.marker_diameter_mm} must be < "
                              f"pitch_mm={self.pitch_mm}")
 
-    def offsets_tool_mm(self) -> dict[str, np.ndarray]:
+    def offsets_tool_mm(self) -> dict[str, NDArray[np.float64]]:
         out = {}
         for r in range(self.rows):
             for c in range(self.cols):
@@ -72,7 +73,7 @@ class SingleMarker:
     marker_diameter_mm: float = 16.0
     offset_tool_mm: tuple[float, float, float] = (0.0, 0.0, 30.0)
 
-    def offsets_tool_mm(self) -> dict[str, np.ndarray]:
+    def offsets_tool_mm(self) -> dict[str, NDArray[np.float64]]:
         return {"arm": np.array(self.offset_tool_mm, dtype=float)}
 
 
@@ -86,7 +87,7 @@ class MarkerFrame:
         (0.0, -75.0, 30.0), (100.0, -75.0, 70.0), (-50.0, 0.0, 110.0), (50.0, 0.0, 50.0),
     )
 
-    def offsets_tool_mm(self) -> dict[str, np.ndarray]:
+    def offsets_tool_mm(self) -> dict[str, NDArray[np.float64]]:
         if len(self.offsets_mm) < 4:
             raise ValueError(f"a marker frame needs ≥ 4 markers, got {len(self.offsets_mm)}")
         return {f"frame{k}": np.array(o, dtype=float) for k, o in enumerate(self.offsets_mm)}
@@ -106,16 +107,17 @@ class SweepColumn:
     pitch_mm: float = 35.0
     marker_diameter_mm: float = 12.0
 
-    def rest_positions_mm(self) -> dict[str, np.ndarray]:
+    def rest_positions_mm(self) -> dict[str, NDArray[np.float64]]:
         d = unit(self.column_direction, "column_direction")
         c = np.asarray(self.centre_mm, float)
         return {f"col{k}": c + (k - (self.count - 1) / 2) * self.pitch_mm * d for k in range(self.count)}
 
 
-def cantilever_shape(xi: np.ndarray) -> np.ndarray:
+def cantilever_shape(xi: float | NDArray[np.float64]) -> NDArray[np.float64]:
     """Static deflection of a clamped beam displaced at its tip, normalised to 1 at ξ = 1: (3ξ² − ξ³)/2."""
     x = np.asarray(xi, float)
-    return 0.5 * (3.0 * x * x - x**3)
+    shape: NDArray[np.float64] = 0.5 * (3.0 * x * x - x**3)
+    return shape
 
 
 @dataclass(frozen=True)
@@ -137,7 +139,7 @@ class OscillatingPlate:
     row_pitch_mm: float = 60.0
     marker_diameter_mm: float = 12.0
 
-    def rest_positions_mm(self) -> dict[str, tuple[np.ndarray, float]]:
+    def rest_positions_mm(self) -> dict[str, tuple[NDArray[np.float64], float]]:
         """id → (rest position, shape weight along the plate)."""
         _check_positive(length_mm=self.length_mm, pitch_mm=self.pitch_mm)
         lv = unit(self.length_direction, "length_direction")
@@ -153,7 +155,7 @@ class OscillatingPlate:
                 out[f"plate_r{r}c{c}"] = (root + s * lv + w * wv, float(cantilever_shape(s / self.length_mm)))
         return out
 
-    def displacement_axis(self) -> np.ndarray:
+    def displacement_axis(self) -> NDArray[np.float64]:
         return unit(self.axis if self.axis is not None else self.normal, "axis")
 
 
@@ -168,7 +170,7 @@ class RotorTarget:
     radius_mm: float = 60.0
     marker_diameter_mm: float = 12.0
 
-    def basis(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def basis(self) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
         """(e0, e1, axis): marker at centre + r·(cos θ e0 + sin θ e1)."""
         a = unit(self.axis, "axis")
         z = np.asarray(self.zero_direction, float)
@@ -186,7 +188,7 @@ class ReferenceMarkers:
     normal: tuple[float, float, float] = (1.0, 0.0, 0.0)
     marker_diameter_mm: float = 16.0
 
-    def positions(self) -> dict[str, np.ndarray]:
+    def positions(self) -> dict[str, NDArray[np.float64]]:
         if len(self.positions_mm) < 3:
             raise ValueError(f"need ≥ 3 reference markers, got {len(self.positions_mm)}")
         return {f"ref{k}": np.array(p, dtype=float) for k, p in enumerate(self.positions_mm)}

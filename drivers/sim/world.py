@@ -13,6 +13,7 @@ import threading
 from dataclasses import dataclass, field
 
 import numpy as np
+from numpy.typing import NDArray
 
 from drivers.sim.bodies import OscillatorBody, RobotBody, SimCommandError
 from drivers.sim.clock import VirtualClock
@@ -42,12 +43,21 @@ class WorldLayout:
 class _Marker:
     kind: str  # "fixed" | "flange" | "osc" | "rotor"
     diameter_mm: float
-    point: np.ndarray  # fixed: position; flange: tool offset; osc: rest position; rotor: centre
-    normal: np.ndarray  # base frame, or tool frame for "flange"
+    point: NDArray[np.float64]  # fixed: position; flange: tool offset; osc: rest position; rotor: centre
+    normal: NDArray[np.float64]  # base frame, or tool frame for "flange"
     body: str = ""
-    axis: np.ndarray | None = None  # osc: displacement direction; rotor: e0
+    axis: NDArray[np.float64] | None = None  # osc: displacement direction; rotor: e0
     weight: float = 1.0  # osc: shape factor; rotor: radius
-    e1: np.ndarray | None = None  # rotor
+    e1: NDArray[np.float64] | None = None  # rotor
+
+
+_PlanGroup = tuple[str, str, NDArray[np.intp], NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]
+"""(kind, body, marker indices, stacked points, axes × weight, second axes × weight) of one group."""
+
+
+def _weighted(direction: NDArray[np.float64] | None, weight: float) -> NDArray[np.float64]:
+    """``direction`` × ``weight``; zeros for a marker without that direction."""
+    return (direction if direction is not None else np.zeros(3)) * weight
 
 
 class World:
@@ -71,7 +81,7 @@ class World:
             raise ValueError(f"initial_scene must be one of {SCENES}, got {lay.initial_scene!r}")
         self._scenes: tuple[tuple[float, str], ...] = ((-math.inf, lay.initial_scene),)
         self._lock = threading.Lock()
-        self._plans: dict[tuple[str, ...], list] = {}
+        self._plans: dict[tuple[str, ...], list[_PlanGroup]] = {}
         self.leds: tuple[SyncLed, ...] = ()  # timing fiducials in view (drivers.sim.fiducial)
 
     def add_led(self, led: SyncLed) -> SyncLed:
@@ -169,8 +179,7 @@ class World:
         return self._spec(marker_id).kind == "fixed"
 
     # ------------------------------------------------------------------ truth
-    def _plan(self, marker_ids: list[str]) -> list[tuple[str, str, np.ndarray, np.ndarray, np.ndarray,
-                                                          np.ndarray]]:
+    def _plan(self, marker_ids: list[str]) -> list[_PlanGroup]:
         """Per (kind, body): indices, stacked points, axes (× weight), second axes; cached per id list."""
         key = tuple(marker_ids)
         plan = self._plans.get(key)
@@ -182,17 +191,15 @@ class World:
             plan = []
             for (kind, body), idx in groups.items():
                 pts = np.stack([specs[i].point for i in idx])
-                ax = np.stack([(specs[i].axis if specs[i].axis is not None else np.zeros(3)) * specs[i].weight
-                               for i in idx])
-                e1 = np.stack([(specs[i].e1 if specs[i].e1 is not None else np.zeros(3)) * specs[i].weight
-                               for i in idx])
+                ax = np.stack([_weighted(specs[i].axis, specs[i].weight) for i in idx])
+                e1 = np.stack([_weighted(specs[i].e1, specs[i].weight) for i in idx])
                 plan.append((kind, body, np.array(idx), pts, ax, e1))
             if len(self._plans) > 256:
                 self._plans.clear()
             self._plans[key] = plan
         return plan
 
-    def positions(self, marker_ids: list[str], t_s: np.ndarray | float) -> np.ndarray:
+    def positions(self, marker_ids: list[str], t_s: NDArray[np.float64] | float) -> NDArray[np.float64]:
         """Centres (M, N, 3) mm of M markers at times ``t_s``: (N,) shared by all, or (M, N) each its own."""
         t = np.asarray(t_s, dtype=float)
         m = len(marker_ids)
@@ -216,7 +223,7 @@ class World:
                 out[idx] = pts[:, None, :] + np.cos(phi) * ax[:, None, :] + np.sin(phi) * e1[:, None, :]
         return out
 
-    def normals(self, marker_ids: list[str], t_s: np.ndarray | float) -> np.ndarray:
+    def normals(self, marker_ids: list[str], t_s: NDArray[np.float64] | float) -> NDArray[np.float64]:
         """Unit normals of the marker discs: (M, 3) for one time each (scalar or (M,) times), or (M, N, 3)
         for (M, N) times."""
         t = np.asarray(t_s, dtype=float)
@@ -232,10 +239,12 @@ class World:
             out[flange] = np.einsum("mij,mj->mi", rot, n).reshape(out[flange].shape)
         return out
 
-    def marker_normal(self, marker_id: str, t_s: float) -> np.ndarray:
-        return self.normals([marker_id], t_s)[0]
+    def marker_normal(self, marker_id: str, t_s: float) -> NDArray[np.float64]:
+        normal: NDArray[np.float64] = self.normals([marker_id], t_s)[0]
+        return normal
 
-    def markers(self, t_s: float | np.ndarray, marker_ids: list[str] | None = None) -> dict[str, np.ndarray]:
+    def markers(self, t_s: float | NDArray[np.float64],
+                marker_ids: list[str] | None = None) -> dict[str, NDArray[np.float64]]:
         """Every marker's centre in the base frame (mm): (3,) for a scalar time, (N, 3) for N times.
 
         Without ``marker_ids``: the markers present at ``t_s`` (at the earliest of several times)."""
