@@ -381,6 +381,56 @@ def _fiducial_clock(run_dir: Path, events: pd.DataFrame | None, segment: str, se
                          prior_half_width_s=max(math.sqrt(3.0) * u_offset_s, 0.51 * period_s))
 
 
+def _checked_inputs(folder: RunFolder) -> tuple[Calibration, TimingResult, dict[str, DLTCamera]]:
+    """The folder's calibration, timing and cameras, after checking that they belong together and that
+    every calibrated camera has observations (the errors name the file and what to run)."""
+    run, run_dir = folder.run, folder.run_dir
+    if folder.calibration is None:
+        raise MissingInputError(f"{run_dir / CALIBRATION_FILE}: no calibration; run `rig run calibrate` (or "
+                                "copy the bench's calibration.json) first")
+    if folder.timing is None:
+        raise MissingInputError(f"{run_dir / TIMING_FILE}: no timing; run `rig run sync` first")
+    calibration, timing = folder.calibration, folder.timing
+    cameras = load_cameras(calibration.to_dict(), run_dir / CALIBRATION_FILE)
+    for cam in cameras:
+        if cam not in timing.offset_s:
+            raise AnalysisError(f"{run_dir / TIMING_FILE}: camera {cam!r} of calibration.json has no offset "
+                                f"(timing.json has {sorted(timing.offset_s)}); run `rig run sync`")
+        if cam not in run.observations or run.observations[cam].empty:
+            raise MissingObservationsError(
+                f"{run_dir / 'observations' / cam}: camera {cam!r} of calibration.json has no observations; "
+                "check the camera and re-run the measuring procedure (`rig run <procedure>`)")
+    if timing.reference_camera not in cameras:
+        raise AnalysisError(f"{run_dir / TIMING_FILE}: reference camera {timing.reference_camera!r} is not "
+                            f"calibrated (calibration.json has {sorted(cameras)})")
+    return calibration, timing, cameras
+
+
+def _segment_dating(folder: RunFolder, timing: TimingResult, offsets: pd.DataFrame,
+                    periods: dict[str, float], notes: list[str]) -> SegmentDating:
+    """How a segment's reference-camera time becomes controller time: the start events' offset, or the
+    timing fiducial's clock when one was recorded (stated at the reference camera's median marker row,
+    where the line time's correction applies). Appends to ``notes`` why a fiducial was not used."""
+    run, run_dir, ref = folder.run, folder.run_dir, timing.reference_camera
+    rig = run.start.get("rig") or {}
+
+    def date(segment: str, session: int, sel: dict[str, pd.DataFrame]) -> SegmentClock:
+        offset, u_offset, source = _offset_for(offsets, segment, session)
+        exposure_s = _exposure_s(rig, ref)
+        fid, why = _fiducial_clock(run_dir, run.events.get("fiducial"), segment, session, timing=timing,
+                                   exposure_s=exposure_s, offset_s=offset, u_offset_s=u_offset,
+                                   period_s=periods[ref])
+        if why:
+            notes.append(f"segment {segment!r} (session {session}): {why}")
+        if fid is None:
+            return SegmentClock(offset, u_offset, source)
+        offset, u_offset = fid.offset_at_row_s(float(sel[ref]["v_px"].median()))
+        return SegmentClock(offset + 0.5 * exposure_s, u_offset, clock_row(ref, fid)["source"], fid.rate,
+                            fid.t_ref_s)
+
+    return date
+
+
 def analyse(
     source: str | Path | RunFolder,
     *,
@@ -405,25 +455,8 @@ def analyse(
         raise AnalysisError(f"sync={sync!r}: allowed are {SYNC_METHODS}")
     folder = source if isinstance(source, RunFolder) else _load(Path(source))
     run, run_dir = folder.run, folder.run_dir
-    if folder.calibration is None:
-        raise MissingInputError(f"{run_dir / CALIBRATION_FILE}: no calibration; run `rig run calibrate` (or "
-                                "copy the bench's calibration.json) first")
-    if folder.timing is None:
-        raise MissingInputError(f"{run_dir / TIMING_FILE}: no timing; run `rig run sync` first")
-    calibration, timing = folder.calibration, folder.timing
-    cameras = load_cameras(calibration.to_dict(), run_dir / CALIBRATION_FILE)
+    calibration, timing, cameras = _checked_inputs(folder)
     rig = run.start.get("rig") or {}
-    for cam in cameras:
-        if cam not in timing.offset_s:
-            raise AnalysisError(f"{run_dir / TIMING_FILE}: camera {cam!r} of calibration.json has no offset "
-                                f"(timing.json has {sorted(timing.offset_s)}); run `rig run sync`")
-        if cam not in run.observations or run.observations[cam].empty:
-            raise MissingObservationsError(
-                f"{run_dir / 'observations' / cam}: camera {cam!r} of calibration.json has no observations; "
-                "check the camera and re-run the measuring procedure (`rig run <procedure>`)")
-    if timing.reference_camera not in cameras:
-        raise AnalysisError(f"{run_dir / TIMING_FILE}: reference camera {timing.reference_camera!r} is not "
-                            f"calibrated (calibration.json has {sorted(cameras)})")
     periods = {c: _frame_period_s(rig, c, run.observations[c]) for c in cameras}
     offsets = controller_offsets(run.events.get("camera"), timing, periods,
                                  {c: _exposure_s(rig, c) for c in cameras})
@@ -433,22 +466,7 @@ def analyse(
     ref = timing.reference_camera
     groups = sorted({(s, int(n)) for cam in cameras for s, n in zip(obs[cam]["segment"], obs[cam]["session"],
                                                                      strict=True)})
-    def date(segment: str, session: int, sel: dict[str, pd.DataFrame]) -> SegmentClock:
-        """The start events' offset, or the timing fiducial's clock when one was recorded (stated at the
-        reference camera's median marker row, where the line time's correction applies)."""
-        offset, u_offset, source = _offset_for(offsets, segment, session)
-        exposure_s = _exposure_s(rig, ref)
-        fid, why = _fiducial_clock(run_dir, run.events.get("fiducial"), segment, session, timing=timing,
-                                   exposure_s=exposure_s, offset_s=offset, u_offset_s=u_offset,
-                                   period_s=periods[ref])
-        if why:
-            notes.append(f"segment {segment!r} (session {session}): {why}")
-        if fid is None:
-            return SegmentClock(offset, u_offset, source)
-        offset, u_offset = fid.offset_at_row_s(float(sel[ref]["v_px"].median()))
-        return SegmentClock(offset + 0.5 * exposure_s, u_offset, clock_row(ref, fid)["source"], fid.rate,
-                            fid.t_ref_s)
-
+    date = _segment_dating(folder, timing, offsets, periods, notes)
     segments = _SegmentAnalysis(obs, cameras, timing, date, notes, sync=sync, gate_px=gate_px,
                                 volume_mm=volume, knot_spacing_frames=knot_spacing_frames)
     for segment, session in groups:
