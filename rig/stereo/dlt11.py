@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from rig.stereo._arrays import FloatArray
 from rig.stereo.errors import DegenerateCalibrationError, InputArrayError
 from rig.stereo.normalize import as_points, as_projection, homogeneous, principal_spread
 
@@ -19,7 +20,7 @@ MIN_SPREAD_RATIO = 0.01
 
 
 # --------------------------------------------------------------------- Convention A (L12 = 1)
-def dlt11_from_P(P: object, *, length_unit_mm: float = 1.0) -> np.ndarray:  # noqa: N802
+def dlt11_from_P(P: object, *, length_unit_mm: float = 1.0) -> FloatArray:  # noqa: N802
     """L1…L11 = P(row-major)[:11] / P[2,3] for world units of ``length_unit_mm`` (1000 for metres)."""
     P = as_projection(P).copy()
     P[:, :3] *= length_unit_mm
@@ -28,22 +29,23 @@ def dlt11_from_P(P: object, *, length_unit_mm: float = 1.0) -> np.ndarray:  # no
             "P[2,3] ≈ 0: the world origin lies in the camera's principal plane, so the L12 = 1 form does not "
             "exist; move the world origin (e.g. to the centroid of the control points) or keep P"
         )
-    return (P / P[2, 3]).ravel()[:11]
+    L: FloatArray = (P / P[2, 3]).ravel()[:11]
+    return L
 
 
-def P_from_dlt11(coefficients: object, *, length_unit_mm: float = 1.0) -> np.ndarray:  # noqa: N802
+def P_from_dlt11(coefficients: object, *, length_unit_mm: float = 1.0) -> FloatArray:  # noqa: N802
     """The 3×4 P in mm → px from L1…L11 whose world unit is ``length_unit_mm``."""
     L = np.asarray(coefficients, dtype=np.float64).ravel()
     if L.shape != (11,) or not np.isfinite(L).all():
         raise InputArrayError(
-            f"DLT coefficients: expected 11 finite numbers L1…L11, got shape {np.shape(coefficients)}"
+            f"DLT coefficients: expected 11 finite numbers L1…L11, got shape {np.asarray(coefficients).shape}"
         )
     P = np.append(L, 1.0).reshape(3, 4)
     P[:, :3] /= length_unit_mm
     return P
 
 
-def design_rows(xyz: np.ndarray, uv: np.ndarray) -> np.ndarray:
+def design_rows(xyz: FloatArray, uv: FloatArray) -> FloatArray:
     """The paper's A (2N × 12): rows [X Y Z 1 0 0 0 0 −uX −uY −uZ −u] and the v counterpart."""
     Xh = homogeneous(xyz)
     A = np.zeros((2 * len(xyz), 12))
@@ -54,7 +56,7 @@ def design_rows(xyz: np.ndarray, uv: np.ndarray) -> np.ndarray:
     return A
 
 
-def solve_dlt11(xyz: object, uv_px: object) -> np.ndarray:
+def solve_dlt11(xyz: object, uv_px: object) -> FloatArray:
     """Convention A: L1…L11 by ordinary least squares with L12 = 1 (as vaila, Argus and DLTdv do).
 
     Units of the coefficients follow those of ``xyz``; no normalization is applied because it would
@@ -67,10 +69,11 @@ def solve_dlt11(xyz: object, uv_px: object) -> np.ndarray:
     scale = np.linalg.norm(M, axis=0)
     scale[scale == 0] = 1.0
     sol = np.linalg.lstsq(M / scale, rhs, rcond=None)[0]
-    return sol / scale
+    L: FloatArray = sol / scale
+    return L
 
 
-def check_calibration_input(xyz_mm: object, uv_px: object) -> tuple[np.ndarray, np.ndarray]:
+def check_calibration_input(xyz_mm: object, uv_px: object) -> tuple[FloatArray, FloatArray]:
     xyz = as_points(xyz_mm, "xyz_mm", 3)
     uv = as_points(uv_px, "uv_px", 2)
     if xyz.shape[0] != uv.shape[0]:

@@ -18,6 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from rig.stereo._arrays import FloatArray
 from rig.stereo._series import as_times, as_values
 from rig.stereo.errors import InputArrayError, TimingError, TooFewSamplesError
 from rig.stereo.spectrum import refine_peak, window_weights
@@ -39,7 +40,7 @@ class SineFit:
     offset_std: float
     frequency_std_hz: float  # 0.0 for a three-parameter fit (frequency given)
 
-    def evaluate(self, t_s: object) -> np.ndarray:
+    def evaluate(self, t_s: object) -> FloatArray:
         """The fitted sinusoid at ``t_s`` (s)."""
         t = np.asarray(t_s, dtype=float)
         return (
@@ -48,11 +49,11 @@ class SineFit:
         )
 
 
-def _design(tc: np.ndarray, omega: float) -> np.ndarray:
+def _design(tc: FloatArray, omega: float) -> FloatArray:
     return np.column_stack([np.cos(omega * tc), np.sin(omega * tc), np.ones_like(tc)])
 
 
-def initial_frequency(t: np.ndarray, x: np.ndarray, *, max_frequency_hz: float | None = None) -> float:
+def initial_frequency(t: FloatArray, x: FloatArray, *, max_frequency_hz: float | None = None) -> float:
     """Frequency of the largest Hann-windowed DTFT peak above 1.5/duration, refined within ±1 bin (Hz)."""
     duration = t[-1] - t[0]
     fs_nominal = 1.0 / float(np.median(np.diff(t)))
@@ -154,8 +155,8 @@ def fit_sine(
         t_ref_s=t_ref,
         residual_rms=float(np.sqrt(np.mean(resid**2))),
         n_samples=int(t.size),
-        amplitude_std=float(np.sqrt(max(g_amp @ cab @ g_amp, 0.0))),
-        phase_std_rad=float(np.sqrt(max(g_ph @ cab @ g_ph, 0.0))),
+        amplitude_std=float(np.sqrt(max(float(g_amp @ cab @ g_amp), 0.0))),
+        phase_std_rad=float(np.sqrt(max(float(g_ph @ cab @ g_ph), 0.0))),
         offset_std=float(np.sqrt(max(cov[2, 2], 0.0))),
         frequency_std_hz=float(np.sqrt(max(cov[3, 3], 0.0)) / (2 * np.pi)) if four else 0.0,
     )
@@ -168,19 +169,19 @@ class SlidingSineFit:
     Arrays are per window; ``time_s`` is the window's mid time (the phase and frequency reference);
     ``frequency_rate_hz_s`` is the fitted sweep rate (0 where ``chirp=False``)."""
 
-    time_s: np.ndarray
-    frequency_hz: np.ndarray
-    amplitude: np.ndarray
-    phase_rad: np.ndarray
-    residual_rms: np.ndarray
-    frequency_std_hz: np.ndarray
-    amplitude_std: np.ndarray
-    frequency_rate_hz_s: np.ndarray
+    time_s: FloatArray
+    frequency_hz: FloatArray
+    amplitude: FloatArray
+    phase_rad: FloatArray
+    residual_rms: FloatArray
+    frequency_std_hz: FloatArray
+    amplitude_std: FloatArray
+    frequency_rate_hz_s: FloatArray
 
 
 def fit_chirp(
-    tc: np.ndarray, x: np.ndarray, omega0: float, *, max_iterations: int = 50
-) -> tuple[np.ndarray, ...]:
+    tc: FloatArray, x: FloatArray, omega0: float, *, max_iterations: int = 50
+) -> tuple[FloatArray, ...]:
     """Gauss–Newton fit of a·cos θ + b·sin θ + c with θ = ω·tc + ½·ω̇·tc² (a linear chirp about tc = 0).
 
     Returns (p = [a, b, c, ω, ω̇], covariance, residuals); starts at ω0 with ω̇ = 0.
@@ -260,7 +261,7 @@ def sliding_sine_fit(
                 float(np.arctan2(-p[1], p[0])),
                 float(np.sqrt(np.mean(r**2))),
                 float(np.sqrt(max(cov[3, 3], 0.0))) / (2 * np.pi),
-                float(np.sqrt(max(g @ cov[:2, :2] @ g, 0.0))),
+                float(np.sqrt(max(float(g @ cov[:2, :2] @ g), 0.0))),
                 p[4] / (2 * np.pi),
             )
         )

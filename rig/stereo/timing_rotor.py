@@ -24,17 +24,19 @@ from typing import Any
 
 import numpy as np
 
+from rig.stereo._arrays import FloatArray
 from rig.stereo._series import as_times
 from rig.stereo.errors import InputArrayError, NotRotatingError, TooFewSamplesError
-from rig.stereo.timing_model import TimingResult, projection_matrix
+from rig.stereo.normalize import Camera, projection_matrix
+from rig.stereo.timing_model import TimingResult
 
 MIN_FRAMES = 12
 
 
-def plane_points_mm(P: np.ndarray, uv_px: np.ndarray, centre_mm: np.ndarray, axis: np.ndarray) -> np.ndarray:
+def plane_points_mm(P: FloatArray, uv_px: FloatArray, centre_mm: FloatArray, axis: FloatArray) -> FloatArray:
     """Intersect the rays of ``uv_px`` (N, 2) through camera ``P`` with the plane (centre, normal axis)."""
     M, p4 = P[:, :3], P[:, 3]
-    cam_centre = -np.linalg.solve(M, p4)
+    cam_centre = np.asarray(-np.linalg.solve(M, p4), dtype=np.float64)
     rays = np.linalg.solve(M, np.column_stack([uv_px, np.ones(len(uv_px))]).T).T
     denom = rays @ axis
     if np.any(np.abs(denom) < 1e-12 * np.linalg.norm(rays, axis=1)):
@@ -46,8 +48,8 @@ def plane_points_mm(P: np.ndarray, uv_px: np.ndarray, centre_mm: np.ndarray, axi
 
 
 def rotor_angles(
-    P: np.ndarray, uv_px: np.ndarray, centre_mm: np.ndarray, axis: np.ndarray, camera: str
-) -> tuple[np.ndarray, float, float]:
+    P: FloatArray, uv_px: FloatArray, centre_mm: FloatArray, axis: FloatArray, camera: str
+) -> tuple[FloatArray, float, float]:
     """Unwrapped rotor angle (rad) of each observation, fitted radius (mm) and radial scatter (mm)."""
     X = plane_points_mm(P, uv_px, centre_mm, axis)
     e1 = np.cross(axis, [1.0, 0.0, 0.0] if abs(axis[0]) < 0.9 else [0.0, 1.0, 0.0])
@@ -69,7 +71,7 @@ def rotor_angles(
     return theta, radius, scatter
 
 
-def _rate(theta: np.ndarray, tau: np.ndarray, camera: str) -> tuple[float, float]:
+def _rate(theta: FloatArray, tau: FloatArray, camera: str) -> tuple[float, float]:
     """Angular rate (rad/s) by a straight-line fit, checked for a steady non-zero rotation."""
     steps = np.diff(theta)
     if np.any(np.abs(steps) > 0.8 * np.pi):
@@ -92,8 +94,8 @@ def _rate(theta: np.ndarray, tau: np.ndarray, camera: str) -> tuple[float, float
     return float(omega), float(np.std(resid))
 
 
-def _camera_series(cam: str, P: np.ndarray, obs: object, rows_px: object, *, centre: np.ndarray,
-                   axis: np.ndarray) -> tuple[np.ndarray, np.ndarray, float, float, float, np.ndarray]:
+def _camera_series(cam: str, P: FloatArray, obs: object, rows_px: object, *, centre: FloatArray,
+                   axis: FloatArray) -> tuple[FloatArray, FloatArray, float, float, float, FloatArray]:
     """(τ, unwrapped angle, rate rad/s, radius mm, angle scatter rad, rows px) of one camera's track."""
     if not (isinstance(obs, tuple | list) and len(obs) == 2):
         raise InputArrayError(f"observations of camera {cam} must be one pair (timestamp_s, uv_px)")
@@ -111,8 +113,8 @@ def _camera_series(cam: str, P: np.ndarray, obs: object, rows_px: object, *, cen
     return tau, theta, omega, radius, ang_scatter, rows
 
 
-def _offset_from_delays(delays: np.ndarray, d_rows: np.ndarray | None, dt_s: np.ndarray
-                        ) -> tuple[np.ndarray, np.ndarray]:
+def _offset_from_delays(delays: FloatArray, d_rows: FloatArray | None, dt_s: FloatArray
+                        ) -> tuple[FloatArray, FloatArray]:
     """(offset s, line time s, drift ppm) and their standard uncertainties: the mean delay, or with the row
     differences ``d_rows`` (px) the least-squares plane delay = δ + ℓ·d_rows + drift·1e-6·dt_s (``dt_s``:
     B's time stamps about the epoch; δ at equal rows and the epoch)."""
@@ -132,8 +134,8 @@ def _offset_from_delays(delays: np.ndarray, d_rows: np.ndarray | None, dt_s: np.
 
 
 def estimate_rotor(
-    camera_a: object,
-    camera_b: object,
+    camera_a: Camera,
+    camera_b: Camera,
     observations_a: object,
     observations_b: object,
     *,
