@@ -23,8 +23,9 @@ import scipy.linalg
 import scipy.optimize
 
 from rig.stereo._arrays import FloatArray
+from rig.stereo.control_points import check_calibration_input, design_rows
 from rig.stereo.distortion import distort, distort_jacobian, undistort
-from rig.stereo.dlt11 import P_from_dlt11, check_calibration_input, design_rows, dlt11_from_P
+from rig.stereo.dlt11 import P_from_dlt11, dlt11_from_P
 from rig.stereo.errors import CalibrationFormatError, DegenerateCalibrationError, InputArrayError
 from rig.stereo.normalize import (
     as_points,
