@@ -1,8 +1,8 @@
 """Joint estimate of time offset, rolling-shutter line time and clock drift from any moving marker (ours).
 
 For parameters θ = (offset δ, line time ℓ, drift d) the observations of both cameras get row-corrected
-instants (:func:`rig.stereo.timing.corrected_times`; the line time is common to both cameras unless fixed
-per camera), camera B's track is reconstructed band-limited at camera A's instants
+instants (:func:`rig.stereo.timing_model.corrected_times`; the line time is common to both cameras unless
+fixed per camera), camera B's track is reconstructed band-limited at camera A's instants
 (:func:`rig.stereo.resample.bandlimited`, exact for irregular row times), and the signed Sampson epipolar
 distance of each pair is the residual, normalised by its own noise: the interpolation's noise gain and the
 row noise that also moves each observation's row-corrected instant (velocity × line time) both depend on

@@ -9,7 +9,8 @@ exposed at
 The reference camera has offset 0 and drift 0 by definition; a constant such as half the exposure time is
 absorbed into the offsets (it cancels when both cameras expose equally long). ``epoch_s`` is the camera-clock
 instant about which the drift is applied (the middle of the record used to estimate it), so that offset and
-drift are nearly uncorrelated. The estimators (:mod:`rig.stereo.timing`) share these types.
+drift are nearly uncorrelated. Both estimators (:mod:`rig.stereo.timing_joint`,
+:mod:`rig.stereo.timing_rotor`, dispatched by :mod:`rig.stereo.timing`) return a :class:`TimingResult`.
 """
 
 from __future__ import annotations
