@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from rig.stereo._arrays import FloatArray
+from rig.stereo._arrays import FloatArray, IntArray
 from rig.stereo.errors import (
     InputArrayError,
     NonMonotonicTimestampsError,
@@ -44,7 +44,7 @@ def as_values(x: object, n: int, name: str = "x") -> FloatArray:
 
 def uniform_grid(
     t: FloatArray, name: str = "t_s", *, tolerance: float = 0.02
-) -> tuple[float, float, FloatArray]:
+) -> tuple[float, float, IntArray]:
     """Fit t_k ≈ t0 + n_k·T with integer n_k (gaps allowed); return (t0_s, period_s, n_k).
 
     Raises NonUniformSamplingError when a time stamp deviates from the grid by more than

@@ -22,7 +22,7 @@ import numpy as np
 import scipy.linalg
 import scipy.optimize
 
-from rig.stereo._arrays import FloatArray
+from rig.stereo._arrays import BoolArray, FloatArray
 from rig.stereo.control_points import check_calibration_input, design_rows
 from rig.stereo.distortion import distort, distort_jacobian, undistort
 from rig.stereo.dlt11 import P_from_dlt11, dlt11_from_P
@@ -324,7 +324,7 @@ def calibrate_dlt(
 _DISTORTION_TERMS = {"k1": (1, 0, 0, 0), "k1k2": (1, 1, 0, 0), "k1k2p1p2": (1, 1, 1, 1)}
 
 
-def _distortion_terms(distortion: object) -> FloatArray:
+def _distortion_terms(distortion: object) -> BoolArray:
     """Mask of the fitted coefficients (k1, k2, p1, p2) for the ``distortion`` argument."""
     if distortion is False or distortion is None:
         return np.zeros(4, dtype=bool)
@@ -338,7 +338,7 @@ def _distortion_terms(distortion: object) -> FloatArray:
 
 
 def _refine(
-    P0: FloatArray, xyz: FloatArray, uv: FloatArray, size: tuple[int, int], free: FloatArray
+    P0: FloatArray, xyz: FloatArray, uv: FloatArray, size: tuple[int, int], free: BoolArray
 ) -> DLTCamera:
     """Levenberg–Marquardt on the pixel residuals; P in normalized coordinates with P_n[2,3] = 1 as gauge."""
     Tw, Ti = similarity_3d(xyz), similarity_2d(uv)

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.optimize
 
-from rig.stereo._arrays import FloatArray
+from rig.stereo._arrays import BoolArray, FloatArray, IntArray
 from rig.stereo.dlt import DLTCamera
 from rig.stereo.errors import DegenerateGeometryError, InputArrayError
 from rig.stereo.normalize import as_points, as_projection, homogeneous
@@ -30,11 +30,11 @@ class Matches:
     of points without a partner within the gate.
     """
 
-    pairs: FloatArray
+    pairs: IntArray
     distance_px: FloatArray
-    ambiguous: FloatArray
-    unmatched_a: FloatArray
-    unmatched_b: FloatArray
+    ambiguous: BoolArray
+    unmatched_a: IntArray
+    unmatched_b: IntArray
 
     def __len__(self) -> int:
         return int(self.pairs.shape[0])

@@ -12,7 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from rig.stereo._arrays import FloatArray
+from rig.stereo._arrays import BoolArray, FloatArray
 from rig.stereo.errors import DegenerateReferenceError, InputArrayError
 from rig.stereo.normalize import as_points
 
@@ -129,7 +129,7 @@ class Stabilized:
     t_mm: FloatArray
     scale: FloatArray
     rms_mm: FloatArray
-    valid: FloatArray
+    valid: BoolArray
 
 
 def stabilize(

@@ -21,7 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import optimize
 
-from rig.stereo._arrays import FloatArray
+from rig.stereo._arrays import FloatArray, IntArray
 from rig.stereo.errors import InputArrayError, TooFewSamplesError
 from rig.stereo.normalize import Camera
 from rig.stereo.trajectory import SineBasis, Trajectory, _check, fit_sine_trajectory, fit_trajectory
@@ -41,7 +41,7 @@ class SweepTrack:
     amplitude: FloatArray
     direction: FloatArray
     residual_rms_px: FloatArray
-    n_observations: FloatArray
+    n_observations: IntArray
 
 
 def _fit_chirp(
