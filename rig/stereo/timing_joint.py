@@ -193,7 +193,7 @@ class _Residuals:
                 sel &= ~near
             if np.count_nonzero(sel) >= 4:
                 self.data.append(TrackPair(ta[sel], ua[sel], ra[sel], tb, ub, rb))
-        self.n = sum(len(d[0]) for d in self.data)
+        self.n = sum(len(d.tau_a) for d in self.data)
 
     def residuals(
         self, delta_s: float, line_s: float, drift_ppm: float, *, weighted: bool = True
@@ -259,7 +259,7 @@ class JointTiming:
                  max_drift_ppm: float = 200.0, edge_margin_frames: float = EDGE_MARGIN_FRAMES) -> None:
         P_a, P_b = projection_matrix(camera_a), projection_matrix(camera_b)
         self.tracks = as_tracks(observations_a, observations_b)
-        self.period_b = float(np.median(np.concatenate([np.diff(tr[3]) for tr in self.tracks])))
+        self.period_b = float(np.median(np.concatenate([np.diff(tr.tau_b) for tr in self.tracks])))
         half = 1.5 * self.period_b if search_half_width_s is None else float(search_half_width_s)
         if not half > 0:
             raise InputArrayError(f"search_half_width_s must be positive, got {search_half_width_s!r}")
@@ -273,7 +273,7 @@ class JointTiming:
             self.prior = None
         self.guess_s, self.half_s = float(offset_guess_s), half
         self.estimate_drift, self.max_drift_ppm = bool(estimate_drift), float(max_drift_ppm)
-        all_tb = np.concatenate([tr[3] for tr in self.tracks])
+        all_tb = np.concatenate([tr.tau_b for tr in self.tracks])
         self.epoch_b = 0.5 * (all_tb.min() + all_tb.max())
         # A's instants this far inside B's record: the kernel half-width (32) + the rows' spread; or fewer
         # frames (``edge_margin_frames``) when a truncated kernel near B's ends is acceptable
@@ -297,7 +297,7 @@ class JointTiming:
                 f"only {self.res.n} observations of camera A fall inside camera B's record for offsets "
                 f"{self.guess_s:+.4f} ± {half:.4f} s (need {MIN_OBSERVATIONS}); "
                 "the records do not overlap enough (or are too short)")
-        v_span = max(float(np.ptp(np.concatenate([tr[2], tr[5]]))) for tr in self.tracks)
+        v_span = max(float(np.ptp(np.concatenate([tr.rows_a, tr.rows_b]))) for tr in self.tracks)
         # the row-time spread must stay below half a frame for the band-limited reconstruction
         self.line_max_s = 0.4 * self.period_b / max(v_span, 1.0)
         self.notes: dict[str, Any] = {}
@@ -383,7 +383,7 @@ class JointTiming:
         than 3 σ outside the prior or less certain than the prior itself (its width / √12)."""
         std_s = float(fit.std[1]) * 1e-6
         prior = self.prior
-        max_row = max(float(np.max(np.concatenate([tr[2], tr[5]]))) for tr in self.tracks)
+        max_row = max(float(np.max(np.concatenate([tr.rows_a, tr.rows_b]))) for tr in self.tracks)
         limit_s = self.period_b / max(max_row, 1.0)
         outside = prior is not None and not (prior[0] - 3 * std_s <= fit.line_s <= prior[1] + 3 * std_s)
         vague = prior is not None and std_s > (prior[1] - prior[0]) / np.sqrt(12.0)
