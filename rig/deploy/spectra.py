@@ -118,7 +118,7 @@ def time_frequency(t_s: np.ndarray, x: np.ndarray) -> Spectrogram:
     w = window_weights("hann", n_win)
     amp = 2.0 * np.abs(np.fft.rfft(segs * w, axis=1)) / w.sum()
     amp[:, 0] /= 2.0
-    freq = np.fft.rfftfreq(n_win, d=period)
+    freq = np.asarray(np.fft.rfftfreq(n_win, d=period), dtype=np.float64)
     centres = t_s[0] + period * (np.arange(len(segs)) * n_step + 0.5 * (n_win - 1))
     k = 1 + np.argmax(amp[:, 1:], axis=1)
     return Spectrogram(centres, freq, amp, freq[k], amp[np.arange(len(k)), k])

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from rig.stereo._arrays import FloatArray, IntArray
 from rig.stereo.errors import (
     InputArrayError,
     NonMonotonicTimestampsError,
@@ -12,7 +13,7 @@ from rig.stereo.errors import (
 )
 
 
-def as_times(t_s: object, name: str = "t_s", *, min_count: int = 2) -> np.ndarray:
+def as_times(t_s: object, name: str = "t_s", *, min_count: int = 2) -> FloatArray:
     """Return ``t_s`` as a finite, strictly increasing 1-D float array of at least ``min_count`` values."""
     t = np.asarray(t_s, dtype=float)
     if t.ndim != 1:
@@ -31,7 +32,7 @@ def as_times(t_s: object, name: str = "t_s", *, min_count: int = 2) -> np.ndarra
     return t
 
 
-def as_values(x: object, n: int, name: str = "x") -> np.ndarray:
+def as_values(x: object, n: int, name: str = "x") -> FloatArray:
     """Return ``x`` as a finite float array whose first axis has length ``n``."""
     a = np.asarray(x, dtype=float)
     if a.ndim == 0 or a.shape[0] != n:
@@ -42,8 +43,8 @@ def as_values(x: object, n: int, name: str = "x") -> np.ndarray:
 
 
 def uniform_grid(
-    t: np.ndarray, name: str = "t_s", *, tolerance: float = 0.02
-) -> tuple[float, float, np.ndarray]:
+    t: FloatArray, name: str = "t_s", *, tolerance: float = 0.02
+) -> tuple[float, float, IntArray]:
     """Fit t_k ≈ t0 + n_k·T with integer n_k (gaps allowed); return (t0_s, period_s, n_k).
 
     Raises NonUniformSamplingError when a time stamp deviates from the grid by more than

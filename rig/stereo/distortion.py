@@ -13,10 +13,11 @@ from __future__ import annotations
 
 import numpy as np
 
+from rig.stereo._arrays import BoolArray, FloatArray
 from rig.stereo.errors import DistortionError
 
 
-def distort(xy: np.ndarray, coeffs: np.ndarray) -> np.ndarray:
+def distort(xy: FloatArray, coeffs: FloatArray) -> FloatArray:
     """Apply the distortion to normalized points ``xy`` (N, 2); returns distorted normalized points."""
     k1, k2, p1, p2 = coeffs
     x, y = xy[:, 0], xy[:, 1]
@@ -27,7 +28,7 @@ def distort(xy: np.ndarray, coeffs: np.ndarray) -> np.ndarray:
     return np.stack([xd, yd], axis=1)
 
 
-def distort_jacobian(xy: np.ndarray, coeffs: np.ndarray) -> np.ndarray:
+def distort_jacobian(xy: FloatArray, coeffs: FloatArray) -> FloatArray:
     """∂(x_d, y_d)/∂(x, y) at normalized points ``xy`` (N, 2); returns (N, 2, 2)."""
     k1, k2, p1, p2 = coeffs
     x, y = xy[:, 0], xy[:, 1]
@@ -43,8 +44,8 @@ def distort_jacobian(xy: np.ndarray, coeffs: np.ndarray) -> np.ndarray:
 
 
 def undistort(
-    xy_d: np.ndarray, coeffs: np.ndarray, *, strict: bool = True, tol: float = 1e-12, max_iter: int = 50
-) -> np.ndarray:
+    xy_d: FloatArray, coeffs: FloatArray, *, strict: bool = True, tol: float = 1e-12, max_iter: int = 50
+) -> FloatArray:
     """Invert :func:`distort` by Newton's method, vectorized; NaN rows stay NaN.
 
     A point fails when Newton does not reproduce it or lands where the model folds over (det ∂x_d/∂x ≤ 0:
@@ -52,7 +53,7 @@ def undistort(
     raises :class:`DistortionError` for any failed point; ``strict=False`` returns NaN for those rows.
     """
     xy = xy_d.copy()
-    active = np.isfinite(xy_d).all(axis=1)
+    active: BoolArray = np.all(np.isfinite(xy_d), axis=1)
     finite = active.copy()
     for _ in range(max_iter):
         if not active.any():

@@ -16,14 +16,16 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 from functools import cached_property
-from typing import Any
+from typing import Any, Literal, overload
 
 import numpy as np
 import scipy.linalg
 import scipy.optimize
 
+from rig.stereo._arrays import BoolArray, FloatArray
+from rig.stereo.control_points import check_calibration_input, design_rows
 from rig.stereo.distortion import distort, distort_jacobian, undistort
-from rig.stereo.dlt11 import P_from_dlt11, check_calibration_input, design_rows, dlt11_from_P
+from rig.stereo.dlt11 import P_from_dlt11, dlt11_from_P
 from rig.stereo.errors import CalibrationFormatError, DegenerateCalibrationError, InputArrayError
 from rig.stereo.normalize import (
     as_points,
@@ -36,7 +38,7 @@ from rig.stereo.normalize import (
 CONVENTIONS = ("homogeneous-svd", "l12-lstsq", "refined", "external")
 
 
-def _normalized_p(P: np.ndarray) -> np.ndarray:
+def _normalized_p(P: FloatArray) -> FloatArray:
     """Scale P so that ‖m3‖ = 1 and det(M) > 0: then P[2]·[X,1] is the depth in mm in front of the camera."""
     norm = np.linalg.norm(P[2, :3])
     if abs(norm - 1.0) > 4 * np.finfo(float).eps:  # idempotent, so from_dict(to_dict()) is bit-exact
@@ -52,10 +54,10 @@ class DLTCamera:
     how P was obtained (one of :data:`CONVENTIONS`).
     """
 
-    P: np.ndarray
+    P: FloatArray
     image_size: tuple[int, int] = (1920, 1080)
     distortion: tuple[float, float, float, float] | None = None
-    residuals_px: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
+    residuals_px: FloatArray = field(default_factory=lambda: np.zeros((0, 2)))
     convention: str = "homogeneous-svd"
     refined: bool = False
 
@@ -85,7 +87,7 @@ class DLTCamera:
         return int(self.residuals_px.shape[0])
 
     @property
-    def residuals(self) -> np.ndarray:
+    def residuals(self) -> FloatArray:
         """Alias of ``residuals_px`` (DESIGN.md's public surface)."""
         return self.residuals_px
 
@@ -104,36 +106,46 @@ class DLTCamera:
         return float(np.sqrt(np.sum(self.residuals_px**2, axis=1)).max())
 
     # ----------------------------------------------------------------- geometry
-    def decompose(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def decompose(self) -> tuple[FloatArray, FloatArray, FloatArray]:
         """RQ-decompose P = λ·K·[R | −R·C]: K upper-triangular with positive diagonal and K[2,2] = 1,
         R a proper rotation (world → camera), C the camera centre in mm."""
         M = self.P[:, :3]
         K, R = scipy.linalg.rq(M)
         D = np.diag(np.sign(np.diag(K)))
         K, R = K @ D, D @ R  # det(R) = det(M) / det(K) > 0 because P is normalized to det(M) > 0
-        centre = -np.linalg.solve(M, self.P[:, 3])
+        centre = np.asarray(-np.linalg.solve(M, self.P[:, 3]), dtype=np.float64)
         return K / K[2, 2], R, centre
 
     @property
-    def centre_mm(self) -> np.ndarray:
-        return -np.linalg.solve(self.P[:, :3], self.P[:, 3])
+    def centre_mm(self) -> FloatArray:
+        return np.asarray(-np.linalg.solve(self.P[:, :3], self.P[:, 3]), dtype=np.float64)
 
     @cached_property
-    def _k(self) -> np.ndarray:
+    def _k(self) -> FloatArray:
         return self.decompose()[0]
 
-    def project(self, xyz_mm: object) -> np.ndarray:
+    def project(self, xyz_mm: object) -> FloatArray:
         """Project world points (N, 3) mm to pixels (N, 2), with distortion if any; NaN rows stay NaN."""
         return self.project_with_jacobian(xyz_mm, jacobian=False)[0]
 
+    @overload
+    def project_with_jacobian(
+        self, xyz_mm: object, *, jacobian: Literal[True] = True
+    ) -> tuple[FloatArray, FloatArray]: ...
+
+    @overload
+    def project_with_jacobian(
+        self, xyz_mm: object, *, jacobian: Literal[False]
+    ) -> tuple[FloatArray, None]: ...
+
     def project_with_jacobian(
         self, xyz_mm: object, *, jacobian: bool = True
-    ) -> tuple[np.ndarray, np.ndarray | None]:
+    ) -> tuple[FloatArray, FloatArray | None]:
         """Pixels (N, 2) and, if asked, ∂(u, v)/∂(x, y, z) (N, 2, 3) in px/mm."""
         xyz = as_points(xyz_mm, "xyz_mm", 3, allow_nan=True, allow_empty=True)
         x = xyz @ self.P[:, :3].T + self.P[:, 3]
         uv = x[:, :2] / x[:, 2:3]
-        J = None
+        J: FloatArray | None = None
         if jacobian:
             J = (self.P[None, :2, :3] - uv[:, :, None] * self.P[None, 2:3, :3]) / x[:, 2, None, None]
         if self.distortion is None:
@@ -143,14 +155,14 @@ class DLTCamera:
         xy = (uv - K[:2, 2]) @ Ainv.T
         coeffs = np.asarray(self.distortion)
         uv_d = distort(xy, coeffs) @ A.T + K[:2, 2]
-        if jacobian:
+        if J is not None:
             Jn = np.einsum("ij,njk->nik", Ainv, J)  # ∂(x, y)/∂X
             Jd = distort_jacobian(xy, coeffs)
             Jn = Jd[:, :, :1] * Jn[:, None, 0, :] + Jd[:, :, 1:] * Jn[:, None, 1, :]
             J = np.einsum("ij,njk->nik", A, Jn)
         return uv_d, J
 
-    def undistort_px(self, uv_px: object, *, strict: bool = True) -> np.ndarray:
+    def undistort_px(self, uv_px: object, *, strict: bool = True) -> FloatArray:
         """Observed pixels (N, 2) → ideal pinhole pixels of P (identity without distortion); NaN kept.
 
         Pixels outside the field where the lens model is invertible raise :class:`DistortionError`, or
@@ -164,7 +176,7 @@ class DLTCamera:
         return undistort(xy_d, np.asarray(self.distortion), strict=strict) @ A.T + K[:2, 2]
 
     # ----------------------------------------------------------------- conventions and storage
-    def dlt11(self, *, length_unit_mm: float = 1.0) -> np.ndarray:
+    def dlt11(self, *, length_unit_mm: float = 1.0) -> FloatArray:
         """The 11 coefficients L1…L11 (Convention A, L12 = 1) for world units of ``length_unit_mm``."""
         return dlt11_from_P(self.P, length_unit_mm=length_unit_mm)
 
@@ -237,7 +249,7 @@ class DLTCamera:
         return cam
 
 
-def _linear_p(xyz: np.ndarray, uv: np.ndarray, normalize: bool = True) -> np.ndarray:
+def _linear_p(xyz: FloatArray, uv: FloatArray, normalize: bool = True) -> FloatArray:
     Tw, Ti = (similarity_3d(xyz), similarity_2d(uv)) if normalize else (np.eye(4), np.eye(3))
     xyz_n = (homogeneous(xyz) @ Tw.T)[:, :3]
     uv_n = (homogeneous(uv) @ Ti.T)[:, :2]
@@ -251,11 +263,17 @@ def _linear_p(xyz: np.ndarray, uv: np.ndarray, normalize: bool = True) -> np.nda
 
 
 def _camera(
-    P: np.ndarray, xyz: np.ndarray, uv: np.ndarray, image_size: tuple[int, int], **kw: Any
+    P: FloatArray,
+    xyz: FloatArray,
+    uv: FloatArray,
+    image_size: tuple[int, int],
+    *,
+    convention: str,
+    refined: bool,
+    distortion: tuple[float, float, float, float] | None = None,
 ) -> DLTCamera:
-    cam = DLTCamera(
-        P, image_size, distortion=kw.get("distortion"), convention=kw["convention"], refined=kw["refined"]
-    )
+    """The camera of ``P`` with its reprojection residuals on the control points (px)."""
+    cam = DLTCamera(P, image_size, distortion=distortion, convention=convention, refined=refined)
     return DLTCamera(
         cam.P,
         cam.image_size,
@@ -306,7 +324,7 @@ def calibrate_dlt(
 _DISTORTION_TERMS = {"k1": (1, 0, 0, 0), "k1k2": (1, 1, 0, 0), "k1k2p1p2": (1, 1, 1, 1)}
 
 
-def _distortion_terms(distortion: object) -> np.ndarray:
+def _distortion_terms(distortion: object) -> BoolArray:
     """Mask of the fitted coefficients (k1, k2, p1, p2) for the ``distortion`` argument."""
     if distortion is False or distortion is None:
         return np.zeros(4, dtype=bool)
@@ -320,7 +338,7 @@ def _distortion_terms(distortion: object) -> np.ndarray:
 
 
 def _refine(
-    P0: np.ndarray, xyz: np.ndarray, uv: np.ndarray, size: tuple[int, int], free: np.ndarray
+    P0: FloatArray, xyz: FloatArray, uv: FloatArray, size: tuple[int, int], free: BoolArray
 ) -> DLTCamera:
     """Levenberg–Marquardt on the pixel residuals; P in normalized coordinates with P_n[2,3] = 1 as gauge."""
     Tw, Ti = similarity_3d(xyz), similarity_2d(uv)
@@ -328,7 +346,7 @@ def _refine(
     Pn = Pn / Pn[2, 3]  # the centroid of the points is in front of the camera, so P_n[2,3] ≠ 0
     Ti_inv = np.linalg.inv(Ti)
 
-    def unpack(p: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
+    def unpack(p: FloatArray) -> tuple[FloatArray, FloatArray | None]:
         P = Ti_inv @ np.append(p[:11], 1.0).reshape(3, 4) @ Tw
         if not free.any():
             return P, None
@@ -336,7 +354,7 @@ def _refine(
         d[free] = p[11:]
         return P, d
 
-    def residuals(p: np.ndarray) -> np.ndarray:
+    def residuals(p: FloatArray) -> FloatArray:
         P, d = unpack(p)
         try:
             cam = DLTCamera(P, size, distortion=None if d is None else tuple(d))

@@ -14,6 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.optimize
 
+from rig.stereo._arrays import BoolArray, FloatArray, IntArray
 from rig.stereo.dlt import DLTCamera
 from rig.stereo.errors import DegenerateGeometryError, InputArrayError
 from rig.stereo.normalize import as_points, as_projection, homogeneous
@@ -29,21 +30,21 @@ class Matches:
     of points without a partner within the gate.
     """
 
-    pairs: np.ndarray
-    distance_px: np.ndarray
-    ambiguous: np.ndarray
-    unmatched_a: np.ndarray
-    unmatched_b: np.ndarray
+    pairs: IntArray
+    distance_px: FloatArray
+    ambiguous: BoolArray
+    unmatched_a: IntArray
+    unmatched_b: IntArray
 
     def __len__(self) -> int:
         return int(self.pairs.shape[0])
 
 
-def _projection(camera: object, name: str) -> np.ndarray:
+def _projection(camera: object, name: str) -> FloatArray:
     return camera.P if isinstance(camera, DLTCamera) else as_projection(camera, name)
 
 
-def fundamental_from_projections(P_a: object, P_b: object) -> np.ndarray:
+def fundamental_from_projections(P_a: object, P_b: object) -> FloatArray:
     """F = [e_b]× · P_b · P_a⁺ (unit Frobenius norm), e_b = P_b·C_a the epipole of A's centre in B.
 
     Accepts (3, 4) matrices or :class:`DLTCamera` objects. Raises :class:`DegenerateGeometryError` when
@@ -53,18 +54,18 @@ def fundamental_from_projections(P_a: object, P_b: object) -> np.ndarray:
     centre_a = -np.linalg.solve(Pa[:, :3], Pa[:, 3])
     centre_b = -np.linalg.solve(Pb[:, :3], Pb[:, 3])
     baseline_mm = float(np.linalg.norm(centre_a - centre_b))
-    if baseline_mm <= 1e-9 * max(np.linalg.norm(centre_a), np.linalg.norm(centre_b), 1.0):
+    if baseline_mm <= 1e-9 * max(float(np.linalg.norm(centre_a)), float(np.linalg.norm(centre_b)), 1.0):
         raise DegenerateGeometryError(
             f"the two cameras share a centre (baseline {baseline_mm:.3g} mm): "
             "epipolar geometry needs a baseline; check that two different calibrations were passed"
         )
     e_b = Pb @ np.append(centre_a, 1.0)
     cross = np.array([[0.0, -e_b[2], e_b[1]], [e_b[2], 0.0, -e_b[0]], [-e_b[1], e_b[0], 0.0]])
-    F = cross @ Pb @ np.linalg.pinv(Pa)
+    F: FloatArray = cross @ Pb @ np.linalg.pinv(Pa)
     return F / np.linalg.norm(F)
 
 
-def epipolar_distance_px(F: object, uv_a: object, uv_b: object, *, pairwise: bool = True) -> np.ndarray:
+def epipolar_distance_px(F: object, uv_a: object, uv_b: object, *, pairwise: bool = True) -> FloatArray:
     """Symmetric point-to-epipolar-line distance in px: sqrt((d_a² + d_b²) / 2).
 
     d_b is the distance of ``uv_b`` from the epipolar line of ``uv_a`` in image B, d_a the converse.

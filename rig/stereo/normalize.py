@@ -6,8 +6,12 @@ Every public function of the stereo core validates its arrays here, so that bad 
 
 from __future__ import annotations
 
-import numpy as np
+from typing import Protocol, TypeAlias, runtime_checkable
 
+import numpy as np
+from numpy.typing import ArrayLike
+
+from rig.stereo._arrays import FloatArray
 from rig.stereo.errors import InputArrayError
 
 
@@ -18,7 +22,7 @@ def as_points(
     *,
     allow_nan: bool = False,
     allow_empty: bool = False,
-) -> np.ndarray:
+) -> FloatArray:
     """Return ``array`` as a float64 ``(N, dim)`` array after checking dtype, shape and finiteness.
 
     ``allow_nan=True`` admits NaN (meaning "not observed") but still refuses ±inf. A single point of
@@ -50,7 +54,7 @@ def as_points(
     return arr
 
 
-def as_projection(P: object, name: str = "P") -> np.ndarray:
+def as_projection(P: object, name: str = "P") -> FloatArray:
     """Return a finite float64 ``(3, 4)`` projection matrix with a non-singular left 3×3 block."""
     arr = np.asarray(P)
     if arr.dtype == object or not (
@@ -69,7 +73,29 @@ def as_projection(P: object, name: str = "P") -> np.ndarray:
     return arr
 
 
-def similarity_2d(uv: np.ndarray) -> np.ndarray:
+@runtime_checkable
+class HasProjection(Protocol):
+    """A calibrated camera (e.g. :class:`rig.stereo.dlt.DLTCamera`): its 3×4 projection matrix, mm → px."""
+
+    @property
+    def P(self) -> FloatArray: ...  # noqa: N802
+
+
+#: A camera as the estimators take it: an object with ``.P`` or the 3×4 matrix itself.
+Camera: TypeAlias = HasProjection | ArrayLike
+
+
+def projection_matrix(camera: Camera) -> FloatArray:
+    """3×4 float projection matrix of ``camera`` (an array or an object with ``.P``)."""
+    P = np.asarray(camera.P if isinstance(camera, HasProjection) else camera, dtype=float)
+    if P.shape != (3, 4) or not np.all(np.isfinite(P)):
+        raise InputArrayError(
+            f"a camera must be a finite 3×4 projection matrix (or have .P), got shape {P.shape}"
+        )
+    return P
+
+
+def similarity_2d(uv: FloatArray) -> FloatArray:
     """Hartley normalization of image points: 3×3 T with T·[u,v,1] centred and mean distance √2."""
     centre = np.nanmean(uv, axis=0)
     dist = np.sqrt(np.nansum((uv - centre) ** 2, axis=1))
@@ -78,7 +104,7 @@ def similarity_2d(uv: np.ndarray) -> np.ndarray:
     return np.array([[scale, 0.0, -scale * centre[0]], [0.0, scale, -scale * centre[1]], [0.0, 0.0, 1.0]])
 
 
-def similarity_3d(xyz: np.ndarray) -> np.ndarray:
+def similarity_3d(xyz: FloatArray) -> FloatArray:
     """Hartley normalization of world points: 4×4 T with T·[x,y,z,1] centred and mean distance √3."""
     centre = np.nanmean(xyz, axis=0)
     dist = np.sqrt(np.nansum((xyz - centre) ** 2, axis=1))
@@ -90,18 +116,19 @@ def similarity_3d(xyz: np.ndarray) -> np.ndarray:
     return T
 
 
-def homogeneous(points: np.ndarray) -> np.ndarray:
+def homogeneous(points: FloatArray) -> FloatArray:
     """Append a column of ones: (N, d) → (N, d + 1)."""
     return np.concatenate([points, np.ones((points.shape[0], 1))], axis=1)
 
 
-def principal_spread(points: np.ndarray) -> np.ndarray:
+def principal_spread(points: FloatArray) -> FloatArray:
     """Singular values of the centred points divided by the largest one (scale-free, descending).
 
     For calibration points, ``[1, a, b]``: ``b ≈ 0`` means coplanar, ``a ≈ 0`` collinear.
     """
     centred = points - points.mean(axis=0)
-    s = np.linalg.svd(centred, compute_uv=False)
+    s: FloatArray = np.linalg.svd(centred, compute_uv=False)
     if s[0] == 0:
         return np.zeros_like(s)
-    return s / s[0]
+    spread: FloatArray = s / s[0]
+    return spread

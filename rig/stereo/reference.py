@@ -12,6 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from rig.stereo._arrays import BoolArray, FloatArray
 from rig.stereo.errors import DegenerateReferenceError, InputArrayError
 from rig.stereo.normalize import as_points
 
@@ -25,13 +26,13 @@ MIN_SPREAD_RATIO = 1e-3
 class RigidTransform:
     """x ↦ scale·R·x + t_mm. ``rms_mm`` is the RMS residual of the markers that defined it."""
 
-    R: np.ndarray
-    t_mm: np.ndarray
+    R: FloatArray
+    t_mm: FloatArray
     scale: float = 1.0
     rms_mm: float = 0.0
     n_markers: int = 0
 
-    def apply(self, xyz_mm: object) -> np.ndarray:
+    def apply(self, xyz_mm: object) -> FloatArray:
         """Transform points (N, 3) mm; NaN rows stay NaN."""
         xyz = as_points(xyz_mm, "xyz_mm", 3, allow_nan=True, allow_empty=True)
         return self.scale * xyz @ self.R.T + self.t_mm
@@ -43,7 +44,9 @@ class RigidTransform:
         )
 
 
-def _umeyama(src: np.ndarray, dst: np.ndarray, w: np.ndarray, with_scale: bool):
+def _umeyama(
+    src: FloatArray, dst: FloatArray, w: FloatArray, with_scale: bool
+) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray]:
     """Batched weighted Umeyama: src, dst (T, K, 3), w (T, K) ≥ 0. Returns R, t, s, spread ratio, rms."""
     wsum = w.sum(axis=1)
     safe = np.where(wsum > 0, wsum, 1.0)
@@ -104,7 +107,7 @@ def rigid_transform(
     return RigidTransform(R[0], t[0], float(s[0]), float(rms[0]), n)
 
 
-def _weights(weights: object, n: int) -> np.ndarray:
+def _weights(weights: object, n: int) -> FloatArray:
     if weights is None:
         return np.ones(n)
     w = np.asarray(weights, dtype=np.float64)
@@ -121,12 +124,12 @@ class Stabilized:
     corrected targets, R, t and scale are NaN.
     """
 
-    targets_mm: np.ndarray
-    R: np.ndarray
-    t_mm: np.ndarray
-    scale: np.ndarray
-    rms_mm: np.ndarray
-    valid: np.ndarray
+    targets_mm: FloatArray
+    R: FloatArray
+    t_mm: FloatArray
+    scale: FloatArray
+    rms_mm: FloatArray
+    valid: BoolArray
 
 
 def stabilize(
@@ -149,7 +152,7 @@ def stabilize(
         )
     rigid_transform(home, home)  # raises if the reference geometry itself is degenerate
     n_frames = ref.shape[0]
-    w = np.isfinite(ref).all(axis=2).astype(np.float64)
+    w: FloatArray = np.all(np.isfinite(ref), axis=2).astype(np.float64)
     R, t, s, spread, rms = _umeyama(ref, np.broadcast_to(home, ref.shape), w, scale)
     valid = (w.sum(axis=1) >= MIN_MARKERS) & (spread >= MIN_SPREAD_RATIO) & np.isfinite(s)
     R[~valid], t[~valid], s[~valid], rms[~valid] = np.nan, np.nan, np.nan, np.nan
@@ -157,7 +160,7 @@ def stabilize(
     return Stabilized(out, R, t, s if scale else np.where(valid, 1.0, np.nan), rms, valid.reshape(n_frames))
 
 
-def _tracks(array: object, name: str) -> np.ndarray:
+def _tracks(array: object, name: str) -> FloatArray:
     arr = np.asarray(array)
     if arr.ndim != 3 or arr.shape[2] != 3 or arr.shape[0] == 0:
         raise InputArrayError(f"{name}: shape {arr.shape} is not allowed; expected (T frames, markers, 3) mm")

@@ -17,17 +17,20 @@ Times in seconds; values in any unit.
 
 from __future__ import annotations
 
+from typing import Literal, overload
+
 import numpy as np
 from scipy import linalg, sparse
 from scipy.interpolate import CubicSpline
 
+from rig.stereo._arrays import FloatArray, IntArray
 from rig.stereo._series import as_times, as_values
 from rig.stereo.errors import InputArrayError, NonUniformSamplingError
 
 METHODS = ("linear", "cubic", "bandlimited")
 
 
-def kaiser_sinc(tau: np.ndarray, half_width: float, beta: float) -> np.ndarray:
+def kaiser_sinc(tau: FloatArray, half_width: float, beta: float) -> FloatArray:
     """Kaiser-windowed sinc of ``tau`` in sample periods, zero beyond ±half_width."""
     r = tau / half_width
     inside = np.abs(r) < 1.0
@@ -36,7 +39,7 @@ def kaiser_sinc(tau: np.ndarray, half_width: float, beta: float) -> np.ndarray:
     return np.sinc(tau) * win
 
 
-def _grid(t: np.ndarray) -> tuple[float, float, np.ndarray]:
+def _grid(t: FloatArray) -> tuple[float, float, IntArray]:
     """Uniform grid t0 + m·T that the (possibly jittered) time stamps belong to; raises if ambiguous."""
     period = float(np.median(np.diff(t)))
     # Slots from the steps (robust to a smooth jitter of the whole record), then one least-squares grid.
@@ -56,7 +59,7 @@ def _grid(t: np.ndarray) -> tuple[float, float, np.ndarray]:
     return float(t0), float(period), m
 
 
-def _kernel_matrix(tau_periods: np.ndarray, n_cols: int, half: int, beta: float) -> sparse.csr_matrix:
+def _kernel_matrix(tau_periods: FloatArray, n_cols: int, half: int, beta: float) -> sparse.csr_matrix:
     """Sparse matrix K[i, j] = h(tau_i − j) for grid columns within the kernel support of each row."""
     offsets = np.arange(-half, half + 1)
     base = np.floor(tau_periods).astype(np.int64)
@@ -67,15 +70,39 @@ def _kernel_matrix(tau_periods: np.ndarray, n_cols: int, half: int, beta: float)
     return sparse.csr_matrix((vals[ok], (rows[ok], j[ok])), shape=(tau_periods.size, n_cols))
 
 
+@overload
 def bandlimited(
-    t_src: np.ndarray,
-    values: np.ndarray,
-    t_dst: np.ndarray,
+    t_src: FloatArray,
+    values: FloatArray,
+    t_dst: FloatArray,
+    *,
+    half_width_samples: int = 32,
+    beta: float = 5.65,
+    noise_gain: Literal[False] = False,
+) -> FloatArray: ...
+
+
+@overload
+def bandlimited(
+    t_src: FloatArray,
+    values: FloatArray,
+    t_dst: FloatArray,
+    *,
+    half_width_samples: int = 32,
+    beta: float = 5.65,
+    noise_gain: Literal[True],
+) -> tuple[FloatArray, FloatArray]: ...
+
+
+def bandlimited(
+    t_src: FloatArray,
+    values: FloatArray,
+    t_dst: FloatArray,
     *,
     half_width_samples: int = 32,
     beta: float = 5.65,
     noise_gain: bool = False,
-) -> np.ndarray | tuple[np.ndarray, np.ndarray]:
+) -> FloatArray | tuple[FloatArray, FloatArray]:
     """Windowed-sinc reconstruction of ``values`` (N, k) sampled at ``t_src`` evaluated at ``t_dst``.
 
     ``noise_gain=True`` also returns, per destination, Σ_j M_ij² where M is the linear map from source
@@ -94,9 +121,12 @@ def bandlimited(
     tau_dst = (t_dst - t0) / period
     K = _kernel_matrix(tau_dst, n_grid, half_width_samples, beta)
     B = np.column_stack([np.ones_like(t_dst), t_dst - t_src[0]])
+    out: FloatArray
+    gain: FloatArray | None = None
     if np.allclose(tau_src, m, atol=1e-9, rtol=0) and n_grid == t_src.size:
         out = np.asarray(K @ detrended) + B @ trend
-        gain = np.asarray(K.multiply(K).sum(axis=1)).ravel() if noise_gain else None
+        if noise_gain:
+            gain = np.asarray(K.multiply(K).sum(axis=1)).ravel()
     else:
         S = _kernel_matrix(tau_src, n_grid, half_width_samples, beta)
         rhs = np.asarray(S.T @ detrended)
@@ -121,12 +151,12 @@ def bandlimited(
             # (the cubic prior of missing slots is left out: approximate next to a dropped frame).
             Z = linalg.solveh_banded(bands, K.T.toarray(), lower=True)
             gain = np.asarray(K.multiply(Z.T).sum(axis=1)).ravel() - np.sum(weights[:, None] * Z * Z, axis=0)
-    return (out, gain) if noise_gain else out
+    return (out, gain) if gain is not None else out
 
 
 def resample(
     t_src_s: object, values: object, t_dst_s: object, method: str = "linear", *, half_width_samples: int = 32
-) -> np.ndarray:
+) -> FloatArray:
     """Interpolate ``values`` (N,) or (N, k) known at ``t_src_s`` (s, strictly increasing) to ``t_dst_s`` (s).
 
     ``method``: "linear" | "cubic" | "bandlimited" (see module doc). Returns an array shaped like

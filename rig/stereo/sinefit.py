@@ -18,6 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from rig.stereo._arrays import FloatArray
 from rig.stereo._series import as_times, as_values
 from rig.stereo.errors import InputArrayError, TimingError, TooFewSamplesError
 from rig.stereo.spectrum import refine_peak, window_weights
@@ -39,7 +40,7 @@ class SineFit:
     offset_std: float
     frequency_std_hz: float  # 0.0 for a three-parameter fit (frequency given)
 
-    def evaluate(self, t_s: object) -> np.ndarray:
+    def evaluate(self, t_s: object) -> FloatArray:
         """The fitted sinusoid at ``t_s`` (s)."""
         t = np.asarray(t_s, dtype=float)
         return (
@@ -48,11 +49,16 @@ class SineFit:
         )
 
 
-def _design(tc: np.ndarray, omega: float) -> np.ndarray:
+def _lstsq(A: FloatArray, b: FloatArray) -> FloatArray:
+    """Least-squares solution of A·x ≈ b."""
+    return np.asarray(np.linalg.lstsq(A, b, rcond=None)[0], dtype=np.float64)
+
+
+def _design(tc: FloatArray, omega: float) -> FloatArray:
     return np.column_stack([np.cos(omega * tc), np.sin(omega * tc), np.ones_like(tc)])
 
 
-def initial_frequency(t: np.ndarray, x: np.ndarray, *, max_frequency_hz: float | None = None) -> float:
+def initial_frequency(t: FloatArray, x: FloatArray, *, max_frequency_hz: float | None = None) -> float:
     """Frequency of the largest Hann-windowed DTFT peak above 1.5/duration, refined within ±1 bin (Hz)."""
     duration = t[-1] - t[0]
     fs_nominal = 1.0 / float(np.median(np.diff(t)))
@@ -96,45 +102,68 @@ def fit_sine(
         raise InputArrayError(f"x must be 1-D, got shape {xv.shape}")
     t_ref = 0.5 * (t[0] + t[-1]) if t_ref_s is None else float(t_ref_s)
     tc = t - t_ref
-    duration = t[-1] - t[0]
     if frequency_hz is not None:
-        if not np.isfinite(frequency_hz) or frequency_hz <= 0:
-            raise InputArrayError(f"frequency_hz must be a positive finite number, got {frequency_hz!r}")
-        omega = 2 * np.pi * float(frequency_hz)
-        D = _design(tc, omega)
-        p, *_ = np.linalg.lstsq(D, xv, rcond=None)
-        J = D
-        four = False
+        omega, p, J = _three_parameter_fit(tc, xv, frequency_hz)
     else:
         if t.size < 6:
             raise TooFewSamplesError(f"a four-parameter sine fit needs at least 6 samples, got {t.size}")
         f_start = initial_frequency(t, xv) if initial_frequency_hz is None else float(initial_frequency_hz)
-        omega = 2 * np.pi * f_start
-        p, *_ = np.linalg.lstsq(_design(tc, omega), xv, rcond=None)
-        for _ in range(max_iterations):
-            c, s = np.cos(omega * tc), np.sin(omega * tc)
-            J = np.column_stack([c, s, np.ones_like(tc), tc * (-p[0] * s + p[1] * c)])
-            r = xv - (p[0] * c + p[1] * s + p[2])
-            step, *_ = np.linalg.lstsq(J, r, rcond=None)
-            p = p + step[:3]
-            omega += step[3]
-            if not np.isfinite(omega) or omega <= 0:
-                raise TimingError("four-parameter sine fit diverged (frequency left the positive axis)")
-            if abs(step[3]) * duration < 1e-10:
-                break
-        else:
-            raise TimingError(f"four-parameter sine fit did not converge in {max_iterations} iterations")
-        if omega * duration < 2 * np.pi:
-            raise TooFewSamplesError(
-                f"record of {duration:.4g} s holds {omega * duration / (2 * np.pi):.2f} periods at "
-                f"{omega / (2 * np.pi):.4g} Hz; the four-parameter fit needs at least 1, give frequency_hz"
-            )
-        c, s = np.cos(omega * tc), np.sin(omega * tc)
-        J = np.column_stack([c, s, np.ones_like(tc), tc * (-p[0] * s + p[1] * c)])
-        four = True
+        omega, p, J = _four_parameter_fit(tc, xv, 2 * np.pi * f_start, float(t[-1] - t[0]), max_iterations)
+    return _sine_result(tc, xv, t_ref, omega=omega, p=p, J=J)
+
+
+def _three_parameter_fit(
+    tc: FloatArray, x: FloatArray, frequency_hz: float
+) -> tuple[float, FloatArray, FloatArray]:
+    """Linear least squares in a·cos + b·sin + c at the given frequency: (ω rad/s, [a, b, c], Jacobian)."""
+    if not np.isfinite(frequency_hz) or frequency_hz <= 0:
+        raise InputArrayError(f"frequency_hz must be a positive finite number, got {frequency_hz!r}")
+    omega = 2 * np.pi * float(frequency_hz)
+    D = _design(tc, omega)
+    return omega, _lstsq(D, x), D
+
+
+def _four_parameter_fit(
+    tc: FloatArray, x: FloatArray, omega: float, duration_s: float, max_iterations: int
+) -> tuple[float, FloatArray, FloatArray]:
+    """Gauss–Newton on (a, b, c, ω) from ω (IEEE 1057 §4.1.2): (ω rad/s, [a, b, c], Jacobian at the
+    solution). TimingError when it diverges or does not converge, TooFewSamplesError under one period."""
+    p = _lstsq(_design(tc, omega), x)
+    for _ in range(max_iterations):
+        J = _four_parameter_jacobian(tc, omega, p)
+        c, s = J[:, 0], J[:, 1]
+        r = x - (p[0] * c + p[1] * s + p[2])
+        step = _lstsq(J, r)
+        p = p + step[:3]
+        omega += step[3]
+        if not np.isfinite(omega) or omega <= 0:
+            raise TimingError("four-parameter sine fit diverged (frequency left the positive axis)")
+        if abs(step[3]) * duration_s < 1e-10:
+            break
+    else:
+        raise TimingError(f"four-parameter sine fit did not converge in {max_iterations} iterations")
+    if omega * duration_s < 2 * np.pi:
+        raise TooFewSamplesError(
+            f"record of {duration_s:.4g} s holds {omega * duration_s / (2 * np.pi):.2f} periods at "
+            f"{omega / (2 * np.pi):.4g} Hz; the four-parameter fit needs at least 1, give frequency_hz"
+        )
+    return omega, p, _four_parameter_jacobian(tc, omega, p)
+
+
+def _four_parameter_jacobian(tc: FloatArray, omega: float, p: FloatArray) -> FloatArray:
+    """∂model/∂(a, b, c, ω) at times ``tc`` about the phase reference (N, 4)."""
+    c, s = np.cos(omega * tc), np.sin(omega * tc)
+    return np.column_stack([c, s, np.ones_like(tc), tc * (-p[0] * s + p[1] * c)])
+
+
+def _sine_result(
+    tc: FloatArray, x: FloatArray, t_ref: float, *, omega: float, p: FloatArray, J: FloatArray
+) -> SineFit:
+    """The :class:`SineFit` of a solution [a, b, c] at ω: amplitude and phase from (a, b), standard
+    uncertainties from s²·(JᵀJ)⁻¹ (the frequency's only when J has the ω column)."""
     a, b, off = p[:3]
-    resid = xv - (a * np.cos(omega * tc) + b * np.sin(omega * tc) + off)
-    dof = t.size - J.shape[1]
+    resid = x - (a * np.cos(omega * tc) + b * np.sin(omega * tc) + off)
+    dof = tc.size - J.shape[1]
     s2 = float(resid @ resid) / dof if dof > 0 else 0.0
     cov = s2 * np.linalg.pinv(J.T @ J)
     amp = float(np.hypot(a, b))
@@ -153,11 +182,11 @@ def fit_sine(
         frequency_hz=float(omega / (2 * np.pi)),
         t_ref_s=t_ref,
         residual_rms=float(np.sqrt(np.mean(resid**2))),
-        n_samples=int(t.size),
-        amplitude_std=float(np.sqrt(max(g_amp @ cab @ g_amp, 0.0))),
-        phase_std_rad=float(np.sqrt(max(g_ph @ cab @ g_ph, 0.0))),
+        n_samples=int(tc.size),
+        amplitude_std=float(np.sqrt(max(float(g_amp @ cab @ g_amp), 0.0))),
+        phase_std_rad=float(np.sqrt(max(float(g_ph @ cab @ g_ph), 0.0))),
         offset_std=float(np.sqrt(max(cov[2, 2], 0.0))),
-        frequency_std_hz=float(np.sqrt(max(cov[3, 3], 0.0)) / (2 * np.pi)) if four else 0.0,
+        frequency_std_hz=float(np.sqrt(max(cov[3, 3], 0.0)) / (2 * np.pi)) if J.shape[1] == 4 else 0.0,
     )
 
 
@@ -168,19 +197,19 @@ class SlidingSineFit:
     Arrays are per window; ``time_s`` is the window's mid time (the phase and frequency reference);
     ``frequency_rate_hz_s`` is the fitted sweep rate (0 where ``chirp=False``)."""
 
-    time_s: np.ndarray
-    frequency_hz: np.ndarray
-    amplitude: np.ndarray
-    phase_rad: np.ndarray
-    residual_rms: np.ndarray
-    frequency_std_hz: np.ndarray
-    amplitude_std: np.ndarray
-    frequency_rate_hz_s: np.ndarray
+    time_s: FloatArray
+    frequency_hz: FloatArray
+    amplitude: FloatArray
+    phase_rad: FloatArray
+    residual_rms: FloatArray
+    frequency_std_hz: FloatArray
+    amplitude_std: FloatArray
+    frequency_rate_hz_s: FloatArray
 
 
 def fit_chirp(
-    tc: np.ndarray, x: np.ndarray, omega0: float, *, max_iterations: int = 50
-) -> tuple[np.ndarray, ...]:
+    tc: FloatArray, x: FloatArray, omega0: float, *, max_iterations: int = 50
+) -> tuple[FloatArray, ...]:
     """Gauss–Newton fit of a·cos θ + b·sin θ + c with θ = ω·tc + ½·ω̇·tc² (a linear chirp about tc = 0).
 
     Returns (p = [a, b, c, ω, ω̇], covariance, residuals); starts at ω0 with ω̇ = 0.
@@ -260,7 +289,7 @@ def sliding_sine_fit(
                 float(np.arctan2(-p[1], p[0])),
                 float(np.sqrt(np.mean(r**2))),
                 float(np.sqrt(max(cov[3, 3], 0.0))) / (2 * np.pi),
-                float(np.sqrt(max(g @ cov[:2, :2] @ g, 0.0))),
+                float(np.sqrt(max(float(g @ cov[:2, :2] @ g), 0.0))),
                 p[4] / (2 * np.pi),
             )
         )

@@ -20,6 +20,7 @@ import numpy as np
 from scipy import optimize
 from scipy.signal import windows as sig_windows
 
+from rig.stereo._arrays import FloatArray
 from rig.stereo._series import as_times, as_values, uniform_grid
 from rig.stereo.errors import InputArrayError, TooFewSamplesError
 
@@ -35,8 +36,8 @@ class Spectrum:
     above ``min_frequency_hz``. ``resolution_hz`` is the bin spacing fs/N.
     """
 
-    frequency_hz: np.ndarray
-    amplitude: np.ndarray
+    frequency_hz: FloatArray
+    amplitude: FloatArray
     peak_frequency_hz: float
     peak_amplitude: float
     window: str
@@ -44,27 +45,30 @@ class Spectrum:
     resolution_hz: float
 
 
-def window_weights(name: str, n: int) -> np.ndarray:
+def window_weights(name: str, n: int) -> FloatArray:
     """The window of ``name`` (one of WINDOWS) with ``n`` points (symmetric=False, i.e. DFT-even)."""
+    w: FloatArray
     if name == "rect":
-        return np.ones(n)
-    if name == "hann":
-        return sig_windows.hann(n, sym=False)
-    if name == "flattop":
-        return sig_windows.flattop(n, sym=False)
-    if name == "blackmanharris":
-        return sig_windows.blackmanharris(n, sym=False)
-    raise InputArrayError(f"window must be one of {WINDOWS}, got {name!r}")
+        w = np.ones(n)
+    elif name == "hann":
+        w = sig_windows.hann(n, sym=False)
+    elif name == "flattop":
+        w = sig_windows.flattop(n, sym=False)
+    elif name == "blackmanharris":
+        w = sig_windows.blackmanharris(n, sym=False)
+    else:
+        raise InputArrayError(f"window must be one of {WINDOWS}, got {name!r}")
+    return w
 
 
-def dtft_amplitude(t_s: np.ndarray, x: np.ndarray, w: np.ndarray, frequency_hz: float) -> float:
+def dtft_amplitude(t_s: FloatArray, x: FloatArray, w: FloatArray, frequency_hz: float) -> float:
     """Amplitude-correct magnitude 2·|Σ w x e^{-j2πft}|/Σw at one frequency (any time stamps)."""
     phase = np.exp(-2j * np.pi * frequency_hz * (t_s - t_s[0]))
     return float(2.0 * np.abs(np.sum(w * x * phase)) / np.sum(w))
 
 
 def refine_peak(
-    t_s: np.ndarray, x: np.ndarray, w: np.ndarray, f0_hz: float, half_width_hz: float
+    t_s: FloatArray, x: FloatArray, w: FloatArray, f0_hz: float, half_width_hz: float
 ) -> tuple[float, float]:
     """Maximise the windowed DTFT magnitude within f0 ± half_width; return (frequency_hz, amplitude)."""
     lo, hi = max(f0_hz - half_width_hz, 0.0), f0_hz + half_width_hz
@@ -111,7 +115,7 @@ def spectrum(
     amp[0] /= 2.0
     if n % 2 == 0:
         amp[-1] /= 2.0
-    freq = np.fft.rfftfreq(n, d=period)
+    freq = np.asarray(np.fft.rfftfreq(n, d=period), dtype=np.float64)
     f_min = 1.5 * fs / n if min_frequency_hz is None else float(min_frequency_hz)
     search = freq >= f_min
     if not np.any(search):
@@ -132,11 +136,11 @@ class Spectrogram:
     ``frequency_hz[j]``;
     ``peak_frequency_hz[i]``/``peak_amplitude[i]`` are each window's interpolated peak."""
 
-    time_s: np.ndarray
-    frequency_hz: np.ndarray
-    amplitude: np.ndarray
-    peak_frequency_hz: np.ndarray
-    peak_amplitude: np.ndarray
+    time_s: FloatArray
+    frequency_hz: FloatArray
+    amplitude: FloatArray
+    peak_frequency_hz: FloatArray
+    peak_amplitude: FloatArray
 
 
 def stft(t_s: object, x: object, *, window_s: float, step_s: float, window: str = "hann") -> Spectrogram:

@@ -17,18 +17,19 @@ from __future__ import annotations
 from typing import Any
 
 from rig.stereo.errors import InputArrayError
+from rig.stereo.normalize import Camera
 from rig.stereo.timing_joint import estimate_joint
-from rig.stereo.timing_model import TimingResult, corrected_times, projection_matrix
+from rig.stereo.timing_model import TimingResult, corrected_times
 from rig.stereo.timing_rotor import estimate_rotor
 
-__all__ = ["METHODS", "TimingResult", "corrected_times", "estimate_offset", "projection_matrix"]
+__all__ = ["METHODS", "TimingResult", "corrected_times", "estimate_offset"]
 
 METHODS = ("joint", "rotor")
 
 
 def estimate_offset(
-    camera_a: object,
-    camera_b: object,
+    camera_a: Camera,
+    camera_b: Camera,
     observations_a: object,
     observations_b: object,
     *,

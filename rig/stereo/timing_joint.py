@@ -1,8 +1,8 @@
 """Joint estimate of time offset, rolling-shutter line time and clock drift from any moving marker (ours).
 
 For parameters θ = (offset δ, line time ℓ, drift d) the observations of both cameras get row-corrected
-instants (:func:`rig.stereo.timing.corrected_times`; the line time is common to both cameras unless fixed
-per camera), camera B's track is reconstructed band-limited at camera A's instants
+instants (:func:`rig.stereo.timing_model.corrected_times`; the line time is common to both cameras unless
+fixed per camera), camera B's track is reconstructed band-limited at camera A's instants
 (:func:`rig.stereo.resample.bandlimited`, exact for irregular row times), and the signed Sampson epipolar
 distance of each pair is the residual, normalised by its own noise: the interpolation's noise gain and the
 row noise that also moves each observation's row-corrected instant (velocity × line time) both depend on
@@ -39,11 +39,12 @@ Units: seconds, pixels; drift in ppm (1e-6 s/s) of camera B's clock relative to 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 from scipy import optimize
 
+from rig.stereo._arrays import FloatArray
 from rig.stereo._series import as_times
 from rig.stereo.errors import (
     AmbiguousOffsetError,
@@ -53,8 +54,9 @@ from rig.stereo.errors import (
     NoCommonMotionError,
     TooFewSamplesError,
 )
+from rig.stereo.normalize import Camera, projection_matrix
 from rig.stereo.resample import bandlimited
-from rig.stereo.timing_model import TimingResult, projection_matrix
+from rig.stereo.timing_model import TimingResult
 
 MIN_OBSERVATIONS = 30
 CHI2_DISTINCT = 25.0  # Δχ² (5 σ) that separates a real minimum from an equally good one
@@ -62,25 +64,25 @@ GAP_GUARD = 32  # frames of B either side of a dropped frame whose reconstructio
 EDGE_MARGIN_FRAMES = 34  # A's instants used lie this far inside B's record (the kernel's half-width + 2)
 
 
-def fundamental_matrix(P_a: np.ndarray, P_b: np.ndarray) -> np.ndarray:
+def fundamental_matrix(P_a: FloatArray, P_b: FloatArray) -> FloatArray:
     """F with x_bᵀ F x_a = 0 for image points of the same 3D point (pixels, homogeneous)."""
     _, _, vt = np.linalg.svd(P_a)
     centre_a = vt[-1]
     e_b = P_b @ centre_a
     ex = np.array([[0, -e_b[2], e_b[1]], [e_b[2], 0, -e_b[0]], [-e_b[1], e_b[0], 0]])
-    F = ex @ P_b @ np.linalg.pinv(P_a)
+    F: FloatArray = ex @ P_b @ np.linalg.pinv(P_a)
     return F / np.linalg.norm(F)
 
 
 def sampson_px(
-    F: np.ndarray,
-    uv_a: np.ndarray,
-    uv_b: np.ndarray,
+    F: FloatArray,
+    uv_a: FloatArray,
+    uv_b: FloatArray,
     *,
-    gain_b: np.ndarray | None = None,
-    shift_a: np.ndarray | None = None,
-    shift_b: np.ndarray | None = None,
-) -> np.ndarray:
+    gain_b: FloatArray | None = None,
+    shift_a: FloatArray | None = None,
+    shift_b: FloatArray | None = None,
+) -> FloatArray:
     """Signed first-order (Sampson) epipolar distance of each pair, normalised to unit-σ pixel noise.
 
     Optional noise model (default: independent equal noise on both points): ``gain_b`` (N,) variance factor
@@ -100,7 +102,8 @@ def sampson_px(
     if shift_b is not None:  # row noise of B's samples also moves their instants
         w_b[:, 1] -= np.sum(w_b * shift_b, axis=1)
     var = np.sum(w_a**2, axis=1) + (1.0 if gain_b is None else gain_b) * np.sum(w_b**2, axis=1)
-    return num / np.sqrt(var)
+    distance: FloatArray = num / np.sqrt(var)
+    return distance
 
 
 def _pairs(observations: object, name: str) -> list[tuple[object, ...]]:
@@ -122,8 +125,20 @@ def _pairs(observations: object, name: str) -> list[tuple[object, ...]]:
     return [tuple(p) for p in pairs]
 
 
-def as_tracks(observations_a: object, observations_b: object) -> list[tuple[np.ndarray, ...]]:
-    """Validate both cameras' tracks → [(tau_a, uv_a, rows_a, tau_b, uv_b, rows_b), ...].
+class TrackPair(NamedTuple):
+    """One marker seen by both cameras: frame time stamps (s, each camera's clock), undistorted centres
+    (N, 2) px and exposed rows (N,) px, of camera A then camera B."""
+
+    tau_a: FloatArray
+    uv_a: FloatArray
+    rows_a: FloatArray
+    tau_b: FloatArray
+    uv_b: FloatArray
+    rows_b: FloatArray
+
+
+def as_tracks(observations_a: object, observations_b: object) -> list[TrackPair]:
+    """Validate both cameras' tracks → [TrackPair(tau_a, uv_a, rows_a, tau_b, uv_b, rows_b), ...].
 
     ``rows`` are the image rows (px) at which the sensor exposed each observation — the *observed*, lens-
     distorted v — which set the rolling-shutter instant; ``uv`` are the undistorted centres for the epipolar
@@ -133,9 +148,9 @@ def as_tracks(observations_a: object, observations_b: object) -> list[tuple[np.n
         raise InputArrayError(
             f"observations_a has {len(pa)} tracks, observations_b {len(pb)}; they must match"
         )
-    tracks = []
+    tracks: list[TrackPair] = []
     for i, (track_a, track_b) in enumerate(zip(pa, pb, strict=True)):
-        out: list[np.ndarray] = []
+        out: list[FloatArray] = []
         for name, track in ((f"observations_a[{i}]", track_a), (f"observations_b[{i}]", track_b)):
             tt = as_times(track[0], f"{name} timestamp_s", min_count=MIN_OBSERVATIONS)
             uu = np.asarray(track[1], dtype=float)
@@ -149,17 +164,18 @@ def as_tracks(observations_a: object, observations_b: object) -> list[tuple[np.n
                     f"{name} rows_px must be finite with shape ({tt.size},), got {rows.shape}"
                 )
             out += [tt, uu, rows]
-        tracks.append(tuple(out))
+        tracks.append(TrackPair(*out))
     return tracks
 
 
 class _Residuals:
     """Residuals of the joint timing model for fixed data (one or more tracks)."""
 
-    def __init__(self, F, tracks, *, epoch_b, margin_s, guess_s, half_width_s, line_a, line_b):
+    def __init__(self, F: FloatArray, tracks: list[TrackPair], *, epoch_b: float, margin_s: float,
+                 guess_s: float, half_width_s: float, line_a: float | None, line_b: float | None) -> None:
         self.F, self.epoch_b = F, epoch_b
         self.line_a, self.line_b = line_a, line_b  # None → the common estimated line time
-        self.data = []
+        self.data: list[TrackPair] = []
         self.n_near_gaps = 0
         for ta, ua, ra, tb, ub, rb in tracks:
             lo = tb[0] + guess_s + half_width_s + margin_s
@@ -176,12 +192,12 @@ class _Residuals:
                 self.n_near_gaps += int(np.count_nonzero(sel & near))
                 sel &= ~near
             if np.count_nonzero(sel) >= 4:
-                self.data.append((ta[sel], ua[sel], ra[sel], tb, ub, rb))
-        self.n = sum(len(d[0]) for d in self.data)
+                self.data.append(TrackPair(ta[sel], ua[sel], ra[sel], tb, ub, rb))
+        self.n = sum(len(d.tau_a) for d in self.data)
 
     def residuals(
         self, delta_s: float, line_s: float, drift_ppm: float, *, weighted: bool = True
-    ) -> np.ndarray:
+    ) -> FloatArray:
         """Sampson residuals; ``weighted=False`` skips the noise model (faster; for the coarse search)."""
         la = line_s if self.line_a is None else self.line_a
         lb = line_s if self.line_b is None else self.line_b
@@ -210,12 +226,12 @@ class _Fit:
     offset_s: float
     line_s: float
     drift_ppm: float
-    std: np.ndarray  # (3,) standard uncertainties in ms, µs, ppm (0 for fixed parameters)
-    cov: np.ndarray  # covariance of the free parameters (ms, µs, ppm)
+    std: FloatArray  # (3,) standard uncertainties in ms, µs, ppm (0 for fixed parameters)
+    cov: FloatArray  # covariance of the free parameters (ms, µs, ppm)
     free: list[bool]
-    residuals: np.ndarray
+    residuals: FloatArray
     s2: float
-    jac: np.ndarray
+    jac: FloatArray
     at_bound: bool
 
 
@@ -229,14 +245,21 @@ class JointTiming:
     each stage raises the errors listed there.
     """
 
-    def __init__(self, camera_a: object, camera_b: object, observations_a: object, observations_b: object, *,
+    # set by coarse_search: the offsets searched (s), their unweighted cost (px²), the index of the best
+    # and the Δχ² that tells a separate minimum apart from it
+    grid: FloatArray
+    costs: FloatArray
+    k: int
+    chi2_distinct: float
+
+    def __init__(self, camera_a: Camera, camera_b: Camera, observations_a: object, observations_b: object, *,
                  offset_guess_s: float = 0.0, search_half_width_s: float | None = None,
                  line_time_s: float | tuple[float, float] | None = None, line_time_guess_s: float = 0.0,
                  line_time_prior_s: tuple[float, float] | None = None, estimate_drift: bool = True,
                  max_drift_ppm: float = 200.0, edge_margin_frames: float = EDGE_MARGIN_FRAMES) -> None:
         P_a, P_b = projection_matrix(camera_a), projection_matrix(camera_b)
         self.tracks = as_tracks(observations_a, observations_b)
-        self.period_b = float(np.median(np.concatenate([np.diff(tr[3]) for tr in self.tracks])))
+        self.period_b = float(np.median(np.concatenate([np.diff(tr.tau_b) for tr in self.tracks])))
         half = 1.5 * self.period_b if search_half_width_s is None else float(search_half_width_s)
         if not half > 0:
             raise InputArrayError(f"search_half_width_s must be positive, got {search_half_width_s!r}")
@@ -250,7 +273,7 @@ class JointTiming:
             self.prior = None
         self.guess_s, self.half_s = float(offset_guess_s), half
         self.estimate_drift, self.max_drift_ppm = bool(estimate_drift), float(max_drift_ppm)
-        all_tb = np.concatenate([tr[3] for tr in self.tracks])
+        all_tb = np.concatenate([tr.tau_b for tr in self.tracks])
         self.epoch_b = 0.5 * (all_tb.min() + all_tb.max())
         # A's instants this far inside B's record: the kernel half-width (32) + the rows' spread; or fewer
         # frames (``edge_margin_frames``) when a truncated kernel near B's ends is acceptable
@@ -260,7 +283,8 @@ class JointTiming:
             self.fixed: tuple[float | None, float | None] = (None, None)
             self.line0 = float(line_time_guess_s)
         elif isinstance(line_time_s, tuple | list):
-            self.fixed = tuple(float(x) for x in line_time_s)  # type: ignore[assignment]
+            line_a_s, line_b_s = (float(x) for x in line_time_s)
+            self.fixed = (line_a_s, line_b_s)
             self.line0 = 0.0
         else:
             self.fixed = (float(line_time_s), float(line_time_s))
@@ -273,7 +297,7 @@ class JointTiming:
                 f"only {self.res.n} observations of camera A fall inside camera B's record for offsets "
                 f"{self.guess_s:+.4f} ± {half:.4f} s (need {MIN_OBSERVATIONS}); "
                 "the records do not overlap enough (or are too short)")
-        v_span = max(float(np.ptp(np.concatenate([tr[2], tr[5]]))) for tr in self.tracks)
+        v_span = max(float(np.ptp(np.concatenate([tr.rows_a, tr.rows_b]))) for tr in self.tracks)
         # the row-time spread must stay below half a frame for the band-limited reconstruction
         self.line_max_s = 0.4 * self.period_b / max(v_span, 1.0)
         self.notes: dict[str, Any] = {}
@@ -287,7 +311,7 @@ class JointTiming:
             if problem is not None:
                 if self.prior is None:
                     raise problem
-                fit = self.apply_line_time_prior(fit, problem)
+                fit = self.apply_line_time_prior(fit, problem, self.prior)
         self.check_in_range(fit)
         self.check_ambiguity(fit)
         return self.result(fit, names)
@@ -305,7 +329,7 @@ class JointTiming:
         k = int(np.argmin(self.costs))
         # Identifiability in units of the noise level at the minimum. With no usable motion the curve still
         # fluctuates (different offsets interpolate different noise): about √(4n)·σ², hence the √n term.
-        self.chi2_distinct = CHI2_DISTINCT + 10.0 * np.sqrt(self.res.n)
+        self.chi2_distinct = CHI2_DISTINCT + 10.0 * float(np.sqrt(self.res.n))
         s2 = self.costs[k] / max(self.res.n - 1, 1)
         contrast = (self.costs.max() - self.costs[k]) / s2
         if contrast < self.chi2_distinct:
@@ -327,7 +351,7 @@ class JointTiming:
         mask = np.array(free)
         full0 = np.array([offset0_s * 1e3, line0_s * 1e6, drift0_ppm])
 
-        def unpack(x: np.ndarray) -> tuple[float, float, float]:
+        def unpack(x: FloatArray) -> tuple[float, float, float]:
             full = full0.copy()
             full[mask] = x
             return full[0] * 1e-3, full[1] * 1e-6, full[2]
@@ -357,12 +381,12 @@ class JointTiming:
         """Why the estimated line time cannot be trusted (module doc), or None: on its bound, less certain
         than the largest physical line time (frame period / largest observed row), or (with a prior) more
         than 3 σ outside the prior or less certain than the prior itself (its width / √12)."""
-        std_s = fit.std[1] * 1e-6
-        max_row = max(float(np.max(np.concatenate([tr[2], tr[5]]))) for tr in self.tracks)
+        std_s = float(fit.std[1]) * 1e-6
+        prior = self.prior
+        max_row = max(float(np.max(np.concatenate([tr.rows_a, tr.rows_b]))) for tr in self.tracks)
         limit_s = self.period_b / max(max_row, 1.0)
-        outside = self.prior is not None and not (
-            self.prior[0] - 3 * std_s <= fit.line_s <= self.prior[1] + 3 * std_s)
-        vague = self.prior is not None and std_s > (self.prior[1] - self.prior[0]) / np.sqrt(12.0)
+        outside = prior is not None and not (prior[0] - 3 * std_s <= fit.line_s <= prior[1] + 3 * std_s)
+        vague = prior is not None and std_s > (prior[1] - prior[0]) / np.sqrt(12.0)
         if not fit.at_bound and std_s <= limit_s and not outside and not vague:
             return None
         diff = np.concatenate([np.interp(ta, tb + fit.offset_s, rb) - ra
@@ -373,12 +397,12 @@ class JointTiming:
         elif std_s > limit_s:
             why = (f"its uncertainty exceeds the largest physical line time {limit_s * 1e6:.2f} µs "
                    "(frame period / largest row)")
-        elif outside:
-            why = (f"it lies outside the physical range {self.prior[0] * 1e6:.2f} … "  # type: ignore[index]
-                   f"{self.prior[1] * 1e6:.2f} µs by more than 3 σ")  # type: ignore[index]
-        else:
+        elif outside and prior is not None:
+            why = (f"it lies outside the physical range {prior[0] * 1e6:.2f} … "
+                   f"{prior[1] * 1e6:.2f} µs by more than 3 σ")
+        elif prior is not None:
             why = ("its uncertainty exceeds that of the physical range itself "
-                   f"({(self.prior[1] - self.prior[0]) / np.sqrt(12.0) * 1e6:.2f} µs)")  # type: ignore[index]
+                   f"({(prior[1] - prior[0]) / np.sqrt(12.0) * 1e6:.2f} µs)")
         return LineTimeNotObservableError(
             f"the rolling-shutter line time is not observable from this motion: estimate "
             f"{fit.line_s * 1e6:+.2f} ± {std_s * 1e6:.2f} µs, and {why}; the two cameras' rows differ by a "
@@ -388,9 +412,12 @@ class JointTiming:
             estimate_s=float(fit.line_s), uncertainty_s=float(std_s), limit_s=limit_s, at_bound=fit.at_bound,
             row_difference_spread_px=spread)
 
-    def apply_line_time_prior(self, fit: _Fit, problem: LineTimeNotObservableError) -> _Fit:
-        """Refit at the prior's middle and widen the offset uncertainty by the trade-off (module doc)."""
-        lo, hi = self.prior  # type: ignore[misc]
+    def apply_line_time_prior(
+        self, fit: _Fit, problem: LineTimeNotObservableError, prior_s: tuple[float, float]
+    ) -> _Fit:
+        """Refit with the line time held at the middle of ``prior_s`` = (lo, hi) and widen the offset
+        uncertainty by the trade-off (module doc)."""
+        lo, hi = prior_s
         mid = 0.5 * (lo + hi)
         # profile slope: the best (offset, drift) for a given line time, from the free fit's Jacobian
         J = fit.jac
@@ -473,8 +500,8 @@ class JointTiming:
 
 
 def estimate_joint(
-    camera_a: object,
-    camera_b: object,
+    camera_a: Camera,
+    camera_b: Camera,
     observations_a: object,
     observations_b: object,
     *,

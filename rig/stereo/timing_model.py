@@ -9,7 +9,8 @@ exposed at
 The reference camera has offset 0 and drift 0 by definition; a constant such as half the exposure time is
 absorbed into the offsets (it cancels when both cameras expose equally long). ``epoch_s`` is the camera-clock
 instant about which the drift is applied (the middle of the record used to estimate it), so that offset and
-drift are nearly uncorrelated. The estimators (:mod:`rig.stereo.timing`) share these types.
+drift are nearly uncorrelated. Both estimators (:mod:`rig.stereo.timing_joint`,
+:mod:`rig.stereo.timing_rotor`, dispatched by :mod:`rig.stereo.timing`) return a :class:`TimingResult`.
 """
 
 from __future__ import annotations
@@ -19,6 +20,7 @@ from typing import Any
 
 import numpy as np
 
+from rig.stereo._arrays import FloatArray
 from rig.stereo.errors import InputArrayError
 
 
@@ -30,7 +32,7 @@ def corrected_times(
     line_time_s: float = 0.0,
     drift_ppm: float = 0.0,
     epoch_s: float = 0.0,
-) -> np.ndarray:
+) -> FloatArray:
     """Exposure instant of each observation on the reference clock (s), from its frame time stamp and row.
 
     ``timestamp_s``: frame time stamps (camera clock, s); ``v_px``: the marker's image row (px).
@@ -59,7 +61,7 @@ class TimingResult:
     epoch_s: dict[str, float] = field(default_factory=dict)
     details: dict[str, Any] = field(default_factory=dict)
 
-    def times(self, camera: str, timestamp_s: object, v_px: object) -> np.ndarray:
+    def times(self, camera: str, timestamp_s: object, v_px: object) -> FloatArray:
         """Row-corrected exposure instants of ``camera``'s observations on the reference clock (s)."""
         if camera not in self.offset_s:
             raise InputArrayError(
@@ -143,13 +145,3 @@ def _jsonable(obj: Any) -> Any:
     if isinstance(obj, np.generic):
         return obj.item()
     return obj
-
-
-def projection_matrix(camera: object) -> np.ndarray:
-    """3×4 float projection matrix of ``camera`` (an array or an object with ``.P``)."""
-    P = np.asarray(getattr(camera, "P", camera), dtype=float)
-    if P.shape != (3, 4) or not np.all(np.isfinite(P)):
-        raise InputArrayError(
-            f"a camera must be a finite 3×4 projection matrix (or have .P), got shape {P.shape}"
-        )
-    return P

@@ -20,21 +20,23 @@ result is determined modulo one revolution;
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
+from rig.stereo._arrays import BoolArray, FloatArray, IntArray
 from rig.stereo._series import as_times
 from rig.stereo.errors import InputArrayError, NotRotatingError, TooFewSamplesError
-from rig.stereo.timing_model import TimingResult, projection_matrix
+from rig.stereo.normalize import Camera, projection_matrix
+from rig.stereo.timing_model import TimingResult
 
 MIN_FRAMES = 12
 
 
-def plane_points_mm(P: np.ndarray, uv_px: np.ndarray, centre_mm: np.ndarray, axis: np.ndarray) -> np.ndarray:
+def plane_points_mm(P: FloatArray, uv_px: FloatArray, centre_mm: FloatArray, axis: FloatArray) -> FloatArray:
     """Intersect the rays of ``uv_px`` (N, 2) through camera ``P`` with the plane (centre, normal axis)."""
     M, p4 = P[:, :3], P[:, 3]
-    cam_centre = -np.linalg.solve(M, p4)
+    cam_centre = np.asarray(-np.linalg.solve(M, p4), dtype=np.float64)
     rays = np.linalg.solve(M, np.column_stack([uv_px, np.ones(len(uv_px))]).T).T
     denom = rays @ axis
     if np.any(np.abs(denom) < 1e-12 * np.linalg.norm(rays, axis=1)):
@@ -46,8 +48,8 @@ def plane_points_mm(P: np.ndarray, uv_px: np.ndarray, centre_mm: np.ndarray, axi
 
 
 def rotor_angles(
-    P: np.ndarray, uv_px: np.ndarray, centre_mm: np.ndarray, axis: np.ndarray, camera: str
-) -> tuple[np.ndarray, float, float]:
+    P: FloatArray, uv_px: FloatArray, centre_mm: FloatArray, axis: FloatArray, camera: str
+) -> tuple[FloatArray, float, float]:
     """Unwrapped rotor angle (rad) of each observation, fitted radius (mm) and radial scatter (mm)."""
     X = plane_points_mm(P, uv_px, centre_mm, axis)
     e1 = np.cross(axis, [1.0, 0.0, 0.0] if abs(axis[0]) < 0.9 else [0.0, 1.0, 0.0])
@@ -69,7 +71,7 @@ def rotor_angles(
     return theta, radius, scatter
 
 
-def _rate(theta: np.ndarray, tau: np.ndarray, camera: str) -> tuple[float, float]:
+def _rate(theta: FloatArray, tau: FloatArray, camera: str) -> tuple[float, float]:
     """Angular rate (rad/s) by a straight-line fit, checked for a steady non-zero rotation."""
     steps = np.diff(theta)
     if np.any(np.abs(steps) > 0.8 * np.pi):
@@ -92,9 +94,21 @@ def _rate(theta: np.ndarray, tau: np.ndarray, camera: str) -> tuple[float, float
     return float(omega), float(np.std(resid))
 
 
-def _camera_series(cam: str, P: np.ndarray, obs: object, rows_px: object, *, centre: np.ndarray,
-                   axis: np.ndarray) -> tuple[np.ndarray, np.ndarray, float, float, float, np.ndarray]:
-    """(τ, unwrapped angle, rate rad/s, radius mm, angle scatter rad, rows px) of one camera's track."""
+class _Series(NamedTuple):
+    """One camera's rotor track: frame time stamps (s), unwrapped angle (rad), mean rate (rad/s), radius
+    (mm), angle scatter about the constant rate (rad) and the exposed rows (px)."""
+
+    tau: FloatArray
+    theta: FloatArray
+    omega: float
+    radius_mm: float
+    angle_scatter_rad: float
+    rows_px: FloatArray
+
+
+def _camera_series(cam: str, P: FloatArray, obs: object, rows_px: object, *, centre: FloatArray,
+                   axis: FloatArray) -> _Series:
+    """The rotor track of one camera's observations (``obs`` = (timestamp_s, uv_px))."""
     if not (isinstance(obs, tuple | list) and len(obs) == 2):
         raise InputArrayError(f"observations of camera {cam} must be one pair (timestamp_s, uv_px)")
     t, uv = obs
@@ -108,11 +122,11 @@ def _camera_series(cam: str, P: np.ndarray, obs: object, rows_px: object, *, cen
     rows = uvv[:, 1] if rows_px is None else np.asarray(rows_px, float).reshape(-1)
     if rows.shape != tau.shape:
         raise InputArrayError(f"rows_px of camera {cam} must have {tau.size} values, got {rows.shape}")
-    return tau, theta, omega, radius, ang_scatter, rows
+    return _Series(tau, theta, omega, radius, ang_scatter, rows)
 
 
-def _offset_from_delays(delays: np.ndarray, d_rows: np.ndarray | None, dt_s: np.ndarray
-                        ) -> tuple[np.ndarray, np.ndarray]:
+def _offset_from_delays(delays: FloatArray, d_rows: FloatArray | None, dt_s: FloatArray
+                        ) -> tuple[FloatArray, FloatArray]:
     """(offset s, line time s, drift ppm) and their standard uncertainties: the mean delay, or with the row
     differences ``d_rows`` (px) the least-squares plane delay = δ + ℓ·d_rows + drift·1e-6·dt_s (``dt_s``:
     B's time stamps about the epoch; δ at equal rows and the epoch)."""
@@ -131,9 +145,40 @@ def _offset_from_delays(delays: np.ndarray, d_rows: np.ndarray | None, dt_s: np.
     return value, std
 
 
+def _rotor_plane(rotor_centre_mm: object, rotor_axis: object) -> tuple[FloatArray, FloatArray]:
+    """The rotor plane's centre (mm) and unit normal, validated."""
+    centre = np.asarray(rotor_centre_mm, dtype=float).reshape(-1)
+    axis = np.asarray(rotor_axis, dtype=float).reshape(-1)
+    if (
+        centre.shape != (3,)
+        or axis.shape != (3,)
+        or not np.isfinite(centre).all()
+        or np.linalg.norm(axis) == 0
+    ):
+        raise InputArrayError("rotor_centre_mm and rotor_axis must be finite 3-vectors, the axis non-zero")
+    return centre, axis / np.linalg.norm(axis)
+
+
+def _closest_frames(ta: FloatArray, tb: FloatArray, offset_guess_s: float) -> tuple[IntArray, BoolArray]:
+    """For each frame of A the closest frame ``j`` of B, B's time stamps shifted by the guess onto A's clock,
+    and ``keep`` where they lie within 0.75 frame; TooFewSamplesError under MIN_FRAMES such pairs."""
+    tb_on_a = tb + offset_guess_s
+    idx = np.clip(np.searchsorted(tb_on_a, ta), 1, tb.size - 1)
+    left_closer = np.abs(tb_on_a[idx - 1] - ta) < np.abs(tb_on_a[idx] - ta)
+    j = idx - left_closer
+    gap = np.abs(tb_on_a[j] - ta)
+    keep = gap <= 0.75 * float(np.median(np.diff(tb)))
+    if np.count_nonzero(keep) < MIN_FRAMES:
+        raise TooFewSamplesError(
+            f"only {np.count_nonzero(keep)} frame pairs of the two cameras overlap in time "
+            f"(need {MIN_FRAMES})"
+        )
+    return j, keep
+
+
 def estimate_rotor(
-    camera_a: object,
-    camera_b: object,
+    camera_a: Camera,
+    camera_b: Camera,
     observations_a: object,
     observations_b: object,
     *,
@@ -153,16 +198,7 @@ def estimate_rotor(
     NotRotatingError.
     """
     P_a, P_b = projection_matrix(camera_a), projection_matrix(camera_b)
-    centre = np.asarray(rotor_centre_mm, dtype=float).reshape(-1)
-    axis = np.asarray(rotor_axis, dtype=float).reshape(-1)
-    if (
-        centre.shape != (3,)
-        or axis.shape != (3,)
-        or not np.isfinite(centre).all()
-        or np.linalg.norm(axis) == 0
-    ):
-        raise InputArrayError("rotor_centre_mm and rotor_axis must be finite 3-vectors, the axis non-zero")
-    axis = axis / np.linalg.norm(axis)
+    centre, axis = _rotor_plane(rotor_centre_mm, rotor_axis)
     series = [_camera_series(cam, P, obs, None if rows_px is None else rows_px[k], centre=centre, axis=axis)
               for k, (cam, P, obs) in enumerate(((names[0], P_a, observations_a),
                                                   (names[1], P_b, observations_b)))]
@@ -170,25 +206,14 @@ def estimate_rotor(
     if np.sign(wa) != np.sign(wb):
         raise NotRotatingError("the two cameras see opposite senses of rotation; check the rotor axis")
     omega = 0.5 * (wa + wb)
-    # Closest frame of B for each frame of A, B's time stamps shifted by the guess onto A's clock.
-    tb_on_a = tb + offset_guess_s
-    idx = np.clip(np.searchsorted(tb_on_a, ta), 1, tb.size - 1)
-    left_closer = np.abs(tb_on_a[idx - 1] - ta) < np.abs(tb_on_a[idx] - ta)
-    j = idx - left_closer
-    gap = np.abs(tb_on_a[j] - ta)
-    keep = gap <= 0.75 * float(np.median(np.diff(tb)))
-    if np.count_nonzero(keep) < MIN_FRAMES:
-        raise TooFewSamplesError(
-            f"only {np.count_nonzero(keep)} frame pairs of the two cameras overlap in time "
-            f"(need {MIN_FRAMES})"
-        )
+    j, keep = _closest_frames(ta, tb, offset_guess_s)
     d_theta = thb[j[keep]] - tha[keep]
     period = 2 * np.pi / abs(omega)
     # Delay δ with θ_B(τ_B + δ) = θ_A(τ_A): pick the revolution nearest to the guess.
     raw = d_theta / omega - (tb[j[keep]] - ta[keep])
     delays = offset_guess_s + (raw - offset_guess_s + 0.5 * period) % period - 0.5 * period
     a, b = names
-    d_rows = series[1][5][j[keep]] - series[0][5][keep] if estimate_line_time else None
+    d_rows = series[1].rows_px[j[keep]] - series[0].rows_px[keep] if estimate_line_time else None
     epoch = float(np.mean(tb[j[keep]]))
     (delay, line, drift), (std, u_line, u_drift) = _offset_from_delays(delays, d_rows, tb[j[keep]] - epoch)
     details: dict[str, Any] = {

@@ -40,16 +40,19 @@ Units: times s (all cameras on one clock), pixels, mm (whatever unit the project
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import TypeAlias
 
 import numpy as np
 from scipy import optimize, sparse
 from scipy.interpolate import BSpline
 from scipy.sparse.linalg import spsolve
 
+from rig.stereo._arrays import FloatArray
 from rig.stereo._series import as_times
 from rig.stereo.errors import AmbiguousFrequencyError, InputArrayError, TimingError, TooFewSamplesError
-from rig.stereo.timing_model import projection_matrix
+from rig.stereo.normalize import Camera, projection_matrix
 
 CHI2_DISTINCT = 25.0
 
@@ -63,7 +66,7 @@ class SplineBasis:
     knot_spacing_s: float
     penalty: float = 1e-4  # weight of the second-difference penalty relative to the pixel-scaled data rows
 
-    def knots(self) -> np.ndarray:
+    def knots(self) -> FloatArray:
         n = max(1, int(np.ceil((self.t_max_s - self.t_min_s) / self.knot_spacing_s)))
         inner = np.linspace(self.t_min_s, self.t_max_s, n + 1)
         h = inner[1] - inner[0]
@@ -73,7 +76,7 @@ class SplineBasis:
     def size(self) -> int:
         return self.knots().size - 4
 
-    def design(self, t_s: np.ndarray) -> sparse.csr_matrix:
+    def design(self, t_s: FloatArray) -> sparse.csr_matrix:
         t = np.clip(np.asarray(t_s, float), self.t_min_s, self.t_max_s)
         return BSpline.design_matrix(t, self.knots(), 3).tocsr()
 
@@ -98,7 +101,7 @@ class SineBasis:
     def size(self) -> int:
         return 1 + 2 * self.n_harmonics + int(self.drift)
 
-    def design(self, t_s: np.ndarray) -> sparse.csr_matrix:
+    def design(self, t_s: FloatArray) -> sparse.csr_matrix:
         tc = np.asarray(t_s, float) - self.t_ref_s
         cols = [np.ones_like(tc)]
         phase = 2 * np.pi * (self.frequency_hz * tc + 0.5 * self.rate_hz_s * tc**2)
@@ -113,6 +116,8 @@ class SineBasis:
 
 
 Basis = SplineBasis | SineBasis
+#: A Gauss–Newton design: dense for a few sine columns, sparse for splines.
+Design: TypeAlias = FloatArray | sparse.csr_matrix
 
 
 @dataclass(frozen=True)
@@ -120,16 +125,16 @@ class Trajectory:
     """A fitted trajectory: ``coefficients`` (n_basis, 3) of ``basis``; residuals per camera (N_c, 2) px."""
 
     basis: Basis
-    coefficients: np.ndarray
-    residuals_px: list[np.ndarray]
+    coefficients: FloatArray
+    residuals_px: list[FloatArray]
     rms_px: float
 
-    def position(self, t_s: object) -> np.ndarray:
+    def position(self, t_s: object) -> FloatArray:
         """X(t) (N, 3) at ``t_s`` (s)."""
         return np.asarray(self.basis.design(np.atleast_1d(np.asarray(t_s, float))) @ self.coefficients)
 
     @property
-    def amplitude_vectors(self) -> tuple[np.ndarray, np.ndarray]:
+    def amplitude_vectors(self) -> tuple[FloatArray, FloatArray]:
         """(a, b) 3-vectors of the fundamental of a SineBasis: X = c + a cos ωt + b sin ωt + …"""
         if not isinstance(self.basis, SineBasis):
             raise InputArrayError("amplitude_vectors needs a SineBasis trajectory")
@@ -142,14 +147,17 @@ class Trajectory:
         return float(np.linalg.svd(np.column_stack([a, b]), compute_uv=False)[0])
 
     @property
-    def direction(self) -> np.ndarray:
+    def direction(self) -> FloatArray:
         """Unit vector of the major axis of the fundamental's motion ellipse."""
         a, b = self.amplitude_vectors
         u, _, _ = np.linalg.svd(np.column_stack([a, b]))
         return u[:, 0]
 
 
-def _check(cameras, t_list, uv_list) -> tuple[list[np.ndarray], list[np.ndarray], list[np.ndarray]]:
+def _check(
+    cameras: Sequence[Camera], t_list: Sequence[object], uv_list: Sequence[object]
+) -> tuple[list[FloatArray], list[FloatArray], list[FloatArray]]:
+    """Per camera: projection matrix, times (strictly increasing) and (N, 2) pixels, validated."""
     if not (len(cameras) == len(t_list) == len(uv_list)) or len(cameras) < 1:
         raise InputArrayError("give one time array and one uv array per camera")
     Ps, ts, uvs = [], [], []
@@ -164,7 +172,10 @@ def _check(cameras, t_list, uv_list) -> tuple[list[np.ndarray], list[np.ndarray]
     return Ps, ts, uvs
 
 
-def _system(Ps, ts, uvs, basis, C):
+def _system(
+    Ps: Sequence[FloatArray], ts: Sequence[FloatArray], uvs: Sequence[FloatArray], basis: Basis,
+    C: FloatArray | None,
+) -> tuple[Design, FloatArray]:
     """Gauss–Newton system (A, r) in vec(C) (row-major n_basis × 3) at coefficients C (None: linear DLT)."""
     rows, rhs = [], []
     for P, t, uv in zip(Ps, ts, uvs, strict=True):
@@ -197,28 +208,36 @@ def _system(Ps, ts, uvs, basis, C):
     return sparse.vstack(rows).tocsr(), np.concatenate(rhs)
 
 
-def _solve(A, r, basis, scale, c_now=None):
+def _solve(
+    A: Design, r: FloatArray, basis: Basis, scale: float, c_now: FloatArray | None = None
+) -> FloatArray:
     """Least-squares step; the penalty acts on the updated coefficients c_now + step (P-spline)."""
     Areg = basis.regulariser()
     if Areg is not None:
         R3 = (sparse.kron(Areg, sparse.identity(3)) * scale).tocsr()
         A = sparse.vstack([A, R3]).tocsr()
         r = np.concatenate([r, np.zeros(R3.shape[0]) if c_now is None else -(R3 @ c_now)])
-    if not sparse.issparse(A):  # a few dense columns: normal equations, scaled by the column norms
+    if isinstance(A, np.ndarray):  # a few dense columns: normal equations, scaled by the column norms
         d = 1.0 / np.maximum(np.linalg.norm(A, axis=0), 1e-300)
         As = A * d
-        return d * np.linalg.solve(As.T @ As, As.T @ r)
+        step: FloatArray = d * np.linalg.solve(As.T @ As, As.T @ r)
+        return step
     return np.asarray(spsolve((A.T @ A).tocsc(), A.T @ r))
 
 
-def _row_scale(A) -> float:
+def _row_scale(A: Design) -> float:
     """RMS row norm of the design (sets the penalty relative to the data)."""
     fro = sparse.linalg.norm(A) if sparse.issparse(A) else np.linalg.norm(A)
     return float(fro / np.sqrt(max(A.shape[0], 1)))
 
 
 def fit_trajectory(
-    cameras: list[object], t_s: list[object], uv_px: list[object], basis: Basis, *, iterations: int = 8
+    cameras: Sequence[Camera],
+    t_s: Sequence[object],
+    uv_px: Sequence[object],
+    basis: Basis,
+    *,
+    iterations: int = 8,
 ) -> Trajectory:
     """Fit ``basis`` coefficients to all observations (per camera: row-corrected times, (N, 2) pixels).
 
@@ -251,9 +270,9 @@ def fit_trajectory(
 
 
 def fit_spline_trajectory(
-    cameras: list[object],
-    t_s: list[object],
-    uv_px: list[object],
+    cameras: Sequence[Camera],
+    t_s: Sequence[object],
+    uv_px: Sequence[object],
     *,
     knot_spacing_s: float | None = None,
     penalty: float = 1e-4,
@@ -268,15 +287,19 @@ def fit_spline_trajectory(
     return fit_trajectory(cameras, ts, uv_px, SplineBasis(t_min, t_max, knot_spacing_s, penalty))
 
 
-def _sine_cost(Ps, ts, uvs, f, *, t_ref, n_harmonics, drift, iterations):
+def _sine_cost(
+    Ps: Sequence[FloatArray], ts: Sequence[FloatArray], uvs: Sequence[FloatArray], f: float, *, t_ref: float,
+    n_harmonics: int, drift: bool, iterations: int,
+) -> tuple[float, Trajectory]:
+    """Sum of squared reprojection residuals (px²) of the sine model at ``f`` (Hz), and its trajectory."""
     traj = fit_trajectory(Ps, ts, uvs, SineBasis(f, t_ref, n_harmonics, drift), iterations=iterations)
     return float(sum(np.sum(r**2) for r in traj.residuals_px)), traj
 
 
 def fit_sine_trajectory(
-    cameras: list[object],
-    t_s: list[object],
-    uv_px: list[object],
+    cameras: Sequence[Camera],
+    t_s: Sequence[object],
+    uv_px: Sequence[object],
     *,
     frequency_hz: float | None = None,
     frequency_range_hz: tuple[float, float] | None = None,
@@ -317,7 +340,7 @@ def fit_sine_trajectory(
     candidates = np.flatnonzero(is_min)
     candidates = candidates[np.argsort(cost[candidates])][:4]  # refine the best few basins exactly
     refined = []
-    for j in candidates:
+    for j in candidates.tolist():
         r = optimize.minimize_scalar(
             lambda f: cost_at(f, 3)[0],
             bounds=(grid[max(j - 1, 0)], grid[min(j + 1, grid.size - 1)]),
@@ -345,7 +368,10 @@ def fit_sine_trajectory(
     return traj, f_best
 
 
-def _linearised_scan(Ps, ts, uvs, grid, *, t_ref, chunk: int = 256) -> np.ndarray:
+def _linearised_scan(
+    Ps: Sequence[FloatArray], ts: Sequence[FloatArray], uvs: Sequence[FloatArray], grid: FloatArray, *,
+    t_ref: float, chunk: int = 256,
+) -> FloatArray:
     """Sum of squared pixel residuals of a fundamental-only sine model at each frequency of ``grid``.
 
     The projection is linearised about the static fit X0 (motion small against the distance): camera c's
@@ -380,4 +406,5 @@ def _linearised_scan(Ps, ts, uvs, grid, *, t_ref, chunk: int = 256) -> np.ndarra
             h[s0 : s0 + chunk] += hq.reshape(-1, 9)
     ridge = 1e-12 * np.trace(G, axis1=1, axis2=2)[:, None, None] * np.eye(9)
     sol = np.linalg.solve(G + ridge, h[..., None])[..., 0]
-    return e2 - np.einsum("fi,fi->f", h, sol)
+    cost: FloatArray = e2 - np.einsum("fi,fi->f", h, sol)
+    return cost

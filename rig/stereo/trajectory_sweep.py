@@ -15,12 +15,15 @@ Units: s, Hz, Hz/s, pixels; amplitude in the projection matrices' length unit (m
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
 from scipy import optimize
 
+from rig.stereo._arrays import FloatArray, IntArray
 from rig.stereo.errors import InputArrayError, TooFewSamplesError
+from rig.stereo.normalize import Camera
 from rig.stereo.trajectory import SineBasis, Trajectory, _check, fit_sine_trajectory, fit_trajectory
 
 MIN_PER_CAMERA = 6
@@ -32,17 +35,23 @@ class SweepTrack:
     ``amplitude`` (major semi-axis of the fundamental's motion ellipse), unit ``direction`` (W, 3),
     ``residual_rms_px`` and ``n_observations``."""
 
-    time_s: np.ndarray
-    frequency_hz: np.ndarray
-    rate_hz_s: np.ndarray
-    amplitude: np.ndarray
-    direction: np.ndarray
-    residual_rms_px: np.ndarray
-    n_observations: np.ndarray
+    time_s: FloatArray
+    frequency_hz: FloatArray
+    rate_hz_s: FloatArray
+    amplitude: FloatArray
+    direction: FloatArray
+    residual_rms_px: FloatArray
+    n_observations: IntArray
 
 
-def _fit_chirp(Ps, ts, uvs, *, t_mid, f0, rate0, n_harmonics) -> tuple[Trajectory, float, float]:
-    def residuals(p):
+def _fit_chirp(
+    Ps: Sequence[FloatArray], ts: Sequence[FloatArray], uvs: Sequence[FloatArray], *, t_mid: float, f0: float,
+    rate0: float, n_harmonics: int,
+) -> tuple[Trajectory, float, float]:
+    """Frequency (Hz) and rate (Hz/s) at ``t_mid`` of a chirped sinusoid, by least squares on the
+    reprojection residuals from (f0, rate0); with its trajectory."""
+
+    def residuals(p: FloatArray) -> FloatArray:
         basis = SineBasis(float(p[0]), t_mid, n_harmonics, False, float(p[1]))
         tr = fit_trajectory(Ps, ts, uvs, basis, iterations=3)
         return np.concatenate([r.ravel() for r in tr.residuals_px])
@@ -54,9 +63,9 @@ def _fit_chirp(Ps, ts, uvs, *, t_mid, f0, rate0, n_harmonics) -> tuple[Trajector
 
 
 def sliding_sine_trajectory(
-    cameras: list[object],
-    t_s: list[object],
-    uv_px: list[object],
+    cameras: Sequence[Camera],
+    t_s: Sequence[object],
+    uv_px: Sequence[object],
     *,
     window_s: float,
     step_s: float,
@@ -79,7 +88,7 @@ def sliding_sine_trajectory(
             f"the cameras overlap for {t_hi - t_lo:.3g} s, less than window_s = {window_s} s"
         )
     rows = []
-    f_prev = rate_prev = None
+    previous: tuple[float, float] | None = None  # frequency (Hz) and rate (Hz/s) of the last window
     for s0 in np.arange(t_lo, t_hi - window_s + 1e-9, step_s):
         sel = [(t >= s0) & (t < s0 + window_s) for t in ts]
         if min(int(m.sum()) for m in sel) < MIN_PER_CAMERA:
@@ -87,12 +96,13 @@ def sliding_sine_trajectory(
         tw = [t[m] for t, m in zip(ts, sel, strict=True)]
         uw = [u[m] for u, m in zip(uvs, sel, strict=True)]
         t_mid = s0 + 0.5 * window_s
-        if f_prev is None:
+        if previous is None:
             _, f0 = fit_sine_trajectory(
                 Ps, tw, uw, frequency_range_hz=frequency_range_hz, n_harmonics=n_harmonics
             )
             rate0 = 0.0
         else:
+            f_prev, rate_prev = previous
             f_pred = f_prev + rate_prev * step_s
             half = abs(rate_prev) * step_s + 2.0 / window_s
             _, f0 = fit_sine_trajectory(
@@ -104,7 +114,7 @@ def sliding_sine_trajectory(
             )
             rate0 = rate_prev
         traj, f, rate = _fit_chirp(Ps, tw, uw, t_mid=t_mid, f0=f0, rate0=rate0, n_harmonics=n_harmonics)
-        f_prev, rate_prev = f, rate
+        previous = (f, rate)
         rows.append((t_mid, f, rate, traj.amplitude, traj.direction, traj.rms_px, sum(len(t) for t in tw)))
     if not rows:
         raise TooFewSamplesError(

@@ -12,6 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from rig.stereo._arrays import BoolArray, FloatArray, IntArray
 from rig.stereo.dlt import DLTCamera
 from rig.stereo.errors import DegenerateGeometryError, InputArrayError
 from rig.stereo.normalize import as_points, similarity_2d
@@ -31,18 +32,19 @@ class Triangulation:
     therefore not used.
     """
 
-    xyz_mm: np.ndarray
-    residuals_px: np.ndarray
-    covariance_mm2: np.ndarray | None
-    n_views: np.ndarray
-    outside_lens_model: np.ndarray
+    xyz_mm: FloatArray
+    residuals_px: FloatArray
+    covariance_mm2: FloatArray | None
+    n_views: IntArray
+    outside_lens_model: BoolArray
 
     @property
-    def rms_px(self) -> np.ndarray:
+    def rms_px(self) -> FloatArray:
         """Per-point RMS reprojection error over the cameras that saw it (Euclidean per camera), px."""
         sq = np.sum(self.residuals_px**2, axis=2)
         with np.errstate(invalid="ignore", divide="ignore"):
-            return np.sqrt(np.nansum(sq, axis=1) / np.sum(np.isfinite(sq), axis=1))
+            rms: FloatArray = np.sqrt(np.nansum(sq, axis=1) / np.sum(np.isfinite(sq), axis=1))
+        return rms
 
 
 def as_camera(camera: object, index: int) -> DLTCamera:
@@ -57,13 +59,14 @@ def as_camera(camera: object, index: int) -> DLTCamera:
         ) from exc
 
 
-def _centre_groups(cams: Sequence[DLTCamera]) -> np.ndarray:
+def _centre_groups(cams: Sequence[DLTCamera]) -> IntArray:
     """Label cameras so that cameras with the same centre share a label."""
     centres = np.array([c.centre_mm for c in cams])
-    labels = np.arange(len(cams))
+    labels = np.arange(len(cams), dtype=np.int64)
     for i in range(len(cams)):
         for j in range(i):
-            tol = SAME_CENTRE_REL * max(np.linalg.norm(centres[i]), np.linalg.norm(centres[j]), 1.0)
+            size_mm = max(float(np.linalg.norm(centres[i])), float(np.linalg.norm(centres[j])), 1.0)
+            tol = SAME_CENTRE_REL * size_mm
             if np.linalg.norm(centres[i] - centres[j]) <= tol:
                 labels[i] = labels[j]
                 break
@@ -72,7 +75,7 @@ def _centre_groups(cams: Sequence[DLTCamera]) -> np.ndarray:
 
 def _check_inputs(
     cameras: Sequence[object], uv_per_camera: Sequence[object]
-) -> tuple[list[DLTCamera], np.ndarray]:
+) -> tuple[list[DLTCamera], FloatArray]:
     if isinstance(cameras, np.ndarray) and cameras.ndim == 2:
         raise InputArrayError("cameras: pass a sequence of cameras (one per view), not a single matrix")
     cams = [as_camera(c, i) for i, c in enumerate(cameras)]
@@ -94,7 +97,7 @@ def _check_inputs(
     return cams, uv
 
 
-def linear_triangulation(P_list: Sequence[np.ndarray], uv_ideal: np.ndarray) -> np.ndarray:
+def linear_triangulation(P_list: Sequence[FloatArray], uv_ideal: FloatArray) -> FloatArray:
     """Homogeneous least squares per point (rows u·p3 − p1, v·p3 − p2), vectorized over points.
 
     ``uv_ideal`` (N, n, 2) are undistorted pixels (NaN = not seen). Image coordinates are Hartley-
@@ -109,7 +112,7 @@ def linear_triangulation(P_list: Sequence[np.ndarray], uv_ideal: np.ndarray) -> 
     spread = float(np.mean(np.linalg.norm(centres - c0, axis=1))) or 1.0
     Hw_inv = np.diag([spread, spread, spread, 1.0])
     Hw_inv[:3, 3] = c0
-    seen = np.isfinite(uv_ideal).all(axis=2)
+    seen: BoolArray = np.all(np.isfinite(uv_ideal), axis=2)
     M = np.zeros((n_pts, 4, 4))
     for c, P in enumerate(P_list):
         Ti = similarity_2d(uv_ideal[seen[:, c], c]) if seen[:, c].any() else np.eye(3)
@@ -137,7 +140,7 @@ def linear_triangulation(P_list: Sequence[np.ndarray], uv_ideal: np.ndarray) -> 
     return xyz
 
 
-def _solve3(A: np.ndarray, b: np.ndarray) -> np.ndarray:
+def _solve3(A: FloatArray, b: FloatArray) -> FloatArray:
     """Batched 3×3 solve by the adjugate (no LAPACK call per system); singular systems give inf/NaN."""
     c0 = np.cross(A[:, 1], A[:, 2])
     c1 = np.cross(A[:, 2], A[:, 0])
@@ -145,24 +148,34 @@ def _solve3(A: np.ndarray, b: np.ndarray) -> np.ndarray:
     det = np.sum(A[:, 0] * c0, axis=1)
     adj_t = np.stack([c0, c1, c2], axis=2)  # A⁻¹ = adj_t / det, adj_t[:, :, j] = c_j
     with np.errstate(invalid="ignore", divide="ignore"):
-        return np.einsum("nij,nj->ni", adj_t, b) / det[:, None]
+        x: FloatArray = np.einsum("nij,nj->ni", adj_t, b) / det[:, None]
+    return x
 
 
-def _project_all(cams: Sequence[DLTCamera], xyz: np.ndarray, jacobian: bool = True):
-    out = [c.project_with_jacobian(xyz, jacobian=jacobian) for c in cams]
-    pred = np.stack([o[0] for o in out], axis=1)  # (N, n, 2)
-    return pred, (np.stack([o[1] for o in out], axis=1) if jacobian else None)  # (N, n, 2, 3)
+def _predicted_px(cams: Sequence[DLTCamera], xyz: FloatArray) -> FloatArray:
+    """Projections (N, n, 2) of every point in every camera."""
+    return np.stack([c.project(xyz) for c in cams], axis=1)
 
 
-def _cost(cams: Sequence[DLTCamera], xyz: np.ndarray, uv: np.ndarray) -> np.ndarray:
-    r = _project_all(cams, xyz, jacobian=False)[0] - uv
-    return np.nansum(r**2, axis=(1, 2))
+def _predicted_px_jacobian(cams: Sequence[DLTCamera], xyz: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """Projections (N, n, 2) and their Jacobians (N, n, 2, 3) in px/mm."""
+    out = [c.project_with_jacobian(xyz) for c in cams]
+    return np.stack([o[0] for o in out], axis=1), np.stack([o[1] for o in out], axis=1)
 
 
-def _normal_equations(cams: Sequence[DLTCamera], xyz: np.ndarray, uv: np.ndarray):
-    pred, J = _project_all(cams, xyz)
+def _cost(cams: Sequence[DLTCamera], xyz: FloatArray, uv: FloatArray) -> FloatArray:
+    r = _predicted_px(cams, xyz) - uv
+    cost: FloatArray = np.nansum(r**2, axis=(1, 2))
+    return cost
+
+
+def _normal_equations(
+    cams: Sequence[DLTCamera], xyz: FloatArray, uv: FloatArray
+) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
+    """Per point: cost (N,), Gauss–Newton matrix JᵀJ (N, 3, 3), gradient Jᵀr (N, 3), residuals (N, n, 2)."""
+    pred, J = _predicted_px_jacobian(cams, xyz)
     r = pred - uv
-    seen = np.isfinite(r).all(axis=2)
+    seen = np.all(np.isfinite(r), axis=2)
     r = np.where(seen[..., None], r, 0.0)
     J = np.where(seen[..., None, None], J, 0.0)
     n = J.shape[0]
@@ -176,10 +189,10 @@ def _normal_equations(cams: Sequence[DLTCamera], xyz: np.ndarray, uv: np.ndarray
     return np.sum(r**2, axis=(1, 2)), H, g, pred - uv
 
 
-def _refine(cams: Sequence[DLTCamera], xyz0: np.ndarray, uv: np.ndarray, max_iter: int) -> np.ndarray:
+def _refine(cams: Sequence[DLTCamera], xyz0: FloatArray, uv: FloatArray, max_iter: int) -> FloatArray:
     """Per-point Levenberg–Marquardt (3 unknowns each), all points advanced together."""
     xyz = xyz0.copy()
-    ok = np.isfinite(xyz).all(axis=1)
+    ok: BoolArray = np.all(np.isfinite(xyz), axis=1)
     lam = np.full(xyz.shape[0], 1e-4)
     for _ in range(max_iter):
         if not ok.any():
@@ -223,9 +236,9 @@ def triangulate(
     if pixel_sigma_px is not None and not (np.isfinite(pixel_sigma_px) and pixel_sigma_px > 0):
         raise InputArrayError(f"pixel_sigma_px={pixel_sigma_px!r}: pass a positive number of pixels, or None")
     uv_ideal = np.stack([c.undistort_px(uv[:, i], strict=False) for i, c in enumerate(cams)], axis=1)
-    outside = np.isfinite(uv).all(axis=2) & ~np.isfinite(uv_ideal).all(axis=2)
+    outside: BoolArray = np.all(np.isfinite(uv), axis=2) & ~np.all(np.isfinite(uv_ideal), axis=2)
     uv[outside] = np.nan
-    seen = np.isfinite(uv).all(axis=2)
+    seen: BoolArray = np.all(np.isfinite(uv), axis=2)
     labels = _centre_groups(cams)
     if len(set(labels.tolist())) < len(cams):
         distinct = np.zeros(uv.shape[0], dtype=int)
@@ -243,7 +256,7 @@ def triangulate(
         xyz = _refine(cams, xyz, uv, max_iter)
     cov = None
     if pixel_sigma_px is None:
-        residuals = _project_all(cams, xyz, jacobian=False)[0] - uv
+        residuals = _predicted_px(cams, xyz) - uv
     else:
         _, H, _, residuals = _normal_equations(cams, xyz, uv)
         cov = np.full_like(H, np.nan)
