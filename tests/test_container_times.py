@@ -304,7 +304,7 @@ def test_window_first_stamps_and_options_win() -> None:
 def test_window_without_usable_times_is_the_default_and_says_why() -> None:
     w = offset_window({"a": _times(T0), "b": _times(None)}, {}, reference="a")
     assert (w.prior_offset_s, w.max_offset_s, w.source) == (0.0, FALLBACK_MAX_OFFSET_S, "default")
-    assert "no creation time in the other video's container" in w.statement
+    assert "the other video's container states no creation time" in w.statement
     local = ContainerTimes("avi", datetime(2026, 5, 4, 10, 20, 30), 1.0, "IDIT (local time)")
     w = offset_window({"a": _times(T0), "b": local}, {}, reference="a")
     assert w.source == "default" and "not comparable" in w.statement

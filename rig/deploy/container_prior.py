@@ -53,8 +53,9 @@ def _container_estimate(a: ContainerTimes, b: ContainerTimes, first_a_s: float, 
     """(centre s, half-width s, parts) of the offset from two containers' times, or why there is none."""
     ca, cb = a.creation_s(), b.creation_s()
     if ca is None or cb is None:
-        missing = [n for n, c in (("reference", ca), ("other", cb)) if c is None]
-        return f"no creation time in the {' and '.join(missing)} video's container"
+        if ca is None and cb is None:
+            return "neither container states a creation time"
+        return f"the {'reference' if ca is None else 'other'} video's container states no creation time"
     if a.creation_utc_known != b.creation_utc_known:
         return "one container states UTC and the other an unstated local time: not comparable"
     start = (cb - ca) + first_a_s - first_b_s
