@@ -226,6 +226,22 @@ def test_opencv_files_carry_frame_counts_and_no_creation_time(tmp_path: Path, fo
     assert t.frame_period_s == pytest.approx(1 / 60) and t.duration_s == pytest.approx(17 / 60)
 
 
+def test_a_creation_time_written_into_an_opencv_mp4_is_read(tmp_path: Path) -> None:
+    # OpenCV (ffmpeg's muxer) leaves mvhd creation_time 0; a camera's file has it set: set it in place
+    p = tmp_path / "a.mp4"
+    w = cv2.VideoWriter(str(p), cv2.VideoWriter_fourcc(*"mp4v"), 60.0, (64, 48), True)
+    for k in range(5):
+        w.write(np.full((48, 64, 3), 10 * k, np.uint8))
+    w.release()
+    data = bytearray(p.read_bytes())
+    at = data.index(b"mvhd") + 4
+    assert data[at] == 0 and data[at + 4:at + 8] == bytes(4)  # version 0, creation_time unset
+    data[at + 4:at + 8] = struct.pack(">I", int((T0 - MP4_EPOCH).total_seconds()))
+    p.write_bytes(bytes(data))
+    t = read_container_times(p)
+    assert t.creation == T0 and t.creation_resolution_s == 1.0 and t.frame_count == 5
+
+
 # ------------------------------------------------------------------ malformed input: an error, never a crash
 
 def test_not_a_container(tmp_path: Path) -> None:
