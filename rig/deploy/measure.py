@@ -32,6 +32,7 @@ A truncated or corrupt video does not stop the measurement: the frames read are 
 from __future__ import annotations
 
 import json
+import math
 import time
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
@@ -215,6 +216,16 @@ def _timing(args: dict[str, Any], obs: dict[str, pd.DataFrame], cameras: dict[st
     return tr.to_dict()
 
 
+def _check_window_options(opts: MeasureOptions) -> None:
+    """The offset-window options, before any video is decoded (NaN fails every comparison)."""
+    if opts.max_offset_s is not None and not 0 < opts.max_offset_s < math.inf:
+        raise MeasureError(f"max_offset_s={opts.max_offset_s!r}; allowed: > 0 s, finite")
+    if opts.prior_offset_s is not None and not math.isfinite(opts.prior_offset_s):
+        raise MeasureError(f"prior_offset_s={opts.prior_offset_s!r}; allowed: a finite number of s")
+    if not 0 <= opts.clock_agreement_s < math.inf:
+        raise MeasureError(f"clock_agreement_s={opts.clock_agreement_s!r}; allowed: ≥ 0 s, finite")
+
+
 def _offset_window(paths: dict[str, Path], vos: dict[str, VideoObservations], reference: str,
                    opts: MeasureOptions) -> OffsetWindow:
     """The offset window from the options and the containers' creation times (rig.deploy.container_prior)."""
@@ -261,6 +272,7 @@ def measure_videos(videos: dict[str, str | Path], calibration: str | Path, out_d
     opts = options or MeasureOptions()
     if opts.sync not in MEASURE_SYNC:
         raise MeasureError(f"sync={opts.sync!r}; allowed: {MEASURE_SYNC}")
+    _check_window_options(opts)
     if len(videos) != 2:
         raise MeasureError(f"{len(videos)} video(s) given; rig measure takes exactly 2 (LEFT RIGHT)")
     paths = {n: Path(p) for n, p in videos.items()}
