@@ -139,6 +139,7 @@ def test_rotor_turning_from_frame_0_is_measured_without_timing(site: dict, tmp_p
     rotation_hz = 10.0
     res, truth = _measure(site, tmp_path, mt.rotor_world(rotation_hz), sync=sync)
     assert res.timing["method"] == ("rotor" if sync == "rotor" else "joint")
+    assert res.timing["details"]["offset_window"]["source"] == "default"  # the window searched, either way
     _check_offset(res, truth, period_s=1 / rotation_hz)
     _check_line_time(res, truth)
     assert "line_time" not in res.timing["details"]  # the rotor's rows move differently in the two views

@@ -189,7 +189,6 @@ def _timing(args: dict[str, Any], obs: dict[str, pd.DataFrame], cameras: dict[st
         tr = estimate_video_timing(obs, cameras, fps, reference=reference,
                                    line_time_s=args.get("line_time_s"),
                                    max_offset_s=window.max_offset_s, prior_offset_s=window.prior_offset_s)
-        tr.details = {**tr.details, "offset_window": window.to_dict()}
         if args.get("sync") == "rotor":
             joint = tr
             tr = rotor_timing(obs, cameras, joint, reference=reference)
@@ -202,6 +201,7 @@ def _timing(args: dict[str, Any], obs: dict[str, pd.DataFrame], cameras: dict[st
                          f"{joint.offset_s[other]:+.6f} s) in timing.json details.comparison")
     except (VideoTimingError, AnalysisError) as exc:
         raise MeasureError(f"estimating the timing from the videos: {exc}") from exc
+    tr.details = {**tr.details, "offset_window": window.to_dict()}  # joint or rotor: the window searched
     other = next(c for c in obs if c != reference)
     coarse = tr.details["coarse"]
     notes.append(f"timing: {window.statement}")
