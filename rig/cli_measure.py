@@ -13,7 +13,7 @@ import sys
 from collections.abc import Callable
 from pathlib import Path
 
-from rig.deploy.choices import DISTORTION_MODELS, MEASURE_SYNC
+from rig.deploy.choices import DEFAULT_CLOCK_AGREEMENT_S, DISTORTION_MODELS, MEASURE_SYNC
 from rig.run.exit_codes import EXIT_BAD_INPUT
 
 __all__ = ["COMMANDS", "add_parsers", "cmd_calibrate", "cmd_measure"]
@@ -88,6 +88,7 @@ def cmd_measure(args: argparse.Namespace) -> int:
     options = MeasureOptions(sync=args.sync, reference_markers=refs, window_s=window,
                              line_time_s=args.line_time_s, static_mm=args.static_mm,
                              max_offset_s=args.max_offset_s, prior_offset_s=args.prior_offset_s,
+                             clock_agreement_s=args.clock_agreement_s,
                              extract=ExtractOptions(window_px=args.window_px, detect=detect, fps=args.fps,
                                                     duplicate_policy=args.duplicate_policy))
     try:
@@ -157,12 +158,17 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
                    help="analyse spectra and amplitudes in this time window only (reference clock, s)")
     p.add_argument("--line-time-s", type=float,
                    help="known rolling-shutter line time (s) for --estimate-timing")
-    p.add_argument("--max-offset-s", type=float, default=10.0,
-                   help="the cameras started within --prior-offset-s ± this, s (default 10): offsets outside "
-                        "are not considered; whole periods of a steady motion inside it are listed as "
-                        "candidates")
-    p.add_argument("--prior-offset-s", type=float, default=0.0,
-                   help="expected start of the second video relative to the first, s (default 0)")
+    p.add_argument("--max-offset-s", type=float,
+                   help="the cameras started within --prior-offset-s ± this, s: offsets outside are not "
+                        "considered; whole periods of a steady motion inside it are listed as candidates "
+                        "(default: from the containers' creation times, their resolution and "
+                        "--clock-agreement-s; without them 10)")
+    p.add_argument("--prior-offset-s", type=float,
+                   help="expected start of the second video relative to the first, s (default: from the "
+                        "containers' creation times, else 0)")
+    p.add_argument("--clock-agreement-s", type=float, default=DEFAULT_CLOCK_AGREEMENT_S,
+                   help="how closely the two cameras' own clocks agree, s, for the window from the "
+                        f"containers' creation times (default {DEFAULT_CLOCK_AGREEMENT_S:g})")
     p.add_argument("--record", metavar="RUN", help="run folder of the procedure the videos show: relate the "
                    "video clock to the controller's (controller_time_s columns, clock.json)")
     p.add_argument("--window-px", type=int, default=41, help="marker tracking window, px")

@@ -217,3 +217,23 @@ def mjpg_site(folder: Path) -> dict:
     (folder / "timing.json").write_text(json.dumps(truth_timing(left, right, 0.0, 0.15)))
     return {"folder": folder, "target": target, "truth": truth, "left": paths[0], "right": paths[1],
             "paths": paths, "calibration": folder / "calibration.json", "timing": folder / "timing.json"}
+
+
+def first_frame_world_s(camera: SimCamera, t_world0_s: float) -> float:
+    """World time at which the first frame of a video starting at ``t_world0_s`` begins its exposure."""
+    k0 = camera.sensor_frame(camera.first_frame_index_at_or_after(t_world0_s))
+    return camera.start_offset_s + k0 * camera.frame_period_true_s
+
+
+def write_mkv_video(camera: SimCamera, path: Path, t_start_s: float, t_stop_s: float, *,
+                    date_utc_ns: int | None) -> Path:
+    """The camera's frames between two world times as Motion-JPEG in Matroska, each frame at its own time
+    stamp (from the first frame's), with ``date_utc_ns`` as the container's Info/DateUTC (ns since
+    2001-01-01 UTC), if given."""
+    from camera_mkv import write_mkv
+
+    indices = camera.frame_indices_between(t_start_s, t_stop_s)
+    t0 = camera.frame_timestamp_s(indices[0])
+    write_mkv(path, (camera.render(i) for i in indices), [camera.frame_timestamp_s(i) - t0 for i in indices],
+              date_utc_ns=date_utc_ns)
+    return path

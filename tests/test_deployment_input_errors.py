@@ -139,6 +139,18 @@ def test_a_frame_rate_mismatch_names_both_videos(site: dict, tmp_path: Path,
             f"960×540 px ({slow})") in err
 
 
+@pytest.mark.parametrize("case", [("--max-offset-s", "0", "> 0 s, finite"),
+                                  ("--clock-agreement-s", "-1", "≥ 0 s, finite"),
+                                  ("--prior-offset-s", "nan", "a finite number")])
+def test_offset_window_options_are_checked_before_decoding(site: dict, tmp_path: Path, case: tuple[str, ...],
+                                                           capsys: pytest.CaptureFixture[str]) -> None:
+    option, value, allowed = case
+    assert _measure(site, site["left"], site["right"], tmp_path / "o", option, value) == 4
+    err = _error(capsys)
+    assert f"{option[2:].replace('-', '_')}=" in err and allowed in err
+    assert not (tmp_path / "o").exists()
+
+
 def test_a_resolution_mismatch_names_both_videos(site: dict, tmp_path: Path,
                                                  capsys: pytest.CaptureFixture[str]) -> None:
     small = _reencode(site["right"], tmp_path / "small.avi", fps=60, scale=0.5)

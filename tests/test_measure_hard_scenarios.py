@@ -98,10 +98,38 @@ def test_steady_column_from_before_the_first_frame(site: dict, tmp_path: Path) -
     # a column moving along one axis, vibrating since long before the videos: whole periods are ambiguous,
     # the line time is not observable (both views' rows move together)
     res, truth = _measure(site, tmp_path, mt.steady_world())
+    # the twin's AVIs state no creation time (OpenCV writes none): the default window, and why
+    window = res.timing["details"]["offset_window"]
+    assert (window["source"], window["prior_offset_s"], window["max_offset_s"]) == ("default", 0.0, 10.0)
+    assert "neither container states a creation time" in window["statement"]
     _check_offset(res, truth, period_s=1 / mt.FREQUENCY_HZ)
     _check_line_time(res, truth)
     assert res.timing["details"]["line_time"]["observable"] is False
     assert len(_targets(res)) == 5
+    _check_amplitudes(res, mt.CRANK_MM, mt.FREQUENCY_HZ, site)
+
+
+@pytest.mark.slow
+def test_container_start_times_resolve_the_periods_of_a_steady_vibration(site: dict, tmp_path: Path) -> None:
+    # the same steady column filmed into Matroska files whose DateUTC states each camera's first frame on
+    # clocks agreeing within 5 ms (cameras on GPS/NTP time): the window they give holds one period only
+    world = mt.steady_world()
+    left, right = mt.camera_pair(world)
+    base_ns = 800_000_000 * 10**9  # 2026-05-08, ns after Matroska's 2001 epoch
+    paths = {}
+    for name, cam, t0 in (("left", left, 0.0), ("right", right, 0.15)):
+        date_ns = base_ns + round(mt.first_frame_world_s(cam, t0) * 1e9)
+        paths[name] = mt.write_mkv_video(cam, tmp_path / f"{name}.mkv", t0, t0 + 2.5, date_utc_ns=date_ns)
+    res = measure_videos(paths, site["calibration"], tmp_path / "out",
+                         options=MeasureOptions(make_figures=False, clock_agreement_s=0.005))
+    truth = mt.truth_timing(left, right, 0.0, 0.15)
+    window = res.timing["details"]["offset_window"]
+    assert window["source"] == "containers" and window["containers"]["left"]["creation_resolution_s"] == 1e-9
+    assert window["max_offset_s"] < 0.5 / mt.FREQUENCY_HZ
+    assert abs(window["prior_offset_s"] - truth["offset_s"]["right"]) <= window["max_offset_s"]
+    assert any("from the containers' creation times" in n for n in res.notes)
+    _check_offset(res, truth, period_s=None)  # one candidate: no ambiguity left to state
+    _check_line_time(res, truth)
     _check_amplitudes(res, mt.CRANK_MM, mt.FREQUENCY_HZ, site)
 
 
@@ -111,6 +139,7 @@ def test_rotor_turning_from_frame_0_is_measured_without_timing(site: dict, tmp_p
     rotation_hz = 10.0
     res, truth = _measure(site, tmp_path, mt.rotor_world(rotation_hz), sync=sync)
     assert res.timing["method"] == ("rotor" if sync == "rotor" else "joint")
+    assert res.timing["details"]["offset_window"]["source"] == "default"  # the window searched, either way
     _check_offset(res, truth, period_s=1 / rotation_hz)
     _check_line_time(res, truth)
     assert "line_time" not in res.timing["details"]  # the rotor's rows move differently in the two views

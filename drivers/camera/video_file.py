@@ -102,6 +102,7 @@ class FrameTimeReport:
     width_px: int = 0
     height_px: int = 0
     duration_s: float = 0.0
+    first_pts_s: float | None = None  # the first frame's time stamp (s on the file's clock)
     duplicate_policy: str = "replace"
     luma_plane: bool = False
     duplicated: list[dict[str, Any]] = field(default_factory=list)
@@ -448,7 +449,7 @@ class VideoFile(Camera):
                     rep.error = f"frame {index} could not be decoded"
                     break
                 if index == 0:
-                    self._first_pts_s = pts
+                    self._first_pts_s = rep.first_pts_s = pts
                 half = _half(img)
                 yield _Decoded(index, pts, img, half, _block_change(half, prev) if prev is not None else None)
                 prev = half

@@ -32,6 +32,7 @@ A truncated or corrupt video does not stop the measurement: the frames read are 
 from __future__ import annotations
 
 import json
+import math
 import time
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
@@ -40,6 +41,7 @@ from typing import Any
 
 import pandas as pd
 
+from drivers.camera.container_times import ContainerError, ContainerTimes, read_container_times
 from drivers.camera.video_file import VideoFile
 from rig.analysis.analyse import load_cameras
 from rig.analysis.errors import AnalysisError
@@ -49,7 +51,8 @@ from rig.analysis.sync_tracks import (
     timing_result,
     triangulate_tracks,
 )
-from rig.deploy.choices import MEASURE_SYNC
+from rig.deploy.choices import DEFAULT_CLOCK_AGREEMENT_S, MEASURE_SYNC
+from rig.deploy.container_prior import OffsetWindow, offset_window
 from rig.deploy.series import SeriesError, reference_tracks, stabilised_displacement, summarise
 from rig.deploy.video_markers import ExtractOptions, VideoObservations, extract_video
 from rig.deploy.video_timing import VideoTimingError, estimate_video_timing, rotor_timing, tracked
@@ -82,8 +85,11 @@ class MeasureOptions:
     window_s: tuple[float, float] | None = None
     gate_px: float = 5.0
     line_time_s: float | None = None
-    max_offset_s: float = 10.0  # the cameras started within prior_offset_s ± this (s)
-    prior_offset_s: float = 0.0
+    # the cameras started within prior_offset_s ± max_offset_s (s); None: from the containers' creation
+    # times, else 0 ± 10 s (rig.deploy.container_prior)
+    max_offset_s: float | None = None
+    prior_offset_s: float | None = None
+    clock_agreement_s: float = DEFAULT_CLOCK_AGREEMENT_S  # the cameras' own clocks agree within this (s)
     extract: ExtractOptions = field(default_factory=ExtractOptions)
 
 
@@ -175,10 +181,10 @@ def _timing(args: dict[str, Any], obs: dict[str, pd.DataFrame], cameras: dict[st
                         if args.get("sync") == "rotor" else ""))
         return tr.to_dict()
     try:
+        window: OffsetWindow = args["offset_window"]
         tr = estimate_video_timing(obs, cameras, fps, reference=reference,
                                    line_time_s=args.get("line_time_s"),
-                                   max_offset_s=args.get("max_offset_s", 10.0),
-                                   prior_offset_s=args.get("prior_offset_s", 0.0))
+                                   max_offset_s=window.max_offset_s, prior_offset_s=window.prior_offset_s)
         if args.get("sync") == "rotor":
             joint = tr
             tr = rotor_timing(obs, cameras, joint, reference=reference)
@@ -191,8 +197,10 @@ def _timing(args: dict[str, Any], obs: dict[str, pd.DataFrame], cameras: dict[st
                          f"{joint.offset_s[other]:+.6f} s) in timing.json details.comparison")
     except (VideoTimingError, AnalysisError) as exc:
         raise MeasureError(f"estimating the timing from the videos: {exc}") from exc
+    tr.details = {**tr.details, "offset_window": window.to_dict()}  # joint or rotor: the window searched
     other = next(c for c in obs if c != reference)
     coarse = tr.details["coarse"]
+    notes.append(f"timing: {window.statement}")
     notes.append(f"timing estimated from the videos' motion: offset {tr.offset_s[other]:+.6f} s ± "
                  f"{tr.uncertainty['offset_s'][other] * 1e3:.4f} ms (coarse "
                  f"{coarse['chosen_offset_s']:+.4f} s "
@@ -202,6 +210,33 @@ def _timing(args: dict[str, Any], obs: dict[str, pd.DataFrame], cameras: dict[st
         if tr.details.get(key):
             notes.append("timing: " + tr.details[key])
     return tr.to_dict()
+
+
+def _check_window_options(opts: MeasureOptions) -> None:
+    """The offset-window options, before any video is decoded (NaN fails every comparison)."""
+    if opts.max_offset_s is not None and not 0 < opts.max_offset_s < math.inf:
+        raise MeasureError(f"max_offset_s={opts.max_offset_s!r}; allowed: > 0 s, finite")
+    if opts.prior_offset_s is not None and not math.isfinite(opts.prior_offset_s):
+        raise MeasureError(f"prior_offset_s={opts.prior_offset_s!r}; allowed: a finite number of s")
+    if not 0 <= opts.clock_agreement_s < math.inf:
+        raise MeasureError(f"clock_agreement_s={opts.clock_agreement_s!r}; allowed: ≥ 0 s, finite")
+
+
+def _offset_window(paths: dict[str, Path], vos: dict[str, VideoObservations], reference: str,
+                   opts: MeasureOptions) -> OffsetWindow:
+    """The offset window from the options and the containers' creation times (rig.deploy.container_prior)."""
+    times: dict[str, ContainerTimes | ContainerError] = {}
+    for name, path in paths.items():
+        try:
+            times[name] = read_container_times(path)
+        except ContainerError as exc:
+            times[name] = exc
+    first = {n: vo.report.first_pts_s or 0.0 for n, vo in vos.items()}
+    try:
+        return offset_window(times, first, reference=reference, prior_offset_s=opts.prior_offset_s,
+                             max_offset_s=opts.max_offset_s, clock_agreement_s=opts.clock_agreement_s)
+    except ValueError as exc:
+        raise MeasureError(str(exc)) from exc
 
 
 def _controller_clock(record: str | Path, obs: pd.DataFrame, period_s: float,
@@ -233,6 +268,7 @@ def measure_videos(videos: dict[str, str | Path], calibration: str | Path, out_d
     opts = options or MeasureOptions()
     if opts.sync not in MEASURE_SYNC:
         raise MeasureError(f"sync={opts.sync!r}; allowed: {MEASURE_SYNC}")
+    _check_window_options(opts)
     if len(videos) != 2:
         raise MeasureError(f"{len(videos)} video(s) given; rig measure takes exactly 2 (LEFT RIGHT)")
     paths = {n: Path(p) for n, p in videos.items()}
@@ -296,7 +332,7 @@ def _measure(job: _Job, vos: dict[str, VideoObservations], notes: list[str], pro
     fps = {n: vo.fps for n, vo in vos.items()}
     stamps.append(("read_videos", time.perf_counter()))
     timing_dict = _timing({"timing": timing, "line_time_s": opts.line_time_s, "sync": opts.sync,
-                           "max_offset_s": opts.max_offset_s, "prior_offset_s": opts.prior_offset_s},
+                           "offset_window": _offset_window(paths, vos, reference, opts)},
                           obs, cameras, fps=fps,
                           reference=reference, notes=notes)
     files["timing"] = write_json(out / "timing.json", timing_dict)
