@@ -17,7 +17,7 @@ certify: $(STAMP)
 
 test: $(STAMP) browser
 	$(VENV)/bin/ruff check .
-	$(VENV)/bin/mypy drivers  # strict ([tool.mypy]); the other packages join as they pass
+	$(VENV)/bin/mypy  # every package ([tool.mypy]: strict for rig.stereo, rig.config, rig.record, drivers)
 	$(VENV)/bin/python -m pytest -q
 
 # the same suite with a busy loop on every core (tests/conftest.py): timing must not depend on an idle machine
