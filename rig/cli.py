@@ -152,7 +152,8 @@ def _then(first: Callable[[float | None, str], None],
 
 
 def _print_summary(run_dir: Path) -> None:
-    """The closing table: each criterion of the certificate (value, U, limit, decision), then the folder."""
+    """The closing table of a run that issued a certificate: each criterion (value, U, limit, decision), then
+    the folder."""
     from rig.record.catalogue import read_entry
     from rig.record.reader import RecordError
 
@@ -161,10 +162,11 @@ def _print_summary(run_dir: Path) -> None:
     except (RecordError, OSError) as exc:
         log.warning("no summary of %s: %s", run_dir, exc)
         return
-    if entry.criteria:
-        print(f"certificate: {entry.result}" + (" (simulated rig — not a certificate of hardware)"
-                                                 if entry.simulated else ""))
-        print(criteria_table(entry.criteria))
+    if not entry.criteria:  # no certificate: the outcome line names the folder and the reason
+        return
+    print(f"certificate: {entry.result}" + (" (simulated rig — not a certificate of hardware)"
+                                             if entry.simulated else ""))
+    print(criteria_table(entry.criteria))
     print(f"run folder: {run_dir}")
 
 
