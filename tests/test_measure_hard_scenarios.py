@@ -121,7 +121,7 @@ def test_container_start_times_resolve_the_periods_of_a_steady_vibration(site: d
         date_ns = base_ns + round(mt.first_frame_world_s(cam, t0) * 1e9)
         paths[name] = mt.write_mkv_video(cam, tmp_path / f"{name}.mkv", t0, t0 + 2.5, date_utc_ns=date_ns)
     res = measure_videos(paths, site["calibration"], tmp_path / "out",
-                         options=MeasureOptions(make_figures=False, clock_agreement_s=0.005))
+                         options=MeasureOptions(clock_agreement_s=0.005))
     truth = mt.truth_timing(left, right, 0.0, 0.15)
     window = res.timing["details"]["offset_window"]
     assert window["source"] == "containers" and window["containers"]["left"]["creation_resolution_s"] == 1e-9
