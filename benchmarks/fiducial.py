@@ -19,33 +19,29 @@ from __future__ import annotations
 
 import argparse
 import math
+import sys
+from pathlib import Path
 
 import numpy as np
 
-from drivers.exciter.generator import ScpiGenerator
-from drivers.mock.generator_instrument import GeneratorInstrument
-from drivers.mock.generator_server import GeneratorServer
-from drivers.sim.camera import SimCamera
-from drivers.sim.clock import VirtualClock
-from drivers.sim.fiducial import SyncLed
-from drivers.sim.stereo_rig import default_stereo_pair
-from drivers.sim.world import World, WorldLayout
-from drivers.transport import open_transport
-from rig.stereo.fiducial import RowSamples, fit_fiducial_clock, row_profile, square_wave_edges
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "tests"))
+
+from fiducial_support import led_rows  # noqa: E402
+
+from drivers.exciter.generator import ScpiGenerator  # noqa: E402
+from drivers.mock.generator_instrument import GeneratorInstrument  # noqa: E402
+from drivers.mock.generator_server import GeneratorServer  # noqa: E402
+from drivers.sim.camera import SimCamera  # noqa: E402
+from drivers.sim.clock import VirtualClock  # noqa: E402
+from drivers.sim.fiducial import SyncLed  # noqa: E402
+from drivers.sim.stereo_rig import default_stereo_pair  # noqa: E402
+from drivers.sim.world import World, WorldLayout  # noqa: E402
+from drivers.transport import open_transport  # noqa: E402
+from rig.stereo.fiducial import fit_fiducial_clock, square_wave_edges  # noqa: E402
 
 FIDUCIAL_HZ = 10.27
-
-
-def led_rows(cam: SimCamera, led: SyncLed, t0_s: float, t1_s: float) -> RowSamples:
-    uv = cam.project(led.corners_mm())
-    x0, y0 = (np.floor(uv.min(axis=0)) + 3).astype(int)
-    x1, y1 = (np.ceil(uv.max(axis=0)) - 3).astype(int)
-    starts, brightness = [], []
-    for i in cam.frame_indices_between(t0_s, t1_s):
-        rows, mean = row_profile(cam.render(i), (x0, y0, x1, y1))
-        starts.append(cam.frame_timestamp_s(i) + rows * cam.line_time_s)
-        brightness.append(mean)
-    return RowSamples(np.concatenate(starts), np.concatenate(brightness), cam.exposure_s)
 
 
 def true_offset_s(cam: SimCamera, camera_time_s: float) -> float:

@@ -12,18 +12,18 @@ from collections.abc import Iterator
 
 import numpy as np
 import pytest
+from fiducial_support import led_rows
 
 from drivers.exciter.generator import ScpiGenerator
 from drivers.mock.generator_instrument import GeneratorInstrument
 from drivers.mock.generator_server import GeneratorServer
-from drivers.sim.camera import SimCamera
 from drivers.sim.clock import VirtualClock
 from drivers.sim.errors import SimCommandError
 from drivers.sim.fiducial import SyncLed
 from drivers.sim.stereo_rig import default_stereo_pair
 from drivers.sim.world import World
 from drivers.transport import open_transport
-from rig.stereo.fiducial import RowSamples, fit_fiducial_clock, row_profile, square_wave_edges
+from rig.stereo.fiducial import fit_fiducial_clock, square_wave_edges
 
 FIDUCIAL_HZ = 10.27  # incommensurate with 60 fps: the edges walk through the frame
 
@@ -93,20 +93,6 @@ def test_an_led_needs_a_rectangle_and_a_time_constant() -> None:
     world.add_led(bar())
     with pytest.raises(ValueError, match="already in the world"):
         world.add_led(bar())
-
-
-def led_rows(cam: SimCamera, led: SyncLed, t0_s: float, t1_s: float) -> RowSamples:
-    """The LED's rows in every frame (camera clock), from the rendered images: the configured image region
-    is the projected bar, 3 px inside its outline."""
-    uv = cam.project(led.corners_mm())
-    x0, y0 = (np.floor(uv.min(axis=0)) + 3).astype(int)
-    x1, y1 = (np.ceil(uv.max(axis=0)) - 3).astype(int)
-    starts, brightness = [], []
-    for i in cam.frame_indices_between(t0_s, t1_s):
-        rows, mean = row_profile(cam.render(i), (x0, y0, x1, y1))
-        starts.append(cam.frame_timestamp_s(i) + rows * cam.line_time_s)
-        brightness.append(mean)
-    return RowSamples(np.concatenate(starts), np.concatenate(brightness), cam.exposure_s)
 
 
 def test_a_frame_shows_the_edge_part_way_down_the_bar() -> None:
