@@ -21,7 +21,6 @@ from __future__ import annotations
 import argparse
 import importlib
 import importlib.util
-import inspect
 import logging
 import pkgutil
 import signal
@@ -320,17 +319,9 @@ def cmd_check(args: argparse.Namespace) -> int:
 
 def cmd_mock(args: argparse.Namespace) -> int:
     module_name, fixed = MOCK_MODULES[args.device]
-    try:
-        module = importlib.import_module(module_name)
-    except ImportError as exc:
-        print(f"rig mock {args.device}: the mock server is not available ({exc})", file=sys.stderr)
-        return EXIT_FAULT
-    argv = [*fixed, *args.options]
-    # the mock's own --help/usage/errors name it as typed here (``rig mock robot``), where its main() takes
-    # a prog; otherwise they show the stand-alone ``python -m drivers.mock.…`` name
-    if "prog" in inspect.signature(module.main).parameters:
-        return int(module.main(argv, prog=f"rig mock {args.device}") or 0)
-    return int(module.main(argv) or 0)
+    module = importlib.import_module(module_name)
+    # the mock's own --help/usage/errors name it as typed here (``rig mock robot``)
+    return int(module.main([*fixed, *args.options], prog=f"rig mock {args.device}") or 0)
 
 
 def cmd_demo(args: argparse.Namespace) -> int:
