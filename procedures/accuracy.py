@@ -20,7 +20,6 @@ cameras.
 from __future__ import annotations
 
 import itertools
-from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -35,32 +34,18 @@ from procedures._common import (
     required,
     speed_from,
 )
+from procedures.params.accuracy import DESCRIPTION, NAME, Parameters  # noqa: F401 (its declaration)
 from rig.config.rig_config import RigConfig
 from rig.config.targets import MeasurementVolume, TargetsConfig
 from rig.record.events import AccuracyPoseEvent
 from rig.run.acquire import Acquirer, ReduceOptions
 from rig.run.plan import ArmMoves, Plan
-from rig.run.procedure import Context, param
+from rig.run.procedure import Context
 
-NAME = "accuracy"
-DESCRIPTION = "Known marker poses over the volume, ISO 9283 cycles, marker frame → error versus position."
 ISO_ORDER = ("P1", "P5", "P4", "P3", "P2")
 ISO_CORNERS = {"P2": (1, 1, 1), "P3": (1, -1, 1), "P4": (-1, -1, -1), "P5": (-1, 1, -1)}
 SCENES = {"accuracy_grid": "single_marker", "accuracy_iso9283": "single_marker",
           "accuracy_frame": "marker_frame"}  # step -> target mounted (and whose markers are recorded)
-
-
-@dataclass(frozen=True)
-class Parameters:
-    grid_points: int = field(default=3, metadata=param(lo=0, hi=12, doc="grid nodes per axis (0: no grid)"))
-    grid_fraction: float = field(default=0.8, metadata=param(lo=0.05, hi=1.0,
-                                                             doc="share of the volume's size spanned"))
-    cycles: int = field(default=10, metadata=param(lo=0, hi=100, doc="ISO 9283 cycles over P1–P5 (0: none)"))
-    frame_poses: int = field(default=4, metadata=param(lo=0, hi=20, doc="marker frame positions (0: none)"))
-    frames_per_pose: int = field(default=10, metadata=param(lo=1, hi=600, doc="still frames per pose"))
-    settle_s: float = field(default=0.2, metadata=param(lo=0.0, hi=60.0, doc="wait after each move, s"))
-    speed_mm_s: float | None = field(default=None, metadata=param(lo=0.0, lo_open=True, hi=5000.0,
-                                                                  doc="arm speed (default: the limit)"))
 
 
 def _orientation(config: RigConfig) -> np.ndarray:

@@ -12,7 +12,6 @@ residuals. Truth events: ``arm`` per move and ``calibration_position`` per posit
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -28,33 +27,16 @@ from procedures._common import (
     required,
     speed_from,
 )
+from procedures.params.calibrate import DESCRIPTION, NAME, Parameters  # noqa: F401 (its declaration)
 from rig.config.rig_config import RigConfig
 from rig.config.targets import CalibrationPlateTarget
+from rig.deploy.choices import DISTORTION_MODELS
 from rig.deploy.plate_grid import GridError, moving_points, order_grid
 from rig.record.events import CalibrationPositionEvent
 from rig.run.acquire import Acquirer, ReduceOptions, mean_positions
 from rig.run.plan import ArmMoves, Plan
-from rig.run.procedure import Context, ParameterError, param
+from rig.run.procedure import Context, ParameterError
 from rig.stereo import calibrate_dlt
-
-NAME = "calibrate"
-DESCRIPTION = "Slide the calibration plate to known positions with the arm; one DLT per camera."
-DISTORTION: dict[str, bool | str] = {"none": False, "k1": "k1", "k1k2": "k1k2", "full": True}
-
-
-@dataclass(frozen=True)
-class Parameters:
-    frames_per_position: int = field(default=8, metadata=param(lo=1, hi=600, doc="still frames averaged "
-                                                                               "per plate position"))
-    settle_s: float = field(default=0.2, metadata=param(lo=0.0, hi=60.0, doc="wait after each move, s"))
-    speed_mm_s: float | None = field(default=None, metadata=param(lo=0.0, lo_open=True, hi=5000.0,
-                                                                  doc="arm speed (default: the limit)"))
-    slide_positions_mm: tuple[float, ...] = field(default=(), metadata=param(
-        length=(0, 100), lo=-2000.0, hi=2000.0, doc="slides along the plate normal, mm (empty: the rig's "
-                                                     "targets.calibration_plate.slide_positions_mm)"))
-    refine: bool = field(default=True, metadata=param(doc="refine P on the reprojection error"))
-    distortion: str = field(default="k1", metadata=param(choices=tuple(DISTORTION),
-                                                         doc="lens distortion terms fitted"))
 
 
 def plate_poses(plate: CalibrationPlateTarget, slides_mm: tuple[float, ...]) -> list[list[float]]:
@@ -132,7 +114,7 @@ def calibrate_cameras(ctx: Context, params: Parameters) -> dict[str, Any]:
     for name in ctx.cameras:
         xyz, uv, resid = _control_points(positions, name, plate, min_frames)
         width_px, height_px = ctx.config.cameras[name].resolution_px
-        cam = calibrate_dlt(xyz, uv, refine=params.refine, distortion=DISTORTION[params.distortion],
+        cam = calibrate_dlt(xyz, uv, refine=params.refine, distortion=DISTORTION_MODELS[params.distortion],
                             image_size=(width_px, height_px))
         cameras[name] = cam.to_dict()
         grid[name] = resid

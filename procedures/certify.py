@@ -18,54 +18,16 @@ from __future__ import annotations
 
 import dataclasses
 from collections.abc import Callable
-from dataclasses import dataclass, field
 from typing import Any, TypedDict, TypeVar
 
 from procedures import accuracy, calibrate, sweep, sync
 from procedures._report import report_step
+from procedures.params.certify import DESCRIPTION, NAME, PRESETS, Parameters  # noqa: F401 (its declaration)
 from rig.config.rig_config import RigConfig
 from rig.run.plan import Plan
-from rig.run.procedure import Context, ParameterError, param
+from rig.run.procedure import Context, ParameterError
 
 P = TypeVar("P")
-
-NAME = "certify"
-DESCRIPTION = "The whole certification: calibrate, sync, accuracy, sweep, report, certificate."
-
-PRESETS: dict[str, dict[str, Any]] = {
-    "full": {
-        "calibrate": {},
-        "sync": {},
-        "accuracy": {},
-        "sweep": {},
-    },
-    "fast": {
-        "calibrate": {"frames_per_position": 4},
-        "sync": {"record_s": 2.0},
-        "accuracy": {"grid_points": 2, "cycles": 3, "frame_poses": 2, "frames_per_pose": 8},
-        "sweep": {"start_hz": 2.0, "max_hz": 12.0, "duration_s": 8.0, "hold_s": 0.5},
-    },
-}
-
-
-@dataclass(frozen=True)
-class Parameters:
-    preset: str = field(default="full", metadata=param(choices=tuple(PRESETS), doc="scope of the run"))
-    sweep_start_hz: float | None = field(default=None, metadata=param(lo=0.1, hi=1000.0,
-                                                                      doc="sweep: first frequency, Hz"))
-    sweep_max_hz: float | None = field(default=None, metadata=param(lo=0.1, hi=1000.0,
-                                                                    doc="sweep: peak frequency, Hz"))
-    sweep_duration_s: float | None = field(default=None, metadata=param(lo=0.5, hi=3600.0,
-                                                                        doc="sweep: rise time, s"))
-    accuracy_grid_points: int | None = field(default=None, metadata=param(
-        lo=0, hi=12, doc="accuracy: grid nodes per axis"))
-    accuracy_cycles: int | None = field(default=None, metadata=param(lo=0, hi=100,
-                                                                     doc="accuracy: ISO 9283 cycles"))
-    calibrate_slide_positions_mm: tuple[float, ...] = field(default=(), metadata=param(
-        length=(0, 100), lo=-2000.0, hi=2000.0, doc="calibrate: plate slides, mm (empty: the rig's)"))
-    figures: bool = field(default=True, metadata=param(doc="draw the report's figures"))
-    compare_paper_sync: bool | None = field(default=None, metadata=param(
-        doc="also analyse with the paper's linear interpolation (default: full yes, fast no)"))
 
 
 # the steps' parameters that certify sets (as in --set sweep_max_hz=…), named so in its plan's checks

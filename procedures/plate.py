@@ -18,7 +18,6 @@ then builds the report (trajectories, amplitude and frequency per marker).
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -34,25 +33,13 @@ from procedures._common import (
     stop_polled,
     vfd_config,
 )
+from procedures.params.plate import DESCRIPTION, NAME, Parameters  # noqa: F401 (its declaration)
 from rig.config.rig_config import RigConfig
 from rig.config.targets import PlateTarget
 from rig.record.events import PlateEvent
 from rig.run.acquire import Acquirer, Recording, ReduceOptions
 from rig.run.plan import Plan, PlanStep, Vibration, shaker_limits
-from rig.run.procedure import Context, ParameterError, param
-
-NAME = "plate"
-DESCRIPTION = "Oscillating plate at about 3.5 Hz: trajectories of every marker (Figs. 4-8)."
-
-
-@dataclass(frozen=True)
-class Parameters:
-    frequency_hz: float = field(default=3.5, metadata=param(lo=0.1, hi=1000.0,
-                                                            doc="oscillation frequency, Hz"))
-    record_s: float = field(default=6.0, metadata=param(lo=0.5, hi=3600.0, doc="recording length, s"))
-    poll_interval_s: float = field(default=0.25, metadata=param(lo=0.01, hi=10.0, doc="exciter polls, s"))
-    shaker_amplitude_mm: float = field(default=2.0, metadata=param(
-        lo=0.001, hi=50.0, doc="tip displacement with body = \"shaker\", mm (the exciter's: its crank)"))
+from rig.run.procedure import Context, ParameterError
 
 
 def marker_amplitudes_mm(plate: PlateTarget, tip_mm: float) -> dict[str, float]:

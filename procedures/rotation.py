@@ -10,25 +10,15 @@ Run alone (``rig run rotation``) it first calibrates and synchronizes the camera
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
 from typing import Any
 
 from procedures._alone import alone_plan, run_alone
+from procedures.params.rotation import DESCRIPTION, NAME, Parameters  # noqa: F401 (its declaration)
 from procedures.sync import rotor_step, spin_and_record
 from rig.config.rig_config import RigConfig
 from rig.run.acquire import Acquirer, ReduceOptions
 from rig.run.plan import Plan
-from rig.run.procedure import Context, param
-
-NAME = "rotation"
-DESCRIPTION = "Marker on the rotor at 10 Hz: trajectory, radius and frequency (Figs. 10-15)."
-
-
-@dataclass(frozen=True)
-class Parameters:
-    rotation_hz: float = field(default=10.0, metadata=param(lo=0.1, hi=100.0, doc="rotor speed, rev/s"))
-    record_s: float = field(default=4.0, metadata=param(lo=0.5, hi=3600.0, doc="recording length, s"))
-    poll_interval_s: float = field(default=0.25, metadata=param(lo=0.01, hi=10.0, doc="rotor polls, s"))
+from rig.run.procedure import Context
 
 
 def own_plan(params: Parameters, config: RigConfig, *, step_name: str = "rotation") -> Plan:

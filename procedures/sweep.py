@@ -31,7 +31,6 @@ from __future__ import annotations
 
 import dataclasses
 from collections.abc import Callable
-from dataclasses import dataclass, field
 from typing import Any
 
 from drivers.exciter.shaker import Shaker
@@ -47,36 +46,16 @@ from procedures._common import (
     vfd_config,
 )
 from procedures._shaker import follow_staircase, staircase_plan
+from procedures.params.sweep import DESCRIPTION, NAME, Parameters  # noqa: F401 (its declaration)
 from rig.config.rig_config import RigConfig
 from rig.config.targets import SweepColumnTarget
 from rig.record.events import SweepEvent
 from rig.run.acquire import Acquirer, ReduceOptions
 from rig.run.plan import GeneratorSweep, Plan, PlanStep, Vibration, shaker_limits
-from rig.run.procedure import Context, ParameterError, param
+from rig.run.procedure import Context, ParameterError
 
 FLAT_SENSITIVITY_TOLERANCE = 0.005  # max (s_max − s_min)/s_min of the shaker table over a sweep (0.5 %)
-NAME = "sweep"
-DESCRIPTION = "Constant amplitude, frequency rising monotonically to 30 Hz (Fig. 17): error vs frequency."
 FIG17 = ((0.0, 0.0), (0.25, 0.10), (0.5, 0.35), (0.75, 0.65), (1.0, 1.0))  # (t/T, (f − f0)/(f1 − f0))
-
-
-@dataclass(frozen=True)
-class Parameters:
-    start_hz: float = field(default=1.0, metadata=param(lo=0.1, hi=1000.0, doc="first frequency, Hz"))
-    max_hz: float = field(default=30.0, metadata=param(lo=0.1, hi=1000.0, doc="peak frequency, Hz"))
-    duration_s: float = field(default=24.0, metadata=param(lo=0.5, hi=3600.0, doc="rise time, s"))
-    hold_s: float = field(default=1.0, metadata=param(lo=0.0, hi=600.0, doc="hold at the peak, s"))
-    shape: str = field(default="fig17", metadata=param(choices=("fig17", "linear", "log"),
-                                                       doc="profile of the rise"))
-    update_interval_s: float = field(default=0.5, metadata=param(
-        lo=0.05, hi=10.0, doc="setpoint update interval (shaker: fig17 step and generator poll interval), s"))
-    shaker_amplitude_mm: float = field(default=2.0, metadata=param(
-        lo=0.001, hi=50.0, doc="peak displacement with body = \"shaker\", mm (the exciter's: its crank)"))
-
-    def __post_init__(self) -> None:
-        if self.max_hz <= self.start_hz:
-            raise ValueError(f"max_hz={self.max_hz:g} must exceed start_hz={self.start_hz:g} "
-                             "(a rising sweep)")
 
 
 def profile_of(params: Parameters) -> SweepProfile:

@@ -13,7 +13,6 @@ radius and frequency checks of the report). Needs ``calibration.json`` (the cali
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -32,28 +31,15 @@ from procedures._common import (
     stop_polled,
     vfd_config,
 )
+from procedures.params.sync import DESCRIPTION, NAME, Parameters  # noqa: F401 (its declaration)
 from rig.config.rig_config import RigConfig
 from rig.config.targets import RotorTarget
 from rig.record.events import RotationEvent
 from rig.run.acquire import Acquirer, Recording, ReduceOptions
 from rig.run.plan import Plan, PlanStep, Vibration
-from rig.run.procedure import Context, param
+from rig.run.procedure import Context
 from rig.stereo import DLTCamera, TimingError
 from rig.stereo.timing import estimate_offset
-
-NAME = "sync"
-DESCRIPTION = "Spin the rotor at 10 Hz; estimate camera offset, line time and drift → timing.json."
-
-
-@dataclass(frozen=True)
-class Parameters:
-    rotation_hz: float = field(default=10.0, metadata=param(lo=0.1, hi=100.0, doc="rotor speed, rev/s"))
-    record_s: float = field(default=3.0, metadata=param(lo=0.5, hi=600.0, doc="recording length, s"))
-    poll_interval_s: float = field(default=0.25, metadata=param(lo=0.01, hi=10.0,
-                                                                doc="rotor polls while recording, s"))
-    search_frames: float = field(default=2.0, metadata=param(lo=0.5, hi=30.0,
-                                                             doc="offset search half-width, frame periods"))
-    compare_rotor_method: bool = field(default=True, metadata=param(doc="also run the paper's method"))
 
 
 def _static_tracks(obs: pd.DataFrame, n_frames: int, still_px: float = 1.5) -> np.ndarray:

@@ -63,18 +63,24 @@ def _bad_input(field: str, message: str) -> Exception:
 
 
 # ---------------------------------------------------------------------------- procedures
-def discover_procedures() -> dict[str, types.ModuleType]:
-    """Every module of the ``procedures`` package that defines ``NAME``, ``Parameters`` and ``run``."""
+def discover_procedures(*, declarations: bool = False) -> dict[str, types.ModuleType]:
+    """Every module of the ``procedures`` package that defines ``NAME``, ``Parameters`` and ``run``. With
+    ``declarations`` (``rig list``), a procedure's light declaration ``procedures/params/<module>.py``
+    (``NAME``, ``DESCRIPTION``, ``Parameters``, no numpy) stands in for the module where there is one."""
     import procedures
-    from rig.run.procedure import check_procedure_module
+    from rig.run.procedure import check_declaration, check_procedure_module
 
     found: dict[str, types.ModuleType] = {}
     for info in pkgutil.iter_modules(procedures.__path__):
-        if info.name.startswith("_"):
+        if info.name.startswith("_") or info.ispkg:
             continue
-        module = importlib.import_module(f"procedures.{info.name}")
+        light = f"procedures.params.{info.name}"
+        if declarations and importlib.util.find_spec(light) is not None:
+            module, check = importlib.import_module(light), check_declaration
+        else:
+            module, check = importlib.import_module(f"procedures.{info.name}"), check_procedure_module
         try:
-            check_procedure_module(module)
+            check(module)
         except TypeError:
             continue  # a helper module of the package, not a procedure
         found[module.NAME] = module
@@ -455,7 +461,7 @@ def cmd_batch(args: argparse.Namespace) -> int:
 def cmd_list(args: argparse.Namespace) -> int:
     from rig.run.procedure import parameter_table
 
-    procedures = discover_procedures()
+    procedures = discover_procedures(declarations=True)
     if not procedures:
         print("no procedures installed (the procedures/ package is empty)")
     for name, module in procedures.items():

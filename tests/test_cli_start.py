@@ -1,4 +1,4 @@
-"""``rig --help`` and ``rig list`` start without the heavy libraries: checked on ``sys.modules`` of a fresh
+"""``rig --help`` and ``rig list`` (the procedures' parameters) start without the heavy libraries: checked on ``sys.modules`` of a fresh
 interpreter (deterministic; the start times themselves are in benchmarks/cli_start.py)."""
 
 from __future__ import annotations
@@ -31,6 +31,7 @@ def _imported(*args: str) -> dict:
     return json.loads(done.stdout.splitlines()[-1])
 
 
-@pytest.mark.parametrize("args", [("--help",), ("certify", "--help"), ("measure", "--help"), ()])
-def test_help_imports_no_heavy_library(args: tuple[str, ...]) -> None:
+@pytest.mark.parametrize("args", [("--help",), ("certify", "--help"), ("run", "--help"), ("measure", "--help"),
+                                  ("runs", "--help"), ("list", "--help"), ("list",), ()])
+def test_help_and_list_import_no_heavy_library(args: tuple[str, ...]) -> None:
     assert _imported(*args) == {"code": 0, "heavy": []}

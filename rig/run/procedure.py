@@ -25,6 +25,9 @@ A procedure is a plain module (``procedures/<name>.py``) with three things::
                 step.output(ctx.write_json("timing.json", timing))
         return {"passed": True, "summary": "..."}   # optional verdict (``passed`` False → exit code 1)
 
+A built-in procedure keeps ``NAME``, ``DESCRIPTION`` and ``Parameters`` in ``procedures/params/<module>.py``
+(importing no numpy or pandas) and imports them: ``rig list`` reads those without the procedures' machinery.
+
 Rules: a procedure never cleans up hardware (no safety ``try/finally``): the runner stops every device
 whatever happens. It records the truth it commands and what devices report with :meth:`Context.event`
 (streams of ``docs/contracts.md``). It calls :meth:`Context.checkpoint` between motions; the runner
@@ -52,21 +55,24 @@ import types
 from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Protocol, TypeVar
+from typing import TYPE_CHECKING, Any, Protocol, TypeVar
 
-from drivers.denso.arm import DensoArm
-from drivers.exciter.axis import VfdAxis
-from drivers.exciter.exciter import Exciter
-from drivers.exciter.rotor import Rotor
-from drivers.exciter.shaker import Shaker
 from drivers.roles import Camera, Device
 from drivers.sim.clock import VirtualClock
-from rig.config.rig_config import RigConfig
 from rig.config.schema import ConfigError, build, spec, to_dict
 from rig.record.events import Event
-from rig.record.observations import ObservationWriter
-from rig.record.writer import RunRecord
 from rig.run.clock import Clock
+
+if TYPE_CHECKING:  # the devices, the configuration and the record import the protocols' codecs, numpy or
+    # pandas: `rig list` reads the procedures' parameters without them (the typed accessors import them)
+    from drivers.denso.arm import DensoArm
+    from drivers.exciter.axis import VfdAxis
+    from drivers.exciter.exciter import Exciter
+    from drivers.exciter.rotor import Rotor
+    from drivers.exciter.shaker import Shaker
+    from rig.config.rig_config import RigConfig
+    from rig.record.observations import ObservationWriter
+    from rig.record.writer import RunRecord
 
 __all__ = [
     "Abort",
@@ -107,14 +113,20 @@ class InterlockTripped(Abort):
         self.interlock_reason = reason
 
 
-def check_procedure_module(module: types.ModuleType) -> None:
-    """Raise TypeError unless ``module`` has ``NAME`` (str), a ``Parameters`` dataclass and ``run``."""
+def check_declaration(module: types.ModuleType) -> None:
+    """Raise TypeError unless ``module`` has ``NAME`` (str) and a ``Parameters`` dataclass: what ``rig list``
+    reads (from the procedure module, or its light declaration ``procedures/params/<module>.py``)."""
     name = getattr(module, "NAME", None)
     if not isinstance(name, str) or not name or not all(c.isalnum() or c in "_-" for c in name):
         raise TypeError(f"procedure module {module.__name__!r}: NAME must be a non-empty str of letters, "
                         f"digits, '_' or '-', got {name!r}")
     if not dataclasses.is_dataclass(getattr(module, "Parameters", None)):
         raise TypeError(f"procedure module {module.__name__!r}: Parameters must be a dataclass")
+
+
+def check_procedure_module(module: types.ModuleType) -> None:
+    """Raise TypeError unless ``module`` has ``NAME`` (str), a ``Parameters`` dataclass and ``run``."""
+    check_declaration(module)
     if not callable(getattr(module, "run", None)):
         raise TypeError(f"procedure module {module.__name__!r}: run(ctx, params) is missing")
 
@@ -268,22 +280,32 @@ class Context:
 
     def arm(self) -> DensoArm:
         """The robot arm (``[devices.robot]``)."""
+        from drivers.denso.arm import DensoArm
+
         return self._device_of("robot", DensoArm)
 
     def vfd_axis(self, name: str) -> VfdAxis:
         """The VFD axis ``name`` (``exciter`` or ``rotor``)."""
+        from drivers.exciter.axis import VfdAxis
+
         return self._device_of(name, VfdAxis)
 
     def exciter(self) -> Exciter:
         """The crank exciter (``[devices.exciter]``)."""
+        from drivers.exciter.exciter import Exciter
+
         return self._device_of("exciter", Exciter)
 
     def rotor(self) -> Rotor:
         """The rotor (``[devices.rotor]``)."""
+        from drivers.exciter.rotor import Rotor
+
         return self._device_of("rotor", Rotor)
 
     def shaker(self) -> Shaker:
         """The function generator + amplifier + shaker (``[devices.generator]``)."""
+        from drivers.exciter.shaker import Shaker
+
         return self._device_of("generator", Shaker)
 
     @property
