@@ -7,7 +7,7 @@ from collections.abc import Callable
 from typing import Any, TypeVar
 
 from procedures import calibrate, sync
-from procedures._report import evaluated_summary, report_step
+from procedures._report import REPORT_STEP, evaluated_summary, report_step
 from rig.config.rig_config import RigConfig
 from rig.run.plan import Plan
 from rig.run.procedure import Context
@@ -17,10 +17,10 @@ P = TypeVar("P")
 
 
 def alone_plan(procedure: str, own: Plan, config: RigConfig) -> Plan:
-    """The plan of a measurement procedure run on its own: calibrate and sync (their defaults), then its
-    own steps."""
+    """The plan of a measurement procedure run on its own: calibrate and sync (their defaults), its own
+    steps, then the report."""
     return Plan(procedure, calibrate.plan(calibrate.Parameters(), config).steps
-                + sync.plan(sync.Parameters(), config).steps + own.steps)
+                + sync.plan(sync.Parameters(), config).steps + own.steps + (REPORT_STEP,))
 
 
 def run_alone(ctx: Context, params: P, run_steps: Callable[[Context, P], T]) -> tuple[T, dict[str, Any]]:

@@ -1,4 +1,5 @@
-"""The ``report`` step shared by the procedures: analysis → tables, figures, report.html, certificate.json.
+"""The ``report`` step shared by the procedures (the last step of their plans, :data:`REPORT_STEP`):
+analysis → tables, figures, report.html, certificate.json.
 
 Calls :func:`reports.build.build_report` on the run folder (a pure function of it). The report is built
 before the run's ``stop`` document exists, as the run's last step (``in_run``: the certificate says the
@@ -14,9 +15,15 @@ from __future__ import annotations
 
 from typing import Any
 
+from rig.run.plan import PlanStep
 from rig.run.procedure import Context
 
-__all__ = ["evaluated_summary", "report_step", "verdict_of"]
+__all__ = ["REPORT_STEP", "evaluated_summary", "report_step", "verdict_of"]
+
+# the report is a step of the plan, so the run's step count is known from its start; its time is the host's
+# analysis, which the plan (rig time: motion, settling, recording) does not estimate
+REPORT_STEP = PlanStep("report", 0.0, what="analysis, tables, figures, report.html, certificate.json "
+                                           "(host time, not in the estimate)")
 
 
 def verdict_of(certificate: dict[str, Any]) -> tuple[bool, str]:
@@ -46,7 +53,7 @@ def report_step(ctx: Context, *, make_figures: bool = True,
     ``compare``: sync methods analysed beside the primary one (default: the paper's ``linear``)."""
     from reports.build import build_report, issued_certificate
 
-    with ctx.step("report") as step:
+    with ctx.step(REPORT_STEP.name) as step:
         certificate = issued_certificate(ctx.run_dir)
         if certificate is None:
             ctx.progress(None, "report: analysis, tables, figures, certificate")

@@ -21,7 +21,7 @@ from collections.abc import Callable
 from typing import Any, TypedDict, TypeVar
 
 from procedures import accuracy, calibrate, sweep, sync
-from procedures._report import report_step
+from procedures._report import REPORT_STEP, report_step
 from procedures.params.certify import DESCRIPTION, NAME, PRESETS, Parameters  # noqa: F401 (its declaration)
 from rig.config.rig_config import RigConfig
 from rig.run.plan import Plan
@@ -71,11 +71,12 @@ def sub_parameters(params: Parameters) -> SubParameters:
 
 
 def plan(params: Parameters, config: RigConfig) -> Plan:
-    """Every step of the certification (calibrate, sync, accuracy, sweep), from the preset and the
+    """Every step of the certification (calibrate, sync, accuracy, sweep, report), from the preset and the
     overrides; the runner checks it as a whole before any device is connected."""
     sub = sub_parameters(params)
     steps = (calibrate.plan(sub["calibrate"], config).steps + sync.plan(sub["sync"], config).steps
-             + accuracy.own_plan(sub["accuracy"], config).steps + sweep.own_plan(sub["sweep"], config).steps)
+             + accuracy.own_plan(sub["accuracy"], config).steps + sweep.own_plan(sub["sweep"], config).steps
+             + (REPORT_STEP,))
     return Plan(NAME, steps).renamed(PARAMETER_NAMES)
 
 

@@ -127,6 +127,26 @@ def test_a_step_the_plan_does_not_time_is_counted_where_it_runs() -> None:
         "2 of 2: sync began (planned ≈ 13 s; ≈ 13 s left)"]
 
 
+@pytest.mark.parametrize(("procedure", "parameters"), [("certify", {"preset": "fast"}), ("plate", {})])
+def test_the_step_count_is_known_from_the_start_report_included(procedure: str, parameters: dict) -> None:
+    """The report is the last step of the plan: "step n of n: report", never a step count growing by one."""
+    from rig.cli import load_config, load_procedure
+    from rig.dashboard.live_run import run_state
+
+    module = load_procedure(procedure)
+    state = run_state(module, load_config(None))
+    stream = FakeStream(tty=False)
+    term = TerminalProgress(state, stream, clock=FakeClock())
+    _doc(state, term, {"type": "start", "time_s": 0.0, "procedure": procedure, "parameters": parameters})
+    names = state.overview().step_names
+    assert names[-1] == "report" and len(names) == (7 if procedure == "certify" else 4)
+    for t_s, name in enumerate(names):
+        _doc(state, term, _step(name, "begin", float(t_s)))
+        _doc(state, term, _step(name, "done", t_s + 0.5))
+    labels = [line.split(" step ", 1)[1].split(":")[0] for line in stream.getvalue().splitlines()]
+    assert labels == [f"{i} of {len(names)}" for i in range(1, len(names) + 1) for _ in ("begin", "done")]
+
+
 @pytest.mark.parametrize(("seconds", "text"),
                          [(None, "—"), (0.4, "0 s"), (59.6, "1 min 00 s"), (3725, "62 min 05 s")])
 def test_duration_text(seconds: float | None, text: str) -> None:

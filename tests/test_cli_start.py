@@ -1,5 +1,6 @@
-"""``rig --help`` and ``rig list`` (the procedures' parameters) start without the heavy libraries: checked on ``sys.modules`` of a fresh
-interpreter (deterministic; the start times themselves are in benchmarks/cli_start.py)."""
+"""``rig --help`` and ``rig list`` (the procedures' parameters) start without the heavy libraries: checked on
+``sys.modules`` of a fresh interpreter (deterministic; the start times themselves are in
+benchmarks/cli_start.py)."""
 
 from __future__ import annotations
 
@@ -31,7 +32,8 @@ def _imported(*args: str) -> dict:
     return json.loads(done.stdout.splitlines()[-1])
 
 
-@pytest.mark.parametrize("args", [("--help",), ("certify", "--help"), ("run", "--help"), ("measure", "--help"),
-                                  ("runs", "--help"), ("list", "--help"), ("list",), ()])
+@pytest.mark.parametrize("args", [("--help",), ("certify", "--help"), ("run", "--help"),
+                                  ("measure", "--help"), ("runs", "--help"), ("list", "--help"), ("list",),
+                                  ()])
 def test_help_and_list_import_no_heavy_library(args: tuple[str, ...]) -> None:
     assert _imported(*args) == {"code": 0, "heavy": []}

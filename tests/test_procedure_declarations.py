@@ -16,7 +16,8 @@ from rig.run.procedure import parameter_table
 
 def test_the_declarations_are_the_procedures_own() -> None:
     light, full = discover_procedures(declarations=True), discover_procedures()
-    assert list(light) == list(full) == ["accuracy", "calibrate", "certify", "plate", "rotation", "sweep", "sync"]
+    assert list(light) == list(full) == ["accuracy", "calibrate", "certify", "plate", "rotation", "sweep",
+                                         "sync"]
     for name, module in full.items():
         declaration = light[name]
         assert declaration.__name__ == f"procedures.params.{module.__name__.rpartition('.')[2]}"

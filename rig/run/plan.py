@@ -108,6 +108,7 @@ class PlanStep:
     duration_s: float
     arm: ArmMoves | None = None
     vibration: Vibration | None = None
+    what: str = ""  # what a step that moves nothing does (the report: analysis on the host, not timed here)
 
 
 @dataclass(frozen=True)
@@ -423,14 +424,15 @@ def _step_text(step: PlanStep) -> str:
         accel = max((2 * math.pi * f) ** 2 * v.amplitude_mm / 1000.0 for _, f in v.profile)
         parts.append(f"{v.device} {freq} at {v.amplitude_mm:g} mm over {v.duration_s:.3g} s{slope}, "
                      f"max acceleration {accel:.4g} m/s²")
-    what = "; ".join(parts) or "no motion"
-    return f"  {step.name:<18s} ≈ {_duration_text(step.duration_s):>10s}  {what}"
+    what = "; ".join(parts) or step.what or "no motion"
+    timed = "not timed" if step.what and not step.duration_s else f"≈ {_duration_text(step.duration_s)}"
+    return f"  {step.name:<18s} {timed:>12s}  {what}"
 
 
 def format_plan(plan: Plan, checks: list[PlanCheck]) -> str:
     """The plan and its checks as text (``rig run --dry-run``)."""
     lines = [f"plan of {plan.procedure}: {len(plan.steps)} steps, ≈ {_duration_text(plan.duration_s)} "
-             "(motion, settling and recording; analysis and report not included)"]
+             "(motion, settling and recording; the report's analysis not included)"]
     lines += [_step_text(s) for s in plan.steps]
     passed = sum(c.passed for c in checks)
     lines.append(f"checks ({passed}/{len(checks)} pass; margin = distance to the limit):")
