@@ -36,6 +36,11 @@ PLOTS: dict[str, tuple[str, ...]] = {
     # between polls) since the spin began; the sync step's truth. Not wrapped to 360°: the drive is polled a
     # few times a second and the rotor turns up to tens of times a second, so a wrapped phase would alias
     "rotor_phase": ("t_s", "turns"),
+    # the live stereo preview (rig.dashboard.live_stereo), against the recording's time (the cameras' clock
+    # from the recording's first frame, s), not the rig time: per sweep window the fitted frequency and
+    # amplitude and its error against the commanded amplitude; the rotor's turns as the cameras see them
+    "sweep_amplitude": ("recording_s", "frequency_hz", "amplitude_mm", "amplitude_error_mm"),
+    "rotor_phase_cameras": ("recording_s", "turns"),
 }
 DEVICE_STREAMS = ("exciter", "rotor", "generator")
 
@@ -113,6 +118,7 @@ class DashboardState:
             "title": title, "run_id": None, "simulated": None, "steps": [], "current_step": None,
             "progress": {"fraction": None, "message": ""}, "remaining_s": None, "time_s": None,
             "devices": {}, "interlocks": [], "messages": [], "stop": None, "hints": None,
+            "live_stereo": None,  # {"segment", "status", "error"} of the live stereo preview
         }
         self.series = {name: Series(columns, max_points) for name, columns in PLOTS.items()}
         self._step_begin_s: float | None = None
@@ -148,6 +154,19 @@ class DashboardState:
         """The preview's per-camera findings and hints (see :mod:`rig.preview`)."""
         with self._lock:
             self.fields["hints"] = hints
+            self._changed()
+
+    def add_rows(self, plot: str, rows: list[list[float]]) -> None:
+        """Append ``rows`` to ``plot`` (one of :data:`PLOTS`; a NaN row breaks a drawn line)."""
+        with self._lock:
+            for row in rows:
+                self.series[plot].append(row)
+            self._changed()
+
+    def set_live_stereo(self, segment: str | None, status: str, error: str | None = None) -> None:
+        """The live stereo preview's state, shown beside its plots (an error is shown, never raised)."""
+        with self._lock:
+            self.fields["live_stereo"] = {"segment": segment, "status": status, "error": error}
             self._changed()
 
     def _on_start(self, doc: dict[str, Any]) -> None:

@@ -120,7 +120,7 @@ class Acquirer:
         # track numbers continue over the recordings of one segment (a stopped camera may see a moved scene,
         # so every recording starts with a whole-frame detection)
         reducer = MarkerReducer(self.options, self._next_ids.get((name, segment), 0))
-        reader = _Reader(self.cameras[name], reducer, cancel, self._regions.get(name))
+        reader = _Reader(self.cameras[name], reducer, cancel, self._regions.get(name), segment)
         reader.thread.start()
         return reader
 
@@ -210,8 +210,8 @@ class _Reader:
     """One camera's ``frames()`` reduced to rows in a daemon thread (a hung device cannot block the exit)."""
 
     def __init__(self, camera: Camera, reducer: MarkerReducer, cancel: threading.Event,
-                 led_region: tuple[int, int, int, int] | None = None) -> None:
-        self.camera, self.reducer, self.cancel = camera, reducer, cancel
+                 led_region: tuple[int, int, int, int] | None = None, segment: str = "") -> None:
+        self.camera, self.reducer, self.cancel, self.segment = camera, reducer, cancel, segment
         self.parts: list[tuple[int, float, np.ndarray, np.ndarray]] = []
         self.led_region = led_region  # the timing fiducial's rows are kept (rig.run.fiducial)
         self.led_rows: list[tuple[int, float, np.ndarray, np.ndarray]] = []
@@ -231,7 +231,8 @@ class _Reader:
                     self.led_rows.append((int(frame.index), float(frame.timestamp_s), rows, mean))
                 if FRAMES.enabled:  # the live view's latest frame (a reference; see rig.run.frame_tap)
                     FRAMES.offer(self.camera.name, frame.index, frame.image,
-                                 np.column_stack([found["u_px"][keep], found["v_px"][keep]]), ids[keep])
+                                 np.column_stack([found["u_px"][keep], found["v_px"][keep]]), ids[keep],
+                                 timestamp_s=float(frame.timestamp_s), segment=self.segment)
         except BaseException as exc:  # handed to the recording's thread, which raises it
             self.error = exc
 

@@ -5,17 +5,22 @@
 it keeps a *reference* to at most one frame per camera per ``min_interval_s`` of wall time (no copy and no
 encoding in the acquisition's thread); the image is downscaled, annotated and JPEG-encoded only when a
 client asks for it (:meth:`FrameTap.jpeg`), once per frame.
+
+With ``keep_markers`` also set, every offered frame's markers (not its image) are appended to a bounded
+queue (:meth:`FrameTap.drain_markers`; the oldest dropped when nobody drains it): what the dashboard's live
+stereo estimate reads (:mod:`rig.dashboard.live_stereo`), in its own thread.
 """
 
 from __future__ import annotations
 
 import threading
 import time
+from collections import deque
 from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["FRAMES", "FrameTap", "TappedFrame"]
+__all__ = ["FRAMES", "FrameTap", "MarkerFrame", "TappedFrame"]
 
 
 @dataclass(frozen=True)
@@ -31,24 +36,43 @@ class TappedFrame:
     ids: np.ndarray
 
 
+@dataclass(frozen=True)
+class MarkerFrame:
+    """One frame's markers: the recording's ``segment``, the camera's ``frame_index`` and ``timestamp_s``
+    (its own clock), the centres ``uv_px`` (n × 2) and track ``ids`` (n)."""
+
+    camera: str
+    segment: str
+    frame_index: int
+    timestamp_s: float
+    uv_px: np.ndarray
+    ids: np.ndarray
+
+
 class FrameTap:
     """Latest frame per camera (thread-safe); see the module docstring."""
 
-    def __init__(self, min_interval_s: float = 0.1) -> None:
+    def __init__(self, min_interval_s: float = 0.1, max_marker_frames: int = 20_000) -> None:
         self.enabled = False
+        self.keep_markers = False
         self.min_interval_s = float(min_interval_s)
+        self._markers: deque[MarkerFrame] = deque(maxlen=max_marker_frames)
         self._lock = threading.Lock()
         self._latest: dict[str, TappedFrame] = {}
         self._offered_at: dict[str, float] = {}
         self._jpeg: dict[str, tuple[int, int, bytes]] = {}  # camera → (seq, max_width_px, bytes)
 
     def offer(self, camera: str, frame_index: int, image: np.ndarray, uv_px: np.ndarray,
-              ids: np.ndarray) -> None:
-        """Keep this frame as ``camera``'s latest unless one was kept less than ``min_interval_s`` ago."""
+              ids: np.ndarray, *, timestamp_s: float = float("nan"), segment: str = "") -> None:
+        """Keep this frame as ``camera``'s latest unless one was kept less than ``min_interval_s`` ago;
+        with ``keep_markers``, queue its markers."""
         if not self.enabled:
             return
         now = time.monotonic()
         with self._lock:
+            if self.keep_markers:
+                self._markers.append(MarkerFrame(camera, segment, int(frame_index), float(timestamp_s),
+                                                 np.asarray(uv_px, float).reshape(-1, 2), np.asarray(ids)))
             if now - self._offered_at.get(camera, -1e9) < self.min_interval_s:
                 return
             self._offered_at[camera] = now
@@ -80,8 +104,16 @@ class FrameTap:
             self._jpeg[camera] = (frame.seq, max_width_px, data)
         return data
 
+    def drain_markers(self) -> list[MarkerFrame]:
+        """The markers queued since the last call, oldest first."""
+        with self._lock:
+            drained = list(self._markers)
+            self._markers.clear()
+        return drained
+
     def reset(self) -> None:
         with self._lock:
+            self._markers.clear()
             self._latest.clear()
             self._offered_at.clear()
             self._jpeg.clear()
