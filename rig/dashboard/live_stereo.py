@@ -200,7 +200,8 @@ class LiveStereo:
             skipped = int((newest - start) // length_s) - 1
             start += skipped * length_s
         end = start + length_s
-        tracks = (_tracks(recording.frames[pair[0]], start, end), _tracks(recording.frames[pair[1]], start, end))
+        tracks = (_tracks(recording.frames[pair[0]], start, end),
+                  _tracks(recording.frames[pair[1]], start, end))
         for c in pair:  # what is before the window's end is no longer needed (a rotor's next window may
             # begin at this one's last sample)
             recording.frames[c] = [f for f in recording.frames[c] if f[0] >= end - length_s * 0.5]
