@@ -3,9 +3,10 @@ cameras, triangulated, and per window the amplitude and frequency of a vibrating
 rotating one.
 
 A preview, not the measurement: the window is short (a few periods), the other camera's pixels are
-linearly interpolated to the reference camera's times, triangulation is linear (no refinement) and the
-clocks are related by ``timing.json`` when the run has one, else by the recordings' first frames (±1 frame).
-The certificate's numbers come from the full analysis of the run folder afterwards (:mod:`rig.analysis`).
+interpolated to the reference camera's times by a cubic spline (poor near half the frame rate),
+triangulation is linear (no refinement) and the clocks are related by ``timing.json`` when the run has
+one, else by the recordings' first frames (±1 frame). The certificate's numbers come from the full
+analysis of the run folder afterwards (:mod:`rig.analysis`).
 Every function here is bounded by the window's size: a few markers × a few hundred samples.
 """
 
@@ -14,8 +15,10 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.interpolate import CubicSpline
 
-from rig.stereo import DLTCamera, fit_sine, match_epipolar, triangulate
+from rig.stereo import DLTCamera, TimingError, fit_sine, match_epipolar, triangulate
+from rig.stereo.sinefit import fit_chirp
 
 __all__ = ["MarkerPath", "TrackSamples", "VibrationEstimate", "paired_paths", "rotor_turns",
            "vibration_estimate"]
@@ -52,7 +55,8 @@ def paired_paths(cameras: tuple[DLTCamera, DLTCamera], tracks: tuple[TrackSample
                  gate_px: float = 8.0, min_samples: int = 8) -> list[MarkerPath]:
     """The markers of the reference camera (``tracks[0]``) paired with the other camera's by the epipolar
     distance of their mean pixels over the window (``gate_px``; ambiguous pairs dropped), the other's
-    pixels interpolated to the reference's times (samples outside its time span dropped), triangulated.
+    pixels interpolated to the reference's times by a cubic spline (samples outside its time span dropped),
+    triangulated.
     Tracks with fewer than ``min_samples`` samples are ignored."""
     ref, other = ({k: v for k, v in t.items() if len(v[0]) >= min_samples} for t in tracks)
     if not ref or not other:
@@ -70,7 +74,7 @@ def paired_paths(cameras: tuple[DLTCamera, DLTCamera], tracks: tuple[TrackSample
         if inside.sum() < min_samples:
             continue
         t = t_a[inside]
-        uv_b_at = np.column_stack([np.interp(t, t_b, uv_b[:, 0]), np.interp(t, t_b, uv_b[:, 1])])
+        uv_b_at = CubicSpline(t_b, uv_b, axis=0)(t)
         xyz = triangulate(list(cameras), [uv_a[inside], uv_b_at]).xyz_mm
         keep = np.all(np.isfinite(xyz), axis=1)
         if keep.sum() >= min_samples:
@@ -79,13 +83,19 @@ def paired_paths(cameras: tuple[DLTCamera, DLTCamera], tracks: tuple[TrackSample
 
 
 def vibration_estimate(path: MarkerPath) -> VibrationEstimate:
-    """A four-parameter sine fit (frequency free) to the displacement along the path's main direction
-    (its first principal axis); the window must span at least one period."""
+    """The amplitude and frequency (at the window's middle) of the displacement along the path's main
+    direction (its first principal axis): a four-parameter sine fit (frequency free), refined as a linear
+    chirp (a sweep's frequency changes within the window). The window must span at least one period."""
     centred = path.xyz_mm - path.xyz_mm.mean(axis=0)
     axis = np.linalg.svd(centred, full_matrices=False)[2][0]
-    fit = fit_sine(path.t_s, centred @ axis)
-    return VibrationEstimate(float(0.5 * (path.t_s[0] + path.t_s[-1])), float(fit.frequency_hz),
-                             float(abs(fit.amplitude)))
+    x = centred @ axis
+    t_mid_s = float(0.5 * (path.t_s[0] + path.t_s[-1]))
+    sine = fit_sine(path.t_s, x, t_ref_s=t_mid_s)
+    try:
+        p, _, _ = fit_chirp(path.t_s - t_mid_s, x, 2 * np.pi * sine.frequency_hz)
+    except TimingError:  # the chirp did not converge: the plain sine fit
+        return VibrationEstimate(t_mid_s, float(sine.frequency_hz), float(abs(sine.amplitude)))
+    return VibrationEstimate(t_mid_s, float(p[3] / (2 * np.pi)), float(np.hypot(p[0], p[1])))
 
 
 def rotor_turns(path: MarkerPath) -> np.ndarray:
