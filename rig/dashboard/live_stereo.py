@@ -44,6 +44,7 @@ log = logging.getLogger("rig.dashboard.live_stereo")
 ROTOR_WINDOW_S = 0.5
 SWEEP_WINDOW_S = (0.25, 2.0)  # a sweep window spans 4 periods of the last fitted frequency, within these
 SWEEP_PERIODS = 4.0
+OTHER_MARGIN_S = 0.05  # the other camera's samples beyond the window (its spline is poor at its ends)
 MOVING_SHARE = 0.2  # a marker moves when its RMS motion exceeds this share of the commanded amplitude
 
 
@@ -193,18 +194,19 @@ class LiveStereo:
         oldest = max(recording.frames[c][0][0] for c in pair)
         length_s = self._window_length_s(recording)
         start = oldest if recording.window_start_s is None else recording.window_start_s
-        if start + length_s > newest:
+        if start + length_s + OTHER_MARGIN_S > newest:
             return
         skipped = 0
         if recording.plan.kind == "sweep":  # each sweep window stands alone: skip to the newest complete one
-            skipped = int((newest - start) // length_s) - 1
+            skipped = int((newest - OTHER_MARGIN_S - start) // length_s) - 1
             start += skipped * length_s
         end = start + length_s
         tracks = (_tracks(recording.frames[pair[0]], start, end),
-                  _tracks(recording.frames[pair[1]], start, end))
+                  _tracks(recording.frames[pair[1]], start - OTHER_MARGIN_S, end + OTHER_MARGIN_S))
         for c in pair:  # what is before the window's end is no longer needed (a rotor's next window may
             # begin at this one's last sample)
-            recording.frames[c] = [f for f in recording.frames[c] if f[0] >= end - length_s * 0.5]
+            recording.frames[c] = [f for f in recording.frames[c]
+                                   if f[0] >= end - length_s * 0.5 - OTHER_MARGIN_S]
         recording.window_start_s = end
         recording.windows += 1
         from rig.analysis.live_estimate import paired_paths
@@ -245,11 +247,12 @@ class LiveStereo:
         turns = rotor_turns(path)
         rows = []
         if recording.turns is not None and path.t_s[0] == start_s:
-            base = recording.turns  # the window begins at the last window's last sample: the count goes on
+            # the window begins at the last window's last sample (plotted already): the count goes on
+            base, first = recording.turns, 1
         else:  # the first window, or a gap: the line breaks and the count starts again from 0
             rows.append([float(path.t_s[0]), math.nan])
-            base = 0.0
-        rows += [[float(t), base + float(n)] for t, n in zip(path.t_s, turns, strict=True)]
+            base, first = 0.0, 0
+        rows += [[float(t), base + float(n)] for t, n in zip(path.t_s[first:], turns[first:], strict=True)]
         recording.turns = base + float(turns[-1])
         recording.window_start_s = float(path.t_s[-1])  # the next window shares this sample
         self.state.add_rows("rotor_phase_cameras", rows)
