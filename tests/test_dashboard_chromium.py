@@ -40,6 +40,9 @@ PAGE_STATE = """!document.getElementById("step-text") ? "null" : JSON.stringify(
   arm_error: Number(document.getElementById('plot-arm-error').dataset.points),
   exciter_vs_f: Number(document.getElementById('plot-exciter-lag').dataset.points),
   rotor_phase: Number(document.getElementById('plot-rotor-phase').dataset.points),
+  rotor_cameras: Number(document.getElementById('plot-rotor-phase-cameras').dataset.points),
+  sweep_amplitude: Number(document.getElementById('plot-sweep-amplitude').dataset.points),
+  live_stereo: document.getElementById('live-stereo-status').textContent,
   cameras: [...document.querySelectorAll('#cameras img')].filter(i => i.naturalWidth > 0).length,
   devices: document.getElementById('devices').textContent,
   banner: getComputedStyle(document.getElementById('sim-banner')).display,
@@ -116,13 +119,17 @@ def test_dashboard_follows_certify_and_its_abort_stops_it_safely(chromium: str, 
             calibrating = _wait(page, proc, "the arm's moves", lambda s: s["arm"] >= 2)
             _shot(page, tmp_path, "1-calibrate")
             assert calibrating["arm_error"] >= 1  # the arm's own position error, per move
-            syncing = _wait(page, proc, "the rotor's frequencies, its phase and a camera frame",
-                            lambda s: s["rotor"] >= 3 and s["rotor_phase"] >= 3 and s["cameras"] >= 1)
+            syncing = _wait(page, proc, "the rotor's frequencies, its phase (drive and cameras), a frame",
+                            lambda s: s["rotor"] >= 3 and s["rotor_phase"] >= 3 and s["cameras"] >= 1
+                            and s["rotor_cameras"] >= 10)
             _shot(page, tmp_path, "2-sync")
+            assert "rev/s" in syncing["live_stereo"], syncing["live_stereo"]  # the rotor seen turning
             sweeping = _wait(page, proc, "the sweep", lambda s: s["exciter"] >= 10 and "sweep" in s["step"])
-            later = _wait(page, proc, "the sweep's plots growing",
+            later = _wait(page, proc, "the sweep's plots growing (the live stereo amplitude error too)",
                           lambda s: s["exciter"] > sweeping["exciter"] + 5
-                          and s["exciter_vs_f"] > sweeping["exciter_vs_f"] + 5)
+                          and s["exciter_vs_f"] > sweeping["exciter_vs_f"] + 5
+                          and s["sweep_amplitude"] > sweeping["sweep_amplitude"] + 2)
+            assert "moving markers" in later["live_stereo"], later["live_stereo"]
             image = _shot(page, tmp_path, "3-sweep")
             assert calibrating["arm"] <= syncing["arm"] and later["cameras"] == 2
             assert "exciter" in later["devices"] and "frequency_hz" in later["devices"]
