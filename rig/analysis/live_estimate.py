@@ -90,12 +90,21 @@ def vibration_estimate(path: MarkerPath) -> VibrationEstimate:
     axis = np.linalg.svd(centred, full_matrices=False)[2][0]
     x = centred @ axis
     t_mid_s = float(0.5 * (path.t_s[0] + path.t_s[-1]))
-    sine = fit_sine(path.t_s, x, t_ref_s=t_mid_s)
+    sine = fit_sine(path.t_s, x, t_ref_s=t_mid_s, initial_frequency_hz=_spectral_peak_hz(path.t_s, x))
     try:
         p, _, _ = fit_chirp(path.t_s - t_mid_s, x, 2 * np.pi * sine.frequency_hz)
     except TimingError:  # the chirp did not converge: the plain sine fit
         return VibrationEstimate(t_mid_s, float(sine.frequency_hz), float(abs(sine.amplitude)))
     return VibrationEstimate(t_mid_s, float(p[3] / (2 * np.pi)), float(np.hypot(p[0], p[1])))
+
+
+def _spectral_peak_hz(t_s: np.ndarray, x: np.ndarray, padding: int = 8) -> float:
+    """The largest peak of the zero-padded FFT of ``x`` at its mean sampling interval (where the sine fit
+    starts: a cheap stand-in for the dense search of :func:`rig.stereo.sinefit.initial_frequency`)."""
+    n = padding * len(x)
+    power = np.abs(np.fft.rfft(x - x.mean(), n))
+    power[0] = 0.0
+    return float(np.argmax(power) / (n * np.mean(np.diff(t_s))))
 
 
 def rotor_turns(path: MarkerPath) -> np.ndarray:

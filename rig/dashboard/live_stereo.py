@@ -46,6 +46,7 @@ SWEEP_WINDOW_S = (0.25, 2.0)  # a sweep window spans 4 periods of the last fitte
 SWEEP_PERIODS = 4.0
 OTHER_MARGIN_S = 0.05  # the other camera's samples beyond the window (its spline is poor at its ends)
 MOVING_SHARE = 0.2  # a marker moves when its RMS motion exceeds this share of the commanded amplitude
+MAX_FITTED = 4  # the sweep's moving markers fitted per window (those moving most)
 
 
 @dataclass(frozen=True)
@@ -222,7 +223,8 @@ class LiveStereo:
         from rig.analysis.live_estimate import vibration_estimate
 
         commanded_mm = recording.plan.amplitude_mm
-        moving = [p for p in paths if p.motion_mm > MOVING_SHARE * commanded_mm]
+        moving = sorted((p for p in paths if p.motion_mm > MOVING_SHARE * commanded_mm),
+                        key=lambda p: -p.motion_mm)[:MAX_FITTED]
         if not moving:
             self._status(recording, f"{len(paths)} markers paired, none moving", skipped)
             return
