@@ -112,7 +112,8 @@ def test_dashboard_follows_certify_and_its_abort_stops_it_safely(chromium: str, 
             assert proc.poll() is None or url, "".join(err_lines)
             time.sleep(0.05)
         assert url, "no dashboard URL printed"
-        with Browser(chromium, url, tmp_path / "profile") as page:
+        # tall enough for the whole page: the screenshots show every plot the test checks
+        with Browser(chromium, url, tmp_path / "profile", window=(1280, 1560)) as page:
             first = _wait(page, proc, "the plan's steps", lambda s: len(s["steps"]) >= 4 and s["version"] > 0)
             assert first["banner"] == "block"  # the simulated rig says so
             assert [s.split(":")[0] for s in first["steps"]][:2] == ["calibrate", "sync"]
