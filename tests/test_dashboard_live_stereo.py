@@ -37,25 +37,32 @@ def scene(tmp_path: Path) -> tuple[dict[str, TrueCamera], Path]:
     return true, tmp_path
 
 
-def _write_timing(run_dir: Path) -> None:
-    """timing.json relating both clocks exactly (what sync writes): τ + offset on the left's clock."""
+def _write_timing(run_dir: Path, line_time_s: float) -> None:
+    """timing.json relating both clocks exactly (what sync writes): τ + offset + v·line time on the left's
+    clock."""
     offset = {"left": 0.0, "right": STAMP_ORIGIN_S["left"] - STAMP_ORIGIN_S["right"]}
-    timing = TimingResult("left", offset, {"left": 0.0, "right": 0.0}, {"left": 0.0, "right": 0.0}, "test")
+    timing = TimingResult("left", offset, {"left": line_time_s, "right": line_time_s},
+                          {"left": 0.0, "right": 0.0}, "test")
     (run_dir / "timing.json").write_text(json.dumps(timing.to_dict()))
 
 
 def _frames(true: dict[str, TrueCamera], positions: Callable[[np.ndarray], np.ndarray], duration_s: float,
-            segment: str, seed: int = 1) -> list[MarkerFrame]:
-    """Both cameras' frames in the order two reader threads would queue them; the right camera numbers
-    the markers in reverse (its own track ids)."""
+            segment: str, *, seed: int = 1, line_time_s: float = 0.0) -> list[MarkerFrame]:
+    """Both cameras' frames in the order two reader threads would queue them (rolling shutters: a marker
+    on row v is exposed v·``line_time_s`` after the frame's stamp); the right camera numbers the markers
+    in reverse (its own track ids)."""
     rng = np.random.default_rng(seed)
     out = []
     for k in range(int(duration_s * FPS)):
         for name, delay in (("left", 0.0), ("right", DELAY_S)):
             t_world = k / FPS + delay
-            xyz = positions(np.array([t_world]))[:, :, 0]  # (markers, 3)
-            uv = true[name].project(xyz) + rng.normal(0, NOISE_PX, (len(xyz), 2))
-            ids = np.arange(len(xyz)) if name == "left" else 10 + np.arange(len(xyz))[::-1]
+            uv = true[name].project(positions(np.array([t_world]))[:, :, 0])  # (markers, 2)
+            for _ in range(2):  # each marker where it is when its row is exposed
+                exposed = t_world + uv[:, 1] * line_time_s
+                uv = np.array([true[name].project(positions(np.array([t]))[m:m + 1, :, 0])[0]
+                               for m, t in enumerate(exposed)])
+            uv = uv + rng.normal(0, NOISE_PX, uv.shape)
+            ids = np.arange(len(uv)) if name == "left" else 10 + np.arange(len(uv))[::-1]
             order = np.argsort(ids)
             out.append(MarkerFrame(name, segment, k, STAMP_ORIGIN_S[name] + t_world, uv[order], ids[order]))
     return out
@@ -92,10 +99,11 @@ def _sweep_positions(t: np.ndarray) -> np.ndarray:
 
 def test_the_sweep_window_amplitude_and_frequency_match_the_truth(scene: tuple) -> None:
     true, run_dir = scene
-    _write_timing(run_dir)
+    line_time_s = 15e-6  # ≈ 16 ms over 1080 rows: without the row times the amplitude would be off
+    _write_timing(run_dir, line_time_s)
     state = DashboardState("sweep")
     preview = LiveStereo(state, run_dir, {"sweep": SegmentPlan("sweep", AMPLITUDE_MM)}, tap=FrameTap())
-    _run(preview, _frames(true, _sweep_positions, 8.0, "sweep"))
+    _run(preview, _frames(true, _sweep_positions, 8.0, "sweep", line_time_s=line_time_s))
     rows = _rows(state, "sweep_amplitude")
     assert len(rows) >= 6
     for t_mid, f_hz, amplitude_mm, error_mm in rows:

@@ -72,13 +72,18 @@ def segments_of(plan: Plan) -> dict[str, SegmentPlan]:
     return found
 
 
+# a frame kept: its time (s, common clock), the markers' pixels (n × 2), track ids (n) and times (n, the row
+# each was exposed at when timing.json gives the line time)
+_Frame = tuple[float, np.ndarray, np.ndarray, np.ndarray]
+
+
 @dataclass
 class _Recording:
     """The markers of one recording so far: per camera, per frame (common time s, uv_px, ids)."""
 
     name: str
     plan: SegmentPlan
-    frames: dict[str, list[tuple[float, np.ndarray, np.ndarray]]] = field(default_factory=dict)
+    frames: dict[str, list[_Frame]] = field(default_factory=dict)
     first_stamp_s: dict[str, float] = field(default_factory=dict)
     window_start_s: float | None = None
     frequency_hz: float | None = None  # the last window's fitted frequency (sweep)
@@ -145,8 +150,9 @@ class LiveStereo:
             if self._cameras is not None and frame.camera not in self._cameras:
                 continue
             first = recording.first_stamp_s.setdefault(frame.camera, frame.timestamp_s)
-            recording.frames.setdefault(frame.camera, []).append(
-                (self._common_time(frame.camera, frame.timestamp_s, first), frame.uv_px, frame.ids))
+            t_frame_s, t_markers_s = self._common_times(frame.camera, frame.timestamp_s, first, frame.uv_px)
+            recording.frames.setdefault(frame.camera, []).append((t_frame_s, frame.uv_px, frame.ids,
+                                                                  t_markers_s))
 
     def _begin(self, segment: str, plan: SegmentPlan) -> None:
         from rig.record.folder import read_calibration, read_timing
@@ -163,12 +169,16 @@ class LiveStereo:
                   else f"{segment}: no calibration.json yet, nothing to triangulate")
         self.state.set_live_stereo(segment, status)
 
-    def _common_time(self, camera: str, stamp_s: float, first_s: float) -> float:
-        """The frame's time on the common clock, s (per frame: its first row's time; no row correction)."""
+    def _common_times(self, camera: str, stamp_s: float, first_s: float,
+                      uv_px: np.ndarray) -> tuple[float, np.ndarray]:
+        """The frame's and its markers' times on the common clock, s: with ``timing.json`` each marker at
+        its row's exposure (offset, drift, line time); else the frame's stamp from the recording's first."""
         timing = self._timing
         if timing is not None and camera in timing.offset_s:
-            return float(timing.times(camera, np.array([stamp_s]), np.array([0.0]))[0])
-        return stamp_s - first_s
+            rows = np.concatenate([[0.0], uv_px[:, 1]])
+            times = timing.times(camera, np.full(len(rows), stamp_s), rows)
+            return float(times[0]), times[1:]
+        return stamp_s - first_s, np.full(len(uv_px), stamp_s - first_s)
 
     # ---------------------------------------------------------------- windows
     def _reference_pair(self) -> tuple[str, str] | None:
@@ -268,15 +278,13 @@ class LiveStereo:
                                                    f"(clocks by {clocks}{behind})")
 
 
-def _tracks(frames: list[tuple[float, np.ndarray, np.ndarray]], start_s: float,
-            end_s: float) -> dict[int, tuple[np.ndarray, np.ndarray]]:
+def _tracks(frames: list[_Frame], start_s: float, end_s: float) -> dict[int, tuple[np.ndarray, np.ndarray]]:
     """Per track id, its times and pixels within [start_s, end_s]."""
     times: dict[int, list[float]] = {}
     pixels: dict[int, list[np.ndarray]] = {}
-    for t_s, uv_px, ids in frames:
-        if not start_s <= t_s <= end_s:
-            continue
-        for uv, marker in zip(uv_px, ids, strict=True):
-            times.setdefault(int(marker), []).append(t_s)
-            pixels.setdefault(int(marker), []).append(uv)
+    for _, uv_px, ids, t_markers_s in frames:
+        for uv, marker, t_s in zip(uv_px, ids, t_markers_s, strict=True):
+            if start_s <= t_s <= end_s:
+                times.setdefault(int(marker), []).append(float(t_s))
+                pixels.setdefault(int(marker), []).append(uv)
     return {k: (np.asarray(times[k]), np.asarray(pixels[k])) for k in times}
