@@ -48,8 +48,8 @@ def _write_timing(run_dir: Path, line_time_s: dict[str, float]) -> None:
 def _frames(true: dict[str, TrueCamera], positions: Callable[[np.ndarray], np.ndarray], duration_s: float,
             segment: str, *, seed: int = 1, line_time_s: dict[str, float] | None = None) -> list[MarkerFrame]:
     """Both cameras' frames in the order two reader threads would queue them (rolling shutters: a marker
-    on row v is exposed v·``line_time_s[camera]`` after the frame's stamp); the right camera numbers the markers
-    in reverse (its own track ids)."""
+    on row v is exposed v·``line_time_s[camera]`` after the frame's stamp); the right camera numbers the
+    markers in reverse (its own track ids)."""
     rng = np.random.default_rng(seed)
     out = []
     for k in range(int(duration_s * FPS)):
@@ -113,7 +113,9 @@ def test_the_sweep_window_amplitude_and_frequency_match_the_truth(scene: tuple) 
         # triangulation noise (0.05 px at 1.5 m, ≈ 0.03 mm a sample) averages to ≈ 0.005 mm over a window;
         # the spline's interpolation of the right camera at ≤ 10 Hz of 60 fps costs ≤ 1 % of the amplitude
         assert error_mm == pytest.approx(amplitude_mm - AMPLITUDE_MM)
-        assert abs(error_mm) < 0.03  # 3σ of the noise of the median of two markers over ≥ 24 samples
+        # ≈ 3σ of the noise of the median of two markers over ≥ 24 samples (the window's error spreads
+        # ≈ 0.004 mm); without each marker's row time the errors reach 0.6 mm by 10 Hz
+        assert abs(error_mm) < 0.02
     assert "moving markers" in state.fields["live_stereo"]["status"]  # two of the three
 
 
