@@ -196,3 +196,17 @@ def test_the_certify_plan_names_the_rotor_and_sweep_recordings() -> None:
     assert sorted(segments) == ["sweep", "sync"]
     assert segments["sync"] == SegmentPlan("rotor", plan.vibration("sync").amplitude_mm)
     assert segments["sweep"] == SegmentPlan("sweep", plan.vibration("sweep").amplitude_mm)
+
+
+def test_a_preview_far_behind_keeps_a_bounded_number_of_frames(scene: tuple,
+                                                                monkeypatch: pytest.MonkeyPatch) -> None:
+    from rig.dashboard import live_stereo
+
+    monkeypatch.setattr(live_stereo, "MAX_KEPT_FRAMES", 100)
+    true, run_dir = scene
+    state = DashboardState("sync")
+    preview = LiveStereo(state, run_dir, {"sync": SegmentPlan("rotor", 60.0)}, tap=FrameTap())
+    preview.feed(_frames(true, _sweep_positions, 4.0, "sync"))  # 240 frames a camera, no window computed
+    recording = preview._recording
+    assert recording is not None and all(len(f) <= 100 for f in recording.frames.values())
+    assert min(f[0][0] for f in recording.frames.values()) > 2.0  # the newest kept, the oldest dropped

@@ -46,6 +46,7 @@ SWEEP_WINDOW_S = (0.25, 2.0)  # a sweep window spans 4 periods of the last fitte
 SWEEP_PERIODS = 4.0
 OTHER_MARGIN_S = 0.05  # the other camera's samples beyond the window (its spline is poor at its ends)
 MOVING_SHARE = 0.2  # a marker moves when its RMS motion exceeds this share of the commanded amplitude
+MAX_KEPT_FRAMES = 3600  # per camera (a minute at 60 fps): the memory bound when the preview falls behind
 MAX_FITTED = 4  # the sweep's moving markers fitted per window (those moving most)
 
 
@@ -147,12 +148,15 @@ class LiveStereo:
                 self._begin(frame.segment, plan)
             recording = self._recording
             assert recording is not None
-            if self._cameras is not None and frame.camera not in self._cameras:
-                continue
+            if self._cameras is None or frame.camera not in self._cameras:
+                continue  # nothing to triangulate with
             first = recording.first_stamp_s.setdefault(frame.camera, frame.timestamp_s)
             t_frame_s, t_markers_s = self._common_times(frame.camera, frame.timestamp_s, first, frame.uv_px)
-            recording.frames.setdefault(frame.camera, []).append((t_frame_s, frame.uv_px, frame.ids,
-                                                                  t_markers_s))
+            kept = recording.frames.setdefault(frame.camera, [])
+            kept.append((t_frame_s, frame.uv_px, frame.ids, t_markers_s))
+            if len(kept) > MAX_KEPT_FRAMES:  # far behind: drop the oldest half, start again at the newest
+                del kept[:MAX_KEPT_FRAMES // 2]
+                recording.turns = recording.window_start_s = None
 
     def _begin(self, segment: str, plan: SegmentPlan) -> None:
         from rig.record.folder import read_calibration, read_timing
