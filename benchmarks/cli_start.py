@@ -1,4 +1,4 @@
-"""Start time of ``rig --help`` and ``rig list`` against ``python -c pass`` (the interpreter's own start).
+"""Start time of ``rig --help``, ``rig list`` and ``rig run --help`` against ``python -c pass``.
 
     .venv/bin/python benchmarks/cli_start.py [--repeat N]
 
@@ -27,6 +27,7 @@ COMMANDS = {
     "python -c pass": [sys.executable, "-c", "pass"],
     "rig --help": [sys.executable, "-m", "rig.cli", "--help"],
     "rig list": [sys.executable, "-m", "rig.cli", "list"],
+    "rig run --help": [sys.executable, "-m", "rig.cli", "run", "--help"],
 }
 MODULES = """\
 import contextlib, io, json, sys
