@@ -302,6 +302,7 @@ def _conditions(run: RunData, t: ReportTables, analyses: Analyses, notes: list[s
 def _extra(t: ReportTables, primary: str) -> dict[str, Any]:
     return {
         "controller_clock": controller_clock(t.clock),
+        "band": t.band,
         "usable_frequency": {
             m: {
                 "tolerance_pct": lim.tolerance,

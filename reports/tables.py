@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from reports import frequency, motion, position
+from reports import band, frequency, motion, position
 from reports.certificate import Measured
 from reports.errors import FitError
 from reports.load import (
@@ -68,6 +68,8 @@ class ReportTables:
     timing: TimingResult | None = None
     clock: pd.DataFrame | None = None  # the analysis' controller-clock offsets (Analysis.clock)
     centres_mm: dict[str, np.ndarray] = field(default_factory=dict)
+    band_bins: pd.DataFrame | None = None  # the interleaved per-bin fits (reports.band.BAND_COLUMNS)
+    band: dict[str, Any] | None = None  # the band by method and the certified edge (reports.band)
 
 
 def camera_fps(rig: dict[str, Any]) -> tuple[float, str]:
@@ -82,10 +84,8 @@ def camera_fps(rig: dict[str, Any]) -> tuple[float, str]:
 
 
 def _alpha(timing: TimingResult | None, fs_hz: float) -> float | None:
-    if timing is None:
-        return None
-    others = [v for k, v in sorted(timing.offset_s.items()) if k != timing.reference_camera]
-    return frequency.fractional_delay(others[0], fs_hz) if others else None
+    offset_s = _other_offset_s(timing)
+    return None if offset_s is None else frequency.fractional_delay(offset_s, fs_hz)
 
 
 def compute_tables(
@@ -140,6 +140,7 @@ def compute_tables(
         out.notes.append(reference_note)
     for method in methods:
         _fit_method(out, method, acceptance)
+    _band_tables(out, run, tracks, acceptance, bin_hz)
     _plate_tables(out, run, tracks, gate_mm)
     rotations = stream_events(run.events, "rotation")
     if len(sweeps) > 1 or len(rotations) > 1:
@@ -190,7 +191,10 @@ def _fit_method(out: ReportTables, method: str, acceptance: dict[str, Any]) -> N
     out.fits[method] = fit
     # per bin: mean over tracks; u = the tracks' mean u (they share the timing errors: not averaged down)
     cols = ["frequency_hz", "amplitude_error_pct", "u_amplitude_error_pct"]
-    per_bin = b.groupby("bin", sort=True)[cols].mean()
+    # tracks at the reference camera's instants: a bin above fs/2 is fitted on the alias's samples with the
+    # reference phase — it may agree with the truth, but the track itself shows the alias, so no bin
+    # beyond one camera's Nyquist limit counts towards the usable limit (reports.band: the interleaved fit)
+    per_bin = b[b["frequency_hz"] <= out.fs_hz / 2].groupby("bin", sort=True)[cols].mean()
     out.limits[method] = usable_limit_with_bins(
         fit,
         per_bin["frequency_hz"].to_numpy(),
@@ -199,6 +203,33 @@ def _fit_method(out: ReportTables, method: str, acceptance: dict[str, Any]) -> N
         u_bins=per_bin["u_amplitude_error_pct"].to_numpy(),
         guard_k=2.0 if acceptance.get("decision_rule", "guarded") == "guarded" else 0.0,
     )
+
+
+def _band_tables(out: ReportTables, run: RunData, tracks: pd.DataFrame, acceptance: dict[str, Any],
+                 bin_hz: float) -> None:
+    """The sweep's interleaved bins and the band by method (:mod:`reports.band`) into ``out``."""
+    if out.sweep is None:
+        return
+    reference, _ = frequency.reference_sweep(out.sweep, stream_events(run.events, "exciter"))
+    out.band_bins, notes = band.interleaved_bins(run, tracks, out.clock, reference, fs_hz=out.fs_hz,
+                                                 bin_hz=bin_hz)
+    out.notes += notes
+    bins = out.band_bins
+    alpha = None
+    if len(bins):  # where the marker's instants actually fall (rolling-shutter rows included)
+        z = np.exp(2j * np.pi * bins["alpha_frames"].to_numpy(float)).mean()
+        alpha = float(np.mod(np.angle(z) / (2 * np.pi), 1.0))
+    guard_k = 2.0 if acceptance.get("decision_rule", "guarded") == "guarded" else 0.0
+    out.band = band.band_summary(bins, out.limits, fs_hz=out.fs_hz, offset_s=_other_offset_s(out.timing),
+                                 measured_alpha=alpha, tolerance_pct=float(acceptance["amplitude_error_pct"]),
+                                 guard_k=guard_k)
+
+
+def _other_offset_s(timing: TimingResult | None) -> float | None:
+    if timing is None:
+        return None
+    others = [v for k, v in sorted(timing.offset_s.items()) if k != timing.reference_camera]
+    return others[0] if others else None
 
 
 def _plate_tables(out: ReportTables, run: RunData, tracks: pd.DataFrame, gate_mm: float) -> None:

@@ -118,7 +118,8 @@ class BinFit:
     uncertainty ``u_amplitude`` (fit covariance, residual-scaled), ``phase_rad`` of the motion against the
     reference (x = A·sin(φ + phase)), the reprojection RMS (px), the number of observations, the alias
     test's Δχ² (``alias_dchi2``: how much worse the best alias fits, in units of the residual variance; inf
-    with no alias in range, NaN when not tested) and why the bin is refused (``refused``, "" if not)."""
+    with no alias in range, NaN when not tested), why the bin is refused (``refused``, "" if not), and the
+    fitted motion's cosine and sine 3-vectors ``a``, ``b`` (X = c + a·cos φ + b·sin φ)."""
 
     amplitude: float
     u_amplitude: float
@@ -127,6 +128,8 @@ class BinFit:
     n_observations: int
     alias_dchi2: float
     refused: str
+    a: FloatArray
+    b: FloatArray
 
 
 def _phase_times(phase_rad: Sequence[object], f_ref_hz: float) -> list[FloatArray]:
@@ -263,12 +266,14 @@ def fit_bin(
         cov = _covariance(_free_jacobian(win, p), residuals)
         g_a, g_b = np.zeros(9), np.zeros(9)
         g_a[3:6], g_b[6:9] = ax, ax
+        vec_a, vec_b = p[3:6], p[6:9]
     else:
         n = _unit(direction, "direction")
         p, A, residuals = _fit_line(win, n, traj.coefficients[0])
         cov = _covariance(A, residuals)
         g_a, g_b = np.zeros(5), np.zeros(5)
         g_a[3], g_b[4] = float(n @ ax), float(n @ ax)
+        vec_a, vec_b = p[3] * n, p[4] * n
     pa, pb = float(g_a @ p), float(g_b @ p)  # x along the axis = pa·cos φ + pb·sin φ
     amp = float(np.hypot(pa, pb))
     g = (pa * g_a + pb * g_b) / amp if amp > 0 else g_a
@@ -279,7 +284,7 @@ def fit_bin(
         dchi2, refused = _identify(win, f_ref_hz, identify.fs_hz, identify.combined_nyquist_hz)
         if identify.degenerate and f_ref_hz > identify.single_nyquist_hz:
             refused = identify.degenerate_reason()
-    return BinFit(amp, u_amp, float(np.arctan2(pa, pb)), rms, n_obs, dchi2, refused)
+    return BinFit(amp, u_amp, float(np.arctan2(pa, pb)), rms, n_obs, dchi2, refused, vec_a, vec_b)
 
 
 def _unit(v: object, name: str) -> FloatArray:
