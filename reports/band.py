@@ -207,7 +207,8 @@ def _windows(data: list[tuple[np.ndarray, np.ndarray]], sweep: dict[str, Any], b
 
 
 def _marker_bins(m: _Marker, data: list[tuple[np.ndarray, np.ndarray]], Ps: list[np.ndarray],
-                 sweep: dict[str, Any], *, fs_hz: float, bin_hz: float, notes: list[str]) -> list[dict[str, Any]]:
+                 sweep: dict[str, Any], *, fs_hz: float, bin_hz: float,
+                 notes: list[str]) -> list[dict[str, Any]]:
     """The bins of one marker (see :func:`interleaved_bins`): free fits give the line of motion, then each
     bin is fitted along it with the alias test."""
     amp_ref = float(sweep["amplitude_mm"])
