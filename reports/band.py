@@ -42,6 +42,7 @@ from rig.stereo.errors import StereoError
 INTERLEAVED = "interleaved"
 GATE_PX = 10.0
 CONDITIONING_HZ = 2.0
+LINE_BINS = 8  # free fits (spread over the sweep) that give a marker's line of motion
 MIN_PER_CAMERA = 6
 BAND_COLUMNS = [
     "track", "bin", "frequency_lo_hz", "frequency_hi_hz", "frequency_hz", "n_observations", "alpha_frames",
@@ -87,13 +88,12 @@ def _markers(samples: pd.DataFrame, tracks: pd.DataFrame, sweep: dict[str, Any])
     return out
 
 
-def _line_of(fits: list[tuple[float, BinFit]], fs_hz: float) -> np.ndarray | None:
-    """The marker's line of motion from its free interleaved fits: the principal axis of Σ a·aᵀ + b·bᵀ over
-    the bins at least ``CONDITIONING_HZ`` from every k·fs/2 (where each camera sees both quadratures)."""
+def _line_of(fits: list[tuple[float, BinFit]]) -> np.ndarray | None:
+    """The marker's line of motion from its free interleaved fits (bins at least ``CONDITIONING_HZ`` from
+    every k·fs/2, where each camera sees both quadratures): the principal axis of Σ a·aᵀ + b·bᵀ."""
     M = np.zeros((3, 3))
-    for f_hz, fit in fits:
-        if abs(f_hz - fs_hz / 2 * round(2 * f_hz / fs_hz)) >= CONDITIONING_HZ:
-            M += np.outer(fit.a, fit.a) + np.outer(fit.b, fit.b)
+    for _, fit in fits:
+        M += np.outer(fit.a, fit.a) + np.outer(fit.b, fit.b)
     if not np.trace(M) > 0:
         return None
     _, v = np.linalg.eigh(M)
@@ -171,7 +171,9 @@ def interleaved_bins(run: RunData, tracks: pd.DataFrame, clock: pd.DataFrame | N
     if len(names) < 2:
         return empty, ["interleaved analysis: the sweep has observations of fewer than two cameras"]
     amp_ref = float(sweep["amplitude_mm"])
-    assigned = {c: _assign(per_cam[c], cameras[c], markers, amp_ref) for c in names}
+    t0, t1 = float(sweep["t_start_s"]), float(sweep["t_stop_s"])
+    inside = {c: o[(o["t_s"] >= t0) & (o["t_s"] <= t1)] for c, o in per_cam.items()}  # as the bins' tracks
+    assigned = {c: _assign(inside[c], cameras[c], markers, amp_ref) for c in names}
     rows: list[dict[str, Any]] = []
     notes: list[str] = []
     for m in markers:
@@ -215,12 +217,13 @@ def _marker_bins(m: _Marker, data: list[tuple[np.ndarray, np.ndarray]], Ps: list
     axis = np.asarray(sweep["axis"], float)
     windows = _windows(data, sweep, bin_hz)
     free = []
-    for _, _, _, f_mid, ts, uvs, ph in windows:
+    conditioned = [w for w in windows if abs(w[3] - fs_hz / 2 * round(2 * w[3] / fs_hz)) >= CONDITIONING_HZ]
+    for _, _, _, f_mid, ts, uvs, ph in conditioned[::max(1, len(conditioned) // LINE_BINS)]:
         try:
             free.append((f_mid, fit_bin(Ps, ts, uvs, ph, axis, f_ref_hz=f_mid)))
         except StereoError:
             continue
-    line = _line_of(free, fs_hz)
+    line = _line_of(free)
     if line is None:
         notes.append(f"interleaved fit of {m.name}: no bin away from k·fs/2 gives its line of motion")
         return []

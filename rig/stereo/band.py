@@ -297,18 +297,19 @@ def _unit(v: object, name: str) -> FloatArray:
 
 def _identify(win: _Window, f_ref_hz: float, fs_hz: float, up_to_hz: float) -> tuple[float, str]:
     """(Δχ² of the best alias, "") or (Δχ², why not): the reference's aliases k·fs ± f inside
-    (0, ``up_to_hz``] are scanned (±2 resolution cells, linearised cost of a free 3-D sinusoid on the phase
+    (0, ``up_to_hz``] and more than one resolution cell (1/duration) from it — as the frequency search
+    tells candidates apart — are scanned (±½ cell, linearised cost of a free 3-D sinusoid on the phase
     time, :func:`rig.stereo.trajectory._linearised_scan`) and compared with the cost at ``f_ref_hz``; an
     alias within Δχ² < 25 (the frequency search's own threshold) of it makes the bin unidentifiable."""
     us = win.us
     duration = max(float(u[-1]) for u in us) - min(float(u[0]) for u in us)
     aliases = sorted({a for k in range(1, int(up_to_hz // fs_hz) + 2) for a in (k * fs_hz - f_ref_hz,
                                                                             k * fs_hz + f_ref_hz)
-                      if 2.0 / duration < a <= up_to_hz and abs(a - f_ref_hz) > 4.0 / duration})
+                      if 2.0 / duration < a <= up_to_hz and abs(a - f_ref_hz) > 1.0 / duration})
     if not aliases:
         return float("inf"), ""
     cell = 1.0 / duration
-    grid = np.concatenate([[f_ref_hz], *[a + cell * np.linspace(-2, 2, 41) for a in aliases]])
+    grid = np.concatenate([[f_ref_hz], *[a + cell * np.linspace(-0.5, 0.5, 21) for a in aliases]])
     cost = _linearised_scan(win.Ps, us, win.uvs, grid, t_ref=win.t_ref)
     n_obs = sum(u.size for u in us)
     s2 = max(float(cost[0]), 1e-300) / max(2 * n_obs - 10, 1)
