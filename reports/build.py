@@ -353,6 +353,8 @@ def _table_frames(t: ReportTables, measured: dict[str, Any],
         frames["rotation_summary"] = pd.DataFrame([t.rotation_summary])
     if t.spectrum is not None:
         frames["rotor_spectrum"] = t.spectrum
+    if t.band_bins is not None and len(t.band_bins):
+        frames["band_bins"] = t.band_bins
     return frames
 
 

@@ -194,6 +194,7 @@ def fig_amplitude_error(t: ReportTables, tolerance_pct: float) -> Figure | None:
     _plot_tolerance_and_theory(ax, t, tolerance_pct, np.linspace(0, f_max, 300))
     for method in t.sync_methods:
         _plot_method_bins(ax, axp, t, method, tolerance_pct=tolerance_pct, f_max_hz=f_max)
+    _plot_interleaved(ax, t)
     lo = min(-2 * tolerance_pct, float(t.sweep_bins["amplitude_error_pct"].min()) - tolerance_pct)
     ax.set_ylim(max(lo, -105), max(2 * tolerance_pct, float(t.sweep_bins["amplitude_error_pct"].max()) + 1))
     ax.set_xlim(0, f_max * 1.03)
@@ -244,6 +245,23 @@ def _plot_tolerance_and_theory(ax: Axes, t: ReportTables, tolerance_pct: float, 
         lw=1.2,
         label="theory, one camera interpolated, mean over α",
     )
+
+
+def _plot_interleaved(ax: Axes, t: ReportTables) -> None:
+    """The interleaved per-bin errors (±2u; refused bins as crosses at 0) and one camera's Nyquist limit."""
+    if t.band_bins is None or t.band_bins.empty:
+        return
+    g = t.band_bins.groupby("bin", sort=True)
+    m = g.agg(f=("frequency_hz", "mean"), e=("amplitude_error_pct", "mean"),
+              u=("u_amplitude_error_pct", "mean"))
+    refused = g["refused"].agg(lambda r: any(bool(x) for x in r))
+    ok = ~refused
+    ax.errorbar(m["f"][ok], m["e"][ok], yerr=2 * m["u"][ok], fmt="s", ms=3, color="0.15", capsize=1.5,
+                label="measured, interleaved (both cameras' instants)")
+    if refused.any():
+        ax.plot(m["f"][refused], np.zeros(int(refused.sum())), "x", color="0.15",
+                label="refused (see report)")
+    ax.axvline(t.fs_hz / 2, color="0.4", lw=1, ls=":", label=f"one camera's Nyquist {t.fs_hz / 2:g} Hz")
 
 
 def _plot_method_bins(

@@ -252,6 +252,7 @@ def render(
         _certificate_section(cert),
         _position_section(t, pngs, tables_html),
         _frequency_section(t, pngs, tables_html, bin_hz=float(acceptance["frequency_bin_hz"])),
+        _band_section(t),
         _motion_section(t, pngs, tables_html),
         _calibration_section(t, tables_html),
         _conditions_section(cert["conditions"]),
@@ -272,6 +273,7 @@ def page(title: str, parts: list[str]) -> str:
 
 NAV = (
     "<nav><a href='#cert'>Certificate</a><a href='#pos'>Position</a><a href='#freq'>Frequency</a>"
+    "<a href='#band'>Band</a>"
     "<a href='#motion'>Steady motion</a><a href='#cal'>Calibration &amp; sync</a>"
     "<a href='#cond'>Conditions</a></nav>"
 )
@@ -357,6 +359,42 @@ def _frequency_section(
         + "<details><summary>Per-bin values (mean over markers)</summary>"
         + table(tables_html["sweep_means"], text_cols=("sync_method",))
         + "</details></section>"
+    )
+
+
+def _band_section(t: ReportTables) -> str:
+    """The band: one camera's Nyquist, the pair's combined rate at the measured offset, each method's
+    usable band and ceiling, the certified edge and why it ends there (reports.band)."""
+    b = t.band
+    if b is None:
+        return ""
+    rows = pd.DataFrame([{"method": m, "usable to (Hz)": v.get("usable_to_hz"),
+                          "ceiling (Hz)": v["ceiling_hz"], "why": v.get("why_it_ends") or v["why_ceiling"]}
+                         for m, v in b["methods"].items()])
+    alpha = "—" if b["offset_frames"] is None else f"{b['offset_frames']:.3f}"
+    separation = "—" if b["alias_separation"] is None else f"{b['alias_separation']:.3f}"
+    rate = "—" if b["combined_rate_hz"] is None else f"{b['combined_rate_hz']:g} Hz"
+    edge = ("no method has a usable band" if b["certified_to_hz"] is None else
+            f"certified to <b>{b['certified_to_hz']:g} Hz</b> by '{b['certified_by']}'")
+    means = pd.DataFrame()
+    if t.band_bins is not None and len(t.band_bins):
+        means = t.band_bins.groupby("bin", sort=True).agg(
+            frequency_hz=("frequency_hz", "mean"), n_tracks=("track", "size"),
+            amplitude_error_pct=("amplitude_error_pct", "mean"),
+            u_amplitude_error_pct=("u_amplitude_error_pct", "mean"),
+            refused=("refused", lambda r: next((x for x in r if x), ""))).reset_index()
+    return (
+        "<section id='band'><h2>Band beyond one camera's Nyquist limit</h2>"
+        f"<p>One camera samples at {t.fs_hz:g} fps (Nyquist {b['single_camera_nyquist_hz']:g} Hz). "
+        f"The pair's instants fall α = {alpha} of a frame apart (measured on the sweep's markers, "
+        f"rolling-shutter rows included; |sin πα| = {separation}): "
+        f"combined rate {rate}. The 'interleaved' fit uses every camera's observations at their own instants "
+        "along the marker's line of motion; bins whose frequency the pair cannot tell from its alias are "
+        f"refused. Tolerance {b['tolerance_pct']:g} %: {edge} — {html.escape(str(b['why_it_ends']))}.</p>"
+        + table(rows, digits=4, text_cols=("method", "why"))
+        + ("<details><summary>Interleaved per-bin values (mean over markers)</summary>"
+           + table(means, digits=4, text_cols=("refused",)) + "</details>" if len(means) else "")
+        + "</section>"
     )
 
 
