@@ -185,8 +185,8 @@ def interleaved_bins(run: RunData, tracks: pd.DataFrame, clock: pd.DataFrame | N
 
 def _windows(data: list[tuple[np.ndarray, np.ndarray]], sweep: dict[str, Any], bin_hz: float,
              ) -> list[tuple[int, float, float, float, list[np.ndarray], list[np.ndarray], list[np.ndarray]]]:
-    """The frequency bins of one marker's observations: (bin, lo, hi, mean f, per-camera instants, pixels,
-    phases), bins with ≥ 6 observations of every camera and ≥ 3 cycles."""
+    """The frequency bins of one marker's observations: (bin = lo/bin_hz, lo, hi, mean f, per-camera
+    instants, pixels, phases), bins with ≥ 6 observations of every camera and ≥ 3 cycles."""
     f_of = [frequency.profile_frequency_hz(sweep, t) for t, _ in data]
     phase_of = [frequency.sweep_phase_rad(sweep, t) for t, _ in data]
     f_all = np.concatenate(f_of)
@@ -194,7 +194,8 @@ def _windows(data: list[tuple[np.ndarray, np.ndarray]], sweep: dict[str, Any], b
         return []
     edges = np.arange(np.floor(f_all.min() / bin_hz) * bin_hz, f_all.max() + bin_hz, bin_hz)
     out = []
-    for b, (lo, hi) in enumerate(itertools.pairwise(edges)):
+    for lo, hi in itertools.pairwise(edges):
+        b = round(float(lo) / bin_hz)  # numbered from 0 Hz: the same bin for every marker
         masks = [(f >= lo) & (f < hi) for f in f_of]
         if min(int(k.sum()) for k in masks) < MIN_PER_CAMERA:
             continue
