@@ -64,12 +64,10 @@ CEILINGS = {
 
 @dataclass(frozen=True)
 class _Marker:
-    """One oscillating track: its name, mean position (mm) and the direction its image reach is taken along
-    (the sweep's axis)."""
+    """One oscillating track: its name and mean position (mm)."""
 
     name: str
     mean_mm: np.ndarray
-    direction: np.ndarray
 
 
 def _cameras(run: RunData) -> dict[str, DLTCamera]:
@@ -84,7 +82,7 @@ def _markers(samples: pd.DataFrame, tracks: pd.DataFrame, sweep: dict[str, Any])
     out = []
     for name in sorted(samples["track"].unique()):
         xyz = window[window["track"] == name][["x_mm", "y_mm", "z_mm"]].to_numpy(float)
-        out.append(_Marker(str(name), xyz.mean(0), np.asarray(sweep["axis"], float)))
+        out.append(_Marker(str(name), xyz.mean(0)))
     return out
 
 
@@ -125,14 +123,14 @@ def _segment_observations(run: RunData, cameras: dict[str, DLTCamera], segment: 
     return out
 
 
-def _assign(obs: pd.DataFrame, model: DLTCamera, markers: list[_Marker], amplitude_mm: float,
+def _assign(obs: pd.DataFrame, model: DLTCamera, markers: list[_Marker], reach_mm: np.ndarray,
             ) -> dict[str, tuple[np.ndarray, np.ndarray]]:
-    """Each marker's observations in one camera: nearest projected mean, within its image amplitude +
-    ``GATE_PX``; one per instant; (t_s increasing, uv (N, 2))."""
+    """Each marker's observations in one camera: nearest projected mean, within the image of ``reach_mm``
+    (the sweep's amplitude along its axis) + ``GATE_PX``; one per instant; (t_s increasing, uv (N, 2))."""
     uv = obs[["u", "v"]].to_numpy(float)
     ok = np.isfinite(uv).all(axis=1)
     centres = model.project(np.array([m.mean_mm for m in markers]))
-    reach = [float(np.linalg.norm(model.project((m.mean_mm + amplitude_mm * m.direction)[None])[0] - c))
+    reach = [float(np.linalg.norm(model.project((m.mean_mm + reach_mm)[None])[0] - c))
              for m, c in zip(markers, centres, strict=True)]
     d = np.linalg.norm(uv[:, None, :] - centres[None, :, :], axis=2)
     d[~ok] = np.inf
@@ -173,7 +171,9 @@ def interleaved_bins(run: RunData, tracks: pd.DataFrame, clock: pd.DataFrame | N
     amp_ref = float(sweep["amplitude_mm"])
     t0, t1 = float(sweep["t_start_s"]), float(sweep["t_stop_s"])
     inside = {c: o[(o["t_s"] >= t0) & (o["t_s"] <= t1)] for c, o in per_cam.items()}  # as the bins' tracks
-    assigned = {c: _assign(inside[c], cameras[c], markers, amp_ref) for c in names}
+    axis = np.asarray(sweep["axis"], float)
+    reach_mm = amp_ref * axis / np.linalg.norm(axis)
+    assigned = {c: _assign(inside[c], cameras[c], markers, reach_mm) for c in names}
     rows: list[dict[str, Any]] = []
     notes: list[str] = []
     for m in markers:
