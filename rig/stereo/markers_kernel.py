@@ -1,0 +1,411 @@
+"""Compiled per-window kernel of the marker measurement: one call measures every window of a frame.
+
+The measurement itself is described in :mod:`rig.stereo.markers_refine` (background plane of the ring,
+centre-connected support, weighted moments, plateau contrast); this module is its loop over windows and
+pixels, compiled by numba, so a call
+costs a few microseconds of dispatch plus the pixels' own work instead of ~150 numpy calls on (K, W, W)
+stacks. The arithmetic follows the numpy formulation it replaced: float32 for the background plane and
+the signal (so a pixel is on the support exactly when it was), float64 for the sums (more exact than
+the float32 matrix products were: centroids agree to ~1e-6 px).
+
+Background plane and noise of a window, fitted to its outer ring of ``RING_PX`` pixels (offsets in px
+from the window's centre pixel): a plane ``a + b·x + c·y`` (DN, polarity space) and the noise ``σ`` (DN),
+the RMS residual of the fit. Robust to whatever else crosses the ring (a neighbouring marker, the edge of
+a plate) on up to about a third of it: the spread is taken from the quieter side of the median (min of
+p50 − p16 and p84 − p50, ≈ σ for Gaussian noise), ring pixels farther than 4 such spreads from the median
+are left out, and the plane is fitted to the rest by least squares. A plane, not a constant, so that a
+background gradient (vignetting, uneven lighting) does not pull the centroid uphill. The usual ring
+holds no outlier (its extremes lie within the 4 spreads): its percentiles come from a histogram of its
+uint8 values and the plain fit from its moments (closed form).
+
+Imported lazily by :mod:`rig.stereo.markers_refine` (numba's import and the loading of the compiled
+code, ~0.3–1 s, are paid by the first measurement of a process, not by ``import rig.stereo``). The
+compiled code is cached on disk next to this file (numba's ``cache=True``; a read-only install falls
+back to numba's user-wide cache directory, and with no writable location at all to compiling once per
+process, a few seconds).
+"""
+
+from __future__ import annotations
+
+import warnings
+from collections.abc import Callable
+from typing import Any, TypeVar, cast
+
+import numba
+import numpy as np
+
+_F = TypeVar("_F", bound=Callable[..., Any])
+
+RING_PX = 2  # width of the background ring at the window's edge
+MIN_SIGMA_DN = 0.5  # floor of σ: a flat 8-bit background has zero spread but ±0.5 DN quantization
+OUTLIER_SPREADS = 4.0  # ring pixels farther than this many spreads from the median are left out
+
+NOISE_FLOOR_K = 3.0  # support and weight threshold, in units of the window's background noise σ
+PLATEAU_LEVEL = 0.85  # contrast = mean signal of the support pixels above this fraction of the peak
+
+# rows of the float output of measure_range (one column per window)
+OUT_U, OUT_V, OUT_AREA, OUT_ROUND, OUT_CONTRAST = range(5)
+OUT_BACKGROUND, OUT_SIGMA, OUT_SKEW, OUT_SKEW_NOISE = range(5, 9)
+N_OUT = 9
+# rows of the bool output
+FLAG_ROW_BORDER, FLAG_ROW_SATURATED, FLAG_ROW_CRAMPED = range(3)
+
+
+def _jit(fn: _F) -> _F:
+    """numba.njit with the on-disk cache when a cache location is writable, else without (a warning)."""
+    # error_model="numpy": x/0 gives inf/NaN as in numpy, no exception
+    try:
+        return cast(_F, numba.njit(cache=True, nogil=True, error_model="numpy")(fn))
+    except RuntimeError as exc:  # numba: "cannot cache function ...: no locator available"
+        warnings.warn(f"marker kernel not cached on disk ({exc}); compiling it in this process",
+                      RuntimeWarning, stacklevel=2)
+        return cast(_F, numba.njit(nogil=True, error_model="numpy")(fn))
+
+
+@_jit
+def _weighted_plane(vals: np.ndarray, xs: np.ndarray, ys: np.ndarray, keep: np.ndarray,
+                    ) -> tuple[float, float, float, float]:
+    """Plane a + b·x + c·y fitted by least squares to the ``keep`` ring values; (a, b, c, σ) float64.
+
+    Normal equations solved in closed form (symmetric 3×3: adjugate over determinant, 1e-9 added to the
+    diagonal so a ring with (almost) no inliers stays finite); σ = RMS residual with n − 3 degrees of
+    freedom (at least 1), at least MIN_SIGMA_DN.
+    """
+    na = nb = nc = nd = ne = nf = 0.0
+    r0 = r1 = r2 = 0.0
+    for p in range(len(vals)):
+        if keep[p]:
+            x, y, v = xs[p], ys[p], float(vals[p])
+            na += 1.0
+            nb += x
+            nc += y
+            nd += x * x
+            ne += x * y
+            nf += y * y
+            r0 += v
+            r1 += v * x
+            r2 += v * y
+    count = na
+    na += 1e-9
+    nd += 1e-9
+    nf += 1e-9
+    c00 = nd * nf - ne * ne
+    c01 = nc * ne - nb * nf
+    c02 = nb * ne - nc * nd
+    c11 = na * nf - nc * nc
+    c12 = nb * nc - na * ne
+    c22 = na * nd - nb * nb
+    det = na * c00 + nb * c01 + nc * c02
+    a = (c00 * r0 + c01 * r1 + c02 * r2) / det
+    b = (c01 * r0 + c11 * r1 + c12 * r2) / det
+    c = (c02 * r0 + c12 * r1 + c22 * r2) / det
+    rss = 0.0
+    for p in range(len(vals)):
+        if keep[p]:
+            res = float(vals[p]) - (a + b * xs[p] + c * ys[p])
+            rss += res * res
+    sigma = max(np.sqrt(rss / max(count - 3.0, 1.0)), MIN_SIGMA_DN)
+    return a, b, c, sigma
+
+
+@_jit
+def _ring_plane(  # noqa: PLR0917 (numba: no keyword-only arguments)
+        vals: np.ndarray, ok: np.ndarray, all_ok: bool, xs: np.ndarray, ys: np.ndarray,
+                keep: np.ndarray) -> tuple[float, float, float, float]:
+    """Robust background plane of one ring: values (P,) uint8, ``ok`` the pixels inside the image.
+
+    'lower' percentiles p16, p50, p84 of the valid values; pixels farther than OUTLIER_SPREADS·spread
+    (spread = min(p50 − p16, p84 − p50), at least 1 DN) from the median are left out. A whole ring without
+    outliers (the usual case) is fitted from its moments (the ring is symmetric: the normal matrix is
+    diagonal); otherwise the weighted fit. ``keep``: scratch (P,) bool. Returns (a, b, c, σ) float64.
+    """
+    n_ring = len(vals)
+    if all_ok:
+        hist = np.zeros(256, np.int64)
+        for p in range(n_ring):
+            hist[vals[p]] += 1
+        ranks = (0, int(0.16 * (n_ring - 1)), int(0.5 * (n_ring - 1)), int(0.84 * (n_ring - 1)), n_ring - 1)
+        found = np.zeros(5)
+        seen, level, r = 0, 0, 0
+        while r < 5:
+            if seen + hist[level] > ranks[r]:
+                found[r] = level
+                r += 1
+            else:
+                seen += hist[level]
+                level += 1
+        lo, p16, p50, p84, hi = found[0], found[1], found[2], found[3], found[4]
+        reach = OUTLIER_SPREADS * max(min(p50 - p16, p84 - p50), 1.0)
+        if max(hi - p50, p50 - lo) <= reach:  # no outlier: the plain fit from the ring's moments
+            m0 = mx = my = s2 = sxx = syy = 0.0
+            for p in range(n_ring):
+                v = float(vals[p])
+                m0 += v
+                mx += v * xs[p]
+                my += v * ys[p]
+                s2 += v * v
+                sxx += xs[p] * xs[p]
+                syy += ys[p] * ys[p]
+            a, b, c = m0 / n_ring, mx / sxx, my / syy
+            rss = s2 - (a * m0 + b * mx + c * my)
+            return a, b, c, max(np.sqrt(max(rss, 0.0) / (n_ring - 3.0)), MIN_SIGMA_DN)
+    else:
+        good = np.sort(vals[ok])
+        n_ok = len(good)
+        p16 = p50 = p84 = 0.0
+        if n_ok:
+            p16 = float(good[int(0.16 * (n_ok - 1))])
+            p50 = float(good[int(0.5 * (n_ok - 1))])
+            p84 = float(good[int(0.84 * (n_ok - 1))])
+        reach = OUTLIER_SPREADS * max(min(p50 - p16, p84 - p50), 1.0)
+    for p in range(n_ring):
+        keep[p] = ok[p] and abs(float(vals[p]) - p50) <= reach
+    return _weighted_plane(vals, xs, ys, keep)
+
+
+@_jit
+def ring_offsets(half_px: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Ring pixels of a window of half size ``half_px``, in row-major order: (flat index, x, y) arrays."""
+    w = 2 * half_px + 1
+    n_ring = w * w - (w - 2 * RING_PX) ** 2
+    idx = np.empty(n_ring, np.int64)
+    xs, ys = np.empty(n_ring), np.empty(n_ring)
+    p = 0
+    for i in range(w):
+        for j in range(w):
+            if i < RING_PX or i >= w - RING_PX or j < RING_PX or j >= w - RING_PX:
+                idx[p], xs[p], ys[p] = i * w + j, j - half_px, i - half_px
+                p += 1
+    return idx, xs, ys
+
+
+@_jit
+def ring_fit(flat: np.ndarray, valid: np.ndarray, half_px: int, coef: np.ndarray, sigma: np.ndarray) -> None:
+    """Background plane of each window (K, W²) uint8 into ``coef`` (K, 3) and ``sigma`` (K,) float32.
+
+    ``valid``: (K, W²) bool, False outside the image, or an empty (0, 0) array when all pixels are valid.
+    """
+    idx, xs, ys = ring_offsets(half_px)
+    n_ring = len(idx)
+    vals = np.empty(n_ring, np.uint8)
+    ok = np.ones(n_ring, np.bool_)
+    keep = np.empty(n_ring, np.bool_)
+    for k in range(flat.shape[0]):
+        all_ok = True
+        for p in range(n_ring):
+            vals[p] = flat[k, idx[p]]
+            if valid.shape[0]:
+                ok[p] = valid[k, idx[p]]
+                all_ok = all_ok and ok[p]
+        a, b, c, s = _ring_plane(vals, ok, all_ok, xs, ys, keep)
+        coef[k, 0], coef[k, 1], coef[k, 2], sigma[k] = a, b, c, s
+
+
+def ring_background(flat: np.ndarray, valid: np.ndarray | None,
+                    half_px: int) -> tuple[np.ndarray, np.ndarray]:
+    """Background plane and noise of each window (K, W²) uint8 (``valid``: bool (K, W²) or None).
+
+    Returns (coefficients float32 (K, 3) of a + b·x + c·y in DN, DN/px, DN/px; σ float32 (K,) in DN,
+    at least MIN_SIGMA_DN). Pixels with ``valid`` False (outside the image) are ignored.
+    """
+    coef = np.empty((len(flat), 3), dtype=np.float32)
+    sigma = np.empty(len(flat), dtype=np.float32)
+    no_mask = np.ones((0, 0), dtype=bool)
+    ring_fit(np.ascontiguousarray(flat, dtype=np.uint8),
+             no_mask if valid is None else np.ascontiguousarray(valid, dtype=bool), half_px, coef, sigma)
+    return coef, sigma
+
+
+@_jit
+def _support(d: np.ndarray, half_px: int, support: np.ndarray, queue: np.ndarray) -> None:
+    """The 8-connected region of ``d > 0`` (W, W) holding the window's marker, into ``support`` (bool).
+
+    The marker is the region of the centre pixel; when that pixel is background, the region of the
+    strong pixel nearest the centre among those at least half as strong as the window's strongest (so a
+    noise speck is never chosen; ties: the first in row-major order). ``queue``: scratch (W²,) int64.
+    """
+    w = d.shape[0]
+    support[:, :] = False
+    seed = half_px * w + half_px
+    if not d[half_px, half_px] > 0:
+        peak = d.max()
+        half_peak = np.float32(0.5) * peak
+        best, seed = np.inf, -1
+        for i in range(w):
+            for j in range(w):
+                if d[i, j] > 0 and d[i, j] >= half_peak:
+                    dist2 = float((i - half_px) ** 2 + (j - half_px) ** 2)
+                    if dist2 < best:
+                        best, seed = dist2, i * w + j
+        if seed < 0:
+            return
+    support[seed // w, seed % w] = True
+    queue[0] = seed
+    head, tail = 0, 1
+    while head < tail:
+        i, j = queue[head] // w, queue[head] % w
+        head += 1
+        for ii in range(max(i - 1, 0), min(i + 2, w)):
+            for jj in range(max(j - 1, 0), min(j + 2, w)):
+                if not support[ii, jj] and d[ii, jj] > 0:
+                    support[ii, jj] = True
+                    queue[tail] = ii * w + jj
+                    tail += 1
+
+
+@_jit
+def _gather(  # noqa: PLR0917 (numba: no keyword-only arguments)
+        image: np.ndarray, row: int, col: int, half_px: int, dark: bool, raw: np.ndarray,
+            valid: np.ndarray) -> bool:
+    """Window centred on (row, col) into ``raw`` (W, W) uint8, polarity space (dark: 255 − I).
+
+    Out-of-image pixels repeat the nearest edge pixel and are False in ``valid``; returns whether every
+    pixel lies inside the image.
+    """
+    height, width = image.shape
+    w = raw.shape[0]
+    inside = row >= half_px and row < height - half_px and col >= half_px and col < width - half_px
+    for i in range(w):
+        r = row + i - half_px
+        rc = min(max(r, 0), height - 1)
+        for j in range(w):
+            c = col + j - half_px
+            value = image[rc, min(max(c, 0), width - 1)]
+            raw[i, j] = 255 - value if dark else value
+            valid[i, j] = inside or (r == rc and c >= 0 and c < width)
+    return inside
+
+
+@_jit
+def _moment_shape(m: np.ndarray) -> tuple[float, float, float, float]:
+    """Centroid offsets, roundness and skewness from the raw moments (1, x, y, xx, xy, yy, xxx, ...).
+
+    skewness = (μ30² + 3μ21² + 3μ12² + μ03²) / det(Σ)^(3/2) from the central moments: Mardia's b1 for a
+    round blob, 0 for every centrally symmetric one. Empty windows give NaN (0/0).
+    """
+    mx, my = m[1] / m[0], m[2] / m[0]
+    exx, exy, eyy = m[3] / m[0], m[4] / m[0], m[5] / m[0]
+    exxx, exxy, exyy, eyyy = m[6] / m[0], m[7] / m[0], m[8] / m[0], m[9] / m[0]
+    mx2, my2 = mx * mx, my * my
+    cxx, cxy, cyy = exx - mx2, exy - mx * my, eyy - my2
+    det = cxx * cyy - cxy * cxy
+    half_trace = 0.5 * (cxx + cyy)
+    root = np.sqrt(max(half_trace * half_trace - det, 0.0))
+    roundness = np.sqrt(max(half_trace - root, 0.0) / (half_trace + root))
+    c30 = exxx - mx * (3.0 * cxx + mx2)
+    c03 = eyyy - my * (3.0 * cyy + my2)
+    c21 = exxy - my * (cxx + mx2) - 2.0 * mx * cxy
+    c12 = exyy - mx * (cyy + my2) - 2.0 * my * cxy
+    skew = (c30 * c30 + c03 * c03 + 3.0 * (c21 * c21 + c12 * c12)) / det**1.5
+    return mx, my, roundness, skew
+
+
+@_jit
+def _weigh(  # noqa: PLR0917 (numba: no keyword-only arguments)
+        raw: np.ndarray, valid: np.ndarray, plane: tuple[float, float, float], floor: np.float32,
+           half_px: int, d: np.ndarray) -> None:
+    """Signal above the background plane and the noise floor (float32, > 0 on the support) into ``d``;
+    0 outside the image."""
+    w = raw.shape[0]
+    a = np.float32(plane[0]) + floor
+    b, c = np.float32(plane[1]), np.float32(plane[2])
+    for i in range(w):
+        cy = c * np.float32(i - half_px)
+        for j in range(w):
+            value = np.float32(raw[i, j]) - (a + b * np.float32(j - half_px) + cy)
+            d[i, j] = value if valid[i, j] else np.float32(0.0)
+
+
+@_jit
+def _moments(d: np.ndarray, support: np.ndarray, raw: np.ndarray, half_px: int,
+             m: np.ndarray) -> tuple[float, bool, bool]:
+    """Weighted raw moments of the support into ``m`` (10,); returns (peak weight, saturated, cramped).
+
+    cramped: the support reaches the ring's inner edge (the window is too small for the marker).
+    """
+    w = d.shape[0]
+    m[:] = 0.0
+    peak, saturated, cramped = 0.0, False, False
+    for i in range(w):
+        y = float(i - half_px)
+        for j in range(w):
+            if not support[i, j]:
+                continue
+            x = float(j - half_px)
+            v = float(d[i, j])
+            vx, vy = v * x, v * y
+            m[0] += v
+            m[1] += vx
+            m[2] += vy
+            m[3] += vx * x
+            m[4] += vx * y
+            m[5] += vy * y
+            m[6] += vx * x * x
+            m[7] += vx * x * y
+            m[8] += vx * y * y
+            m[9] += vy * y * y
+            peak = max(peak, v)
+            saturated = saturated or raw[i, j] == 255
+            # the ring's inner edge: RING_PX − 1 pixels from the window's border
+            cramped = cramped or min(i, j, w - 1 - i, w - 1 - j) == RING_PX - 1
+    return peak, saturated, cramped
+
+
+@_jit
+def _plateau(d: np.ndarray, support: np.ndarray, peak: float) -> float:
+    """Mean weight of the support pixels at or above PLATEAU_LEVEL of the peak weight (0 for none)."""
+    level = np.float32(PLATEAU_LEVEL) * np.float32(peak)
+    total, count = 0.0, 0
+    w = d.shape[0]
+    for i in range(w):
+        for j in range(w):
+            if support[i, j] and d[i, j] >= level:
+                total += float(d[i, j])
+                count += 1
+    return total / count if count else 0.0
+
+
+@_jit
+def measure_range(  # noqa: PLR0917 (numba: no keyword-only arguments)
+        image: np.ndarray, rows: np.ndarray, cols: np.ndarray, lo: int, hi: int, half_px: int,
+                  dark: bool, out: np.ndarray, flags: np.ndarray, signal: np.ndarray) -> None:
+    """Measure windows ``lo..hi−1`` of one frame ``image`` (H, W) uint8; window n centred on the integer
+    pixel (rows[n], cols[n]), of W = 2·half_px + 1 pixels.
+
+    Writes ``out`` (N_OUT, N) float64 (OUT_* rows: centre in image px, area px², roundness, contrast DN,
+    background DN at the centre, σ DN, skewness and its noise allowance; NaN for a window without
+    support), ``flags`` (3, N) bool (FLAG_ROW_*), and when ``signal`` has N rows the background-subtracted
+    signal on the support ((N, W, W) float32, 0 elsewhere) for the outline fit.
+    """
+    w = 2 * half_px + 1
+    idx, xs, ys = ring_offsets(half_px)
+    n_ring = len(idx)
+    vals, ok, keep = np.empty(n_ring, np.uint8), np.empty(n_ring, np.bool_), np.empty(n_ring, np.bool_)
+    raw, valid = np.empty((w, w), np.uint8), np.empty((w, w), np.bool_)
+    d, support = np.empty((w, w), np.float32), np.empty((w, w), np.bool_)
+    queue, m = np.empty(w * w, np.int64), np.empty(10)
+    for n in range(lo, hi):
+        inside = _gather(image, rows[n], cols[n], half_px, dark, raw, valid)
+        for p in range(n_ring):
+            vals[p] = raw[idx[p] // w, idx[p] % w]
+            ok[p] = valid[idx[p] // w, idx[p] % w]
+        a, b, c, s = _ring_plane(vals, ok, inside, xs, ys, keep)
+        sigma = np.float32(s)
+        floor = np.float32(NOISE_FLOOR_K) * sigma
+        _weigh(raw, valid, (a, b, c), floor, half_px, d)
+        _support(d, half_px, support, queue)
+        peak_w, saturated, cramped = _moments(d, support, raw, half_px, m)
+        du, dv, roundness, skew = _moment_shape(m)
+        plateau = _plateau(d, support, peak_w)
+        contrast = plateau + float(floor) if m[0] > 0 else np.nan
+        area = m[0] / plateau
+        out[OUT_U, n], out[OUT_V, n] = cols[n] + du, rows[n] + dv
+        out[OUT_AREA, n], out[OUT_ROUND, n], out[OUT_CONTRAST, n] = area, roundness, contrast
+        out[OUT_BACKGROUND, n], out[OUT_SIGMA, n], out[OUT_SKEW, n] = float(np.float32(a)), float(sigma), skew
+        out[OUT_SKEW_NOISE, n] = 8.0 * float(sigma) ** 2 / (contrast**2 * area)
+        flags[FLAG_ROW_BORDER, n], flags[FLAG_ROW_SATURATED, n] = not inside, saturated
+        flags[FLAG_ROW_CRAMPED, n] = cramped
+        if signal.shape[0]:
+            for i in range(w):
+                for j in range(w):
+                    signal[n, i, j] = d[i, j] + floor if support[i, j] else np.float32(0.0)
