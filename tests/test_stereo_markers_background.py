@@ -14,7 +14,8 @@ class Ring:
     """The ring pixels of a window: flat indices (P,) and the design matrix (P, 3) of 1, x, y."""
 
     def __init__(self, half_px: int) -> None:
-        self.idx, xs, ys = ring_offsets(half_px)
+        rows, cols, xs, ys = ring_offsets(half_px)
+        self.idx = rows * (2 * half_px + 1) + cols
         self.design = np.column_stack([np.ones(len(xs)), xs, ys])
 
 

@@ -164,19 +164,20 @@ def _ring_plane(  # noqa: PLR0917 (numba: no keyword-only arguments)
 
 
 @_jit
-def ring_offsets(half_px: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Ring pixels of a window of half size ``half_px``, in row-major order: (flat index, x, y) arrays."""
+def ring_offsets(half_px: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Ring pixels of a window of half size ``half_px``, in row-major order: (row, column) indices in the
+    window (int64) and their offsets (x, y) from the centre pixel (float64)."""
     w = 2 * half_px + 1
     n_ring = w * w - (w - 2 * RING_PX) ** 2
-    idx = np.empty(n_ring, np.int64)
+    ri, ci = np.empty(n_ring, np.int64), np.empty(n_ring, np.int64)
     xs, ys = np.empty(n_ring), np.empty(n_ring)
     p = 0
     for i in range(w):
         for j in range(w):
             if i < RING_PX or i >= w - RING_PX or j < RING_PX or j >= w - RING_PX:
-                idx[p], xs[p], ys[p] = i * w + j, j - half_px, i - half_px
+                ri[p], ci[p], xs[p], ys[p] = i, j, j - half_px, i - half_px
                 p += 1
-    return idx, xs, ys
+    return ri, ci, xs, ys
 
 
 @_jit
@@ -185,7 +186,8 @@ def ring_fit(flat: np.ndarray, valid: np.ndarray, half_px: int, coef: np.ndarray
 
     ``valid``: (K, W²) bool, False outside the image, or an empty (0, 0) array when all pixels are valid.
     """
-    idx, xs, ys = ring_offsets(half_px)
+    ri, ci, xs, ys = ring_offsets(half_px)
+    idx = ri * (2 * half_px + 1) + ci
     n_ring = len(idx)
     vals = np.empty(n_ring, np.uint8)
     ok = np.ones(n_ring, np.bool_)
@@ -217,63 +219,138 @@ def ring_background(flat: np.ndarray, valid: np.ndarray | None,
 
 
 @_jit
-def _support(d: np.ndarray, half_px: int, support: np.ndarray, queue: np.ndarray) -> None:
-    """The 8-connected region of ``d > 0`` (W, W) holding the window's marker, into ``support`` (bool).
+def _gather(  # noqa: PLR0917 (numba: no keyword-only arguments)
+        image: np.ndarray, row: int, col: int, half_px: int, dark: bool, raw: np.ndarray,
+        valid: np.ndarray) -> bool:
+    """Window centred on (row, col) into ``raw`` (W, W) uint8, polarity space (dark: 255 − I).
+
+    Returns whether every pixel lies inside the image; if not, out-of-image pixels repeat the nearest
+    edge pixel and are False in ``valid`` (which is left untouched for a window inside the image).
+    """
+    height, width = image.shape
+    w = raw.shape[0]
+    top, left = row - half_px, col - half_px
+    if top >= 0 and left >= 0 and top + w <= height and left + w <= width:
+        raw[:, :] = image[top : top + w, left : left + w]
+        if dark:
+            for i in range(w):
+                for j in range(w):
+                    raw[i, j] = 255 - raw[i, j]
+        return True
+    for i in range(w):
+        r = top + i
+        rc = min(max(r, 0), height - 1)
+        for j in range(w):
+            c = left + j
+            value = image[rc, min(max(c, 0), width - 1)]
+            raw[i, j] = 255 - value if dark else value
+            valid[i, j] = r == rc and c >= 0 and c < width
+    return False
+
+
+@_jit
+def _pad_geometry(half_px: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Lookup tables of the window padded by one pixel ((W + 2)², row-major): x and y offsets (float64)
+    from the centre pixel, and the ring's inner edge (uint8 1: RING_PX − 1 pixels from the window's
+    border)."""
+    w = 2 * half_px + 1
+    pw = w + 2
+    xs, ys = np.zeros(pw * pw), np.zeros(pw * pw)
+    edge = np.zeros(pw * pw, np.uint8)
+    for i in range(w):
+        for j in range(w):
+            q = (i + 1) * pw + j + 1
+            xs[q], ys[q] = j - half_px, i - half_px
+            edge[q] = min(i, j, w - 1 - i, w - 1 - j) == RING_PX - 1
+    return xs, ys, edge
+
+
+@_jit
+def _weigh(  # noqa: PLR0917 (numba: no keyword-only arguments)
+        raw: np.ndarray, valid: np.ndarray, inside: bool, plane: tuple[float, float, float],
+        floor: np.float32, d: np.ndarray, clipped: np.ndarray) -> None:
+    """Signal above the background plane and the noise floor (float32, > 0 on the support) into the
+    padded flat ``d`` ((W + 2)², its one-pixel frame left 0; 0 outside the image), and whether a pixel is
+    clipped (255) into the padded flat ``clipped`` (bool)."""
+    w = raw.shape[0]
+    half_px, pw = w // 2, w + 2
+    a = np.float32(plane[0]) + floor
+    b, c = np.float32(plane[1]), np.float32(plane[2])
+    bx = np.empty(w, np.float32)
+    for j in range(w):
+        bx[j] = a + b * np.float32(j - half_px)
+    for i in range(w):
+        cy = c * np.float32(i - half_px)
+        row = (i + 1) * pw + 1
+        for j in range(w):
+            d[row + j] = np.float32(raw[i, j]) - (bx[j] + cy)
+            clipped[row + j] = raw[i, j] == 255
+    if not inside:
+        for i in range(w):
+            for j in range(w):
+                if not valid[i, j]:
+                    d[(i + 1) * pw + 1 + j] = 0.0
+
+
+@_jit
+def _support(
+        d: np.ndarray, half_px: int, support: np.ndarray, pixels: np.ndarray, stack: np.ndarray) -> int:
+    """The 8-connected region of ``d > 0`` holding the window's marker: its pixels (flat padded indices)
+    into ``pixels[:n]``, marked in ``support`` (bool, padded flat, all False on entry); returns n.
+    ``stack``: scratch, 4·(W + 2)² int64 (a pixel is pushed at most once from each of the runs beside it).
 
     The marker is the region of the centre pixel; when that pixel is background, the region of the
     strong pixel nearest the centre among those at least half as strong as the window's strongest (so a
-    noise speck is never chosen; ties: the first in row-major order). ``queue``: scratch (W²,) int64.
+    noise speck is never chosen; ties: the first in row-major order).
     """
-    w = d.shape[0]
-    support[:, :] = False
-    seed = half_px * w + half_px
-    if not d[half_px, half_px] > 0:
-        peak = d.max()
+    w = 2 * half_px + 1
+    pw = w + 2
+    seed = (half_px + 1) * pw + half_px + 1
+    if not d[seed] > 0:
+        peak = np.float32(-np.inf)
+        for i in range(w):
+            for j in range(w):
+                peak = max(peak, d[(i + 1) * pw + j + 1])
         half_peak = np.float32(0.5) * peak
         best, seed = np.inf, -1
         for i in range(w):
             for j in range(w):
-                if d[i, j] > 0 and d[i, j] >= half_peak:
+                q = (i + 1) * pw + j + 1
+                if d[q] > 0 and d[q] >= half_peak:
                     dist2 = float((i - half_px) ** 2 + (j - half_px) ** 2)
                     if dist2 < best:
-                        best, seed = dist2, i * w + j
+                        best, seed = dist2, q
         if seed < 0:
-            return
-    support[seed // w, seed % w] = True
-    queue[0] = seed
-    head, tail = 0, 1
-    while head < tail:
-        i, j = queue[head] // w, queue[head] % w
-        head += 1
-        for ii in range(max(i - 1, 0), min(i + 2, w)):
-            for jj in range(max(j - 1, 0), min(j + 2, w)):
-                if not support[ii, jj] and d[ii, jj] > 0:
-                    support[ii, jj] = True
-                    queue[tail] = ii * w + jj
-                    tail += 1
-
-
-@_jit
-def _gather(  # noqa: PLR0917 (numba: no keyword-only arguments)
-        image: np.ndarray, row: int, col: int, half_px: int, dark: bool, raw: np.ndarray,
-            valid: np.ndarray) -> bool:
-    """Window centred on (row, col) into ``raw`` (W, W) uint8, polarity space (dark: 255 − I).
-
-    Out-of-image pixels repeat the nearest edge pixel and are False in ``valid``; returns whether every
-    pixel lies inside the image.
-    """
-    height, width = image.shape
-    w = raw.shape[0]
-    inside = row >= half_px and row < height - half_px and col >= half_px and col < width - half_px
-    for i in range(w):
-        r = row + i - half_px
-        rc = min(max(r, 0), height - 1)
-        for j in range(w):
-            c = col + j - half_px
-            value = image[rc, min(max(c, 0), width - 1)]
-            raw[i, j] = 255 - value if dark else value
-            valid[i, j] = inside or (r == rc and c >= 0 and c < width)
-    return inside
+            return 0
+    # scanline fill: each popped seed grows into its row's run, whose 8-neighbour spans in the rows above
+    # and below seed their own runs (the padding frame is 0: runs and spans never leave the window)
+    stack[0] = seed
+    top, n = 1, 0
+    while top:
+        top -= 1
+        q = stack[top]
+        if support[q]:
+            continue
+        left, right = q, q
+        while d[left - 1] > 0 and not support[left - 1]:
+            left -= 1
+        while d[right + 1] > 0 and not support[right + 1]:
+            right += 1
+        for x in range(left, right + 1):
+            support[x] = True
+            pixels[n] = x
+            n += 1
+        for shift in (-pw, pw):
+            new_run = True
+            for x in range(left - 1 + shift, right + 2 + shift):
+                if d[x] > 0 and not support[x]:
+                    if new_run:
+                        stack[top] = x
+                        top += 1
+                    new_run = False
+                else:
+                    new_run = True
+    return n
 
 
 @_jit
@@ -301,74 +378,50 @@ def _moment_shape(m: np.ndarray) -> tuple[float, float, float, float]:
 
 
 @_jit
-def _weigh(  # noqa: PLR0917 (numba: no keyword-only arguments)
-        raw: np.ndarray, valid: np.ndarray, plane: tuple[float, float, float], floor: np.float32,
-           half_px: int, d: np.ndarray) -> None:
-    """Signal above the background plane and the noise floor (float32, > 0 on the support) into ``d``;
-    0 outside the image."""
-    w = raw.shape[0]
-    a = np.float32(plane[0]) + floor
-    b, c = np.float32(plane[1]), np.float32(plane[2])
-    for i in range(w):
-        cy = c * np.float32(i - half_px)
-        for j in range(w):
-            value = np.float32(raw[i, j]) - (a + b * np.float32(j - half_px) + cy)
-            d[i, j] = value if valid[i, j] else np.float32(0.0)
+def _moments(  # noqa: PLR0917 (numba: no keyword-only arguments)
+        d: np.ndarray, pixels: np.ndarray, clipped: np.ndarray, xs: np.ndarray, ys: np.ndarray,
+        edge: np.ndarray, m: np.ndarray) -> tuple[float, bool, bool]:
+    """Weighted raw moments of the support ``pixels`` (flat padded indices) into ``m`` (10,); returns
+    (peak weight, saturated, cramped). cramped: the support reaches the ring's inner edge (the window
+    is too small for the marker)."""
+    m0 = m1 = m2 = m3 = m4 = m5 = m6 = m7 = m8 = m9 = 0.0  # scalars: kept in registers
+    peak, n_clipped, n_edge = 0.0, 0, 0
+    for q in pixels:
+        x, y, v = xs[q], ys[q], float(d[q])
+        vx, vy = v * x, v * y
+        m0 += v
+        m1 += vx
+        m2 += vy
+        m3 += vx * x
+        m4 += vx * y
+        m5 += vy * y
+        m6 += vx * x * x
+        m7 += vx * x * y
+        m8 += vx * y * y
+        m9 += vy * y * y
+        peak = max(peak, v)
+        n_clipped += clipped[q]
+        n_edge += edge[q]
+    m[0], m[1], m[2], m[3], m[4], m[5], m[6], m[7], m[8], m[9] = m0, m1, m2, m3, m4, m5, m6, m7, m8, m9
+    return peak, n_clipped > 0, n_edge > 0
 
 
 @_jit
-def _moments(d: np.ndarray, support: np.ndarray, raw: np.ndarray, half_px: int,
-             m: np.ndarray) -> tuple[float, bool, bool]:
-    """Weighted raw moments of the support into ``m`` (10,); returns (peak weight, saturated, cramped).
-
-    cramped: the support reaches the ring's inner edge (the window is too small for the marker).
-    """
-    w = d.shape[0]
-    m[:] = 0.0
-    peak, saturated, cramped = 0.0, False, False
-    for i in range(w):
-        y = float(i - half_px)
-        for j in range(w):
-            if not support[i, j]:
-                continue
-            x = float(j - half_px)
-            v = float(d[i, j])
-            vx, vy = v * x, v * y
-            m[0] += v
-            m[1] += vx
-            m[2] += vy
-            m[3] += vx * x
-            m[4] += vx * y
-            m[5] += vy * y
-            m[6] += vx * x * x
-            m[7] += vx * x * y
-            m[8] += vx * y * y
-            m[9] += vy * y * y
-            peak = max(peak, v)
-            saturated = saturated or raw[i, j] == 255
-            # the ring's inner edge: RING_PX − 1 pixels from the window's border
-            cramped = cramped or min(i, j, w - 1 - i, w - 1 - j) == RING_PX - 1
-    return peak, saturated, cramped
-
-
-@_jit
-def _plateau(d: np.ndarray, support: np.ndarray, peak: float) -> float:
-    """Mean weight of the support pixels at or above PLATEAU_LEVEL of the peak weight (0 for none)."""
+def _plateau(d: np.ndarray, pixels: np.ndarray, peak: float) -> float:
+    """Mean weight of the support ``pixels`` at or above PLATEAU_LEVEL of the peak weight (0 for none)."""
     level = np.float32(PLATEAU_LEVEL) * np.float32(peak)
     total, count = 0.0, 0
-    w = d.shape[0]
-    for i in range(w):
-        for j in range(w):
-            if support[i, j] and d[i, j] >= level:
-                total += float(d[i, j])
-                count += 1
+    for q in pixels:
+        if d[q] >= level:
+            total += float(d[q])
+            count += 1
     return total / count if count else 0.0
 
 
 @_jit
 def measure_range(  # noqa: PLR0917 (numba: no keyword-only arguments)
         image: np.ndarray, rows: np.ndarray, cols: np.ndarray, lo: int, hi: int, half_px: int,
-                  dark: bool, out: np.ndarray, flags: np.ndarray, signal: np.ndarray) -> None:
+        dark: bool, out: np.ndarray, flags: np.ndarray, signal: np.ndarray) -> None:
     """Measure windows ``lo..hi−1`` of one frame ``image`` (H, W) uint8; window n centred on the integer
     pixel (rows[n], cols[n]), of W = 2·half_px + 1 pixels.
 
@@ -378,25 +431,28 @@ def measure_range(  # noqa: PLR0917 (numba: no keyword-only arguments)
     signal on the support ((N, W, W) float32, 0 elsewhere) for the outline fit.
     """
     w = 2 * half_px + 1
-    idx, xs, ys = ring_offsets(half_px)
-    n_ring = len(idx)
-    vals, ok, keep = np.empty(n_ring, np.uint8), np.empty(n_ring, np.bool_), np.empty(n_ring, np.bool_)
-    raw, valid = np.empty((w, w), np.uint8), np.empty((w, w), np.bool_)
-    d, support = np.empty((w, w), np.float32), np.empty((w, w), np.bool_)
-    queue, m = np.empty(w * w, np.int64), np.empty(10)
+    pw = w + 2
+    ring_r, ring_c, ring_x, ring_y = ring_offsets(half_px)
+    xs, ys, edge = _pad_geometry(half_px)
+    n_ring = len(ring_r)
+    vals, ok, keep = np.empty(n_ring, np.uint8), np.ones(n_ring, np.bool_), np.empty(n_ring, np.bool_)
+    raw, valid = np.empty((w, w), np.uint8), np.ones((w, w), np.bool_)
+    d, support = np.zeros(pw * pw, np.float32), np.zeros(pw * pw, np.bool_)
+    clipped = np.zeros(pw * pw, np.bool_)
+    queue, stack, m = np.empty(w * w, np.int64), np.empty(4 * pw * pw, np.int64), np.empty(10)
     for n in range(lo, hi):
         inside = _gather(image, rows[n], cols[n], half_px, dark, raw, valid)
         for p in range(n_ring):
-            vals[p] = raw[idx[p] // w, idx[p] % w]
-            ok[p] = valid[idx[p] // w, idx[p] % w]
-        a, b, c, s = _ring_plane(vals, ok, inside, xs, ys, keep)
+            vals[p] = raw[ring_r[p], ring_c[p]]
+            ok[p] = inside or valid[ring_r[p], ring_c[p]]
+        a, b, c, s = _ring_plane(vals, ok, inside, ring_x, ring_y, keep)
         sigma = np.float32(s)
         floor = np.float32(NOISE_FLOOR_K) * sigma
-        _weigh(raw, valid, (a, b, c), floor, half_px, d)
-        _support(d, half_px, support, queue)
-        peak_w, saturated, cramped = _moments(d, support, raw, half_px, m)
+        _weigh(raw, valid, inside, (a, b, c), floor, d, clipped)
+        pixels = queue[:_support(d, half_px, support, queue, stack)]
+        peak_w, saturated, cramped = _moments(d, pixels, clipped, xs, ys, edge, m)
         du, dv, roundness, skew = _moment_shape(m)
-        plateau = _plateau(d, support, peak_w)
+        plateau = _plateau(d, pixels, peak_w)
         contrast = plateau + float(floor) if m[0] > 0 else np.nan
         area = m[0] / plateau
         out[OUT_U, n], out[OUT_V, n] = cols[n] + du, rows[n] + dv
@@ -406,6 +462,8 @@ def measure_range(  # noqa: PLR0917 (numba: no keyword-only arguments)
         flags[FLAG_ROW_BORDER, n], flags[FLAG_ROW_SATURATED, n] = not inside, saturated
         flags[FLAG_ROW_CRAMPED, n] = cramped
         if signal.shape[0]:
-            for i in range(w):
-                for j in range(w):
-                    signal[n, i, j] = d[i, j] + floor if support[i, j] else np.float32(0.0)
+            signal[n] = 0.0
+            for q in pixels:
+                signal[n, q // pw - 1, q % pw - 1] = d[q] + floor
+        for q in pixels:  # clear the support for the next window
+            support[q] = False
