@@ -249,20 +249,22 @@ def _gather(  # noqa: PLR0917 (numba: no keyword-only arguments)
 
 
 @_jit
-def _pad_geometry(half_px: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Lookup tables of the window padded by one pixel ((W + 2)², row-major): x and y offsets (float64)
-    from the centre pixel, and the ring's inner edge (uint8 1: RING_PX − 1 pixels from the window's
-    border)."""
-    w = 2 * half_px + 1
-    pw = w + 2
-    xs, ys = np.zeros(pw * pw), np.zeros(pw * pw)
-    edge = np.zeros(pw * pw, np.uint8)
+def _ring_values(  # noqa: PLR0917 (numba: no keyword-only arguments)
+        raw: np.ndarray, valid: np.ndarray, inside: bool, vals: np.ndarray, ok: np.ndarray,
+        xs: np.ndarray, ys: np.ndarray) -> None:
+    """The ring pixels of the window ``raw`` (W, W), row-major, into ``vals``, ``ok`` (inside the image)
+    and their offsets ``xs``, ``ys`` from the centre pixel (the order of :func:`ring_offsets`)."""
+    w = raw.shape[0]
+    half_px = w // 2
+    p = 0
     for i in range(w):
-        for j in range(w):
-            q = (i + 1) * pw + j + 1
-            xs[q], ys[q] = j - half_px, i - half_px
-            edge[q] = min(i, j, w - 1 - i, w - 1 - j) == RING_PX - 1
-    return xs, ys, edge
+        full_row = i < RING_PX or i >= w - RING_PX
+        j = 0
+        while j < w:
+            vals[p], ok[p] = raw[i, j], inside or valid[i, j]
+            xs[p], ys[p] = j - half_px, i - half_px
+            p += 1
+            j += 1 if full_row or j != RING_PX - 1 else w - 2 * RING_PX + 1
 
 
 @_jit
@@ -293,10 +295,12 @@ def _weigh(  # noqa: PLR0917 (numba: no keyword-only arguments)
 
 
 @_jit
-def _support(
-        d: np.ndarray, half_px: int, support: np.ndarray, pixels: np.ndarray, stack: np.ndarray) -> int:
+def _support(  # noqa: PLR0917 (numba: no keyword-only arguments)
+        d: np.ndarray, half_px: int, support: np.ndarray, pixels: np.ndarray, px_xy: np.ndarray,
+        stack: np.ndarray) -> int:
     """The 8-connected region of ``d > 0`` holding the window's marker: its pixels (flat padded indices)
-    into ``pixels[:n]``, marked in ``support`` (bool, padded flat, all False on entry); returns n.
+    into ``pixels[:n]`` and their offsets (x, y) from the centre pixel into ``px_xy[:n]`` (float64), marked
+    in ``support`` (bool, padded flat, all False on entry); returns n.
     ``stack``: scratch, 4·(W + 2)² int64 (a pixel is pushed at most once from each of the runs beside it).
 
     The marker is the region of the centre pixel; when that pixel is background, the region of the
@@ -336,9 +340,12 @@ def _support(
             left -= 1
         while d[right + 1] > 0 and not support[right + 1]:
             right += 1
+        row = left // pw
+        y, x0 = float(row - 1 - half_px), row * pw + 1 + half_px
         for x in range(left, right + 1):
             support[x] = True
             pixels[n] = x
+            px_xy[n, 0], px_xy[n, 1] = x - x0, y
             n += 1
         for shift in (-pw, pw):
             new_run = True
@@ -379,15 +386,16 @@ def _moment_shape(m: np.ndarray) -> tuple[float, float, float, float]:
 
 @_jit
 def _moments(  # noqa: PLR0917 (numba: no keyword-only arguments)
-        d: np.ndarray, pixels: np.ndarray, clipped: np.ndarray, xs: np.ndarray, ys: np.ndarray,
-        edge: np.ndarray, m: np.ndarray) -> tuple[float, bool, bool]:
-    """Weighted raw moments of the support ``pixels`` (flat padded indices) into ``m`` (10,); returns
-    (peak weight, saturated, cramped). cramped: the support reaches the ring's inner edge (the window
-    is too small for the marker)."""
+        d: np.ndarray, pixels: np.ndarray, px_xy: np.ndarray, clipped: np.ndarray, half_px: int,
+        m: np.ndarray) -> tuple[float, bool, bool]:
+    """Weighted raw moments of the support ``pixels`` (flat padded indices; offsets ``px_xy``) into ``m``
+    (10,); returns (peak weight, saturated, cramped). cramped: the support reaches the ring's inner edge
+    (RING_PX − 1 pixels from the window's border: the window is too small for the marker)."""
     m0 = m1 = m2 = m3 = m4 = m5 = m6 = m7 = m8 = m9 = 0.0  # scalars: kept in registers
-    peak, n_clipped, n_edge = 0.0, 0, 0
-    for q in pixels:
-        x, y, v = xs[q], ys[q], float(d[q])
+    peak, saturated, cramped = 0.0, False, False
+    edge = float(half_px - RING_PX + 1)
+    for k in range(len(pixels)):
+        x, y, v = px_xy[k, 0], px_xy[k, 1], float(d[pixels[k]])
         vx, vy = v * x, v * y
         m0 += v
         m1 += vx
@@ -400,10 +408,10 @@ def _moments(  # noqa: PLR0917 (numba: no keyword-only arguments)
         m8 += vx * y * y
         m9 += vy * y * y
         peak = max(peak, v)
-        n_clipped += clipped[q]
-        n_edge += edge[q]
+        saturated |= clipped[pixels[k]]
+        cramped |= max(abs(x), abs(y)) == edge
     m[0], m[1], m[2], m[3], m[4], m[5], m[6], m[7], m[8], m[9] = m0, m1, m2, m3, m4, m5, m6, m7, m8, m9
-    return peak, n_clipped > 0, n_edge > 0
+    return peak, saturated, cramped
 
 
 @_jit
@@ -432,25 +440,23 @@ def measure_range(  # noqa: PLR0917 (numba: no keyword-only arguments)
     """
     w = 2 * half_px + 1
     pw = w + 2
-    ring_r, ring_c, ring_x, ring_y = ring_offsets(half_px)
-    xs, ys, edge = _pad_geometry(half_px)
-    n_ring = len(ring_r)
+    n_ring = w * w - (w - 2 * RING_PX) ** 2
     vals, ok, keep = np.empty(n_ring, np.uint8), np.ones(n_ring, np.bool_), np.empty(n_ring, np.bool_)
+    ring_x, ring_y = np.empty(n_ring), np.empty(n_ring)
     raw, valid = np.empty((w, w), np.uint8), np.ones((w, w), np.bool_)
     d, support = np.zeros(pw * pw, np.float32), np.zeros(pw * pw, np.bool_)
     clipped = np.zeros(pw * pw, np.bool_)
     queue, stack, m = np.empty(w * w, np.int64), np.empty(4 * pw * pw, np.int64), np.empty(10)
+    px_xy = np.empty((w * w, 2))
     for n in range(lo, hi):
         inside = _gather(image, rows[n], cols[n], half_px, dark, raw, valid)
-        for p in range(n_ring):
-            vals[p] = raw[ring_r[p], ring_c[p]]
-            ok[p] = inside or valid[ring_r[p], ring_c[p]]
+        _ring_values(raw, valid, inside, vals, ok, ring_x, ring_y)
         a, b, c, s = _ring_plane(vals, ok, inside, ring_x, ring_y, keep)
         sigma = np.float32(s)
         floor = np.float32(NOISE_FLOOR_K) * sigma
         _weigh(raw, valid, inside, (a, b, c), floor, d, clipped)
-        pixels = queue[:_support(d, half_px, support, queue, stack)]
-        peak_w, saturated, cramped = _moments(d, pixels, clipped, xs, ys, edge, m)
+        pixels = queue[:_support(d, half_px, support, queue, px_xy, stack)]
+        peak_w, saturated, cramped = _moments(d, pixels, px_xy, clipped, half_px, m)
         du, dv, roundness, skew = _moment_shape(m)
         plateau = _plateau(d, pixels, peak_w)
         contrast = plateau + float(floor) if m[0] > 0 else np.nan
@@ -467,3 +473,30 @@ def measure_range(  # noqa: PLR0917 (numba: no keyword-only arguments)
                 signal[n, q // pw - 1, q % pw - 1] = d[q] + floor
         for q in pixels:  # clear the support for the next window
             support[q] = False
+
+
+@_jit
+def finish_rows(  # noqa: PLR0917 (numba: no keyword-only arguments)
+        uv: tuple[np.ndarray, np.ndarray], shape: tuple[np.ndarray, np.ndarray, np.ndarray],
+        skew: tuple[np.ndarray, np.ndarray], bits: tuple[np.ndarray, np.ndarray], limits: np.ndarray,
+        rec: np.ndarray, passed: np.ndarray) -> bool:
+    """Output rows (markers.MARKER_DTYPE ``rec``) of measurements without an outline fit, and the filters.
+
+    uv: (u_px, v_px); shape: (area_px, roundness, contrast); skew: (skewness, its noise allowance);
+    bits: (border, saturated) bool — arrays of N. ``limits``: max_skewness, skewness noise factor,
+    min_area_px, max_area_px, min_roundness, min_contrast. Flags: bit 0 border, bit 1 occluded (skewness
+    above max_skewness + factor·noise), bit 2 saturated. ``passed[n]``: a finite centre and area, roundness
+    and contrast within the limits. Returns whether all passed.
+    """
+    all_passed = True
+    for n in range(len(rec)):
+        row = rec[n]
+        row.u_px, row.v_px = uv[0][n], uv[1][n]
+        row.area_px, row.roundness, row.contrast = shape[0][n], shape[1][n], shape[2][n]
+        occluded = skew[0][n] > limits[0] + limits[1] * skew[1][n]
+        row.flags = np.uint8(bits[0][n]) | np.uint8(occluded) << 1 | np.uint8(bits[1][n]) << 2
+        ok = (np.isfinite(row.u_px + row.v_px) and limits[2] <= row.area_px <= limits[3]
+              and row.roundness >= limits[4] and row.contrast >= limits[5])
+        passed[n] = ok
+        all_passed = all_passed and ok
+    return all_passed

@@ -72,7 +72,6 @@ class Measured:
                       for key in cls.__dataclass_fields__})
 
 
-@np.errstate(invalid="ignore", divide="ignore")
 def measure_windows(image: Images, rows: np.ndarray, cols: np.ndarray, half_px: int, *,
                     dark: bool, fit_ellipse: bool = False, frame: np.ndarray | None = None) -> Measured:
     """Measure the marker in each window centred on the integer pixel ``(rows[i], cols[i])``.
