@@ -39,9 +39,10 @@ frame 17.5–36× sbd/tuned (before 10.9–12.9×), ≥ 30× only with 12 drifti
 What limits them now:
   - tracking: ~0.1 ms fixed per call (Python and numpy around the compiled kernel: option checks,
     predictions, the Measured record, the output rows) and 14–19 µs per marker, mostly the cache misses
-    of reading a 33×33 window after the sbd variants have flushed the caches (a warm loop, --order
-    blocked, measures ~5 µs per window). The kernel reads every window's first and last pixel per row
-    before measuring (independent loads, fetched in parallel), a 10–25 % gain in a flushed-cache loop.
+    of reading a 33×33 window after the sbd variants have flushed the caches (the kernel alone, called
+    again and again on the same windows, takes ~5 µs per window). The kernel reads every window's first
+    and last pixel per row before measuring (independent loads, fetched in parallel): 10–25 % less time
+    in a loop that flushes the caches between calls (two runs; noisy at this load).
   - full frame: the binarization stage (ours/binarize, OpenCV) is about half of it; blur 0.12 ms,
     findContours 0.07 ms, the ×4 subsample 0.05 ms, boundingRect per contour and the glue the rest.
   - tried and measured before, not kept: cv2.adaptiveThreshold for blur + offset + compare (2× slower);

@@ -104,6 +104,8 @@ MERGE_PIXELS = 40_000  # extra window pixels that cost about as much as one more
 
 def _merge_sizes(sizes: np.ndarray) -> np.ndarray:
     """Grow small windows to the next size in use when that is cheaper than a separate batch."""
+    if len(sizes) == 0 or sizes.min() == sizes.max():  # the usual case: one size
+        return sizes
     values, counts = np.unique(sizes, return_counts=True)
     merged = sizes.copy()
     for i in range(len(values) - 1):
@@ -126,9 +128,9 @@ def _measure(gray: Images, rows: np.ndarray, cols: np.ndarray, half: np.ndarray,
     ``gray`` and ``frame`` as ``image`` and ``frame`` of :func:`measure_windows`.
     """
     sizes = np.asarray(half, dtype=np.int64).copy() if exact else _merge_sizes(_ladder(half))
-    groups = np.unique(sizes)
-    if len(groups) == 0:
+    if len(sizes) == 0:
         return Measured.empty()
+    groups = sizes[:1] if sizes.min() == sizes.max() else np.unique(sizes)
     if len(groups) == 1:  # the usual case: one batch
         result = measure_windows(gray, rows, cols, int(groups[0]), dark=dark, fit_ellipse=fit_ellipse,
                                  frame=frame)
