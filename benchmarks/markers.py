@@ -31,57 +31,22 @@ core (OpenCV's SimpleBlobDetector uses the second core; a quiet machine's wall f
 Run: .venv/bin/python benchmarks/markers.py [--rounds N] [--frames N] [--clock both|cpu|wall]
 [--scene both|drift|vibration] [--markers 12 30]
 
-Figures (2-core VM shared with 7 other sessions, load average 10–13 during the CPU runs; --clock cpu, 5
-rounds of 30 frames; before = 675ac55, after = this version, two runs of each alternating, the same
-script; ms/frame = best-round median; × = paired speed-up over sbd/default / sbd/tuned; ranges over the
-runs; K = markers):
-
-  scene      K   method         before: ×default / ×tuned    after: ms/frame   ×default / ×tuned
-  drift      12  ours/full      6.8–6.9 / 4.8                1.48–1.73 ms      7.1–7.4 / 5.0–5.2
-  drift      12  ours/track     18.8–21.4 / 13.5–14.9        0.41–0.49 ms      21.1–24.6 / 15.0–17.6
-  drift      12  ours/track1    28.6–31.4 / 20.2–21.7        0.25–0.34 ms      31.4–40.5 / 22.2–28.2
-  drift      12  ours/binarize  16.4–16.9 / 11.4–11.8        0.57–0.68 ms      17.8–19.3 / 12.5–13.5
-  drift      12  ours/seq       12.7–13.3 / 8.7–9.3          0.74–0.76 ms      12.7–14.6 / 8.9–10.2
-  drift      30  ours/full      6.7–7.2 / 4.8–5.1            1.84–2.47 ms      7.3–7.6 / 5.2–5.5
-  drift      30  ours/track     16.6–21.3 / 12.0–14.8        0.68–0.98 ms      17.6–18.1 / 12.8–12.9
-  drift      30  ours/seq       10.6–13.4 / 7.7–9.5          1.23–1.33 ms      9.7–11.0 / 7.1–7.9
-  vibration  12  ours/full      7.0 / 4.8–4.9                1.54–1.74 ms      7.4–7.5 / 5.1–5.3
-  vibration  12  ours/track     21.6–23.6 / 15.1–16.1        0.47–0.60 ms      23.2–23.7 / 15.2–16.5
-  vibration  12  ours/seq       38.4–40.8 / 26.4–28.8        0.25–0.30 ms      40.1–40.7 / 27.9–28.6
-  vibration  30  ours/track     17.2–17.7 / 12.3–12.5        0.66–0.93 ms      16.5–19.0 / 12.6–13.8
-  vibration  30  ours/track1    35.1–37.4 / 25.5–27.1        0.28–0.44 ms      34.1–42.3 / 25.7–29.9
-  vibration  30  ours/seq       28.7–29.1 / 20.2–21.5        0.42–0.52 ms      28.6–33.1 / 20.6–24.0
-  sbd/tuned 7.8–12.6 ms, sbd/default 11.1–17.7 ms per frame. Centroid RMS: ours 0.0061–0.0070 px (every
-  variant, before and after alike: the rows are bit-identical), sbd 0.0104–0.0108 px, thr+cc 0.05–0.06 px.
-  The after/before differences (a few per cent) are within the run-to-run spread at this load: this
-  version changed the code's structure (named stages, strict types) and trimmed a few calls, not its cost.
-
-Wall time (--clock wall, one run of each after the CPU runs, load average 16–21): not a fair figure — the
-sbd variants' second thread is starved (sbd/tuned 30–90 ms wall, 3–10× its CPU time), so the ratios
-inflate (ours/full 9–33× sbd/tuned, ours/track 54–112×, before and after alike; the after run was
-stopped after three of its four cases). A quiet machine's wall ratios remain to be measured (the issue
-reports 3.7× sbd/default for the full frame on a quiet 2-core machine, against 6.1× in CPU time).
-
-Targets: full frame ≥ 10× sbd/default and ≥ 6× sbd/tuned — NOT met (≈ 7.1–7.6× / 5.0–5.5×). Tracking one
-call per frame ≥ 30× sbd/tuned — NOT met (12.6–17.6×); ours/seq reaches 28–29× on the vibration scene with
-12 markers, not with 30 (21–24×) nor on the drift scene. Centroid RMS ≤ 0.01 px — met.
-What limits them (after runs):
-  - tracking: a call for ONE marker (ours/track1) already costs 0.25–0.48 ms = 22–30× sbd/tuned, so its
-    fixed cost alone fills the 30× budget (sbd/tuned / 30 = 0.26–0.42 ms); each further marker adds
-    ≈ 14 µs (0.16–0.49 ms for 11 or 29 more). The fixed cost is ~150 numpy/cv2 calls of ~1–3 µs each
-    (check, gather, ring plane and robust spread, support labelling, moments, shape, plateau, flags,
-    filters), every one on arrays of K rows; the interleaved order (each call after a SimpleBlobDetector
-    run has flushed the caches) doubles it against a warm loop (--order blocked).
-  - full frame: its binarization stage alone (ours/binarize: reduce ×4, local-mean threshold, contours)
-    costs 0.57–0.92 ms = 12.5–14.3× sbd/tuned, ~40 % of ours/full; the rest is one measuring call
-    (the fixed cost above) and the candidates' bookkeeping. 6× sbd/tuned would need ≤ 1.3–1.5 ms.
-  - tried and measured, not kept: cv2.adaptiveThreshold for blur + offset + compare (identical output,
-    2× slower: 0.39 vs 0.19 ms); the local mean on a further-reduced frame (INTER_AREA resize: 0.28 vs
-    0.16 ms; pyrDown ×2: no gain); cv2.resize INTER_NEAREST_EXACT instead of the strided subsample (no
-    gain); np.take or per-window slices instead of the strided-view gather (3–9× slower).
-  Reaching the targets needs the per-window work of a call in one compiled kernel (a few calls per frame
-  instead of ~150); numpy and OpenCV offer no primitive for the robust ring plane, the centre-connected
-  support and the masked moments of many windows at once.
+Figures: README.md ("Marker extraction"), from --clock cpu --rounds 3 --frames 20, this version and the
+previous one (ad56a16, the numpy measurement) alternating in the same hour at load average 26–30 — full
+frame 8.8–10.5× sbd/default and 6.5–7.2× sbd/tuned (before 7.1–7.7× / 5.0–5.5×); tracking one call per
+frame 17.5–36× sbd/tuned (before 10.9–12.9×), ≥ 30× only with 12 drifting markers; one marker alone
+74–116× (before 22–25×); centroid RMS 0.0056–0.0074 px for every ours/* variant, before and after.
+What limits them now:
+  - tracking: ~0.1 ms fixed per call (Python and numpy around the compiled kernel: option checks,
+    predictions, the Measured record, the output rows) and 14–19 µs per marker, mostly the cache misses
+    of reading a 33×33 window after the sbd variants have flushed the caches (the kernel alone, called
+    again and again on the same windows, takes ~5 µs per window). The kernel reads every window's first
+    and last pixel per row before measuring (independent loads, fetched in parallel): 10–25 % less time
+    in a loop that flushes the caches between calls (two runs; noisy at this load).
+  - full frame: the binarization stage (ours/binarize, OpenCV) is about half of it; blur 0.12 ms,
+    findContours 0.07 ms, the ×4 subsample 0.05 ms, boundingRect per contour and the glue the rest.
+  - tried and measured before, not kept: cv2.adaptiveThreshold for blur + offset + compare (2× slower);
+    the local mean on a further-reduced frame; cv2.resize INTER_NEAREST_EXACT for the subsample.
 rig measure / rig batch (MarkerReducer.reduce_many on 16 decoded frames) use the exact frame-by-frame
 windows (hold_px None), so ours/seq's gain applies there only where markers keep their rounded centres for
 several frames.

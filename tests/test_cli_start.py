@@ -13,7 +13,7 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
-HEAVY = ("numpy", "pandas", "cv2", "scipy", "matplotlib", "dask", "distributed", "pyarrow")
+HEAVY = ("numpy", "pandas", "cv2", "scipy", "matplotlib", "dask", "distributed", "pyarrow", "numba")
 PROBE = """\
 import contextlib, io, json, sys
 from rig.cli import main

@@ -1,4 +1,4 @@
-"""Ring background of marker windows: the batched fit equals a plain per-window reference fit."""
+"""Ring background of marker windows: the compiled fit equals a plain per-window reference fit."""
 
 from __future__ import annotations
 
@@ -7,7 +7,20 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from rig.stereo.markers_background import MIN_SIGMA_DN, OUTLIER_SPREADS, ring_background, ring_geometry
+from rig.stereo.markers_kernel import MIN_SIGMA_DN, OUTLIER_SPREADS, ring_background, ring_offsets
+
+
+class Ring:
+    """The ring pixels of a window: flat indices (P,) and the design matrix (P, 3) of 1, x, y."""
+
+    def __init__(self, half_px: int) -> None:
+        rows, cols, xs, ys = ring_offsets(half_px)
+        self.idx = rows * (2 * half_px + 1) + cols
+        self.design = np.column_stack([np.ones(len(xs)), xs, ys])
+
+
+def ring_geometry(half_px: int) -> Ring:
+    return Ring(half_px)
 
 
 def reference_fit(ring: np.ndarray, design: np.ndarray) -> tuple[np.ndarray, float]:

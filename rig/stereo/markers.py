@@ -104,6 +104,8 @@ MERGE_PIXELS = 40_000  # extra window pixels that cost about as much as one more
 
 def _merge_sizes(sizes: np.ndarray) -> np.ndarray:
     """Grow small windows to the next size in use when that is cheaper than a separate batch."""
+    if len(sizes) == 0 or sizes.min() == sizes.max():  # the usual case: one size
+        return sizes
     values, counts = np.unique(sizes, return_counts=True)
     merged = sizes.copy()
     for i in range(len(values) - 1):
@@ -126,9 +128,9 @@ def _measure(gray: Images, rows: np.ndarray, cols: np.ndarray, half: np.ndarray,
     ``gray`` and ``frame`` as ``image`` and ``frame`` of :func:`measure_windows`.
     """
     sizes = np.asarray(half, dtype=np.int64).copy() if exact else _merge_sizes(_ladder(half))
-    groups = np.unique(sizes)
-    if len(groups) == 0:
+    if len(sizes) == 0:
         return Measured.empty()
+    groups = sizes[:1] if sizes.min() == sizes.max() else np.unique(sizes)
     if len(groups) == 1:  # the usual case: one batch
         result = measure_windows(gray, rows, cols, int(groups[0]), dark=dark, fit_ellipse=fit_ellipse,
                                  frame=frame)
@@ -193,6 +195,23 @@ def _rows_from(m: Measured, centre: str, max_edge_rms_px: float, max_skewness: f
     out["flags"] = np.packbits(np.stack([m.border, occluded, m.saturated], axis=1), axis=1,
                                bitorder="little")[:, 0]
     return out
+
+
+def _rows_passed(m: Measured, centre: str, max_edge_rms_px: float, max_skewness: float, *, fitted: bool,
+                 limits: tuple[float, float, float, float]) -> tuple[np.ndarray, np.ndarray]:
+    """Output rows (:func:`_rows_from`) and the filters (:func:`_passes`); ``limits``: min_area_px,
+    max_area_px, min_roundness, min_contrast. Without an outline fit, one compiled call."""
+    if fitted:
+        with np.errstate(invalid="ignore"):
+            rec = _rows_from(m, centre, max_edge_rms_px, max_skewness, fitted)
+            return rec, _passes(rec, *limits)
+    from rig.stereo.markers_kernel import finish_rows  # numba: loaded by the first measurement
+
+    rec = np.empty(len(m.u_px), dtype=MARKER_DTYPE)
+    passed = np.empty(len(m.u_px), dtype=bool)
+    finish_rows((m.u_px, m.v_px), (m.area_px, m.roundness, m.contrast), (m.skewness, m.skewness_noise),
+                (m.border, m.saturated), np.array([max_skewness, SKEW_NOISE_FACTOR, *limits]), rec, passed)
+    return rec, passed
 
 
 def _passes(rec: np.ndarray, min_area_px: float, max_area_px: float, min_roundness: float,
@@ -261,9 +280,9 @@ def detect_markers(
                                        min_contrast=min_contrast, min_roundness=min_roundness)
     fit = centre == "ellipse" or outline_check
     measured = _measure_candidates(gray, rows + r_off, cols + c_off, half, dark=dark, fit=fit)
-    with np.errstate(invalid="ignore"):
-        rec = _rows_from(measured, centre, max_edge_rms_px, max_skewness, fit)
-        rec = rec[_passes(rec, min_area_px, max_area_px, min_roundness, min_contrast)]
+    rec, passed = _rows_passed(measured, centre, max_edge_rms_px, max_skewness, fitted=fit,
+                               limits=(min_area_px, max_area_px, min_roundness, min_contrast))
+    rec = rec[passed]
     if regions is not None and len(rec):
         rec = rec[inside_any(rec["u_px"], rec["v_px"], regions)]
     if len(rec) == 0:
@@ -456,9 +475,8 @@ def track_rows(images: Images, pred: np.ndarray, frame: np.ndarray | None, opt: 
     if measured.cramped.any():
         measured = _retry_cramped(images, rows, cols, np.full(len(rows), opt.half_px), measured,
                                   dark=opt.dark, fit_ellipse=opt.fit, retries=2, frame=frame)
-    with np.errstate(invalid="ignore"):
-        rec = _rows_from(measured, opt.centre, opt.max_edge_rms_px, opt.max_skewness, opt.fit)
-        passed = _passes(rec, opt.min_area_px, opt.max_area_px, opt.min_roundness, opt.min_contrast)
+    rec, passed = _rows_passed(measured, opt.centre, opt.max_edge_rms_px, opt.max_skewness, fitted=opt.fit,
+                               limits=(opt.min_area_px, opt.max_area_px, opt.min_roundness, opt.min_contrast))
     if not passed.all():
         lost = ~passed
         rec["u_px"][lost] = np.nan

@@ -1,0 +1,518 @@
+"""Compiled per-window kernel of the marker measurement: one call measures every window of a frame.
+
+The measurement itself is described in :mod:`rig.stereo.markers_refine` (background plane of the ring,
+centre-connected support, weighted moments, plateau contrast); this module is its loop over windows and
+pixels, compiled by numba, so a call
+costs a few microseconds of dispatch plus the pixels' own work instead of ~150 numpy calls on (K, W, W)
+stacks. The arithmetic follows the numpy formulation it replaced: float32 for the background plane and
+the signal (so a pixel is on the support exactly when it was), float64 for the sums (more exact than
+the float32 matrix products were: centroids agree to ~1e-6 px).
+
+Background plane and noise of a window, fitted to its outer ring of ``RING_PX`` pixels (offsets in px
+from the window's centre pixel): a plane ``a + b·x + c·y`` (DN, polarity space) and the noise ``σ`` (DN),
+the RMS residual of the fit. Robust to whatever else crosses the ring (a neighbouring marker, the edge of
+a plate) on up to about a third of it: the spread is taken from the quieter side of the median (min of
+p50 − p16 and p84 − p50, ≈ σ for Gaussian noise), ring pixels farther than 4 such spreads from the median
+are left out, and the plane is fitted to the rest by least squares. A plane, not a constant, so that a
+background gradient (vignetting, uneven lighting) does not pull the centroid uphill. The usual ring
+holds no outlier (its extremes lie within the 4 spreads): its percentiles come from a histogram of its
+uint8 values and the plain fit from its moments (closed form).
+
+Imported lazily by :mod:`rig.stereo.markers_refine` (numba's import and the loading of the compiled
+code, ~0.3–1 s, are paid by the first measurement of a process, not by ``import rig.stereo``). The
+compiled code is cached on disk next to this file (numba's ``cache=True``; a read-only install falls
+back to numba's user-wide cache directory, and with no writable location at all to compiling once per
+process, a few seconds).
+"""
+
+from __future__ import annotations
+
+import warnings
+from collections.abc import Callable
+from typing import Any, TypeVar, cast
+
+import numba
+import numpy as np
+
+_F = TypeVar("_F", bound=Callable[..., Any])
+
+RING_PX = 2  # width of the background ring at the window's edge
+MIN_SIGMA_DN = 0.5  # floor of σ: a flat 8-bit background has zero spread but ±0.5 DN quantization
+OUTLIER_SPREADS = 4.0  # ring pixels farther than this many spreads from the median are left out
+
+NOISE_FLOOR_K = 3.0  # support and weight threshold, in units of the window's background noise σ
+PLATEAU_LEVEL = 0.85  # contrast = mean signal of the support pixels above this fraction of the peak
+
+# rows of the float output of measure_range (one column per window)
+OUT_U, OUT_V, OUT_AREA, OUT_ROUND, OUT_CONTRAST = range(5)
+OUT_BACKGROUND, OUT_SIGMA, OUT_SKEW, OUT_SKEW_NOISE = range(5, 9)
+N_OUT = 9
+# rows of the bool output
+FLAG_ROW_BORDER, FLAG_ROW_SATURATED, FLAG_ROW_CRAMPED = range(3)
+
+
+def _jit(fn: _F) -> _F:
+    """numba.njit with the on-disk cache when a cache location is writable, else without (a warning)."""
+    # error_model="numpy": x/0 gives inf/NaN as in numpy, no exception
+    try:
+        return cast(_F, numba.njit(cache=True, nogil=True, error_model="numpy")(fn))
+    except RuntimeError as exc:  # numba: "cannot cache function ...: no locator available"
+        warnings.warn(f"marker kernel not cached on disk ({exc}); compiling it in this process",
+                      RuntimeWarning, stacklevel=2)
+        return cast(_F, numba.njit(nogil=True, error_model="numpy")(fn))
+
+
+@_jit
+def _weighted_plane(vals: np.ndarray, xs: np.ndarray, ys: np.ndarray, keep: np.ndarray,
+                    ) -> tuple[float, float, float, float]:
+    """Plane a + b·x + c·y fitted by least squares to the ``keep`` ring values; (a, b, c, σ) float64.
+
+    Normal equations solved in closed form (symmetric 3×3: adjugate over determinant, 1e-9 added to the
+    diagonal so a ring with (almost) no inliers stays finite); σ = RMS residual with n − 3 degrees of
+    freedom (at least 1), at least MIN_SIGMA_DN.
+    """
+    na = nb = nc = nd = ne = nf = 0.0
+    r0 = r1 = r2 = 0.0
+    for p in range(len(vals)):
+        if keep[p]:
+            x, y, v = xs[p], ys[p], float(vals[p])
+            na += 1.0
+            nb += x
+            nc += y
+            nd += x * x
+            ne += x * y
+            nf += y * y
+            r0 += v
+            r1 += v * x
+            r2 += v * y
+    count = na
+    na += 1e-9
+    nd += 1e-9
+    nf += 1e-9
+    c00 = nd * nf - ne * ne
+    c01 = nc * ne - nb * nf
+    c02 = nb * ne - nc * nd
+    c11 = na * nf - nc * nc
+    c12 = nb * nc - na * ne
+    c22 = na * nd - nb * nb
+    det = na * c00 + nb * c01 + nc * c02
+    a = (c00 * r0 + c01 * r1 + c02 * r2) / det
+    b = (c01 * r0 + c11 * r1 + c12 * r2) / det
+    c = (c02 * r0 + c12 * r1 + c22 * r2) / det
+    rss = 0.0
+    for p in range(len(vals)):
+        if keep[p]:
+            res = float(vals[p]) - (a + b * xs[p] + c * ys[p])
+            rss += res * res
+    sigma = max(np.sqrt(rss / max(count - 3.0, 1.0)), MIN_SIGMA_DN)
+    return a, b, c, sigma
+
+
+@_jit
+def _ring_plane(  # noqa: PLR0917 (numba: no keyword-only arguments)
+        vals: np.ndarray, ok: np.ndarray, all_ok: bool, xs: np.ndarray, ys: np.ndarray,
+                keep: np.ndarray) -> tuple[float, float, float, float]:
+    """Robust background plane of one ring: values (P,) uint8, ``ok`` the pixels inside the image.
+
+    'lower' percentiles p16, p50, p84 of the valid values; pixels farther than OUTLIER_SPREADS·spread
+    (spread = min(p50 − p16, p84 − p50), at least 1 DN) from the median are left out. A whole ring without
+    outliers (the usual case) is fitted from its moments (the ring is symmetric: the normal matrix is
+    diagonal); otherwise the weighted fit. ``keep``: scratch (P,) bool. Returns (a, b, c, σ) float64.
+    """
+    n_ring = len(vals)
+    if all_ok:
+        hist = np.zeros(256, np.int64)
+        for p in range(n_ring):
+            hist[vals[p]] += 1
+        ranks = (0, int(0.16 * (n_ring - 1)), int(0.5 * (n_ring - 1)), int(0.84 * (n_ring - 1)), n_ring - 1)
+        found = np.zeros(5)
+        seen, level, r = 0, 0, 0
+        while r < 5:
+            if seen + hist[level] > ranks[r]:
+                found[r] = level
+                r += 1
+            else:
+                seen += hist[level]
+                level += 1
+        lo, p16, p50, p84, hi = found[0], found[1], found[2], found[3], found[4]
+        reach = OUTLIER_SPREADS * max(min(p50 - p16, p84 - p50), 1.0)
+        if max(hi - p50, p50 - lo) <= reach:  # no outlier: the plain fit from the ring's moments
+            m0 = mx = my = s2 = sxx = syy = 0.0
+            for p in range(n_ring):
+                v = float(vals[p])
+                m0 += v
+                mx += v * xs[p]
+                my += v * ys[p]
+                s2 += v * v
+                sxx += xs[p] * xs[p]
+                syy += ys[p] * ys[p]
+            a, b, c = m0 / n_ring, mx / sxx, my / syy
+            rss = s2 - (a * m0 + b * mx + c * my)
+            return a, b, c, max(np.sqrt(max(rss, 0.0) / (n_ring - 3.0)), MIN_SIGMA_DN)
+    else:
+        good = np.sort(vals[ok])
+        n_ok = len(good)
+        p16 = p50 = p84 = 0.0
+        if n_ok:
+            p16 = float(good[int(0.16 * (n_ok - 1))])
+            p50 = float(good[int(0.5 * (n_ok - 1))])
+            p84 = float(good[int(0.84 * (n_ok - 1))])
+        reach = OUTLIER_SPREADS * max(min(p50 - p16, p84 - p50), 1.0)
+    for p in range(n_ring):
+        keep[p] = ok[p] and abs(float(vals[p]) - p50) <= reach
+    return _weighted_plane(vals, xs, ys, keep)
+
+
+@_jit
+def ring_offsets(half_px: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Ring pixels of a window of half size ``half_px``, in row-major order: (row, column) indices in the
+    window (int64) and their offsets (x, y) from the centre pixel (float64)."""
+    w = 2 * half_px + 1
+    n_ring = w * w - (w - 2 * RING_PX) ** 2
+    ri, ci = np.empty(n_ring, np.int64), np.empty(n_ring, np.int64)
+    xs, ys = np.empty(n_ring), np.empty(n_ring)
+    p = 0
+    for i in range(w):
+        for j in range(w):
+            if i < RING_PX or i >= w - RING_PX or j < RING_PX or j >= w - RING_PX:
+                ri[p], ci[p], xs[p], ys[p] = i, j, j - half_px, i - half_px
+                p += 1
+    return ri, ci, xs, ys
+
+
+@_jit
+def ring_fit(flat: np.ndarray, valid: np.ndarray, half_px: int, coef: np.ndarray, sigma: np.ndarray) -> None:
+    """Background plane of each window (K, W²) uint8 into ``coef`` (K, 3) and ``sigma`` (K,) float32.
+
+    ``valid``: (K, W²) bool, False outside the image, or an empty (0, 0) array when all pixels are valid.
+    """
+    ri, ci, xs, ys = ring_offsets(half_px)
+    idx = ri * (2 * half_px + 1) + ci
+    n_ring = len(idx)
+    vals = np.empty(n_ring, np.uint8)
+    ok = np.ones(n_ring, np.bool_)
+    keep = np.empty(n_ring, np.bool_)
+    for k in range(flat.shape[0]):
+        all_ok = True
+        for p in range(n_ring):
+            vals[p] = flat[k, idx[p]]
+            if valid.shape[0]:
+                ok[p] = valid[k, idx[p]]
+                all_ok = all_ok and ok[p]
+        a, b, c, s = _ring_plane(vals, ok, all_ok, xs, ys, keep)
+        coef[k, 0], coef[k, 1], coef[k, 2], sigma[k] = a, b, c, s
+
+
+def ring_background(flat: np.ndarray, valid: np.ndarray | None,
+                    half_px: int) -> tuple[np.ndarray, np.ndarray]:
+    """Background plane and noise of each window (K, W²) uint8 (``valid``: bool (K, W²) or None).
+
+    Returns (coefficients float32 (K, 3) of a + b·x + c·y in DN, DN/px, DN/px; σ float32 (K,) in DN,
+    at least MIN_SIGMA_DN). Pixels with ``valid`` False (outside the image) are ignored.
+    """
+    coef = np.empty((len(flat), 3), dtype=np.float32)
+    sigma = np.empty(len(flat), dtype=np.float32)
+    no_mask = np.ones((0, 0), dtype=bool)
+    ring_fit(np.ascontiguousarray(flat, dtype=np.uint8),
+             no_mask if valid is None else np.ascontiguousarray(valid, dtype=bool), half_px, coef, sigma)
+    return coef, sigma
+
+
+@_jit
+def _gather(  # noqa: PLR0917 (numba: no keyword-only arguments)
+        image: np.ndarray, row: int, col: int, half_px: int, dark: bool, raw: np.ndarray,
+        valid: np.ndarray) -> bool:
+    """Window centred on (row, col) into ``raw`` (W, W) uint8, polarity space (dark: 255 − I).
+
+    Returns whether every pixel lies inside the image; if not, out-of-image pixels repeat the nearest
+    edge pixel and are False in ``valid`` (which is left untouched for a window inside the image).
+    """
+    height, width = image.shape
+    w = raw.shape[0]
+    top, left = row - half_px, col - half_px
+    if top >= 0 and left >= 0 and top + w <= height and left + w <= width:
+        raw[:, :] = image[top : top + w, left : left + w]
+        if dark:
+            for i in range(w):
+                for j in range(w):
+                    raw[i, j] = 255 - raw[i, j]
+        return True
+    for i in range(w):
+        r = top + i
+        rc = min(max(r, 0), height - 1)
+        for j in range(w):
+            c = left + j
+            value = image[rc, min(max(c, 0), width - 1)]
+            raw[i, j] = 255 - value if dark else value
+            valid[i, j] = r == rc and c >= 0 and c < width
+    return False
+
+
+@_jit
+def _ring_values(  # noqa: PLR0917 (numba: no keyword-only arguments)
+        raw: np.ndarray, valid: np.ndarray, inside: bool, vals: np.ndarray, ok: np.ndarray,
+        xs: np.ndarray, ys: np.ndarray) -> None:
+    """The ring pixels of the window ``raw`` (W, W), row-major, into ``vals``, ``ok`` (inside the image)
+    and their offsets ``xs``, ``ys`` from the centre pixel (the order of :func:`ring_offsets`)."""
+    w = raw.shape[0]
+    half_px = w // 2
+    p = 0
+    for i in range(w):
+        full_row = i < RING_PX or i >= w - RING_PX
+        j = 0
+        while j < w:
+            vals[p], ok[p] = raw[i, j], inside or valid[i, j]
+            xs[p], ys[p] = j - half_px, i - half_px
+            p += 1
+            j += 1 if full_row or j != RING_PX - 1 else w - 2 * RING_PX + 1
+
+
+@_jit
+def _weigh(  # noqa: PLR0917 (numba: no keyword-only arguments)
+        raw: np.ndarray, valid: np.ndarray, inside: bool, plane: tuple[float, float, float],
+        floor: np.float32, d: np.ndarray, clipped: np.ndarray) -> None:
+    """Signal above the background plane and the noise floor (float32, > 0 on the support) into the
+    padded flat ``d`` ((W + 2)², its one-pixel frame left 0; 0 outside the image), and whether a pixel is
+    clipped (255) into the padded flat ``clipped`` (bool)."""
+    w = raw.shape[0]
+    half_px, pw = w // 2, w + 2
+    a = np.float32(plane[0]) + floor
+    b, c = np.float32(plane[1]), np.float32(plane[2])
+    bx = np.empty(w, np.float32)
+    for j in range(w):
+        bx[j] = a + b * np.float32(j - half_px)
+    for i in range(w):
+        cy = c * np.float32(i - half_px)
+        row = (i + 1) * pw + 1
+        for j in range(w):
+            d[row + j] = np.float32(raw[i, j]) - (bx[j] + cy)
+            clipped[row + j] = raw[i, j] == 255
+    if not inside:
+        for i in range(w):
+            for j in range(w):
+                if not valid[i, j]:
+                    d[(i + 1) * pw + 1 + j] = 0.0
+
+
+@_jit
+def _support(  # noqa: PLR0917 (numba: no keyword-only arguments)
+        d: np.ndarray, half_px: int, support: np.ndarray, pixels: np.ndarray, px_xy: np.ndarray,
+        stack: np.ndarray) -> int:
+    """The 8-connected region of ``d > 0`` holding the window's marker: its pixels (flat padded indices)
+    into ``pixels[:n]`` and their offsets (x, y) from the centre pixel into ``px_xy[:n]`` (float64), marked
+    in ``support`` (bool, padded flat, all False on entry); returns n.
+    ``stack``: scratch, 4·(W + 2)² int64 (a pixel is pushed at most once from each of the runs beside it).
+
+    The marker is the region of the centre pixel; when that pixel is background, the region of the
+    strong pixel nearest the centre among those at least half as strong as the window's strongest (so a
+    noise speck is never chosen; ties: the first in row-major order).
+    """
+    w = 2 * half_px + 1
+    pw = w + 2
+    seed = (half_px + 1) * pw + half_px + 1
+    if not d[seed] > 0:
+        peak = np.float32(-np.inf)
+        for i in range(w):
+            for j in range(w):
+                peak = max(peak, d[(i + 1) * pw + j + 1])
+        half_peak = np.float32(0.5) * peak
+        best, seed = np.inf, -1
+        for i in range(w):
+            for j in range(w):
+                q = (i + 1) * pw + j + 1
+                if d[q] > 0 and d[q] >= half_peak:
+                    dist2 = float((i - half_px) ** 2 + (j - half_px) ** 2)
+                    if dist2 < best:
+                        best, seed = dist2, q
+        if seed < 0:
+            return 0
+    # scanline fill: each popped seed grows into its row's run, whose 8-neighbour spans in the rows above
+    # and below seed their own runs (the padding frame is 0: runs and spans never leave the window)
+    stack[0] = seed
+    top, n = 1, 0
+    while top:
+        top -= 1
+        q = stack[top]
+        if support[q]:
+            continue
+        left, right = q, q
+        while d[left - 1] > 0 and not support[left - 1]:
+            left -= 1
+        while d[right + 1] > 0 and not support[right + 1]:
+            right += 1
+        row = left // pw
+        y, x0 = float(row - 1 - half_px), row * pw + 1 + half_px
+        for x in range(left, right + 1):
+            support[x] = True
+            pixels[n] = x
+            px_xy[n, 0], px_xy[n, 1] = x - x0, y
+            n += 1
+        for shift in (-pw, pw):
+            new_run = True
+            for x in range(left - 1 + shift, right + 2 + shift):
+                if d[x] > 0 and not support[x]:
+                    if new_run:
+                        stack[top] = x
+                        top += 1
+                    new_run = False
+                else:
+                    new_run = True
+    return n
+
+
+@_jit
+def _moment_shape(m: np.ndarray) -> tuple[float, float, float, float]:
+    """Centroid offsets, roundness and skewness from the raw moments (1, x, y, xx, xy, yy, xxx, ...).
+
+    skewness = (μ30² + 3μ21² + 3μ12² + μ03²) / det(Σ)^(3/2) from the central moments: Mardia's b1 for a
+    round blob, 0 for every centrally symmetric one. Empty windows give NaN (0/0).
+    """
+    mx, my = m[1] / m[0], m[2] / m[0]
+    exx, exy, eyy = m[3] / m[0], m[4] / m[0], m[5] / m[0]
+    exxx, exxy, exyy, eyyy = m[6] / m[0], m[7] / m[0], m[8] / m[0], m[9] / m[0]
+    mx2, my2 = mx * mx, my * my
+    cxx, cxy, cyy = exx - mx2, exy - mx * my, eyy - my2
+    det = cxx * cyy - cxy * cxy
+    half_trace = 0.5 * (cxx + cyy)
+    root = np.sqrt(max(half_trace * half_trace - det, 0.0))
+    roundness = np.sqrt(max(half_trace - root, 0.0) / (half_trace + root))
+    c30 = exxx - mx * (3.0 * cxx + mx2)
+    c03 = eyyy - my * (3.0 * cyy + my2)
+    c21 = exxy - my * (cxx + mx2) - 2.0 * mx * cxy
+    c12 = exyy - mx * (cyy + my2) - 2.0 * my * cxy
+    skew = (c30 * c30 + c03 * c03 + 3.0 * (c21 * c21 + c12 * c12)) / det**1.5
+    return mx, my, roundness, skew
+
+
+@_jit
+def _moments(  # noqa: PLR0917 (numba: no keyword-only arguments)
+        d: np.ndarray, pixels: np.ndarray, px_xy: np.ndarray, clipped: np.ndarray, half_px: int,
+        m: np.ndarray) -> tuple[float, bool, bool]:
+    """Weighted raw moments of the support ``pixels`` (flat padded indices; offsets ``px_xy``) into ``m``
+    (10,); returns (peak weight, saturated, cramped). cramped: the support reaches the ring's inner edge
+    (RING_PX − 1 pixels from the window's border: the window is too small for the marker)."""
+    m0 = m1 = m2 = m3 = m4 = m5 = m6 = m7 = m8 = m9 = 0.0  # scalars: kept in registers
+    peak, saturated, cramped = 0.0, False, False
+    edge = float(half_px - RING_PX + 1)
+    for k in range(len(pixels)):
+        x, y, v = px_xy[k, 0], px_xy[k, 1], float(d[pixels[k]])
+        vx, vy = v * x, v * y
+        m0 += v
+        m1 += vx
+        m2 += vy
+        m3 += vx * x
+        m4 += vx * y
+        m5 += vy * y
+        m6 += vx * x * x
+        m7 += vx * x * y
+        m8 += vx * y * y
+        m9 += vy * y * y
+        peak = max(peak, v)
+        saturated |= clipped[pixels[k]]
+        cramped |= max(abs(x), abs(y)) == edge
+    m[0], m[1], m[2], m[3], m[4], m[5], m[6], m[7], m[8], m[9] = m0, m1, m2, m3, m4, m5, m6, m7, m8, m9
+    return peak, saturated, cramped
+
+
+@_jit
+def _plateau(d: np.ndarray, pixels: np.ndarray, peak: float) -> float:
+    """Mean weight of the support ``pixels`` at or above PLATEAU_LEVEL of the peak weight (0 for none)."""
+    level = np.float32(PLATEAU_LEVEL) * np.float32(peak)
+    total, count = 0.0, 0
+    for q in pixels:
+        if d[q] >= level:
+            total += float(d[q])
+            count += 1
+    return total / count if count else 0.0
+
+
+@_jit
+def _touch(image: np.ndarray, rows: np.ndarray, cols: np.ndarray, half_px: int, sink: np.ndarray) -> None:
+    """Read the first and last pixel of every row of every window before measuring any: independent
+    loads, so the memory system fetches the windows' cache lines in parallel (a window read row by row
+    after other work has flushed the caches waits for its lines one by one). The sum goes to ``sink[0]``
+    (so the loads are not optimized away)."""
+    height, width = image.shape
+    total = 0
+    for k in range(len(rows)):
+        c0, c1 = min(max(cols[k] - half_px, 0), width - 1), min(max(cols[k] + half_px, 0), width - 1)
+        for r in range(max(rows[k] - half_px, 0), min(rows[k] + half_px + 1, height)):
+            total += image[r, c0] + image[r, c1]
+    sink[0] = total
+
+
+@_jit
+def measure_range(  # noqa: PLR0917 (numba: no keyword-only arguments)
+        image: np.ndarray, rows: np.ndarray, cols: np.ndarray, lo: int, hi: int, half_px: int,
+        dark: bool, out: np.ndarray, flags: np.ndarray, signal: np.ndarray) -> None:
+    """Measure windows ``lo..hi−1`` of one frame ``image`` (H, W) uint8; window n centred on the integer
+    pixel (rows[n], cols[n]), of W = 2·half_px + 1 pixels.
+
+    Writes ``out`` (N_OUT, N) float64 (OUT_* rows: centre in image px, area px², roundness, contrast DN,
+    background DN at the centre, σ DN, skewness and its noise allowance; NaN for a window without
+    support), ``flags`` (3, N) bool (FLAG_ROW_*), and when ``signal`` has N rows the background-subtracted
+    signal on the support ((N, W, W) float32, 0 elsewhere) for the outline fit.
+    """
+    w = 2 * half_px + 1
+    pw = w + 2
+    n_ring = w * w - (w - 2 * RING_PX) ** 2
+    vals, ok, keep = np.empty(n_ring, np.uint8), np.ones(n_ring, np.bool_), np.empty(n_ring, np.bool_)
+    ring_x, ring_y = np.empty(n_ring), np.empty(n_ring)
+    raw, valid = np.empty((w, w), np.uint8), np.ones((w, w), np.bool_)
+    d, support = np.zeros(pw * pw, np.float32), np.zeros(pw * pw, np.bool_)
+    clipped = np.zeros(pw * pw, np.bool_)
+    queue, stack, m = np.empty(w * w, np.int64), np.empty(4 * pw * pw, np.int64), np.empty(10)
+    px_xy = np.empty((w * w, 2))
+    _touch(image, rows[lo:hi], cols[lo:hi], half_px, m)
+    for n in range(lo, hi):
+        inside = _gather(image, rows[n], cols[n], half_px, dark, raw, valid)
+        _ring_values(raw, valid, inside, vals, ok, ring_x, ring_y)
+        a, b, c, s = _ring_plane(vals, ok, inside, ring_x, ring_y, keep)
+        sigma = np.float32(s)
+        floor = np.float32(NOISE_FLOOR_K) * sigma
+        _weigh(raw, valid, inside, (a, b, c), floor, d, clipped)
+        pixels = queue[:_support(d, half_px, support, queue, px_xy, stack)]
+        peak_w, saturated, cramped = _moments(d, pixels, px_xy, clipped, half_px, m)
+        du, dv, roundness, skew = _moment_shape(m)
+        plateau = _plateau(d, pixels, peak_w)
+        contrast = plateau + float(floor) if m[0] > 0 else np.nan
+        area = m[0] / plateau
+        out[OUT_U, n], out[OUT_V, n] = cols[n] + du, rows[n] + dv
+        out[OUT_AREA, n], out[OUT_ROUND, n], out[OUT_CONTRAST, n] = area, roundness, contrast
+        out[OUT_BACKGROUND, n], out[OUT_SIGMA, n], out[OUT_SKEW, n] = float(np.float32(a)), float(sigma), skew
+        out[OUT_SKEW_NOISE, n] = 8.0 * float(sigma) ** 2 / (contrast**2 * area)
+        flags[FLAG_ROW_BORDER, n], flags[FLAG_ROW_SATURATED, n] = not inside, saturated
+        flags[FLAG_ROW_CRAMPED, n] = cramped
+        if signal.shape[0]:
+            signal[n] = 0.0
+            for q in pixels:
+                signal[n, q // pw - 1, q % pw - 1] = d[q] + floor
+        for q in pixels:  # clear the support for the next window
+            support[q] = False
+
+
+@_jit
+def finish_rows(  # noqa: PLR0917 (numba: no keyword-only arguments)
+        uv: tuple[np.ndarray, np.ndarray], shape: tuple[np.ndarray, np.ndarray, np.ndarray],
+        skew: tuple[np.ndarray, np.ndarray], bits: tuple[np.ndarray, np.ndarray], limits: np.ndarray,
+        rec: np.ndarray, passed: np.ndarray) -> bool:
+    """Output rows (markers.MARKER_DTYPE ``rec``) of measurements without an outline fit, and the filters.
+
+    uv: (u_px, v_px); shape: (area_px, roundness, contrast); skew: (skewness, its noise allowance);
+    bits: (border, saturated) bool — arrays of N. ``limits``: max_skewness, skewness noise factor,
+    min_area_px, max_area_px, min_roundness, min_contrast. Flags: bit 0 border, bit 1 occluded (skewness
+    above max_skewness + factor·noise), bit 2 saturated. ``passed[n]``: a finite centre and area, roundness
+    and contrast within the limits. Returns whether all passed.
+    """
+    all_passed = True
+    for n in range(len(rec)):
+        row = rec[n]
+        row.u_px, row.v_px = uv[0][n], uv[1][n]
+        row.area_px, row.roundness, row.contrast = shape[0][n], shape[1][n], shape[2][n]
+        occluded = skew[0][n] > limits[0] + limits[1] * skew[1][n]
+        row.flags = np.uint8(bits[0][n]) | np.uint8(occluded) << 1 | np.uint8(bits[1][n]) << 2
+        ok = (np.isfinite(row.u_px + row.v_px) and limits[2] <= row.area_px <= limits[3]
+              and row.roundness >= limits[4] and row.contrast >= limits[5])
+        passed[n] = ok
+        all_passed = all_passed and ok
+    return all_passed
