@@ -32,6 +32,7 @@ from reports import figures, html, summaries
 from reports.certificate import acceptance_from_config, build_certificate, evaluate
 from reports.errors import AnalysisFailedError, ReportError
 from reports.load import RunData, load_record
+from reports.phase import phase_section
 from reports.tables import ReportTables, compute_tables, controller_clock, measured_values
 from rig.record.atomic import atomic_path, fsync_dir, write_json, write_text
 from rig.record.folder import RunFolder
@@ -303,6 +304,7 @@ def _extra(t: ReportTables, primary: str) -> dict[str, Any]:
     return {
         "controller_clock": controller_clock(t.clock),
         "band": t.band,
+        "phase": phase_section(t.phase),
         "usable_frequency": {
             m: {
                 "tolerance_pct": lim.tolerance,
@@ -346,6 +348,8 @@ def _table_frames(t: ReportTables, measured: dict[str, Any],
         "criteria": criteria,
         "position_summary": pd.DataFrame([t.position_summary]),
     }
+    if t.phase is not None:
+        frames["phase_bins"] = t.phase.bins
     if t.plate is not None:
         frames["plate"] = t.plate
     if t.rotation_samples is not None:

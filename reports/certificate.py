@@ -39,6 +39,13 @@ class CriterionSpec:
     comparison: str  # "<=" or ">="
 
 
+# the controller's clock against the cameras' (issue 18): kept apart from the cameras' own sync
+TIMING_CRITERIA: tuple[CriterionSpec, ...] = (
+    CriterionSpec("phase_delay_ms", "Delay |τ| of the measured sweep motion against the excitation", "ms",
+                  "<="),
+    CriterionSpec("controller_clock_u_ms",
+                  "Standard uncertainty of the controller↔camera clock offset (timing fiducial)", "ms", "<="),
+)
 CRITERIA: tuple[CriterionSpec, ...] = (
     CriterionSpec("position_max_mm", "Largest 3D position error over the commanded poses", "mm", "<="),
     CriterionSpec("position_rms_mm", "RMS 3D position error over the commanded poses", "mm", "<="),
@@ -62,6 +69,7 @@ CRITERIA: tuple[CriterionSpec, ...] = (
     CriterionSpec("radius_error_mm", "Rotor radius error |r̄ − r_ref|", "mm", "<="),
     CriterionSpec("calibration_rms_px", "Largest calibration reprojection RMS over the cameras", "px", "<="),
     CriterionSpec("sync_uncertainty_ms", "Standard uncertainty of the camera offset estimate", "ms", "<="),
+    *TIMING_CRITERIA,
 )
 CRITERION_IDS = tuple(c.id for c in CRITERIA)
 
@@ -87,6 +95,8 @@ class Measured:
 
     ``budget`` lists the components (name, "A" | "B", standard uncertainty in the value's unit, already
     multiplied by its sensitivity coefficient); :meth:`from_budget` combines them in quadrature.
+    ``decidable`` False: the value is stated but cannot be compared with its limit at this uncertainty
+    (the criterion is NOT EVALUATED, zone "undecidable", the note says why).
     """
 
     value: float
@@ -94,6 +104,7 @@ class Measured:
     k: float = 2.0
     note: str = ""
     budget: tuple[tuple[str, str, float], ...] = ()
+    decidable: bool = True
 
     @classmethod
     def from_budget(
@@ -177,6 +188,8 @@ def evaluate(measured: dict[str, Measured | None], acceptance: dict[str, Any]) -
         value = m.value if m is not None else float("nan")
         U = m.expanded if m is not None else float("nan")
         status, zone = decide(value, U, limit, spec.comparison, rule)
+        if m is not None and not m.decidable:
+            status, zone = "NOT EVALUATED", "undecidable"
         rows.append(
             {
                 "id": spec.id,

@@ -333,6 +333,27 @@ def fig_time_frequency(t: ReportTables) -> Figure | None:
     return fig
 
 
+def fig_phase(t: ReportTables) -> Figure | None:
+    """The measured motion's phase against the excitation per bin (± 2u) and the line −360°·f·τ."""
+    ph = t.phase
+    if ph is None:
+        return None
+    fig, axes = new_figure(size=(7.5, 3.4))
+    ax = axes[0, 0]
+    b = ph.bins
+    ax.errorbar(b["frequency_hz"], b["phase_deg"], yerr=2 * b["u_phase_deg"], fmt="o", ms=4, capsize=2,
+                color=COLORS["primary"], label=f"bins (sync '{ph.sync_method}', ± U, k = 2)")
+    f = np.linspace(0.0, float(b["frequency_hz"].max()), 50)
+    ax.plot(f, -360.0 * f * ph.delay_ms / 1000.0, color="#333333", lw=1.2,
+            label=f"τ = {ph.delay_ms:+.3f} ± {2 * ph.u_delay_ms:.3f} ms")
+    ax.axhline(0.0, color="#999999", lw=0.8)
+    ax.set_xlabel("frequency (Hz)")
+    ax.set_ylabel("phase against the excitation (°)")
+    ax.set_title("Phase of the measured motion")
+    ax.legend()
+    return fig
+
+
 def fig_trajectory(t: ReportTables) -> Figure | None:
     """X(t), Y(t), Z(t) of one marker and an enlarged 5 s segment of its most moving axis (Figs. 5–8)."""
     tr = t.trajectory
@@ -398,6 +419,7 @@ def all_figures(
         "error_vs_position": fig_error_vs_position(t, position_limit_mm),
         "amplitude_error_vs_frequency": fig_amplitude_error(t, tolerance_pct),
         "sweep_time_frequency": fig_time_frequency(t),
+        "phase_vs_frequency": fig_phase(t),
         "trajectory": fig_trajectory(t),
         "rotation_radius": fig_rotation_radius(t),
         "spectrum": fig_spectrum(t),

@@ -253,6 +253,7 @@ def render(
         _position_section(t, pngs, tables_html),
         _frequency_section(t, pngs, tables_html, bin_hz=float(acceptance["frequency_bin_hz"])),
         _band_section(t),
+        _phase_section(t, pngs),
         _motion_section(t, pngs, tables_html),
         _calibration_section(t, tables_html),
         _conditions_section(cert["conditions"]),
@@ -273,7 +274,7 @@ def page(title: str, parts: list[str]) -> str:
 
 NAV = (
     "<nav><a href='#cert'>Certificate</a><a href='#pos'>Position</a><a href='#freq'>Frequency</a>"
-    "<a href='#band'>Band</a>"
+    "<a href='#band'>Band</a><a href='#phase'>Phase</a>"
     "<a href='#motion'>Steady motion</a><a href='#cal'>Calibration &amp; sync</a>"
     "<a href='#cond'>Conditions</a></nav>"
 )
@@ -395,6 +396,28 @@ def _band_section(t: ReportTables) -> str:
         + ("<details><summary>Interleaved per-bin values (mean over markers)</summary>"
            + table(means, digits=4, text_cols=("refused",)) + "</details>" if len(means) else "")
         + "</section>"
+    )
+
+
+def _phase_section(t: ReportTables, pngs: dict[str, bytes]) -> str:
+    """The sweep's delay against the excitation, its budget and the phase per bin (reports.phase)."""
+    ph = t.phase
+    if ph is None:
+        return ""
+    budget = pd.DataFrame([{"component": c[0], "type": c[1], "u (ms)": c[2]} for c in ph.budget])
+    p10, u10 = ph.phase_at_deg(10.0)
+    return (
+        "<section id='phase'><h2>Phase against the excitation</h2>"
+        f"<p>Delay of the measured motion (sync '{ph.sync_method}') against the excitation's phase: "
+        f"τ = {ph.delay_ms:+.4f} ms, U = {2 * ph.u_delay_ms:.4f} ms (k = 2); at 10 Hz that is "
+        f"{p10:+.3f}° ± {2 * u10:.3f}°. The drive reports its frequency, not the crank's angle, so the phase "
+        "is known up to a constant: each bin's phase is taken against the line's intercept, and its "
+        "delay is −phase/(360°·f). Controller↔camera clock: "
+        f"{html.escape(ph.clock_source)}. Reference: {html.escape(ph.reference.source)}.</p>"
+        + table(budget, digits=4, text_cols=("component", "type"))
+        + figure(pngs, "phase_vs_frequency", "Phase of the measured motion against the excitation, per bin")
+        + "<details><summary>Phase and delay per bin</summary>" + table(ph.bins, digits=4)
+        + "</details></section>"
     )
 
 

@@ -8,6 +8,7 @@ returns a :class:`ReportTables` from which the figures, the HTML and the certifi
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass, field
 from typing import Any
@@ -15,7 +16,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from reports import band, frequency, motion, position
+from reports import band, frequency, motion, phase, position
 from reports.certificate import Measured
 from reports.errors import FitError
 from reports.load import (
@@ -67,6 +68,7 @@ class ReportTables:
     calibration: pd.DataFrame | None = None
     timing: TimingResult | None = None
     clock: pd.DataFrame | None = None  # the analysis' controller-clock offsets (Analysis.clock)
+    phase: phase.PhaseResult | None = None  # the primary method's sweep delay and phase per bin
     centres_mm: dict[str, np.ndarray] = field(default_factory=dict)
     band_bins: pd.DataFrame | None = None  # the interleaved per-bin fits (reports.band.BAND_COLUMNS)
     band: dict[str, Any] | None = None  # the band by method and the certified edge (reports.band)
@@ -141,6 +143,7 @@ def compute_tables(
     for method in methods:
         _fit_method(out, method, acceptance)
     _band_tables(out, run, tracks, acceptance, bin_hz)
+    out.phase = _sweep_phase(out, run, sweep)
     _plate_tables(out, run, tracks, gate_mm)
     rotations = stream_events(run.events, "rotation")
     if len(sweeps) > 1 or len(rotations) > 1:
@@ -169,6 +172,22 @@ def _sweep_bins(
         for method, tr in tracks_by_method.items()
     ]
     return pd.concat(parts, ignore_index=True), f"sweep phase reference: {source}"
+
+
+def _sweep_phase(out: ReportTables, run: RunData, sweep: dict[str, Any] | None) -> phase.PhaseResult | None:
+    """The primary method's delay against the excitation and its phase per bin (:mod:`reports.phase`),
+    with the sweep segment's controller-clock uncertainty; None without a sweep or a dated segment."""
+    if sweep is None or out.clock is None or out.sweep_bins.empty:
+        return None
+    rows = out.clock[out.clock["segment"].astype(str) == str(sweep.get("segment"))]
+    if not len(rows):
+        return None
+    row = rows.loc[rows["u_offset_s"].astype(float).idxmax()]
+    polled = stream_events(run.events, "exciter")
+    source = frequency.reference_sweep(sweep, polled)[1]
+    return phase.phase_of_sweep(out.sweep_bins, out.primary_sync, u_clock_s=float(row["u_offset_s"]),
+                                clock_source=str(row["source"]), reference=phase.reference_resolution(polled,
+                                                                                                       source))
 
 
 def _fit_method(out: ReportTables, method: str, acceptance: dict[str, Any]) -> None:
@@ -311,7 +330,42 @@ def measured_values(t: ReportTables, acceptance: dict[str, Any]) -> dict[str, Me
     sync = sync_uncertainty(t.timing, t.clock)
     if sync is not None:
         m["sync_uncertainty_ms"] = sync
+    m.update(_timing_values(t.phase, acceptance))
     return m
+
+
+def _timing_values(ph: phase.PhaseResult | None, acceptance: dict[str, Any]) -> dict[str, Measured]:
+    """The sweep's delay against the excitation and the controller↔camera clock's uncertainty behind it.
+
+    Decided only when the expanded uncertainty leaves room under the limit (U < limit); otherwise the value
+    is stated and the criterion is not evaluated, with the reason: without the timing fiducial the start
+    events leave the clock to ±½ frame."""
+    if ph is None:
+        return {}
+    fiducial = ph.clock_source.startswith("timing fiducial")
+    clock_u_ms = next(c[2] for c in ph.budget if c[0] == "controller↔camera clock")
+    how = "timing fiducial" if fiducial else "start events (±½ frame; no timing fiducial in this run)"
+    p10, u10 = ph.phase_at_deg(10.0)
+    p25, u25 = ph.phase_at_deg(25.0)
+    delay = Measured.from_budget(
+        abs(ph.delay_ms), ph.budget,
+        note=f"sync '{ph.sync_method}', τ = {ph.delay_ms:+.4g} ms over {len(ph.bins)} bins "
+             f"{ph.bins['frequency_hz'].min():.3g}–{ph.bins['frequency_hz'].max():.3g} Hz; phase "
+             f"{p10:+.3g} ± {2 * u10:.2g}° at 10 Hz, {p25:+.3g} ± {2 * u25:.2g}° at 25 Hz (k = 2); clock: "
+             f"{how}; reference: {ph.reference.source}")
+    clock = Measured(clock_u_ms, 0.0, note=f"sweep segment, {how}: {ph.clock_source}")
+    out = {"phase_delay_ms": _decidable(delay, float(acceptance["phase_delay_ms"])),
+           "controller_clock_u_ms": clock if fiducial else dataclasses.replace(
+               clock, decidable=False, note=clock.note + "; the criterion is the timing fiducial's")}
+    return out
+
+
+def _decidable(m: Measured, limit: float) -> Measured:
+    """``m`` not decidable (stated, not evaluated) when its expanded uncertainty reaches the limit."""
+    if m.expanded < limit:
+        return m
+    return dataclasses.replace(m, decidable=False, note=m.note + f"; cannot be decided: U = {m.expanded:.3g} "
+                                                                 f"reaches the limit {limit:g}")
 
 
 def _position_values(poses: pd.DataFrame, u_ref_mm: float) -> dict[str, Measured]:

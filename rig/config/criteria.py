@@ -28,6 +28,9 @@ class CriteriaConfig:
     radius_error_mm: float = field(default=0.5, metadata=_POSITIVE)
     detection_pct: float = field(default=100.0, metadata=spec(lo=0.0, hi=100.0))
     length_error_mm: float = field(default=1.0, metadata=_POSITIVE)
+    # the controller's clock against the cameras' (issue 18): 0.5 ms is 1.8° at 10 Hz, 4.5° at 25 Hz
+    phase_delay_ms: float = field(default=0.5, metadata=_POSITIVE)
+    controller_clock_u_ms: float = field(default=0.05, metadata=_POSITIVE)
     # settings of the decision (reports/certificate.py)
     decision_rule: str = field(default="guarded", metadata=spec(choices=("guarded", "simple")))
     reference_u_mm: float = field(default=0.02, metadata=spec(lo=0.0, hi=100.0))
