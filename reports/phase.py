@@ -79,7 +79,7 @@ def reference_resolution(polled: list[dict], reference_source: str) -> Reference
     t = np.array(sorted(r[0] for r in rows))
     f = np.array([r[1] for r in rows])
     steps = (10.0**-k for k in range(7))
-    q = next((d for d in steps if np.allclose(f / d, np.round(f / d), atol=1e-6)), 0.0)
+    q = next((d for d in steps if np.all(np.abs(f / d - np.round(f / d)) <= 1e-3)), 0.0)
     poll = float(np.median(np.diff(t))) if t.size > 1 else 0.0
     found = f"read back in steps of {q:g} Hz" if q else "read back without a step found (≤ 1e-6 Hz)"
     return ReferenceResolution(q, poll, f"polled frequency {found} every {poll:.3g} s")
