@@ -275,9 +275,10 @@ class FakeAnalysis:
     notes: list[str] = field(default_factory=list)
 
 
-# the controller-clock offset of the synthetic tracks (they are on the controller clock already)
-CLOCK = {"segment": ["sweep"], "session": [0], "offset_s": [0.0], "u_offset_s": [1.0e-4],
-         "source": ["synthetic"]}
+# the controller-clock offset of the synthetic tracks (they are on the controller clock already), dated as
+# a timing fiducial would date them (the phase criteria need it)
+CLOCK = {"segment": ["sweep"], "session": [0], "offset_s": [0.0], "u_offset_s": [1.0e-5],
+         "source": ["timing fiducial (synthetic)"]}
 
 
 def fake_analyse(run_dir: object, *, sync: str) -> FakeAnalysis:

@@ -45,6 +45,7 @@ def test_outputs_exist(built) -> None:
         "error_vs_position",
         "amplitude_error_vs_frequency",
         "sweep_time_frequency",
+        "phase_vs_frequency",
         "trajectory",
         "rotation_radius",
         "spectrum",
@@ -78,9 +79,14 @@ def test_certificate_values(built) -> None:
     # timing.json's camera offset (0.02 ms); the analysis' controller clock is named beside it
     sync = rows["sync_uncertainty_ms"]
     assert sync["value"] == pytest.approx(0.02) and "controller clock" in sync["note"]
-    assert "u = 0.1 ms at worst (segment 'sweep')" in sync["note"]
+    assert "u = 0.01 ms at worst (segment 'sweep')" in sync["note"]
     assert cert["controller_clock"] == [{"segment": "sweep", "session": 0, "offset_s": 0.0,
-                                         "u_offset_s": pytest.approx(1e-4), "source": "synthetic"}]
+                                         "u_offset_s": pytest.approx(1e-5),
+                                         "source": "timing fiducial (synthetic)"}]
+    # the synthetic tracks carry no delay: τ ≈ 0 within its budget, the clock's u as the analysis states it
+    assert abs(cert["phase"]["delay_ms"]) <= 3 * cert["phase"]["u_delay_ms"]
+    assert rows["phase_delay_ms"]["status"] == "PASS"
+    assert rows["controller_clock_u_ms"]["value"] == pytest.approx(0.01)
     assert rows["detection_pct"]["value"] == 100.0
     lin = cert["usable_frequency"]["linear"]
     c0l, c2l = synth.SWEEP_COEFFS["linear"]
