@@ -116,12 +116,12 @@ def main() -> None:
     for seed in range(args.seeds):
         with tempfile.TemporaryDirectory() as tmp:
             run_dir, exciter = sweep_run(Path(tmp), 1000 + seed, args.duration)
-            for label in found:
+            for label, values in found.items():
                 with start_events_only() if label == "start events" else contextlib.nullcontext():
                     a = analyse_module.analyse(run_dir, sync="trajectory")
                 err = true_phase_errors_deg(run_dir, exciter, a.tracks)
                 stated = stated_delay(run_dir, a.tracks, a.clock)
-                found[label].append((err[10.0], err[25.0]))
+                values.append((err[10.0], err[25.0]))
                 tau = (stated.delay_ms, stated.u_delay_ms) if stated else (float("nan"),) * 2
                 print(f"{seed:>4} {label:>12} {err[10.0]:>+8.3f} {err[25.0]:>+8.3f} {tau[0]:>+12.4f} "
                       f"{tau[1]:>8.4f}")

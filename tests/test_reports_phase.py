@@ -69,12 +69,14 @@ def test_the_reference_walk_matches_a_monte_carlo_of_the_read_back_rounding() ->
         taus.append(-np.polyfit(fb, pb, 1)[0] / 360.0)
     fb = np.array([f_of_t[i].mean() for i in idx])
     tb = np.array([t[i].mean() for i in idx])
-    bins = pd.DataFrame({"sync_method": "trajectory", "track": "s#0", "bin": range(len(fb)), "frequency_hz": fb,
-                         "t_mid_s": tb, "phase_deg": 0.0, "amplitude_meas_mm": 4.0, "u_amplitude_mm": 1e-6})
+    bins = pd.DataFrame({"sync_method": "trajectory", "track": "s#0", "bin": range(len(fb)),
+                         "frequency_hz": fb, "t_mid_s": tb, "phase_deg": 0.0, "amplitude_meas_mm": 4.0,
+                         "u_amplitude_mm": 1e-6})
     r = phase.phase_of_sweep(bins, "trajectory", u_clock_s=0.0, clock_source="",
                              reference=phase.ReferenceResolution(q, poll, "polled"))
     assert r is not None
-    u_walk_ms = dict((c[0], c[2]) for c in r.budget)["excitation's reference phase (drive read-back resolution)"]
+    walk = "excitation's reference phase (drive read-back resolution)"
+    u_walk_ms = dict((c[0], c[2]) for c in r.budget)[walk]
     mc_ms = 1e3 * float(np.std(taus))
     assert u_walk_ms == pytest.approx(mc_ms, rel=0.1)  # ≈ 0.11 ms: 600 draws give the std to ≈ 3 %
 
