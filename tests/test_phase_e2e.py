@@ -3,9 +3,11 @@ the runner, the real drivers and the mocks; the report's phase criteria and the 
 against the crank's true phase φ(t), read from the twin's world after the run.
 
 Tolerances from the stated noise: each bin's true phase error within 3 × its own standard uncertainty (the
-three-parameter fit's, from its amplitude's u_A/A, and the fiducial clock's 360°·f·u); the stated delay τ
-within 3 × its budget of the truth (0: the twin's markers move with the crank, the controller clock is the
-world's).
+three-parameter fit's, from its amplitude's u_A/A, and the fiducial clock's 360°·f·u) plus 360°·f·10·u of
+the cameras' relative offset (timing.json; 10 u as in test_certify_e2e: the joint estimator's known
+row-distortion bias is ≈ 5 u), which shifts one camera's samples and so the 3-D motion in part; the stated
+delay τ within 3 × its budget of the truth (0: the twin's markers move with the crank, the controller clock
+is the world's).
 """
 
 from __future__ import annotations
@@ -29,7 +31,7 @@ from tests.certify_support import read_json, write_config
 
 
 def _sweep_with_world(tmp_path: Path) -> tuple[Path, Any]:
-    """``rig run sweep`` (5 → 26 Hz in 10 s) keeping the twin's world; (run folder, world)."""
+    """``rig run sweep`` (4 → 26 Hz in 16 s: Fig. 17 within the crank's 2 Hz/s), keeping the twin's world."""
     from rig.config.rig_config import load_config
 
     kept: dict[str, Any] = {}
@@ -44,12 +46,13 @@ def _sweep_with_world(tmp_path: Path) -> tuple[Path, Any]:
     assert config.fiducial is not None, "the built-in rig carries the timing fiducial"
     runner = Runner(sweep_procedure, config=config, station_factory=factory, runs_dir=tmp_path / "runs",
                     handle_signals=False)
-    outcome = runner.run({"start_hz": 5.0, "max_hz": 26.0, "duration_s": 10.0, "hold_s": 0.5})
+    outcome = runner.run({"start_hz": 4.0, "max_hz": 26.0, "duration_s": 16.0, "hold_s": 0.5})
     assert outcome.run_dir is not None, outcome
     return outcome.run_dir, kept["world"]
 
 
 @pytest.mark.slow
+@pytest.mark.timeout(1800)  # a whole sweep run and a second analysis: minutes on a loaded 2-core machine
 def test_sweep_phase_against_the_twins_crank(tmp_path: Path) -> None:
     run_dir, world = _sweep_with_world(tmp_path)
     cert = read_json(run_dir / "certificate.json")
@@ -66,6 +69,8 @@ def test_sweep_phase_against_the_twins_crank(tmp_path: Path) -> None:
 
     # the measured motion against the crank's true phase, bin by bin
     u_clock_s = next(c["u_ms"] for c in ph["budget"] if c["component"] == "controller↔camera clock") / 1e3
+    timing = read_json(run_dir / "timing.json")
+    u_cameras_s = max(timing["uncertainty"]["offset_s"].values())
     tracks = analyse(run_dir, sync="trajectory").tracks
     sweep = typed_events(load_record(run_dir).events, SweepEvent)[-1].to_dict()
     samples = frequency.sweep_samples(tracks, sweep)
@@ -74,12 +79,14 @@ def test_sweep_phase_against_the_twins_crank(tmp_path: Path) -> None:
         t, x = g["time_s"].to_numpy(float), g["displacement_mm"].to_numpy(float)
         phi = np.asarray(world.exciter.phase_rad(t))
         f = np.asarray(world.exciter.frequency_hz(t))
-        for lo in np.arange(5.0, 26.0):
+        for lo in np.arange(4.0, 26.0):
             m = (f >= lo) & (f < lo + 1.0)
             if m.sum() < frequency.MIN_SAMPLES_PER_BIN:
                 continue
             amp, u_amp, delta = frequency._fit_bin(t[m], x[m], phi[m])
-            u_deg = np.hypot(np.rad2deg(u_amp / amp), 360.0 * float(f[m].mean()) * u_clock_s)
-            assert abs(np.rad2deg(delta)) <= 3 * u_deg, (lo, np.rad2deg(delta), u_deg)
+            f_bin = float(f[m].mean())
+            u_deg = np.hypot(np.rad2deg(u_amp / amp), 360.0 * f_bin * u_clock_s)
+            tolerance = 3 * u_deg + 360.0 * f_bin * 10 * u_cameras_s
+            assert abs(np.rad2deg(delta)) <= tolerance, (lo, np.rad2deg(delta), u_deg, tolerance)
             checked += 1
     assert checked >= 40

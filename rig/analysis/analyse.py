@@ -45,6 +45,7 @@ Nothing is cached: a call with a path reads the files again, so a changed file c
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -256,13 +257,29 @@ def _prepared_observations(observations: dict[str, pd.DataFrame], cameras: dict[
 @dataclass(frozen=True)
 class SegmentClock:
     """Controller time of a segment's reference-camera time: t_controller = t + offset_s + rate·(t − t_ref_s);
-    ``u_offset_s`` its standard uncertainty (s), ``source`` how it was found."""
+    ``u_offset_s`` its standard uncertainty (s), ``source`` how it was found. ``line_time_error_s``: what
+    the timing fiducial measured the joint timing model's (common) line time to lack, s/row; the segment's
+    instants are recomputed with it added (:func:`redated`), so every marker's row is dated right, not only
+    the median row's."""
 
     offset_s: float
     u_offset_s: float
     source: str
     rate: float = 0.0
     t_ref_s: float = 0.0
+    line_time_error_s: float = 0.0
+
+
+def redated(sel: dict[str, pd.DataFrame], timing: TimingResult,
+            line_time_error_s: float) -> dict[str, pd.DataFrame]:
+    """Each camera's observations with ``time_s`` recomputed from a line time ``line_time_error_s`` longer
+    (every camera's: the joint model fits one line time for the pair); ``sel`` itself when nothing to add."""
+    if not line_time_error_s:
+        return sel
+    fixed = dataclasses.replace(timing, line_time_s={c: v + line_time_error_s
+                                                     for c, v in timing.line_time_s.items()})
+    return {c: o.assign(time_s=fixed.times(c, o["timestamp_s"].to_numpy(float), o["v_px"].to_numpy(float)))
+            for c, o in sel.items()}
 
 
 SegmentDating = Callable[[str, int, dict[str, pd.DataFrame]], SegmentClock]
@@ -301,12 +318,13 @@ class _SegmentAnalysis:
         if p.empty or not (~p["ambiguous"].astype(bool)).any():
             self.notes.append(f"segment {segment!r} (session {session}): no pairable tracks")
             return
-        t = triangulate_tracks(sel, self.cameras, self.timing, sync=self.sync, reference=ref, pairs=p,
+        clock = self.date(segment, session, sel)
+        t = triangulate_tracks(redated(sel, self.timing, clock.line_time_error_s), self.cameras, self.timing,
+                               sync=self.sync, reference=ref, pairs=p,
                                knot_spacing_frames=self.knot_spacing_frames)
         self.notes += t.attrs.get("notes", [])
         if t.empty:
             return
-        clock = self.date(segment, session, sel)
         self.clock.append((segment, session, clock.offset_s, clock.u_offset_s, clock.source))
         t = t.copy()
         t["time_s"] = t["time_s"] + clock.offset_s + clock.rate * (t["time_s"] - clock.t_ref_s)
@@ -424,9 +442,12 @@ def _segment_dating(folder: RunFolder, timing: TimingResult, offsets: pd.DataFra
             notes.append(f"segment {segment!r} (session {session}): {why}")
         if fid is None:
             return SegmentClock(offset, u_offset, source)
-        offset, u_offset = fid.offset_at_row_s(float(sel[ref]["v_px"].median()))
+        # the instants get the fitted line time (SegmentClock.line_time_error_s): the offset is then the one
+        # at row 0; its uncertainty is the one at the markers' median row
+        u_offset = fid.offset_at_row_s(float(sel[ref]["v_px"].median()))[1]
+        offset = fid.offset_s - fid.line_time_error_s * fid.row_ref_px
         return SegmentClock(offset + 0.5 * exposure_s, u_offset, clock_row(ref, fid)["source"], fid.rate,
-                            fid.t_ref_s)
+                            fid.t_ref_s, fid.line_time_error_s)
 
     return date
 
