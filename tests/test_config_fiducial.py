@@ -39,7 +39,10 @@ def with_fiducial(**changes: Any) -> dict[str, Any]:
 
 
 def test_a_fiducial_is_optional_and_validated_with_its_defaults() -> None:
-    assert default_config().fiducial is None  # the start-event method, as before
+    assert default_config().fiducial is not None  # the built-in rig carries one (the phase criteria need it)
+    without = copy.deepcopy(SIM)
+    del without["fiducial"], without["sim"]["fiducial"]
+    assert config_from_dict(without).fiducial is None  # the start-event method, as before
     cfg = config_from_dict(with_fiducial())
     assert cfg.fiducial is not None and cfg.sim is not None and cfg.sim.fiducial is not None
     assert cfg.fiducial.regions_px["left"] == (636, 421, 648, 655)
