@@ -246,7 +246,9 @@ def amplitude_by_bin(
 
     ``phase_deg`` is the phase of the measured motion relative to the reference, minus that of the track's
     first bin (the sweep event does not fix the phase origin): a timing error shows as a phase growing with f.
-    Bins with fewer than 3 cycles or 12 samples are left out.
+    Bins with fewer than 3 cycles or 12 samples are left out. ``bin`` is the bin's place on the frequency
+    axis (``frequency_lo_hz / bin_hz``), the same for every track, so per-bin means over tracks that start
+    or end at different frequencies (a marker lost for a while) compare like with like.
     """
     if not bin_hz > 0:
         raise ReportError(f"bin_hz must be > 0, got {bin_hz!r}")
@@ -261,7 +263,7 @@ def amplitude_by_bin(
         phi = sweep_phase_rad(sweep, t)
         edges = np.arange(np.floor(f_t.min() / bin_hz) * bin_hz, f_t.max() + bin_hz, bin_hz)
         first_phase = None
-        for b, (lo, hi) in enumerate(itertools.pairwise(edges)):
+        for lo, hi in itertools.pairwise(edges):
             m = (f_t >= lo) & (f_t < hi)
             n = int(m.sum())
             if n < MIN_SAMPLES_PER_BIN:
@@ -277,7 +279,7 @@ def amplitude_by_bin(
                 {
                     "sync_method": sync_method,
                     "track": track,
-                    "bin": b,
+                    "bin": round(lo / bin_hz),
                     "frequency_lo_hz": float(lo),
                     "frequency_hi_hz": float(hi),
                     "frequency_hz": float(f_t[m].mean()),

@@ -191,3 +191,18 @@ def test_a_step_in_the_profile_is_allowed_and_integrated_exactly() -> None:
     np.testing.assert_allclose(phi / (2 * np.pi), [1.0, 2.0, 7.0, 12.0], atol=1e-12)
     with pytest.raises(ReportError, match="non-finite"):
         frequency.sweep_phase_rad({"profile": [[0.0, 1.0], [1.0, None]]}, np.array([0.5]))
+
+
+def test_a_bin_names_the_same_frequencies_for_every_track() -> None:
+    """A track seen only from later in the sweep (a marker lost at first) shares bin numbers with the rest."""
+    sweep = synth.sweep_event()
+    samples = frequency.sweep_samples(synth.make_tracks("trajectory"), sweep)
+    late = samples["track"] == "sweep#1"
+    t_late_s = samples.loc[late, "time_s"]
+    samples = samples[~late | (t_late_s > t_late_s.quantile(0.3))]
+    bins = frequency.amplitude_by_bin(samples, sweep, sync_method="trajectory")
+    first = bins.groupby("track")["frequency_lo_hz"].min()
+    assert first["sweep#1"] > first["sweep#0"]  # the case under test: the tracks start in different bins
+    per_bin = bins.groupby("bin")[["frequency_lo_hz", "frequency_hi_hz"]].nunique()
+    assert (per_bin == 1).all().all()
+    np.testing.assert_array_equal(bins["bin"], np.round(bins["frequency_lo_hz"] / frequency.DEFAULT_BIN_HZ))
