@@ -178,6 +178,17 @@ def _ratio_where_moved(change: NDArray[np.float32], motion: NDArray[np.float32])
     return float(change[where].mean() / max(float(motion[where].mean()), 1e-9))
 
 
+def _noise_floor(change: NDArray[np.float32]) -> float:
+    """Median block change over every 4th block (plenty for a median), DN: the sensor noise renewed
+    between two exposures. ``np.partition`` on the 1-D copy: half the cost of ``np.median``."""
+    x = change[::2, ::2].ravel()
+    k = x.size // 2
+    if x.size % 2:
+        return float(np.partition(x, k)[k])
+    part = np.partition(x, (k - 1, k))
+    return 0.5 * (float(part[k - 1]) + float(part[k]))
+
+
 @dataclass
 class _Stamps:
     """Time-stamp state while delivering: the latest stamp seen and the insert-policy correction (s)."""
@@ -244,7 +255,7 @@ class DuplicateJudge:
         before2, prev, cur, nxt = frames
         assert prev is not None and cur is not None and cur.change is not None
         s_k = float(cur.change.max())
-        floor = float(np.median(cur.change[::2, ::2]))  # every 4th block: plenty for a median
+        floor = _noise_floor(cur.change)
         typical = float(np.median(self._floors)) if len(self._floors) >= 3 else None
         out = {"change_dn": s_k, "noise_floor_dn": floor, "typical_noise_dn": typical,
                "change_before_dn": float(prev.change.max()) if prev.change is not None else None,
@@ -261,8 +272,11 @@ class DuplicateJudge:
         assert prev.change is not None
         if min(before, after) < self.MIN_MOTION_DN:
             return None
-        ratio = max(_ratio_where_moved(cur.change, prev.change), _ratio_where_moved(cur.change, nxt.change),
-                    s_k / min(before, after))
+        ratio = s_k / min(before, after)
+        if ratio > self.IDENTICAL_RATIO:  # the cheap part of the maximum decides a moving frame at once
+            return None
+        ratio = max(ratio, _ratio_where_moved(cur.change, prev.change),
+                    _ratio_where_moved(cur.change, nxt.change))
         out["identity_ratio"] = ratio
         if ratio > self.IDENTICAL_RATIO:
             return None
@@ -483,7 +497,7 @@ class VideoFile(Camera):
         evidence = judge.judge(frames) if cur.change is not None and frames[1] is not None else None
         if repeated and cur.change is not None:
             evidence = evidence or {"evidence": "time stamp repeated"}
-            judge.forget(float(np.median(cur.change[::2, ::2])))
+            judge.forget(_noise_floor(cur.change))
         if evidence is not None:
             self.duplicate_indices.add(index)
             rep.duplicated.append({"index": index, "pts_s": pts, "pts_repeated": bool(repeated),

@@ -171,9 +171,11 @@ def _acquire(assigned: np.ndarray, det: np.ndarray, hist: list[list[np.ndarray]]
     ``acquire_gate`` of its last position when, among the leftovers, each is the other's only candidate
     (a lone fast marker before its motion model has frames enough; the still markers around it were
     taken by their own tracks first)."""
-    free_t = np.setdiff1d(np.arange(len(hist)), assigned[assigned >= 0])
     free_d = np.flatnonzero(assigned < 0)
-    if not len(free_t) or not len(free_d):
+    if not len(free_d):  # every detection taken (the usual frame): nothing to acquire
+        return
+    free_t = np.setdiff1d(np.arange(len(hist)), assigned[assigned >= 0])
+    if not len(free_t):
         return
     last = np.array([hist[t][-1] for t in free_t])
     near = np.linalg.norm(det[free_d][None, :, :] - last[:, None, :], axis=2) <= acquire_gate

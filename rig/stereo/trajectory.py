@@ -47,6 +47,7 @@ from typing import TypeAlias
 import numpy as np
 from scipy import optimize, sparse
 from scipy.interpolate import BSpline
+from scipy.linalg import LinAlgError, solveh_banded
 from scipy.sparse.linalg import spsolve
 
 from rig.stereo._arrays import FloatArray
@@ -213,6 +214,9 @@ def _solve(
 ) -> FloatArray:
     """Least-squares step; the penalty acts on the updated coefficients c_now + step (P-spline)."""
     Areg = basis.regulariser()
+    if Areg is not None and not isinstance(A, np.ndarray):  # penalty rows added to the normal equations
+        R3 = (sparse.kron(Areg, sparse.identity(3)) * scale).tocsr()
+        return _solve_normal(A, r, R3, np.zeros(R3.shape[0]) if c_now is None else -(R3 @ c_now))
     if Areg is not None:
         R3 = (sparse.kron(Areg, sparse.identity(3)) * scale).tocsr()
         A = sparse.vstack([A, R3]).tocsr()
@@ -222,12 +226,42 @@ def _solve(
         As = A * d
         step: FloatArray = d * np.linalg.solve(As.T @ As, As.T @ r)
         return step
-    return np.asarray(spsolve((A.T @ A).tocsc(), A.T @ r))
+    return _solve_normal(A, r)
+
+
+def _solve_normal(A: sparse.csr_matrix, r: FloatArray, R: sparse.csr_matrix | None = None,
+                  r_reg: FloatArray | None = None) -> FloatArray:
+    """Least squares of the rows (A, r) and the penalty rows (R, r_reg) by the normal equations: by banded
+    Cholesky when they are narrow (a B-spline design: 4 knots × 3 coordinates either side of the diagonal),
+    else (or not positive definite) by sparse LU."""
+    AT = sparse.csr_matrix(A.T)
+    N, rhs = sparse.csr_matrix(AT @ A), AT @ r
+    if R is not None and r_reg is not None:
+        N, rhs = sparse.csr_matrix(N + R.T @ R), rhs + R.T @ r_reg
+    N.sum_duplicates()  # a no-op on the canonical products; the bands below need one entry per element
+    row = np.repeat(np.arange(N.shape[0]), np.diff(N.indptr))
+    col = N.indices
+    upper = row <= col
+    width = int(np.max(col - row)) if N.nnz else 0
+    if N.shape[0] > 4 * (width + 1):
+        bands = np.zeros((width + 1, N.shape[0]))
+        bands[width + row[upper] - col[upper], col[upper]] = N.data[upper]
+        try:
+            return np.asarray(solveh_banded(bands, rhs, check_finite=False))
+        except LinAlgError:
+            pass
+    return np.asarray(spsolve(N.tocsc(), rhs))
 
 
 def _row_scale(A: Design) -> float:
     """RMS row norm of the design (sets the penalty relative to the data)."""
-    fro = sparse.linalg.norm(A) if sparse.issparse(A) else np.linalg.norm(A)
+    # a sparse design's Frobenius norm from its stored values (sparse.linalg.norm copies the matrix twice)
+    if isinstance(A, np.ndarray):
+        fro = float(np.linalg.norm(A))
+    else:
+        A = sparse.csr_matrix(A)
+        A.sum_duplicates()  # in place; a no-op on the canonical matrices _system builds
+        fro = float(np.sqrt(np.sum(np.square(A.data))))
     return float(fro / np.sqrt(max(A.shape[0], 1)))
 
 
