@@ -39,9 +39,10 @@ def _str(element_id: int, value: str) -> bytes:
 
 
 def write_mkv(path: str | Path, images: Iterable[np.ndarray], timestamps_s: Iterable[float],
-              *, quality: int = 92, date_utc_ns: int | None = None) -> int:
+              *, quality: int = 92, date_utc_ns: int | None = None, duration: bool = True) -> int:
     """Write grey or BGR uint8 ``images`` as MJPEG in MKV at ``timestamps_s`` (non-decreasing); return the
-    number of frames. ``date_utc_ns``: the Info/DateUTC (ns since 2001-01-01 UTC) to state, if any."""
+    number of frames. ``date_utc_ns``: the Info/DateUTC (ns since 2001-01-01 UTC) to state, if any;
+    ``duration``: whether Info states the Duration (a live recording's file may not)."""
     imgs, stamps = list(images), [float(t) for t in timestamps_s]
     if len(imgs) != len(stamps) or not imgs:
         raise ValueError(f"{len(imgs)} images and {len(stamps)} time stamps: need equal, non-zero counts")
@@ -49,9 +50,9 @@ def write_mkv(path: str | Path, images: Iterable[np.ndarray], timestamps_s: Iter
     header = _el(0x1A45DFA3, _uint(0x4286, 1) + _uint(0x42F7, 1) + _uint(0x42F2, 4) + _uint(0x42F3, 8)
                  + _str(0x4282, "matroska") + _uint(0x4287, 4) + _uint(0x4285, 2))
     ticks = [round(t * 1e9 / _SCALE_NS) for t in stamps]
-    duration = struct.pack(">d", float(ticks[-1] - ticks[0] + 1))
+    span = struct.pack(">d", float(ticks[-1] - ticks[0] + 1))
     info = _el(0x1549A966, _uint(0x2AD7B1, _SCALE_NS) + _str(0x4D80, "rig-tests") + _str(0x5741, "rig-tests")
-               + _el(0x4489, duration)
+               + (_el(0x4489, span) if duration else b"")
                + (b"" if date_utc_ns is None else _el(0x4461, date_utc_ns.to_bytes(8, "big", signed=True))))
     video = _el(0xE0, _uint(0xB0, w) + _uint(0xBA, h))
     track = _el(0xAE, _uint(0xD7, 1) + _uint(0x73C5, 1) + _uint(0x83, 1) + _str(0x86, "V_MJPEG") + video)

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import cv2
 import measure_twin as mt
 import numpy as np
 import pytest
@@ -16,6 +17,7 @@ from drivers.camera.video_file import (
     VideoFile,
     VideoOpenError,
     VideoTruncatedError,
+    declared_frames,
     find_gaps,
 )
 from drivers.sim.clock import VirtualClock
@@ -48,6 +50,37 @@ def test_mkv_time_stamps_duplicates_and_gaps_are_reported_not_shifted(tmp_path: 
     assert rep.missing_frames == 4 and not rep.truncated
     assert video.duplicate_indices == {8}
     assert "1 duplicated" in rep.summary() and "4 dropped" in rep.summary()
+
+
+@pytest.mark.parametrize("duration", [True, False])
+def test_frame_count_is_the_containers_not_the_decoders_estimate(tmp_path: Path, duration: bool) -> None:
+    """A Matroska file with 10 frames dropped after index 19: OpenCV estimates the count as duration × rate
+    (49, wrong) or, without a Duration element, gives a meaningless one; its blocks say 40."""
+    frames = _noise_frames(40)
+    stamps = [k / 60 for k in range(20)] + [(k + 10) / 60 for k in range(20, 40)]
+    write_mkv(tmp_path / "g.mkv", frames, stamps, duration=duration)
+    cap = cv2.VideoCapture(str(tmp_path / "g.mkv"), cv2.CAP_FFMPEG)
+    opencv_count = cap.get(cv2.CAP_PROP_FRAME_COUNT)
+    cap.release()
+    assert opencv_count != 40  # the premise: the decoder's count is wrong or missing
+    video = VideoFile(tmp_path / "g.mkv", fps=60)
+    assert video.frames_declared == 40 and video.frames_declared_source == "container"
+    assert video.frames_decoder_estimate == (round(opencv_count) if opencv_count > 0 else None)
+    got = list(video.frames())
+    rep = video.report.to_dict()
+    assert len(got) == rep["frames_read"] == rep["frames_declared"] == 40 and not rep["truncated"]
+    assert rep["frames_declared_source"] == "container" and video.report.missing_frames == 10
+
+
+def test_frame_count_falls_back_to_the_decoder_outside_known_containers(tmp_path: Path) -> None:
+    """A file whose container headers cannot be read (here: not MP4/Matroska/AVI) keeps OpenCV's count."""
+    path = tmp_path / "a.mkv"
+    write_mkv(path, _noise_frames(5), [k / 60 for k in range(5)])
+    assert declared_frames(path, 7) == (5, "container")
+    junk = tmp_path / "junk.bin"
+    junk.write_bytes(b"not a container at all" * 4)
+    assert declared_frames(junk, 7) == (7, "decoder estimate")
+    assert declared_frames(junk, 0) == (None, None)
 
 
 @pytest.mark.parametrize(("fourcc", "ext"), [("mp4v", "mp4"), ("MJPG", "avi")])

@@ -25,7 +25,8 @@ tools). :class:`VideoFile` therefore
   time stamps are right) or it inserted the copy (``"insert"``: every later time stamp is one period late
   and is corrected). The policy used and the corrections made are in the report;
 - raises :class:`VideoTruncatedError` (with the report and the number of frames read; the frames were
-  already delivered) when decoding stops before the frame count the container declares, and
+  already delivered) when decoding stops before the frame count the container declares (counted in its
+  own headers where it has them — MP4/MOV, Matroska, AVI — else the decoder's estimate), and
   :class:`VideoOpenError` when the file cannot be opened at all.
 
 Images are 2-D uint8: the decoder's luma plane when it delivers one (verified on the first frame against
@@ -47,10 +48,11 @@ import numpy as np
 from numpy.typing import NDArray
 
 from drivers.camera.base import Frame, FrameGap
+from drivers.camera.container_times import ContainerError, read_container_times
 from drivers.roles import Camera
 
 __all__ = ["DUPLICATE_POLICIES", "FrameTimeReport", "VideoFile", "VideoFileError", "VideoOpenError",
-           "VideoTruncatedError", "find_gaps"]
+           "VideoTruncatedError", "declared_frames", "find_gaps"]
 
 DUPLICATE_POLICIES = ("replace", "insert")
 _SUB = 4  # subsampling of the luma-plane check
@@ -97,6 +99,8 @@ class FrameTimeReport:
     path: str
     frames_read: int = 0
     frames_declared: int | None = None
+    frames_declared_source: str | None = None  # "container" (counted in its headers) or "decoder estimate"
+    frames_decoder_estimate: int | None = None  # OpenCV's CAP_PROP_FRAME_COUNT (duration × rate for MKV)
     fps_nominal: float | None = None
     frame_period_s: float | None = None
     width_px: int = 0
@@ -297,6 +301,22 @@ class DuplicateJudge:
             self._floors.pop()
 
 
+def declared_frames(path: Path, decoder_count: int) -> tuple[int | None, str | None]:
+    """(frame count, where it comes from): the container's own count where its headers state one (MP4/MOV
+    ``stts`` samples, Matroska video blocks, AVI headers: :mod:`drivers.camera.container_times`), else the
+    decoder's ``decoder_count`` when positive (OpenCV's CAP_PROP_FRAME_COUNT, which for Matroska is the
+    duration × the frame rate: wrong when frames were dropped), else (None, None)."""
+    try:
+        count = read_container_times(path).frame_count
+    except ContainerError:  # not one of those containers, or its headers damaged: the decoder's word
+        count = None
+    if count is not None and count > 0:
+        return count, "container"
+    if decoder_count > 0:
+        return decoder_count, "decoder estimate"
+    return None, None
+
+
 def find_gaps(timestamps_s: NDArray[np.float64], period_s: float,
               gap_tolerance: float = 0.5) -> list[FrameGap]:
     """Gaps longer than (1 + gap_tolerance) periods in increasing time stamps: after which index, how long,
@@ -343,20 +363,25 @@ class VideoFile(Camera):
             self.width_px = int(cap.get(cv2.CAP_PROP_FRAME_WIDTH))
             self.height_px = int(cap.get(cv2.CAP_PROP_FRAME_HEIGHT))
             container_fps = float(cap.get(cv2.CAP_PROP_FPS) or 0.0)
-            declared = int(cap.get(cv2.CAP_PROP_FRAME_COUNT) or 0)
+            decoder_count = int(cap.get(cv2.CAP_PROP_FRAME_COUNT) or 0)
         finally:
             cap.release()
         if fps is None and not (math.isfinite(container_fps) and 0 < container_fps <= 10000):
             raise VideoOpenError(f"{self.path}: the container states no usable frame rate "
                                  f"({container_fps!r}); pass fps= (the camera's nominal rate, Hz)")
         self.fps = float(fps) if fps is not None else container_fps
-        self.frames_declared = declared if declared > 0 else None
-        self.report = FrameTimeReport(str(self.path), frames_declared=self.frames_declared,
-                                      fps_nominal=self.fps, frame_period_s=1.0 / self.fps,
-                                      width_px=self.width_px, height_px=self.height_px,
-                                      duplicate_policy=duplicate_policy)
+        self.frames_decoder_estimate = decoder_count if decoder_count > 0 else None
+        self.frames_declared, self.frames_declared_source = declared_frames(self.path, decoder_count)
+        self.report = self._new_report()
         self.duplicate_indices: set[int] = set()
         self._first_pts_s = 0.0
+
+    def _new_report(self) -> FrameTimeReport:
+        return FrameTimeReport(str(self.path), frames_declared=self.frames_declared,
+                               frames_declared_source=self.frames_declared_source,
+                               frames_decoder_estimate=self.frames_decoder_estimate, fps_nominal=self.fps,
+                               frame_period_s=1.0 / self.fps, width_px=self.width_px,
+                               height_px=self.height_px, duplicate_policy=self.duplicate_policy)
 
     def _open(self) -> cv2.VideoCapture:
         if not self.path.is_file():
@@ -427,10 +452,7 @@ class VideoFile(Camera):
 
     def frames(self) -> Iterator[Frame]:
         """Every decodable frame in order (see the module docstring); ``.report`` is filled as they go."""
-        rep = self.report = FrameTimeReport(
-            str(self.path), frames_declared=self.frames_declared, fps_nominal=self.fps,
-            frame_period_s=1.0 / self.fps, width_px=self.width_px, height_px=self.height_px,
-            duplicate_policy=self.duplicate_policy)
+        rep = self.report = self._new_report()
         self.duplicate_indices = set()
         period = 1.0 / self.fps
         _quiet(+1)  # the luma plane makes OpenCV warn once a frame
@@ -439,7 +461,7 @@ class VideoFile(Camera):
             yield from self._decode(cap, rep, period)
         finally:
             _quiet(-1)
-        # a container's frame count may be an estimate (duration × rate, e.g. Matroska) that dropped frames
+        # the decoder's frame count may be an estimate (duration × rate, e.g. Matroska) that dropped frames
         # undercut: the file is truncated when its frames also end early in time
         end_expected_s = self._first_pts_s + (self.frames_declared or 0) * period
         if (self.frames_declared is not None and rep.frames_read < self.frames_declared
