@@ -107,7 +107,8 @@ class MeasureResult:
     files: dict[str, Path]
     notes: list[str]
     problems: list[str]
-    timings_s: dict[str, float]  # per camera (decode, extract, total) and per step ("step_*"), s
+    timings_s: dict[str, float]  # per camera (decode, extract, total), per step: wall ("step_*") and
+    # process CPU ("cpu_step_*"; read_videos: both reading threads), s
     peaks: pd.DataFrame = field(default_factory=pd.DataFrame)  # significant tones per target track
     time_frequency: pd.DataFrame = field(default_factory=pd.DataFrame)  # STFT amplitude per target track
 
@@ -281,7 +282,7 @@ def measure_videos(videos: dict[str, str | Path], calibration: str | Path, out_d
         (out / stale).unlink(missing_ok=True)
     notes: list[str] = []
     problems: list[str] = []
-    stamps = [("start", time.perf_counter())]
+    stamps = [_stamp("start")]
     with ThreadPoolExecutor(max_workers=2, thread_name_prefix="measure-video") as pool:
         futures = {n: pool.submit(extract_video, p, n, opts.extract) for n, p in paths.items()}
         vos = {n: f.result() for n, f in futures.items()}
@@ -298,6 +299,11 @@ def measure_videos(videos: dict[str, str | Path], calibration: str | Path, out_d
         raise MeasureError(f"{'; '.join(problems)}; with the frames that could be read: {exc}") from exc
 
 
+def _stamp(step: str) -> tuple[str, float, float]:
+    """A step's end: its name, wall clock and process CPU time (all threads), s."""
+    return step, time.perf_counter(), time.process_time()
+
+
 @dataclass(frozen=True)
 class _Job:
     """The checked inputs of one :func:`measure_videos` call."""
@@ -312,7 +318,7 @@ class _Job:
 
 
 def _measure(job: _Job, vos: dict[str, VideoObservations], notes: list[str], problems: list[str],
-             stamps: list[tuple[str, float]]) -> MeasureResult:
+             stamps: list[tuple[str, float, float]]) -> MeasureResult:
     """Observations → timing → 3-D tracks → displacement → tables, report and measure.json."""
     out, paths, cameras, opts, record = job.out, job.paths, job.cameras, job.opts, job.record
     timing, calibration = job.timing, job.calibration
@@ -330,13 +336,13 @@ def _measure(job: _Job, vos: dict[str, VideoObservations], notes: list[str], pro
                                "detection options (polarity, min_contrast) and the video")
     reference = next(iter(paths))
     fps = {n: vo.fps for n, vo in vos.items()}
-    stamps.append(("read_videos", time.perf_counter()))
+    stamps.append(_stamp("read_videos"))
     timing_dict = _timing({"timing": timing, "line_time_s": opts.line_time_s, "sync": opts.sync,
                            "offset_window": _offset_window(paths, vos, reference, opts)},
                           obs, cameras, fps=fps,
                           reference=reference, notes=notes)
     files["timing"] = write_json(out / "timing.json", timing_dict)
-    stamps.append(("timing", time.perf_counter()))
+    stamps.append(_stamp("timing"))
     try:
         # a lone fast marker the 2-D tracking splits (a rotor) is one track (rig.deploy.video_timing.tracked)
         prepared = {n: prepare_observations(tracked(o), timing_dict, n) for n, o in obs.items()}
@@ -351,7 +357,7 @@ def _measure(job: _Job, vos: dict[str, VideoObservations], notes: list[str], pro
     if tracks.empty:
         raise MeasureError("no marker track could be paired between the two videos; check that the "
                            "calibration belongs to these cameras and the timing (--timing/--estimate-timing)")
-    stamps.append(("tracks_3d", time.perf_counter()))
+    stamps.append(_stamp("tracks_3d"))
     clock = None
     if record is not None:
         clock = _controller_clock(record, obs[reference], 1.0 / fps[reference], notes)
@@ -375,9 +381,10 @@ def _measure(job: _Job, vos: dict[str, VideoObservations], notes: list[str], pro
                         ("time_frequency", series.time_frequency)):
         files[name] = tables / f"{name}.csv"
         _write_csv(frame, files[name])
-    stamps.append(("series_tables", time.perf_counter()))
+    stamps.append(_stamp("series_tables"))
     timings = {f"{n}_{k}": v for n, vo in vos.items() for k, v in vo.timings_s.items()}
-    timings.update({f"step_{name}": t - stamps[i][1] for i, (name, t) in enumerate(stamps[1:])})
+    timings.update({f"step_{name}": t - stamps[i][1] for i, (name, t, _) in enumerate(stamps[1:])})
+    timings.update({f"cpu_step_{name}": c - stamps[i][2] for i, (name, _, c) in enumerate(stamps[1:])})
     result = MeasureResult(out, tracks, displacement, series.summary, series.spectra, timing_dict, reports,
                            files, notes, problems, timings, series.peaks, series.time_frequency)
     meta = {"videos": {n: str(p) for n, p in paths.items()}, "calibration": str(calibration),
