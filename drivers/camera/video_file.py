@@ -36,6 +36,7 @@ OpenCV's colour → grey conversion; about twice as fast), else the BGR image co
 from __future__ import annotations
 
 import math
+import statistics
 import threading
 from collections import deque
 from collections.abc import Iterator
@@ -205,7 +206,7 @@ def _half(image: NDArray[np.uint8]) -> NDArray[np.uint8]:
     """The image averaged over 2×2 pixels (uint8): a quarter of the pixels for the change maps."""
     h, w = image.shape
     # cv2.resize keeps the dtype (OpenCV's stubs type every result as MatLike)
-    return cast(NDArray[np.uint8], cv2.resize(image, (max(1, w // 2), max(1, h // 2)),
+    return cast("NDArray[np.uint8]", cv2.resize(image, (max(1, w // 2), max(1, h // 2)),
                                               interpolation=cv2.INTER_AREA))
 
 
@@ -216,7 +217,7 @@ def _block_change(a_half: NDArray[np.uint8], b_half: NDArray[np.uint8]) -> NDArr
     d <<= 4
     for _ in range(2):
         h, w = d.shape
-        d = cast(NDArray[np.uint16], cv2.resize(d, (max(1, w // 2), max(1, h // 2)),
+        d = cast("NDArray[np.uint16]", cv2.resize(d, (max(1, w // 2), max(1, h // 2)),
                                                 interpolation=cv2.INTER_AREA))
     change = d.astype(np.float32)
     change *= np.float32(1 / 16)
@@ -260,7 +261,7 @@ class DuplicateJudge:
         assert prev is not None and cur is not None and cur.change is not None
         s_k = float(cur.change.max())
         floor = _noise_floor(cur.change)
-        typical = float(np.median(self._floors)) if len(self._floors) >= 3 else None
+        typical = statistics.median(self._floors) if len(self._floors) >= 3 else None
         out = {"change_dn": s_k, "noise_floor_dn": floor, "typical_noise_dn": typical,
                "change_before_dn": float(prev.change.max()) if prev.change is not None else None,
                "change_after_dn": (float(nxt.change.max()) if nxt is not None and nxt.change is not None
@@ -423,32 +424,37 @@ class VideoFile(Camera):
         if not ok or img is None:
             return None
         if img.ndim == 2 and img.shape == (self.height_px, self.width_px):
-            return cast(NDArray[np.uint8], img)
+            return cast("NDArray[np.uint8]", img)
         if img.ndim == 3:
-            return cast(NDArray[np.uint8], cv2.cvtColor(img, cv2.COLOR_BGR2GRAY))
+            return cast("NDArray[np.uint8]", cv2.cvtColor(img, cv2.COLOR_BGR2GRAY))
         return None
 
-    def _luma_capture(self) -> tuple[cv2.VideoCapture, bool]:
+    def _luma_capture(self) -> tuple[cv2.VideoCapture, bool, tuple[float, NDArray[np.uint8]] | None]:
         """A capture delivering the luma plane if that plane is verified equal (up to a linear range change)
-        to OpenCV's grey conversion of the first frame; else one delivering BGR."""
+        to OpenCV's grey conversion of the first frame — then with that first frame already read, as
+        (time stamp s, luma image), so that it is decoded once more only for the check; else a capture
+        delivering BGR, from the start."""
         if self.luma:
-            probe_bgr, probe_raw = self._open(), self._open()
+            cap = self._open()
+            cap.set(cv2.CAP_PROP_CONVERT_RGB, 0)
+            probe_bgr = self._open()
             try:
-                probe_raw.set(cv2.CAP_PROP_CONVERT_RGB, 0)
                 ok_a, bgr = probe_bgr.read()
-                ok_b, raw = probe_raw.read()
             finally:
                 probe_bgr.release()
-                probe_raw.release()
-            if (ok_a and ok_b and raw is not None and raw.ndim == 2 and raw.dtype == np.uint8
+            raw = None
+            if cap.grab():
+                pts = float(cap.get(cv2.CAP_PROP_POS_MSEC)) / 1000.0
+                ok_b, raw = cap.retrieve()
+                raw = raw if ok_b else None
+            if (ok_a and raw is not None and raw.ndim == 2 and raw.dtype == np.uint8
                     and raw.shape == (self.height_px, self.width_px) and bgr is not None and bgr.ndim == 3):
                 g = cv2.cvtColor(bgr, cv2.COLOR_BGR2GRAY)[::_SUB, ::_SUB].ravel().astype(float)
                 y = raw[::_SUB, ::_SUB].ravel().astype(float)
                 if g.std() > 0 and y.std() > 0 and np.corrcoef(g, y)[0, 1] > 0.995:
-                    cap = self._open()
-                    cap.set(cv2.CAP_PROP_CONVERT_RGB, 0)
-                    return cap, True
-        return self._open(), False
+                    return cap, True, (pts, cast("NDArray[np.uint8]", raw))
+            cap.release()
+        return self._open(), False, None
 
     def frames(self) -> Iterator[Frame]:
         """Every decodable frame in order (see the module docstring); ``.report`` is filled as they go."""
@@ -457,8 +463,8 @@ class VideoFile(Camera):
         period = 1.0 / self.fps
         _quiet(+1)  # the luma plane makes OpenCV warn once a frame
         try:
-            cap, rep.luma_plane = self._luma_capture()
-            yield from self._decode(cap, rep, period)
+            cap, rep.luma_plane, first = self._luma_capture()
+            yield from self._decode(cap, rep, period, first)
         finally:
             _quiet(-1)
         # the decoder's frame count may be an estimate (duration × rate, e.g. Matroska) that dropped frames
@@ -473,14 +479,22 @@ class VideoFile(Camera):
             raise VideoTruncatedError(f"{self.path}: {rep.error}; the {rep.frames_read} frames read are kept",
                                       rep)
 
-    def _grab(self, cap: cv2.VideoCapture, rep: FrameTimeReport) -> Iterator[_Decoded]:
+    def _stamped(self, cap: cv2.VideoCapture, first: tuple[float, NDArray[np.uint8]] | None
+                 ) -> Iterator[tuple[float, NDArray[np.uint8] | None]]:
+        """(time stamp s, grey image or None if undecodable) of each frame in order, ``first`` (already
+        read) first."""
+        if first is not None:
+            yield first
+        while cap.grab():
+            yield float(cap.get(cv2.CAP_PROP_POS_MSEC)) / 1000.0, self._gray(cap)
+
+    def _grab(self, cap: cv2.VideoCapture, rep: FrameTimeReport,
+              first: tuple[float, NDArray[np.uint8]] | None) -> Iterator[_Decoded]:
         """Decoded frames in order with their time stamps and block change to the previous frame."""
         prev: NDArray[np.uint8] | None = None  # half-size previous image
         index = 0
         try:
-            while cap.grab():
-                pts = float(cap.get(cv2.CAP_PROP_POS_MSEC)) / 1000.0
-                img = self._gray(cap)
+            for pts, img in self._stamped(cap, first):
                 if img is None:
                     rep.error = f"frame {index} could not be decoded"
                     break
@@ -493,12 +507,13 @@ class VideoFile(Camera):
         finally:
             cap.release()
 
-    def _decode(self, cap: cv2.VideoCapture, rep: FrameTimeReport, period: float) -> Iterator[Frame]:
+    def _decode(self, cap: cv2.VideoCapture, rep: FrameTimeReport, period: float,
+                first: tuple[float, NDArray[np.uint8]] | None) -> Iterator[Frame]:
         judge = DuplicateJudge(self.duplicate_ratio)
         state = _Stamps()
         self._first_pts_s = 0.0
         window: deque[_Decoded | None] = deque([None, None], maxlen=4)  # k−2, k−1, k, k+1
-        for item in self._grab(cap, rep):
+        for item in self._grab(cap, rep, first):
             window.append(item)
             if len(window) == 4 and window[2] is not None:
                 yield self._deliver(list(window), judge, rep, period, state)
