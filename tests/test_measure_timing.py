@@ -9,7 +9,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from rig.deploy.video_timing import VideoTimingError, coarse_offset
+from rig.deploy.video_timing import VideoTimingError, coarse_offset, line_time_precision
+from rig.stereo.timing import TimingResult
 
 FPS = 60.0
 
@@ -53,3 +54,33 @@ def test_no_motion_is_a_clear_error() -> None:
     a = _obs(t, np.zeros_like(t), 0.0, 0.0, 1)
     with pytest.raises(VideoTimingError, match="no paired marker moves"):
         coarse_offset(a, a, pd.DataFrame({"track_a": [0], "track_b": [0]}), 1 / FPS)
+
+
+def test_an_observable_line_time_is_stated_with_what_it_rests_on() -> None:
+    """The statement's numbers: the row difference v_B − v_A (two markers 2 px apart in it, each moving
+    ±0.5 px more in B than in A), the line time's share of the offset's u (u_offset·|ρ|), and what 1 µs
+    needs (u / 1 µs times the variation, its square times the record)."""
+    t = np.arange(0.0, 2.0, 1 / FPS)
+    offset_s = 0.0123
+    tracks_a, tracks_b = [], []
+    for mean_px in (4.0, 6.0):
+        rows_a = 300 + 2.0 * np.sin(2 * np.pi * 5 * t)
+        rows_b = rows_a + mean_px + 0.5 * np.sin(2 * np.pi * 5 * t)
+        tracks_a.append((t, np.zeros((t.size, 2)), rows_a))
+        tracks_b.append((t - offset_s, np.zeros((t.size, 2)), rows_b))  # B's clock: A's − offset
+    u_offset_s, rho = 40e-6, -0.8
+    result = TimingResult("a", {"a": 0.0, "b": offset_s}, {"a": 20e-6, "b": 20e-6}, {"a": 0.0, "b": 0.0},
+                          "joint", uncertainty={"offset_s": {"a": 0.0, "b": u_offset_s},
+                                                "line_time_s": {"a": 3e-6, "b": 3e-6},
+                                                "drift_ppm": {"a": 0.0, "b": 1.0}},
+                          details={"parameters": ["offset", "line_time", "drift"],
+                                   "correlation": [[1.0, rho, 0.0], [rho, 1.0, 0.0], [0.0, 0.0, 1.0]]})
+    got = line_time_precision(result, tracks_a, tracks_b, "b")
+    inner = slice(2, -2)  # np.interp holds the ends of B's shifted times
+    assert got["row_difference_per_marker_px"] == pytest.approx([4.0, 6.0], abs=0.02)
+    assert got["row_difference_mean_px"] == pytest.approx(5.0, abs=0.02)
+    expected_std = np.std(np.concatenate([m + 0.5 * np.sin(2 * np.pi * 5 * t[inner]) for m in (4.0, 6.0)]))
+    assert got["row_difference_std_px"] == pytest.approx(expected_std, rel=0.02)
+    assert got["offset_uncertainty_from_line_time_s"] == pytest.approx(u_offset_s * 0.8)
+    assert "20.00 ± 3.00 µs" in got["statement"] and "≈ 3.0× that variation" in got["statement"]
+    assert "≈ 9× the record" in got["statement"] and "0.0320 ms from the line time" in got["statement"]

@@ -206,7 +206,8 @@ def _timing(args: dict[str, Any], obs: dict[str, pd.DataFrame], cameras: dict[st
                  f"{tr.uncertainty['offset_s'][other] * 1e3:.4f} ms (coarse "
                  f"{coarse['chosen_offset_s']:+.4f} s "
                  f"of {len(coarse['candidates'])} candidate(s) within {coarse['window_s'][0]:+.1f} … "
-                 f"{coarse['window_s'][1]:+.1f} s), line time {tr.line_time_s[other] * 1e6:.3f} µs")
+                 f"{coarse['window_s'][1]:+.1f} s), line time {tr.line_time_s[other] * 1e6:.3f} ± "
+                 f"{tr.uncertainty['line_time_s'][other] * 1e6:.3f} µs")
     for key in ("ambiguity_note", "line_time_note"):
         if tr.details.get(key):
             notes.append("timing: " + tr.details[key])
