@@ -75,7 +75,7 @@ def test_an_observable_line_time_is_stated_with_what_it_rests_on() -> None:
                                                 "drift_ppm": {"a": 0.0, "b": 1.0}},
                           details={"parameters": ["offset", "line_time", "drift"],
                                    "correlation": [[1.0, rho, 0.0], [rho, 1.0, 0.0], [0.0, 0.0, 1.0]]})
-    got = line_time_precision(result, tracks_a, tracks_b, "b")
+    got = line_time_precision(result, tracks_a, tracks_b, "b", [(0.0, 2.0)])
     inner = slice(2, -2)  # np.interp holds the ends of B's shifted times
     assert got["row_difference_per_marker_px"] == pytest.approx([4.0, 6.0], abs=0.02)
     assert got["row_difference_mean_px"] == pytest.approx(5.0, abs=0.02)
@@ -83,4 +83,4 @@ def test_an_observable_line_time_is_stated_with_what_it_rests_on() -> None:
     assert got["row_difference_std_px"] == pytest.approx(expected_std, rel=0.02)
     assert got["offset_uncertainty_from_line_time_s"] == pytest.approx(u_offset_s * 0.8)
     assert "20.00 ± 3.00 µs" in got["statement"] and "≈ 3.0× that variation" in got["statement"]
-    assert "≈ 9× the record" in got["statement"] and "0.0320 ms from the line time" in got["statement"]
+    assert "≈ 9× the 2.0 s used" in got["statement"] and "0.0320 ms from the line time" in got["statement"]

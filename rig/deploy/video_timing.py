@@ -334,7 +334,7 @@ def estimate_video_timing(obs: dict[str, pd.DataFrame], cameras: dict[str, DLTCa
     if "line_time" in result.details:
         extra["line_time_note"] = result.details["line_time"]["statement"]
     elif line_time_s is None:  # estimated and observable: how well, from what, and what it does to the offset
-        extra["line_time_precision"] = line_time_precision(result, tracks_a, tracks_b, other)
+        extra["line_time_precision"] = line_time_precision(result, tracks_a, tracks_b, other, windows)
         extra["line_time_note"] = extra["line_time_precision"]["statement"]
     result.details = {**result.details, **extra}
     return result
@@ -344,13 +344,14 @@ LINE_TIME_TARGET_S = 1e-6  # issue 14: the line time within 1 µs where the moti
 
 
 def line_time_precision(result: TimingResult, tracks_a: list[tuple[np.ndarray, ...]],
-                        tracks_b: list[tuple[np.ndarray, ...]], other: str) -> dict[str, Any]:
+                        tracks_b: list[tuple[np.ndarray, ...]], other: str,
+                        windows: list[tuple[float, float]]) -> dict[str, Any]:
     """What an estimated (observable) line time rests on, quantified: the row difference v_B − v_A between
     the views over the used observations (the line time enters only through ℓ·(v_B − v_A); the offset
     absorbs its mean, so only its variation — between markers and over time — measures ℓ, and the line
-    time's u scales as 1 / its std and 1 / √(record length)), the line time's share of the offset's
+    time's u scales as 1 / its std and 1 / √(time observed)), the line time's share of the offset's
     uncertainty (u_offset·|ρ|, ρ their correlation), and what reaching :data:`LINE_TIME_TARGET_S` would need.
-    Rows in px, times in s."""
+    ``windows``: the spans of the record the estimate used (:func:`_joint_tracks`). Rows in px, times in s."""
     offset_s = result.offset_s[other]
     diffs = [np.interp(ta, tb + offset_s, rb) - ra
              for (ta, _, ra), (tb, _, rb) in zip(tracks_a, tracks_b, strict=True)]
@@ -363,19 +364,22 @@ def line_time_precision(result: TimingResult, tracks_a: list[tuple[np.ndarray, .
            if "offset" in labels and "line_time" in labels else 0.0)
     from_line_s = u_offset_s * abs(rho)
     factor = u_line_s / LINE_TIME_TARGET_S
+    used_s = float(sum(hi - lo for lo, hi in windows))
+    used = (f"the {used_s:.1f} s used" if len(windows) == 1 else
+            f"the {used_s:.1f} s used (windows at the record's two ends; the middle of a long record is not)")
     if factor <= 1.0:
         need = f"within the {LINE_TIME_TARGET_S * 1e6:g} µs target"
     else:
         need = (f"{LINE_TIME_TARGET_S * 1e6:g} µs would need ≈ {factor:.1f}× that variation (markers over "
                 f"more of the image height, cameras at different heights or verged) or ≈ {factor ** 2:.0f}× "
-                "the record, or --line-time-s")
+                f"{used}, or --line-time-s")
     statement = (f"line time estimated {result.line_time_s[other] * 1e6:.2f} ± {u_line_s * 1e6:.2f} µs from "
                  f"how the views' row difference v_B − v_A varies (std {float(np.std(diff)):.2f} px about "
                  f"{float(np.mean(diff)):+.2f} px over {diff.size} observations; per marker "
                  f"{float(per_marker.min()):+.2f} … {float(per_marker.max()):+.2f} px): its u scales as 1 / "
                  f"that std; {need}. The offset's u {u_offset_s * 1e3:.4f} ms includes "
                  f"{from_line_s * 1e3:.4f} ms from the line time (correlation {rho:+.2f})")
-    return {"observable": True, "uncertainty_s": u_line_s,
+    return {"observable": True, "uncertainty_s": u_line_s, "time_used_s": used_s,
             "row_difference_mean_px": float(np.mean(diff)), "row_difference_std_px": float(np.std(diff)),
             "row_difference_per_marker_px": per_marker.tolist(), "offset_line_time_correlation": rho,
             "offset_uncertainty_from_line_time_s": from_line_s, "statement": statement}
