@@ -348,8 +348,9 @@ def line_time_precision(result: TimingResult, tracks_a: list[tuple[np.ndarray, .
                         windows: list[tuple[float, float]]) -> dict[str, Any]:
     """What an estimated (observable) line time rests on, quantified: the row difference v_B − v_A between
     the views over the used observations (the line time enters only through ℓ·(v_B − v_A); the offset
-    absorbs its mean, so only its variation — between markers and over time — measures ℓ, and the line
-    time's u scales as 1 / its std and 1 / √(time observed)), the line time's share of the offset's
+    absorbs its mean, so only its variation — between markers and over time, weighted by the image speed —
+    measures ℓ: the line time's u scales as 1 / the size of that variation and 1 / √(time observed); the std
+    reported is unweighted), the line time's share of the offset's
     uncertainty (u_offset·|ρ|, ρ their correlation), and what reaching :data:`LINE_TIME_TARGET_S` would need.
     ``windows``: the spans of the record the estimate used (:func:`_joint_tracks`). Rows in px, times in s."""
     offset_s = result.offset_s[other]
@@ -377,7 +378,7 @@ def line_time_precision(result: TimingResult, tracks_a: list[tuple[np.ndarray, .
                  f"how the views' row difference v_B − v_A varies (std {float(np.std(diff)):.2f} px about "
                  f"{float(np.mean(diff)):+.2f} px over {diff.size} observations; per marker "
                  f"{float(per_marker.min()):+.2f} … {float(per_marker.max()):+.2f} px): its u scales as 1 / "
-                 f"that std; {need}. The offset's u {u_offset_s * 1e3:.4f} ms includes "
+                 f"the size of that variation; {need}. The offset's u {u_offset_s * 1e3:.4f} ms includes "
                  f"{from_line_s * 1e3:.4f} ms from the line time (correlation {rho:+.2f})")
     return {"observable": True, "uncertainty_s": u_line_s, "time_used_s": used_s,
             "row_difference_mean_px": float(np.mean(diff)), "row_difference_std_px": float(np.std(diff)),
