@@ -65,6 +65,10 @@ def _check_offset(res: MeasureResult, truth: dict, *, period_s: float | None) ->
     else:
         assert not coarse["ambiguous"], coarse["candidates"]
     assert abs(err) <= 4 * u, (err, u)
+    info = res.timing["details"].get("line_time")
+    if info is not None:  # not observable: within all the line time can do, plus the statistical part
+        bound = info["offset_bound_from_line_time_s"] + 4 * info["offset_uncertainty_statistical_s"]
+        assert abs(err) <= bound, (err, bound)
     return err
 
 
@@ -74,6 +78,13 @@ def _check_line_time(res: MeasureResult, truth: dict) -> None:
     info = res.timing["details"].get("line_time")
     if info is None:  # observable: estimated
         assert abs(got - true) <= 4 * u, (got, true, u)
+        if res.timing["method"] == "joint":  # stated with what it rests on and its share of the offset's u
+            precision = res.timing["details"]["line_time_precision"]
+            u_offset = res.timing["uncertainty"]["offset_s"]["right"]
+            assert precision["uncertainty_s"] == u
+            assert precision["offset_uncertainty_from_line_time_s"] <= u_offset
+            assert any("line time estimated" in n and "from how the views' row difference" in n
+                       for n in res.notes)
         return
     lo, hi = info["prior_s"]
     assert lo <= true <= hi and u == pytest.approx((hi - lo) / np.sqrt(12))

@@ -88,6 +88,11 @@ def test_an_unobservable_line_time_with_a_prior_widens_the_offset_uncertainty_to
     u = res.uncertainty["offset_s"]["b"]
     assert u >= abs(row_diff) * prior[1] / np.sqrt(12) * 0.95
     assert abs(res.offset_s["b"] - OFFSET_S) <= 3 * u
+    # the stated bound: the line time anywhere in its range, half the range times the slope
+    bound = info["offset_bound_from_line_time_s"]
+    assert bound == pytest.approx(abs(info["offset_per_line_time_s_per_s"]) * prior[1] / 2)
+    assert f"at most ± {bound * 1e3:.4f} ms" in info["statement"]
+    assert abs(res.offset_s["b"] - OFFSET_S) <= bound + 4 * info["offset_uncertainty_statistical_s"]
 
 
 def _frames(t: np.ndarray, uv: np.ndarray) -> pd.DataFrame:

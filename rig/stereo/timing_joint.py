@@ -430,6 +430,7 @@ class JointTiming:
         held = self.refine(free_line=False, offset0_s=fit.offset_s + float(shift[0]) * d_line_us * 1e-3,
                            line0_s=mid, drift0_ppm=drift0)
         u_prior_s = abs(slope_s_per_s) * (hi - lo) / np.sqrt(12.0)
+        bound_s = abs(slope_s_per_s) * (hi - lo) / 2.0  # the line time at either end of its range
         u_stat_s = held.std[0] * 1e-3
         held.std[0] = np.hypot(u_stat_s, u_prior_s) * 1e3
         held.std[1] = (hi - lo) / np.sqrt(12.0) * 1e6
@@ -440,6 +441,7 @@ class JointTiming:
             "offset_per_line_time_s_per_s": slope_s_per_s,
             "offset_uncertainty_statistical_s": u_stat_s,
             "offset_uncertainty_from_line_time_s": u_prior_s,
+            "offset_bound_from_line_time_s": bound_s,
             "statement": (
                 f"line time not observable from this motion (free estimate {problem.estimate_s * 1e6:+.2f} ± "
                 f"{problem.uncertainty_s * 1e6:.2f} µs); taken uniform over {lo * 1e6:.2f} … "
@@ -447,7 +449,9 @@ class JointTiming:
                 f"(value {mid * 1e6:.2f} µs, u {(hi - lo) / np.sqrt(12) * 1e6:.2f} µs). The offset moves by "
                 f"{slope_s_per_s:+.2f} s per s of line time (−row difference, px), so its uncertainty "
                 f"includes {u_prior_s * 1e3:.4f} ms for the line time beside {u_stat_s * 1e3:.4f} ms "
-                "statistical; give --line-time-s if the cameras' line time is known"),
+                f"statistical (anywhere in its range, the line time moves the offset by at most ± "
+                f"{bound_s * 1e3:.4f} ms from the value given); give --line-time-s if the cameras' line time "
+                "is known"),
         }
         return held
 
