@@ -62,6 +62,7 @@ from rig.run.safety import (
     EXIT_ABORTED,
     EXIT_BAD_INPUT,
     EXIT_FAULT,
+    INTERLOCK_ERROR_TYPES,
     STOP_SIGNALS,
     Interrupted,
     StationLike,
@@ -133,7 +134,9 @@ class Runner:
         self.observers = observers
         self._control = _Control()
         self._record: RunRecord | None = None
-        self._file_only: Callable[[str, BaseException], None] | None = None  # rig.log only, while a run lasts
+        self._record_close_tried = False  # a failed close is not repeated (it would fail, and say so, again)
+        # rig.log only, while a run lasts
+        self._file_only: Callable[[str, BaseException | None], None] | None = None
 
     # ------------------------------------------------------------------ control (thread-safe)
     def request_abort(self, reason: str = "abort requested") -> None:
@@ -148,7 +151,8 @@ class Runner:
             if self._control.interlock is not None:
                 return
             self._control.interlock = (device, reason)
-        log.error("INTERLOCK on %s: %s", device, reason)
+        # rig.log only: the console gets the interlock once, in the exit line (rig.cli)
+        self._log_file_only(f"INTERLOCK on {device}: {reason}")
         if self._record is not None:
             with contextlib.suppress(Exception):
                 self._record.interlock(device, reason)
@@ -157,6 +161,17 @@ class Runner:
         if self.handle_signals and not self._control.in_cleanup and from_other_thread:
             with contextlib.suppress(Exception):
                 signal.pthread_kill(main_thread.ident, signal.SIGUSR1)  # type: ignore[arg-type]
+
+    def _log_file_only(self, message: str, exc: BaseException | None = None) -> None:
+        """An error (with ``exc``'s traceback) for ``rig.log`` only while a run lasts — what the exit line
+        says once on the console must not be printed before it too; outside a run, the usual log."""
+        file_only = self._file_only
+        if file_only is not None:
+            file_only(message, exc)
+        elif exc is not None:
+            log.error("%s:\n%s", message, format_exception(exc))
+        else:
+            log.error("%s", message)
 
     def _checkpoint(self, station: StationLike, roster: list[Assignment]) -> None:
         c = self._control
@@ -230,7 +245,7 @@ class Runner:
             except Exception as exc:
                 return RunOutcome(EXIT_FAULT, None, "fault",
                                   f"could not create the run record: {type(exc).__name__}: {exc}")
-            self._record = record
+            self._record, self._record_close_tried = record, False
             outcome: RunOutcome | None = None
             for observer in self.observers:  # live views (the dashboard): every document, start first
                 record.add_observer(observer)
@@ -243,15 +258,16 @@ class Runner:
                         outcome = self._run_and_close_station(record, clock, params, file_only)
                     finally:
                         self._record, self._file_only = None, None
-                        record.close()
+                        if not self._record_close_tried:  # _finish closes it first (reporting a failure)
+                            record.close()
             except OSError as exc:
                 if outcome is None:
                     raise  # the devices were made safe; the CLI reports the I/O fault (exit 3)
-                return _io_fault_after_stop(outcome, exc)
+                return self._io_fault_after_stop(outcome, exc)
             return outcome
 
     def _run_and_close_station(self, record: RunRecord, clock: Clock, params: object,
-                               file_only: Callable[[str, BaseException], None]) -> RunOutcome:
+                               file_only: Callable[[str, BaseException | None], None]) -> RunOutcome:
         try:
             station_cm = self.station_factory(self.config, clock)
             station = station_cm.__enter__()
@@ -276,7 +292,7 @@ class Runner:
         return RunRecord.resume(resume_dir, clock, rig_snapshot=snapshot, devices=devices)
 
     def _station_failed(self, record: RunRecord, exc: BaseException,
-                        file_only: Callable[[str, BaseException], None]) -> RunOutcome:
+                        file_only: Callable[[str, BaseException | None], None]) -> RunOutcome:
         """The station could not be built (nothing moved): stop ``fail`` (``abort`` on Ctrl-C) and why."""
         self._control.in_cleanup = True
         if isinstance(exc, KeyboardInterrupt):
@@ -347,10 +363,11 @@ class Runner:
             watchdog.quiet()  # its probes keep idle drives' communication-loss stops from firing
         try:
             error = self._lost_device_check(watchdog, roster, error)
-            if isinstance(error, OSError) and self._file_only is not None:
-                # an I/O or link fault (full disk, read-only folder, a device's socket): the exit line says
-                # what happened; its traceback goes to rig.log only
-                self._file_only(f"procedure raised {type(error).__name__}: {error}", error)
+            if isinstance(error, (OSError, *INTERLOCK_ERROR_TYPES)):
+                # an I/O or link fault (full disk, read-only folder, a device's socket) or an interlock (a
+                # trip, a driver refusing a command beyond a limit): the exit line says what happened,
+                # once; the traceback goes to rig.log only
+                self._log_file_only(f"procedure raised {type(error).__name__}: {error}", error)
             elif error is not None and not isinstance(error, Abort | KeyboardInterrupt):
                 log.error("procedure raised:\n%s", format_exception(error))
             return self._finish(record, roster, error, result)
@@ -368,7 +385,7 @@ class Runner:
         if self._control.interlock is not None:  # tripped already (its document is written): the cause
             tripped = InterlockTripped(*self._control.interlock)
             tripped.__cause__ = error
-            log.error("procedure error after the interlock tripped:\n%s", format_exception(error))
+            self._log_file_only("procedure error after the interlock tripped", error)
             return tripped
         try:
             lost = watchdog.poll_once() or check_heartbeats(roster, wait=True)
@@ -380,7 +397,7 @@ class Runner:
         self.trip(*lost)
         tripped = InterlockTripped(*lost)
         tripped.__cause__ = error
-        log.error("procedure error caused by the lost device:\n%s", format_exception(error))
+        self._log_file_only("procedure error caused by the lost device", error)
         return tripped
 
     def _finish(self, record: RunRecord, roster: list[Assignment], error: BaseException | None,
@@ -421,18 +438,24 @@ class Runner:
         record.stop(status, reason, **stop_fields)
         log.info("run %s ended: %s (exit %d): %s", record.run_id, outcome, exit_code, reason)
         ended = RunOutcome(exit_code, status, outcome, reason, record.run_dir, result)
+        self._record_close_tried = True
         try:
             record.close()  # durable before the station closes (which may hang on a dead device)
         except OSError as exc:
-            return _io_fault_after_stop(ended, exc)
+            return self._io_fault_after_stop(ended, exc)
         return ended
 
+    def _io_fault_after_stop(self, outcome: RunOutcome, exc: OSError) -> RunOutcome:
+        """Closing the record or the log failed after the stop document (e.g. ENOSPC): the run cannot count
+        as passed or failed on an incomplete record, so 0/1 become the I/O fault (3); 2, 3 and 4 stand.
+        The reason says it (the exit line prints it once); the traceback goes to ``rig.log`` if still open."""
+        if self._file_only is not None:
+            self._file_only("closing the record failed", exc)
+        return _after_close_failure(outcome, exc)
 
-def _io_fault_after_stop(outcome: RunOutcome, exc: OSError) -> RunOutcome:
-    """Closing the record or the log failed after the stop document (e.g. ENOSPC): the run cannot count as
-    passed or failed on an incomplete record, so 0/1 become the I/O fault (3); 2, 3 and 4 stand."""
+
+def _after_close_failure(outcome: RunOutcome, exc: OSError) -> RunOutcome:
     what = f"closing the record failed: {type(exc).__name__}: {exc}"
-    log.error("%s", what)
     if outcome.exit_code in (0, 1):
         return RunOutcome(EXIT_FAULT, outcome.exit_status, "fault", f"{outcome.reason}; then {what}",
                           outcome.run_dir, outcome.result)
@@ -452,7 +475,7 @@ class _LogFile(logging.FileHandler):
 
 
 @contextlib.contextmanager
-def _run_log(record: RunRecord, level: int) -> Iterator[Callable[[str, BaseException], None]]:
+def _run_log(record: RunRecord, level: int) -> Iterator[Callable[[str, BaseException | None], None]]:
     """Log to ``<run_dir>/rig.log`` while the run lasts; yields ``file_only(message, exc)``, which writes
     an error with its traceback to that file and not to the console."""
     handler = _LogFile(record.run_dir / "rig.log", encoding="utf-8")
@@ -463,9 +486,9 @@ def _run_log(record: RunRecord, level: int) -> Iterator[Callable[[str, BaseExcep
     root.addHandler(handler)
     root.setLevel(min(old_level or logging.WARNING, level))
 
-    def file_only(message: str, exc: BaseException) -> None:
-        handler.handle(log.makeRecord(log.name, logging.ERROR, __file__, 0, "%s", (message,),
-                                      (type(exc), exc, exc.__traceback__)))
+    def file_only(message: str, exc: BaseException | None) -> None:
+        exc_info = None if exc is None else (type(exc), exc, exc.__traceback__)
+        handler.handle(log.makeRecord(log.name, logging.ERROR, __file__, 0, "%s", (message,), exc_info))
 
     try:
         yield file_only
