@@ -74,14 +74,17 @@ class ContactRecord:
     ``lock`` is re-entrant: the probe holds it around a driver call that takes it again.
     """
 
-    def __init__(self, lock: threading.RLock | None = None) -> None:
+    def __init__(self, lock: threading.RLock | None = None, *,
+                 wall_s: Callable[[], float] = time.monotonic) -> None:
         self.lock = lock if lock is not None else threading.RLock()  # devices on one bus share it
-        self._last_contact = time.monotonic()
+        self.wall_s = wall_s  # the wall clock (seconds; tests inject one)
+        self._last_contact = wall_s()
         self._waiting_since: float | None = None  # start of the oldest request not answered yet
         self._busy = 0
         self._failure: str | None = None
         self.silent_calls = False  # True when a call in flight legitimately sends nothing for long
         self.contacts = 0
+        self.recovered_from: str | None = None  # the last failure a later reply cleared
 
     @contextlib.contextmanager
     def exchange(self) -> Iterator[None]:
@@ -90,7 +93,7 @@ class ContactRecord:
         with self.lock:
             self._busy += 1
             if self._waiting_since is None:
-                self._waiting_since = time.monotonic()
+                self._waiting_since = self.wall_s()
             ok = False
             try:
                 yield
@@ -103,13 +106,16 @@ class ContactRecord:
     def touch(self) -> None:
         """A reply (or a keep-alive) arrived: the device is alive now (a call still in flight waits anew
         from now, e.g. for the next keep-alive)."""
-        now = time.monotonic()
+        now = self.wall_s()
         self._last_contact = now
         self._waiting_since = now if self._busy else None
         self.contacts += 1
+        if self._failure is not None:  # a reply on a fresh link (reconnected): the device is back
+            self.recovered_from, self._failure = self._failure, None
 
     def fail(self, reason: str) -> None:
-        """The link was closed or broke; latched (a closed transport does not come back)."""
+        """The link was closed or broke; latched until a reply arrives (on a fresh link: the closed
+        transport itself does not come back), which clears it into :attr:`recovered_from`."""
         if self._failure is None:
             self._failure = reason
 
@@ -123,13 +129,18 @@ class ContactRecord:
 
     def age_s(self) -> float:
         """Wall seconds since the last reply."""
-        return time.monotonic() - self._last_contact
+        return self.wall_s() - self._last_contact
+
+    @property
+    def waiting_since_s(self) -> float | None:
+        """Wall time (:attr:`wall_s`) the oldest unanswered request was sent, None when none is."""
+        return self._waiting_since
 
     def unanswered_s(self) -> float:
         """Wall seconds the device has been asked without answering (0 when nothing is pending): an
         idle link is not a lost device until someone asks."""
         since = self._waiting_since
-        return 0.0 if since is None else max(0.0, time.monotonic() - since)
+        return 0.0 if since is None else max(0.0, self.wall_s() - since)
 
 
 class Heartbeat:
@@ -155,6 +166,10 @@ class Heartbeat:
         self.probe = probe
         self.timeout_s, self.interval_s = check_heartbeat_timing(timeout_s, interval_s)
         self._probing = threading.Lock()
+        self._beat_lock = threading.Lock()
+        self._last_check_s: float | None = None  # wall time of the previous check
+        self._wait_seen: float | None = None  # the wait (its start) the previous check saw
+        self._unanswered_beat_s = 0.0  # that wait's length on the beat clock
         self.probes_sent = 0
         self.probe_errors: list[str] = []
         self.device_problem: str | None = None
@@ -170,13 +185,32 @@ class Heartbeat:
             raise HeartbeatError(self.device, self.device_problem)
         if rec.busy and rec.silent_calls:
             return True  # a call without keep-alives in flight: bounded by the link's own timeout
-        unanswered = rec.unanswered_s()
+        unanswered = self._unanswered_on_beat_clock()
         if unanswered > self.timeout_s:
             detail = f"last probe: {self.probe_errors[-1]}" if self.probe_errors else None
             raise DeviceLostError(self.device, age, self.timeout_s, unanswered_s=unanswered, detail=detail)
         if age > self.interval_s and not rec.busy and self._probing.acquire(blocking=False):
             threading.Thread(target=self._probe, name=f"heartbeat-{self.device}", daemon=True).start()
         return True
+
+    def _unanswered_on_beat_clock(self) -> float:
+        """How long the pending request has waited, counted on the checks' own progress: the wall time
+        between two checks counts up to ``interval_s``, no more. A longer gap means this process was not
+        running (a starved host, or the interpreter busy elsewhere): a reply may be sitting unread, and an
+        in-process mock (the twin) was starved alike, so that time is no evidence against the device.
+        With the watchdog checking every 0.25 s the count equals the wall time."""
+        now = self.record.wall_s()
+        since = self.record.waiting_since_s
+        with self._beat_lock:
+            last, self._last_check_s = self._last_check_s, now
+            if since is None:
+                self._wait_seen, self._unanswered_beat_s = None, 0.0
+            elif since != self._wait_seen or last is None:  # a wait that began after the last check
+                self._wait_seen = since
+                self._unanswered_beat_s = min(max(0.0, now - since), self.interval_s)
+            else:
+                self._unanswered_beat_s += min(max(0.0, now - last), self.interval_s)
+            return self._unanswered_beat_s
 
     def verify(self) -> bool:
         """One probe now, in the caller's thread (waiting for the link lock): for ``rig check``, which

@@ -168,10 +168,11 @@ def test_idle_link_is_probed_not_lost_silent_calls_are_not_counted_and_bad_timin
     record.silent_calls = False
     with pytest.raises(ZeroDivisionError), record.exchange():
         1 / 0  # noqa: B018 — a request that got no answer
-    time.sleep(0.15)
     with pytest.raises(DeviceLostError, match=r"robot: lost: no reply for 0\.\d\d s; last contact "
                                               r"0\.\d\d s ago \(limit 0\.1 s\)"):
-        beat.check()
+        for _ in range(1000):  # checked regularly (as the watchdog does), well within the probe interval
+            beat.check()
+            time.sleep(0.005)
     record.touch()
     assert beat.check() is True
     record.fail("closed by the peer")
@@ -181,6 +182,64 @@ def test_idle_link_is_probed_not_lost_silent_calls_are_not_counted_and_bad_timin
         Heartbeat("x", record, lambda: None, timeout_s=0)
     with pytest.raises(ValueError, match=r"heartbeat interval_s=2\.0: must be > 0 s and below timeout_s=1"):
         Heartbeat("x", record, lambda: None, timeout_s=1.0, interval_s=2.0)
+
+
+class FakeWall:
+    """A wall clock the test moves."""
+
+    def __init__(self) -> None:
+        self.t_s = 100.0
+
+    def __call__(self) -> float:
+        return self.t_s
+
+
+def _unanswered(record: ContactRecord) -> None:
+    with pytest.raises(TimeoutError), record.exchange():
+        raise TimeoutError("no reply")  # a request that got no answer: pending until the next reply
+
+
+def test_silence_counts_on_the_checks_own_cadence_so_a_starved_checker_declares_nothing() -> None:
+    """A device asked and silent is lost after ``timeout_s`` of regular checks (the watchdog's period ≤
+    the probe interval: the count is the wall time); a gap between two checks longer than the probe
+    interval — this process was not running, so an in-process mock was starved alike and a real reply
+    may sit unread — counts as one interval only."""
+    wall = FakeWall()
+    record = ContactRecord(wall_s=wall)
+    beat = Heartbeat("exciter", record, lambda: None, timeout_s=2.0)  # probe interval 0.5 s
+    assert beat.check() is True
+    _unanswered(record)
+    wall.t_s += 0.25
+    for _ in range(8):  # up to 2.0 s of checks every 0.25 s: not yet
+        assert beat.check() is True
+        wall.t_s += 0.25
+    with pytest.raises(DeviceLostError, match=r"exciter: lost: no reply for 2\.25 s; last contact 2\.25 s"):
+        beat.check()  # past the limit at the first check after it: a silent device is lost on time
+
+    record.touch()
+    assert beat.check() is True
+    _unanswered(record)
+    wall.t_s += 30.0  # the checker itself starved for 30 s (the wall says 30 s unanswered)
+    assert beat.check() is True  # counted: one interval (0.5 s)
+    for _ in range(6):  # then checked regularly: 0.5 + 6 × 0.25 = 2.0 s
+        wall.t_s += 0.25
+        assert beat.check() is True
+    wall.t_s += 0.25
+    with pytest.raises(DeviceLostError, match=r"no reply for 2\.25 s; last contact 31\.75 s ago"):
+        beat.check()
+    record.touch()  # it answered: the count starts again
+    assert beat.check() is True
+
+
+def test_a_reply_on_a_fresh_link_clears_a_latched_failure() -> None:
+    record = ContactRecord(wall_s=FakeWall())
+    beat = Heartbeat("robot", record, lambda: None, timeout_s=2.0)
+    record.fail("b-CAP link closed during Robot_Move")
+    with pytest.raises(DeviceLostError, match=r"link failed \(b-CAP link closed during Robot_Move\)"):
+        beat.check()
+    record.touch()  # a reply, over the reconnected link
+    assert beat.check() is True and record.failure is None
+    assert record.recovered_from == "b-CAP link closed during Robot_Move"
 
 
 def test_wait_probes_now_for_rig_check() -> None:

@@ -82,6 +82,8 @@ def test_exciter_that_stops_answering_trips_the_interlock_and_the_rest_is_made_s
     assert {"robot", "rotor", "generator"} <= _done(run)  # every other device made safe
     failures = run.stop["safe_state_failures"]
     assert [f["device"] for f in failures] == ["exciter"]  # attempted, but nothing answers
+    assert run.stop["heartbeats"]["exciter"] == "not probed (its safe state failed)"
+    assert run.stop["heartbeats"]["rotor"] == "answering"
     world, clock = seen["station"].world, seen["station"].clock
     assert world.exciter.frequency_hz(clock.now_s() + 60.0) == 0.0  # the unanswered stop still reached it
 
@@ -139,6 +141,11 @@ def test_arm_connection_closed_mid_move_is_the_interlock(tmp_path: Path) -> None
     reason = run.interlocks["reason"].iloc[0]
     assert "robot: lost: link failed (b-CAP link closed during Robot_Move" in reason
     assert {"exciter", "rotor", "generator"} <= _done(run)
+    # the arm was halted over a fresh connection, which answers: the state says so (the interlock and
+    # its exit code stand); the latched "link closed" no longer reports the arm lost
+    assert run.stop["heartbeats"] == {"robot": "recovered", "exciter": "answering", "rotor": "answering",
+                                      "generator": "answering", "left": "answering", "right": "answering"}
+    assert "robot answers again after it was lost (the interlock stands)" in list(run.logs["message"])
     world, clock = seen["station"].world, seen["station"].clock
     assert world.exciter.frequency_hz(clock.now_s() + 60.0) == 0.0
 

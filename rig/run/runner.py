@@ -71,6 +71,7 @@ from rig.run.safety import (
     check_heartbeats,
     classify,
     format_exception,
+    heartbeat_states,
     make_safe,
 )
 
@@ -112,7 +113,7 @@ class Runner:
         runs_dir: where run folders go (default: ``config.station.runs_dir``).
         progress: ``(fraction | None, message) -> None`` renderer (the CLI's progress bar).
         handle_signals: install the SIGINT/SIGUSR1 handlers (only possible in the main thread).
-        watchdog_period_s: wall seconds between watchdog rounds.
+        watchdog_period_s: wall seconds between watchdog rounds (at most ``station.heartbeat_timeout_s / 4``).
         log_level: level of the ``rig.log`` file handler.
         observers: ``(document) -> None`` offered every record document (:meth:`RunRecord.add_observer`).
     """
@@ -345,7 +346,10 @@ class Runner:
             record.event("devices", station_snapshot)
         except Exception as exc:  # e.g. a snapshot not recordable as JSON: say so, carry on
             record.log("warning", f"station snapshot not recordable: {type(exc).__name__}: {exc}")
-        watchdog = Watchdog(roster, self.trip, period_s=self.watchdog_period_s,
+        # at least one round per heartbeat probe interval: a heartbeat counts the time between its checks
+        # up to that interval (drivers/heartbeat.py), so rounds as frequent keep its count = wall time
+        period_s = min(self.watchdog_period_s, self.config.station.heartbeat_timeout_s / 4.0)
+        watchdog = Watchdog(roster, self.trip, period_s=period_s,
                             extra_checks=station.check_interlocks)
         ctx = Context(station=station, config=self.config, clock=clock, record=record, params=params,
                       log=logging.getLogger(f"procedures.{self.module.NAME}"),
@@ -426,8 +430,13 @@ class Runner:
             exit_code, status, outcome = EXIT_FAULT, "fail", "fault"
             reason = f"{reason}; then making a device safe failed: " + "; ".join(
                 f"{f['device']}: {f['error']}" for f in failures)
+        heartbeats = heartbeat_states(roster, safe, self._control.interlock)
+        for name, state in heartbeats.items():
+            if state == "recovered":
+                record.log("warning", f"{name} answers again after it was lost (the interlock stands)")
         stop_fields = {"outcome": outcome, "exit_code": exit_code, "safe_state_failures": failures,
                        "safe_state": read_back(roster, safe),  # what the devices now report
+                       "heartbeats": heartbeats,
                        "verdict": _verdict_word(passed, certificate),
                        **self._signal_field()}
         try:

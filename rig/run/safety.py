@@ -142,6 +142,34 @@ def format_exception(exc: BaseException) -> str:
     return "".join(traceback.format_exception(type(exc), exc, exc.__traceback__))
 
 
+LOST_HEARTBEAT = "lost heartbeat"  # how an interlock on a device that stopped answering begins
+
+
+def heartbeat_states(roster: Sequence[Assignment], results: Sequence[SafeStateResult],
+                     interlock: tuple[str, str] | None) -> dict[str, str]:
+    """The stop document's ``heartbeats``: after the safe stop, each device probed once more
+    (``heartbeat(wait=True)``): ``answering``; ``recovered`` — answering again after the interlock found
+    it lost (a transient loss: the interlock and its exit code stand, the state says the device is back);
+    ``lost: why``; ``not probed`` when its safe state failed (that failure is recorded). Never raises."""
+    failed = {r.device for r in results if r.error}
+    lost_before = interlock[0] if interlock is not None and interlock[1].startswith(LOST_HEARTBEAT) else None
+    states: dict[str, str] = {}
+    for entry in roster:
+        if entry.name in failed:
+            states[entry.name] = "not probed (its safe state failed)"
+            continue
+        try:
+            answering = entry.device.heartbeat(wait=True) is not False
+        except Exception as exc:
+            states[entry.name] = f"lost: {type(exc).__name__}: {exc}"
+            continue
+        if not answering:
+            states[entry.name] = "lost: device reports the link is down"
+        else:
+            states[entry.name] = "recovered" if entry.name == lost_before else "answering"
+    return states
+
+
 def check_heartbeats(roster: Sequence[Assignment], *, wait: bool = False) -> tuple[str, str] | None:
     """Call every device's ``heartbeat()``; the first (device, reason) lost, or None. The drivers' own
     heartbeats do no I/O in the caller (``drivers/heartbeat.py``), so checkpoints may call this too;
@@ -150,9 +178,9 @@ def check_heartbeats(roster: Sequence[Assignment], *, wait: bool = False) -> tup
         try:
             ok = entry.device.heartbeat(wait=True) if wait else entry.device.heartbeat()
         except Exception as exc:
-            return entry.name, f"lost heartbeat: {type(exc).__name__}: {exc}"
+            return entry.name, f"{LOST_HEARTBEAT}: {type(exc).__name__}: {exc}"
         if ok is False:
-            return entry.name, "lost heartbeat: device reports the link is down"
+            return entry.name, f"{LOST_HEARTBEAT}: device reports the link is down"
     return None
 
 
