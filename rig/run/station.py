@@ -39,7 +39,7 @@ import numpy as np
 
 from drivers.clock import Clock
 from drivers.roles import Assignment, Camera, Device, Role
-from rig.config.address import parse_address
+from rig.config.address import endpoint, parse_address
 from rig.config.devices import VfdConfig
 from rig.config.limits import VibrationLimits
 from rig.config.rig_config import RigConfig
@@ -48,6 +48,7 @@ from rig.config.schema import ConfigError, to_dict
 if TYPE_CHECKING:
     from drivers.exciter.axis import VfdAxis
     from drivers.exciter.vfd import VfdDriver
+    from drivers.modbus_link import ModbusLink
     from drivers.sim.bodies import OscillatorBody
     from drivers.sim.stereo_rig import CameraSpec
     from drivers.sim.world import World, WorldLayout
@@ -77,6 +78,8 @@ class Station:
     addresses: dict[str, str] = field(default_factory=dict)  # device → address actually connected
     unreachable: dict[str, str] = field(default_factory=dict)  # device → why (``keep_going`` only)
     _closers: list[tuple[str, Callable[[], None]]] = field(default_factory=list, repr=False)
+    # one Modbus master per serial port / TCP endpoint: drives on one RS-485 line share it
+    _modbus_links: dict[tuple[str, ...], ModbusLink] = field(default_factory=dict, repr=False)
     _liveness: list[tuple[str, Callable[[], str | None]]] = field(default_factory=list, repr=False)
 
     @property
@@ -259,8 +262,6 @@ def _build_vfd(st: Station, cfg: RigConfig, name: str, *, dc: VfdConfig | None, 
     from drivers.exciter.exciter import Exciter
     from drivers.exciter.rotor import Rotor
     from drivers.exciter.vfd import VfdDriver
-    from drivers.modbus_link import ModbusLink
-    from drivers.transport import TransportError
 
     assert dc is not None and lim is not None, "the configuration check pairs devices and limits"
     regs = dc.resolved_register_map()
@@ -278,11 +279,7 @@ def _build_vfd(st: Station, cfg: RigConfig, name: str, *, dc: VfdConfig | None, 
         st._closers.append((f"{name} mock server", server.stop))
         url = server.url if addr["link"] == "tcp" else f"serial://{server.client_port}?baud=115200"
         st._liveness.append((name, lambda: None if server.serving else "mock server died"))
-    try:
-        client = ModbusLink(url, timeout_s=dc.timeout_s, retries=1)
-    except (TransportError, ValueError) as exc:
-        raise StationError(f"{name}: cannot connect to the drive at {url}: {exc}") from exc
-    st._closers.append((f"{name} Modbus client", client.close))
+    client = _modbus_link(st, name, url, dc.timeout_s)
     vfd = VfdDriver(client, regs, max_output_hz=dc.max_output_hz)
     if not mock:
         _arm_comm_timeout(st, name, vfd, dc.comm_timeout_s)
@@ -307,6 +304,34 @@ def _build_vfd(st: Station, cfg: RigConfig, name: str, *, dc: VfdConfig | None, 
         return None
 
     st._liveness.append((name, setpoint_within_limits))
+
+
+def _modbus_link(st: Station, name: str, url: str, timeout_s: float) -> ModbusLink:
+    """The Modbus master of ``url``: the one already open when another drive uses the same serial port or
+    TCP endpoint (an RS-485 line with the exciter and the rotor as units 1 and 2; the configuration refuses
+    one unit twice), else a new one. One owner of the port: its lock serialises every request of the
+    drives on it (their heartbeats share it too, ``VfdDriver.contact``); it is closed once, after every
+    drive on it was stopped (closers run in reverse order and it was registered by its first drive)."""
+    from drivers.modbus_link import ModbusLink
+    from drivers.transport import TransportError
+
+    key = endpoint(url)
+    shared = st._modbus_links.get(key) if key is not None else None
+    if shared is not None:
+        if shared.timeout_s != timeout_s:
+            log.warning("%s shares %s with a drive configured with timeout_s = %g s: the line keeps that "
+                        "time-out (devices.%s.timeout_s = %g s is not used)", name, url, shared.timeout_s,
+                        name, timeout_s)
+        log.info("%s: unit on the Modbus line %s already open (one master per port)", name, url)
+        return shared
+    try:
+        link = ModbusLink(url, timeout_s=timeout_s, retries=1)
+    except (TransportError, ValueError) as exc:
+        raise StationError(f"{name}: cannot connect to the drive at {url}: {exc}") from exc
+    if key is not None:
+        st._modbus_links[key] = link
+    st._closers.append((f"Modbus line {url}", link.close))
+    return link
 
 
 def _arm_comm_timeout(st: Station, name: str, vfd: VfdDriver, timeout_s: float) -> None:
