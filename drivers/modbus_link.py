@@ -274,6 +274,9 @@ class ModbusLink:
                     self.stale_replies += isinstance(exc, _OutOfStep)
                     self._drop()  # fresh link for the next attempt
                 log.warning("%s: unit %d: attempt %d not acknowledged: %s", self.url, unit, attempts, last)
+                if self._closed:  # closed by its owner: no fresh link will be opened (was a busy loop)
+                    raise ModbusLinkError(f"not acknowledged: the link was closed after {attempts} "
+                                          f"attempt(s): {type(last).__name__.lstrip('_')}: {last}", attempts)
                 if self.clock.monotonic() >= end:
                     raise ModbusLinkError(
                         f"not acknowledged after {attempts} attempt(s) within {deadline_s:g} s on fresh "

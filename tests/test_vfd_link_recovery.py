@@ -126,3 +126,15 @@ def test_after_a_failure_the_stop_survives_a_cable_pulled_for_a_moment() -> None
             rig.exciter.read_sample()
         assert info.value.stop_ok, str(info.value)
         assert not rig.drive.running
+
+
+@pytest.mark.parametrize("mode", MODES)
+def test_stop_on_a_link_its_owner_closed_fails_at_once_without_spinning(mode: str) -> None:
+    """A closed link opens no fresh one: the stop reports it after one attempt (it used to retry in a
+    busy loop until its deadline on the injected clock — thousands of attempts on an instant clock)."""
+    with vfd_rig(mode, timeout_s=TIMEOUT_S, stop_deadline_s=5.0) as rig:
+        rig.exciter.set_frequency(5.0)
+        rig.client.close()
+        with pytest.raises(VfdCommunicationError, match=r"the link was closed after 1 attempt\(s\)"):
+            rig.vfd.stop()
+        assert rig.vfd.stop_attempts == 1
