@@ -18,6 +18,8 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 WAIT_S = 300.0  # generous bound on a loaded machine; each wait ends as soon as the phase is reached
+# the test's own bound: the phase, then the safe stop (WAIT_S each), above the suite's 300 s default
+TEST_TIMEOUT_S = 2 * WAIT_S + 60.0
 PHASES = {"acquisition": '"name":"sync","status":"begin"', "sweep": '"stream":"sweep"',
           "report": '"name":"report","status":"begin"'}
 
@@ -43,6 +45,7 @@ def _run_until(tmp_path: Path, needle: str) -> tuple[subprocess.Popen[str], Path
 
 
 @pytest.mark.slow
+@pytest.mark.timeout(TEST_TIMEOUT_S)
 @pytest.mark.parametrize(("phase", "signals"), [
     ("acquisition", [signal.SIGTERM]),
     ("sweep", [signal.SIGHUP]),
