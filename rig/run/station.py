@@ -428,6 +428,25 @@ def _builders(st: Station, cfg: RigConfig) -> list[tuple[str, str, Callable[[], 
     return out
 
 
+def _warn_if_cameras_film_another_world(config: RigConfig) -> None:
+    """Simulated cameras render the station's own twin, which only its ``mock://`` devices move: a device
+    on a stand-alone mock (``rig mock …``, its own twin in its own process) or on real hardware moves
+    nothing the cameras film — a procedure that films it (calibrate, sync, sweep, …) cannot pass (the
+    calibration finds no plate markers: the plate never reached its pose in the filmed world)."""
+    if not config.station.simulated or not any(c.driver == "sim" for c in config.cameras.values()):
+        return
+    dev = config.devices
+    elsewhere = [f"devices.{name}.address = {d.address!r}" for name, d in
+                 (("robot", dev.robot), ("exciter", dev.exciter), ("rotor", dev.rotor),
+                  ("generator", dev.generator))
+                 if d is not None and parse_address(d.address, f"devices.{name}.address")["scheme"] != "mock"]
+    if elsewhere:
+        log.warning("the simulated cameras film the station's own twin, which %s does not move (a "
+                    "stand-alone mock has its own twin): procedures that film the rig (calibrate, sync, "
+                    "sweep, ...) cannot pass; use mock:// addresses for a filmed simulation",
+                    ", ".join(elsewhere))
+
+
 @contextlib.contextmanager
 def open_station(config: RigConfig, clock: Clock, *, keep_going: bool = False) -> Iterator[Station]:
     """Build every configured device (starting mock servers on a simulated station); always tear down.
@@ -458,6 +477,7 @@ def open_station(config: RigConfig, clock: Clock, *, keep_going: bool = False) -
                 if not keep_going:
                     raise
                 station.unreachable[name] = str(exc)
+        _warn_if_cameras_film_another_world(config)
         try:
             _build_cameras(station, config)
         except StationError as exc:
