@@ -57,7 +57,7 @@ def test_exciter_and_rotor_on_one_port_share_one_serialised_link(one_line: VfdSe
             try:
                 for _ in range(ROUNDS):
                     setpoints[name].add(round(axis.read_sample().setpoint_hz, 6))
-            except BaseException as exc:  # noqa: BLE001 — reported by the assertion below
+            except BaseException as exc:  # reported by the assertion below
                 errors.append(exc)
 
         threads = [threading.Thread(target=poll, args=(n,)) for n in ("exciter", "rotor")]
