@@ -14,7 +14,12 @@ Two parts, so the watchdog never disturbs the protocol:
   free** (never beside a call in flight: a b-CAP request during a blocking Move would get E_BUSY_PROC).
   ``check()`` itself does no I/O and returns at once, so one dead device never delays the checks of the
   others. A device that goes silent is reported at most ``interval_s`` + ``timeout_s`` + one watchdog
-  period after its last reply (at once when its link closes).
+  period after its last reply (at once when its link closes), with the watchdog checking at least once
+  per ``interval_s``: the wait is counted on the checks' own cadence, a gap between two checks counting
+  up to ``interval_s`` only — when this process did not run (a starved host; on the twin, the
+  in-process mocks starve with it) a reply may be sitting unread, so that time is no evidence against
+  the device. The hard bound after the controller stalls or dies is the devices' own communication-loss
+  stop, not this. A latched link failure is cleared by the next reply (over a fresh link).
 
 A call in flight whose protocol sends no keep-alives (b-CAP without WDT) is bounded by the link's own
 receive timeout instead: ``ContactRecord.silent_calls`` is then True and the wait is not checked while
