@@ -102,7 +102,7 @@ def test_vfd_probe_reports_a_drive_fault() -> None:
         rotor.set_rotation_hz(1.0)
         servers["rotor"].drive.trip(0x05)  # overload
         with BeatWatcher(rotor) as watcher:
-            err = watcher.wait_for_error(6 * LIMIT)
+            err = watcher.wait_for_error(60.0)  # returns as soon as it is reported
         assert isinstance(err, HeartbeatError) and not isinstance(err, DeviceLostError)
         assert str(err) == "rotor: drive reports fault code 5 (oL: drive overload)"
 
@@ -117,7 +117,7 @@ def test_generator_keeps_beating_through_a_sweep_and_is_lost_when_disconnected()
             assert shaker.heartbeat_monitor.probe_errors == []
             assert watcher.error is None
             servers["generator"].inject("disconnect")
-            err = watcher.wait_for_error(6 * LIMIT)
+            err = watcher.wait_for_error(60.0)  # returns as soon as it is reported
         assert isinstance(err, DeviceLostError) and err.device == "generator"
         assert "link failed (SCPI link closed" in str(err)
 
@@ -127,7 +127,7 @@ def test_generator_that_stops_answering_is_lost_after_the_limit() -> None:
         shaker = st.devices["generator"]
         servers["generator"].inject("no_reply")
         with BeatWatcher(shaker) as watcher:
-            err = watcher.wait_for_error(6 * LIMIT)
+            err = watcher.wait_for_error(60.0)  # returns as soon as it is reported
         assert isinstance(err, DeviceLostError) and err.device == "generator" and err.age_s > LIMIT
         assert "LinkError: *OPC? (heartbeat): no reply" in str(err)
 
