@@ -116,7 +116,9 @@ def test_interlock_during_a_blocking_move_halts_the_arm_on_a_fresh_link(tmp_path
     def body(ctx: Any, servers: dict[str, Any]) -> None:
         ctx.device("robot").wait = WaitSettings(wait_mode="blocking")  # fallback for controllers without NEXT
         threading.Timer(0.3, servers["exciter"].inject, args=("no_reply",), kwargs={"count": None}).start()
-        ctx.device("robot").move_to(MOVE_TARGET, speed_mm_s=7.0)  # 10 s virtual = 5 s wall
+        # 70 s virtual = 35 s wall: the halt must come before the arm arrives, and the loss is seen ~1.5 s
+        # after the fault on an idle machine (a loaded one took > 5 s: the arm arrived at 7 mm/s)
+        ctx.device("robot").move_to(MOVE_TARGET, speed_mm_s=1.0)
 
     out, run, seen = _run(tmp_path, body)
     assert out.exit_code == 3 and run.interlocks["device"].tolist() == ["exciter"], out.reason
