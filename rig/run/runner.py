@@ -21,8 +21,10 @@
 5. **always**, whatever happened: put every device in its safe state in the order of its role
    (:data:`drivers.roles.SHUTDOWN_ORDER`: generator, exciter and rotor, then the arm, then the cameras;
    each attempted; each failure recorded), read back what the devices then report
-   (:mod:`rig.run.readback`), and write **stop** (``exit_status`` success / abort / fail, ``reason``,
-   ``outcome``, ``exit_code``, ``verdict``, ``safe_state``, ``signal`` when a signal ended the run) and
+   (:mod:`rig.run.readback`) and whether each still answers (``heartbeats``: answering / recovered /
+   lost, :func:`rig.run.safety.heartbeat_states`), and write **stop** (``exit_status`` success / abort /
+   fail, ``reason``, ``outcome``, ``exit_code``, ``verdict``, ``safe_state``, ``heartbeats``, ``signal``
+   when a signal ended the run) and
    close the record and station. An I/O error closing the record after the stop turns a pass or a fail
    into the fault exit 3 (an abort or a fault stands).
 
@@ -30,7 +32,8 @@ Heartbeats and the station's interlock checks run at every checkpoint and in the
 interlock trip (watchdog, checkpoint, or a driver refusing a command beyond a limit) writes an ``interlock``
 document, interrupts the procedure at once (SIGUSR1 → :class:`InterlockTripped` in the main thread when
 the runner runs there; else at the next checkpoint) and ends the run with exit code 3. Motion is never
-resumed after a trip. Logs go to ``<run_dir>/rig.log``.
+resumed after a trip. Logs go to ``<run_dir>/rig.log``; the console gets each error once (the CLI's exit
+line): an interlock, a fault's traceback and a failed close of the record go to ``rig.log`` only.
 """
 
 from __future__ import annotations
