@@ -45,6 +45,7 @@ log = logging.getLogger(__name__)
 
 MAX_ERROR_READS = 32  # a 20-deep queue plus margin: more means the instrument never says "No error"
 MAX_RESYNC_LINES = 64  # stale lines skipped while waiting for the resynchronisation token
+SAFE_OFF_PAUSE_S = 0.05  # between make-safe rounds on fresh links (wall seconds)
 
 
 class GeneratorError(RuntimeError):
@@ -440,6 +441,9 @@ class ScpiGenerator:
                 outcome = SafeOffOutcome(False, attempts, reconnects, tuple(errors))
                 log.error("generator: make safe failed: %s", outcome.describe())
                 return outcome
+            # a pause between rounds: an instrument that takes each connection and drops it at once
+            # was otherwise reconnected thousands of times a second (10341 times in a 3 s deadline)
+            time.sleep(min(SAFE_OFF_PAUSE_S, remaining))
             try:
                 if self.reopen is None:
                     self.resynchronise()
