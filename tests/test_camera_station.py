@@ -21,7 +21,7 @@ def _bench_config(folder: Path, left: str, right: str) -> Path:
     out, skip = [], False
     for line in BUILTIN.read_text().splitlines():
         if line.startswith("["):
-            skip = line.startswith(("[devices.", "[sim"))
+            skip = line.startswith(("[devices.", "[sim", "[fiducial"))  # no generator: no LED
         if not skip:
             out.append(line)
     text = "\n".join(out).replace("[station]", "[devices]\n\n[station]")

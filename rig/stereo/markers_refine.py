@@ -84,7 +84,7 @@ def measure_windows(image: Images, rows: np.ndarray, cols: np.ndarray, half_px: 
     n = len(rows)
     if n == 0:
         return Measured.empty()
-    from rig.stereo import markers_kernel as kernel  # numba: loaded by the first measurement, not at import
+    import rig.stereo.markers_kernel as kernel  # numba: loaded by the first measurement, not at import
 
     w = 2 * half_px + 1
     out = np.empty((kernel.N_OUT, n))
