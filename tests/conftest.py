@@ -3,13 +3,24 @@
 Hypothesis runs derandomized under CI (``CI`` set in the environment), so a CI result can be reproduced
 exactly; a developer's run explores new examples each time and keeps failures in ``.hypothesis/``.
 ``RIG_TEST_LOAD=1`` (``make test-load``) runs the suite under CPU load: a busy loop on every core.
+
+Under pytest-xdist (``make test``: ``-n auto --dist loadfile``) each test file runs whole on one worker, the
+files holding slow-marked cases first (so the longest files do not start last), and the twin's calibrated
+sites that several files read are built once per session for all workers (``built_once``).
 """
 
 from __future__ import annotations
 
+import fcntl
 import os
+import pickle
+import shutil
 import subprocess
 import sys
+from collections import Counter
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
 
 import pytest
 from hypothesis import HealthCheck, settings
@@ -35,7 +46,14 @@ def _load_processes() -> int:
     return (os.cpu_count() or 1) if value == "1" else max(0, int(value))
 
 
+def _is_xdist_worker(config: pytest.Config) -> bool:
+    """True in a pytest-xdist worker: the load loops belong to the controlling process only."""
+    return hasattr(config, "workerinput")
+
+
 def pytest_sessionstart(session: pytest.Session) -> None:
+    if _is_xdist_worker(session.config):
+        return
     for _ in range(_load_processes()):
         _busy.append(subprocess.Popen([sys.executable, "-c", "while True: pass"],
                                       stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL))
@@ -49,5 +67,51 @@ def pytest_sessionfinish(session: pytest.Session, exitstatus: int) -> None:
 
 
 def pytest_report_header(config: pytest.Config) -> str | None:
-    n = _load_processes()
+    n = 0 if _is_xdist_worker(config) else _load_processes()
     return f"CPU load: {n} busy loop(s) (RIG_TEST_LOAD)" if n else None
+
+
+# ----------------------------------------------------------------------------- order (xdist: longest first)
+def pytest_collection_modifyitems(session: pytest.Session, config: pytest.Config,
+                                  items: list[pytest.Item]) -> None:
+    """Files with more slow-marked cases first, otherwise in collection order; a file's tests stay together
+    in their own order (module fixtures are built once). With ``--dist loadfile`` the workers take files in
+    this order, so the long end-to-end files start early instead of leaving one worker busy at the end."""
+    slow = Counter(item.nodeid.split("::", 1)[0] for item in items if item.get_closest_marker("slow"))
+    first_seen = {f: k for k, f in reversed(list(enumerate(item.nodeid.split("::", 1)[0] for item in items)))}
+    items.sort(key=lambda item: (-slow[f := item.nodeid.split("::", 1)[0]], first_seen[f]))
+
+
+# ----------------------------------------------------------------------------- artefacts shared by files
+def built_once(tmp_path_factory: pytest.TempPathFactory, name: str, build: Callable[[Path], Any]) -> Any:
+    """``build(folder)``'s value, built once per test session in ``folder`` and shared by every xdist worker
+    (the workers' temporary folders share a parent; a file lock makes the others wait for the first).
+    The value must pickle; tests read the folder and write their own outputs under their ``tmp_path``."""
+    base = tmp_path_factory.getbasetemp()
+    root = base.parent if os.environ.get("PYTEST_XDIST_WORKER") else base
+    folder, done = root / f"shared-{name}", root / f"shared-{name}.pickle"
+    with open(root / f"shared-{name}.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)  # released when the file closes
+        if done.is_file():
+            return pickle.loads(done.read_bytes())
+        shutil.rmtree(folder, ignore_errors=True)  # a build that failed in another worker
+        folder.mkdir()
+        value = build(folder)
+        done.write_bytes(pickle.dumps(value))
+        return value
+
+
+@pytest.fixture(scope="session")
+def calibrated_site(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
+    """``tests/measure_twin.calibrated_site`` (mp4v plate videos through ``rig calibrate``), read-only."""
+    import measure_twin as mt
+
+    return built_once(tmp_path_factory, "calibrated_site", mt.calibrated_site)
+
+
+@pytest.fixture(scope="session")
+def mjpg_site(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
+    """``tests/measure_twin.mjpg_site`` (Motion-JPEG plate and measurement videos, calibrated), read-only."""
+    import measure_twin as mt
+
+    return built_once(tmp_path_factory, "mjpg_site", mt.mjpg_site)

@@ -59,8 +59,8 @@ def _hide_one_marker(src: Path, dst: Path) -> Path:
 
 
 @pytest.fixture(scope="module")
-def site(tmp_path_factory: pytest.TempPathFactory) -> dict:
-    return mt.mjpg_site(tmp_path_factory.mktemp("bad_inputs"))
+def site(mjpg_site: dict) -> dict:
+    return mjpg_site  # built once per session (tests/conftest.py)
 
 
 def _calibrate(site: dict, left: Path, right: Path, out: Path, *more: str) -> int:

@@ -14,7 +14,6 @@ import sys
 import textwrap
 from pathlib import Path
 
-import measure_twin as mt
 import pytest
 from fs_faults import fill, half_written, remount_read_only, tmpfs, tree
 
@@ -95,8 +94,8 @@ def test_atomic_write_on_a_full_disk_leaves_the_old_file_whole(tmp_path: Path) -
 
 # ---------------------------------------------------------------------------------- videos
 @pytest.fixture(scope="module")
-def site(tmp_path_factory: pytest.TempPathFactory) -> dict:
-    return mt.mjpg_site(tmp_path_factory.mktemp("io_site"))
+def site(mjpg_site: dict) -> dict:
+    return mjpg_site  # built once per session (tests/conftest.py)
 
 
 def _calibrate(site: dict, out: Path) -> int:

@@ -30,8 +30,8 @@ SYNC_BIAS = 0.005  # the trajectory method's relative amplitude bias up to 26 Hz
 
 
 @pytest.fixture(scope="module")
-def site(tmp_path_factory: pytest.TempPathFactory) -> dict:
-    return mt.calibrated_site(tmp_path_factory.mktemp("site"))
+def site(calibrated_site: dict) -> dict:
+    return calibrated_site  # built once per session (tests/conftest.py)
 
 
 def _measure(site: dict, folder: Path, world: World, *, duration_s: float = 2.5, right_start_s: float = 0.15,

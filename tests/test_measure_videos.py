@@ -30,8 +30,8 @@ WINDOW = (0.6, 2.4)  # s on the left video's clock: the exciter runs from 0.4 s
 
 
 @pytest.fixture(scope="module")
-def site(tmp_path_factory: pytest.TempPathFactory) -> dict:
-    return mt.calibrated_site(tmp_path_factory.mktemp("site"))
+def site(calibrated_site: dict) -> dict:
+    return calibrated_site  # built once per session (tests/conftest.py)
 
 
 def _exciter_record(folder: Path) -> Path:
