@@ -81,9 +81,16 @@ def edge_width_px(image: np.ndarray, u_px: float, v_px: float, radius_px: float)
     return contrast / steepest if steepest > 0 else math.nan
 
 
-def view_of(name: str, image: np.ndarray) -> CameraView:
-    """Find the markers of one frame and measure what the hints need."""
+def view_of(name: str, image: np.ndarray,
+            led_region_px: tuple[int, int, int, int] | None = None) -> CameraView:
+    """Find the markers of one frame and measure what the hints need. Blobs centred in ``led_region_px``
+    (x0, y0, x1, y1: the timing fiducial's LED, ``fiducial.regions_px``) are the LED, not markers: it blinks
+    with the generator's sync output, so each camera may catch it lit or dark."""
     found = detect_markers(image)
+    if led_region_px is not None:
+        x0, y0, x1, y1 = led_region_px
+        u, v = found["u_px"], found["v_px"]
+        found = found[~((u >= x0) & (u < x1) & (v >= y0) & (v < y1))]
     diameter = 2.0 * np.sqrt(np.maximum(found["area_px"], 0.0) / math.pi)
     edges = [edge_width_px(image, u, v, d / 2) for u, v, d in zip(found["u_px"], found["v_px"], diameter,
                                                                    strict=True)]
@@ -188,11 +195,12 @@ def run_preview(config: Any, *, calibration: str | Path | None = None, host: str
                   flush=True)
             cams = dict(sorted(station.cameras.items()))
             grab_s = 3.0 / min(c.fps for c in config.cameras.values())
+            led_regions = dict(config.fiducial.regions_px) if config.fiducial is not None else {}
             updates = 0
             while not stop.is_set() and (max_updates is None or updates < max_updates):
                 started = time.monotonic()
                 images = _grab(cams, clock, grab_s)
-                views = [view_of(name, image) for name, image in images.items()]
+                views = [view_of(name, image, led_regions.get(name)) for name, image in images.items()]
                 for name, image in images.items():
                     view = next(v for v in views if v.name == name)
                     FRAMES.offer(name, updates, image, view.uv_px, np.arange(len(view.uv_px)))

@@ -120,3 +120,12 @@ def test_rig_preview_command_prints_its_url_and_hints(tmp_path: Path) -> None:
     assert done.returncode == 0, done.stderr
     assert "rig preview: live view at http://127.0.0.1:" in done.stderr
     assert "epipolar check: median distance" in done.stdout, done.stdout
+
+
+def test_a_blob_in_the_fiducials_region_is_the_led_not_a_marker() -> None:
+    image = np.full((200, 300), 30, np.uint8)
+    cv2.circle(image, (60, 100), 9, 230, -1)  # a marker
+    cv2.circle(image, (220, 100), 9, 230, -1)  # the LED, lit in this frame
+    assert len(view_of("left", image).uv_px) == 2
+    kept = view_of("left", image, (200, 80, 240, 120)).uv_px
+    assert len(kept) == 1 and abs(kept[0, 0] - 60) < 1
