@@ -52,6 +52,6 @@ def test_vfd_mock_runs_standalone_on_tcp() -> None:
 def test_generator_mock_runs_standalone_on_a_pty() -> None:
     with standalone("drivers.mock.generator_server", "--pty") as line:
         device = re.search(r"(/dev/\S+)", line).group(1)  # type: ignore[union-attr]
-        with open_transport(device, timeout_s=2.0) as transport:
+        with open_transport(device, timeout_s=30.0) as transport:  # a bound: a starved mock answers late
             transport.write(b"*IDN?\n")
             assert transport.read_until(b"\n").startswith(b"Keysight Technologies,33521B,")
