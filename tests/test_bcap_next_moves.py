@@ -240,3 +240,17 @@ def test_rc7m_client_waits_blocking_by_default_and_rc8_polls() -> None:
         assert DensoArm(BcapClient(transport), **options).wait.wait_mode == "next"
         custom = WaitSettings(poll_interval_s=0.2)
         assert DensoArm(BcapClient(transport, rc7m=True), wait=custom, **options).wait is custom
+
+
+@pytest.mark.parametrize("max_accel_mm_s2", [None, 2000.0])
+def test_the_acceleration_cap_is_commanded_by_extspeed(max_accel_mm_s2: float | None) -> None:
+    """limits.robot.max_accel_mm_s2 reaches the controller as ExtSpeed's accel/decel percent of its 100 %
+    (2000 of 5000 mm/s² → 40 %); without a cap the controller's own 100 % stands (ExtSpeed accel −2)."""
+    world = World(VirtualClock())
+    with _rig(world, max_accel_mm_s2=max_accel_mm_s2, full_accel_mm_s2=FULL_ACCEL_MM_S2) as (server, arm):
+        home = world.robot.pose_at(world.clock.now_s())
+        arm.move_to([home[0] + 60.0, *home[1:]], 200.0)
+        expected = FULL_ACCEL_MM_S2 if max_accel_mm_s2 is None else max_accel_mm_s2
+        assert server.state.ext_accel_percent == pytest.approx(100.0 * expected / FULL_ACCEL_MM_S2)
+        assert server.state.moves[-1]["accel_mm_s2"] == pytest.approx(expected)
+

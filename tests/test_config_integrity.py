@@ -98,3 +98,13 @@ def test_configured_poses_outside_the_envelope_are_refused(field: str, pose: str
     with pytest.raises(ConfigError) as info:
         parse_config(text)
     assert expected in str(info.value)
+
+
+def test_an_acceleration_limit_beyond_the_controllers_full_is_refused() -> None:
+    text, n = re.subn(r"^max_accel_mm_s2 = .*$", "max_accel_mm_s2 = 6000.0", SIM_TOML, flags=re.M)
+    assert n == 1
+    with pytest.raises(ConfigError) as info:
+        parse_config(text)
+    assert str(info.value).startswith("limits.robot.max_accel_mm_s2: 6000 exceeds "
+                                      "devices.robot.full_accel_mm_s2 = 5000")
+    assert parse_config(text.replace("[devices.robot]", "[devices.robot]\nfull_accel_mm_s2 = 8000.0"))

@@ -201,6 +201,9 @@ class DensoArm(Arm):
         position_tolerance_mm: allowed distance between target and reported position after a move.
         orientation_tolerance_deg: allowed rotation between target and reported orientation.
         full_speed_mm_s: the controller's 100 % speed (SPEED percent = speed_mm_s / full_speed_mm_s).
+        max_accel_mm_s2: acceleration and deceleration cap, commanded once at :meth:`open` as ExtSpeed's
+            accel/decel percent of ``full_accel_mm_s2`` (None: the controller's own 100 %).
+        full_accel_mm_s2: the controller's 100 % acceleration (mm/s²).
         clock: the rig clock (times of each move).
         linear: linear (MOVE L) moves by default, else PTP (MOVE P).
         heartbeat_timeout_s: :meth:`heartbeat` reports the controller lost after this many wall seconds
@@ -216,7 +219,8 @@ class DensoArm(Arm):
                  position_tolerance_mm: float, clock: Clock, orientation_tolerance_deg: float = 0.1,
                  full_speed_mm_s: float = 1000.0, linear: bool = True,
                  heartbeat_timeout_s: float = 2.0, wait: WaitSettings | None = None,
-                 make_safe_deadline_s: float = 15.0) -> None:
+                 make_safe_deadline_s: float = 15.0, max_accel_mm_s2: float | None = None,
+                 full_accel_mm_s2: float = 5000.0) -> None:
         if not (0 < max_speed_mm_s <= full_speed_mm_s and math.isfinite(max_speed_mm_s)):
             raise ValueError(f"max_speed_mm_s={max_speed_mm_s}: must be in (0, full_speed_mm_s="
                              f"{full_speed_mm_s}]")
@@ -230,6 +234,12 @@ class DensoArm(Arm):
         self.position_tolerance_mm = float(position_tolerance_mm)
         self.orientation_tolerance_deg = float(orientation_tolerance_deg)
         self.full_speed_mm_s = float(full_speed_mm_s)
+        if max_accel_mm_s2 is not None and not (0 < max_accel_mm_s2 <= full_accel_mm_s2
+                                                and math.isfinite(max_accel_mm_s2)):
+            raise ValueError(f"max_accel_mm_s2={max_accel_mm_s2}: must be in (0, full_accel_mm_s2="
+                             f"{full_accel_mm_s2}]")
+        # ExtSpeed's accel/decel percent (-2: the controller's speed²/100, i.e. 100 % at ExtSpeed 100)
+        self.accel_percent = -2.0 if max_accel_mm_s2 is None else 100.0 * max_accel_mm_s2 / full_accel_mm_s2
         self.clock = clock
         self.linear = linear
         self.last_move: MoveResult | None = None
@@ -248,11 +258,11 @@ class DensoArm(Arm):
 
     # ------------------------------------------------------------------------------------ session
     def open(self, *, wdt_ms: int | None = 400) -> None:
-        """Service_Start … TakeArm, Motor on, ExtSpeed 100 %."""
+        """Service_Start … TakeArm, Motor on, ExtSpeed 100 % with the acceleration cap."""
         if wdt_ms is not None and wdt_ms / 1000.0 >= self.heartbeat_monitor.timeout_s:
             raise ValueError(f"wdt_ms={wdt_ms}: the keep-alive period must be shorter than the heartbeat "
                              f"timeout {self.heartbeat_monitor.timeout_s:g} s")
-        self.client.open_robot(wdt_ms=wdt_ms, ext_speed_percent=100.0)
+        self.client.open_robot(wdt_ms=wdt_ms, ext_speed_percent=100.0, ext_accel_percent=self.accel_percent)
         self._pose_known = np.asarray(self.client.cur_pos()[:6], dtype=float)  # the first move starts here
 
     def close(self) -> None:

@@ -297,8 +297,9 @@ class BcapClient:
     # sessions ---------------------------------------------------------------------------------------
     def open_robot(self, *, robot_name: str = "Arm", wdt_ms: int | None = 400,
                    invoke_timeout_ms: int | None = 180_000, ext_speed_percent: float | None = None,
-                   clear_errors: bool = True) -> None:
-        """The RC8 start sequence up to motor on (ClearError first if errors are pending)."""
+                   ext_accel_percent: float = -2, clear_errors: bool = True) -> None:
+        """The RC8 start sequence up to motor on (ClearError first if errors are pending), then ExtSpeed
+        ``ext_speed_percent`` with acceleration and deceleration ``ext_accel_percent`` (-2: speed²/100)."""
         self.service_start(wdt_ms=wdt_ms, invoke_timeout_ms=invoke_timeout_ms)
         self.controller_connect()
         if clear_errors and not self.rc7m and self.error_count() > 0:
@@ -307,7 +308,7 @@ class BcapClient:
         self.take_arm()
         self.motor(True)
         if ext_speed_percent is not None:
-            self.ext_speed(ext_speed_percent)
+            self.ext_speed(ext_speed_percent, ext_accel_percent, ext_accel_percent)
 
     def close(self) -> None:
         """Release everything in reverse order; every step is attempted even if an earlier one fails.

@@ -59,6 +59,7 @@ class AcceptedMove(TypedDict):
     t_end_s: float
     pose: list[float]  # x, y, z mm; rx, ry, rz deg
     speed_mm_s: float
+    accel_mm_s2: float  # acceleration and deceleration: 100 % × ACCEL % × ExtSpeed accel %
     linear: bool
 
 
@@ -359,7 +360,7 @@ class ControllerState:
         if fig is not None and fig >= 0:
             self.fig = fig
         self.moves.append({"t_start_s": now, "t_end_s": t_end, "pose": pose, "speed_mm_s": speed,
-                           "linear": comp == 2})
+                           "accel_mm_s2": accel, "linear": comp == 2})
         return Outcome(w.S_OK, [], None if option.get("NEXT") else t_end)
 
     def _f74(self, args: list[w.Value]) -> Outcome:  # Robot_Speed

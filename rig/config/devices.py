@@ -18,6 +18,9 @@ class RobotConfig:
     timeout_s: float = field(default=3.0, metadata=spec(lo=0.05, hi=120.0))
     home_pose: tuple[float, ...] | None = field(default=None, metadata=spec(length=6))
     full_speed_mm_s: float = field(default=1000.0, metadata=spec(lo=1.0, hi=10000.0))
+    full_accel_mm_s2: float = field(default=5000.0, metadata=spec(lo=1.0, hi=100000.0, doc=(
+        "what the controller's 100 % acceleration means (its manual / a measured move): the arm commands "
+        "ExtSpeed accel = decel = 100 · limits.robot.max_accel_mm_s2 / this")))
     position_tolerance_mm: float = field(default=0.5, metadata=spec(lo=0.0, lo_open=True, hi=100.0))
     wait_mode: str | None = field(default=None, metadata=spec(choices=("next", "blocking"), doc="move end: "
                                   "NEXT + @BUSY_STATUS polls, halt works mid-move (rc8) or blocking (rc7m)"))

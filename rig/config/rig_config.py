@@ -179,6 +179,11 @@ def _cross_check(cfg: RigConfig) -> None:
             and cfg.limits.robot.max_speed_mm_s > cfg.devices.robot.full_speed_mm_s:
         raise ConfigError("limits.robot.max_speed_mm_s", f"{cfg.limits.robot.max_speed_mm_s:g} exceeds "
                           f"devices.robot.full_speed_mm_s = {cfg.devices.robot.full_speed_mm_s:g}")
+    if cfg.devices.robot is not None and cfg.limits.robot is not None \
+            and cfg.limits.robot.max_accel_mm_s2 > cfg.devices.robot.full_accel_mm_s2:
+        raise ConfigError("limits.robot.max_accel_mm_s2", f"{cfg.limits.robot.max_accel_mm_s2:g} exceeds "
+                          f"devices.robot.full_accel_mm_s2 = {cfg.devices.robot.full_accel_mm_s2:g} (the "
+                          "controller's 100 %): the arm cannot command more")
     if cfg.station.simulated and cfg.station.clock != "virtual":
         raise ConfigError("station.clock", f"{cfg.station.clock!r}: a simulated station runs on the "
                                            "virtual clock; allowed: 'virtual'")

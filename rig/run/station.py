@@ -219,7 +219,8 @@ def _build_robot(st: Station, cfg: RigConfig) -> None:
         from drivers.mock.bcap_server import BcapMockServer
 
         assert world is not None, "a mock:// address needs the simulated station (configuration check)"
-        server = BcapMockServer(world.robot, st.clock, full_speed_mm_s=rc.full_speed_mm_s)
+        server = BcapMockServer(world.robot, st.clock, full_speed_mm_s=rc.full_speed_mm_s,
+                                full_accel_mm_s2=rc.full_accel_mm_s2)
         st._closers.append(("robot mock server", server.close))
         if addr["link"] == "tcp":
             url = f"tcp://127.0.0.1:{server.serve_tcp('127.0.0.1', 0)}"
@@ -235,6 +236,7 @@ def _build_robot(st: Station, cfg: RigConfig) -> None:
     arm = DensoArm(client, envelope=lim.envelope(),
                    max_speed_mm_s=lim.max_speed_mm_s, position_tolerance_mm=rc.position_tolerance_mm,
                    clock=st.clock, full_speed_mm_s=rc.full_speed_mm_s,
+                   max_accel_mm_s2=lim.max_accel_mm_s2, full_accel_mm_s2=rc.full_accel_mm_s2,
                    heartbeat_timeout_s=cfg.station.heartbeat_timeout_s,
                    wait=WaitSettings(wait_mode=wait_mode, poll_interval_s=rc.busy_poll_interval_s))
     arm.open()
