@@ -35,13 +35,14 @@ def served(mode: str = "tcp", faults: list[Fault] | None = None) -> Iterator[Gen
 
 
 @contextlib.contextmanager
-def driver(server: GeneratorServer, *, reopen: bool = True) -> Iterator[ScpiGenerator]:
+def driver(server: GeneratorServer, *, reopen: bool = True, timeout_s: float = TIMEOUT_S
+           ) -> Iterator[ScpiGenerator]:
     url = server.url
 
     def fresh() -> Transport:
-        return open_transport(url, timeout_s=TIMEOUT_S)
+        return open_transport(url, timeout_s=timeout_s)
 
-    generator = ScpiGenerator(fresh(), timeout_s=TIMEOUT_S, reopen=fresh if reopen else None)
+    generator = ScpiGenerator(fresh(), timeout_s=timeout_s, reopen=fresh if reopen else None)
     try:
         yield generator
     finally:
@@ -166,9 +167,12 @@ def test_finished_connection_threads_are_reaped() -> None:
 
 @pytest.mark.parametrize("mode", ["tcp", "pty"])
 def test_driver_recovers_from_a_late_reply(mode: str) -> None:
-    with served(mode) as server, driver(server) as g:
+    # 1 s: only the injected fault makes an exchange late (with 0.3 s a loaded machine sent on-time
+    # exchanges through the recovery paths too, and the pty case once read 1000 Hz: see the closing note)
+    timeout_s = 1.0
+    with served(mode) as server, driver(server, timeout_s=timeout_s) as g:
         g.set_frequency_hz(12.0)
-        server.inject("late", 2 * TIMEOUT_S, count=1)
+        server.inject("late", 2 * timeout_s, count=1)
         assert g.frequency_hz() == 12.0  # timed out, resynchronised, asked again
         assert g.resyncs >= 1
         g.set_frequency_hz(13.0)  # in step afterwards: every reply belongs to its request
