@@ -60,7 +60,7 @@ def test_a_shaker_sweep_to_50_hz_is_certified_to_50_hz_by_the_interleaved_fit(tm
                 "--set", "start_hz=25", "--set", "max_hz=50", "--set", "duration_s=10",
                 "--set", 'shape="linear"', "--set", "hold_s=0.5")
     assert proc.returncode in (0, 1), proc.stderr  # INCOMPLETE: a sweep alone has no static poses
-    run_dir = next((tmp_path / "runs").iterdir())
+    run_dir = next(p for p in (tmp_path / "runs").iterdir() if p.is_dir())  # beside catalogue.sqlite
     cert = json.loads((run_dir / "certificate.json").read_text())
     band = cert["band"]
     assert band["single_camera_nyquist_hz"] == 30.0 and band["combined_rate_hz"] == 120.0
