@@ -168,7 +168,7 @@ def test_finished_connection_threads_are_reaped() -> None:
 @pytest.mark.parametrize("mode", ["tcp", "pty"])
 def test_driver_recovers_from_a_late_reply(mode: str) -> None:
     # 1 s: only the injected fault makes an exchange late (with 0.3 s a loaded machine sent on-time
-    # exchanges through the recovery paths too, and the pty case once read 1000 Hz: see the closing note)
+    # exchanges through the recovery paths too)
     timeout_s = 1.0
     with served(mode) as server, driver(server, timeout_s=timeout_s) as g:
         g.set_frequency_hz(12.0)

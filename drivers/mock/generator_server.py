@@ -396,11 +396,11 @@ class GeneratorServer:
             self._forget(conn, threading.current_thread())
 
     def _pty_loop(self) -> None:
+        # No terminal set-up here: the PtyLink put the line in raw mode before its names existed. This
+        # thread once called tty.setraw, whose default TCSAFLUSH discarded whatever the client had
+        # already sent when a loaded machine scheduled the thread late (a lost first command).
         assert self._fd is not None
-        import tty
-
         fd = self._fd
-        tty.setraw(fd)
 
         def send(out: bytes) -> None:
             with contextlib.suppress(OSError):
