@@ -162,16 +162,16 @@ def world_layout(config: RigConfig) -> WorldLayout:
     from drivers.sim.world import WorldLayout
 
     tg = config.targets
-    classes = {"calibration_plate": sim_targets.CalibrationPlate, "single_marker": sim_targets.SingleMarker,
-               "marker_frame": sim_targets.MarkerFrame, "sweep_column": sim_targets.SweepColumn,
-               "plate": sim_targets.OscillatingPlate, "rotor": sim_targets.RotorTarget,
-               "references": sim_targets.ReferenceMarkers}
+    twin: dict[str, tuple[Any, type]] = {  # TargetSet field: ([targets.<field>], the twin's body)
+        "calibration_plate": (tg.calibration_plate, sim_targets.CalibrationPlate),
+        "single_marker": (tg.single_marker, sim_targets.SingleMarker),
+        "marker_frame": (tg.marker_frame, sim_targets.MarkerFrame),
+        "sweep_column": (tg.sweep_column, sim_targets.SweepColumn),
+        "plate": (tg.plate, sim_targets.OscillatingPlate), "rotor": (tg.rotor, sim_targets.RotorTarget),
+        "references": (tg.references, sim_targets.ReferenceMarkers)}
     procedure_only = ("start_pose", "slide_positions_mm")
-    kwargs = {}
-    for name, cls in classes.items():
-        cfg = getattr(tg, name)  # the [targets.<name>] field named by the table above
-        if cfg is not None:
-            kwargs[name] = cls(**{k: _tuples(v) for k, v in to_dict(cfg).items() if k not in procedure_only})
+    kwargs = {name: cls(**{k: _tuples(v) for k, v in to_dict(cfg).items() if k not in procedure_only})
+              for name, (cfg, cls) in twin.items() if cfg is not None}
     layout: dict[str, Any] = {"targets": sim_targets.TargetSet(**kwargs)}
     if config.devices.robot is not None and config.devices.robot.home_pose is not None:
         layout["robot_home_pose"] = tuple(config.devices.robot.home_pose)
