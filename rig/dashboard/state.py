@@ -30,8 +30,9 @@ __all__ = ["PLOTS", "DashboardState", "Overview", "Series"]
 # plot name → its columns (the first is the x axis: rig time, s)
 PLOTS: dict[str, tuple[str, ...]] = {
     "arm": ("t_s", "x_mm", "y_mm", "z_mm", "position_error_mm"),
-    "exciter": ("t_s", "setpoint_hz", "frequency_hz", "lag_hz"),
-    "rotor": ("t_s", "setpoint_hz", "frequency_hz", "lag_hz"),
+    # commanded_hz: what the drive is commanded to reach (see commanded_hz()), lag_hz = polled − commanded
+    "exciter": ("t_s", "commanded_hz", "frequency_hz", "lag_hz"),
+    "rotor": ("t_s", "commanded_hz", "frequency_hz", "lag_hz"),
     # the rotor's phase as its drive reports it, unwrapped, in turns: ∫ polled frequency dt (trapezoids
     # between polls) since the spin began; the sync step's truth. Not wrapped to 360°: the drive is polled a
     # few times a second and the rotor turns up to tens of times a second, so a wrapped phase would alias
@@ -43,6 +44,19 @@ PLOTS: dict[str, tuple[str, ...]] = {
     "rotor_phase_cameras": ("recording_s", "turns"),
 }
 DEVICE_STREAMS = ("exciter", "rotor", "generator")
+# a drive's states (rig.run.readback, drivers.exciter.vfd.DriveStatus) whose run command is active: it drives
+# towards its frequency reference; in any other ("stopped", "decelerating" after a stop command, "fault N"
+# after a trip) it ramps or coasts to 0 whatever the reference register still holds
+RUN_COMMANDED = ("running", "standby")
+
+
+def commanded_hz(setpoint_hz: float, status: object) -> float:
+    """The frequency a drive is commanded to reach (Hz): its reference ``setpoint_hz`` while the run command
+    is active, 0 after a stop command or a trip (the reference register keeps the last frequency written);
+    the reference when the status is unknown (not recorded)."""
+    if status is None or str(status) in RUN_COMMANDED:
+        return setpoint_hz
+    return 0.0
 
 
 class Series:
@@ -217,8 +231,9 @@ class DashboardState:
         elif stream in DEVICE_STREAMS:
             devices[stream] = {k: v for k, v in data.items() if not isinstance(v, dict | list)}
             if stream in self.series and data.get("frequency_hz") is not None:
-                setpoint_hz, polled_hz = _num(data.get("setpoint_hz")), float(data["frequency_hz"])
-                self.series[stream].append([t_s, setpoint_hz, polled_hz, polled_hz - setpoint_hz])
+                target_hz = commanded_hz(_num(data.get("setpoint_hz")), data.get("status"))
+                polled_hz = float(data["frequency_hz"])
+                self.series[stream].append([t_s, target_hz, polled_hz, polled_hz - target_hz])
                 if stream == "rotor":
                     self._rotor_phase(t_s, polled_hz)
         elif stream == "devices":
