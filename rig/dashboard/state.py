@@ -10,8 +10,10 @@ length and a slow client just gets a larger patch next time (nothing queues per 
 
 Times are rig-clock seconds (``time_s`` of the documents; virtual on the simulated rig). The time remaining
 is the plan's estimate (:mod:`rig.run.plan`): the durations of the steps not yet begun, plus the current
-step's
-duration × (1 − its progress fraction) (or minus the rig time spent in it when no fraction is reported).
+step's duration × (1 − its progress fraction) (or minus the rig time spent in it when no fraction is
+reported); while the current step reports the work it does after its motion
+(:class:`rig.run.progress.Processing`, e.g. reducing its recording's frames), which the plan does not time,
+only the steps not yet begun.
 Device states are what the procedures recorded (``arm``, ``exciter``, ``rotor``, ``generator`` events,
 ``interlock`` documents, the ``stop``'s read-back): the dashboard sends nothing to a device.
 """
@@ -24,6 +26,8 @@ from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
+
+from rig.run.progress import Processing
 
 __all__ = ["PLOTS", "DashboardState", "Overview", "Series"]
 
@@ -90,6 +94,9 @@ class Overview:
     step_durations_s: tuple[float, ...]  # the plan's estimate of each (rig time; 0 for an untimed step)
     fraction: float | None  # of ``step``, as reported by the procedure (None: not reported)
     message: str
+    # (done, total) of the work ``step`` does after its motion (reducing a recording), which the plan does not
+    # time: ``remaining_s`` then counts only the steps after it (None: no such work is being reported)
+    processing: tuple[int, int] | None
     remaining_s: float | None  # the plan's estimate (see the module docstring); None without a plan
     total_s: float  # the plan's whole duration
 
@@ -130,7 +137,8 @@ class DashboardState:
         self.version = 0
         self.fields: dict[str, Any] = {
             "title": title, "run_id": None, "simulated": None, "steps": [], "current_step": None,
-            "progress": {"fraction": None, "message": ""}, "remaining_s": None, "time_s": None,
+            "progress": {"fraction": None, "message": "", "processing": None},
+            "remaining_s": None, "time_s": None,
             "devices": {}, "interlocks": [], "messages": [], "stop": None, "hints": None,
             "live_stereo": None,  # {"segment", "status", "error"} of the live stereo preview
         }
@@ -160,7 +168,10 @@ class DashboardState:
     def on_progress(self, fraction: float | None, message: str) -> None:
         """The runner's progress callback: the current step's fraction (0–1 or None) and message."""
         with self._lock:
-            self.fields["progress"] = {"fraction": fraction, "message": message}
+            processing = ({"done": message.done, "total": message.total}
+                          if isinstance(message, Processing) else None)
+            self.fields["progress"] = {"fraction": fraction, "message": str(message),
+                                       "processing": processing}
             self._update_remaining()
             self._changed()
 
@@ -211,7 +222,7 @@ class DashboardState:
         if doc.get("status") == "begin":
             step["status"] = "running"
             self.fields["current_step"] = step["name"]
-            self.fields["progress"] = {"fraction": None, "message": ""}
+            self.fields["progress"] = {"fraction": None, "message": "", "processing": None}
             self._step_begin_s = doc.get("time_s")
         else:
             step["status"] = "done"
@@ -276,7 +287,7 @@ class DashboardState:
             return
         remaining = sum(s["duration_s"] for s in steps if s["status"] == "pending")
         current = next((s for s in steps if s["status"] == "running"), None)
-        if current is not None:
+        if current is not None and self.fields["progress"]["processing"] is None:  # else its motion is done
             fraction = self.fields["progress"]["fraction"]
             if fraction is not None:
                 remaining += current["duration_s"] * (1.0 - fraction)
@@ -292,11 +303,13 @@ class DashboardState:
         with self._lock:
             steps, current = self.fields["steps"], self.fields["current_step"]
             number = next((i + 1 for i, s in enumerate(steps) if s["name"] == current), None)
-            progress = self.fields["progress"]
+            progress, processing = self.fields["progress"], self.fields["progress"]["processing"]
             return Overview(step=current, step_number=number, step_names=tuple(s["name"] for s in steps),
                             step_durations_s=tuple(float(s["duration_s"]) for s in steps),
                             fraction=progress["fraction"] if current else None,
                             message=progress["message"] if current else "",
+                            processing=(processing["done"], processing["total"]) if current and processing
+                            else None,
                             remaining_s=self.fields["remaining_s"],
                             total_s=sum(s["duration_s"] for s in steps))
 
