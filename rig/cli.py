@@ -303,7 +303,7 @@ def cmd_check(args: argparse.Namespace) -> int:
                 print(f"    {row['doc']}")
         return 0
     config = load_config(args.config)
-    devices = [n for n in ("robot", "exciter", "rotor", "generator") if getattr(config.devices, n)]
+    devices = list(config.devices.configured())
     print(f"configuration {config.source}: valid ({config.station.name}; cameras "
           f"{', '.join(config.camera_names())}; devices {', '.join(devices)})")
     if args.no_devices:

@@ -437,11 +437,8 @@ def _warn_if_cameras_film_another_world(config: RigConfig) -> None:
     calibration finds no plate markers: the plate never reached its pose in the filmed world)."""
     if not config.station.simulated or not any(c.driver == "sim" for c in config.cameras.values()):
         return
-    dev = config.devices
-    elsewhere = [f"devices.{name}.address = {d.address!r}" for name, d in
-                 (("robot", dev.robot), ("exciter", dev.exciter), ("rotor", dev.rotor),
-                  ("generator", dev.generator))
-                 if d is not None and parse_address(d.address, f"devices.{name}.address")["scheme"] != "mock"]
+    elsewhere = [f"devices.{name}.address = {d.address!r}" for name, d in config.devices.configured().items()
+                 if parse_address(d.address, f"devices.{name}.address")["scheme"] != "mock"]
     if elsewhere:
         log.warning("the simulated cameras film the station's own twin, which %s does not move (a "
                     "stand-alone mock has its own twin): procedures that film the rig (calibrate, sync, "
