@@ -235,14 +235,17 @@ def test_the_reduction_after_the_motion_is_shown_as_such_not_as_a_finished_step_
         assert state.overview().processing is None
 
 
-def test_while_a_step_reduces_the_time_left_counts_only_the_steps_after_it() -> None:
+def test_while_a_step_reduces_the_time_left_counts_it_as_its_motion_last_reported() -> None:
     from rig.run.progress import Processing
 
     state = DashboardState("certify", plan_steps=lambda start: [("sweep", 100.0), ("report", 30.0)])
     state.on_document({"type": "start", "time_s": 0.0, "parameters": {}})
     state.on_document(_step("sweep", "begin", 0.0))
-    state.on_progress(0.9, "sweep: 27 Hz")
-    assert state.overview().remaining_s == pytest.approx(40.0)
+    state.on_progress(0.5, "calibrate-like: pose 3 of 6")  # a step recording several times
+    state.on_progress(None, Processing("sweep: reducing frames", 1, 20))
+    assert state.overview().remaining_s == pytest.approx(80.0)  # not the rest of the step dropped
+    state.on_progress(1.0, "sweep: 30 Hz")
+    assert state.overview().remaining_s == pytest.approx(30.0)
     state.on_progress(None, Processing("sweep: reducing frames", 10, 20))
     assert state.overview().remaining_s == pytest.approx(30.0)
     stream = FakeStream(tty=True)

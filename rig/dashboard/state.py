@@ -11,9 +11,9 @@ length and a slow client just gets a larger patch next time (nothing queues per 
 Times are rig-clock seconds (``time_s`` of the documents; virtual on the simulated rig). The time remaining
 is the plan's estimate (:mod:`rig.run.plan`): the durations of the steps not yet begun, plus the current
 step's duration × (1 − its progress fraction) (or minus the rig time spent in it when no fraction is
-reported); while the current step reports the work it does after its motion
-(:class:`rig.run.progress.Processing`, e.g. reducing its recording's frames), which the plan does not time,
-only the steps not yet begun.
+reported); while the current step reports the work it does after a motion
+(:class:`rig.run.progress.Processing`, e.g. reducing a recording's frames), which the plan does not time, the
+step counts with the last fraction its motion reported (a sweep reducing after its last frequency: 0 s).
 Device states are what the procedures recorded (``arm``, ``exciter``, ``rotor``, ``generator`` events,
 ``interlock`` documents, the ``stop``'s read-back): the dashboard sends nothing to a device.
 """
@@ -94,8 +94,8 @@ class Overview:
     step_durations_s: tuple[float, ...]  # the plan's estimate of each (rig time; 0 for an untimed step)
     fraction: float | None  # of ``step``, as reported by the procedure (None: not reported)
     message: str
-    # (done, total) of the work ``step`` does after its motion (reducing a recording), which the plan does not
-    # time: ``remaining_s`` then counts only the steps after it (None: no such work is being reported)
+    # (done, total) of the work ``step`` does after a motion (reducing a recording), which the plan does not
+    # time: ``remaining_s`` then counts the step as its motion last reported it (None: no such work now)
     processing: tuple[int, int] | None
     remaining_s: float | None  # the plan's estimate (see the module docstring); None without a plan
     total_s: float  # the plan's whole duration
@@ -144,6 +144,7 @@ class DashboardState:
         }
         self.series = {name: Series(columns, max_points) for name, columns in PLOTS.items()}
         self._step_begin_s: float | None = None
+        self._motion_fraction: float | None = None  # the running step's last reported fraction
         self._rotor_last: tuple[float, float] | None = None  # (t_s, frequency_hz) of the last rotor poll
         self._rotor_turns = 0.0
 
@@ -172,6 +173,8 @@ class DashboardState:
                           if isinstance(message, Processing) else None)
             self.fields["progress"] = {"fraction": fraction, "message": str(message),
                                        "processing": processing}
+            if fraction is not None:
+                self._motion_fraction = fraction
             self._update_remaining()
             self._changed()
 
@@ -223,6 +226,7 @@ class DashboardState:
             step["status"] = "running"
             self.fields["current_step"] = step["name"]
             self.fields["progress"] = {"fraction": None, "message": "", "processing": None}
+            self._motion_fraction = None
             self._step_begin_s = doc.get("time_s")
         else:
             step["status"] = "done"
@@ -287,8 +291,10 @@ class DashboardState:
             return
         remaining = sum(s["duration_s"] for s in steps if s["status"] == "pending")
         current = next((s for s in steps if s["status"] == "running"), None)
-        if current is not None and self.fields["progress"]["processing"] is None:  # else its motion is done
-            fraction = self.fields["progress"]["fraction"]
+        if current is not None:
+            progress = self.fields["progress"]
+            # after a motion (processing) the step stands where its motion's last report left it
+            fraction = progress["fraction"] if progress["processing"] is None else self._motion_fraction
             if fraction is not None:
                 remaining += current["duration_s"] * (1.0 - fraction)
             elif self._step_begin_s is not None and self.fields["time_s"] is not None:
