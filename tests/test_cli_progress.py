@@ -218,18 +218,23 @@ def test_the_reduction_after_the_motion_is_shown_as_such_not_as_a_finished_step_
         _progress(state, term, 1.0, "sweep: 30.00 Hz")  # the motion's end
         clock.now_s += 1.0
         _progress(state, term, None, Processing("sweep: reducing frames", 1234, 2880, approximate=True))
+        _progress(state, term, None, Processing("sweep: reducing frames", 1240, 2880, approximate=True))
         overview = state.overview()
-        assert overview.processing == (1234, 2880) and overview.fraction is None
-        assert state.patch({})[0]["progress"]["processing"] == {"done": 1234, "total": 2880}
+        assert overview.processing == (1240, 2880) and overview.fraction is None
+        assert state.patch({})[0]["progress"]["processing"] == {"done": 1240, "total": 2880}
         text = stream.getvalue()
         if tty:
-            last = text.rsplit("\r", 1)[1]
+            last = text.rsplit("\r", 1)[1]  # 1,240 came too soon to be redrawn
             assert last.startswith("[" + "#" * 13 + "-" * 17 + "]       step 2 of 2: sweep · "
                                    "sweep: reducing frames 1,234/≈2,880 · the plan's last step")
             assert "left" not in last and "%" not in last
         else:
             assert text.splitlines()[-1] == ("rig: +       2 s step 2 of 2: sweep — sweep: reducing frames "
                                              "1,234/≈2,880 (not timed by the plan)")
+        if not tty:  # one line per 10 %; a short reduction (a calibration pose's 20 frames) is not logged
+            assert sum("reducing frames" in line for line in text.splitlines()) == 1
+            _progress(state, term, None, Processing("calibrate: reducing frames", 12, 20, approximate=True))
+            assert stream.getvalue() == text
         # a plain message after the reduction: the step's estimate by rig time again
         _progress(state, term, None, "sweep: 2,880 frames reduced")
         assert state.overview().processing is None

@@ -13,7 +13,7 @@ the time since the run began by the injected clock::
 
 While a step reports the work it does after its motion (:class:`rig.run.progress.Processing`: reducing a
 recording's frames, which the plan does not time), the line shows that work's own bar and count instead of
-the step's fraction, and the plan's time of the steps after it (a log line per 10 % of that work)::
+the step's fraction, and the plan's time left after it (a log line per 10 % of a long such work)::
 
     [############------------------]       step 3 of 3: sweep · sweep: reducing frames 1,234/≈2,880 · …
 
@@ -54,12 +54,15 @@ class TerminalProgress:
         is_terminal: draw in place (True) or write log lines (False); default ``stream.isatty()``.
         clock: monotonic seconds (injected in tests), for the redraw rate and the elapsed time.
         long_step_s: a step planned at least this long (rig time, s) is logged per 10 %.
+        long_work_items: work after a motion of at least this many items (frames of all cameras: 1000 ≈ 8 s
+            of two 60 fps cameras) is logged per 10 % of it.
         redraw_s: the least time between two in-place redraws of a step's progress.
     """
 
     def __init__(self, state: DashboardState, stream: TextIO | None = None, *,
                  is_terminal: bool | None = None, clock: Callable[[], float] = time.monotonic,
-                 long_step_s: float = 30.0, redraw_s: float = 0.1, width: int = 30) -> None:
+                 long_step_s: float = 30.0, long_work_items: int = 1000, redraw_s: float = 0.1,
+                 width: int = 30) -> None:
         self.state = state
         self.stream = stream or sys.stderr
         self.is_terminal = self.stream.isatty() if is_terminal is None else is_terminal
@@ -70,6 +73,8 @@ class TerminalProgress:
         self._began_s: float | None = None
         self._last_draw_s = -math.inf
         self._logged_tenths: dict[str, int] = {}  # step → the last 10 % mark logged
+        self._logged_processing: dict[str, tuple[int, int]] = {}  # step → (10 % mark logged, items done)
+        self.long_work_items = long_work_items
         self._shown = False
 
     # ---------------------------------------------------------------- inputs
@@ -98,12 +103,15 @@ class TerminalProgress:
             return
         overview = self.state.overview()
         step = overview.step
-        if step is not None and overview.processing is not None:  # after the motion: per 10 % of its work
+        if step is not None and overview.processing is not None:  # after a motion: per 10 % of a long work
             done, total = overview.processing
             key = f"{step} (after its motion)"
+            last_tenths, last_done = self._logged_processing.get(key, (-1, 0))
+            if done < last_done:  # the step's next recording
+                last_tenths = -1
             tenths = math.floor(min(1.0, done / total) * 10 + 1e-9) if total > 0 else 0
-            if tenths > self._logged_tenths.get(key, -1):
-                self._logged_tenths[key] = tenths
+            self._logged_processing[key] = (max(tenths, last_tenths), done)
+            if total >= self.long_work_items and tenths > last_tenths:
                 self._log(f"{self._step_label(overview, step)} — {message} (not timed by the plan)")
             return
         if step is None or fraction is None or (overview.duration_of(step) or 0.0) < self.long_step_s:
