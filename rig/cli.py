@@ -264,6 +264,12 @@ def cmd_report(args: argparse.Namespace) -> int:
     run_dir = Path(args.run)
     if not (run_dir / "record.jsonl").is_file():
         raise _bad_input("RUN", f"{args.run!r} is not a run folder (no record.jsonl)")
+    from rig.record.writer import record_is_open
+
+    if record_is_open(run_dir):  # its own report step issues the certificate from the complete record
+        raise _bad_input("RUN", f"{args.run!r} is still running (a rig process has its record open): a "
+                         "certificate is issued only from a finished record, by the run's own report step; "
+                         "`rig report` it after the run has ended")
     from reports.build import build_report
     from reports.errors import ReportError
 
@@ -297,7 +303,7 @@ def cmd_check(args: argparse.Namespace) -> int:
                 print(f"    {row['doc']}")
         return 0
     config = load_config(args.config)
-    devices = [n for n in ("robot", "exciter", "rotor", "generator") if getattr(config.devices, n)]
+    devices = list(config.devices.configured())
     print(f"configuration {config.source}: valid ({config.station.name}; cameras "
           f"{', '.join(config.camera_names())}; devices {', '.join(devices)})")
     if args.no_devices:
@@ -525,7 +531,9 @@ def build_parser() -> argparse.ArgumentParser:
                        description="Build tables/, figures/, report.html and certificate.json from a run "
                                    "folder's record, without hardware. A run whose certificate was issued "
                                    "is never rewritten: the report goes to RUN/revisions/<n>-<sync>/, with "
-                                   "changes.json saying what differs from the issued certificate.")
+                                   "changes.json saying what differs from the issued certificate. A run "
+                                   "still going (a rig process has its record open) is refused (exit 4): "
+                                   "its own report step issues the certificate.")
     p.add_argument("run", metavar="RUN", help="the run folder")
     p.add_argument("--sync", metavar="METHOD", help="synchronization method: trajectory (default), "
                    "bandlimited, cubic, or linear (the paper's)")

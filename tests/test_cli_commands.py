@@ -157,3 +157,25 @@ def test_ctrl_c_mid_run_stops_the_exciter_and_exits_2(tmp_path: Path) -> None:
     assert any(re.fullmatch(r"exciter: (safe_state|stop)\(\) done", m) for m in messages)
     assert any(re.fullmatch(r"robot: (safe_state|halt)\(\) done", m) for m in messages)
     assert "vibrate" not in run.steps_completed
+
+
+def test_report_of_a_run_still_going_exits_4_and_writes_nothing(tmp_path: Path,
+                                                                capsys: pytest.CaptureFixture[str]) -> None:
+    from rig.record.writer import RunRecord, record_is_open
+
+    class Clock:
+        is_virtual = True
+
+        def now_s(self) -> float:
+            return 0.0
+
+    rec = RunRecord.create(tmp_path / "runs", "sweep", {}, {"station": {"simulated": True}}, Clock(),
+                           versions={})
+    try:
+        before = sorted(p.relative_to(rec.run_dir) for p in rec.run_dir.rglob("*"))
+        assert main(["report", str(rec.run_dir)]) == 4
+        assert "is still running (a rig process has its record open)" in capsys.readouterr().err
+        assert sorted(p.relative_to(rec.run_dir) for p in rec.run_dir.rglob("*")) == before
+    finally:
+        rec.close()
+    assert not record_is_open(rec.run_dir)  # closed without a stop document: what a killed run leaves

@@ -203,3 +203,57 @@ def test_a_run_with_output_captured_logs_its_steps_and_names_its_folder(
     assert "step 1: first began" in err and "step 2: second done" in err and "\r" not in err
     # no certificate, so no criteria table: the outcome line names the folder
     assert "run folder: " not in out and "pass (exit 0)" in out and str(tmp_path / "runs") in out
+
+
+def test_the_reduction_after_the_motion_is_shown_as_such_not_as_a_finished_step_with_0_s_left() -> None:
+    from rig.run.progress import Processing
+
+    for tty in (True, False):
+        state, term, stream, clock = _wired(tty=tty)
+        _doc(state, term, {"type": "start", "time_s": 0.0, "parameters": {}})
+        _doc(state, term, _step("calibrate", "begin", 0.0))
+        _doc(state, term, _step("calibrate", "done", 20.0))
+        _doc(state, term, _step("sweep", "begin", 20.0))
+        clock.now_s += 1.0
+        _progress(state, term, 1.0, "sweep: 30.00 Hz")  # the motion's end
+        clock.now_s += 1.0
+        _progress(state, term, None, Processing("sweep: reducing frames", 1234, 2880, approximate=True))
+        _progress(state, term, None, Processing("sweep: reducing frames", 1240, 2880, approximate=True))
+        overview = state.overview()
+        assert overview.processing == (1240, 2880) and overview.fraction is None
+        assert state.patch({})[0]["progress"]["processing"] == {"done": 1240, "total": 2880}
+        text = stream.getvalue()
+        if tty:
+            last = text.rsplit("\r", 1)[1]  # 1,240 came too soon to be redrawn
+            assert last.startswith("[" + "#" * 13 + "-" * 17 + "]       step 2 of 2: sweep · "
+                                   "sweep: reducing frames 1,234/≈2,880 · the plan's last step")
+            assert "left" not in last and "%" not in last
+        else:
+            assert text.splitlines()[-1] == ("rig: +       2 s step 2 of 2: sweep — sweep: reducing frames "
+                                             "1,234/≈2,880 (not timed by the plan)")
+        if not tty:  # one line per 10 %; a short reduction (a calibration pose's 20 frames) is not logged
+            assert sum("reducing frames" in line for line in text.splitlines()) == 1
+            _progress(state, term, None, Processing("calibrate: reducing frames", 12, 20, approximate=True))
+            assert stream.getvalue() == text
+        # a plain message after the reduction: the step's estimate by rig time again
+        _progress(state, term, None, "sweep: 2,880 frames reduced")
+        assert state.overview().processing is None
+
+
+def test_while_a_step_reduces_the_time_left_counts_it_as_its_motion_last_reported() -> None:
+    from rig.run.progress import Processing
+
+    state = DashboardState("certify", plan_steps=lambda start: [("sweep", 100.0), ("report", 30.0)])
+    state.on_document({"type": "start", "time_s": 0.0, "parameters": {}})
+    state.on_document(_step("sweep", "begin", 0.0))
+    state.on_progress(0.5, "calibrate-like: pose 3 of 6")  # a step recording several times
+    state.on_progress(None, Processing("sweep: reducing frames", 1, 20))
+    assert state.overview().remaining_s == pytest.approx(80.0)  # not the rest of the step dropped
+    state.on_progress(1.0, "sweep: 30 Hz")
+    assert state.overview().remaining_s == pytest.approx(30.0)
+    state.on_progress(None, Processing("sweep: reducing frames", 10, 20))
+    assert state.overview().remaining_s == pytest.approx(30.0)
+    stream = FakeStream(tty=True)
+    term = TerminalProgress(state, stream, clock=FakeClock())
+    term.progress(None, "")
+    assert "sweep: reducing frames 10/20 · then ≈ 30 s left" in stream.getvalue()

@@ -47,3 +47,33 @@ def test_the_arm_position_error_is_plotted_per_move() -> None:
     arm = state.patch({})[0]["plots"]["arm"]
     assert arm["columns"] == ["t_s", "x_mm", "y_mm", "z_mm", "position_error_mm"]
     assert arm["rows"] == [[3.0, 400.0, 0.0, 300.0, 0.01]]
+
+
+def test_the_commanded_line_follows_a_stop_not_the_drives_reference_register() -> None:
+    """A stop command leaves the drive's frequency reference at the last value written (10 Hz) while the
+    output ramps to 0: the commanded line drops to 0 with the stop, and the lag is polled − 0."""
+    state = DashboardState("sync")
+    polls = [(0.0, 10.0, "running"), (1.0, 7.5, "decelerating"), (2.0, 2.5, "decelerating"),
+             (2.5, 0.0, "stopped"), (3.0, 0.0, "standby"), (3.5, 4.0, "running"), (4.0, 3.0, "fault 7")]
+    for t_s, f_hz, status in polls:
+        state.on_document(_event(t_s, "rotor", {"frequency_hz": f_hz, "setpoint_hz": 10.0, "status": status}))
+    rows = state.patch({})[0]["plots"]["rotor"]["rows"]
+    assert [r[1] for r in rows] == [10.0, 0.0, 0.0, 0.0, 10.0, 10.0, 0.0]
+    assert [r[3] for r in rows] == [0.0, 7.5, 2.5, 0.0, -10.0, -6.0, 3.0]
+
+
+def test_a_stop_through_the_real_drive_and_its_mock_drops_the_commanded_line() -> None:
+    from rig.config.rig_config import default_config
+    from rig.run.clock import make_clock
+    from rig.run.station import open_station
+
+    state = DashboardState("sync")
+    with open_station(default_config(), make_clock(True)) as st:
+        rotor = st.devices["rotor"]
+        state.on_document(_event(0.0, "rotor", rotor.set_frequency(2.0).as_event()))
+        rotor.stop(wait=False)
+        ramping = rotor.read_sample()
+        state.on_document(_event(1.0, "rotor", ramping.as_event()))
+    assert ramping.setpoint_hz == 2.0 and ramping.frequency_hz > 0.0  # the register keeps 2 Hz
+    rows = state.patch({})[0]["plots"]["rotor"]["rows"]
+    assert [r[1] for r in rows] == [2.0, 0.0]

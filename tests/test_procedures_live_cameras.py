@@ -92,9 +92,15 @@ class Ctx:
         self.log = logging.getLogger("test")
         self.events: list[dict[str, Any]] = []
         self.writers: dict[str, Writer] = {}
+        self.progress_reports: list[tuple[float | None, str]] = []
+        self.on_checkpoint: list[Any] = []
 
     def checkpoint(self) -> None:
-        pass
+        for hook in self.on_checkpoint:
+            hook()
+
+    def progress(self, fraction: float | None, message: str = "") -> None:
+        self.progress_reports.append((fraction, message))
 
     def sleep_s(self, duration_s: float) -> None:
         time.sleep(duration_s)
@@ -164,3 +170,45 @@ def test_a_failing_motion_stops_cameras_and_readers_and_writes_nothing() -> None
     assert not any(cam.recording for cam in cams.values())
     assert all(not w.appended for w in ctx.writers.values()) and ctx.events == []
     assert not [t for t in threading.enumerate() if t.name.startswith("acquire-")]
+
+
+class GatedCamera:
+    """A camera read after ``stop()`` whose second frame waits for the recording's first checkpoint: the
+    Acquirer is then still reducing after the motion, deterministically."""
+
+    live = False
+
+    def __init__(self, name: str, gate: threading.Event) -> None:
+        self.name, self.width_px, self.height_px, self.fps, self.gate = name, WIDTH_PX, HEIGHT_PX, FPS, gate
+
+    def start(self) -> None:
+        pass
+
+    def stop(self) -> None:
+        pass
+
+    def frames(self) -> Any:
+        from drivers.camera.base import Frame
+
+        for index in range(3):
+            if index == 1:
+                assert self.gate.wait(timeout=60.0), "the Acquirer never checkpointed while reducing"
+            yield Frame(index, index / FPS, np.full((HEIGHT_PX, WIDTH_PX), 30, np.uint8))
+
+
+def test_the_reduction_after_the_motion_is_reported_as_frames_reduced_of_those_expected() -> None:
+    from rig.run.progress import Processing
+
+    gate = threading.Event()
+    cams = {name: GatedCamera(name, gate) for name in ("left", "right")}
+    ctx = Ctx(cams)
+    ctx.on_checkpoint.append(gate.set)
+    with Acquirer(ctx, ReduceOptions()) as acq:
+        rec = acq.record("sweep", 0.05)
+    reducing = [m for f, m in ctx.progress_reports if isinstance(m, Processing)]
+    assert reducing and all(f is None for f, _ in ctx.progress_reports)
+    expected = 2 * round(FPS * (rec.t_stop_s - rec.t_start_s))  # fps × the recording, both cameras
+    first = reducing[0]
+    assert first.done < 6 and first.total == max(expected, first.done)
+    assert str(first) == f"sweep: reducing frames {first.done:,}/≈{first.total:,}"
+    assert ctx.progress_reports[-1] == (None, "sweep: 6 frames reduced")

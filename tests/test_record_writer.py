@@ -21,7 +21,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from rig.record.jsonenc import dumps, to_jsonable
-from rig.record.writer import RecordError, RunRecord, TruncatedRecordWarning, load_run
+from rig.record.writer import RecordError, RunRecord, TruncatedRecordWarning, load_run, record_is_open
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -217,9 +217,11 @@ def test_kill_9_leaves_a_readable_record(tmp_path: Path) -> None:
                             cwd=ROOT, env={**os.environ, "PYTHONPATH": str(ROOT)})
     run_dir = Path(proc.stdout.readline().strip())
     time.sleep(0.8)
+    assert record_is_open(run_dir)  # the run is still going: `rig report` refuses it
     proc.send_signal(signal.SIGKILL)
     proc.wait(timeout=10)
     proc.stdout.close()
+    assert not record_is_open(run_dir)  # killed: the kernel released its lock
     with warnings.catch_warnings():  # the kill may or may not land mid-line; both must load
         warnings.simplefilter("ignore", TruncatedRecordWarning)
         run = load_run(run_dir)

@@ -120,3 +120,11 @@ def test_interlock_checks_see_a_pose_outside_the_envelope_without_device_io() ->
         arm.last_move = dataclasses.replace(arm.last_move, reported_pose=[700.0, 0.0, 300.0, 90.0, 0.0, 90.0])
         ((device, reason),) = st.check_interlocks()
         assert device == "robot" and "outside the envelope" in reason and "x_mm=700" in reason
+
+
+def test_the_configured_devices_are_named_by_their_config_field() -> None:
+    cfg = default_config()
+    assert list(cfg.devices.configured()) == ["robot", "exciter", "rotor", "generator"]
+    assert cfg.devices.configured()["rotor"] is cfg.devices.rotor
+    without = dataclasses.replace(cfg.devices, exciter=None)
+    assert list(without.configured()) == ["robot", "rotor", "generator"]

@@ -127,3 +127,40 @@ def test_bad_input() -> None:
         epipolar_distance_px(np.eye(4), uv, uv)
     with pytest.raises(errors.InputArrayError, match="as many"):
         epipolar_distance_px(np.eye(3), uv, uv[:2], pairwise=False)
+
+
+def test_every_entry_point_takes_a_camera_by_its_projection_matrix() -> None:
+    """One conversion camera → P (rig.stereo.normalize.projection_matrix): an object with ``.P`` that is
+    not a DLTCamera is accepted by triangulation as by the fundamental matrix, with the same result as
+    its matrix."""
+    from timing_synth import stereo_pair as synth_pair
+
+    from rig.stereo.triangulate import triangulate
+
+    cam_a, cam_b = synth_pair()
+    X = volume_points(20, np.random.default_rng(3))
+    uv = [cam_a.project(X), cam_b.project(X)]
+    by_object = triangulate([cam_a, cam_b], uv).xyz_mm
+    by_matrix = triangulate([cam_a.P, cam_b.P], uv).xyz_mm
+    assert np.abs(by_object - by_matrix).max() <= 1e-12 * np.abs(by_matrix).max()
+    assert np.abs(by_object - X).max() < 1e-6
+    assert np.array_equal(fundamental_from_projections(cam_a, cam_b),
+                          fundamental_from_projections(cam_a.P, cam_b.P))
+
+
+def test_the_joint_timing_fit_refuses_two_cameras_sharing_a_centre() -> None:
+    """The joint timing fit takes its F from fundamental_from_projections, which refuses a zero baseline
+    by name instead of fitting a NaN fundamental matrix."""
+    from timing_synth import observe, rotor
+    from timing_synth import stereo_pair as synth_pair
+
+    from rig.stereo.timing import estimate_offset
+
+    cam_a, _ = synth_pair()
+    traj, _, _ = rotor(frequency_hz=3.0)
+    tau = np.arange(300) / 60.0
+    rng = np.random.default_rng(0)
+    a = observe(cam_a, traj, tau, sigma_px=0.05, rng=rng)[:2]
+    b = observe(cam_a, traj, tau, offset_s=0.004, sigma_px=0.05, rng=rng)[:2]
+    with pytest.raises(errors.DegenerateGeometryError, match="share a centre"):
+        estimate_offset(cam_a, cam_a, a, b, method="joint")

@@ -64,9 +64,10 @@ def offset_floor_s(rec: TwinRecord, sigma_px: float, *, line_time: bool = True, 
     drift free as in the joint fit. r is the Sampson distance of each left observation to the right camera's
     track; ∂r/∂δ = g comes from the exact motion at the left camera's instants; the line time shifts the
     pair by (v_B − v_A) and the drift by (τ_B − epoch), so their columns are g·Δv and g·Δτ·1e-6."""
-    from rig.stereo.timing_joint import fundamental_matrix, sampson_px
+    from rig.stereo.epipolar import fundamental_from_projections
+    from rig.stereo.timing_joint import sampson_px
 
-    F = fundamental_matrix(rec.P_left, rec.P_right)
+    F = fundamental_from_projections(rec.P_left, rec.P_right)
     h = 1e-5
 
     def proj(P, X):

@@ -85,5 +85,11 @@ class DevicesConfig:
     rotor: VfdConfig | None = None
     generator: GeneratorConfig | None = None
 
+    def configured(self) -> dict[str, RobotConfig | VfdConfig | GeneratorConfig]:
+        """The configured devices by name (``[devices.<name>]``, in :data:`DEVICE_NAMES` order)."""
+        named = {"robot": self.robot, "exciter": self.exciter, "rotor": self.rotor,
+                 "generator": self.generator}
+        return {name: device for name, device in named.items() if device is not None}
+
 
 DEVICE_NAMES = ("robot", "exciter", "rotor", "generator")

@@ -10,8 +10,10 @@ length and a slow client just gets a larger patch next time (nothing queues per 
 
 Times are rig-clock seconds (``time_s`` of the documents; virtual on the simulated rig). The time remaining
 is the plan's estimate (:mod:`rig.run.plan`): the durations of the steps not yet begun, plus the current
-step's
-duration × (1 − its progress fraction) (or minus the rig time spent in it when no fraction is reported).
+step's duration × (1 − its progress fraction) (or minus the rig time spent in it when no fraction is
+reported); while the current step reports the work it does after a motion
+(:class:`rig.run.progress.Processing`, e.g. reducing a recording's frames), which the plan does not time, the
+step counts with the last fraction its motion reported (a sweep reducing after its last frequency: 0 s).
 Device states are what the procedures recorded (``arm``, ``exciter``, ``rotor``, ``generator`` events,
 ``interlock`` documents, the ``stop``'s read-back): the dashboard sends nothing to a device.
 """
@@ -25,13 +27,16 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
+from rig.run.progress import Processing
+
 __all__ = ["PLOTS", "DashboardState", "Overview", "Series"]
 
 # plot name → its columns (the first is the x axis: rig time, s)
 PLOTS: dict[str, tuple[str, ...]] = {
     "arm": ("t_s", "x_mm", "y_mm", "z_mm", "position_error_mm"),
-    "exciter": ("t_s", "setpoint_hz", "frequency_hz", "lag_hz"),
-    "rotor": ("t_s", "setpoint_hz", "frequency_hz", "lag_hz"),
+    # commanded_hz: what the drive is commanded to reach (see commanded_hz()), lag_hz = polled − commanded
+    "exciter": ("t_s", "commanded_hz", "frequency_hz", "lag_hz"),
+    "rotor": ("t_s", "commanded_hz", "frequency_hz", "lag_hz"),
     # the rotor's phase as its drive reports it, unwrapped, in turns: ∫ polled frequency dt (trapezoids
     # between polls) since the spin began; the sync step's truth. Not wrapped to 360°: the drive is polled a
     # few times a second and the rotor turns up to tens of times a second, so a wrapped phase would alias
@@ -43,6 +48,19 @@ PLOTS: dict[str, tuple[str, ...]] = {
     "rotor_phase_cameras": ("recording_s", "turns"),
 }
 DEVICE_STREAMS = ("exciter", "rotor", "generator")
+# a drive's states (rig.run.readback, drivers.exciter.vfd.DriveStatus) whose run command is active: it drives
+# towards its frequency reference; in any other ("stopped", "decelerating" after a stop command, "fault N"
+# after a trip) it ramps or coasts to 0 whatever the reference register still holds
+RUN_COMMANDED = ("running", "standby")
+
+
+def commanded_hz(setpoint_hz: float, status: object) -> float:
+    """The frequency a drive is commanded to reach (Hz): its reference ``setpoint_hz`` while the run command
+    is active, 0 after a stop command or a trip (the reference register keeps the last frequency written);
+    the reference when the status is unknown (not recorded)."""
+    if status is None or str(status) in RUN_COMMANDED:
+        return setpoint_hz
+    return 0.0
 
 
 class Series:
@@ -76,6 +94,9 @@ class Overview:
     step_durations_s: tuple[float, ...]  # the plan's estimate of each (rig time; 0 for an untimed step)
     fraction: float | None  # of ``step``, as reported by the procedure (None: not reported)
     message: str
+    # (done, total) of the work ``step`` does after a motion (reducing a recording), which the plan does not
+    # time: ``remaining_s`` then counts the step as its motion last reported it (None: no such work now)
+    processing: tuple[int, int] | None
     remaining_s: float | None  # the plan's estimate (see the module docstring); None without a plan
     total_s: float  # the plan's whole duration
 
@@ -116,12 +137,14 @@ class DashboardState:
         self.version = 0
         self.fields: dict[str, Any] = {
             "title": title, "run_id": None, "simulated": None, "steps": [], "current_step": None,
-            "progress": {"fraction": None, "message": ""}, "remaining_s": None, "time_s": None,
+            "progress": {"fraction": None, "message": "", "processing": None},
+            "remaining_s": None, "time_s": None,
             "devices": {}, "interlocks": [], "messages": [], "stop": None, "hints": None,
             "live_stereo": None,  # {"segment", "status", "error"} of the live stereo preview
         }
         self.series = {name: Series(columns, max_points) for name, columns in PLOTS.items()}
         self._step_begin_s: float | None = None
+        self._motion_fraction: float | None = None  # the running step's last reported fraction
         self._rotor_last: tuple[float, float] | None = None  # (t_s, frequency_hz) of the last rotor poll
         self._rotor_turns = 0.0
 
@@ -146,7 +169,12 @@ class DashboardState:
     def on_progress(self, fraction: float | None, message: str) -> None:
         """The runner's progress callback: the current step's fraction (0–1 or None) and message."""
         with self._lock:
-            self.fields["progress"] = {"fraction": fraction, "message": message}
+            processing = ({"done": message.done, "total": message.total}
+                          if isinstance(message, Processing) else None)
+            self.fields["progress"] = {"fraction": fraction, "message": str(message),
+                                       "processing": processing}
+            if fraction is not None:
+                self._motion_fraction = fraction
             self._update_remaining()
             self._changed()
 
@@ -197,7 +225,8 @@ class DashboardState:
         if doc.get("status") == "begin":
             step["status"] = "running"
             self.fields["current_step"] = step["name"]
-            self.fields["progress"] = {"fraction": None, "message": ""}
+            self.fields["progress"] = {"fraction": None, "message": "", "processing": None}
+            self._motion_fraction = None
             self._step_begin_s = doc.get("time_s")
         else:
             step["status"] = "done"
@@ -217,8 +246,9 @@ class DashboardState:
         elif stream in DEVICE_STREAMS:
             devices[stream] = {k: v for k, v in data.items() if not isinstance(v, dict | list)}
             if stream in self.series and data.get("frequency_hz") is not None:
-                setpoint_hz, polled_hz = _num(data.get("setpoint_hz")), float(data["frequency_hz"])
-                self.series[stream].append([t_s, setpoint_hz, polled_hz, polled_hz - setpoint_hz])
+                target_hz = commanded_hz(_num(data.get("setpoint_hz")), data.get("status"))
+                polled_hz = float(data["frequency_hz"])
+                self.series[stream].append([t_s, target_hz, polled_hz, polled_hz - target_hz])
                 if stream == "rotor":
                     self._rotor_phase(t_s, polled_hz)
         elif stream == "devices":
@@ -262,7 +292,9 @@ class DashboardState:
         remaining = sum(s["duration_s"] for s in steps if s["status"] == "pending")
         current = next((s for s in steps if s["status"] == "running"), None)
         if current is not None:
-            fraction = self.fields["progress"]["fraction"]
+            progress = self.fields["progress"]
+            # after a motion (processing) the step stands where its motion's last report left it
+            fraction = progress["fraction"] if progress["processing"] is None else self._motion_fraction
             if fraction is not None:
                 remaining += current["duration_s"] * (1.0 - fraction)
             elif self._step_begin_s is not None and self.fields["time_s"] is not None:
@@ -277,11 +309,13 @@ class DashboardState:
         with self._lock:
             steps, current = self.fields["steps"], self.fields["current_step"]
             number = next((i + 1 for i, s in enumerate(steps) if s["name"] == current), None)
-            progress = self.fields["progress"]
+            progress, processing = self.fields["progress"], self.fields["progress"]["processing"]
             return Overview(step=current, step_number=number, step_names=tuple(s["name"] for s in steps),
                             step_durations_s=tuple(float(s["duration_s"]) for s in steps),
                             fraction=progress["fraction"] if current else None,
                             message=progress["message"] if current else "",
+                            processing=(processing["done"], processing["total"]) if current and processing
+                            else None,
                             remaining_s=self.fields["remaining_s"],
                             total_s=sum(s["duration_s"] for s in steps))
 

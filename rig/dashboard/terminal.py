@@ -11,6 +11,12 @@ the time since the run began by the injected clock::
 
     rig: +   12 s step 2 of 5: sync began (planned ≈ 1 min 30 s; ≈ 4 min 10 s left)
 
+While a step reports the work it does after its motion (:class:`rig.run.progress.Processing`: reducing a
+recording's frames, which the plan does not time), the line shows that work's own bar and count instead of
+the step's fraction, and the plan's time left after it (a log line per 10 % of a long such work)::
+
+    [############------------------]       step 3 of 3: sweep · sweep: reducing frames 1,234/≈2,880 · …
+
 Feed it after the state: ``observe`` is a record observer placed after the state's own, ``progress`` the
 runner's progress callback called after :meth:`DashboardState.on_progress`.
 """
@@ -48,12 +54,15 @@ class TerminalProgress:
         is_terminal: draw in place (True) or write log lines (False); default ``stream.isatty()``.
         clock: monotonic seconds (injected in tests), for the redraw rate and the elapsed time.
         long_step_s: a step planned at least this long (rig time, s) is logged per 10 %.
+        long_work_items: work after a motion of at least this many items (frames of all cameras: 1000 ≈ 8 s
+            of two 60 fps cameras) is logged per 10 % of it.
         redraw_s: the least time between two in-place redraws of a step's progress.
     """
 
     def __init__(self, state: DashboardState, stream: TextIO | None = None, *,
                  is_terminal: bool | None = None, clock: Callable[[], float] = time.monotonic,
-                 long_step_s: float = 30.0, redraw_s: float = 0.1, width: int = 30) -> None:
+                 long_step_s: float = 30.0, long_work_items: int = 1000, redraw_s: float = 0.1,
+                 width: int = 30) -> None:
         self.state = state
         self.stream = stream or sys.stderr
         self.is_terminal = self.stream.isatty() if is_terminal is None else is_terminal
@@ -64,6 +73,8 @@ class TerminalProgress:
         self._began_s: float | None = None
         self._last_draw_s = -math.inf
         self._logged_tenths: dict[str, int] = {}  # step → the last 10 % mark logged
+        self._logged_processing: dict[str, tuple[int, int]] = {}  # step → (10 % mark logged, items done)
+        self.long_work_items = long_work_items
         self._shown = False
 
     # ---------------------------------------------------------------- inputs
@@ -92,6 +103,17 @@ class TerminalProgress:
             return
         overview = self.state.overview()
         step = overview.step
+        if step is not None and overview.processing is not None:  # after a motion: per 10 % of a long work
+            done, total = overview.processing
+            key = f"{step} (after its motion)"
+            last_tenths, last_done = self._logged_processing.get(key, (-1, 0))
+            if done < last_done:  # the step's next recording
+                last_tenths = -1
+            tenths = math.floor(min(1.0, done / total) * 10 + 1e-9) if total > 0 else 0
+            self._logged_processing[key] = (max(tenths, last_tenths), done)
+            if total >= self.long_work_items and tenths > last_tenths:
+                self._log(f"{self._step_label(overview, step)} — {message} (not timed by the plan)")
+            return
         if step is None or fraction is None or (overview.duration_of(step) or 0.0) < self.long_step_s:
             return
         tenths = math.floor(fraction * 10 + 1e-9)  # 10 %, 20 %, … 90 %; the step's end has its own line
@@ -131,6 +153,9 @@ class TerminalProgress:
             self._draw(self.state.overview())
 
     def _draw(self, overview: Overview) -> None:
+        if overview.processing is not None and overview.step is not None:
+            self._write_line(self._processing_line(overview))
+            return
         overall = overview.overall_fraction
         if overall is None:
             bar = "?" * self.width
@@ -147,7 +172,20 @@ class TerminalProgress:
         parts = [f"{head} {where}", f"≈ {duration_text(overview.remaining_s)} left"]
         if overview.message:
             parts.append(overview.message)
-        line = " · ".join(parts)
+        self._write_line(" · ".join(parts))
+
+    def _processing_line(self, overview: Overview) -> str:
+        """The step's work after its motion (not timed by the plan): its own bar and count, then the time
+        the plan gives the steps after it."""
+        assert overview.processing is not None and overview.step is not None
+        done, total = overview.processing
+        filled = round(min(1.0, done / total) * self.width) if total > 0 else 0
+        after = (f"then ≈ {duration_text(overview.remaining_s)} left" if overview.remaining_s
+                 else "the plan's last step")
+        return " · ".join([f"[{'#' * filled}{'-' * (self.width - filled)}]       "
+                           f"{self._step_label(overview, overview.step)}", overview.message, after])
+
+    def _write_line(self, line: str) -> None:
         self.stream.write("\r" + line[:LINE_WIDTH].ljust(LINE_WIDTH))
         self.stream.flush()
         self._shown = True

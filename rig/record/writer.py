@@ -27,11 +27,14 @@ Resume: :meth:`RunRecord.resume` reopens a folder, drops a truncated last line (
 a ``log`` document), continues each stream's ``seq``, and writes a new ``start`` with ``resume: true``.
 
 Reading: :func:`load_run` (re-exported from :mod:`rig.record.reader`) returns pandas frames.
+:func:`record_is_open`: whether a live process still writes a folder's record (a run still going, not a
+killed one): each :class:`RunRecord` holds a shared ``flock`` on ``record.jsonl`` until closed.
 """
 
 from __future__ import annotations
 
 import datetime as _dt
+import fcntl
 import json
 import logging
 import os
@@ -68,6 +71,7 @@ __all__ = [
     "load_run",
     "parse_record",
     "read_observations",
+    "record_is_open",
 ]
 
 EXIT_STATUSES = ("success", "abort", "fail")
@@ -114,6 +118,18 @@ def _offer(observer: Callable[[dict[str, Any]], None], document: dict[str, Any])
         logging.getLogger("rig.record.writer").warning("record observer failed", exc_info=True)
 
 
+def record_is_open(run_dir: str | os.PathLike[str]) -> bool:
+    """True while a :class:`RunRecord` (of any process) has ``run_dir``'s record open for writing: the run is
+    still going. False after it closed it or died (a killed run: the kernel drops the lock)."""
+    with open(Path(run_dir) / RECORD_NAME, "rb") as fh:
+        try:
+            fcntl.flock(fh.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            return True
+        fcntl.flock(fh.fileno(), fcntl.LOCK_UN)
+        return False
+
+
 class RunRecord:
     """Writer of one run folder's ``record.jsonl``. Build with :meth:`create` or :meth:`resume`."""
 
@@ -133,6 +149,9 @@ class RunRecord:
         self._fsync_interval_s = float(fsync_interval_s)
         self._lock = threading.RLock()
         self._fh = open(self.path, "ab")  # noqa: SIM115 — lives as long as the record
+        # "open for writing" for other processes (record_is_open); shared: a resume in the same process may
+        # open it again; released by close() or by the kernel when the process dies (a killed run)
+        fcntl.flock(self._fh.fileno(), fcntl.LOCK_SH)
         self._last_fsync = time.monotonic()
         self._dirty = False  # written but not yet fsync'ed
         self._closing = threading.Event()

@@ -26,8 +26,10 @@ When a camera is read depends on the source (:attr:`drivers.roles.Camera.live`):
 - any other source (``live`` False: the simulated camera, which renders its recording after
   ``stop()``, or a video file) is read after ``stop()``, by the same kind of reader, all cameras in parallel.
 
-While the readers finish after ``stop()``, the procedure's checkpoint is polled (every 0.2 s); an abort, or
-an error of any reader, stops all of them (frames not yet reduced are dropped, nothing is written).
+While the readers finish after ``stop()``, the procedure's checkpoint is polled (every 0.2 s) and the frames
+reduced are reported as progress (:class:`rig.run.progress.Processing`, "sweep: reducing frames 1,234/≈2,880":
+the plan does not time this work); an abort, or an error of any reader, stops all of them (frames not yet
+reduced are dropped, nothing is written).
 
 Rows go to the run folder's observations (``segment`` = the name given to ``record``) with an extra
 column ``track_2d`` (int: the same marker in consecutive frames of one camera and segment keeps its
@@ -53,6 +55,7 @@ from rig.record.observations import ObservationWriter
 from rig.run.fiducial import FiducialRecording
 from rig.run.frame_tap import FRAMES
 from rig.run.procedure import Context
+from rig.run.progress import Processing
 from rig.stereo import FLAG_LOST
 from rig.stereo.fiducial import row_profile
 
@@ -124,16 +127,26 @@ class Acquirer:
         reader.thread.start()
         return reader
 
-    def _finish(self, readers: dict[str, _Reader], cancel: threading.Event) -> None:
-        """Wait for the readers, checkpointing; a reader's error or an abort stops all of them and raises."""
+    def _finish(self, readers: dict[str, _Reader], cancel: threading.Event, segment: str,
+                recorded_s: float) -> None:
+        """Wait for the readers, checkpointing and reporting the frames reduced of those expected (fps ×
+        ``recorded_s`` per camera: an estimate); a reader's error or an abort stops all of them and raises."""
+        expected = sum(round(cam.fps * recorded_s) for cam in self.cameras.values())
+        reported = -1
         try:
             while True:
                 for reader in readers.values():
                     if reader.error is not None:
                         raise reader.error
                 alive = [r for r in readers.values() if r.thread.is_alive()]
+                done = sum(len(r.parts) for r in readers.values())
                 if not alive:
+                    self.ctx.progress(None, f"{segment}: {done:,} frames reduced")
                     return
+                if done != reported:
+                    reported = done
+                    self.ctx.progress(None, Processing(f"{segment}: reducing frames", done,
+                                                       max(expected, done), approximate=True))
                 alive[0].thread.join(timeout=0.2)
                 self.ctx.checkpoint()
         except BaseException:
@@ -187,7 +200,7 @@ class Acquirer:
         for name in self.cameras:
             if name not in readers:
                 readers[name] = self._reader(name, segment, cancel)
-        self._finish(readers, cancel)
+        self._finish(readers, cancel, segment, t_stop - t_start)
         observations = {}
         for name in self.cameras:
             parts = readers[name].parts

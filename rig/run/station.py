@@ -162,16 +162,16 @@ def world_layout(config: RigConfig) -> WorldLayout:
     from drivers.sim.world import WorldLayout
 
     tg = config.targets
-    classes = {"calibration_plate": sim_targets.CalibrationPlate, "single_marker": sim_targets.SingleMarker,
-               "marker_frame": sim_targets.MarkerFrame, "sweep_column": sim_targets.SweepColumn,
-               "plate": sim_targets.OscillatingPlate, "rotor": sim_targets.RotorTarget,
-               "references": sim_targets.ReferenceMarkers}
+    twin: dict[str, tuple[Any, type]] = {  # TargetSet field: ([targets.<field>], the twin's body)
+        "calibration_plate": (tg.calibration_plate, sim_targets.CalibrationPlate),
+        "single_marker": (tg.single_marker, sim_targets.SingleMarker),
+        "marker_frame": (tg.marker_frame, sim_targets.MarkerFrame),
+        "sweep_column": (tg.sweep_column, sim_targets.SweepColumn),
+        "plate": (tg.plate, sim_targets.OscillatingPlate), "rotor": (tg.rotor, sim_targets.RotorTarget),
+        "references": (tg.references, sim_targets.ReferenceMarkers)}
     procedure_only = ("start_pose", "slide_positions_mm")
-    kwargs = {}
-    for name, cls in classes.items():
-        cfg = getattr(tg, name)  # the [targets.<name>] field named by the table above
-        if cfg is not None:
-            kwargs[name] = cls(**{k: _tuples(v) for k, v in to_dict(cfg).items() if k not in procedure_only})
+    kwargs = {name: cls(**{k: _tuples(v) for k, v in to_dict(cfg).items() if k not in procedure_only})
+              for name, (cfg, cls) in twin.items() if cfg is not None}
     layout: dict[str, Any] = {"targets": sim_targets.TargetSet(**kwargs)}
     if config.devices.robot is not None and config.devices.robot.home_pose is not None:
         layout["robot_home_pose"] = tuple(config.devices.robot.home_pose)
@@ -437,11 +437,8 @@ def _warn_if_cameras_film_another_world(config: RigConfig) -> None:
     calibration finds no plate markers: the plate never reached its pose in the filmed world)."""
     if not config.station.simulated or not any(c.driver == "sim" for c in config.cameras.values()):
         return
-    dev = config.devices
-    elsewhere = [f"devices.{name}.address = {d.address!r}" for name, d in
-                 (("robot", dev.robot), ("exciter", dev.exciter), ("rotor", dev.rotor),
-                  ("generator", dev.generator))
-                 if d is not None and parse_address(d.address, f"devices.{name}.address")["scheme"] != "mock"]
+    elsewhere = [f"devices.{name}.address = {d.address!r}" for name, d in config.devices.configured().items()
+                 if parse_address(d.address, f"devices.{name}.address")["scheme"] != "mock"]
     if elsewhere:
         log.warning("the simulated cameras film the station's own twin, which %s does not move (a "
                     "stand-alone mock has its own twin): procedures that film the rig (calibrate, sync, "

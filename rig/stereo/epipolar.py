@@ -17,7 +17,7 @@ import scipy.optimize
 from rig.stereo._arrays import BoolArray, FloatArray, IntArray
 from rig.stereo.dlt import DLTCamera
 from rig.stereo.errors import DegenerateGeometryError, InputArrayError
-from rig.stereo.normalize import as_points, as_projection, homogeneous
+from rig.stereo.normalize import Camera, as_points, homogeneous, projection_matrix
 
 
 @dataclass(frozen=True)
@@ -40,17 +40,13 @@ class Matches:
         return int(self.pairs.shape[0])
 
 
-def _projection(camera: object, name: str) -> FloatArray:
-    return camera.P if isinstance(camera, DLTCamera) else as_projection(camera, name)
-
-
-def fundamental_from_projections(P_a: object, P_b: object) -> FloatArray:
+def fundamental_from_projections(P_a: Camera, P_b: Camera) -> FloatArray:
     """F = [e_b]× · P_b · P_a⁺ (unit Frobenius norm), e_b = P_b·C_a the epipole of A's centre in B.
 
-    Accepts (3, 4) matrices or :class:`DLTCamera` objects. Raises :class:`DegenerateGeometryError` when
-    the two cameras share a centre (no baseline: there is no epipolar geometry).
+    Accepts (3, 4) matrices or cameras with ``.P`` (:class:`DLTCamera`). Raises
+    :class:`DegenerateGeometryError` when the two cameras share a centre (no baseline: no epipolar geometry).
     """
-    Pa, Pb = _projection(P_a, "P_a"), _projection(P_b, "P_b")
+    Pa, Pb = projection_matrix(P_a, "P_a"), projection_matrix(P_b, "P_b")
     centre_a = -np.linalg.solve(Pa[:, :3], Pa[:, 3])
     centre_b = -np.linalg.solve(Pb[:, :3], Pb[:, 3])
     baseline_mm = float(np.linalg.norm(centre_a - centre_b))

@@ -85,14 +85,10 @@ class HasProjection(Protocol):
 Camera: TypeAlias = HasProjection | ArrayLike
 
 
-def projection_matrix(camera: Camera) -> FloatArray:
-    """3×4 float projection matrix of ``camera`` (an array or an object with ``.P``)."""
-    P = np.asarray(camera.P if isinstance(camera, HasProjection) else camera, dtype=float)
-    if P.shape != (3, 4) or not np.all(np.isfinite(P)):
-        raise InputArrayError(
-            f"a camera must be a finite 3×4 projection matrix (or have .P), got shape {P.shape}"
-        )
-    return P
+def projection_matrix(camera: object, name: str = "camera") -> FloatArray:
+    """3×4 float64 projection matrix (mm → px) of ``camera``: an object with ``.P`` or the matrix itself,
+    checked by :func:`as_projection` (``name`` is the argument named in its error)."""
+    return as_projection(camera.P if isinstance(camera, HasProjection) else camera, name)
 
 
 def similarity_2d(uv: FloatArray) -> FloatArray:

@@ -46,6 +46,7 @@ from scipy import optimize
 
 from rig.stereo._arrays import FloatArray
 from rig.stereo._series import as_times
+from rig.stereo.epipolar import fundamental_from_projections
 from rig.stereo.errors import (
     AmbiguousOffsetError,
     DelayOutOfRangeError,
@@ -54,7 +55,7 @@ from rig.stereo.errors import (
     NoCommonMotionError,
     TooFewSamplesError,
 )
-from rig.stereo.normalize import Camera, projection_matrix
+from rig.stereo.normalize import Camera
 from rig.stereo.resample import bandlimited
 from rig.stereo.timing_model import TimingResult
 
@@ -62,16 +63,6 @@ MIN_OBSERVATIONS = 30
 CHI2_DISTINCT = 25.0  # Δχ² (5 σ) that separates a real minimum from an equally good one
 GAP_GUARD = 32  # frames of B either side of a dropped frame whose reconstruction is not trusted
 EDGE_MARGIN_FRAMES = 34  # A's instants used lie this far inside B's record (the kernel's half-width + 2)
-
-
-def fundamental_matrix(P_a: FloatArray, P_b: FloatArray) -> FloatArray:
-    """F with x_bᵀ F x_a = 0 for image points of the same 3D point (pixels, homogeneous)."""
-    _, _, vt = np.linalg.svd(P_a)
-    centre_a = vt[-1]
-    e_b = P_b @ centre_a
-    ex = np.array([[0, -e_b[2], e_b[1]], [e_b[2], 0, -e_b[0]], [-e_b[1], e_b[0], 0]])
-    F: FloatArray = ex @ P_b @ np.linalg.pinv(P_a)
-    return F / np.linalg.norm(F)
 
 
 def sampson_px(
@@ -257,7 +248,7 @@ class JointTiming:
                  line_time_s: float | tuple[float, float] | None = None, line_time_guess_s: float = 0.0,
                  line_time_prior_s: tuple[float, float] | None = None, estimate_drift: bool = True,
                  max_drift_ppm: float = 200.0, edge_margin_frames: float = EDGE_MARGIN_FRAMES) -> None:
-        P_a, P_b = projection_matrix(camera_a), projection_matrix(camera_b)
+        F = fundamental_from_projections(camera_a, camera_b)
         self.tracks = as_tracks(observations_a, observations_b)
         self.period_b = float(np.median(np.concatenate([np.diff(tr.tau_b) for tr in self.tracks])))
         half = 1.5 * self.period_b if search_half_width_s is None else float(search_half_width_s)
@@ -289,7 +280,7 @@ class JointTiming:
         else:
             self.fixed = (float(line_time_s), float(line_time_s))
             self.line0 = float(line_time_s)
-        self.res = _Residuals(fundamental_matrix(P_a, P_b), self.tracks, epoch_b=self.epoch_b,
+        self.res = _Residuals(F, self.tracks, epoch_b=self.epoch_b,
                               margin_s=margin, guess_s=self.guess_s, half_width_s=half, line_a=self.fixed[0],
                               line_b=self.fixed[1])
         if self.res.n < MIN_OBSERVATIONS:

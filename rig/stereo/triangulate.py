@@ -15,7 +15,7 @@ import numpy as np
 from rig.stereo._arrays import BoolArray, FloatArray, IntArray
 from rig.stereo.dlt import DLTCamera
 from rig.stereo.errors import DegenerateGeometryError, InputArrayError
-from rig.stereo.normalize import as_points, similarity_2d
+from rig.stereo.normalize import as_points, projection_matrix, similarity_2d
 
 #: Two camera centres closer than this fraction of their distance from the origin (or 1 mm) coincide.
 SAME_CENTRE_REL = 1e-9
@@ -48,15 +48,10 @@ class Triangulation:
 
 
 def as_camera(camera: object, index: int) -> DLTCamera:
-    """A :class:`DLTCamera`, or a (3, 4) projection matrix wrapped as a distortion-free camera."""
+    """A :class:`DLTCamera`, or a projection matrix (or object with ``.P``) as a distortion-free camera."""
     if isinstance(camera, DLTCamera):
         return camera
-    try:
-        return DLTCamera(np.asarray(camera), convention="external")
-    except InputArrayError as exc:
-        raise InputArrayError(
-            f"cameras[{index}]: pass a DLTCamera or a (3, 4) projection matrix ({exc})"
-        ) from exc
+    return DLTCamera(projection_matrix(camera, f"cameras[{index}]"), convention="external")
 
 
 def _centre_groups(cams: Sequence[DLTCamera]) -> IntArray:
