@@ -359,13 +359,14 @@ def _build_generator(st: Station, cfg: RigConfig) -> None:
     addr = parse_address(gc.address, "devices.generator.address")
     url = gc.address
     if addr["scheme"] == "mock":
-        from drivers.mock.generator_instrument import GeneratorInstrument
+        from drivers.mock.generator_instrument import GeneratorInstrument, identity_for
         from drivers.mock.generator_server import GeneratorServer
 
         assert st.world is not None, "a mock:// address needs the simulated station (configuration check)"
         leds = st.world.leds
         instrument = GeneratorInstrument(st.world.shaker, st.clock,
                                          sensitivity_mm_per_v=[(p[0], p[1]) for p in gc.sensitivity_mm_per_v],
+                                         identity=identity_for(gc.channels),
                                          sync_led=leds[0] if leds else None)
         server = GeneratorServer(instrument, mode=addr["link"]).start()
         st._closers.append(("generator mock server", server.stop))
