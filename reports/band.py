@@ -24,6 +24,7 @@ Units: s (controller clock), Hz, mm, px, %.
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
 from dataclasses import dataclass
 from typing import Any
@@ -47,7 +48,7 @@ MIN_PER_CAMERA = 6
 BAND_COLUMNS = [
     "track", "bin", "frequency_lo_hz", "frequency_hi_hz", "frequency_hz", "n_observations", "alpha_frames",
     "amplitude_ref_mm", "amplitude_meas_mm", "u_amplitude_mm", "amplitude_error_pct", "u_amplitude_error_pct",
-    "alias_dchi2", "refused",
+    "alias_dchi2", "refused", "phase_deg", "u_phase_deg",
 ]
 #: Why a method's tracks end where they do (the ceiling above any measured limit).
 CEILINGS = {
@@ -115,9 +116,16 @@ def _segment_observations(run: RunData, cameras: dict[str, DLTCamera], segment: 
             sel = sel[np.isfinite(sel[["timestamp_s", "u_px", "v_px"]].to_numpy(float)).all(axis=1)]
             if sel.empty:
                 continue
-            t = timing.times(cam, sel["timestamp_s"].to_numpy(float), sel["v_px"].to_numpy(float))
+            # as the analysis dates the segment (rig.analysis.analyse.SegmentClock): the line time the
+            # timing fiducial measured, then offset and rate
+            line_error = float(getattr(r, "line_time_error_s", 0.0) or 0.0)
+            dated = timing if not line_error else dataclasses.replace(
+                timing, line_time_s={c: v + line_error for c, v in timing.line_time_s.items()})
+            t = dated.times(cam, sel["timestamp_s"].to_numpy(float), sel["v_px"].to_numpy(float))
+            rate, t_ref = float(getattr(r, "rate", 0.0) or 0.0), float(getattr(r, "t_ref_s", 0.0) or 0.0)
             uv = model.undistort_px(sel[["u_px", "v_px"]].to_numpy(float), strict=False)
-            parts.append(pd.DataFrame({"t_s": t + float(r.offset_s), "u": uv[:, 0], "v": uv[:, 1]}))
+            parts.append(pd.DataFrame({"t_s": t + float(r.offset_s) + rate * (t - t_ref), "u": uv[:, 0],
+                                       "v": uv[:, 1]}))
         if parts:
             out[cam] = pd.concat(parts, ignore_index=True)
     return out
@@ -245,6 +253,9 @@ def _marker_bins(m: _Marker, data: list[tuple[np.ndarray, np.ndarray]], Ps: list
             "amplitude_error_pct": 100 * (fit.amplitude - amp_ref) / amp_ref,
             "u_amplitude_error_pct": 100 * u_amp / amp_ref, "alias_dchi2": fit.alias_dchi2,
             "refused": fit.refused,
+            # x = A·sin(φ + phase) along the sweep's axis against the reference's φ (wrapped to ±180°)
+            "phase_deg": float(np.rad2deg(np.angle(np.exp(1j * fit.phase_rad)))),
+            "u_phase_deg": float(np.rad2deg(u_amp / max(fit.amplitude, 1e-12))),
         })
     return rows
 

@@ -43,6 +43,7 @@ class FiducialRecording:
         self.two_channel = gen_config is not None and gen_config.channels == 2
         self.shaker_channel = gen_config.channel if gen_config is not None else 1
         self.running = False
+        self.last_start: tuple[float, float] | None = None  # (t_sent_s, t_confirmed_s) of the last start
         self._count: dict[tuple[str, str], int] = {}
 
     def start(self, segment: str) -> bool:
@@ -68,6 +69,7 @@ class FiducialRecording:
                                     "shaker_channel": self.shaker_channel,
                                     "shaker_frequency_hz": self._shaker_frequency_hz()})
         self.running = True
+        self.last_start = (t_sent, t_confirmed)
         return True
 
     def _shaker_frequency_hz(self) -> float | None:
@@ -78,6 +80,7 @@ class FiducialRecording:
         return float(gen.frequency_hz())
 
     def _unavailable(self, segment: str, reason: str) -> bool:
+        self.last_start = None
         self.ctx.event("fiducial", {"action": "unavailable", "segment": segment, "reason": reason})
         self.running = False
         return False

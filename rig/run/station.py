@@ -58,7 +58,7 @@ __all__ = ["Station", "StationError", "camera_specs", "open_station", "world_lay
 log = logging.getLogger("rig.run.station")
 SCENE_OF_TARGET = {"calibration_plate": "calibration_plate", "single_marker": "single_marker",
                    "marker_frame": "marker_frame", "plate": "plate", "rotor": "rotor",
-                   "sweep_column": "sweep_column", "none": "none"}
+                   "sweep_column": "sweep_column", "band_column": "band_column", "none": "none"}
 
 
 class StationError(RuntimeError):
