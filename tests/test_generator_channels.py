@@ -134,3 +134,20 @@ def test_a_fiducial_on_channel_2_of_a_one_channel_generator_is_refused_before_an
     assert proc.returncode == 4, proc.stdout + proc.stderr
     assert "fiducial.channel" in proc.stderr and "devices.generator.channels = 1" in proc.stderr
     assert not (tmp_path / "runs").exists()
+
+
+def test_a_station_configured_for_two_channels_refuses_a_one_channel_instrument() -> None:
+    import copy
+    import tomllib
+    from importlib import resources
+
+    from rig.config.rig_config import config_from_dict
+    from rig.run.station import StationError, open_station
+
+    instrument, _, _ = _instrument(1)
+    with GeneratorServer(instrument, mode="tcp") as server:
+        table = copy.deepcopy(tomllib.loads(resources.files("rig").joinpath("data/sim.toml").read_text()))
+        table["devices"]["generator"]["address"] = f"tcp://127.0.0.1:{server.port}"
+        with pytest.raises(StationError, match=r"devices.generator.channels = 2 .* 33521B with 1 channel"), \
+                open_station(config_from_dict(table), VirtualClock()):
+            pass

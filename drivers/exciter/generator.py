@@ -98,6 +98,10 @@ class SafeOffOutcome:
         return f"{state} after {self.attempts} attempt(s), {self.reconnects} reconnect(s){detail}"
 
 
+# output channels of the models whose count we know (Keysight 33500 series); others: trust the configuration
+KNOWN_CHANNELS = {"33511B": 1, "33521A": 1, "33521B": 1, "33512B": 2, "33522A": 2, "33522B": 2}
+
+
 class ScpiGenerator:
     """A function generator channel.
 

@@ -350,7 +350,7 @@ def _arm_comm_timeout(st: Station, name: str, vfd: VfdDriver, timeout_s: float) 
 
 
 def _build_generator(st: Station, cfg: RigConfig) -> None:
-    from drivers.exciter.generator import ScpiGenerator
+    from drivers.exciter.generator import KNOWN_CHANNELS, ScpiGenerator
     from drivers.exciter.shaker import SensitivityTable, Shaker
     from drivers.transport import Transport, open_transport
 
@@ -376,7 +376,11 @@ def _build_generator(st: Station, cfg: RigConfig) -> None:
 
     generator = ScpiGenerator(reopen(), channel=gc.channel, timeout_s=gc.timeout_s, reopen=reopen)
     st._closers.append(("generator transport", generator.close))
-    generator.identify()
+    identity = generator.identify()
+    known = KNOWN_CHANNELS.get(identity.model.upper())
+    if known is not None and known < gc.channels:
+        raise StationError(f"generator: devices.generator.channels = {gc.channels} but the instrument at "
+                           f"{url} is a {identity.model} with {known} channel(s)")
     shaker = Shaker(generator, clock=st.clock, limits=lim.motion_limits(),
                     sensitivity=SensitivityTable(gc.sensitivity_mm_per_v),
                     max_amplitude_vpp=gc.max_amplitude_vpp,
