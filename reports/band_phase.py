@@ -10,11 +10,12 @@ along the sweep axis as A·sin(φ + phase) against that reference; per frequency
 
 * amplitude error e = (A − A_ref)/A_ref (%) with its fit uncertainty (Type A);
 * phase (°) with the budget: the fit (Type A, u_A/A rad) and the controller↔camera clock of the segment
-  (Type B, 360°·f·u_clock: the fiducial fit; it includes the command bracket's width, which cancels for
-  this reference — so it is an upper bound); the delay −phase/(360°·f) (ms) likewise. Not included: the
-  channels' skew after ``PHASe:SYNChronize`` (the instrument's data sheet) and, on a real bench, the shaker
-  and amplifier's own phase response (the certificate then states the phase of the motion against the
-  drive; a lab corrects it with the shaker's calibration or a reference accelerometer).
+  (Type B, 360°·f·u_clock: the reference camera's fiducial fit, taken whole although the fit averages
+  both cameras' own fiducial dates, each of that size; it includes the command bracket's width, which
+  cancels for this reference — so it is an upper bound); the delay −phase/(360°·f) (ms) likewise. Not
+  included: the channels' skew after ``PHASe:SYNChronize`` (the instrument's data sheet) and, on a real
+  bench, the shaker and amplifier's own phase response (the certificate then states the phase of the
+  motion against the drive; a lab corrects it with the shaker's calibration or a reference accelerometer).
 
 The certified edge: from the lowest bin, the last bin of the unbroken run where no marker's fit is refused
 and |e| + k·u and |phase| + k·u are within the limits (k = 2 under the guarded rule, else 0).
