@@ -1,17 +1,20 @@
-"""The certification: calibrate → sync → accuracy → sweep → analysis → report → certificate.
+"""The certification: calibrate → sync → accuracy → sweep → band → analysis → report → certificate.
 
-One run folder holds everything: ``calibration.json`` (calibrate), ``timing.json`` (sync, which also
-records the rotor's radius and frequency), the static poses (accuracy), the frequency sweep, then the
-report (:func:`reports.build.build_report`: analysis, tables, figures, ``report.html``,
-``certificate.json``). The whole plan (arm poses and speeds, rotor and exciter frequencies, amplitudes,
-accelerations, the sweep's slope; :func:`plan`) is checked against the rig's limits **before any device is
-connected**: a violation is refused with exit code 4 and no run folder. The verdict: passed when every
-acceptance criterion of the certificate is evaluated and passes (exit 0), else exit 1.
+One run folder holds everything: ``calibration.json`` (calibrate), ``timing.json`` (sync, which also records
+the rotor's radius and frequency), the static poses (accuracy), the crank's frequency sweep, the shaker's
+sweep over the band beyond it (:mod:`procedures._band`: amplitude and phase against the generator's own
+waveform, up to the pair's combined Nyquist limit), then the report (:func:`reports.build.build_report`:
+analysis, tables, figures, ``report.html``, ``certificate.json``). The whole plan (arm poses and speeds, rotor
+and exciter frequencies, amplitudes, accelerations, the sweep's slope; :func:`plan`) is checked against the
+rig's limits **before any device is connected**: a violation is refused with exit code 4 and no run folder.
+The verdict: passed when every acceptance criterion of the certificate is evaluated and passes (exit 0), else
+exit 1.
 
-``preset = "full"`` is the certification (grid 3³, 10 ISO 9283 cycles, 4 marker-frame poses, sweep
-1 → 30 Hz in 24 s, the paper's linear sync analysed beside ours); ``"fast"`` is a short check of the whole
-chain (grid 2³, 3 cycles, 2 frame poses, sweep 2 → 12 Hz in 8 s, no comparison analysis). The
-``sweep_*``, ``accuracy_*``, ``calibrate_*`` and ``compare_paper_sync`` parameters override the preset.
+``preset = "full"`` is the certification (grid 3³, 10 ISO 9283 cycles, 4 marker-frame poses, sweep 1 → 30 Hz
+in 24 s, band 27 → 50 Hz in 9 s on the shaker, the paper's linear sync analysed beside ours); ``"fast"`` is a
+short check of the whole chain (grid 2³, 3 cycles, 2 frame poses, sweep 2 → 12 Hz in 8 s, no band step — its
+plan says so —, no comparison analysis). The ``sweep_*``, ``band*``, ``accuracy_*``, ``calibrate_*`` and
+``compare_paper_sync`` parameters override the preset.
 """
 
 from __future__ import annotations
@@ -20,7 +23,7 @@ import dataclasses
 from collections.abc import Callable
 from typing import Any, TypedDict, TypeVar
 
-from procedures import accuracy, calibrate, sweep, sync
+from procedures import _band, accuracy, calibrate, sweep, sync
 from procedures._report import REPORT_STEP, report_step
 from procedures.params.certify import DESCRIPTION, NAME, PRESETS, Parameters  # noqa: F401 (its declaration)
 from rig.config.rig_config import RigConfig
@@ -33,18 +36,20 @@ P = TypeVar("P")
 # the steps' parameters that certify sets (as in --set sweep_max_hz=…), named so in its plan's checks
 PARAMETER_NAMES = {"sweep.start_hz": "certify.sweep_start_hz", "sweep.max_hz": "certify.sweep_max_hz",
                    "sweep.duration_s": "certify.sweep_duration_s",
+                   "band.max_hz": "certify.band_max_hz", "band.duration_s": "certify.band_duration_s",
                    "accuracy.grid_points": "certify.accuracy_grid_points",
                    "accuracy.cycles": "certify.accuracy_cycles",
                    "calibrate.slide_positions_mm": "certify.calibrate_slide_positions_mm"}
 
 
 class SubParameters(TypedDict):
-    """The parameters of the four procedures certify runs."""
+    """The parameters of the procedures (and the band step) certify runs."""
 
     calibrate: calibrate.Parameters
     sync: sync.Parameters
     accuracy: accuracy.Parameters
     sweep: sweep.Parameters
+    band: _band.BandParameters
 
 
 def sub_parameters(params: Parameters) -> SubParameters:
@@ -54,6 +59,7 @@ def sub_parameters(params: Parameters) -> SubParameters:
         "sweep": {"start_hz": params.sweep_start_hz, "max_hz": params.sweep_max_hz,
                   "duration_s": params.sweep_duration_s},
         "accuracy": {"grid_points": params.accuracy_grid_points, "cycles": params.accuracy_cycles},
+        "band": {"max_hz": params.band_max_hz, "duration_s": params.band_duration_s, "enabled": params.band},
         "calibrate": {"slide_positions_mm": params.calibrate_slide_positions_mm or None}}
     for name, values in overrides.items():
         chosen[name].update({k: v for k, v in values.items() if v is not None})
@@ -67,16 +73,17 @@ def sub_parameters(params: Parameters) -> SubParameters:
     return SubParameters(calibrate=build("calibrate", calibrate.Parameters),
                          sync=build("sync", sync.Parameters),
                          accuracy=build("accuracy", accuracy.Parameters),
-                         sweep=build("sweep", sweep.Parameters))
+                         sweep=build("sweep", sweep.Parameters),
+                         band=build("band", _band.BandParameters))
 
 
 def plan(params: Parameters, config: RigConfig) -> Plan:
-    """Every step of the certification (calibrate, sync, accuracy, sweep, report), from the preset and the
-    overrides; the runner checks it as a whole before any device is connected."""
+    """Every step of the certification (calibrate, sync, accuracy, sweep, band, report), from the preset and
+    the overrides; the runner checks it as a whole before any device is connected."""
     sub = sub_parameters(params)
     steps = (calibrate.plan(sub["calibrate"], config).steps + sync.plan(sub["sync"], config).steps
              + accuracy.own_plan(sub["accuracy"], config).steps + sweep.own_plan(sub["sweep"], config).steps
-             + (REPORT_STEP,))
+             + _band.own_plan(sub["band"], config).steps + (REPORT_STEP,))
     return Plan(NAME, steps).renamed(PARAMETER_NAMES)
 
 
@@ -84,11 +91,13 @@ def run(ctx: Context, params: Parameters) -> dict[str, Any]:
     sub = sub_parameters(params)  # their whole plan (:func:`plan`) was checked before the station opened
     ctx.log.info("certify (%s): %s", params.preset,
                  {"calibrate": dataclasses.asdict(sub["calibrate"]), "sync": dataclasses.asdict(sub["sync"]),
-                  "accuracy": dataclasses.asdict(sub["accuracy"]), "sweep": dataclasses.asdict(sub["sweep"])})
+                  "accuracy": dataclasses.asdict(sub["accuracy"]), "sweep": dataclasses.asdict(sub["sweep"]),
+                  "band": dataclasses.asdict(sub["band"])})
     calibrate.run_step(ctx, sub["calibrate"])
     sync.run_step(ctx, sub["sync"])
     accuracy.run_steps(ctx, sub["accuracy"])
     sweep.run_step(ctx, sub["sweep"])
+    _band.run_step(ctx, sub["band"])
     compare = params.preset == "full" if params.compare_paper_sync is None else params.compare_paper_sync
     result = report_step(ctx, make_figures=params.figures, compare=("linear",) if compare else ())
     return {"passed": result["passed"], "summary": result["summary"], "report": result["report"],

@@ -92,7 +92,7 @@ def _exciter_vibration(params: Parameters, body: str, config: RigConfig) -> tupl
     return vibration, profile.duration_s + (params.start_hz + params.max_hz) / ramp
 
 
-def _shaker_vibration(params: Parameters, config: RigConfig) -> Vibration:
+def shaker_vibration(params: Parameters, config: RigConfig) -> Vibration:
     """The shaker at ``shaker_amplitude_mm``: the generator's own sweep at constant volts (linear, log:
     the sensitivity table must be flat over it), or a staircase of CW steps with the volts of each
     (fig17). Outside the table, or a table not flat enough: ParameterError (exit 4)."""
@@ -132,7 +132,7 @@ def own_plan(params: Parameters, config: RigConfig, *, step_name: str = "sweep")
     """Step ``sweep``: the column's driving device over the whole profile (hold included)."""
     body = required(config.targets.sweep_column, "targets.sweep_column").body
     if body == "shaker":
-        vibration = _shaker_vibration(params, config)
+        vibration = shaker_vibration(params, config)
         duration_s = vibration.duration_s
     else:
         vibration, duration_s = _exciter_vibration(params, body, config)

@@ -24,6 +24,7 @@ Units: s (controller clock), Hz, mm, px, %.
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
 from dataclasses import dataclass
 from typing import Any
@@ -34,6 +35,7 @@ import pandas as pd
 from reports import frequency
 from reports.load import RunData
 from reports.select import event_window
+from rig.analysis import fiducial as fiducial_clock
 from rig.config.analysis import SYNC_METHODS
 from rig.stereo.band import BinFit, PairBand, fit_bin, instants_alpha, pair_band
 from rig.stereo.dlt import DLTCamera
@@ -44,10 +46,11 @@ GATE_PX = 10.0
 CONDITIONING_HZ = 2.0
 LINE_BINS = 8  # free fits (spread over the sweep) that give a marker's line of motion
 MIN_PER_CAMERA = 6
+OWN_FIDUCIAL_PRIOR_S = 2e-3  # another camera's fiducial edges told apart within ± this of the model's date
 BAND_COLUMNS = [
     "track", "bin", "frequency_lo_hz", "frequency_hi_hz", "frequency_hz", "n_observations", "alpha_frames",
     "amplitude_ref_mm", "amplitude_meas_mm", "u_amplitude_mm", "amplitude_error_pct", "u_amplitude_error_pct",
-    "alias_dchi2", "refused",
+    "alias_dchi2", "refused", "phase_deg", "u_phase_deg",
 ]
 #: Why a method's tracks end where they do (the ceiling above any measured limit).
 CEILINGS = {
@@ -115,12 +118,42 @@ def _segment_observations(run: RunData, cameras: dict[str, DLTCamera], segment: 
             sel = sel[np.isfinite(sel[["timestamp_s", "u_px", "v_px"]].to_numpy(float)).all(axis=1)]
             if sel.empty:
                 continue
-            t = timing.times(cam, sel["timestamp_s"].to_numpy(float), sel["v_px"].to_numpy(float))
+            # as the analysis dates the segment (rig.analysis.analyse.SegmentClock): the line time the
+            # timing fiducial measured, then offset and rate — the other cameras by their own fiducial fit
+            # when the segment has one (else the timing model's drift, extrapolated from the sync step)
+            own = _own_fiducial_clock(run, cam, segment, r) if cam != timing.reference_camera else None
+            offset, rate, t_ref, line_error = own or (
+                float(r.offset_s), float(getattr(r, "rate", 0.0) or 0.0),
+                float(getattr(r, "t_ref_s", 0.0) or 0.0), float(getattr(r, "line_time_error_s", 0.0) or 0.0))
+            dated = timing if not line_error else dataclasses.replace(
+                timing, line_time_s={c: v + line_error for c, v in timing.line_time_s.items()})
+            t = dated.times(cam, sel["timestamp_s"].to_numpy(float), sel["v_px"].to_numpy(float))
             uv = model.undistort_px(sel[["u_px", "v_px"]].to_numpy(float), strict=False)
-            parts.append(pd.DataFrame({"t_s": t + float(r.offset_s), "u": uv[:, 0], "v": uv[:, 1]}))
+            parts.append(pd.DataFrame({"t_s": t + offset + rate * (t - t_ref), "u": uv[:, 0], "v": uv[:, 1]}))
         if parts:
             out[cam] = pd.concat(parts, ignore_index=True)
     return out
+
+
+def _own_fiducial_clock(run: RunData, camera: str, segment: str,
+                        row: Any) -> tuple[float, float, float, float] | None:
+    """(offset at row 0 with half the exposure, rate, t_ref_s, line-time error) of ``camera``'s own timing
+    fiducial fit over the segment (its LED rows, dated by the timing model on the reference clock), with
+    the reference camera's fiducial offset as the prior; None when the segment was not dated by a fiducial
+    or this camera's fit is not usable."""
+    timing = run.timing
+    if timing is None or not str(getattr(row, "source", "")).startswith("timing fiducial"):
+        return None
+    exposure = ((run.rig.get("cameras") or {}).get(camera) or {}).get("exposure_s")
+    exposure_s = float(exposure) if isinstance(exposure, int | float) and 0 <= exposure < 1 else 0.0
+    fid, _ = fiducial_clock.segment_clock(
+        run.folder.run_dir, run.folder.run.events.get("fiducial"), segment, int(row.session), camera,
+        row_start_s=lambda ts, rows: timing.times(camera, ts, rows), exposure_s=exposure_s,
+        prior_offset_s=float(row.offset_s) - 0.5 * exposure_s, prior_half_width_s=OWN_FIDUCIAL_PRIOR_S)
+    if fid is None:
+        return None
+    return (fid.offset_s - fid.line_time_error_s * fid.row_ref_px + 0.5 * exposure_s, fid.rate, fid.t_ref_s,
+            fid.line_time_error_s)
 
 
 def _assign(obs: pd.DataFrame, model: DLTCamera, markers: list[_Marker], reach_mm: np.ndarray,
@@ -245,6 +278,9 @@ def _marker_bins(m: _Marker, data: list[tuple[np.ndarray, np.ndarray]], Ps: list
             "amplitude_error_pct": 100 * (fit.amplitude - amp_ref) / amp_ref,
             "u_amplitude_error_pct": 100 * u_amp / amp_ref, "alias_dchi2": fit.alias_dchi2,
             "refused": fit.refused,
+            # x = A·sin(φ + phase) along the sweep's axis against the reference's φ (wrapped to ±180°)
+            "phase_deg": float(np.rad2deg(np.angle(np.exp(1j * fit.phase_rad)))),
+            "u_phase_deg": float(np.rad2deg(u_amp / max(fit.amplitude, 1e-12))),
         })
     return rows
 

@@ -28,7 +28,7 @@ from typing import Any, Protocol
 import numpy as np
 import pandas as pd
 
-from reports import figures, html, summaries
+from reports import band_phase, figures, html, summaries
 from reports.certificate import acceptance_from_config, build_certificate, evaluate
 from reports.errors import AnalysisFailedError, ReportError
 from reports.load import RunData, load_record
@@ -305,6 +305,7 @@ def _extra(t: ReportTables, primary: str) -> dict[str, Any]:
         "controller_clock": controller_clock(t.clock),
         "band": t.band,
         "phase": phase_section(t.phase),
+        "extended_band": band_phase.section(t.extended),
         "usable_frequency": {
             m: {
                 "tolerance_pct": lim.tolerance,
@@ -359,6 +360,8 @@ def _table_frames(t: ReportTables, measured: dict[str, Any],
         frames["rotor_spectrum"] = t.spectrum
     if t.band_bins is not None and len(t.band_bins):
         frames["band_bins"] = t.band_bins
+    if t.extended is not None and len(t.extended.bins):
+        frames["extended_band"] = t.extended.bins
     return frames
 
 

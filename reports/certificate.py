@@ -46,6 +46,16 @@ TIMING_CRITERIA: tuple[CriterionSpec, ...] = (
     CriterionSpec("controller_clock_u_ms",
                   "Standard uncertainty of the controller↔camera clock offset (timing fiducial)", "ms", "<="),
 )
+# the band beyond the crank sweep (certify's shaker step; reports.band_phase): required when configured
+BAND_CRITERIA: tuple[CriterionSpec, ...] = (
+    CriterionSpec("band_amplitude_error_pct",
+                  "Largest amplitude error |e| of the interleaved fit over the shaker's band", "%", "<="),
+    CriterionSpec("band_phase_deg",
+                  "Largest phase error |φ| over the shaker's band against the generator's waveform", "°",
+                  "<="),
+    CriterionSpec("band_min_hz", "Certified upper edge of the shaker's band (amplitude and phase within "
+                                 "their limits in every bin from its start)", "Hz", ">="),
+)
 CRITERIA: tuple[CriterionSpec, ...] = (
     CriterionSpec("position_max_mm", "Largest 3D position error over the commanded poses", "mm", "<="),
     CriterionSpec("position_rms_mm", "RMS 3D position error over the commanded poses", "mm", "<="),
@@ -70,11 +80,12 @@ CRITERIA: tuple[CriterionSpec, ...] = (
     CriterionSpec("calibration_rms_px", "Largest calibration reprojection RMS over the cameras", "px", "<="),
     CriterionSpec("sync_uncertainty_ms", "Standard uncertainty of the camera offset estimate", "ms", "<="),
     *TIMING_CRITERIA,
+    *BAND_CRITERIA,
 )
 CRITERION_IDS = tuple(c.id for c in CRITERIA)
 
 # The defaults of [criteria] (rig.config.criteria is their one source).
-DEFAULT_LIMITS: dict[str, float] = default_limits()
+DEFAULT_LIMITS: dict[str, float | None] = default_limits()
 DEFAULT_SETTINGS: dict[str, Any] = default_settings()
 DECISION_RULES: dict[str, str] = {
     "guarded": (
@@ -176,13 +187,16 @@ def decide(value: float, expanded_u: float, limit: float, comparison: str, rule:
 
 
 def evaluate(measured: dict[str, Measured | None], acceptance: dict[str, Any]) -> list[dict[str, Any]]:
-    """One row per criterion of :data:`CRITERIA` (in order); ``measured`` misses or None → NOT EVALUATED."""
+    """One row per criterion of :data:`CRITERIA` (in order) whose limit is set (a limit None: not required
+    by this rig, no row); ``measured`` misses or None → NOT EVALUATED."""
     unknown = sorted(set(measured) - set(CRITERION_IDS))
     if unknown:
         raise CriteriaError(f"measured: unknown criterion id(s) {unknown}; known: {list(CRITERION_IDS)}")
     rule = acceptance["decision_rule"]
     rows = []
     for spec in CRITERIA:
+        if acceptance.get(spec.id) is None:
+            continue
         m = measured.get(spec.id)
         limit = float(acceptance[spec.id])
         value = m.value if m is not None else float("nan")

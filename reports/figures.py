@@ -354,6 +354,30 @@ def fig_phase(t: ReportTables) -> Figure | None:
     return fig
 
 
+def fig_extended_band(t: ReportTables) -> Figure | None:
+    """The shaker's band step: amplitude error and phase per bin against the generator's waveform (± 2u)."""
+    ext = t.extended
+    if ext is None or ext.bins.empty:
+        return None
+    fig, axes = new_figure(2, 1, size=(7.5, 5.2))
+    b = ext.bins
+    ok = b["refused"] == ""
+    panels = ((axes[0, 0], "amplitude_error_pct", "u_amplitude_error_pct", "amplitude error (%)"),
+              (axes[1, 0], "phase_deg", "u_phase_deg", "phase against the generator (°)"))
+    for ax, col, u, label in panels:
+        ax.errorbar(b["frequency_hz"][ok], b[col][ok], yerr=2 * b[u][ok], fmt="s", ms=3, capsize=1.5,
+                    color=COLORS["primary"], label="interleaved fit, mean over markers (± U, k = 2)")
+        if (~ok).any():
+            ax.plot(b["frequency_hz"][~ok], np.zeros(int((~ok).sum())), "x", color="0.15", label="refused")
+        ax.axhline(0.0, color="#999999", lw=0.8)
+        ax.axvline(t.fs_hz / 2, color="0.4", lw=1, ls=":", label=f"one camera's Nyquist {t.fs_hz / 2:g} Hz")
+        ax.set_ylabel(label)
+    axes[0, 0].set_title("Band beyond the crank sweep (shaker): amplitude and phase per bin")
+    axes[0, 0].legend()
+    axes[1, 0].set_xlabel("frequency (Hz)")
+    return fig
+
+
 def fig_trajectory(t: ReportTables) -> Figure | None:
     """X(t), Y(t), Z(t) of one marker and an enlarged 5 s segment of its most moving axis (Figs. 5–8)."""
     tr = t.trajectory
@@ -420,6 +444,7 @@ def all_figures(
         "amplitude_error_vs_frequency": fig_amplitude_error(t, tolerance_pct),
         "sweep_time_frequency": fig_time_frequency(t),
         "phase_vs_frequency": fig_phase(t),
+        "extended_band": fig_extended_band(t),
         "trajectory": fig_trajectory(t),
         "rotation_radius": fig_rotation_radius(t),
         "spectrum": fig_spectrum(t),

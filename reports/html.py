@@ -254,6 +254,7 @@ def render(
         _frequency_section(t, pngs, tables_html, bin_hz=float(acceptance["frequency_bin_hz"])),
         _band_section(t),
         _phase_section(t, pngs),
+        _extended_band_section(t, pngs),
         _motion_section(t, pngs, tables_html),
         _calibration_section(t, tables_html),
         _conditions_section(cert["conditions"]),
@@ -395,6 +396,28 @@ def _band_section(t: ReportTables) -> str:
         + table(rows, digits=4, text_cols=("method", "why"))
         + ("<details><summary>Interleaved per-bin values (mean over markers)</summary>"
            + table(means, digits=4, text_cols=("refused",)) + "</details>" if len(means) else "")
+        + "</section>"
+    )
+
+
+def _extended_band_section(t: ReportTables, pngs: dict[str, bytes]) -> str:
+    """Certify's shaker band beyond the crank sweep: amplitude and phase per bin (reports.band_phase)."""
+    ext = t.extended
+    if ext is None:
+        return ""
+    s = ext.sweep
+    edge = ("no bin passes" if not math.isfinite(ext.edge_hz) else
+            f"certified from {ext.start_hz:g} to <b>{ext.edge_hz:g} Hz</b>")
+    return (
+        "<section id='extended-band'><h2>Band beyond the crank sweep (shaker)</h2>"
+        f"<p>The sweep column on the shaker, the generator's linear sweep {s['profile'][0][1]:g} → "
+        f"{s['profile'][-1][1]:g} Hz at {s['amplitude_mm']:g} mm, analysed with the interleaved fit. "
+        "Reference: the generator's own waveform — its sweep law is exact from its phase restart "
+        f"(PHASe:SYNChronize); {html.escape(str(s.get('phase_origin', '')))}. Controller↔camera clock: "
+        f"{html.escape(ext.clock_source)} (u = {1e6 * ext.u_clock_s:.3g} µs). {edge} — "
+        f"{html.escape(ext.why_it_ends)}.</p>"
+        + figure(pngs, "extended_band", "Amplitude error and phase per bin over the shaker's band")
+        + table(ext.bins, digits=4, text_cols=("refused",))
         + "</section>"
     )
 

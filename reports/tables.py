@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from reports import band, frequency, motion, phase, position
+from reports import band, band_phase, frequency, motion, phase, position
 from reports.certificate import Measured
 from reports.errors import FitError
 from reports.load import (
@@ -29,7 +29,7 @@ from reports.load import (
 )
 from reports.quadfit import QuadraticFit, UsableLimit, fit_quadratic, usable_limit_with_bins
 from reports.select import event_window
-from rig.record.events import SweepEvent
+from rig.record.events import BandSweepEvent, SweepEvent
 from rig.stereo.timing import TimingResult
 
 DEFAULT_FPS = 60.0
@@ -72,6 +72,7 @@ class ReportTables:
     centres_mm: dict[str, np.ndarray] = field(default_factory=dict)
     band_bins: pd.DataFrame | None = None  # the interleaved per-bin fits (reports.band.BAND_COLUMNS)
     band: dict[str, Any] | None = None  # the band by method and the certified edge (reports.band)
+    extended: band_phase.ExtendedBand | None = None  # certify's shaker band step (reports.band_phase)
 
 
 def camera_fps(rig: dict[str, Any]) -> tuple[float, str]:
@@ -143,6 +144,7 @@ def compute_tables(
     for method in methods:
         _fit_method(out, method, acceptance)
     _band_tables(out, run, tracks, acceptance, bin_hz)
+    out.extended = _extended_band(out, run, tracks, acceptance, bin_hz)
     out.phase = _sweep_phase(out, run, sweep)
     _plate_tables(out, run, tracks, gate_mm)
     rotations = stream_events(run.events, "rotation")
@@ -244,6 +246,27 @@ def _band_tables(out: ReportTables, run: RunData, tracks: pd.DataFrame, acceptan
                                  guard_k=guard_k)
 
 
+def _extended_band(out: ReportTables, run: RunData, tracks: pd.DataFrame, acceptance: dict[str, Any],
+                   bin_hz: float) -> band_phase.ExtendedBand | None:
+    """Certify's band step (the last ``band_sweep`` event): interleaved bins with the phase against the
+    generator's waveform (:mod:`reports.band_phase`); None without one."""
+    events = typed_events(run.events, BandSweepEvent)
+    if not events:
+        return None
+    sweep = events[-1].to_dict()
+    bins, notes = band.interleaved_bins(run, tracks, out.clock, sweep, fs_hz=out.fs_hz, bin_hz=bin_hz)
+    u_clock_s, source = float("nan"), "no controller clock for the band segment"
+    if out.clock is not None:
+        rows = out.clock[out.clock["segment"].astype(str) == str(sweep.get("segment"))]
+        if len(rows):
+            row = rows.loc[rows["u_offset_s"].astype(float).idxmax()]
+            u_clock_s, source = float(row["u_offset_s"]), str(row["source"])
+    ext = band_phase.extended_band(bins, sweep, u_clock_s=u_clock_s, clock_source=source,
+                                   acceptance=acceptance)
+    ext.notes += notes
+    return ext
+
+
 def _other_offset_s(timing: TimingResult | None) -> float | None:
     if timing is None:
         return None
@@ -331,6 +354,7 @@ def measured_values(t: ReportTables, acceptance: dict[str, Any]) -> dict[str, Me
     if sync is not None:
         m["sync_uncertainty_ms"] = sync
     m.update(_timing_values(t.phase, acceptance))
+    m.update(band_phase.measured_values(t.extended))
     return m
 
 

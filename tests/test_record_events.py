@@ -71,8 +71,8 @@ def test_a_bad_document_names_the_field(data, match) -> None:
 
 
 def test_every_stream_type_names_its_stream() -> None:
-    assert set(EVENT_TYPES) == {"sweep", "accuracy_pose", "calibration_position", "plate", "rotation", "arm",
-                                "camera"}
+    assert set(EVENT_TYPES) == {"sweep", "band_sweep", "accuracy_pose", "calibration_position", "plate",
+                                "rotation", "arm", "camera"}
 
 
 def test_writer_records_typed_documents_and_the_reader_decodes_them(tmp_path) -> None:

@@ -147,8 +147,12 @@ def test_certificate_states_rule_and_conditions() -> None:
     )
     assert cert["run_id"] == "r1" and cert["date_utc"].startswith("2026")
     assert "ILAC-G8" in cert["decision_rule"]["text"]
-    assert [r["id"] for r in cert["criteria"]] == list(CRITERION_IDS)
+    # the band criteria are required only when [criteria] sets them (a rig without a shaker band)
+    assert [r["id"] for r in cert["criteria"]] == [c for c in CRITERION_IDS if not c.startswith("band_")]
     assert cert["result"] == "INCOMPLETE"
+    acc = acceptance_from_config({"criteria": {"band_min_hz": 45.0}})
+    rows = {r["id"]: r for r in build_certificate({}, acc, {"exit_status": "success"})["criteria"]}
+    assert rows["band_min_hz"]["status"] == "NOT EVALUATED" and "band_phase_deg" not in rows
 
 
 @pytest.mark.parametrize(

@@ -98,6 +98,10 @@ class SafeOffOutcome:
         return f"{state} after {self.attempts} attempt(s), {self.reconnects} reconnect(s){detail}"
 
 
+# output channels of the models whose count we know (Keysight 33500 series); others: trust the configuration
+KNOWN_CHANNELS = {"33511B": 1, "33521A": 1, "33521B": 1, "33512B": 2, "33522A": 2, "33522B": 2}
+
+
 class ScpiGenerator:
     """A function generator channel.
 
@@ -360,11 +364,20 @@ class ScpiGenerator:
         """``OUTPn:LOAD INF``: the amplifier input is high impedance, so displayed volts = real volts."""
         self.write(f"{self.output_node}:LOAD", "INF")
 
-    def set_frequency_hz(self, frequency_hz: float) -> None:
-        self.write(f"{self.source}:FREQ", frequency_hz)
+    def _source_of(self, channel: int | None) -> str:
+        """``SOURn`` of ``channel`` (None: this driver's channel); ValueError outside 1..2."""
+        if channel is None:
+            return self.source
+        if channel not in (1, 2):
+            raise ValueError(f"channel={channel!r}: must be 1 or 2")
+        return f"SOUR{channel}"
 
-    def frequency_hz(self) -> float:
-        return self._ask(f"{self.source}:FREQ?", parse_number)
+    def set_frequency_hz(self, frequency_hz: float, *, channel: int | None = None) -> None:
+        """``SOURn:FREQ``; ``channel`` another channel of the instrument (e.g. a fiducial's)."""
+        self.write(f"{self._source_of(channel)}:FREQ", frequency_hz)
+
+    def frequency_hz(self, *, channel: int | None = None) -> float:
+        return self._ask(f"{self._source_of(channel)}:FREQ?", parse_number)
 
     def set_amplitude_vpp(self, amplitude_vpp: float) -> None:
         """Amplitude in volts peak-to-peak (the unit is set to VPP first by :meth:`configure_units`)."""
@@ -381,8 +394,9 @@ class ScpiGenerator:
     def set_output(self, on: bool) -> None:
         self.write(self.output_node, "ON" if on else "OFF")
 
-    def output(self) -> bool:
-        return self._ask(f"{self.output_node}?", parse_bool)
+    def output(self, *, channel: int | None = None) -> bool:
+        node = self.output_node if channel is None else "OUTP" + self._source_of(channel)[4:]
+        return self._ask(f"{node}?", parse_bool)
 
     def configure_sweep(self, start_hz: float, stop_hz: float, time_s: float,
                         spacing: str = "linear") -> None:
@@ -398,6 +412,15 @@ class ScpiGenerator:
     def set_sync(self, on: bool) -> None:
         """``OUTPn:SYNC ON|OFF``: the Sync connector (it drives a timing fiducial LED when one is wired)."""
         self.write(f"{self.output_node}:SYNC", "ON" if on else "OFF")
+
+    def set_sync_source(self, channel: int) -> None:
+        """``OUTP:SYNC:SOUR CHn``: the channel the (one) Sync connector follows — two-channel models only
+        (a one-channel instrument answers −113, raised as :class:`ScpiError`)."""
+        self.write("OUTP:SYNC:SOUR", "CH" + self._source_of(channel)[4:])
+
+    def sync_source(self) -> int:
+        """``OUTP:SYNC:SOUR?`` → 1 or 2."""
+        return self._ask("OUTP:SYNC:SOUR?", lambda r: int(r.strip().upper().removeprefix("CH")))
 
     def sync_enabled(self) -> bool:
         """``OUTPn:SYNC?``."""

@@ -384,6 +384,46 @@ class Shaker(Generator):
         self.stop()
         return result
 
+    def arm_sweep(self, start_hz: float, stop_hz: float, duration_s: float, *, spacing: str = "linear",
+                  amplitude_mm: float) -> float:
+        """Configure the generator's own sweep and start it with the output OFF (its phase generator sweeps,
+        nothing moves), so that a later ``PHASe:SYNChronize`` restarts it at phase 0 on the instrument's
+        timebase; returns the volts (constant) that give ``amplitude_mm`` at ``start_hz``.
+        :meth:`drive_armed` then connects the output."""
+        vpp = self.amplitude_vpp_for(start_hz, amplitude_mm)
+        self.check_sweep(start_hz, stop_hz, duration_s, spacing, vpp)
+
+        def run() -> None:
+            g = self.generator
+            self.prepare()
+            g.set_frequency_hz(start_hz)
+            g.configure_sweep(start_hz, stop_hz, duration_s, spacing)
+            g.set_sweep(True)
+        self._guarded(run)
+        return vpp
+
+    def drive_armed(self, amplitude_vpp: float, until_s: float, *, poll_interval_s: float | None = None,
+                    on_poll: Callable[[], None] | None = None) -> tuple[float, float]:
+        """Output ON with the amplitude ramped up to ``amplitude_vpp`` (an armed sweep keeps running), hold
+        until ``until_s`` (injected clock), then ramp down, output OFF and sweep OFF. Returns (the instant
+        the amplitude was reached, the instant the hold ended)."""
+        self.checks.check_volts(amplitude_vpp)
+
+        def run() -> tuple[float, float]:
+            g = self.generator
+            g.set_output(True)
+            self._output_on = True
+            self._ramp_amplitude(amplitude_vpp)
+            t_steady = self.clock.now_s()
+            if on_poll is not None:
+                on_poll()
+            self._wait_until(until_s, poll_interval_s, on_poll)
+            return t_steady, self.clock.now_s()
+        times: tuple[float, float] = self._guarded(run)
+        self.stop()
+        self._guarded(lambda: self.generator.set_sweep(False))
+        return times
+
     def stop(self) -> None:
         """Ramp the amplitude down in steps, then output OFF."""
         def run() -> None:

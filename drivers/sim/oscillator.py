@@ -198,11 +198,13 @@ class OscillatorBody:
         self._segs = segs
         self._last_command_s = t
 
-    def set_frequency(self, t_s: float, hz: float) -> None:
-        """Step the frequency to ``hz`` (≥ 0) at ``t_s`` (phase stays continuous)."""
+    def set_frequency(self, t_s: float, hz: float, *, phase_rad: float | None = None) -> None:
+        """Step the frequency to ``hz`` (≥ 0) at ``t_s``: the phase stays continuous, or restarts at
+        ``phase_rad`` when given (a generator's ``PHASe:SYNChronize``)."""
         f_new = _finite(hz, "hz", nonneg=True)
         with self._lock:
             t, _, phi = self._begin(t_s)
+            phi = phi if phase_rad is None else _finite(phase_rad, "phase_rad")
             self._replace_future(t, [(t, phi, _CONST, f_new, 0.0, 0.0)])
 
     def ramp_to(self, t_s: float, target_hz: float, rate_hz_per_s: float) -> float:
@@ -223,10 +225,12 @@ class OscillatorBody:
             return t_end
 
     def sweep(self, t_s: float, start_hz: float, stop_hz: float, duration_s: float,
-              spacing: Literal["linear", "log"] = "linear", *, repeat: bool = False) -> float:
+              spacing: Literal["linear", "log"] = "linear", *, repeat: bool = False,
+              phase_rad: float | None = None) -> float:
         """Generator sweep: jump to ``start_hz`` at ``t_s`` and sweep to ``stop_hz`` over ``duration_s``;
         then hold ``stop_hz``, or with ``repeat`` start over from ``start_hz`` at every end (a free-running
-        generator sweep; one segment however many restarts). Returns the end time of the first sweep."""
+        generator sweep; one segment however many restarts). The phase stays continuous, or restarts at
+        ``phase_rad`` when given. Returns the end time of the first sweep."""
         f0 = _finite(start_hz, "start_hz", nonneg=True)
         f1 = _finite(stop_hz, "stop_hz", nonneg=True)
         dur = _finite(duration_s, "duration_s", positive=True)
@@ -236,6 +240,7 @@ class OscillatorBody:
             raise SimCommandError(f"a log sweep needs start_hz > 0 and stop_hz > 0, got {f0!r}, {f1!r}")
         with self._lock:
             t, _, phi = self._begin(t_s)
+            phi = phi if phase_rad is None else _finite(phase_rad, "phase_rad")
             if f0 == f1:
                 seg: _Seg = (t, phi, _CONST, f0, 0.0, 0.0)
             elif spacing == "linear":

@@ -22,7 +22,8 @@ from drivers.sim.targets import TargetSet, unit
 
 __all__ = ["SCENES", "World", "WorldLayout"]
 
-SCENES = ("calibration_plate", "single_marker", "marker_frame", "plate", "rotor", "sweep_column", "none")
+SCENES = ("calibration_plate", "single_marker", "marker_frame", "plate", "rotor", "sweep_column",
+          "band_column", "none")
 _ARM_SCENES = {"calibration_plate", "single_marker", "marker_frame"}
 
 
@@ -107,6 +108,11 @@ class World:
             markers[mid] = _Marker("osc", col.marker_diameter_mm, pos, unit(col.normal, "normal"), col.body,
                                    unit(col.axis, "axis"), 1.0)
             scenes["sweep_column"].append(mid)
+        # the same column re-mounted on the shaker's armature (certify's band beyond the crank's limit)
+        for k, pos in enumerate(col.rest_positions_mm().values()):
+            markers[f"bcol{k}"] = _Marker("osc", col.marker_diameter_mm, pos, unit(col.normal, "normal"),
+                                          "shaker", unit(col.axis, "axis"), 1.0)
+            scenes["band_column"].append(f"bcol{k}")
         pl = tg.plate
         self._check_body(pl.body, "plate.body")
         for mid, (pos, w) in pl.rest_positions_mm().items():

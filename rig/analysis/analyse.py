@@ -254,6 +254,12 @@ def _prepared_observations(observations: dict[str, pd.DataFrame], cameras: dict[
     return obs
 
 
+CLOCK_COLUMNS = ["segment", "session", "offset_s", "u_offset_s", "source", "rate", "t_ref_s",
+                 "line_time_error_s"]
+"""``Analysis.clock``: per segment and session, :class:`SegmentClock`'s fields (controller time of the
+reference camera's time t, its instants dated with the line time plus ``line_time_error_s``)."""
+
+
 @dataclass(frozen=True)
 class SegmentClock:
     """Controller time of a segment's reference-camera time: t_controller = t + offset_s + rate·(t − t_ref_s);
@@ -298,7 +304,7 @@ class _SegmentAnalysis:
         self.knot_spacing_frames = knot_spacing_frames
         self.tracks: list[pd.DataFrame] = []
         self.pairs: list[pd.DataFrame] = []
-        self.clock: list[tuple[str, int, float, float, str]] = []
+        self.clock: list[tuple[str, int, float, float, str, float, float, float]] = []
         self._next_id: dict[str, int] = {}  # sessions of a segment continue the track numbering
 
     def add(self, segment: str, session: int) -> None:
@@ -325,7 +331,8 @@ class _SegmentAnalysis:
         self.notes += t.attrs.get("notes", [])
         if t.empty:
             return
-        self.clock.append((segment, session, clock.offset_s, clock.u_offset_s, clock.source))
+        self.clock.append((segment, session, clock.offset_s, clock.u_offset_s, clock.source, clock.rate,
+                           clock.t_ref_s, clock.line_time_error_s))
         t = t.copy()
         t["time_s"] = t["time_s"] + clock.offset_s + clock.rate * (t["time_s"] - clock.t_ref_s)
         t["segment"] = segment
@@ -506,6 +513,6 @@ def analyse(
         calibration=calibration,
         sync=sync,
         pairs=pd.concat(pairs, ignore_index=True) if pairs else pd.DataFrame(),
-        clock=pd.DataFrame(clock, columns=["segment", "session", "offset_s", "u_offset_s", "source"]),
+        clock=pd.DataFrame(clock, columns=CLOCK_COLUMNS),
         notes=notes,
     )

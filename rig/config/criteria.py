@@ -31,6 +31,12 @@ class CriteriaConfig:
     # the controller's clock against the cameras' (issue 18): 0.5 ms is 1.8° at 10 Hz, 4.5° at 25 Hz
     phase_delay_ms: float = field(default=0.5, metadata=_POSITIVE)
     controller_clock_u_ms: float = field(default=0.05, metadata=_POSITIVE)
+    # the band beyond the crank sweep, swept by the shaker (certify's band step): required only when set
+    # (a rig without a shaker certifies without them); the built-in rig sets them
+    band_amplitude_error_pct: float | None = field(default=None,
+                                                   metadata=spec(lo=0.0, lo_open=True, hi=100.0))
+    band_phase_deg: float | None = field(default=None, metadata=spec(lo=0.0, lo_open=True, hi=180.0))
+    band_min_hz: float | None = field(default=None, metadata=_POSITIVE)
     # settings of the decision (reports/certificate.py)
     decision_rule: str = field(default="guarded", metadata=spec(choices=("guarded", "simple")))
     reference_u_mm: float = field(default=0.02, metadata=spec(lo=0.0, hi=100.0))
@@ -44,10 +50,12 @@ SETTING_FIELDS = ("decision_rule", "amplitude_error_up_to_hz", "reference_u_mm",
                   "frequency_bin_hz", "identification_gate_mm")
 
 
-def default_limits() -> dict[str, float]:
-    """The default limit of every criterion, by criterion id (the certificate's ``limit``)."""
+def default_limits() -> dict[str, float | None]:
+    """The default limit of every criterion, by criterion id (the certificate's ``limit``); None: the
+    criterion is required only when ``[criteria]`` sets it."""
     defaults = dataclasses.asdict(CriteriaConfig())
-    return {name: float(value) for name, value in defaults.items() if name not in SETTING_FIELDS}
+    return {name: None if value is None else float(value) for name, value in defaults.items()
+            if name not in SETTING_FIELDS}
 
 
 def default_settings() -> dict[str, Any]:

@@ -61,7 +61,11 @@ class VfdConfig:
 class GeneratorConfig:
     driver: str = field(metadata=spec(choices=("scpi-generator",)))
     address: str = field(metadata=spec(check=check_address))
-    channel: int = field(default=1, metadata=spec(lo=1, hi=2))
+    channel: int = field(default=1, metadata=spec(lo=1, hi=2, doc="the channel that feeds the shaker's "
+                                                                   "amplifier"))
+    channels: int = field(default=1, metadata=spec(lo=1, hi=2, doc=(
+        "the instrument's output channels: 1 (e.g. Keysight 33521B) or 2 (33522B: channel 2 and the Sync "
+        "connector's source are free for a timing fiducial while channel 1 drives the shaker)")))
     sensitivity_mm_per_v: tuple[tuple[float, ...], ...] = field(
         default=((1.0, 1.0), (100.0, 1.0)), metadata=spec(length=(1, 1000), lo=0.0, hi=1e6))
     max_amplitude_vpp: float = field(default=10.0, metadata=spec(lo=0.0, lo_open=True, hi=100.0))
@@ -72,6 +76,9 @@ class GeneratorConfig:
     def __post_init__(self) -> None:
         from drivers.exciter.shaker import SensitivityTable
 
+        if self.channel > self.channels:
+            raise ConfigError("devices.generator.channel", f"{self.channel}: devices.generator.channels = "
+                                                           f"{self.channels}; allowed: 1..{self.channels}")
         try:
             SensitivityTable(self.sensitivity_mm_per_v)
         except ValueError as exc:

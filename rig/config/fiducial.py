@@ -1,11 +1,16 @@
 """``[fiducial]``: the timing fiducial — an LED in both cameras' view on the function generator's sync output.
 
-The generator named by ``device`` (channel ``channel``) blinks the LED with a square wave of
-``frequency_hz`` started at phase 0 by ``PHASe:SYNChronize``; each camera's clock is then dated against the
-controller's from the LED's rows (:mod:`rig.stereo.fiducial`). ``regions_px.<camera>`` is where the LED
-is in that camera's image: (x0, y0, x1, y1) px, half-open, inside the LED's outline. ``rise_time_s`` is
-the LED's 10–90 % rise (datasheet). Without a ``[fiducial]`` table the start-event method relates the
-clocks (to ±½ frame). ``[sim.fiducial]`` places the twin's LED (:class:`SimFiducialConfig`).
+The generator named by ``device`` blinks the LED from its Sync connector following channel ``channel``
+(``OUTPut:SYNC:SOURce CH<channel>`` on a two-channel generator) with a square wave of ``frequency_hz``
+started at phase 0 by ``PHASe:SYNChronize``. On the channel that drives the shaker
+(``devices.generator.channel``) the fiducial runs only while the shaker is idle; on the other channel of a
+two-channel generator (``devices.generator.channels = 2``) it runs also while the shaker moves, and
+``PHASe:SYNChronize`` gives both channels one phase origin (the shaker's phase reference). Each camera's
+clock is then dated against the controller's from the LED's rows (:mod:`rig.stereo.fiducial`).
+``regions_px.<camera>`` is where the LED is in that camera's image: (x0, y0, x1, y1) px, half-open,
+inside the LED's outline. ``rise_time_s`` is the LED's 10–90 % rise (datasheet). Without a ``[fiducial]``
+table the start-event method relates the clocks (to ±½ frame). ``[sim.fiducial]`` places the twin's LED
+(:class:`SimFiducialConfig`).
 
 The frequency must let the pattern be told apart within the start events' ±½ frame (period > 1.02
 frames of every camera) and let its edges walk through the frame (not commensurate with any camera's

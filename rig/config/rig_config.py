@@ -207,10 +207,10 @@ def _check_fiducial(cfg: RigConfig) -> None:
     if gen is None:
         raise ConfigError("fiducial.device", f"{fid.device!r} drives the LED but [devices.{fid.device}] is "
                                              "not configured")
-    if fid.channel != gen.channel:
-        raise ConfigError("fiducial.channel", f"{fid.channel}: the LED is on the sync output of "
-                                              f"devices.{fid.device}.channel = {gen.channel}; allowed: "
-                                              f"{gen.channel}")
+    if fid.channel > gen.channels:
+        raise ConfigError("fiducial.channel", f"{fid.channel}: devices.{fid.device}.channels = "
+                                              f"{gen.channels} (a one-channel generator has no channel "
+                                              f"{fid.channel}); allowed: 1..{gen.channels}")
     if cfg.station.simulated and (cfg.sim is None or cfg.sim.fiducial is None):
         raise ConfigError("sim.fiducial", "required when [fiducial] is configured on a simulated station "
                                           "(where the twin's LED is)")

@@ -147,6 +147,20 @@ class SweepEvent(Event):
 
 
 @dataclass(frozen=True)
+class BandSweepEvent(SweepEvent):
+    """Certify's shaker sweep beyond the crank's limit (its own stream, apart from the crank's ``sweep``):
+    the generator's own sweep restarted at phase 0 by ``PHASe:SYNChronize`` at the first profile time (the
+    command's bracket midpoint, ``phase_origin_s`` = [sent, confirmed]); ``phase_origin`` says how that
+    instant relates to the cameras' clocks (the timing fiducial on the generator's other channel, or the
+    bracket alone)."""
+
+    KIND: ClassVar[str] = "band_sweep"
+    STREAM: ClassVar[str] = "band_sweep"
+    phase_origin_s: list[float] | None = None
+    phase_origin: str = ""
+
+
+@dataclass(frozen=True)
 class AccuracyPoseEvent(Event):
     """One static pose of the accuracy test: the commanded marker positions (mm, rig frame) while the
     cameras recorded from ``t_start_s`` to ``t_stop_s``."""
@@ -245,8 +259,8 @@ class CameraEvent(Event):
 
 
 EVENT_TYPES: dict[str, type[Event]] = {
-    t.STREAM: t for t in (SweepEvent, AccuracyPoseEvent, CalibrationPositionEvent, PlateEvent, RotationEvent,
-                          ArmEvent, CameraEvent)
+    t.STREAM: t for t in (SweepEvent, BandSweepEvent, AccuracyPoseEvent, CalibrationPositionEvent, PlateEvent,
+                          RotationEvent, ArmEvent, CameraEvent)
 }
 
 
@@ -289,6 +303,6 @@ class InterlockDocument(Document):
 
 
 __all__ = ["EVENT_SCHEMA_VERSION", "EVENT_TYPES", "VERSION_KEY", "AccuracyPoseEvent", "ArmEvent",
-           "CalibrationPositionEvent", "CameraEvent", "Document", "Event", "EventSchemaError",
-           "InterlockDocument", "PlateEvent", "RotationEvent", "StartDocument", "StopDocument",
-           "SweepEvent"]
+           "BandSweepEvent", "CalibrationPositionEvent", "CameraEvent", "Document", "Event",
+           "EventSchemaError", "InterlockDocument", "PlateEvent", "RotationEvent", "StartDocument",
+           "StopDocument", "SweepEvent"]

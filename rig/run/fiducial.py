@@ -1,12 +1,15 @@
 """The timing fiducial during a recording: start its sync square wave, keep the LED's rows, check it held.
 
 Used by :class:`rig.run.acquire.Acquirer` when ``[fiducial]`` is configured. Before the cameras start,
-:meth:`FiducialRecording.start` sets the generator's frequency with its output OFF (nothing moves:
-only the Sync connector, and with it the LED, follows the oscillator), switches sync on and restarts the
-phase with ``PHASe:SYNChronize``, bracketed by the controller's clock before the command and after
-``*OPC?``; a ``fiducial`` event (action ``start``) records the bracket and the frequency. A generator whose
-output is on drives the shaker: its sync follows the shaker's frequency, so the fiducial is not used for
-that recording (action ``unavailable``, with the reason) and the start-event method remains. After the
+:meth:`FiducialRecording.start` sets the fiducial channel's frequency with that channel's output OFF
+(only the Sync connector, and with it the LED, follows its oscillator), points the Sync connector at that
+channel (two-channel generator), switches sync on and restarts the phase with ``PHASe:SYNChronize``,
+bracketed by the controller's clock before the command and after ``*OPC?``; a ``fiducial`` event (action
+``start``) records the bracket, the frequency and — when the shaker's channel is another one and its output
+is on — the shaker's CW frequency, whose phase restarted at the same instant (the shaker's phase
+reference, :mod:`reports.phase`). A fiducial channel whose output is on drives the shaker: its sync follows
+the shaker's frequency, so the fiducial is not used for that recording (action ``unavailable``, with the
+reason) and the start-event method remains. After the
 recording, :meth:`FiducialRecording.finish` checks that the generator still runs the fiducial's
 frequency with its output off (else the edges the controller predicts are wrong: action ``invalid``) and
 writes the LED's rows of every camera to ``fiducial/<camera>/<segment>.<n>.parquet`` (atomically;
@@ -36,18 +39,25 @@ class FiducialRecording:
             name: (int(r[0]), int(r[1]), int(r[2]), int(r[3])) for name, r in config.regions_px.items()}
         device = ctx.station.devices.get(config.device)
         self.generator = getattr(device, "generator", None)
+        gen_config = ctx.config.devices.generator
+        self.two_channel = gen_config is not None and gen_config.channels == 2
+        self.shaker_channel = gen_config.channel if gen_config is not None else 1
         self.running = False
+        self.last_start: tuple[float, float] | None = None  # (t_sent_s, t_confirmed_s) of the last start
         self._count: dict[tuple[str, str], int] = {}
 
     def start(self, segment: str) -> bool:
-        """Start the square wave if the generator is idle; True when the fiducial runs for this recording."""
+        """Start the square wave on the fiducial's channel if that channel is idle; True when the fiducial
+        runs for this recording."""
         gen, cfg, clock = self.generator, self.config, self.ctx.clock
         if gen is None:
             return self._unavailable(segment, f"devices.{cfg.device} is not connected")
-        if gen.output():
-            return self._unavailable(segment, f"devices.{cfg.device}'s output is on (it drives the shaker, "
-                                              "so its sync follows the shaker's frequency)")
-        gen.set_frequency_hz(cfg.frequency_hz)
+        if gen.output(channel=cfg.channel):
+            return self._unavailable(segment, f"devices.{cfg.device}'s channel {cfg.channel} output is on "
+                                              "(it drives the shaker, so its sync follows the shaker)")
+        gen.set_frequency_hz(cfg.frequency_hz, channel=cfg.channel)
+        if self.two_channel:
+            gen.set_sync_source(cfg.channel)
         gen.set_sync(True)
         t_sent = clock.now_s()
         gen.synchronize_phase()
@@ -55,11 +65,22 @@ class FiducialRecording:
         t_confirmed = clock.now_s()
         self.ctx.event("fiducial", {"action": "start", "segment": segment, "t_sent_s": t_sent,
                                     "t_confirmed_s": t_confirmed, "frequency_hz": cfg.frequency_hz,
-                                    "channel": cfg.channel, "rise_time_s": cfg.rise_time_s})
+                                    "channel": cfg.channel, "rise_time_s": cfg.rise_time_s,
+                                    "shaker_channel": self.shaker_channel,
+                                    "shaker_frequency_hz": self._shaker_frequency_hz()})
         self.running = True
+        self.last_start = (t_sent, t_confirmed)
         return True
 
+    def _shaker_frequency_hz(self) -> float | None:
+        """Channel 1's CW frequency when its output is on (its phase restarted with the fiducial's)."""
+        gen = self.generator
+        if gen is None or self.shaker_channel == self.config.channel or not gen.output():
+            return None
+        return float(gen.frequency_hz())
+
     def _unavailable(self, segment: str, reason: str) -> bool:
+        self.last_start = None
         self.ctx.event("fiducial", {"action": "unavailable", "segment": segment, "reason": reason})
         self.running = False
         return False
@@ -71,11 +92,16 @@ class FiducialRecording:
         self.running = False
         gen = self.generator
         assert gen is not None
-        frequency = gen.frequency_hz()
-        if gen.output() or abs(frequency - self.config.frequency_hz) > 1e-9 * self.config.frequency_hz:
+        frequency = gen.frequency_hz(channel=self.config.channel)
+        output = gen.output(channel=self.config.channel)
+        source_ok = not self.two_channel or gen.sync_source() == self.config.channel
+        wanted = self.config.frequency_hz
+        if output or not source_ok or abs(frequency - wanted) > 1e-9 * wanted:
+            moved = "" if source_ok else " and the Sync connector on another channel"
             self.ctx.event("fiducial", {"action": "invalid", "segment": segment, "reason": (
-                f"the generator ran at {frequency:g} Hz with its output {'on' if gen.output() else 'off'} "
-                "after the recording: its sync edges were not the fiducial's")})
+                f"the generator's channel {self.config.channel} ran at {frequency:g} Hz with its output "
+                f"{'on' if output else 'off'}{moved} after the recording: its sync edges were not the "
+                "fiducial's")})
             return
         for camera, parts in rows.items():
             frame = _rows_frame(parts)

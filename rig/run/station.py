@@ -58,7 +58,7 @@ __all__ = ["Station", "StationError", "camera_specs", "open_station", "world_lay
 log = logging.getLogger("rig.run.station")
 SCENE_OF_TARGET = {"calibration_plate": "calibration_plate", "single_marker": "single_marker",
                    "marker_frame": "marker_frame", "plate": "plate", "rotor": "rotor",
-                   "sweep_column": "sweep_column", "none": "none"}
+                   "sweep_column": "sweep_column", "band_column": "band_column", "none": "none"}
 
 
 class StationError(RuntimeError):
@@ -350,7 +350,7 @@ def _arm_comm_timeout(st: Station, name: str, vfd: VfdDriver, timeout_s: float) 
 
 
 def _build_generator(st: Station, cfg: RigConfig) -> None:
-    from drivers.exciter.generator import ScpiGenerator
+    from drivers.exciter.generator import KNOWN_CHANNELS, ScpiGenerator
     from drivers.exciter.shaker import SensitivityTable, Shaker
     from drivers.transport import Transport, open_transport
 
@@ -359,13 +359,14 @@ def _build_generator(st: Station, cfg: RigConfig) -> None:
     addr = parse_address(gc.address, "devices.generator.address")
     url = gc.address
     if addr["scheme"] == "mock":
-        from drivers.mock.generator_instrument import GeneratorInstrument
+        from drivers.mock.generator_instrument import GeneratorInstrument, identity_for
         from drivers.mock.generator_server import GeneratorServer
 
         assert st.world is not None, "a mock:// address needs the simulated station (configuration check)"
         leds = st.world.leds
         instrument = GeneratorInstrument(st.world.shaker, st.clock,
                                          sensitivity_mm_per_v=[(p[0], p[1]) for p in gc.sensitivity_mm_per_v],
+                                         identity=identity_for(gc.channels),
                                          sync_led=leds[0] if leds else None)
         server = GeneratorServer(instrument, mode=addr["link"]).start()
         st._closers.append(("generator mock server", server.stop))
@@ -375,7 +376,11 @@ def _build_generator(st: Station, cfg: RigConfig) -> None:
 
     generator = ScpiGenerator(reopen(), channel=gc.channel, timeout_s=gc.timeout_s, reopen=reopen)
     st._closers.append(("generator transport", generator.close))
-    generator.identify()
+    identity = generator.identify()
+    known = KNOWN_CHANNELS.get(identity.model.upper())
+    if known is not None and known < gc.channels:
+        raise StationError(f"generator: devices.generator.channels = {gc.channels} but the instrument at "
+                           f"{url} is a {identity.model} with {known} channel(s)")
     shaker = Shaker(generator, clock=st.clock, limits=lim.motion_limits(),
                     sensitivity=SensitivityTable(gc.sensitivity_mm_per_v),
                     max_amplitude_vpp=gc.max_amplitude_vpp,

@@ -284,7 +284,9 @@ def fit_bin(
         dchi2, refused = _identify(win, f_ref_hz, identify.fs_hz, identify.combined_nyquist_hz)
         if identify.degenerate and f_ref_hz > identify.single_nyquist_hz:
             refused = identify.degenerate_reason()
-    return BinFit(amp, u_amp, float(np.arctan2(pa, pb)), rms, n_obs, dchi2, refused, vec_a, vec_b)
+    # the fit's sinusoid runs on φ − w·t_ref (conditioning): back to the reference's own phase φ
+    phase = float(np.angle(np.exp(1j * (np.arctan2(pa, pb) - win.w * t_ref))))
+    return BinFit(amp, u_amp, phase, rms, n_obs, dchi2, refused, vec_a, vec_b)
 
 
 def _unit(v: object, name: str) -> FloatArray:
