@@ -15,7 +15,9 @@ Prints, for ``--seconds`` of video per camera (default 5 s, MP4 'mp4v'):
 
 Run: ``.venv/bin/python benchmarks/measure.py [--seconds 5] [--keep DIR] [--reuse] [--repeat 3]``
 (``--reuse``: the videos already in ``--keep``). Figures depend on what else runs on the machine: each CPU
-figure is the least of ``--repeat`` runs, and the load average is printed; compare the ratios.
+figure is the least of ``--repeat`` runs, and the load average is printed; compare the ratios. ``rig
+measure``'s ratio is also given run by run against a decode-only run just before it (the median of those
+pairs moves less with the load than the ratio of two leasts taken minutes apart).
 """
 
 from __future__ import annotations
@@ -23,6 +25,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import statistics
 import sys
 import tempfile
 import time
@@ -168,10 +171,15 @@ def run(folder: Path, paths: tuple[Path, Path], calibration: Path, seconds: floa
         print(f"  {name:<25} {cpu / video_s:6.3f} = {cpu / cpu_decode:5.2f} × baseline   "
               f"(wall {wall_x:.2f} s)")
     opts = MeasureOptions(window_s=(0.6, seconds - 0.1))
-    runs = [measure_once(folder, paths, calibration, opts) for _ in range(repeat)]
+    runs, ratios = [], []
+    for _ in range(repeat):  # each run beside its own decode-only run: the load changes within seconds
+        decode_now = cpu_both(decode_luma, paths)[0]
+        runs.append(measure_once(folder, paths, calibration, opts))
+        ratios.append(runs[-1][0] / decode_now)
     cpu_measure, wall, res = min(runs, key=lambda r: r[0])
     print(f"  rig measure --timing      {cpu_measure / video_s:6.3f} = {cpu_measure / cpu_decode:5.2f} × "
-          "baseline   (target ≤ 1.3×)")
+          f"baseline   (target ≤ 1.3×); each run / the decode-only run just before it: median "
+          f"{statistics.median(ratios):.2f} × (runs {', '.join(f'{r:.2f}' for r in ratios)})")
     cpu_steps = {k[9:]: v for k, v in res.timings_s.items() if k.startswith("cpu_step_")}
     print("    of which " + ", ".join(f"{k} {v / video_s:.3f}" for k, v in cpu_steps.items())
           + "  (read_videos: decoding, duplicate test and marker extraction in both threads)")

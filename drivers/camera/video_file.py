@@ -210,6 +210,21 @@ def _half(image: NDArray[np.uint8]) -> NDArray[np.uint8]:
                                               interpolation=cv2.INTER_AREA))
 
 
+def _half_and_change(image: NDArray[np.uint8], prev_half: NDArray[np.uint8] | None,
+                     ) -> tuple[NDArray[np.uint8], NDArray[np.float32] | None]:
+    """(half-size image, 8×8-block change map to ``prev_half`` or None for the first frame): in one compiled
+    pass (:mod:`drivers.camera.change_kernel`, the same numbers) when the sides are multiples of 8, else by
+    OpenCV."""
+    if image.shape[0] % 8 == 0 and image.shape[1] % 8 == 0:
+        from drivers.camera import change_kernel  # numba: loaded by the first frame, not by the import
+
+        if prev_half is None:
+            return change_kernel.half_only(image), None
+        return change_kernel.half_and_change(image, prev_half)
+    half = _half(image)
+    return half, _block_change(half, prev_half) if prev_half is not None else None
+
+
 def _block_change(a_half: NDArray[np.uint8], b_half: NDArray[np.uint8]) -> NDArray[np.float32]:
     """Mean absolute difference per 8×8 block of the full image (float32 DN, to 1/16 DN) from the two
     half-size images: two exact 2× area reductions of 16 × |a − b| (fast paths, no rounding loss)."""
@@ -500,8 +515,8 @@ class VideoFile(Camera):
                     break
                 if index == 0:
                     self._first_pts_s = rep.first_pts_s = pts
-                half = _half(img)
-                yield _Decoded(index, pts, img, half, _block_change(half, prev) if prev is not None else None)
+                half, change = _half_and_change(img, prev)
+                yield _Decoded(index, pts, img, half, change)
                 prev = half
                 index += 1
         finally:

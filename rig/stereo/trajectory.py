@@ -50,7 +50,7 @@ from scipy.interpolate import BSpline
 from scipy.linalg import LinAlgError, solveh_banded
 from scipy.sparse.linalg import spsolve
 
-from rig.stereo._arrays import FloatArray
+from rig.stereo._arrays import FloatArray, IntArray
 from rig.stereo._series import as_times
 from rig.stereo.errors import AmbiguousFrequencyError, InputArrayError, TimingError, TooFewSamplesError
 from rig.stereo.normalize import Camera, projection_matrix
@@ -173,37 +173,46 @@ def _check(
     return Ps, ts, uvs
 
 
+def _jacobian(P: FloatArray, design: sparse.csr_matrix, uv: FloatArray, C: FloatArray | None,
+              ) -> list[tuple[FloatArray, FloatArray]]:
+    """Per image coordinate k (u, v) of one camera: the Jacobian of its equations in X, (N, 3), and their
+    residuals, (N,), at coefficients C (None: the linear DLT-style equations)."""
+    if C is None:
+        uhat, w = uv, np.ones(len(uv))
+    else:
+        proj = np.column_stack([np.asarray(design @ C), np.ones(len(uv))]) @ P.T
+        w = proj[:, 2]
+        uhat = proj[:, :2] / w[:, None]
+    out = []
+    for k in range(2):
+        g = (P[k, :3][None, :] - uhat[:, k : k + 1] * P[2, :3][None, :]) / w[:, None]  # (N, 3)
+        out.append((g, -(P[k, 3] - uv[:, k] * P[2, 3]) if C is None else uv[:, k] - uhat[:, k]))
+    return out
+
+
 def _system(
     Ps: Sequence[FloatArray], ts: Sequence[FloatArray], uvs: Sequence[FloatArray], basis: Basis,
-    C: FloatArray | None,
+    C: FloatArray | None, *, designs: Sequence[sparse.csr_matrix] | None = None,
 ) -> tuple[Design, FloatArray]:
-    """Gauss–Newton system (A, r) in vec(C) (row-major n_basis × 3) at coefficients C (None: linear DLT)."""
+    """Gauss–Newton system (A, r) in vec(C) (row-major n_basis × 3) at coefficients C (None: linear DLT);
+    ``designs``: each camera's ``basis.design`` at its times ``ts`` when already computed (they do not
+    change over the iterations)."""
+    designs = designs if designs is not None else [basis.design(t) for t in ts]
     rows, rhs = [], []
-    for P, t, uv in zip(Ps, ts, uvs, strict=True):
-        Phi = basis.design(t).tocoo()
-        if C is None:
-            uhat, w = uv, np.ones(len(t))
-        else:
-            Xh = np.column_stack([np.asarray(basis.design(t) @ C), np.ones(len(t))])
-            proj = Xh @ P.T
-            w = proj[:, 2]
-            uhat = proj[:, :2] / w[:, None]
+    for P, design, uv in zip(Ps, designs, uvs, strict=True):
+        Phi = design.tocoo()
+        n = len(uv)
         dense = isinstance(basis, SineBasis)  # few dense columns: skip the sparse bookkeeping
-        for k in range(2):
-            g = (P[k, :3][None, :] - uhat[:, k : k + 1] * P[2, :3][None, :]) / w[:, None]  # (N, 3)
+        for g, r in _jacobian(P, design, uv, C):
+            rhs.append(r)
             if dense:
                 phi = Phi.toarray()
-                rows.append((phi[:, :, None] * g[:, None, :]).reshape(len(t), -1))
-                rhs.append(-(P[k, 3] - uv[:, k] * P[2, 3]) if C is None else uv[:, k] - uhat[:, k])
+                rows.append((phi[:, :, None] * g[:, None, :]).reshape(n, -1))
                 continue
             data = (Phi.data[:, None] * g[Phi.row]).ravel()
             r_idx = np.repeat(Phi.row, 3)
             c_idx = (Phi.col[:, None] * 3 + np.arange(3)[None, :]).ravel()
-            rows.append(sparse.csr_matrix((data, (r_idx, c_idx)), shape=(len(t), 3 * basis.size)))
-            if C is None:
-                rhs.append(-(P[k, 3] - uv[:, k] * P[2, 3]))
-            else:
-                rhs.append(uv[:, k] - uhat[:, k])
+            rows.append(sparse.csr_matrix((data, (r_idx, c_idx)), shape=(n, 3 * basis.size)))
     if isinstance(basis, SineBasis):
         return np.vstack(rows), np.concatenate(rhs)
     return sparse.vstack(rows).tocsr(), np.concatenate(rhs)
@@ -284,23 +293,116 @@ def fit_trajectory(
         raise TooFewSamplesError(
             f"{n_eq} equations cannot determine {3 * basis.size} trajectory coefficients"
         )
-    A, r = _system(Ps, ts, uvs, basis, None)
+    designs = [basis.design(t) for t in ts]
+    spline_rows = [_spline_rows(d) for d in designs] if isinstance(basis, SplineBasis) else []
+    if (isinstance(basis, SplineBasis) and 3 * basis.size > 4 * (_BAND + 1)
+            and all(r is not None for r in spline_rows)):  # wide enough for banded Cholesky
+        C = _fit_banded(Ps, designs, [r for r in spline_rows if r is not None], uvs, basis,
+                        iterations=iterations)
+    else:
+        C = _fit_general(Ps, ts, designs, uvs, basis, iterations=iterations)
+    res = []
+    for P, design, uv in zip(Ps, designs, uvs, strict=True):
+        Xh = np.column_stack([np.asarray(design @ C), np.ones(len(uv))]) @ P.T
+        res.append(uv - Xh[:, :2] / Xh[:, 2:3])
+    allr = np.concatenate(res)
+    return Trajectory(basis, C, res, float(np.sqrt(np.mean(allr**2))))
+
+
+def _fit_general(Ps: Sequence[FloatArray], ts: Sequence[FloatArray], designs: Sequence[sparse.csr_matrix],
+                 uvs: Sequence[FloatArray], basis: Basis, *, iterations: int) -> FloatArray:
+    """Gauss–Newton on the coefficients (n_basis × 3) with the design assembled (sparse or dense)."""
+    A, r = _system(Ps, ts, uvs, basis, None, designs=designs)
     scale = _row_scale(A)
     C = _solve(A, r, basis, scale).reshape(-1, 3)
     for it in range(iterations):
-        A, r = _system(Ps, ts, uvs, basis, C)
+        A, r = _system(Ps, ts, uvs, basis, C, designs=designs)
         if it == 0:  # penalty weight relative to the pixel-scaled equations
             scale = _row_scale(A)
         dC = _solve(A, r, basis, scale, C.ravel()).reshape(-1, 3)
         C = C + dC
         if np.max(np.abs(dC)) < 1e-10 * (1.0 + np.max(np.abs(C))):
             break
-    res = []
-    for P, t, uv in zip(Ps, ts, uvs, strict=True):
-        Xh = np.column_stack([np.asarray(basis.design(t) @ C), np.ones(len(t))]) @ P.T
-        res.append(uv - Xh[:, :2] / Xh[:, 2:3])
-    allr = np.concatenate(res)
-    return Trajectory(basis, C, res, float(np.sqrt(np.mean(allr**2))))
+    return C
+
+
+_BAND = 11  # upper bandwidth of a cubic B-spline's normal equations in vec(C): 3 basis steps × 3 + 2
+_UPPER_P, _UPPER_Q = np.triu_indices(12)  # the pairs p ≤ q of an equation's 12 non-zero coefficients
+
+
+def _spline_rows(design: sparse.csr_matrix) -> tuple[FloatArray, IntArray] | None:
+    """(values (N, 4), first basis index (N,)) of a cubic B-spline design whose every row holds 4
+    consecutive basis functions (as ``BSpline.design_matrix`` gives), else None."""
+    if not design.has_sorted_indices or not np.all(np.diff(design.indptr) == 4):
+        return None
+    cols = np.asarray(design.indices, dtype=np.int64).reshape(-1, 4)
+    if not np.all(np.diff(cols, axis=1) == 1):
+        return None
+    return np.asarray(design.data, dtype=float).reshape(-1, 4), cols[:, 0]
+
+
+def _banded_normal(Ps: Sequence[FloatArray], designs: Sequence[sparse.csr_matrix],
+                   rows: Sequence[tuple[FloatArray, IntArray]], uvs: Sequence[FloatArray],
+                   C: FloatArray | None, *, n_cols: int) -> tuple[FloatArray, FloatArray, float]:
+    """The normal equations AᵀA x = Aᵀr of the spline equations at C in upper band storage (``solveh_banded``:
+    ``bands[_BAND + i − j, j] = N[i, j]``, i ≤ j), Aᵀr, and the RMS row norm of A (the penalty's scale):
+    summed straight from each equation's 12 non-zero coefficients, no sparse matrix built."""
+    a_parts, first_parts, r_parts = [], [], []
+    for P, design, (values, first), uv in zip(Ps, designs, rows, uvs, strict=True):
+        for g, r in _jacobian(P, design, uv, C):
+            a_parts.append((values[:, :, None] * g[:, None, :]).reshape(len(uv), 12))
+            first_parts.append(3 * first)
+            r_parts.append(r)
+    a, c0, r = np.concatenate(a_parts), np.concatenate(first_parts), np.concatenate(r_parts)
+    at = (_BAND + _UPPER_P - _UPPER_Q) * n_cols + c0[:, None] + _UPPER_Q[None, :]
+    bands = np.bincount(at.ravel(), (a[:, _UPPER_P] * a[:, _UPPER_Q]).ravel(), minlength=(_BAND + 1) * n_cols)
+    rhs = np.bincount((c0[:, None] + np.arange(12)).ravel(), (a * r[:, None]).ravel(), minlength=n_cols)
+    rms_row = float(np.sqrt(np.sum(np.square(a))) / np.sqrt(max(len(r), 1)))
+    return np.asarray(bands, np.float64).reshape(_BAND + 1, n_cols), np.asarray(rhs, np.float64), rms_row
+
+
+def _penalty_bands(basis: SplineBasis, scale: float, n_cols: int) -> tuple[FloatArray, sparse.csr_matrix]:
+    """The P-spline penalty rows R (scaled) and RᵀR in the band storage of :func:`_banded_normal`."""
+    Areg = basis.regulariser()
+    assert Areg is not None
+    R3 = (sparse.kron(Areg, sparse.identity(3)) * scale).tocsr()
+    RtR = sparse.coo_matrix(R3.T @ R3)
+    RtR.sum_duplicates()
+    upper = RtR.row <= RtR.col
+    bands = np.zeros((_BAND + 1, n_cols))
+    bands[_BAND + RtR.row[upper] - RtR.col[upper], RtR.col[upper]] = RtR.data[upper]
+    return bands, R3
+
+
+def _solve_bands(bands: FloatArray, rhs: FloatArray) -> FloatArray:
+    """N x = rhs for a symmetric banded N: banded Cholesky, or sparse LU when N is not positive definite."""
+    try:
+        return np.asarray(solveh_banded(bands, rhs, check_finite=False))
+    except LinAlgError:
+        n = bands.shape[1]
+        upper = sparse.diags([bands[_BAND - d, d:] for d in range(_BAND + 1)], list(range(_BAND + 1)),
+                             shape=(n, n))
+        return np.asarray(spsolve(sparse.csc_matrix(upper + sparse.triu(upper, 1).T), rhs))
+
+
+def _fit_banded(Ps: Sequence[FloatArray], designs: Sequence[sparse.csr_matrix],
+                rows: Sequence[tuple[FloatArray, IntArray]], uvs: Sequence[FloatArray], basis: SplineBasis,
+                *, iterations: int) -> FloatArray:
+    """:func:`_fit_general` for a cubic B-spline: the same steps (penalty on the updated coefficients, its
+    weight from the design's RMS row norm), the normal equations summed in band form."""
+    n_cols = 3 * basis.size
+    bands, rhs, scale = _banded_normal(Ps, designs, rows, uvs, None, n_cols=n_cols)
+    penalty, R3 = _penalty_bands(basis, scale, n_cols)
+    C = _solve_bands(bands + penalty, rhs).reshape(-1, 3)
+    for it in range(iterations):
+        bands, rhs, rms_row = _banded_normal(Ps, designs, rows, uvs, C, n_cols=n_cols)
+        if it == 0:  # penalty weight relative to the pixel-scaled equations
+            penalty, R3 = _penalty_bands(basis, rms_row, n_cols)
+        dC = _solve_bands(bands + penalty, rhs + R3.T @ -(R3 @ C.ravel())).reshape(-1, 3)
+        C = C + dC
+        if np.max(np.abs(dC)) < 1e-10 * (1.0 + np.max(np.abs(C))):
+            break
+    return C
 
 
 def fit_spline_trajectory(
