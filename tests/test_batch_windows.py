@@ -92,6 +92,7 @@ def test_windows_give_the_whole_file_measurement(long_pair: Path, whole: Measure
         joined = []
         for task in tasks:
             mine = _nearest_track(series[series["task_id"] == task.task_id], rest)
+            assert task.core_s is not None
             lo, hi = task.core_s
             assert mine["time_s"].min() >= lo and mine["time_s"].max() < hi  # trimmed to the core
             joined.append(mine)

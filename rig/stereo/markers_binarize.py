@@ -3,7 +3,9 @@
 The frame is reduced ×2 or ×4 — subsampled when its noise is low, else averaged (see reduce_frame) —
 then binarized — by default against the local mean (a box three marker diameters wide) plus an offset of
 max(min_contrast/2, 4σ of the noise), so uneven lighting does not matter; or at Otsu's level; or at a
-fixed level — and the outer contours of the blobs give candidate windows at full resolution. The exact
+fixed level — and the blobs' bounding boxes give candidate windows at full resolution. The usual case
+(local threshold, subsampled frame) is one compiled pass (:mod:`rig.stereo.markers_label`); the others use
+OpenCV (outer contours). The exact
 measurement (area, contrast, centre) is made later at full resolution (:mod:`rig.stereo.markers_refine`),
 so the filters here are deliberately loose.
 """
