@@ -31,9 +31,9 @@ core (OpenCV's SimpleBlobDetector uses the second core; a quiet machine's wall f
 Run: .venv/bin/python benchmarks/markers.py [--rounds N] [--frames N] [--clock both|cpu|wall]
 [--scene both|drift|vibration] [--markers 12 30]
 
-Figures: README.md ("Marker extraction"), two runs of --rounds 3 --frames 20 at load average 14–18:
-single-thread CPU, full frame 10.1–12.7× sbd/default and 6.9–8.9× sbd/tuned (the ranges of the rounds'
-medians), tracking one call per frame 45–56× sbd/tuned with 12 markers and 28.9–35.2× with 30, one marker
+Figures: README.md ("Marker extraction"), three runs of --rounds 3 --frames 20 at load average 10–18:
+single-thread CPU, full frame 9.5–12.7× sbd/default and 6.9–8.9× sbd/tuned (the ranges of the rounds'
+medians), tracking one call per frame 45–62× sbd/tuned with 12 markers and 28.7–37.1× with 30, one marker
 alone 159–223×; centroid RMS 0.0056–0.0081 px.
 What limits them now:
   - tracking: 35–58 µs fixed per call (option checks, one compiled call per frame: markers_kernel.track_frame)

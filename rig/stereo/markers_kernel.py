@@ -306,11 +306,13 @@ def _weigh(  # noqa: PLR0917 (numba: no keyword-only arguments)
 
 @_jit
 def _support(  # noqa: PLR0917 (numba: no keyword-only arguments)
-        d: np.ndarray, half_px: int, free: np.ndarray, pixels: np.ndarray, px_xy: np.ndarray,
-        stack: np.ndarray) -> int:
+        d: np.ndarray, half_px: int, free: np.ndarray, clipped: np.ndarray, pixels: np.ndarray,
+        stack: np.ndarray, m: np.ndarray) -> tuple[int, float, bool, bool]:
     """The 8-connected region of ``d > 0`` holding the window's marker: its pixels (flat padded indices)
-    into ``pixels[:n]`` and their offsets (x, y) from the centre pixel into ``px_xy[:n]`` (float64), marked
-    cleared in ``free`` (uint8, padded flat: 1 where d > 0 on entry); returns n.
+    into ``pixels[:n]``, cleared in ``free`` (uint8, padded flat: 1 where d > 0 on entry), and its weighted
+    raw moments (1, x, y, xx, xy, yy, xxx, xxy, xyy, yyy; offsets from the centre pixel) into ``m``, summed
+    run by run. Returns (n, peak weight, saturated: a pixel ``clipped``, cramped: the region reaches the
+    ring's inner edge, RING_PX − 1 pixels from the window's border: the window is too small).
     ``stack``: scratch, 4·(W + 2)² int64 (a pixel is pushed at most once from each of the runs beside it).
 
     The marker is the region of the centre pixel; when that pixel is background, the region of the
@@ -335,11 +337,15 @@ def _support(  # noqa: PLR0917 (numba: no keyword-only arguments)
                     if dist2 < best:
                         best, seed = dist2, q
         if seed < 0:
-            return 0
+            m[:] = 0.0
+            return 0, 0.0, False, False
     # scanline fill: each popped seed grows into its row's run, whose 8-neighbour spans in the rows above
     # and below seed their own runs (the padding frame is 0: runs and spans never leave the window)
     stack[0] = seed
     top, n = 1, 0
+    m0 = m1 = m2 = m3 = m4 = m5 = m6 = m7 = m8 = m9 = 0.0  # scalars: kept in registers
+    peak_w, saturated, cramped = 0.0, False, False
+    edge = half_px - RING_PX + 1
     while top:
         top -= 1
         q = stack[top]
@@ -351,12 +357,36 @@ def _support(  # noqa: PLR0917 (numba: no keyword-only arguments)
         while free[right + 1]:
             right += 1
         row = left // pw
-        y, x0 = float(row - 1 - half_px), row * pw + 1 + half_px
+        iy, x0 = row - 1 - half_px, row * pw + 1 + half_px
+        s0 = s1 = s2 = s3 = 0.0  # the run's sums of v, v·x, v·x², v·x³
         for x in range(left, right + 1):
             free[x] = 0
             pixels[n] = x
-            px_xy[n, 0], px_xy[n, 1] = x - x0, y
             n += 1
+            v, xo = float(d[x]), float(x - x0)
+            vx = v * xo
+            s0 += v
+            s1 += vx
+            s2 += vx * xo
+            s3 += vx * xo * xo
+            peak_w = max(peak_w, v)
+            saturated |= clipped[x]
+        y = float(iy)
+        m0 += s0
+        m1 += s1
+        m2 += y * s0
+        m3 += s2
+        m4 += y * s1
+        m5 += y * y * s0
+        m6 += s3
+        m7 += y * s2
+        m8 += y * y * s1
+        m9 += y * y * y * s0
+        lo_x, hi_x = left - x0, right - x0
+        if abs(iy) == edge:  # a pixel with max(|x|, |y|) == edge: |x| ≤ edge on this row
+            cramped |= lo_x <= edge and hi_x >= -edge
+        elif abs(iy) < edge:  # … or x = ±edge
+            cramped |= (lo_x <= -edge <= hi_x) or (lo_x <= edge <= hi_x)
         for shift in (-pw, pw):
             new_run = True
             for x in range(left - 1 + shift, right + 2 + shift):
@@ -367,7 +397,8 @@ def _support(  # noqa: PLR0917 (numba: no keyword-only arguments)
                     new_run = False
                 else:
                     new_run = True
-    return n
+    m[0], m[1], m[2], m[3], m[4], m[5], m[6], m[7], m[8], m[9] = m0, m1, m2, m3, m4, m5, m6, m7, m8, m9
+    return n, peak_w, saturated, cramped
 
 
 @_jit
@@ -392,36 +423,6 @@ def _moment_shape(m: np.ndarray) -> tuple[float, float, float, float]:
     c12 = exyy - mx * (cyy + my2) - 2.0 * my * cxy
     skew = (c30 * c30 + c03 * c03 + 3.0 * (c21 * c21 + c12 * c12)) / det**1.5
     return mx, my, roundness, skew
-
-
-@_jit
-def _moments(  # noqa: PLR0917 (numba: no keyword-only arguments)
-        d: np.ndarray, pixels: np.ndarray, px_xy: np.ndarray, clipped: np.ndarray, half_px: int,
-        m: np.ndarray) -> tuple[float, bool, bool]:
-    """Weighted raw moments of the support ``pixels`` (flat padded indices; offsets ``px_xy``) into ``m``
-    (10,); returns (peak weight, saturated, cramped). cramped: the support reaches the ring's inner edge
-    (RING_PX − 1 pixels from the window's border: the window is too small for the marker)."""
-    m0 = m1 = m2 = m3 = m4 = m5 = m6 = m7 = m8 = m9 = 0.0  # scalars: kept in registers
-    peak, saturated, cramped = 0.0, False, False
-    edge = float(half_px - RING_PX + 1)
-    for k in range(len(pixels)):
-        x, y, v = px_xy[k, 0], px_xy[k, 1], float(d[pixels[k]])
-        vx, vy = v * x, v * y
-        m0 += v
-        m1 += vx
-        m2 += vy
-        m3 += vx * x
-        m4 += vx * y
-        m5 += vy * y
-        m6 += vx * x * x
-        m7 += vx * x * y
-        m8 += vx * y * y
-        m9 += vy * y * y
-        peak = max(peak, v)
-        saturated |= clipped[pixels[k]]
-        cramped |= max(abs(x), abs(y)) == edge
-    m[0], m[1], m[2], m[3], m[4], m[5], m[6], m[7], m[8], m[9] = m0, m1, m2, m3, m4, m5, m6, m7, m8, m9
-    return peak, saturated, cramped
 
 
 @_jit
@@ -462,8 +463,8 @@ def scratch(half_px: int) -> tuple[np.ndarray, ...]:
     return (np.empty(n_ring, np.uint8), np.ones(n_ring, np.bool_), np.empty(n_ring, np.bool_),
             ring_x, ring_y, np.empty((w, w), np.uint8), np.ones((w, w), np.bool_),
             np.zeros(pw * pw, np.float32), np.zeros(pw * pw, np.uint8), np.zeros(pw * pw, np.bool_),
-            np.empty(w * w, np.int64), np.empty(4 * pw * pw, np.int64), np.empty(10), np.empty((w * w, 2)),
-            ri, ci, np.empty(256, np.int64))
+            np.empty(w * w, np.int64), np.empty(4 * pw * pw, np.int64), np.empty(10), ri, ci,
+            np.empty(256, np.int64))
 
 
 @_jit
@@ -473,7 +474,7 @@ def measure_one(  # noqa: PLR0917 (numba: no keyword-only arguments)
     """Measure the window of half size ``half_px`` centred on the integer pixel (row, col) of ``image``
     into column ``n`` of ``out`` and ``flags`` (and ``signal[n]`` when ``signal`` has rows); ``scr``:
     :func:`scratch` of the same half size. See :func:`measure_range`."""
-    vals, ok, keep, ring_x, ring_y, raw, valid, d, free, clipped, queue, stack, m, px_xy, ri, ci, hist = scr
+    vals, ok, keep, ring_x, ring_y, raw, valid, d, free, clipped, queue, stack, m, ri, ci, hist = scr
     pw = 2 * half_px + 3
     inside = _gather(image, row, col, half_px, dark, raw, valid)
     _ring_values(raw, valid, inside, ri, ci, vals, ok)
@@ -481,8 +482,8 @@ def measure_one(  # noqa: PLR0917 (numba: no keyword-only arguments)
     sigma = np.float32(s)
     floor = np.float32(NOISE_FLOOR_K) * sigma
     _weigh(raw, valid, inside, (a, b, c), floor, d, clipped, free)
-    pixels = queue[:_support(d, half_px, free, queue, px_xy, stack)]
-    peak_w, saturated, cramped = _moments(d, pixels, px_xy, clipped, half_px, m)
+    n_support, peak_w, saturated, cramped = _support(d, half_px, free, clipped, queue, stack, m)
+    pixels = queue[:n_support]
     du, dv, roundness, skew = _moment_shape(m)
     plateau = _plateau(d, pixels, peak_w)
     contrast = plateau + float(floor) if m[0] > 0 else np.nan
