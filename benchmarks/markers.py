@@ -31,20 +31,15 @@ core (OpenCV's SimpleBlobDetector uses the second core; a quiet machine's wall f
 Run: .venv/bin/python benchmarks/markers.py [--rounds N] [--frames N] [--clock both|cpu|wall]
 [--scene both|drift|vibration] [--markers 12 30]
 
-Figures: README.md ("Marker extraction"), from --clock cpu --rounds 3 --frames 20, this version and the
-previous one (ad56a16, the numpy measurement) alternating in the same hour at load average 26–30 — full
-frame 8.8–10.5× sbd/default and 6.5–7.2× sbd/tuned (before 7.1–7.7× / 5.0–5.5×); tracking one call per
-frame 17.5–36× sbd/tuned (before 10.9–12.9×), ≥ 30× only with 12 drifting markers; one marker alone
-74–116× (before 22–25×); centroid RMS 0.0056–0.0074 px for every ours/* variant, before and after.
+Figures: README.md ("Marker extraction"), three runs of --rounds 3 --frames 20 at load average 10–18:
+single-thread CPU, full frame 9.5–12.7× sbd/default and 6.9–8.9× sbd/tuned (the ranges of the rounds'
+medians), tracking one call per frame 45–62× sbd/tuned with 12 markers and 28.7–37.1× with 30, one marker
+alone 159–223×; centroid RMS 0.0056–0.0081 px.
 What limits them now:
-  - tracking: ~0.1 ms fixed per call (Python and numpy around the compiled kernel: option checks,
-    predictions, the Measured record, the output rows) and 14–19 µs per marker, mostly the cache misses
-    of reading a 33×33 window after the sbd variants have flushed the caches (the kernel alone, called
-    again and again on the same windows, takes ~5 µs per window). The kernel reads every window's first
-    and last pixel per row before measuring (independent loads, fetched in parallel): 10–25 % less time
-    in a loop that flushes the caches between calls (two runs; noisy at this load).
-  - full frame: the binarization stage (ours/binarize, OpenCV) is about half of it; blur 0.12 ms,
-    findContours 0.07 ms, the ×4 subsample 0.05 ms, boundingRect per contour and the glue the rest.
+  - tracking: 35–58 µs fixed per call (option checks, one compiled call per frame: markers_kernel.track_frame)
+    and ~8–10 µs per marker, mostly the support's flood fill and reading the window after the sbd variants
+    have flushed the caches.
+  - full frame: the binarization (one compiled pass, rig/stereo/markers_label.py) is about 40 % of it.
   - tried and measured before, not kept: cv2.adaptiveThreshold for blur + offset + compare (2× slower);
     the local mean on a further-reduced frame; cv2.resize INTER_NEAREST_EXACT for the subsample.
 rig measure / rig batch (MarkerReducer.reduce_many on 16 decoded frames) use the exact frame-by-frame
@@ -224,7 +219,8 @@ def run(n_markers: int, n_frames: int, rounds: int, *, clock=time.perf_counter,
             if r == 0:
                 results[name].append(found)
     report(times, results, truth,
-           f"{n_markers} markers, {scene}, {n_frames} frames 1920×1080, {rounds} rounds, {order}")
+           f"{n_markers} markers, {scene}, {n_frames} frames 1920×1080, {rounds} rounds, {order}; "
+           f"load average {os.getloadavg()[0]:.1f} at the end")
 
 
 def report(times: dict[str, np.ndarray], results: dict[str, list[np.ndarray]], truth: np.ndarray,
@@ -233,11 +229,13 @@ def report(times: dict[str, np.ndarray], results: dict[str, list[np.ndarray]], t
     per_round = {name: np.median(t, axis=1) * 1e3 for name, t in times.items()}
     print(f"\n{title}")
     refs = ("sbd/default", "sbd/tuned", "sbd/coarse")
-    print(f"{'method':<12} {'ms/frame':>8} {'(worst)':>8} " + " ".join(f"{'×' + r[4:]:>8}" for r in refs)
+    print(f"{'method':<12} {'ms/frame':>8} {'(worst)':>8} " + " ".join(f"{'×' + r[4:]:>15}" for r in refs)
           + f" {'RMS px':>7} {'bias u,v px':>16} {'missed':>6} {'false':>5}")
     for name, t in times.items():
         ms = per_round[name]
-        ratios = [np.median(times[r] / t) for r in refs]
+        # median of all paired ratios, and the range of the per-round medians (the spread over repeats)
+        ratios = [f"{np.median(times[r] / t):5.1f} ({np.median(times[r] / t, axis=1).min():4.1f}–"
+                  f"{np.median(times[r] / t, axis=1).max():4.1f})" for r in refs]
         errs, missed, false = [], 0, 0
         for f, found in enumerate(results[name], start=1):
             e, m, fa = errors(found, truth[f][:1] if name == ONE else truth[f])
@@ -247,7 +245,7 @@ def report(times: dict[str, np.ndarray], results: dict[str, list[np.ndarray]], t
         e = np.concatenate(errs)
         rms = np.sqrt((e**2).sum(axis=1).mean() / 2) if len(e) else np.nan
         bias = e.mean(axis=0) if len(e) else (np.nan, np.nan)
-        print(f"{name:<12} {ms.min():8.3f} {ms.max():8.3f} " + " ".join(f"{r:8.1f}" for r in ratios)
+        print(f"{name:<12} {ms.min():8.3f} {ms.max():8.3f} " + " ".join(f"{r:>15}" for r in ratios)
               + f" {rms:7.4f} {bias[0]:+7.4f},{bias[1]:+7.4f} {missed:6d} {false:5d}")
 
 

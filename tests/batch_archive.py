@@ -38,27 +38,42 @@ def _stamp(t: dt.datetime) -> str:
     return t.strftime("%Y%m%d-%H%M%S")
 
 
-def _pair_segments(folder: Path, frequency_hz: float, segments: int, seed: int) -> float:
+def _pair_segments(folder: Path, frequency_hz: float, segments: int, seed: int,
+                   segment_s: float = SEGMENT_S) -> float:
     world = World(VirtualClock(), seed=seed, layout=WorldLayout(initial_scene="sweep_column"))
     world.exciter.set_frequency(0.0, frequency_hz)
     left, right = camera_pair(world)
     (folder / "left").mkdir(parents=True)
     (folder / "right").mkdir(parents=True)
     for k in range(segments):
-        t0 = SPINUP_S + k * SEGMENT_S
-        name = _stamp(ARCHIVE_START + dt.timedelta(seconds=k * SEGMENT_S))
-        left.write_video(folder / "left" / f"left_{name}.mp4", t0, t0 + SEGMENT_S)
+        t0 = SPINUP_S + k * segment_s
+        name = _stamp(ARCHIVE_START + dt.timedelta(seconds=k * segment_s))
+        left.write_video(folder / "left" / f"left_{name}.mp4", t0, t0 + segment_s)
         right.write_video(folder / "right" / f"right_{name}.mp4", t0 + RIGHT_DELAY_S,
-                          t0 + SEGMENT_S + RIGHT_DELAY_S)
+                          t0 + segment_s + RIGHT_DELAY_S)
     return world.layout.crank_radius_mm
 
 
-def write_archive(folder: Path) -> Archive:
-    """The archive, its calibration and ``manifest.toml`` in ``folder``."""
+def write_calibration(folder: Path) -> Path:
+    """``folder/calibration.json``, by ``rig calibrate`` from the demo plate videos."""
     demo = write_demo(folder / "demo")
     calibration = folder / "calibration.json"
     assert main(["calibrate", str(demo.plate[0]), str(demo.plate[1]), "--target", str(demo.target_toml),
                  "--out", str(calibration)]) == 0
+    return calibration
+
+
+def write_long_pair(folder: Path, seconds: float, frequency_hz: float = 5.0, seed: int = 13) -> Path:
+    """One long recording per camera (``pair/left/left_….mp4``, ``pair/right/…``) of the vibrating column
+    and its calibration in ``folder``; returns the calibration's path."""
+    calibration = write_calibration(folder)
+    _pair_segments(folder / "pair", frequency_hz, 1, seed, segment_s=seconds)
+    return calibration
+
+
+def write_archive(folder: Path) -> Archive:
+    """The archive, its calibration and ``manifest.toml`` in ``folder``."""
+    calibration = write_calibration(folder)
     amplitude_mm = 0.0
     pairs = {}
     for name, (frequency_hz, segments, seed) in PAIRS.items():

@@ -16,6 +16,14 @@ only file paths and a small outcome dictionary travel through the scheduler, nev
       document per task outcome and unmatched segment, the timing continuity per pair, a stop
   ``continuity.csv``, ``trend.csv``   timing continuity across segments; per target over the archive
 
+A recording longer than two windows (``window_s`` of its pair in the manifest) is split into windows
+``[k·window_s, (k + 1)·window_s)`` of the reference file's clock (the last one takes the tail), each a task:
+``rig measure``'s code on the frames of the window ± ``overlap_s`` (the frames before it are decoded and
+passed over: the decoder never seeks, so a window late in a long file costs its offset in decoding), the
+summary over the window alone and the displacement series trimmed to it, so consecutive windows join
+without a duplicate or a gap. Each window's timing is estimated on its own and checked for continuity with
+the others like the segments' (below).
+
 A task is named by the hash of its inputs (video names, sizes and modification times, the calibration's
 bytes, the options, the software version): a rerun skips every task whose outcome file says ``done`` for
 the same inputs, so a batch killed at any instant carries on where it stopped. A failing task is retried
@@ -29,9 +37,11 @@ paths (a shared file system) and have this package installed.
 
 from __future__ import annotations
 
+import dataclasses
 import datetime as dt
 import hashlib
 import json
+import math
 import os
 import sys
 import time
@@ -67,6 +77,10 @@ class Task:
     sync: str
     reference_markers: str | tuple[tuple[float, float, float], ...]
     static_mm: float
+    # a window of a long recording: its core (start, end) on the reference file's clock (s; the last window's
+    # end is inf), measured overlap_s longer at both ends and trimmed back to it; None: the whole files
+    core_s: tuple[float, float] | None = None
+    overlap_s: float = 0.0
 
     @property
     def partition(self) -> str:
@@ -94,28 +108,60 @@ def _file_identity(path: Path) -> dict[str, Any]:
     return {"name": path.name, "size": st.st_size, "mtime_ns": st.st_mtime_ns}
 
 
-def task_id(pair: PairSpec, left: Segment, right: Segment) -> str:
-    """The hash of a task's inputs: equal ids ⇔ the same videos, calibration, options and software."""
-    identity = {
+def task_id(pair: PairSpec, left: Segment, right: Segment,
+            core_s: tuple[float, float] | None = None) -> str:
+    """The hash of a task's inputs: equal ids ⇔ the same videos, window, calibration, options, software."""
+    identity: dict[str, Any] = {
         "software": SOFTWARE, "site": pair.site, "pair": pair.name,
         "left": _file_identity(left.path), "right": _file_identity(right.path),
         "calibration": hashlib.sha256(pair.calibration.read_bytes()).hexdigest(),
         "sync": pair.sync, "reference_markers": pair.reference_markers, "static_mm": pair.static_mm,
     }
+    if core_s is not None:
+        identity["core_s"] = [core_s[0], str(core_s[1])]  # str: inf is no JSON number
+        identity["overlap_s"] = pair.overlap_s
     return hashlib.sha256(json.dumps(identity, sort_keys=True).encode()).hexdigest()[:20]
 
 
+def video_duration_s(path: Path) -> float:
+    """The recording's length from its container (frame count / rate, s; 0 when unknown)."""
+    import cv2
+
+    cap = cv2.VideoCapture(str(path))
+    try:
+        fps = float(cap.get(cv2.CAP_PROP_FPS) or 0.0)
+        frames = float(cap.get(cv2.CAP_PROP_FRAME_COUNT) or 0.0)
+    finally:
+        cap.release()
+    return frames / fps if fps > 0 else 0.0
+
+
+def windows(duration_s: float, window_s: float) -> list[tuple[float, float]]:
+    """Cores of the windows of a recording of ``duration_s``: [k·window_s, (k + 1)·window_s), the last one
+    open-ended ((k·window_s, inf): it takes the tail, so it lasts window_s to 2·window_s); one window
+    (0, inf) when the recording is shorter than two windows or ``window_s`` is 0."""
+    n = int(duration_s // window_s) if window_s > 0 else 1
+    if n <= 1:
+        return [(0.0, math.inf)]
+    return [(k * window_s, (k + 1) * window_s if k < n - 1 else math.inf) for k in range(n)]
+
+
 def plan(manifest: BatchManifest) -> tuple[list[Task], list[Segment]]:
-    """Every task of the manifest (time order per pair) and the segments left without a partner."""
+    """Every task of the manifest (time order per pair) and the segments left without a partner; a pair
+    with ``window_s`` gets a task per window of each recording longer than two windows."""
     tasks: list[Task] = []
     alone: list[Segment] = []
     for pair in manifest.pairs:
         matched, unmatched = match_segments(pair.left, pair.right, manifest.match_tolerance_s)
         alone += unmatched
-        tasks += [Task(task_id=task_id(pair, left, right), site=pair.site, pair=pair.name,
-                       start_utc=left.start_utc, left=left.path, right=right.path,
-                       calibration=pair.calibration, sync=pair.sync, reference_markers=pair.reference_markers,
-                       static_mm=pair.static_mm) for left, right in matched]
+        for left, right in matched:
+            cores = windows(video_duration_s(left.path), pair.window_s) if pair.window_s else [None]
+            tasks += [Task(task_id=task_id(pair, left, right, core), site=pair.site, pair=pair.name,
+                           start_utc=left.start_utc + dt.timedelta(seconds=core[0] if core else 0.0),
+                           left=left.path, right=right.path, calibration=pair.calibration, sync=pair.sync,
+                           reference_markers=pair.reference_markers, static_mm=pair.static_mm,
+                           core_s=core if core and len(cores) > 1 else None, overlap_s=pair.overlap_s)
+                      for core in cores]
     return tasks, alone
 
 
@@ -153,17 +199,29 @@ def run_task(task: Task, out_dir: str) -> dict[str, Any]:
     Raises what the measurement raises (Dask retries the task, then the batch reports it failed).
     """
     from rig.deploy.measure import MeasureOptions, measure_videos
+    from rig.deploy.video_markers import ExtractOptions
 
     out = Path(out_dir)
     t0 = time.perf_counter()
     work = out / "work" / task.task_id
-    result = measure_videos({"left": task.left, "right": task.right}, task.calibration, work,
-                            options=MeasureOptions(sync=task.sync, reference_markers=task.reference_markers,
-                                                   static_mm=task.static_mm),
+    options = MeasureOptions(sync=task.sync, reference_markers=task.reference_markers,
+                             static_mm=task.static_mm)
+    if task.core_s is not None:  # a window: frames of the core ± overlap; summary over the core alone
+        start_s, end_s = task.core_s
+        extract = ExtractOptions(start_s=start_s - task.overlap_s if start_s > 0 else None,
+                                 stop_s=end_s + task.overlap_s if math.isfinite(end_s) else None)
+        # the last window's summary to the end (the largest float: measure.json stays strict JSON)
+        last_s = end_s if math.isfinite(end_s) else sys.float_info.max
+        options = dataclasses.replace(options, extract=extract, window_s=(start_s, last_s))
+    result = measure_videos({"left": task.left, "right": task.right}, task.calibration, work, options=options,
                             force=True)  # the task's own work folder: a retry replaces what it left
     timing = _timing_columns(result.timing, "left")
-    video_s = float(result.displacement["time_s"].max() - result.displacement["time_s"].min()) \
-        if not result.displacement.empty else 0.0
+    displacement = result.displacement
+    if task.core_s is not None:  # trimmed to the core: windows join without a duplicate or a gap
+        t_s = displacement["time_s"].to_numpy(float)
+        displacement = displacement[(t_s >= task.core_s[0]) & (t_s < task.core_s[1])].reset_index(drop=True)
+    video_s = float(displacement["time_s"].max() - displacement["time_s"].min()) \
+        if not displacement.empty else 0.0
     summary = result.summary.copy()
     summary.insert(0, "task_id", task.task_id)
     summary.insert(1, "segment_start_utc", pd.Timestamp(task.start_utc))
@@ -171,8 +229,9 @@ def run_task(task: Task, out_dir: str) -> dict[str, Any]:
         summary[key] = value
     summary["problems"] = len(result.problems)
     summary["duration_s"] = video_s
-    series = result.displacement.copy()
-    series.insert(0, "time_utc", pd.Timestamp(task.start_utc) + pd.to_timedelta(series["time_s"], unit="s"))
+    series = displacement.copy()
+    file_start = pd.Timestamp(task.start_utc) - pd.Timedelta(seconds=task.core_s[0] if task.core_s else 0.0)
+    series.insert(0, "time_utc", file_start + pd.to_timedelta(series["time_s"], unit="s"))
     series.insert(0, "task_id", task.task_id)
     name = f"{task.task_id}.parquet"
     _write_atomic(out / "segments" / task.partition / name, lambda p: summary.to_parquet(p, index=False))
@@ -181,6 +240,8 @@ def run_task(task: Task, out_dir: str) -> dict[str, Any]:
                "start_utc": task.start_utc.isoformat(), "left": str(task.left), "right": str(task.right),
                "status": "done", "seconds": time.perf_counter() - t0, "video_s": video_s,
                "problems": result.problems, "timing": timing,
+               "core_s": None if task.core_s is None else [task.core_s[0], task.core_s[1]
+                                                           if math.isfinite(task.core_s[1]) else None],
                "targets": int((summary["role"] == "target").sum()) if "role" in summary else None}
     _write_atomic(out / "tasks" / f"{task.task_id}.json",
                   lambda p: _write_text(p, json.dumps(outcome, indent=1)))

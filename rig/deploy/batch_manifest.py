@@ -18,10 +18,14 @@ A manifest is a TOML file; paths in it are relative to the manifest's folder::
     sync = "trajectory"           # as rig measure --sync
     reference_markers = "auto"    # "auto", "none", or a list of [x, y, z] (mm)
     static_mm = 0.1
+    window_s = 600.0              # long recordings: a task per window of this length (0: a task per file)
+    overlap_s = 5.0               # each window measured this much longer at both ends, then trimmed
 
 A segment's start time is read from its file name (``YYYYmmdd-HHMMSS``, ``YYYYmmdd_HHMMSS`` or
 ``YYYYmmddTHHMMSS``, UTC), the form segmenting cameras and recorders write. Segments of the two cameras of a
-pair are matched by start time; a segment without a partner is reported, never silently dropped.
+pair are matched by start time; a segment without a partner is reported, never silently dropped. With
+``window_s``, a recording longer than two windows is split into windows, each a task
+(:mod:`rig.deploy.batch`).
 """
 
 from __future__ import annotations
@@ -68,6 +72,8 @@ class PairSpec:
     sync: str = "trajectory"
     reference_markers: str | tuple[tuple[float, float, float], ...] = "auto"
     static_mm: float = 0.1
+    window_s: float = 0.0  # 0: one task per segment pair; else one per window of the recording (s)
+    overlap_s: float = 5.0  # a window is measured this much longer at both ends (s), then trimmed
 
 
 @dataclass(frozen=True)
@@ -151,7 +157,8 @@ def _reference_markers(value: Any, where: str) -> str | tuple[tuple[float, float
     raise ManifestError(where, f"{value!r}; allowed: \"auto\", \"none\" or a list of [x, y, z] in mm")
 
 
-PAIR_FIELDS = {"name", "calibration", "left", "right", "sync", "reference_markers", "static_mm"}
+PAIR_FIELDS = {"name", "calibration", "left", "right", "sync", "reference_markers", "static_mm", "window_s",
+               "overlap_s"}
 
 
 def _pair(table: Any, site: str, folder: Path, where: str) -> PairSpec:
@@ -174,7 +181,21 @@ def _pair(table: Any, site: str, folder: Path, where: str) -> PairSpec:
         reference_markers=_reference_markers(table.get("reference_markers", "auto"),
                                              f"{where}.reference_markers"),
         static_mm=_number(table, "static_mm", 0.1, (1e-6, 1e3), f"{where}."),
+        window_s=float(_number(table, "window_s", 0.0, (0.0, 1e6), f"{where}.")),
+        overlap_s=_overlap(table, where),
     )
+
+
+def _overlap(table: dict[str, Any], where: str) -> float:
+    """``overlap_s``, checked against ``window_s`` (a window is longer than its two overlaps)."""
+    overlap_s = float(_number(table, "overlap_s", 5.0, (0.0, 3600.0), f"{where}."))
+    window_s = float(table.get("window_s", 0.0))
+    if window_s and window_s < 1.0:
+        raise ManifestError(f"{where}.window_s", f"{window_s!r}; allowed: 0 (a task per file) or ≥ 1 s")
+    if window_s and 2 * overlap_s >= window_s:
+        raise ManifestError(f"{where}.overlap_s", f"{overlap_s!r} s; allowed: less than half of window_s "
+                                                  f"({window_s:g} s)")
+    return overlap_s
 
 
 def load_manifest(path: str | Path) -> BatchManifest:

@@ -54,8 +54,14 @@ class ExtractOptions:
     detect: dict[str, Any] = field(default_factory=dict)
     duplicate_policy: str = "replace"
     fps: float | None = None
+    # only frames with start_s ≤ time stamp ≤ stop_s (the file's clock, s; None: from the start, to the end)
+    # are reduced; frames before start_s are decoded and passed over, decoding stops after stop_s
+    start_s: float | None = None
+    stop_s: float | None = None
 
     def __post_init__(self) -> None:
+        if self.start_s is not None and self.stop_s is not None and not self.start_s < self.stop_s:
+            raise ValueError(f"start_s={self.start_s!r}, stop_s={self.stop_s!r}; allowed: start_s < stop_s")
         if self.mode not in ("track", "detect"):
             raise ValueError(f"mode={self.mode!r}; allowed: 'track' or 'detect'")
         if int(self.window_px) != self.window_px or self.window_px < 7:
@@ -125,6 +131,10 @@ def extract_video(path: str | Path, camera: str | None = None,
 
     try:
         for frame in frames:
+            if opts.start_s is not None and frame.timestamp_s < opts.start_s:
+                continue
+            if opts.stop_s is not None and frame.timestamp_s > opts.stop_s:
+                break
             duplicate = frame.index in video.duplicate_indices
             batch.append((frame.index, frame.timestamp_s, duplicate, frame.image))
             if len(batch) == BATCH_FRAMES:

@@ -23,6 +23,8 @@ passes ``require=True``; then :class:`~rig.stereo.errors.NoMarkersError` is rais
 
 from __future__ import annotations
 
+import dataclasses
+import itertools
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -279,9 +281,13 @@ def detect_markers(
                                        min_area_px=min_area_px, max_area_px=max_area_px,
                                        min_contrast=min_contrast, min_roundness=min_roundness)
     fit = centre == "ellipse" or outline_check
-    measured = _measure_candidates(gray, rows + r_off, cols + c_off, half, dark=dark, fit=fit)
-    rec, passed = _rows_passed(measured, centre, max_edge_rms_px, max_skewness, fitted=fit,
-                               limits=(min_area_px, max_area_px, min_roundness, min_contrast))
+    limits = (min_area_px, max_area_px, min_roundness, min_contrast)
+    if fit:
+        measured = _measure_candidates(gray, rows + r_off, cols + c_off, half, dark=dark, fit=fit)
+        rec, passed = _rows_passed(measured, centre, max_edge_rms_px, max_skewness, fitted=fit, limits=limits)
+    else:
+        rec, passed = _detect_compiled(gray, rows + r_off, cols + c_off, half, dark=dark,
+                                       limits=np.array([max_skewness, SKEW_NOISE_FACTOR, *limits]))
     rec = rec[passed]
     if regions is not None and len(rec):
         rec = rec[inside_any(rec["u_px"], rec["v_px"], regions)]
@@ -344,6 +350,43 @@ def _measure_candidates(gray: np.ndarray, rows: np.ndarray, cols: np.ndarray, ha
     n_first, n_total = len(rows), len(rows) + len(sel)
     grown = _scatter(None, n_total, np.arange(n_first), measured)
     return _scatter(grown, n_total, np.concatenate([sel, n_first + np.arange(len(sel))]), again)
+
+
+def _measure_compiled(gray: np.ndarray, rows: np.ndarray, cols: np.ndarray, halves: np.ndarray, *,
+                      dark: bool, limits: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Output rows and the filters of windows of half sizes ``halves``, one compiled call
+    (:func:`rig.stereo.markers_kernel.measure_rows`; a window too small for its marker is retried larger)."""
+    from rig.stereo.markers_kernel import measure_rows  # numba: loaded by the first measurement
+
+    rec = np.empty(len(rows), dtype=MARKER_DTYPE)
+    passed = np.empty(len(rows), dtype=bool)
+    measure_rows(gray, np.ascontiguousarray(rows, dtype=np.int64), np.ascontiguousarray(cols, dtype=np.int64),
+                 np.ascontiguousarray(halves, dtype=np.int64), dark, limits, _HALF_LADDER, 2, rec, passed)
+    return rec, passed
+
+
+def _detect_compiled(gray: np.ndarray, rows: np.ndarray, cols: np.ndarray, half: np.ndarray, *, dark: bool,
+                     limits: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`_measure_candidates` + :func:`_rows_passed` without an outline fit: rows and the filters
+    (``limits``: as :func:`rig.stereo.markers_kernel.finish_rows`), a compiled call per pass."""
+    if len(rows) == 0:
+        return np.empty(0, dtype=MARKER_DTYPE), np.zeros(0, dtype=bool)
+    rec, passed = _measure_compiled(gray, rows, cols, _merge_sizes(_ladder(half)), dark=dark, limits=limits)
+    with np.errstate(invalid="ignore"):
+        off = np.hypot(rec["u_px"] - cols, rec["v_px"] - rows) > np.maximum(2.0, 0.25 * half)
+        off &= np.isfinite(rec["area_px"])
+    if not off.any():
+        return rec, passed
+    sel = np.nonzero(off)[0]  # off the window's centre: measured again, and its mirror image (see above)
+    u_found, v_found = rec["u_px"][sel], rec["v_px"][sel]
+    size = np.ceil(np.sqrt(rec["area_px"][sel] / np.pi)).astype(np.int64) + 6
+    again, again_passed = _measure_compiled(
+        gray, np.rint(np.concatenate([v_found, 2 * rows[sel] - v_found])).astype(np.int64),
+        np.rint(np.concatenate([u_found, 2 * cols[sel] - u_found])).astype(np.int64),
+        _merge_sizes(_ladder(np.concatenate([size, size]))), dark=dark, limits=limits)
+    keep = np.ones(len(rec), dtype=bool)
+    keep[sel] = False  # replaced by their second measurement
+    return (np.concatenate([rec[keep], again]), np.concatenate([passed[keep], again_passed]))
 
 
 def _drop_duplicates(rec: np.ndarray, reach: int = 8) -> np.ndarray:
@@ -452,11 +495,18 @@ def track_rows(images: Images, pred: np.ndarray, frame: np.ndarray | None, opt: 
 
     ``images`` and ``frame`` as in :func:`rig.stereo.markers_refine.measure_windows` (``frame`` None: one
     frame; else prediction i is searched in ``images[frame[i]]``, ``frame`` non-decreasing). Every window
-    is measured on its own, so the rows equal those of separate calls per frame.
+    is measured on its own, so the rows equal those of separate calls per frame. Without an outline fit,
+    one compiled call per frame (:func:`rig.stereo.markers_kernel.track_frame`).
     """
     if len(pred) == 0:
         return np.empty(0, dtype=MARKER_DTYPE)
     height, width = np.shape(images if frame is None else images[int(frame[0])])
+    # a window much larger than the frame has its background ring outside it: at most one pixel larger
+    fitting = max(3, min(height, width) // 2)
+    if opt.half_px > fitting:
+        opt = dataclasses.replace(opt, half_px=fitting)
+    if not opt.fit:
+        return _track_compiled(images, np.ascontiguousarray(pred, dtype=np.float64), frame, opt)
     # usable predictions: inside the frame (NaN compares False, so it is unusable too)
     limit = np.array([width - 0.5, height - 0.5])
     all_usable = bool((pred > -0.5).all() and (pred < limit).all())
@@ -490,3 +540,22 @@ def track_rows(images: Images, pred: np.ndarray, frame: np.ndarray | None, opt: 
     out["flags"] = FLAG_LOST
     out[usable] = rec
     return out
+
+
+def _track_compiled(images: Images, pred: np.ndarray, frame: np.ndarray | None,
+                    opt: TrackOptions) -> np.ndarray:
+    """:func:`track_rows` without an outline fit: one compiled call per frame."""
+    from rig.stereo.markers_kernel import track_frame  # numba: loaded by the first measurement
+
+    rec = np.empty(len(pred), dtype=MARKER_DTYPE)
+    limits = np.array([opt.max_skewness, SKEW_NOISE_FACTOR, opt.min_area_px, opt.max_area_px,
+                       opt.min_roundness, opt.min_contrast])
+    if frame is None:
+        track_frame(np.ascontiguousarray(images, dtype=np.uint8), pred, opt.half_px, opt.dark, limits,
+                    _HALF_LADDER, 2, rec)
+        return rec
+    bounds = np.r_[0, np.flatnonzero(np.diff(frame)) + 1, len(pred)].tolist()
+    for lo, hi in itertools.pairwise(bounds):
+        track_frame(np.ascontiguousarray(images[int(frame[lo])], dtype=np.uint8), pred[lo:hi], opt.half_px,
+                    opt.dark, limits, _HALF_LADDER, 2, rec[lo:hi])
+    return rec

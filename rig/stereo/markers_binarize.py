@@ -3,7 +3,9 @@
 The frame is reduced ×2 or ×4 — subsampled when its noise is low, else averaged (see reduce_frame) —
 then binarized — by default against the local mean (a box three marker diameters wide) plus an offset of
 max(min_contrast/2, 4σ of the noise), so uneven lighting does not matter; or at Otsu's level; or at a
-fixed level — and the outer contours of the blobs give candidate windows at full resolution. The exact
+fixed level — and the blobs' bounding boxes give candidate windows at full resolution. The usual case
+(local threshold, subsampled frame) is one compiled pass (:mod:`rig.stereo.markers_label`); the others use
+OpenCV (outer contours). The exact
 measurement (area, contrast, centre) is made later at full resolution (:mod:`rig.stereo.markers_refine`),
 so the filters here are deliberately loose.
 """
@@ -44,21 +46,24 @@ def reduce_frame(gray: np.ndarray, factor: int, min_contrast: float) -> tuple[np
     return low, noise_sigma(low)
 
 
-def find_candidates(gray: np.ndarray, *, dark: bool, threshold: float | str | None, factor: int,
-                    min_area_px: float, max_area_px: float, min_contrast: float,
-                    min_roundness: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Blobs of the binarized frame reduced ``factor`` (1, 2, 4) times.
+def _local_level(shape: tuple[int, ...], max_area_px: float, factor: int, min_contrast: float,
+                 sigma: float) -> tuple[int, int]:
+    """The local threshold's box side (odd, reduced px: three marker diameters) and offset (DN)."""
+    radius_low = np.sqrt(max_area_px / np.pi) / factor
+    block = int(2 * np.ceil(3.0 * radius_low) + 1)
+    block = max(3, min(block, 2 * ((min(shape) - 1) // 2) + 1))
+    return block, int(np.ceil(max(0.5 * min_contrast, 4.0 * sigma)))
 
-    Returns full-resolution integer window centres (rows, cols) and window half sizes, int64 arrays.
-    """
+
+def _blobs_opencv(gray: np.ndarray, *, dark: bool, threshold: float | str | None, factor: int,
+                  max_area_px: float, min_contrast: float) -> np.ndarray:
+    """Bounding boxes (B, 4) int64 (x0, y0, width, height; reduced px) of the binarized frame's blobs,
+    by OpenCV: every threshold mode and reduction."""
     low, sigma = reduce_frame(gray, factor, min_contrast)
     if dark:
         low = cv2.bitwise_not(low)
     if threshold is None:
-        radius_low = np.sqrt(max_area_px / np.pi) / factor
-        block = int(2 * np.ceil(3.0 * radius_low) + 1)
-        block = max(3, min(block, 2 * ((min(low.shape) - 1) // 2) + 1))
-        offset = int(np.ceil(max(0.5 * min_contrast, 4.0 * sigma)))
+        block, offset = _local_level(low.shape, max_area_px, factor, min_contrast, sigma)
         # foreground: brighter than the local mean (box of `block` reduced pixels) by more than `offset`
         level = cv2.add(cv2.blur(low, (block, block), borderType=cv2.BORDER_REPLICATE),
                         np.array([min(offset, 255)], dtype=np.float64))  # a 1-element array: a scalar
@@ -70,10 +75,31 @@ def find_candidates(gray: np.ndarray, *, dark: bool, threshold: float | str | No
         _, binary = cv2.threshold(low, level_dn, 1, cv2.THRESH_BINARY)
     # outer contours of the blobs (faster than connectedComponentsWithStats on a mostly empty frame)
     contours, _ = cv2.findContours(binary, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
-    empty = np.zeros(0, dtype=np.int64)
-    if not contours:
+    return np.array([cv2.boundingRect(c) for c in contours], dtype=np.int64).reshape(-1, 4)
+
+
+def find_candidates(gray: np.ndarray, *, dark: bool, threshold: float | str | None, factor: int,
+                    min_area_px: float, max_area_px: float, min_contrast: float,
+                    min_roundness: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Blobs of the binarized frame reduced ``factor`` (1, 2, 4) times.
+
+    Returns full-resolution integer window centres (rows, cols) and window half sizes, int64 arrays.
+    """
+    boxes = None
+    if threshold is None and factor > 1:  # the usual case: one compiled call (rig.stereo.markers_label)
+        from rig.stereo.markers_label import local_blobs, subsample_noise
+
+        low, sigma = subsample_noise(np.ascontiguousarray(gray), factor, dark)
+        if 4.0 * sigma <= 0.5 * min_contrast:  # else the averaged reduction below
+            block, offset = _local_level(low.shape, max_area_px, factor, min_contrast, sigma)
+            boxes = local_blobs(low, block, offset)
+    if boxes is None:
+        boxes = _blobs_opencv(gray, dark=dark, threshold=threshold, factor=factor, max_area_px=max_area_px,
+                              min_contrast=min_contrast)
+    if len(boxes) == 0:
+        empty = np.zeros(0, dtype=np.int64)
         return empty, empty, empty
-    x0, y0, width, height = np.array([cv2.boundingRect(c) for c in contours], dtype=np.int64).T
+    x0, y0, width, height = boxes.T
     # loose size and shape filters on the bounding box (the exact area and roundness are measured at
     # full resolution): an ellipse of area ≤ max_area_px and axis ratio ≥ min_roundness is at most
     # 2·sqrt(max_area_px / (π·min_roundness)) long; allow 1.5× that and the reduction's rounding

@@ -49,6 +49,7 @@ OUT_BACKGROUND, OUT_SIGMA, OUT_SKEW, OUT_SKEW_NOISE = range(5, 9)
 N_OUT = 9
 # rows of the bool output
 FLAG_ROW_BORDER, FLAG_ROW_SATURATED, FLAG_ROW_CRAMPED = range(3)
+LOST_FLAG = np.uint8(8)  # markers.FLAG_LOST (the kernel does not import rig.stereo.markers)
 
 
 def _jit(fn: _F) -> _F:
@@ -111,30 +112,39 @@ def _weighted_plane(vals: np.ndarray, xs: np.ndarray, ys: np.ndarray, keep: np.n
 @_jit
 def _ring_plane(  # noqa: PLR0917 (numba: no keyword-only arguments)
         vals: np.ndarray, ok: np.ndarray, all_ok: bool, xs: np.ndarray, ys: np.ndarray,
-                keep: np.ndarray) -> tuple[float, float, float, float]:
+                keep: np.ndarray, hist: np.ndarray) -> tuple[float, float, float, float]:
     """Robust background plane of one ring: values (P,) uint8, ``ok`` the pixels inside the image.
 
     'lower' percentiles p16, p50, p84 of the valid values; pixels farther than OUTLIER_SPREADS·spread
     (spread = min(p50 − p16, p84 − p50), at least 1 DN) from the median are left out. A whole ring without
     outliers (the usual case) is fitted from its moments (the ring is symmetric: the normal matrix is
-    diagonal); otherwise the weighted fit. ``keep``: scratch (P,) bool. Returns (a, b, c, σ) float64.
+    diagonal); otherwise the weighted fit. ``keep``, ``hist``: scratch (P,) bool and (256,) int64.
+    Returns (a, b, c, σ) float64.
     """
     n_ring = len(vals)
     if all_ok:
-        hist = np.zeros(256, np.int64)
+        hist[:] = 0
         for p in range(n_ring):
             hist[vals[p]] += 1
         ranks = (0, int(0.16 * (n_ring - 1)), int(0.5 * (n_ring - 1)), int(0.84 * (n_ring - 1)), n_ring - 1)
-        found = np.zeros(5)
+        lo = p16 = p50 = p84 = hi = 0.0
         seen, level, r = 0, 0, 0
         while r < 5:
             if seen + hist[level] > ranks[r]:
-                found[r] = level
+                if r == 0:
+                    lo = float(level)
+                elif r == 1:
+                    p16 = float(level)
+                elif r == 2:
+                    p50 = float(level)
+                elif r == 3:
+                    p84 = float(level)
+                else:
+                    hi = float(level)
                 r += 1
             else:
                 seen += hist[level]
                 level += 1
-        lo, p16, p50, p84, hi = found[0], found[1], found[2], found[3], found[4]
         reach = OUTLIER_SPREADS * max(min(p50 - p16, p84 - p50), 1.0)
         if max(hi - p50, p50 - lo) <= reach:  # no outlier: the plain fit from the ring's moments
             m0 = mx = my = s2 = sxx = syy = 0.0
@@ -192,6 +202,7 @@ def ring_fit(flat: np.ndarray, valid: np.ndarray, half_px: int, coef: np.ndarray
     vals = np.empty(n_ring, np.uint8)
     ok = np.ones(n_ring, np.bool_)
     keep = np.empty(n_ring, np.bool_)
+    hist = np.empty(256, np.int64)
     for k in range(flat.shape[0]):
         all_ok = True
         for p in range(n_ring):
@@ -199,7 +210,7 @@ def ring_fit(flat: np.ndarray, valid: np.ndarray, half_px: int, coef: np.ndarray
             if valid.shape[0]:
                 ok[p] = valid[k, idx[p]]
                 all_ok = all_ok and ok[p]
-        a, b, c, s = _ring_plane(vals, ok, all_ok, xs, ys, keep)
+        a, b, c, s = _ring_plane(vals, ok, all_ok, xs, ys, keep, hist)
         coef[k, 0], coef[k, 1], coef[k, 2], sigma[k] = a, b, c, s
 
 
@@ -231,11 +242,14 @@ def _gather(  # noqa: PLR0917 (numba: no keyword-only arguments)
     w = raw.shape[0]
     top, left = row - half_px, col - half_px
     if top >= 0 and left >= 0 and top + w <= height and left + w <= width:
-        raw[:, :] = image[top : top + w, left : left + w]
-        if dark:
-            for i in range(w):
+        for i in range(w):
+            src = image[top + i]
+            if dark:
                 for j in range(w):
-                    raw[i, j] = 255 - raw[i, j]
+                    raw[i, j] = 255 - src[left + j]
+            else:
+                for j in range(w):
+                    raw[i, j] = src[left + j]
         return True
     for i in range(w):
         r = top + i
@@ -250,30 +264,23 @@ def _gather(  # noqa: PLR0917 (numba: no keyword-only arguments)
 
 @_jit
 def _ring_values(  # noqa: PLR0917 (numba: no keyword-only arguments)
-        raw: np.ndarray, valid: np.ndarray, inside: bool, vals: np.ndarray, ok: np.ndarray,
-        xs: np.ndarray, ys: np.ndarray) -> None:
-    """The ring pixels of the window ``raw`` (W, W), row-major, into ``vals``, ``ok`` (inside the image)
-    and their offsets ``xs``, ``ys`` from the centre pixel (the order of :func:`ring_offsets`)."""
-    w = raw.shape[0]
-    half_px = w // 2
-    p = 0
-    for i in range(w):
-        full_row = i < RING_PX or i >= w - RING_PX
-        j = 0
-        while j < w:
-            vals[p], ok[p] = raw[i, j], inside or valid[i, j]
-            xs[p], ys[p] = j - half_px, i - half_px
-            p += 1
-            j += 1 if full_row or j != RING_PX - 1 else w - 2 * RING_PX + 1
+        raw: np.ndarray, valid: np.ndarray, inside: bool, ri: np.ndarray, ci: np.ndarray, vals: np.ndarray,
+        ok: np.ndarray) -> None:
+    """The ring pixels (``ri``, ``ci``: :func:`ring_offsets`) of the window ``raw`` (W, W) into ``vals``,
+    and whether each lies inside the image into ``ok``."""
+    for p in range(len(ri)):
+        vals[p] = raw[ri[p], ci[p]]
+        ok[p] = inside or valid[ri[p], ci[p]]
 
 
 @_jit
 def _weigh(  # noqa: PLR0917 (numba: no keyword-only arguments)
         raw: np.ndarray, valid: np.ndarray, inside: bool, plane: tuple[float, float, float],
-        floor: np.float32, d: np.ndarray, clipped: np.ndarray) -> None:
+        floor: np.float32, d: np.ndarray, clipped: np.ndarray, free: np.ndarray) -> None:
     """Signal above the background plane and the noise floor (float32, > 0 on the support) into the
     padded flat ``d`` ((W + 2)², its one-pixel frame left 0; 0 outside the image), and whether a pixel is
-    clipped (255) into the padded flat ``clipped`` (bool)."""
+    clipped (255) into the padded flat ``clipped`` (bool), and ``free`` = d > 0 (uint8: candidates of the
+    support, cleared by :func:`_support` as it takes them)."""
     w = raw.shape[0]
     half_px, pw = w // 2, w + 2
     a = np.float32(plane[0]) + floor
@@ -285,22 +292,27 @@ def _weigh(  # noqa: PLR0917 (numba: no keyword-only arguments)
         cy = c * np.float32(i - half_px)
         row = (i + 1) * pw + 1
         for j in range(w):
-            d[row + j] = np.float32(raw[i, j]) - (bx[j] + cy)
+            value = np.float32(raw[i, j]) - (bx[j] + cy)
+            d[row + j] = value
             clipped[row + j] = raw[i, j] == 255
+            free[row + j] = value > 0
     if not inside:
         for i in range(w):
             for j in range(w):
                 if not valid[i, j]:
                     d[(i + 1) * pw + 1 + j] = 0.0
+                    free[(i + 1) * pw + 1 + j] = 0
 
 
 @_jit
 def _support(  # noqa: PLR0917 (numba: no keyword-only arguments)
-        d: np.ndarray, half_px: int, support: np.ndarray, pixels: np.ndarray, px_xy: np.ndarray,
-        stack: np.ndarray) -> int:
+        d: np.ndarray, half_px: int, free: np.ndarray, clipped: np.ndarray, pixels: np.ndarray,
+        stack: np.ndarray, m: np.ndarray) -> tuple[int, float, bool, bool]:
     """The 8-connected region of ``d > 0`` holding the window's marker: its pixels (flat padded indices)
-    into ``pixels[:n]`` and their offsets (x, y) from the centre pixel into ``px_xy[:n]`` (float64), marked
-    in ``support`` (bool, padded flat, all False on entry); returns n.
+    into ``pixels[:n]``, cleared in ``free`` (uint8, padded flat: 1 where d > 0 on entry), and its weighted
+    raw moments (1, x, y, xx, xy, yy, xxx, xxy, xyy, yyy; offsets from the centre pixel) into ``m``, summed
+    run by run. Returns (n, peak weight, saturated: a pixel ``clipped``, cramped: the region reaches the
+    ring's inner edge, RING_PX − 1 pixels from the window's border: the window is too small).
     ``stack``: scratch, 4·(W + 2)² int64 (a pixel is pushed at most once from each of the runs beside it).
 
     The marker is the region of the centre pixel; when that pixel is background, the region of the
@@ -310,7 +322,7 @@ def _support(  # noqa: PLR0917 (numba: no keyword-only arguments)
     w = 2 * half_px + 1
     pw = w + 2
     seed = (half_px + 1) * pw + half_px + 1
-    if not d[seed] > 0:
+    if not free[seed]:
         peak = np.float32(-np.inf)
         for i in range(w):
             for j in range(w):
@@ -325,39 +337,68 @@ def _support(  # noqa: PLR0917 (numba: no keyword-only arguments)
                     if dist2 < best:
                         best, seed = dist2, q
         if seed < 0:
-            return 0
+            m[:] = 0.0
+            return 0, 0.0, False, False
     # scanline fill: each popped seed grows into its row's run, whose 8-neighbour spans in the rows above
     # and below seed their own runs (the padding frame is 0: runs and spans never leave the window)
     stack[0] = seed
     top, n = 1, 0
+    m0 = m1 = m2 = m3 = m4 = m5 = m6 = m7 = m8 = m9 = 0.0  # scalars: kept in registers
+    peak_w, saturated, cramped = 0.0, False, False
+    edge = half_px - RING_PX + 1
     while top:
         top -= 1
         q = stack[top]
-        if support[q]:
+        if not free[q]:
             continue
         left, right = q, q
-        while d[left - 1] > 0 and not support[left - 1]:
+        while free[left - 1]:
             left -= 1
-        while d[right + 1] > 0 and not support[right + 1]:
+        while free[right + 1]:
             right += 1
         row = left // pw
-        y, x0 = float(row - 1 - half_px), row * pw + 1 + half_px
+        iy, x0 = row - 1 - half_px, row * pw + 1 + half_px
+        s0 = s1 = s2 = s3 = 0.0  # the run's sums of v, v·x, v·x², v·x³
         for x in range(left, right + 1):
-            support[x] = True
+            free[x] = 0
             pixels[n] = x
-            px_xy[n, 0], px_xy[n, 1] = x - x0, y
             n += 1
+            v, xo = float(d[x]), float(x - x0)
+            vx = v * xo
+            s0 += v
+            s1 += vx
+            s2 += vx * xo
+            s3 += vx * xo * xo
+            peak_w = max(peak_w, v)
+            saturated |= clipped[x]
+        y = float(iy)
+        m0 += s0
+        m1 += s1
+        m2 += y * s0
+        m3 += s2
+        m4 += y * s1
+        m5 += y * y * s0
+        m6 += s3
+        m7 += y * s2
+        m8 += y * y * s1
+        m9 += y * y * y * s0
+        lo_x, hi_x = left - x0, right - x0
+        if abs(iy) == edge:  # a pixel with max(|x|, |y|) == edge: |x| ≤ edge on this row
+            cramped |= lo_x <= edge and hi_x >= -edge
+        elif abs(iy) < edge:  # … or x = ±edge
+            cramped |= (lo_x <= -edge <= hi_x) or (lo_x <= edge <= hi_x)
         for shift in (-pw, pw):
             new_run = True
             for x in range(left - 1 + shift, right + 2 + shift):
-                if d[x] > 0 and not support[x]:
+                if free[x]:
                     if new_run:
                         stack[top] = x
                         top += 1
                     new_run = False
                 else:
                     new_run = True
-    return n
+    m[0], m[1], m[2], m[3], m[4], m[5], m[6], m[7], m[8], m[9] = m0, m1, m2, m3, m4, m5, m6, m7, m8, m9
+    return n, peak_w, saturated, cramped
 
 
 @_jit
@@ -382,36 +423,6 @@ def _moment_shape(m: np.ndarray) -> tuple[float, float, float, float]:
     c12 = exyy - mx * (cyy + my2) - 2.0 * my * cxy
     skew = (c30 * c30 + c03 * c03 + 3.0 * (c21 * c21 + c12 * c12)) / det**1.5
     return mx, my, roundness, skew
-
-
-@_jit
-def _moments(  # noqa: PLR0917 (numba: no keyword-only arguments)
-        d: np.ndarray, pixels: np.ndarray, px_xy: np.ndarray, clipped: np.ndarray, half_px: int,
-        m: np.ndarray) -> tuple[float, bool, bool]:
-    """Weighted raw moments of the support ``pixels`` (flat padded indices; offsets ``px_xy``) into ``m``
-    (10,); returns (peak weight, saturated, cramped). cramped: the support reaches the ring's inner edge
-    (RING_PX − 1 pixels from the window's border: the window is too small for the marker)."""
-    m0 = m1 = m2 = m3 = m4 = m5 = m6 = m7 = m8 = m9 = 0.0  # scalars: kept in registers
-    peak, saturated, cramped = 0.0, False, False
-    edge = float(half_px - RING_PX + 1)
-    for k in range(len(pixels)):
-        x, y, v = px_xy[k, 0], px_xy[k, 1], float(d[pixels[k]])
-        vx, vy = v * x, v * y
-        m0 += v
-        m1 += vx
-        m2 += vy
-        m3 += vx * x
-        m4 += vx * y
-        m5 += vy * y
-        m6 += vx * x * x
-        m7 += vx * x * y
-        m8 += vx * y * y
-        m9 += vy * y * y
-        peak = max(peak, v)
-        saturated |= clipped[pixels[k]]
-        cramped |= max(abs(x), abs(y)) == edge
-    m[0], m[1], m[2], m[3], m[4], m[5], m[6], m[7], m[8], m[9] = m0, m1, m2, m3, m4, m5, m6, m7, m8, m9
-    return peak, saturated, cramped
 
 
 @_jit
@@ -442,6 +453,54 @@ def _touch(image: np.ndarray, rows: np.ndarray, cols: np.ndarray, half_px: int, 
 
 
 @_jit
+def scratch(half_px: int) -> tuple[np.ndarray, ...]:
+    """Work arrays of :func:`measure_one` for windows of half size ``half_px`` (reused from window to
+    window)."""
+    w = 2 * half_px + 1
+    pw = w + 2
+    n_ring = w * w - (w - 2 * RING_PX) ** 2
+    ri, ci, ring_x, ring_y = ring_offsets(half_px)
+    return (np.empty(n_ring, np.uint8), np.ones(n_ring, np.bool_), np.empty(n_ring, np.bool_),
+            ring_x, ring_y, np.empty((w, w), np.uint8), np.ones((w, w), np.bool_),
+            np.zeros(pw * pw, np.float32), np.zeros(pw * pw, np.uint8), np.zeros(pw * pw, np.bool_),
+            np.empty(w * w, np.int64), np.empty(4 * pw * pw, np.int64), np.empty(10), ri, ci,
+            np.empty(256, np.int64))
+
+
+@_jit
+def measure_one(  # noqa: PLR0917 (numba: no keyword-only arguments)
+        image: np.ndarray, row: int, col: int, half_px: int, dark: bool, scr: tuple[np.ndarray, ...],
+        out: np.ndarray, flags: np.ndarray, n: int, signal: np.ndarray) -> None:
+    """Measure the window of half size ``half_px`` centred on the integer pixel (row, col) of ``image``
+    into column ``n`` of ``out`` and ``flags`` (and ``signal[n]`` when ``signal`` has rows); ``scr``:
+    :func:`scratch` of the same half size. See :func:`measure_range`."""
+    vals, ok, keep, ring_x, ring_y, raw, valid, d, free, clipped, queue, stack, m, ri, ci, hist = scr
+    pw = 2 * half_px + 3
+    inside = _gather(image, row, col, half_px, dark, raw, valid)
+    _ring_values(raw, valid, inside, ri, ci, vals, ok)
+    a, b, c, s = _ring_plane(vals, ok, inside, ring_x, ring_y, keep, hist)
+    sigma = np.float32(s)
+    floor = np.float32(NOISE_FLOOR_K) * sigma
+    _weigh(raw, valid, inside, (a, b, c), floor, d, clipped, free)
+    n_support, peak_w, saturated, cramped = _support(d, half_px, free, clipped, queue, stack, m)
+    pixels = queue[:n_support]
+    du, dv, roundness, skew = _moment_shape(m)
+    plateau = _plateau(d, pixels, peak_w)
+    contrast = plateau + float(floor) if m[0] > 0 else np.nan
+    area = m[0] / plateau
+    out[OUT_U, n], out[OUT_V, n] = col + du, row + dv
+    out[OUT_AREA, n], out[OUT_ROUND, n], out[OUT_CONTRAST, n] = area, roundness, contrast
+    out[OUT_BACKGROUND, n], out[OUT_SIGMA, n], out[OUT_SKEW, n] = float(np.float32(a)), float(sigma), skew
+    out[OUT_SKEW_NOISE, n] = 8.0 * float(sigma) ** 2 / (contrast**2 * area)
+    flags[FLAG_ROW_BORDER, n], flags[FLAG_ROW_SATURATED, n] = not inside, saturated
+    flags[FLAG_ROW_CRAMPED, n] = cramped
+    if signal.shape[0]:
+        signal[n] = 0.0
+        for q in pixels:
+            signal[n, q // pw - 1, q % pw - 1] = d[q] + floor
+
+
+@_jit
 def measure_range(  # noqa: PLR0917 (numba: no keyword-only arguments)
         image: np.ndarray, rows: np.ndarray, cols: np.ndarray, lo: int, hi: int, half_px: int,
         dark: bool, out: np.ndarray, flags: np.ndarray, signal: np.ndarray) -> None:
@@ -453,42 +512,94 @@ def measure_range(  # noqa: PLR0917 (numba: no keyword-only arguments)
     support), ``flags`` (3, N) bool (FLAG_ROW_*), and when ``signal`` has N rows the background-subtracted
     signal on the support ((N, W, W) float32, 0 elsewhere) for the outline fit.
     """
-    w = 2 * half_px + 1
-    pw = w + 2
-    n_ring = w * w - (w - 2 * RING_PX) ** 2
-    vals, ok, keep = np.empty(n_ring, np.uint8), np.ones(n_ring, np.bool_), np.empty(n_ring, np.bool_)
-    ring_x, ring_y = np.empty(n_ring), np.empty(n_ring)
-    raw, valid = np.empty((w, w), np.uint8), np.ones((w, w), np.bool_)
-    d, support = np.zeros(pw * pw, np.float32), np.zeros(pw * pw, np.bool_)
-    clipped = np.zeros(pw * pw, np.bool_)
-    queue, stack, m = np.empty(w * w, np.int64), np.empty(4 * pw * pw, np.int64), np.empty(10)
-    px_xy = np.empty((w * w, 2))
-    _touch(image, rows[lo:hi], cols[lo:hi], half_px, m)
+    scr = scratch(half_px)
+    _touch(image, rows[lo:hi], cols[lo:hi], half_px, scr[12])
     for n in range(lo, hi):
-        inside = _gather(image, rows[n], cols[n], half_px, dark, raw, valid)
-        _ring_values(raw, valid, inside, vals, ok, ring_x, ring_y)
-        a, b, c, s = _ring_plane(vals, ok, inside, ring_x, ring_y, keep)
-        sigma = np.float32(s)
-        floor = np.float32(NOISE_FLOOR_K) * sigma
-        _weigh(raw, valid, inside, (a, b, c), floor, d, clipped)
-        pixels = queue[:_support(d, half_px, support, queue, px_xy, stack)]
-        peak_w, saturated, cramped = _moments(d, pixels, px_xy, clipped, half_px, m)
-        du, dv, roundness, skew = _moment_shape(m)
-        plateau = _plateau(d, pixels, peak_w)
-        contrast = plateau + float(floor) if m[0] > 0 else np.nan
-        area = m[0] / plateau
-        out[OUT_U, n], out[OUT_V, n] = cols[n] + du, rows[n] + dv
-        out[OUT_AREA, n], out[OUT_ROUND, n], out[OUT_CONTRAST, n] = area, roundness, contrast
-        out[OUT_BACKGROUND, n], out[OUT_SIGMA, n], out[OUT_SKEW, n] = float(np.float32(a)), float(sigma), skew
-        out[OUT_SKEW_NOISE, n] = 8.0 * float(sigma) ** 2 / (contrast**2 * area)
-        flags[FLAG_ROW_BORDER, n], flags[FLAG_ROW_SATURATED, n] = not inside, saturated
-        flags[FLAG_ROW_CRAMPED, n] = cramped
-        if signal.shape[0]:
-            signal[n] = 0.0
-            for q in pixels:
-                signal[n, q // pw - 1, q % pw - 1] = d[q] + floor
-        for q in pixels:  # clear the support for the next window
-            support[q] = False
+        measure_one(image, rows[n], cols[n], half_px, dark, scr, out, flags, n, signal)
+
+
+@_jit
+def _finish_row(out: np.ndarray, flags: np.ndarray, n: int, limits: np.ndarray, row: Any) -> bool:
+    """Output row ``row`` (markers.MARKER_DTYPE) from column ``n`` of ``out`` and ``flags``; whether it
+    passes the filters. ``limits`` as in :func:`finish_rows`."""
+    row.u_px, row.v_px = out[OUT_U, n], out[OUT_V, n]
+    row.area_px, row.roundness, row.contrast = out[OUT_AREA, n], out[OUT_ROUND, n], out[OUT_CONTRAST, n]
+    occluded = out[OUT_SKEW, n] > limits[0] + limits[1] * out[OUT_SKEW_NOISE, n]
+    row.flags = (np.uint8(flags[FLAG_ROW_BORDER, n]) | np.uint8(occluded) << 1
+                 | np.uint8(flags[FLAG_ROW_SATURATED, n]) << 2)
+    return bool(np.isfinite(row.u_px + row.v_px) and limits[2] <= row.area_px <= limits[3]
+                and row.roundness >= limits[4] and row.contrast >= limits[5])
+
+
+@_jit
+def _measure_retrying(  # noqa: PLR0917 (numba: no keyword-only arguments)
+        image: np.ndarray, row: int, col: int, half_px: int, dark: bool, scr: tuple[np.ndarray, ...],
+        ladder: np.ndarray, retries: int, out: np.ndarray, flags: np.ndarray) -> None:
+    """:func:`measure_one` into column 0 of ``out`` and ``flags``; a window whose marker reaches the ring
+    is measured again one step larger on ``ladder`` (ascending half sizes), up to ``retries`` times."""
+    no_signal = np.empty((0, 1, 1), np.float32)
+    measure_one(image, row, col, half_px, dark, scr, out, flags, 0, no_signal)
+    size, tries = half_px, 0
+    while flags[FLAG_ROW_CRAMPED, 0] and tries < retries and size < ladder[-1]:
+        size = ladder[min(int(np.searchsorted(ladder, size, side="right")), len(ladder) - 1)]
+        measure_one(image, row, col, size, dark, scratch(size), out, flags, 0, no_signal)
+        tries += 1
+
+
+@_jit
+def measure_rows(  # noqa: PLR0917 (numba: no keyword-only arguments)
+        image: np.ndarray, rows: np.ndarray, cols: np.ndarray, halves: np.ndarray, dark: bool,
+        limits: np.ndarray, ladder: np.ndarray, retries: int, rec: np.ndarray, passed: np.ndarray) -> None:
+    """Detection's measurement in one call: the window of half size ``halves[k]`` centred on the integer
+    pixel (rows[k], cols[k]) (retried larger as :func:`_measure_retrying`) into row k of ``rec``
+    (markers.MARKER_DTYPE) and whether it passes the filters into ``passed[k]`` (``limits`` as in
+    :func:`finish_rows`)."""
+    out = np.empty((N_OUT, 1))
+    flags = np.empty((3, 1), np.bool_)
+    half_px = -1
+    scr = scratch(1)
+    for k in range(len(rows)):
+        if halves[k] != half_px:
+            half_px = halves[k]
+            scr = scratch(half_px)
+        _measure_retrying(image, rows[k], cols[k], half_px, dark, scr, ladder, retries, out, flags)
+        passed[k] = _finish_row(out, flags, 0, limits, rec[k])
+
+
+@_jit
+def track_frame(  # noqa: PLR0917 (numba: no keyword-only arguments)
+        image: np.ndarray, pred: np.ndarray, half_px: int, dark: bool, limits: np.ndarray,
+        ladder: np.ndarray, retries: int, rec: np.ndarray) -> None:
+    """Tracking in one frame, one call: a row of ``rec`` (markers.MARKER_DTYPE, N) per prediction
+    ``pred`` (N, 2) (u, v px).
+
+    A prediction inside the frame is measured in the window of half size ``half_px`` centred on its
+    rounded position (retried larger as :func:`_measure_retrying`). Rows that fail the filters
+    (``limits`` as in :func:`finish_rows`) get u, v NaN and LOST_FLAG added; a prediction that is NaN or
+    outside the frame gives a row of NaN with only that flag.
+    """
+    height, width = image.shape
+    out = np.empty((N_OUT, 1))
+    flags = np.empty((3, 1), np.bool_)
+    scr = scratch(half_px)
+    rows = np.empty(len(pred), np.int64)
+    cols = np.empty(len(pred), np.int64)
+    for k in range(len(pred)):
+        rows[k] = int(np.rint(pred[k, 1])) if np.isfinite(pred[k, 1]) else 0
+        cols[k] = int(np.rint(pred[k, 0])) if np.isfinite(pred[k, 0]) else 0
+    _touch(image, rows, cols, half_px, scr[12])
+    for k in range(len(pred)):
+        u, v = pred[k, 0], pred[k, 1]
+        row = rec[k]
+        if not (u > -0.5 and u < width - 0.5 and v > -0.5 and v < height - 0.5):
+            row.u_px, row.v_px, row.area_px = np.nan, np.nan, np.nan
+            row.roundness, row.contrast = np.nan, np.nan
+            row.flags = LOST_FLAG
+            continue
+        _measure_retrying(image, rows[k], cols[k], half_px, dark, scr, ladder, retries, out, flags)
+        if not _finish_row(out, flags, 0, limits, row):
+            row.u_px, row.v_px = np.nan, np.nan
+            row.flags |= LOST_FLAG
 
 
 @_jit

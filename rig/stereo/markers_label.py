@@ -1,0 +1,152 @@
+"""Compiled binarization of a frame into marker candidates: the usual case of
+:func:`rig.stereo.markers_binarize.find_candidates` in one call.
+
+The usual case is the local threshold on a subsampled frame (``threshold=None``, reduction ×2 or ×4 with
+low noise). One pass over the reduced frame computes what OpenCV's chain computed in five calls and a
+Python loop: the subsample (``gray[s::f, s::f]``), its noise σ (as
+:func:`~rig.stereo.markers_binarize.noise_sigma`), the box mean of ``block`` × ``block`` reduced pixels
+(edges replicated, as ``cv2.blur`` with ``BORDER_REPLICATE``: column sums updated row by row, a running
+sum along each row), the comparison ``pixel > round(mean) + offset`` (without a division: ``2·sum <
+(2·(pixel − offset) − 1)·area``, exact since the area is odd), and the 8-connected blobs' bounding boxes
+(runs of each row joined to the overlapping runs of the row above, union–find). A blob inside another's
+hole is a blob of its own here (``cv2.findContours(RETR_EXTERNAL)`` skipped it): one more candidate,
+measured and filtered like the others.
+
+Imported by the first detection (numba is not loaded by ``import rig.stereo``); compiled code cached on
+disk as :mod:`rig.stereo.markers_kernel` explains.
+"""
+
+from __future__ import annotations
+
+import sys
+
+import numpy as np
+
+from rig.stereo.markers_kernel import _jit
+
+_LITTLE_ENDIAN = sys.byteorder == "little"  # the 32-bit-word subsample reads byte 2 of a word
+
+
+@_jit
+def subsample_noise(gray: np.ndarray, factor: int, dark: bool) -> tuple[np.ndarray, float]:
+    """``gray`` (C-contiguous) reduced: ``gray[s::factor, s::factor]`` (s = factor // 2; 255 − value when
+    ``dark``) and its noise σ (DN): 1.4826 · median |horizontal difference| / √2 over every 32nd row,
+    at least 0.5."""
+    start = factor // 2
+    height, width = gray.shape
+    h, w = (height - start + factor - 1) // factor, (width - start + factor - 1) // factor
+    low = np.empty((h, w), np.uint8)
+    words = _LITTLE_ENDIAN and factor == 4 and width % 4 == 0
+    for i in range(h):
+        src = gray[start + i * factor]
+        if words:  # byte 2 of each little-endian 32-bit word (vectorized)
+            packed = src.view(np.uint32)
+            for j in range(w):
+                low[i, j] = (packed[j] >> 16) & 0xFF
+        else:
+            for j in range(w):
+                low[i, j] = src[start + j * factor]
+    hist = np.zeros(256, np.int64)
+    n = 0
+    for i in range(0, h, 32):
+        for j in range(w - 1):
+            hist[abs(np.int64(low[i, j + 1]) - np.int64(low[i, j]))] += 1
+            n += 1
+    half, seen, median = n / 2.0, 0, 0
+    while median < 255 and seen + hist[median] < half:
+        seen += hist[median]
+        median += 1
+    if dark:
+        for i in range(h):
+            for j in range(w):
+                low[i, j] = 255 - low[i, j]
+    return low, max(1.4826 * median / np.sqrt(2.0), 0.5)
+
+
+@_jit
+def _find(parent: np.ndarray, k: int) -> int:
+    while parent[k] != k:
+        parent[k] = parent[parent[k]]
+        k = parent[k]
+    return k
+
+
+@_jit
+def local_blobs(low: np.ndarray, block: int, offset: int) -> np.ndarray:
+    """Bounding boxes (B, 4) int64 (x0, y0, width, height) of the 8-connected blobs of pixels brighter
+    than the rounded mean of their ``block`` × ``block`` neighbourhood (odd, edges replicated) plus
+    ``offset`` DN, in reduced pixels."""
+    h, w = low.shape
+    r = block // 2
+    area = block * block
+    # int32 throughout (vectorized; sums ≤ 255·block·(w + block) < 2³¹ for any frame up to 8k × 8k)
+    col = np.empty(w, np.int32)
+    for x in range(w):
+        col[x] = np.int32(r + 1) * np.int32(low[0, x])
+        for i in range(1, r + 1):
+            col[x] += np.int32(low[min(i, h - 1), x])
+    cap = h * w // 2 + 1
+    run_y, run_a, run_b = np.empty(cap, np.int64), np.empty(cap, np.int64), np.empty(cap, np.int64)
+    parent = np.empty(cap, np.int64)
+    prefix = np.zeros(w + 2 * r + 2, np.int32)  # prefix sums of the column sums, edges replicated
+    fg = np.zeros(w + 1, np.uint8)  # the row's foreground (fg[w] stays 0: a run ends there)
+    n_runs, prev_lo, prev_hi = 0, 0, 0
+    for y in range(h):
+        if y:  # column sums of rows y − r … y + r
+            add, sub = low[min(y + r, h - 1)], low[max(y - r - 1, 0)]
+            for x in range(w):
+                col[x] += np.int32(add[x]) - np.int32(sub[x])
+        total = np.int32(0)
+        for i in range(r):  # the left edge replicated
+            total += col[0]
+            prefix[i + 1] = total
+        for x in range(w):
+            total += col[x]
+            prefix[r + x + 1] = total
+        for i in range(r + w, w + 2 * r + 1):  # the right edge replicated
+            total += col[w - 1]
+            prefix[i + 1] = total
+        row = low[y]
+        count = 0
+        off32, area32 = np.int32(offset), np.int32(area)
+        for x in range(w):  # branch-free: vectorized
+            v = np.int32(row[x]) - off32
+            twice_sum = np.int32(2) * (prefix[x + block] - prefix[x])
+            on = (v >= 1) & (twice_sum < (np.int32(2) * v - np.int32(1)) * area32)
+            fg[x] = on
+            count += on
+        if count == 0:
+            prev_lo = prev_hi = n_runs
+            continue
+        start = -1
+        this_lo = n_runs
+        for x in range(w + 1):
+            if fg[x] and start < 0:
+                start = x
+            elif not fg[x] and start >= 0:  # a run start..x−1: joined to the runs above it that touch it
+                run_y[n_runs], run_a[n_runs], run_b[n_runs] = y, start, x - 1
+                parent[n_runs] = n_runs
+                for q in range(prev_lo, prev_hi):
+                    if run_a[q] <= x and run_b[q] >= start - 1:
+                        a, b = _find(parent, q), _find(parent, n_runs)
+                        if a != b:
+                            parent[max(a, b)] = min(a, b)
+                n_runs += 1
+                start = -1
+        prev_lo, prev_hi = this_lo, n_runs
+    boxes = np.empty((n_runs, 4), np.int64)
+    slot = np.full(n_runs, -1, np.int64)
+    n_blobs = 0
+    for k in range(n_runs):
+        root = _find(parent, k)
+        if slot[root] < 0:
+            slot[root] = n_blobs
+            boxes[n_blobs] = (run_a[k], run_y[k], run_b[k], run_y[k])
+            n_blobs += 1
+        b = boxes[slot[root]]
+        b[0], b[1] = min(b[0], run_a[k]), min(b[1], run_y[k])
+        b[2], b[3] = max(b[2], run_b[k]), max(b[3], run_y[k])
+    out = boxes[:n_blobs].copy()
+    out[:, 2] = out[:, 2] - out[:, 0] + 1
+    out[:, 3] = out[:, 3] - out[:, 1] + 1
+    return out
