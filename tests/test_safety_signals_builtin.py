@@ -49,7 +49,7 @@ def _acknowledged(proc: subprocess.Popen[str], stderr: Path) -> None:
     """Wait until rig has handled the first stop signal (its line on stderr) or has ended (a checkpoint came
     first): two signals sent before its handler ran are one pending signal (POSIX does not queue them)."""
     deadline = time.monotonic() + WAIT_S
-    while "abort requested; stopping at the next checkpoint" not in stderr.read_text() and proc.poll() is None:
+    while "abort requested; stopping at the next" not in stderr.read_text() and proc.poll() is None:
         assert time.monotonic() < deadline, stderr.read_text()
         time.sleep(0.05)
 
