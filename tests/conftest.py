@@ -71,6 +71,33 @@ def pytest_report_header(config: pytest.Config) -> str | None:
     return f"CPU load: {n} busy loop(s) (RIG_TEST_LOAD)" if n else None
 
 
+# ----------------------------------------------------------------------------- per-test CPU (RIG_TEST_TIMES)
+# RIG_TEST_TIMES=FILE appends one line per test (nodeid, wall s, CPU s of the worker process and of the
+# children it waited for): on a shared, loaded machine the CPU seconds, unlike --durations' wall time,
+# say what a test costs, and a file's sum is what it adds to its xdist worker. Written as each test ends.
+def _cpu_s() -> float:
+    import resource
+
+    own, kids = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
+    return own.ru_utime + own.ru_stime + kids.ru_utime + kids.ru_stime
+
+
+@pytest.hookimpl(wrapper=True)
+def pytest_runtest_protocol(item: pytest.Item, nextitem: pytest.Item | None) -> Any:
+    path = os.environ.get("RIG_TEST_TIMES")
+    if not path:
+        return (yield)
+    import time
+
+    wall0, cpu0 = time.perf_counter(), _cpu_s()
+    try:
+        return (yield)
+    finally:
+        line = f"{item.nodeid}\t{time.perf_counter() - wall0:.3f}\t{_cpu_s() - cpu0:.3f}\n"
+        with open(path, "a", encoding="utf-8") as out:  # one short append per test: whole lines
+            out.write(line)
+
+
 # ----------------------------------------------------------------------------- order (xdist: longest first)
 def pytest_collection_modifyitems(session: pytest.Session, config: pytest.Config,
                                   items: list[pytest.Item]) -> None:

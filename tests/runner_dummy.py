@@ -7,7 +7,7 @@ CALLS_FILE (one line each, flushed), so the parent test can see what was done ev
 MODE: ``normal`` (step b ends after 30 ticks), ``forever`` (step b checkpoints but never ends),
 ``deaf`` (step b never checkpoints: only a second Ctrl-C can stop it), ``heartbeat`` (the exciter's
 heartbeat fails after 5 ticks, while step b never checkpoints), ``report`` (as ``normal``, then a step
-``report`` of 500 ticks without a checkpoint).
+``report`` without a checkpoint that ticks until the file ``report.release`` appears in the working folder).
 """
 
 from __future__ import annotations
@@ -119,10 +119,12 @@ def make_module(mode: str, announce: bool = False) -> types.ModuleType:
                         ctx.checkpoint()
                     time.sleep(params.tick_s)
                     i += 1
-        if mode == "report":  # a last step without checkpoints, like the report: 500 ticks
-            with ctx.step("report"):
-                for i in range(500):
+        if mode == "report":  # a last step without checkpoints, like the report: it ticks until the test
+            with ctx.step("report"):  # creates report.release in the working folder (or 10⁵ ticks)
+                for i in range(100_000):
                     ctx.event("report_tick", {"i": i})
+                    if Path("report.release").exists():
+                        break
                     time.sleep(params.tick_s)
         return {"passed": True, "summary": "dummy done"}
 

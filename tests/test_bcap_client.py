@@ -263,22 +263,24 @@ def test_closed_link_is_a_connection_error() -> None:
 def test_keepalive_restarts_the_timeout() -> None:
     """Keep-alives every 30 ms keep a 100 ms receive timeout alive for 0.3 s (bcap.md §10 client rule)."""
 
-    class Slow(ScriptedTransport):
+    class Slow(ScriptedTransport):  # ten keep-alives, each after ≥ 30 ms, then the reply: ≥ 0.3 s in all
         def __init__(self) -> None:
             super().__init__([(packet(1, 2), b"")])
-            self.t0 = time.monotonic()
+            self.keepalives = 0
 
         def read_exact(self, n: int, timeout_s: float | None = None) -> bytes:
-            elapsed = time.monotonic() - self.t0
             if not self.inbox:
                 time.sleep(0.03)
-                self.inbox += reply(1) if elapsed > 0.3 else packet(1, 0x900)
+                self.inbox += reply(1) if self.keepalives == 10 else packet(1, 0x900)
+                self.keepalives += 1
             return super().read_exact(n, timeout_s)
 
     link = Slow()
     client = BcapClient(link, timeout_s=0.1)
+    t0 = time.monotonic()
     client.service_stop()
-    assert client.link.keepalives_seen >= 5
+    assert time.monotonic() - t0 >= 0.3  # the call outlived its 0.1 s receive timeout three times over
+    assert client.link.keepalives_seen == 10
 
 
 @pytest.mark.parametrize("kwargs, message", [

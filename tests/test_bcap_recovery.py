@@ -27,10 +27,13 @@ ENVELOPE = BoxEnvelope((100.0, 600.0), (-300.0, 300.0), (50.0, 600.0))
 
 def _arm(server: BcapMockServer, world: World, timeout_s: float = 0.5, wdt_ms: int | None = None,
          **kwargs) -> DensoArm:
-    transport = open_transport(f"tcp://127.0.0.1:{server.serve_tcp()}", timeout_s)
-    arm = DensoArm(BcapClient(transport, timeout_s=timeout_s), envelope=ENVELOPE, max_speed_mm_s=250.0,
+    """An arm opened (Service_Start … TakeArm) with a 30 s reply time-out — a loaded machine may answer the
+    set-up late, and that is no fault — then given ``timeout_s`` for the test's faults."""
+    transport = open_transport(f"tcp://127.0.0.1:{server.serve_tcp()}", 30.0)
+    arm = DensoArm(BcapClient(transport, timeout_s=30.0), envelope=ENVELOPE, max_speed_mm_s=250.0,
                    position_tolerance_mm=0.01, clock=world.clock, **kwargs)
     arm.open(wdt_ms=wdt_ms)
+    arm.client.link.timeout_s = timeout_s
     return arm
 
 
@@ -104,6 +107,7 @@ def test_make_safe_halts_on_a_fresh_link_when_the_current_one_fails(rig, fault: 
     _world, server, arm = rig
     if fault == "busy":  # an RC8 refusing the halt while an earlier call executes
         server.faults.busy_replies, server.faults.busy_function = 1, bcap.ROBOT_HALT
+        arm.client.link.timeout_s = 30.0  # the refusal comes at once: no reply is late but on a loaded host
     else:
         server.faults.drop_replies, server.faults.drop_function = 1, bcap.ROBOT_HALT
     arm.safe_state()

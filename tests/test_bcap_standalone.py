@@ -108,10 +108,11 @@ def test_an_idle_serial_line_does_not_lock_tcp_clients_out() -> None:
     with BcapMockServer(world.robot, world.clock) as server:
         pty_name = server.serve_pty()  # served, nobody talking on it
         port = server.serve_tcp()
-        tcp = BcapClient(open_transport(f"tcp://127.0.0.1:{port}", 1.0), timeout_s=1.0)
+        # every exchange here is answered (a refusal is a reply): time-outs for a loaded machine only
+        tcp = BcapClient(open_transport(f"tcp://127.0.0.1:{port}", 30.0), timeout_s=30.0)
         tcp.service_start()  # was E_MAX_CONNECT: the pty took the only slot when it was opened
-        serial = BcapClient(open_transport(f"serial://{pty_name}?baud=115200", 1.0), serial_line=True,
-                            timeout_s=1.0, retries=1)
+        serial = BcapClient(open_transport(f"serial://{pty_name}?baud=115200", 30.0), serial_line=True,
+                            timeout_s=30.0, retries=1)
         with pytest.raises(hr.BcapError) as info:  # one client at a time: the TCP client holds it
             serial.service_start()
         assert info.value.hresult == hr.E_MAX_CONNECT

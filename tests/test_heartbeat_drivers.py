@@ -173,7 +173,7 @@ def test_idle_link_is_probed_not_lost_silent_calls_are_not_counted_and_bad_timin
     with pytest.raises(ZeroDivisionError), record.exchange():
         1 / 0  # noqa: B018 — a request that got no answer
     with pytest.raises(DeviceLostError, match=r"robot: lost: no reply for 0\.\d\d s; last contact "
-                                              r"0\.\d\d s ago \(limit 0\.1 s\)"):
+                                              r"\d+\.\d\d s ago \(limit 0\.1 s\)"):  # the age: wall time
         for _ in range(1000):  # checked regularly (as the watchdog does), well within the probe interval
             beat.check()
             time.sleep(0.005)

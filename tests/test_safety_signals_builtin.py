@@ -31,17 +31,27 @@ def _documents(run_dir: Path) -> list[dict]:
 def _run_until(tmp_path: Path, needle: str) -> tuple[subprocess.Popen[str], Path]:
     argv = [sys.executable, "-m", "rig.cli", "run", "sweep", "--runs-dir", str(tmp_path / "runs"),
             "--set", "hold_s=0"]
-    proc = subprocess.Popen(argv, cwd=tmp_path, env={**os.environ, "PYTHONPATH": str(ROOT)},
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    with open(tmp_path / "rig.stderr", "w") as err:  # a file the test watches while the run goes on
+        proc = subprocess.Popen(argv, cwd=tmp_path, env={**os.environ, "PYTHONPATH": str(ROOT)},
+                                stdout=subprocess.PIPE, stderr=err, text=True)
     deadline = time.monotonic() + WAIT_S
     while time.monotonic() < deadline:
         records = list((tmp_path / "runs").glob("*/record.jsonl")) if (tmp_path / "runs").is_dir() else []
         if records and needle in records[0].read_text():
             return proc, records[0].parent
-        assert proc.poll() is None, proc.communicate()
+        assert proc.poll() is None, (proc.communicate(), (tmp_path / "rig.stderr").read_text())
         time.sleep(0.05)
     proc.kill()
     raise AssertionError(f"{needle} never appeared")
+
+
+def _acknowledged(proc: subprocess.Popen[str], stderr: Path) -> None:
+    """Wait until rig has handled the first stop signal (its line on stderr) or has ended (a checkpoint came
+    first): two signals sent before its handler ran are one pending signal (POSIX does not queue them)."""
+    deadline = time.monotonic() + WAIT_S
+    while "abort requested; stopping at the next" not in stderr.read_text() and proc.poll() is None:
+        assert time.monotonic() < deadline, stderr.read_text()
+        time.sleep(0.05)
 
 
 @pytest.mark.slow
@@ -58,9 +68,10 @@ def test_stop_signal_in_each_phase_is_a_safe_abort(tmp_path: Path, phase: str,
     proc, run_dir = _run_until(tmp_path, PHASES[phase])
     for i, sig in enumerate(signals):
         if i:
-            time.sleep(0.5)
+            _acknowledged(proc, tmp_path / "rig.stderr")
         proc.send_signal(sig)
-    out, err = proc.communicate(timeout=WAIT_S)
+    out, _ = proc.communicate(timeout=WAIT_S)
+    err = (tmp_path / "rig.stderr").read_text()
     assert proc.returncode == 2, (out, err)  # a Ctrl-C during the report used to end "pass", exit 0
     docs = _documents(run_dir)
     (stop,) = [d for d in docs if d["type"] == "stop"]

@@ -118,8 +118,9 @@ def _start_rig(rig: StandaloneRig, *settings: str) -> tuple[subprocess.Popen[str
             "--runs-dir", str(rig.runs), "--no-dashboard"]
     for s in settings:
         argv += ["--set", s]
-    proc = subprocess.Popen(argv, cwd=rig.config.parent, env=_env(), stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True)
+    with open(rig.config.parent / "rig.stderr", "w") as err:  # a file the tests watch while rig runs
+        proc = subprocess.Popen(argv, cwd=rig.config.parent, env=_env(), stdout=subprocess.PIPE, stderr=err,
+                                text=True)
     deadline = time.monotonic() + WAIT_S
     while time.monotonic() < deadline:
         records = list(rig.runs.glob("*/record.jsonl")) if rig.runs.is_dir() else []
@@ -132,14 +133,18 @@ def _start_rig(rig: StandaloneRig, *settings: str) -> tuple[subprocess.Popen[str
 
 
 def _wait_for(run_dir: Path, proc: subprocess.Popen[str], needle: str) -> None:
+    _wait_for_file(run_dir / "record.jsonl", proc, needle)
+
+
+def _wait_for_file(path: Path, proc: subprocess.Popen[str], needle: str) -> None:
     deadline = time.monotonic() + WAIT_S
     while time.monotonic() < deadline:
-        if needle in (run_dir / "record.jsonl").read_text():
+        if needle in path.read_text():
             return
         assert proc.poll() is None, proc.communicate()
         time.sleep(0.05)
     proc.kill()
-    raise AssertionError(f"{needle} never appeared in the record")
+    raise AssertionError(f"{needle} never appeared in {path.name}")
 
 
 def _read(mock: Mock, address: int) -> int:
@@ -164,10 +169,11 @@ def _signal_and_check(rig: StandaloneRig, phase: str, signals: list[signal.Signa
     proc, run_dir = _start_rig(rig, "hold_s=0" if phase == "report" else "hold_s=600", *settings)
     _wait_for(run_dir, proc, '"stream":"report_tick"' if phase == "report" else '"stream":"hold"')
     for i, sig in enumerate(signals):
-        if i:
-            time.sleep(0.2)
+        if i:  # only once rig handled the first: two signals sent before that are one (POSIX)
+            _wait_for_file(rig.config.parent / "rig.stderr", proc, "abort requested; stopping at the next")
         proc.send_signal(sig)
-    out, err = proc.communicate(timeout=WAIT_S)
+    out, _ = proc.communicate(timeout=WAIT_S)
+    err = (rig.config.parent / "rig.stderr").read_text()
     assert proc.returncode == 2, (out, err)
     stop = [d for d in _documents(run_dir) if d["type"] == "stop"]
     assert len(stop) == 1 and stop[0]["signal"] == signals[0].name and stop[0]["exit_status"] == "abort"
@@ -234,8 +240,8 @@ def test_heartbeat_probes_keep_the_drives_armed_but_running_through_a_quiet_step
     """No poll for 6 s (three comm time-outs) in the report step: the watchdog's probes are the
     keep-alives, the drives do not stop themselves, the run passes, and a clean close disarms them."""
     proc, _run_dir = _start_rig(standalone, "hold_s=0", "report_s=6")
-    out, err = proc.communicate(timeout=WAIT_S)
-    assert proc.returncode == 0, (out, err)
+    out, _ = proc.communicate(timeout=WAIT_S)
+    assert proc.returncode == 0, (out, (standalone.config.parent / "rig.stderr").read_text())
     with contextlib.suppress(FileNotFoundError):
         for device in ("exciter", "rotor"):
             assert "drive fault" not in standalone.mocks[device].log()

@@ -29,7 +29,7 @@ def test_a_silent_client_is_presumed_dead_the_arm_halted_and_released() -> None:
     world = World(VirtualClock(rate=1.0))
     with BcapMockServer(world.robot, world.clock, client_watchdog=True) as server:
         url = f"tcp://127.0.0.1:{server.serve_tcp()}"
-        client = BcapClient(open_transport(url, 1.0), timeout_s=1.0)
+        client = BcapClient(open_transport(url, 30.0), timeout_s=30.0)
         client.open_robot(wdt_ms=100)
         start = world.robot.pose_at(world.clock.now_s())
         client.move([start[0] + 100.0, *start[1:]], speed_percent=1, next_=True)  # 10 s at 10 mm/s
@@ -42,7 +42,7 @@ def test_a_silent_client_is_presumed_dead_the_arm_halted_and_released() -> None:
         rest = world.robot.pose_at(world.clock.now_s())
         assert rest[0] < start[0] + 50.0  # ... far short of its target: not left to finish its 10 s move
         assert server.state.handles == {}
-        other = BcapClient(open_transport(url, 1.0), timeout_s=1.0)  # the controller is free again
+        other = BcapClient(open_transport(url, 30.0), timeout_s=30.0)  # the controller is free again
         other.service_start()
         other.service_stop()
         other.link.transport.close()
@@ -53,7 +53,7 @@ def test_without_the_client_watchdog_a_silent_client_keeps_the_controller() -> N
     """In-process mocks (the built-in rig) keep it off: they die with the client anyway."""
     world = World(VirtualClock(rate=1.0))
     with BcapMockServer(world.robot, world.clock) as server:
-        client = BcapClient(open_transport(f"tcp://127.0.0.1:{server.serve_tcp()}", 1.0), timeout_s=1.0)
+        client = BcapClient(open_transport(f"tcp://127.0.0.1:{server.serve_tcp()}", 30.0), timeout_s=30.0)
         client.open_robot(wdt_ms=100)
         assert not _wait(lambda: not server.state.motor_on, timeout_s=CLIENT_WDT_FACTOR * 0.1 * 3)
         client.close()

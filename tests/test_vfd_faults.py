@@ -12,7 +12,7 @@ import re
 import time
 
 import pytest
-from vfd_support import vfd_rig
+from vfd_support import HEALTHY_TIMEOUT_S, vfd_rig
 
 from drivers.exciter.sweep import LinearSweep
 from drivers.exciter.vfd import (
@@ -24,7 +24,7 @@ from drivers.exciter.vfd import (
 from drivers.mock.vfd_drive import FAULT_OVERLOAD, FAULT_WATCHDOG
 from drivers.modbus_link import ModbusLinkError
 
-TIMEOUT_S = 0.25
+TIMEOUT_S = 0.25  # the reply time-out while a fault is injected (HEALTHY_TIMEOUT_S around it)
 STOP_DEADLINE_S = 2.0
 WORST_CASE_S = 2 * TIMEOUT_S + STOP_DEADLINE_S + 30.0  # a liveness bound (a loaded machine), not a speed test
 
@@ -48,10 +48,10 @@ def _timed(fn):
 ])
 def test_single_fault_raises_and_the_stop_goes_through(mode: str, fault: str, error: type,
                                                         pattern: str) -> None:
-    with vfd_rig(mode, timeout_s=TIMEOUT_S) as rig:
+    with vfd_rig(mode, timeout_s=HEALTHY_TIMEOUT_S) as rig:
         rig.exciter.set_frequency(5.0)
         assert rig.drive.running
-        rig.client.retries = 0  # one fault, one failure
+        rig.client.retries, rig.client.timeout_s = 0, TIMEOUT_S  # one fault, one failure
         rig.server.inject(fault, count=1)
         exc, elapsed = _timed(rig.exciter.read_sample)
         assert isinstance(exc, error)
@@ -64,8 +64,9 @@ def test_single_fault_raises_and_the_stop_goes_through(mode: str, fault: str, er
 
 @pytest.mark.parametrize("mode", MODES)
 def test_persistent_silence_fails_the_stop_too_and_says_so(mode: str) -> None:
-    with vfd_rig(mode, timeout_s=TIMEOUT_S) as rig:
+    with vfd_rig(mode, timeout_s=HEALTHY_TIMEOUT_S) as rig:
         rig.exciter.set_frequency(5.0)
+        rig.client.timeout_s = TIMEOUT_S
         rig.server.inject("no_reply", count=None)
         exc, elapsed = _timed(lambda: rig.exciter.set_frequency(6.0))
         assert isinstance(exc, VfdCommunicationError)
@@ -73,15 +74,16 @@ def test_persistent_silence_fails_the_stop_too_and_says_so(mode: str) -> None:
         assert exc.stop_attempted and exc.stop_ok is False
         assert "stop command attempted but failed" in str(exc)
         rig.server.clear_faults()
+        rig.client.timeout_s = HEALTHY_TIMEOUT_S
         rig.exciter.stop()
         assert not rig.drive.running
 
 
 @pytest.mark.parametrize("mode", MODES)
 def test_disconnect_raises_and_a_stop_is_attempted(mode: str) -> None:
-    with vfd_rig(mode, timeout_s=TIMEOUT_S) as rig:
+    with vfd_rig(mode, timeout_s=HEALTHY_TIMEOUT_S) as rig:
         rig.exciter.set_frequency(5.0)
-        rig.client.retries = 0
+        rig.client.retries, rig.client.timeout_s = 0, TIMEOUT_S
         rig.server.inject("disconnect", count=1)
         exc, elapsed = _timed(rig.exciter.read_sample)
         assert isinstance(exc, VfdCommunicationError), exc
@@ -91,6 +93,7 @@ def test_disconnect_raises_and_a_stop_is_attempted(mode: str) -> None:
             assert exc.stop_ok is False
             assert rig.drive.running
             rig.server.clear_faults()
+            rig.client.timeout_s = HEALTHY_TIMEOUT_S
             rig.exciter.stop()
         assert not rig.drive.running
 
@@ -98,7 +101,7 @@ def test_disconnect_raises_and_a_stop_is_attempted(mode: str) -> None:
 @pytest.mark.parametrize("mode", MODES)
 def test_drive_overload_during_a_sweep_raises_a_fault_and_stops(mode: str) -> None:
     # gear 1.5, max 60 Hz; I = 0.8 + 3.2·(f/60)²; 2.4 A ↔ f_drive = 60·sqrt(0.5) = 42.4 Hz ↔ 28.3 Hz vibration
-    with vfd_rig(mode, timeout_s=TIMEOUT_S, overload_current_a=2.4) as rig:
+    with vfd_rig(mode, timeout_s=HEALTHY_TIMEOUT_S, overload_current_a=2.4) as rig:
         with pytest.raises(VfdFaultError, match="fault code 5") as info:
             rig.exciter.sweep(LinearSweep(5.0, 30.0, 15.0))
         assert info.value.fault_code == FAULT_OVERLOAD
@@ -113,7 +116,7 @@ def test_drive_overload_during_a_sweep_raises_a_fault_and_stops(mode: str) -> No
 
 @pytest.mark.parametrize("mode", ["tcp"])
 def test_watchdog_trip_is_reported_on_the_next_poll(mode: str) -> None:
-    with vfd_rig(mode, timeout_s=TIMEOUT_S, watchdog_s=0.5) as rig:
+    with vfd_rig(mode, timeout_s=HEALTHY_TIMEOUT_S, watchdog_s=0.5) as rig:
         rig.exciter.set_frequency(5.0)  # polls every 0.25 s: the watchdog stays fed
         rig.clock.sleep_s(2.0)  # the procedure goes silent
         with pytest.raises(VfdFaultError, match="CE10") as info:
@@ -123,7 +126,8 @@ def test_watchdog_trip_is_reported_on_the_next_poll(mode: str) -> None:
 
 
 def test_rtu_drive_stays_silent_for_another_unit_id() -> None:
-    with vfd_rig("rtu", timeout_s=TIMEOUT_S) as rig:
+    with vfd_rig("rtu", timeout_s=HEALTHY_TIMEOUT_S) as rig:
         assert rig.client.read_holding_registers(1, 0x2100, 1) == [0]
+        rig.client.timeout_s = TIMEOUT_S  # no reply is the expected outcome: waited for that long
         with pytest.raises(ModbusLinkError, match="TransportTimeout"):
             rig.client.read_holding_registers(7, 0x2100, 1)

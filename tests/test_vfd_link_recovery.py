@@ -15,7 +15,7 @@ from drivers.exciter.vfd import VfdCommunicationError, VfdError, VfdExceptionRes
 from drivers.mock.vfd_server import VfdServer
 
 MODES = ["rtu", "tcp"]
-TIMEOUT_S = 0.25
+TIMEOUT_S = 0.25  # from the first injected fault on; the set-up's exchanges wait HEALTHY_TIMEOUT_S
 
 
 class StepClock:
@@ -42,8 +42,9 @@ def _expect_in_step(rig: object) -> None:
 @pytest.mark.parametrize("mode", MODES)
 def test_a_late_reply_is_not_taken_for_the_next_one_and_the_stop_goes_through(mode: str) -> None:
     """The issue's defect: a read times out, its reply comes late, and the stop after it must succeed."""
-    with vfd_rig(mode, timeout_s=TIMEOUT_S) as rig:
+    with vfd_rig(mode) as rig:
         rig.exciter.set_frequency(5.0)
+        rig.client.timeout_s = TIMEOUT_S  # set up; now the faults
         rig.client.retries = 0  # the read fails at its first time-out
         rig.server.inject("late", 2 * TIMEOUT_S, count=1)
         with pytest.raises(VfdCommunicationError) as info:
@@ -77,8 +78,9 @@ def test_commands_survive_an_out_of_step_reply(mode: str, fault: str, value: flo
 
 @pytest.mark.parametrize("mode", MODES)
 def test_stop_repeats_on_fresh_links_until_acknowledged(mode: str) -> None:
-    with vfd_rig(mode, timeout_s=TIMEOUT_S, stop_deadline_s=10.0) as rig:
+    with vfd_rig(mode, stop_deadline_s=10.0) as rig:
         rig.exciter.set_frequency(5.0)
+        rig.client.timeout_s = TIMEOUT_S  # set up; now the faults
         rig.client.clock = StepClock()
         reconnects = rig.client.reconnects
         rig.server.inject("no_reply", count=3)
@@ -90,8 +92,9 @@ def test_stop_repeats_on_fresh_links_until_acknowledged(mode: str) -> None:
 
 @pytest.mark.parametrize("mode", MODES)
 def test_stop_gives_up_at_its_deadline_and_says_how_often_it_tried(mode: str) -> None:
-    with vfd_rig(mode, timeout_s=TIMEOUT_S, stop_deadline_s=5.0) as rig:
+    with vfd_rig(mode, stop_deadline_s=5.0) as rig:
         rig.exciter.set_frequency(5.0)
+        rig.client.timeout_s = TIMEOUT_S  # set up; now the faults
         rig.client.clock = StepClock()  # start reading 1, end 6; readings 2..6 after attempts 1..5
         rig.server.inject("no_reply", count=None)
         with pytest.raises(VfdCommunicationError, match=r"not acknowledged after 5 attempt\(s\) within 5 s"):
@@ -106,8 +109,9 @@ def test_stop_gives_up_at_its_deadline_and_says_how_often_it_tried(mode: str) ->
 
 
 def test_stop_waits_out_a_busy_drive_but_not_a_refusal() -> None:
-    with vfd_rig("rtu", timeout_s=TIMEOUT_S, stop_deadline_s=10.0) as rig:
+    with vfd_rig("rtu", stop_deadline_s=10.0) as rig:
         rig.exciter.set_frequency(5.0)
+        rig.client.timeout_s = TIMEOUT_S  # set up; now the faults
         rig.client.clock = StepClock()
         rig.server.inject("busy", count=2)
         rig.vfd.stop()
@@ -118,8 +122,9 @@ def test_stop_waits_out_a_busy_drive_but_not_a_refusal() -> None:
 
 
 def test_after_a_failure_the_stop_survives_a_cable_pulled_for_a_moment() -> None:
-    with vfd_rig("rtu", timeout_s=TIMEOUT_S, stop_deadline_s=30.0) as rig:
+    with vfd_rig("rtu", stop_deadline_s=30.0) as rig:
         rig.exciter.set_frequency(5.0)
+        rig.client.timeout_s = TIMEOUT_S  # set up; now the faults
         server: VfdServer = rig.server
         rig.client.retries = 0
         server.inject("disconnect", 0.3, count=1)  # the cable is pulled for 0.3 s, then plugged back
@@ -133,8 +138,9 @@ def test_after_a_failure_the_stop_survives_a_cable_pulled_for_a_moment() -> None
 def test_stop_on_a_link_its_owner_closed_fails_at_once_without_spinning(mode: str) -> None:
     """A closed link opens no fresh one: the stop reports it after one attempt (it used to retry in a
     busy loop until its deadline on the injected clock — thousands of attempts on an instant clock)."""
-    with vfd_rig(mode, timeout_s=TIMEOUT_S, stop_deadline_s=5.0) as rig:
+    with vfd_rig(mode, stop_deadline_s=5.0) as rig:
         rig.exciter.set_frequency(5.0)
+        rig.client.timeout_s = TIMEOUT_S  # set up; now the faults
         rig.client.close()
         with pytest.raises(VfdCommunicationError, match=r"the link was closed after 1 attempt\(s\)"):
             rig.vfd.stop()

@@ -142,7 +142,13 @@ class VfdRig:
     exciter: Exciter
 
 
-def connect_client(server: VfdServer, *, timeout_s: float = 0.25, retries: int = 0,
+# The reply time-out of exchanges no fault is injected into: a loaded machine may take a second to pass a
+# reply through the mock's thread and the pty bridge, and that is no fault. A test of a lost or late reply
+# passes its own short time-out, for the faulted exchange.
+HEALTHY_TIMEOUT_S = 30.0
+
+
+def connect_client(server: VfdServer, *, timeout_s: float = HEALTHY_TIMEOUT_S, retries: int = 0,
                    clock: Any = None) -> ModbusLink:
     """Our Modbus master on the mock's TCP port or RTU pty."""
     url = server.url if server.mode == "tcp" else f"serial://{server.client_port}?baud=115200"
@@ -151,7 +157,7 @@ def connect_client(server: VfdServer, *, timeout_s: float = 0.25, retries: int =
 
 @contextlib.contextmanager
 def vfd_rig(mode: str, *, gear_ratio: float = 1.5, max_output_hz: float = 60.0, poll_interval_s: float = 0.25,
-            timeout_s: float = 0.25, retries: int = 1, stop_deadline_s: float = 2.0,
+            timeout_s: float = HEALTHY_TIMEOUT_S, retries: int = 1, stop_deadline_s: float = 2.0,
             **drive_kwargs: Any) -> Iterator[VfdRig]:
     """World (instant clock) + mock drive moving world.exciter + connected driver + Exciter. The link
     repeats a request once (the station's setting); a test of one failure sets ``rig.client.retries = 0``
