@@ -28,7 +28,7 @@ from scipy.optimize import linear_sum_assignment
 from rig.analysis.tracks2d import circle_prediction
 from rig.stereo import FLAG_LOST, detect_markers, track_markers, track_markers_sequence
 
-__all__ = ["DETECT_ONLY_KEYS", "TRACK_KEYS", "MarkerReducer", "ReduceOptions", "track_options"]
+__all__ = ["DETECT_ONLY_KEYS", "TRACK_KEYS", "MarkerReducer", "ReduceOptions", "track_options", "warm_up"]
 
 #: distance (px) within which a lone leftover marker continues its motion history across a whole-frame search
 ACQUIRE_PX = 150.0
@@ -201,3 +201,15 @@ class MarkerReducer:
             self._hist = [[*h[-2:], u] for h, u in zip(self._hist, self._uv, strict=True)]
             out.append((rec, self._ids))
         return taken
+
+
+def warm_up(options: ReduceOptions) -> None:
+    """Load (or compile) the marker kernels before a camera runs: reduce two frames of a synthetic bright
+    disc (detection, then tracking) through a throwaway reducer. The first call of the compiled kernels
+    costs 0.5 s from numba's disk cache and 20–30 s of CPU without it — long enough, inside a live
+    recording, to fill a camera's bounded queue and lose its first frames."""
+    yy, xx = np.mgrid[0:96, 0:96]
+    frame = np.where((xx - 48.0) ** 2 + (yy - 48.0) ** 2 <= 36.0, 220, 30).astype(np.uint8)
+    reducer = MarkerReducer(options)
+    for _ in range(2):
+        reducer.reduce(frame)

@@ -49,7 +49,7 @@ import numpy as np
 import pandas as pd
 
 from drivers.roles import Camera
-from rig.analysis.frame_reduction import MarkerReducer, ReduceOptions
+from rig.analysis.frame_reduction import MarkerReducer, ReduceOptions, warm_up
 from rig.record.events import CameraEvent
 from rig.record.observations import ObservationWriter
 from rig.run.fiducial import FiducialRecording
@@ -108,6 +108,7 @@ class Acquirer:
         fiducial = ctx.config.fiducial
         self.fiducial = FiducialRecording(ctx, fiducial) if fiducial is not None else None
         self._regions: dict[str, tuple[int, int, int, int]] = {}  # of the recording in progress
+        warm_up(self.options)  # the kernels' first call must not happen while a camera fills its queue
 
     def close(self) -> None:
         for writer in self._writers.values():
