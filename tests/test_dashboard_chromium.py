@@ -43,7 +43,7 @@ PAGE_STATE = """!document.getElementById("step-text") ? "null" : JSON.stringify(
   rotor_cameras: Number(document.getElementById('plot-rotor-phase-cameras').dataset.points),
   sweep_amplitude: Number(document.getElementById('plot-sweep-amplitude').dataset.points),
   live_stereo: document.getElementById('live-stereo-status').textContent,
-  cameras: [...document.querySelectorAll('#cameras img')].filter(i => i.naturalWidth > 0).length,
+  cameras: [...document.querySelectorAll('#cameras img')].filter(i => Number(i.dataset.shown) > 0).length,
   devices: document.getElementById('devices').textContent,
   banner: getComputedStyle(document.getElementById('sim-banner')).display,
   remaining: document.getElementById('remaining').textContent,
