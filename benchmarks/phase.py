@@ -51,12 +51,12 @@ from rig.record.events import BandSweepEvent, SweepEvent  # noqa: E402
 SIM_TOML = (ROOT / "rig" / "data" / "sim.toml").read_text()
 
 
-def sweep_run(tmp: Path, seed: int, duration_s: float) -> tuple[Path, Any]:
-    """One ``rig run sweep`` on the built-in rig with ``seed``; (run folder, the twin's exciter body)."""
+def _run_keeping_world(tmp: Path, seed: int, command: list[str], options: list[str]) -> tuple[Path, Any]:
+    """``rig COMMAND --config RIG OPTIONS`` on the built-in rig with ``seed`` and its runs under ``tmp``;
+    (run folder, the station's twin world, kept by wrapping ``open_station`` for the run)."""
     text = SIM_TOML.replace('runs_dir = "runs"', f'runs_dir = "{(tmp / "runs").as_posix()}"')
-    text = text.replace("seed = 20261121", f"seed = {seed}")
     config = tmp / "rig.toml"
-    config.write_text(text)
+    config.write_text(text.replace("seed = 20261121", f"seed = {seed}"))
     kept: dict[str, Any] = {}
     original = station_module.open_station
 
@@ -68,10 +68,16 @@ def sweep_run(tmp: Path, seed: int, duration_s: float) -> tuple[Path, Any]:
 
     station_module.open_station = keep_world
     try:
-        rig_main(["run", "sweep", "--config", str(config), "--set", f"duration_s={duration_s}"])
+        rig_main([*command, "--config", str(config), *options])
     finally:
         station_module.open_station = original
-    return run_folders(tmp / "runs")[-1], kept["world"].exciter
+    return run_folders(tmp / "runs")[-1], kept["world"]
+
+
+def sweep_run(tmp: Path, seed: int, duration_s: float) -> tuple[Path, Any]:
+    """One ``rig run sweep`` on the built-in rig with ``seed``; (run folder, the twin's exciter body)."""
+    run_dir, world = _run_keeping_world(tmp, seed, ["run", "sweep"], ["--set", f"duration_s={duration_s}"])
+    return run_dir, world.exciter
 
 
 @contextlib.contextmanager
@@ -118,25 +124,9 @@ def stated_delay(run_dir: Path, tracks: pd.DataFrame, clock: pd.DataFrame) -> ph
 
 def band_run(tmp: Path, seed: int) -> tuple[Path, Any]:
     """``rig certify`` (fast preset plus the band step) with ``seed``; (run folder, the twin's shaker)."""
-    text = SIM_TOML.replace('runs_dir = "runs"', f'runs_dir = "{(tmp / "runs").as_posix()}"')
-    config = tmp / "rig.toml"
-    config.write_text(text.replace("seed = 20261121", f"seed = {seed}"))
-    kept: dict[str, Any] = {}
-    original = station_module.open_station
-
-    @contextlib.contextmanager
-    def keep_world(cfg: Any, clock: Any, **kw: Any) -> Iterator[Any]:
-        with original(cfg, clock, **kw) as station:
-            kept["world"] = station.world
-            yield station
-
-    station_module.open_station = keep_world
-    try:
-        rig_main(["certify", "--config", str(config), "--no-dashboard", "--set", 'preset="fast"', "--set",
-                  "band=true", "--set", "figures=false"])
-    finally:
-        station_module.open_station = original
-    return run_folders(tmp / "runs")[-1], kept["world"].shaker
+    options = ["--no-dashboard", "--set", 'preset="fast"', "--set", "band=true", "--set", "figures=false"]
+    run_dir, world = _run_keeping_world(tmp, seed, ["certify"], options)
+    return run_dir, world.shaker
 
 
 def band_table(run_dir: Path, shaker: Any, tracks: pd.DataFrame, clock: pd.DataFrame) -> pd.DataFrame:

@@ -318,6 +318,10 @@ def _support(  # noqa: PLR0917 (numba: no keyword-only arguments)
     The marker is the region of the centre pixel; when that pixel is background, the region of the
     strong pixel nearest the centre among those at least half as strong as the window's strongest (so a
     noise speck is never chosen; ties: the first in row-major order).
+
+    One function, not named stages (seed choice, run-wise flood fill, moment sums): it is compiled by numba
+    and called per marker per frame, where a call between stages costs more than a stage, and the fill and
+    the moment sums share the same scratch arrays run by run.
     """
     w = 2 * half_px + 1
     pw = w + 2
