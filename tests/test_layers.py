@@ -20,7 +20,8 @@ LAYERS: tuple[tuple[str, ...], ...] = (
     ("rig.dashboard",),
     ("reports",),
     ("procedures",),
-    ("rig.cli", "rig.cli_measure", "rig.cli_logging", "rig.preview", "rig.demo"),
+    ("rig.cli", "rig.cli_measure", "rig.cli_logging", "rig.preview", "rig.demo",
+     "rig.warm_kernels"),
 )
 # Packages of one layer that must not import each other either.
 SIBLINGS_APART = {("rig.record", "rig.config"), ("rig.run", "rig.deploy")}
