@@ -100,10 +100,9 @@ def cmd_measure(args: argparse.Namespace) -> int:
         return EXIT_BAD_INPUT
     write_measurement_report(args.out)  # rig.deploy may not import reports: the command layer renders
     targets = result.summary[result.summary["role"] == "target"]
-    for r in targets.itertuples():
-        f = getattr(r, "frequency_hz", float("nan"))
-        a = getattr(r, "amplitude_mm", float("nan"))
-        print(f"  track {r.track_id}: {a:.4f} mm at {f:.4f} Hz")
+    for row in targets.to_dict("records"):  # no sine fit: NaN, or no column when no track has one
+        a, f = row.get("amplitude_mm", float("nan")), row.get("frequency_hz", float("nan"))
+        print(f"  track {row['track_id']}: {a:.4f} mm at {f:.4f} Hz")
     print(f"rig measure: {Path(args.out) / 'report.html'}")
     if result.problems:
         for p in result.problems:

@@ -19,13 +19,16 @@ columns :data:`rig.analysis.fiducial.ROW_COLUMNS`), named in the ``fiducial`` ev
 from __future__ import annotations
 
 import re
-from typing import Any
 
 import numpy as np
 import pandas as pd
 
+from drivers.exciter.generator import ScpiGenerator
+from drivers.exciter.shaker import Shaker
 from rig.analysis.fiducial import ROW_COLUMNS, ROWS_DIR
+from rig.config.fiducial import FiducialConfig
 from rig.record.atomic import atomic_path
+from rig.run.procedure import Context
 
 __all__ = ["FiducialRecording"]
 
@@ -33,12 +36,13 @@ __all__ = ["FiducialRecording"]
 class FiducialRecording:
     """One recording's fiducial (see the module docstring); ``regions`` camera → (x0, y0, x1, y1) px."""
 
-    def __init__(self, ctx: Any, config: Any) -> None:
+    def __init__(self, ctx: Context, config: FiducialConfig) -> None:
         self.ctx, self.config = ctx, config
         self.regions: dict[str, tuple[int, int, int, int]] = {
             name: (int(r[0]), int(r[1]), int(r[2]), int(r[3])) for name, r in config.regions_px.items()}
         device = ctx.station.devices.get(config.device)
-        self.generator = getattr(device, "generator", None)
+        # the generator's device is the shaker it feeds (rig.run.station); its SCPI generator drives the LED
+        self.generator: ScpiGenerator | None = device.generator if isinstance(device, Shaker) else None
         gen_config = ctx.config.devices.generator
         self.two_channel = gen_config is not None and gen_config.channels == 2
         self.shaker_channel = gen_config.channel if gen_config is not None else 1
