@@ -4,8 +4,8 @@ Consumer cameras record to files with no common clock, and their frame times can
 (metrology notes §3: duplicated frames and variable frame rates shifted cameras by whole frames in other
 tools). :class:`VideoFile` therefore
 
-- decodes frames **in order, by index** (never by seeking to a time), and gives each frame the container's
-  presentation time stamp (``CAP_PROP_POS_MSEC``, converted to seconds);
+- decodes frames **in order, by index** (a start by a verified frame-exact seek: :meth:`VideoFile.frames`),
+  and gives each frame the container's presentation time stamp (``CAP_PROP_POS_MSEC``, converted to seconds);
 - detects **duplicated frames** only on evidence (see :class:`DuplicateJudge`): a repeated presentation time
   stamp; or, with advancing stamps (a constant-frame-rate container), an image that is the previous one
   again — its sensor noise not renewed (the median 8×8-block difference to the previous frame below
@@ -50,6 +50,7 @@ from numpy.typing import NDArray
 
 from drivers.camera.base import Frame, FrameGap
 from drivers.camera.container_times import ContainerError, read_container_times
+from drivers.camera.seek import frame_times_s, seek_frame
 from drivers.roles import Camera
 
 __all__ = ["DUPLICATE_POLICIES", "FrameTimeReport", "VideoFile", "VideoFileError", "VideoOpenError",
@@ -57,6 +58,9 @@ __all__ = ["DUPLICATE_POLICIES", "FrameTimeReport", "VideoFile", "VideoFileError
 
 DUPLICATE_POLICIES = ("replace", "insert")
 _SUB = 4  # subsampling of the luma-plane check
+# frames(start_s=…) starts this many frames early: the duplicate judge's history (31 noise floors) and its
+# k−2 … k+1 neighbours are then those of a decode from the first frame when the wanted frames come
+SEEK_PREROLL_FRAMES = 40
 
 
 class VideoFileError(RuntimeError):
@@ -391,6 +395,7 @@ class VideoFile(Camera):
         self.report = self._new_report()
         self.duplicate_indices: set[int] = set()
         self._first_pts_s = 0.0
+        self._start_index = 0  # the frame a seek landed on (frames(start_s=…)), for the next decode
 
     def _new_report(self) -> FrameTimeReport:
         return FrameTimeReport(str(self.path), frames_declared=self.frames_declared,
@@ -471,14 +476,22 @@ class VideoFile(Camera):
             cap.release()
         return self._open(), False, None
 
-    def frames(self) -> Iterator[Frame]:
-        """Every decodable frame in order (see the module docstring); ``.report`` is filled as they go."""
+    def frames(self, start_s: float | None = None) -> Iterator[Frame]:
+        """Every decodable frame in order (see the module docstring); ``.report`` is filled as they go.
+
+        ``start_s``: begin at least :data:`SEEK_PREROLL_FRAMES` frames before the first frame stamped at or
+        after it, reached by a verified frame-exact seek (:mod:`drivers.camera.seek`) with the default
+        ``duplicate_policy`` ("replace": stamps are never shifted, so they do not depend on the frames
+        skipped); the frames keep their indices and stamps, the report covers the frames decoded. Without a
+        verified seek (or with "insert"), every frame from the first."""
         rep = self.report = self._new_report()
         self.duplicate_indices = set()
         period = 1.0 / self.fps
         _quiet(+1)  # the luma plane makes OpenCV warn once a frame
         try:
             cap, rep.luma_plane, first = self._luma_capture()
+            if start_s is not None and self.duplicate_policy == "replace":
+                cap, first = self._seek(cap, first, start_s)
             yield from self._decode(cap, rep, period, first)
         finally:
             _quiet(-1)
@@ -494,6 +507,23 @@ class VideoFile(Camera):
             raise VideoTruncatedError(f"{self.path}: {rep.error}; the {rep.frames_read} frames read are kept",
                                       rep)
 
+    def _seek(self, cap: cv2.VideoCapture, first: tuple[float, NDArray[np.uint8]] | None, start_s: float
+              ) -> tuple[cv2.VideoCapture, tuple[float, NDArray[np.uint8]] | None]:
+        """The capture and its first frame after a verified seek towards ``start_s`` (:meth:`frames`); the
+        capture from the first frame again when the seek cannot be verified."""
+        times = frame_times_s(str(self.path))
+        if times is None:
+            return cap, first
+        index = max(0, int(np.searchsorted(times, start_s - 1e-9)) - SEEK_PREROLL_FRAMES)
+        if index == 0:
+            return cap, first
+        if seek_frame(cap, times, index) and (img := self._gray(cap)) is not None:
+            self._start_index, self._first_pts_s = index, float(times[0])
+            return cap, (float(cap.get(cv2.CAP_PROP_POS_MSEC)) / 1000.0, img)
+        cap.release()  # position unknown: from the first frame, as without a start
+        cap, self.report.luma_plane, first = self._luma_capture()
+        return cap, first
+
     def _stamped(self, cap: cv2.VideoCapture, first: tuple[float, NDArray[np.uint8]] | None
                  ) -> Iterator[tuple[float, NDArray[np.uint8] | None]]:
         """(time stamp s, grey image or None if undecodable) of each frame in order, ``first`` (already
@@ -507,7 +537,9 @@ class VideoFile(Camera):
               first: tuple[float, NDArray[np.uint8]] | None) -> Iterator[_Decoded]:
         """Decoded frames in order with their time stamps and block change to the previous frame."""
         prev: NDArray[np.uint8] | None = None  # half-size previous image
-        index = 0
+        index, self._start_index = self._start_index, 0  # after a seek, the frame it landed on
+        if index:
+            rep.first_pts_s = self._first_pts_s
         try:
             for pts, img in self._stamped(cap, first):
                 if img is None:
@@ -526,7 +558,8 @@ class VideoFile(Camera):
                 first: tuple[float, NDArray[np.uint8]] | None) -> Iterator[Frame]:
         judge = DuplicateJudge(self.duplicate_ratio)
         state = _Stamps()
-        self._first_pts_s = 0.0
+        if not self._start_index:
+            self._first_pts_s = 0.0
         window: deque[_Decoded | None] = deque([None, None], maxlen=4)  # k−2, k−1, k, k+1
         for item in self._grab(cap, rep, first):
             window.append(item)

@@ -18,8 +18,8 @@ only file paths and a small outcome dictionary travel through the scheduler, nev
 
 A recording longer than two windows (``window_s`` of its pair in the manifest) is split into windows
 ``[k·window_s, (k + 1)·window_s)`` of the reference file's clock (the last one takes the tail), each a task:
-``rig measure``'s code on the frames of the window ± ``overlap_s`` (the frames before it are decoded and
-passed over: the decoder never seeks, so a window late in a long file costs its offset in decoding), the
+``rig measure``'s code on the frames of the window ± ``overlap_s`` (reached by a verified frame-exact seek,
+:mod:`drivers.camera.seek`, so a window late in a long file costs no more than an early one), the
 summary over the window alone and the displacement series trimmed to it, so consecutive windows join
 without a duplicate or a gap. Each window's timing is estimated on its own and checked for continuity with
 the others like the segments' (below).

@@ -118,7 +118,7 @@ def extract_video(path: str | Path, camera: str | None = None,
     t_extract = 0.0
     error = None
     t_all = time.perf_counter()
-    frames = video.frames()
+    frames = video.frames(opts.start_s)  # a verified seek to the window, when it has a start
     batch: list[tuple[int, float, bool, np.ndarray]] = []  # frames reduced together (reduce_many)
 
     def flush() -> float:
