@@ -16,16 +16,26 @@ time per second of video (what one core costs, nearly independent of other load)
 cluster start included and excluded), and a sizing table: cores needed to keep up with K camera pairs
 filming 1080p60 around the clock, from the measured per-core CPU cost scaled by the pixel count (×4 for
 1080p against the benchmark's 960 × 540) and the measured scaling efficiency.
-Run: .venv/bin/python benchmarks/batch.py [--segments 3] [--segment-s 2]
+
+Windows of a long recording (``--long-s`` s, one pair, ``window_s`` = ``--window-s``, ``overlap_s`` = 1 s):
+the wall and CPU time to reach and read each window's frames (core ± overlap, both cameras) by the reader
+as it was, decoding every frame from the file's first and passing over those before the window, against a
+verified frame-exact seek (drivers/camera/seek.py, ``VideoFile.frames(start_s)``), the same frames
+delivered (checked). ``--windows-only`` runs this part alone.
+Run: .venv/bin/python benchmarks/batch.py [--segments 3] [--segment-s 2] [--long-s 32] [--window-s 4]
+[--windows-only]
 """
 
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 import tempfile
 import time
 from pathlib import Path
+
+import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
@@ -33,6 +43,7 @@ sys.path.insert(0, str(ROOT / "tests"))
 
 import batch_archive  # noqa: E402
 
+from drivers.camera.video_file import VideoFile  # noqa: E402
 from rig.deploy.batch import dask_client, plan, run_batch, run_task  # noqa: E402
 from rig.deploy.batch_manifest import load_manifest  # noqa: E402
 
@@ -55,11 +66,65 @@ def _dask(manifest_path: Path, out: Path, workers: int) -> tuple[float, float]:
     return time.perf_counter() - t0, report.video_seconds
 
 
+def _read_window(path: Path, start_s: float, stop_s: float, *, seek: bool) -> tuple[float, float, list[int]]:
+    """Wall s and CPU s (this process, decoder threads included) to reach and read the frames stamped
+    within [start_s, stop_s], and their indices: by a seek, or (seek False) decoding from the first frame
+    and passing over the earlier ones."""
+    t0, c0 = time.perf_counter(), time.process_time()
+    indices = []
+    for frame in VideoFile(path).frames(start_s if seek else None):
+        if frame.timestamp_s > stop_s:
+            break
+        if frame.timestamp_s >= start_s:
+            indices.append(frame.index)
+    return time.perf_counter() - t0, time.process_time() - c0, indices
+
+
+def windows_benchmark(root: Path, long_s: float, window_s: float, overlap_s: float = 1.0) -> None:
+    """Reading the windows of a long recording (both cameras) with and without seeking."""
+    batch_archive.write_long_pair(root, long_s)
+    manifest = root / "manifest.toml"
+    manifest.write_text(f'[batch]\nname = "long"\nmax_retries = 0\n\n[[sites]]\nname = "bridge"\n\n'
+                        f'[[sites.pairs]]\nname = "pier"\ncalibration = "calibration.json"\n'
+                        f'left = ["pair/left/*.mp4"]\nright = ["pair/right/*.mp4"]\n'
+                        f"window_s = {window_s}\noverlap_s = {overlap_s}\n", encoding="utf-8")
+    tasks, _ = plan(load_manifest(manifest))
+    print(f"\nwindows: a {long_s:g} s recording per camera (960 × 540, 60 FPS, MP4 mp4v), {len(tasks)} "
+          f"windows of {window_s:g} s ± {overlap_s:g} s; reading a window's frames, both cameras")
+    print(f"{'window':>6s} {'from s':>6s} {'decode from 0: wall s':>21s} {'CPU s':>6s} "
+          f"{'seek: wall s':>12s} {'CPU s':>6s} {'× (CPU)':>7s}")
+    totals = np.zeros(4)
+    for k, task in enumerate(tasks):
+        assert task.core_s is not None
+        start_s = max(0.0, task.core_s[0] - overlap_s)
+        stop_s = task.core_s[1] + overlap_s
+        row = np.zeros(4)
+        for path in (task.left, task.right):
+            wall_before, cpu_before, want = _read_window(path, start_s, stop_s, seek=False)
+            wall_after, cpu_after, got = _read_window(path, start_s, stop_s, seek=True)
+            if got != want:
+                raise RuntimeError(f"{path}: the seek delivered frames {got[:3]}… instead of {want[:3]}…")
+            row += (wall_before, cpu_before, wall_after, cpu_after)
+        totals += row
+        print(f"{k:6d} {start_s:6.1f} {row[0]:21.2f} {row[1]:6.2f} {row[2]:12.2f} {row[3]:6.2f} "
+              f"{row[1] / row[3]:7.2f}")
+    print(f"{'all':>6s} {'':6s} {totals[0]:21.2f} {totals[1]:6.2f} {totals[2]:12.2f} {totals[3]:6.2f} "
+          f"{totals[1] / totals[3]:7.2f}  (the same frames delivered both ways)")
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--segments", type=int, default=3, help="segments per camera pair")
     parser.add_argument("--segment-s", type=float, default=2.0, help="length of a segment, s")
+    parser.add_argument("--long-s", type=float, default=32.0, help="length of the long recording, s")
+    parser.add_argument("--window-s", type=float, default=4.0, help="window of the long recording, s")
+    parser.add_argument("--windows-only", action="store_true", help="only the long recording's windows")
     args = parser.parse_args(argv)
+    print(f"load average {' '.join(f'{x:.1f}' for x in os.getloadavg())}")
+    if args.windows_only:
+        with tempfile.TemporaryDirectory(prefix="rig-batch-windows-") as tmp:
+            windows_benchmark(Path(tmp), args.long_s, args.window_s)
+        return 0
     batch_archive.SEGMENT_S = args.segment_s
     batch_archive.PAIRS = {"p1": (5.0, args.segments, 11), "p2": (7.0, args.segments, 12)}
     with tempfile.TemporaryDirectory(prefix="rig-batch-bench-") as tmp:
@@ -94,6 +159,8 @@ def main(argv: list[str] | None = None) -> int:
     for pairs in (1, 2, 5, 10, 20):
         cores = pairs / (per_core_1080 * max(min(efficiency, 1.0), 0.1))
         print(f"{pairs:12d} {cores:17.1f}")
+    with tempfile.TemporaryDirectory(prefix="rig-batch-windows-") as tmp:
+        windows_benchmark(Path(tmp), args.long_s, args.window_s)
     return 0
 
 
