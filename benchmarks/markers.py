@@ -11,25 +11,28 @@ Methods, timed in the same run:
   ours/track     rig.stereo.track_markers around the previous frame's centres, one call per frame
   ours/track1    ours/track of the first marker alone: the fixed cost of a call, whatever the markers
   ours/binarize  ours/full's binarization stage alone (candidate windows, integer px, not measured)
-  ours/seq       rig.stereo.track_markers_sequence: all frames of a round in one call, a marker's window
-                 kept while the marker stays within 1 px of its centre (hold_px=1); time per frame =
-                 the call's time / frames
   sbd/default    cv2.SimpleBlobDetector, OpenCV's default thresholds (50..220 step 10); bright blobs,
                  area 50..2000 px², circularity ≥ 0.6 (in all three sbd variants)
   sbd/tuned      thresholds tuned to these markers (peak 170 DN): 50..170 step 10
   sbd/coarse     50..170 step 20: half the thresholds, faster and less accurate
   thr+cc         cv2.threshold at the mid level (95 DN) + cv2.connectedComponentsWithStats centroids
 
-By default every frame is processed by all methods one right after the other (in a rotating order; the
-ours/seq call at a different place among the frames each round), so a change in the machine's load hits
-them alike (--order blocked runs each method through all frames, as a pipeline that only measures markers
-would). Prints ms per frame (median over the frames of a round; best and worst round), the speed-up over
-each SimpleBlobDetector variant (median of the per-frame paired ratios), and the centroid RMS error per
-axis vs truth (first round, matched within 3 px). Two passes by default: CPU time of this thread with
-OpenCV on one thread (insensitive to other processes), then wall time with each method free to use every
-core (OpenCV's SimpleBlobDetector uses the second core; a quiet machine's wall figures are the reference).
+By default every frame is processed by all methods one right after the other (in a rotating order), so a
+change in the machine's load hits them alike (--order blocked runs each method through all frames, as a
+pipeline that only measures markers would). Prints ms per frame (median over the frames of a round; best
+and worst round), the speed-up over each SimpleBlobDetector variant (median of the per-frame paired
+ratios), and the centroid RMS error per axis vs truth (first round, matched within 3 px). Two passes by
+default: CPU time of this thread with OpenCV on one thread (insensitive to other processes), then wall
+time with each method free to use every core (OpenCV's SimpleBlobDetector uses the second core; a quiet
+machine's wall figures are the reference). Whether the wall figures are honest: each case prints the CPU
+that other processes used while it ran (/proc/stat, this process's own CPU time deducted; above 0.1 core
+the case is flagged "NOT a quiet machine"), and the wall pass prints the cores each method used (its
+process CPU time / wall time: ≈ 1 for ours, up to 2 for SimpleBlobDetector when its second thread gets
+the second core; less than that when other processes take it).
 Run: .venv/bin/python benchmarks/markers.py [--rounds N] [--frames N] [--clock both|cpu|wall]
 [--scene both|drift|vibration] [--markers 12 30]
+The wall figures on a quiet machine (about 2 minutes):
+  PYTHONPATH=. .venv/bin/python benchmarks/markers.py --clock wall --rounds 3 --frames 20
 
 Figures: README.md ("Marker extraction"), three runs of --rounds 3 --frames 20 at load average 10–18:
 single-thread CPU, full frame 9.5–12.7× sbd/default and 6.9–8.9× sbd/tuned (the ranges of the rounds'
@@ -42,9 +45,6 @@ What limits them now:
   - full frame: the binarization (one compiled pass, rig/stereo/markers_label.py) is about 40 % of it.
   - tried and measured before, not kept: cv2.adaptiveThreshold for blur + offset + compare (2× slower);
     the local mean on a further-reduced frame; cv2.resize INTER_NEAREST_EXACT for the subsample.
-rig measure / rig batch (MarkerReducer.reduce_many on 16 decoded frames) use the exact frame-by-frame
-windows (hold_px None), so ours/seq's gain applies there only where markers keep their rounded centres for
-several frames.
 """
 
 from __future__ import annotations
@@ -64,14 +64,14 @@ sys.path.insert(0, str(ROOT / "tests"))
 
 from marker_images import Disc, render  # noqa: E402
 
-from rig.stereo import detect_markers, track_markers, track_markers_sequence  # noqa: E402
+from rig.stereo import detect_markers, track_markers  # noqa: E402
 from rig.stereo.markers_binarize import find_candidates  # noqa: E402
 
 SHAPE = (1080, 1920)
 CLOCKS = {"wall": time.perf_counter, "cpu": time.thread_time}  # cpu: this thread's CPU time
 DETECT_KW = {"min_area_px": 80.0, "max_area_px": 2000.0, "min_contrast": 40.0}
 TRACK_WINDOW_PX = 33
-HOLD_PX = 1.0  # ours/seq: a window moves when its marker is more than this off its centre
+QUIET_CORES = 0.1  # other processes using more than this (cores, on average) make the machine not quiet
 
 
 def make_sequence(n_markers: int, n_frames: int, seed: int, scene: str = "drift"):
@@ -145,20 +145,12 @@ def ours_binarize(img, _prev):
     return np.stack([cols, rows], axis=1).astype(np.float64)
 
 
-def ours_sequence(frames, start):
-    """All frames of a round in one call, windows held while a marker stays within HOLD_PX of the centre."""
-    r = track_markers_sequence(frames, start, window_px=TRACK_WINDOW_PX, hold_px=HOLD_PX, **DETECT_KW)
-    return list(np.stack([r["u_px"], r["v_px"]], axis=-1))
-
-
-SEQUENCE = "ours/seq"  # timed once per round over all its frames (time per frame = total / frames)
 ONE = "ours/track1"  # one marker tracked (its errors are against that marker's truth alone)
 METHODS = {
     "ours/full": ours_full,
     "ours/track": ours_track,
     ONE: ours_track_one,
     "ours/binarize": ours_binarize,
-    SEQUENCE: ours_sequence,
     "sbd/default": sbd({}),
     "sbd/tuned": sbd({"minThreshold": 50, "maxThreshold": 170}),
     "sbd/coarse": sbd({"minThreshold": 50, "maxThreshold": 170, "thresholdStep": 20}),
@@ -179,16 +171,24 @@ def errors(found: np.ndarray, truth: np.ndarray):
 
 
 def schedule(names: list[str], r: int, n_frames: int, order: str) -> list[tuple[int, str]]:
-    """The (frame, method) steps of round r; the sequence method is one step (frame 0) for all frames."""
-    per_frame = [name for name in names if name != SEQUENCE]
+    """The (frame, method) steps of round r."""
     if order == "interleaved":  # each frame through every method, in a rotating order
-        steps = [(f, name) for f in range(1, n_frames + 1)
-                 for name in per_frame[(r + f) % len(per_frame):] + per_frame[: (r + f) % len(per_frame)]]
-        at = len(per_frame) * ((r * 7) % (n_frames + 1))  # the sequence between frames, moving each round
-        return [*steps[:at], (0, SEQUENCE), *steps[at:]]
+        return [(f, name) for f in range(1, n_frames + 1)
+                for name in names[(r + f) % len(names):] + names[: (r + f) % len(names)]]
     # blocked: each method through every frame, methods in a rotating order per round
     return [(f, name) for name in names[r % len(names):] + names[: r % len(names)]
-            for f in ((0,) if name == SEQUENCE else range(1, n_frames + 1))]
+            for f in range(1, n_frames + 1)]
+
+
+def busy_s() -> float | None:
+    """CPU seconds every process of the machine has used since boot (Linux /proc/stat), or None."""
+    try:
+        with open("/proc/stat", encoding="ascii") as f:
+            fields = [int(x) for x in f.readline().split()[1:]]
+    except (OSError, ValueError):
+        return None
+    idle = fields[3] + (fields[4] if len(fields) > 4 else 0)  # idle + iowait
+    return (sum(fields[:8]) - idle) / os.sysconf("SC_CLK_TCK")
 
 
 def run(n_markers: int, n_frames: int, rounds: int, *, clock=time.perf_counter,
@@ -196,41 +196,50 @@ def run(n_markers: int, n_frames: int, rounds: int, *, clock=time.perf_counter,
     frames, truth = make_sequence(n_markers, n_frames + 1, seed=n_markers, scene=scene)
     names = list(METHODS)
     for name in names:  # warm-up (caches, first-call costs)
-        METHODS[name](frames[1:3] if name == SEQUENCE else frames[0], truth[0])
-    # times[name][round, frame]; speed-ups are medians of the ratios paired by (round, frame)
+        METHODS[name](frames[0], truth[0])
+    # times[name][round, frame]; speed-ups are medians of the ratios paired by (round, frame); cpu: this
+    # process's CPU time (every thread) of the same calls: cores used = cpu / wall in the wall pass
     times = {name: np.zeros((rounds, n_frames)) for name in names}
+    cpu = {name: np.zeros((rounds, n_frames)) for name in names}
     results: dict[str, list[np.ndarray]] = {name: [] for name in names}
+    load_start, busy_start, own_start, wall_start = os.getloadavg()[0], busy_s(), time.process_time(), \
+        time.perf_counter()
     for r in range(rounds):
         prev_track = truth[0]
         for f, name in schedule(names, r, n_frames, order):
-            if name == SEQUENCE:  # all frames in one call, fed the truth of frame 0 as ours/track is
-                t0 = clock()
-                found = METHODS[name](frames[1:], truth[0])
-                times[name][r, :] = (clock() - t0) / n_frames
-                if r == 0:
-                    results[name] = found
-                continue
             prev = prev_track if name == "ours/track" else truth[f - 1]
+            c0 = time.process_time()
             t0 = clock()
             found = METHODS[name](frames[f], prev)
             times[name][r, f - 1] = clock() - t0
+            cpu[name][r, f - 1] = time.process_time() - c0
             if name == "ours/track":
                 prev_track = found
             if r == 0:
                 results[name].append(found)
+    wall_s, busy_end = time.perf_counter() - wall_start, busy_s()
+    others = (None if busy_start is None or busy_end is None
+              else (busy_end - busy_start - (time.process_time() - own_start)) / wall_s)
     report(times, results, truth,
            f"{n_markers} markers, {scene}, {n_frames} frames 1920×1080, {rounds} rounds, {order}; "
-           f"load average {os.getloadavg()[0]:.1f} at the end")
+           f"load average {load_start:.1f} at the start, {os.getloadavg()[0]:.1f} at the end",
+           cores={name: cpu[name] / times[name] for name in names} if clock is time.perf_counter else None)
+    if others is not None:
+        print(f"other processes used {others:.2f} of the {os.cpu_count()} cores during this case "
+              f"(/proc/stat, this process's CPU time deducted)"
+              + (": NOT a quiet machine — the wall figures are not the quiet-machine reference"
+                 if clock is time.perf_counter and others > QUIET_CORES else ""))
 
 
 def report(times: dict[str, np.ndarray], results: dict[str, list[np.ndarray]], truth: np.ndarray,
-           title: str) -> None:
-    """Print ms/frame, paired speed-ups over the SimpleBlobDetector variants and centroid errors."""
+           title: str, cores: dict[str, np.ndarray] | None = None) -> None:
+    """Print ms/frame, paired speed-ups over the SimpleBlobDetector variants and centroid errors; with
+    ``cores`` (the wall pass) the median cores each method used (its process CPU time / wall time)."""
     per_round = {name: np.median(t, axis=1) * 1e3 for name, t in times.items()}
     print(f"\n{title}")
     refs = ("sbd/default", "sbd/tuned", "sbd/coarse")
     print(f"{'method':<12} {'ms/frame':>8} {'(worst)':>8} " + " ".join(f"{'×' + r[4:]:>15}" for r in refs)
-          + f" {'RMS px':>7} {'bias u,v px':>16} {'missed':>6} {'false':>5}")
+          + f" {'RMS px':>7} {'bias u,v px':>16} {'missed':>6} {'false':>5}" + (" cores" if cores else ""))
     for name, t in times.items():
         ms = per_round[name]
         # median of all paired ratios, and the range of the per-round medians (the spread over repeats)
@@ -246,7 +255,8 @@ def report(times: dict[str, np.ndarray], results: dict[str, list[np.ndarray]], t
         rms = np.sqrt((e**2).sum(axis=1).mean() / 2) if len(e) else np.nan
         bias = e.mean(axis=0) if len(e) else (np.nan, np.nan)
         print(f"{name:<12} {ms.min():8.3f} {ms.max():8.3f} " + " ".join(f"{r:>15}" for r in ratios)
-              + f" {rms:7.4f} {bias[0]:+7.4f},{bias[1]:+7.4f} {missed:6d} {false:5d}")
+              + f" {rms:7.4f} {bias[0]:+7.4f},{bias[1]:+7.4f} {missed:6d} {false:5d}"
+              + (f" {np.median(cores[name]):5.2f}" if cores else ""))
 
 
 def main() -> None:

@@ -26,14 +26,12 @@ import numpy as np
 from scipy.optimize import linear_sum_assignment
 
 from rig.analysis.tracks2d import circle_prediction
-from rig.stereo import FLAG_LOST, detect_markers, track_markers, track_markers_sequence
+from rig.stereo import FLAG_LOST, detect_markers, track_markers
 
 __all__ = ["DETECT_ONLY_KEYS", "TRACK_KEYS", "MarkerReducer", "ReduceOptions", "track_options", "warm_up"]
 
 #: distance (px) within which a lone leftover marker continues its motion history across a whole-frame search
 ACQUIRE_PX = 150.0
-#: largest motion (px per frame, in u and in v) of every marker for reduce_many to track a run of frames
-STILL_PX = 0.5
 #: keyword options that both :func:`detect_markers` and :func:`track_markers` take
 TRACK_KEYS = ("polarity", "min_area_px", "max_area_px", "min_roundness", "min_contrast", "centre",
               "max_skewness", "outline_check", "max_edge_rms_px")
@@ -162,45 +160,11 @@ class MarkerReducer:
         return found, ids
 
     def reduce_many(self, images: list[np.ndarray]) -> list[tuple[np.ndarray, np.ndarray]]:
-        """:meth:`reduce` of each frame in order — the same rows and numbers — with runs of frames in which
-        every marker is searched at its last position (none moved more than a quarter window, none off
-        the frame) tracked in one call (:func:`rig.stereo.track_markers_sequence`), when the markers were
-        nearly still in the last frame (< ``STILL_PX``: their windows stay put for several frames, where
-        the one call is cheaper per frame; with markers moving a pixel per frame it is dearer)."""
-        out: list[tuple[np.ndarray, np.ndarray]] = []
-        i = 0
-        while i < len(images):
-            n = min(len(images) - i, self.options.redetect_every - self._since_detect)
-            still = all(len(h) >= 2 and np.abs(h[-1] - h[-2]).max() < STILL_PX for h in self._hist)
-            if (self.options.mode == "track" and len(self._uv) and n > 1 and still
-                    and np.array_equal(self._predicted(images[i].shape), self._uv)):
-                i += self._track_run(images[i : i + n], out)
-            if i < len(images):
-                out.append(self.reduce(images[i]))
-                i += 1
-        return out
-
-    def _track_run(self, images: list[np.ndarray], out: list) -> int:
-        """Track frames of ``images`` in one call while :meth:`reduce` would search each at the previous
-        frame's positions; append their (rows, numbers) to ``out``; return how many were taken."""
-        rows = track_markers_sequence(images, self._uv, window_px=self.options.window_px, **self._track_kw)
-        height, width = images[0].shape
-        uv = np.stack([rows["u_px"], rows["v_px"]], axis=-1)  # (n, K, 2)
-        with np.errstate(invalid="ignore"):
-            step = np.linalg.norm(np.diff(np.concatenate([self._uv[None], uv]), axis=0), axis=2)
-            # frame f is taken when nothing is lost in it and it leaves reduce's prediction for frame
-            # f + 1 at the positions of frame f (no marker moved more than a quarter window, none is
-            # clipped to the frame); the first frame that does not is taken too when nothing is lost in it
-            lost = np.asarray((rows["flags"] & FLAG_LOST).any(axis=1), dtype=bool)
-            plain = ((step <= self.options.window_px / 4) & (uv[..., 0] >= 0) & (uv[..., 0] <= width - 1)
-                     & (uv[..., 1] >= 0) & (uv[..., 1] <= height - 1)).all(axis=1) & ~lost
-        taken = int(np.argmin(plain)) + (0 if lost[np.argmin(plain)] else 1) if not plain.all() else len(rows)
-        for rec in rows[:taken]:
-            self._since_detect += 1
-            self._uv = np.c_[rec["u_px"], rec["v_px"]]
-            self._hist = [[*h[-2:], u] for h, u in zip(self._hist, self._uv, strict=True)]
-            out.append((rec, self._ids))
-        return taken
+        """:meth:`reduce` of each frame in order. (Tracking runs of frames in one call, each marker's
+        windows speculated from its last position, was 1.1–2.2× slower than frame by frame on the 5–30
+        still or drifting markers of benchmarks/markers.py: one compiled call per frame already measures
+        all its windows.)"""
+        return [self.reduce(image) for image in images]
 
 
 def warm_up(options: ReduceOptions) -> None:

@@ -37,7 +37,6 @@ from rig.stereo.markers import (
     detect_markers,
     track_markers,
 )
-from rig.stereo.markers_sequence import track_markers_batch, track_markers_sequence
 from rig.stereo.reference import RigidTransform, Stabilized, rigid_transform, stabilize
 from rig.stereo.resample import resample
 from rig.stereo.sinefit import SineFit, SlidingSineFit, fit_sine, sliding_sine_fit
@@ -114,7 +113,5 @@ __all__ = [
     "stabilize",
     "stft",
     "track_markers",
-    "track_markers_batch",
-    "track_markers_sequence",
     "triangulate",
 ]

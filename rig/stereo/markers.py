@@ -6,9 +6,7 @@ runs on the frame reduced ×2 or ×4 (chosen from ``min_area_px``; :mod:`rig.ste
 each candidate is then measured at full resolution in a small window (:mod:`rig.stereo.markers_refine`;
 a window that turns out too small for its marker is measured again, larger). :func:`track_markers` skips the
 full-frame search: it measures only windows around predicted positions (the speed mode for
-sequences; :mod:`rig.stereo.markers_sequence` measures the windows of many frames in one call:
-:func:`~rig.stereo.markers_sequence.track_markers_batch`, and
-:func:`~rig.stereo.markers_sequence.track_markers_sequence` for a run of frames). Both measure a marker with
+sequences: all windows of a frame in one compiled call). Both measure a marker with
 the same pixels and weights; they differ only through the
 background plane fitted to the ring of their (differently placed) windows — by less than the
 centroid's own noise (tests/test_stereo_markers.py).
@@ -24,7 +22,6 @@ passes ``require=True``; then :class:`~rig.stereo.errors.NoMarkersError` is rais
 from __future__ import annotations
 
 import dataclasses
-import itertools
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -32,7 +29,7 @@ import numpy as np
 
 from rig.stereo.errors import InputArrayError, NoMarkersError
 from rig.stereo.markers_binarize import find_candidates
-from rig.stereo.markers_refine import Images, Measured, measure_windows
+from rig.stereo.markers_refine import Measured, measure_windows
 from rig.stereo.markers_roi import inside_any, parse_roi, roi_bounds
 
 MARKER_DTYPE = np.dtype([("u_px", "f8"), ("v_px", "f8"), ("area_px", "f8"), ("roundness", "f8"),
@@ -119,39 +116,34 @@ def _merge_sizes(sizes: np.ndarray) -> np.ndarray:
     return merged
 
 
-def _measure(gray: Images, rows: np.ndarray, cols: np.ndarray, half: np.ndarray, *, dark: bool,
-             fit_ellipse: bool = False, retries: int = 2, exact: bool = False,
-             frame: np.ndarray | None = None) -> Measured:
+def _measure(gray: np.ndarray, rows: np.ndarray, cols: np.ndarray, half: np.ndarray, *, dark: bool,
+             fit_ellipse: bool = False, retries: int = 2, exact: bool = False) -> Measured:
     """Measure windows of several sizes (grouped on the size ladder); Measured for all, in input order.
 
     A window whose marker reaches the background ring is measured again one ladder step larger (up to
     ``retries`` times), so a first size guess that is too small costs time, not accuracy. ``exact``:
     use the given half sizes for the first attempt instead of rounding them up to the ladder.
-    ``gray`` and ``frame`` as ``image`` and ``frame`` of :func:`measure_windows`.
     """
     sizes = np.asarray(half, dtype=np.int64).copy() if exact else _merge_sizes(_ladder(half))
     if len(sizes) == 0:
         return Measured.empty()
     groups = sizes[:1] if sizes.min() == sizes.max() else np.unique(sizes)
     if len(groups) == 1:  # the usual case: one batch
-        result = measure_windows(gray, rows, cols, int(groups[0]), dark=dark, fit_ellipse=fit_ellipse,
-                                 frame=frame)
+        result = measure_windows(gray, rows, cols, int(groups[0]), dark=dark, fit_ellipse=fit_ellipse)
     else:
         parts: Measured | None = None
         for size in groups:
             sel = np.nonzero(sizes == size)[0]
-            part = measure_windows(gray, rows[sel], cols[sel], int(size), dark=dark, fit_ellipse=fit_ellipse,
-                                   frame=None if frame is None else frame[sel])
+            part = measure_windows(gray, rows[sel], cols[sel], int(size), dark=dark, fit_ellipse=fit_ellipse)
             parts = _scatter(parts, len(rows), sel, part)
         assert parts is not None  # len(groups) > 1
         result = parts
     return _retry_cramped(gray, rows, cols, sizes, result, dark=dark, fit_ellipse=fit_ellipse,
-                          retries=retries, frame=frame)
+                          retries=retries)
 
 
-def _retry_cramped(gray: Images, rows: np.ndarray, cols: np.ndarray, sizes: np.ndarray, result: Measured,
-                   *, dark: bool, fit_ellipse: bool, retries: int,
-                   frame: np.ndarray | None = None) -> Measured:
+def _retry_cramped(gray: np.ndarray, rows: np.ndarray, cols: np.ndarray, sizes: np.ndarray,
+                   result: Measured, *, dark: bool, fit_ellipse: bool, retries: int) -> Measured:
     """Measure the windows of ``result`` whose marker reaches the ring again, one ladder step larger."""
     if retries > 0 and len(rows) and result.cramped.any():
         again = np.nonzero(result.cramped & (sizes < _HALF_LADDER[-1]))[0]
@@ -159,7 +151,7 @@ def _retry_cramped(gray: Images, rows: np.ndarray, cols: np.ndarray, sizes: np.n
             bigger = _HALF_LADDER[np.minimum(np.searchsorted(_HALF_LADDER, sizes[again], side="right"),
                                              len(_HALF_LADDER) - 1)]
             part = _measure(gray, rows[again], cols[again], bigger, dark=dark, fit_ellipse=fit_ellipse,
-                            retries=retries - 1, exact=True, frame=None if frame is None else frame[again])
+                            retries=retries - 1, exact=True)
             result = _scatter(result, len(rows), again, part)
     return result
 
@@ -457,7 +449,7 @@ def track_markers(
     pred = np.asarray(predicted_uv_px, dtype=np.float64)
     if pred.ndim != 2 or pred.shape[1] != 2:
         raise InputArrayError(f"predicted_uv_px has shape {pred.shape}; give a (K, 2) array of (u, v) in px")
-    return track_rows(gray, pred, None, options)
+    return track_rows(gray, pred, options)
 
 
 @dataclass(frozen=True)
@@ -490,41 +482,35 @@ class TrackOptions:
                    max_skewness=max_skewness, max_edge_rms_px=max_edge_rms_px)
 
 
-def track_rows(images: Images, pred: np.ndarray, frame: np.ndarray | None, opt: TrackOptions) -> np.ndarray:
-    """:func:`track_markers` of the predictions ``pred`` (N, 2) float64, checked: one row per prediction.
-
-    ``images`` and ``frame`` as in :func:`rig.stereo.markers_refine.measure_windows` (``frame`` None: one
-    frame; else prediction i is searched in ``images[frame[i]]``, ``frame`` non-decreasing). Every window
-    is measured on its own, so the rows equal those of separate calls per frame. Without an outline fit,
-    one compiled call per frame (:func:`rig.stereo.markers_kernel.track_frame`).
+def track_rows(gray: np.ndarray, pred: np.ndarray, opt: TrackOptions) -> np.ndarray:
+    """:func:`track_markers` of the predictions ``pred`` (N, 2) float64 in the checked frame ``gray``: one
+    row per prediction. Without an outline fit, one compiled call
+    (:func:`rig.stereo.markers_kernel.track_frame`).
     """
     if len(pred) == 0:
         return np.empty(0, dtype=MARKER_DTYPE)
-    height, width = np.shape(images if frame is None else images[int(frame[0])])
+    height, width = gray.shape
     # a window much larger than the frame has its background ring outside it: at most one pixel larger
     fitting = max(3, min(height, width) // 2)
     if opt.half_px > fitting:
         opt = dataclasses.replace(opt, half_px=fitting)
     if not opt.fit:
-        return _track_compiled(images, np.ascontiguousarray(pred, dtype=np.float64), frame, opt)
+        return _track_compiled(gray, np.ascontiguousarray(pred, dtype=np.float64), opt)
     # usable predictions: inside the frame (NaN compares False, so it is unusable too)
     limit = np.array([width - 0.5, height - 0.5])
     all_usable = bool((pred > -0.5).all() and (pred < limit).all())
     usable = None
     if not all_usable:
         usable = ((pred > -0.5) & (pred < limit)).all(axis=1)
-        if frame is not None:
-            frame = frame[usable]
     centre_px = np.rint(pred if all_usable else pred[usable]).astype(np.int64)
     cols, rows = centre_px[:, 0], centre_px[:, 1]
     if len(rows) == 0:
         measured = Measured.empty()
     else:
-        measured = measure_windows(images, rows, cols, opt.half_px, dark=opt.dark, fit_ellipse=opt.fit,
-                                   frame=frame)
+        measured = measure_windows(gray, rows, cols, opt.half_px, dark=opt.dark, fit_ellipse=opt.fit)
     if measured.cramped.any():
-        measured = _retry_cramped(images, rows, cols, np.full(len(rows), opt.half_px), measured,
-                                  dark=opt.dark, fit_ellipse=opt.fit, retries=2, frame=frame)
+        measured = _retry_cramped(gray, rows, cols, np.full(len(rows), opt.half_px), measured,
+                                  dark=opt.dark, fit_ellipse=opt.fit, retries=2)
     rec, passed = _rows_passed(measured, opt.centre, opt.max_edge_rms_px, opt.max_skewness, fitted=opt.fit,
                                limits=(opt.min_area_px, opt.max_area_px, opt.min_roundness, opt.min_contrast))
     if not passed.all():
@@ -542,20 +528,13 @@ def track_rows(images: Images, pred: np.ndarray, frame: np.ndarray | None, opt: 
     return out
 
 
-def _track_compiled(images: Images, pred: np.ndarray, frame: np.ndarray | None,
-                    opt: TrackOptions) -> np.ndarray:
-    """:func:`track_rows` without an outline fit: one compiled call per frame."""
+def _track_compiled(gray: np.ndarray, pred: np.ndarray, opt: TrackOptions) -> np.ndarray:
+    """:func:`track_rows` without an outline fit: one compiled call."""
     from rig.stereo.markers_kernel import track_frame  # numba: loaded by the first measurement
 
     rec = np.empty(len(pred), dtype=MARKER_DTYPE)
     limits = np.array([opt.max_skewness, SKEW_NOISE_FACTOR, opt.min_area_px, opt.max_area_px,
                        opt.min_roundness, opt.min_contrast])
-    if frame is None:
-        track_frame(np.ascontiguousarray(images, dtype=np.uint8), pred, opt.half_px, opt.dark, limits,
-                    _HALF_LADDER, 2, rec)
-        return rec
-    bounds = np.r_[0, np.flatnonzero(np.diff(frame)) + 1, len(pred)].tolist()
-    for lo, hi in itertools.pairwise(bounds):
-        track_frame(np.ascontiguousarray(images[int(frame[lo])], dtype=np.uint8), pred[lo:hi], opt.half_px,
-                    opt.dark, limits, _HALF_LADDER, 2, rec[lo:hi])
+    track_frame(np.ascontiguousarray(gray, dtype=np.uint8), pred, opt.half_px, opt.dark, limits,
+                _HALF_LADDER, 2, rec)
     return rec

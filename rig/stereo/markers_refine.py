@@ -31,16 +31,11 @@ Coordinates: pixel centres are integers, the centre of the top-left pixel is (0,
 
 from __future__ import annotations
 
-from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
 
 from rig.stereo.markers_outline import edge_points, fit_ellipses
-
-#: one frame (2-D uint8), or frames (a sequence, or a 3-D stack) addressed by a frame index per window
-Images = np.ndarray | Sequence[np.ndarray]
-
 
 
 @dataclass
@@ -72,12 +67,11 @@ class Measured:
                       for key in cls.__dataclass_fields__})
 
 
-def measure_windows(image: Images, rows: np.ndarray, cols: np.ndarray, half_px: int, *,
-                    dark: bool, fit_ellipse: bool = False, frame: np.ndarray | None = None) -> Measured:
+def measure_windows(image: np.ndarray, rows: np.ndarray, cols: np.ndarray, half_px: int, *,
+                    dark: bool, fit_ellipse: bool = False) -> Measured:
     """Measure the marker in each window centred on the integer pixel ``(rows[i], cols[i])``.
 
-    ``image``: uint8 frame, or with ``frame`` (non-decreasing indices, one per window) a sequence of
-    frames, window i lying in ``image[frame[i]]``; ``dark``: dark markers on a bright background;
+    ``image``: uint8 frame; ``dark``: dark markers on a bright background;
     ``fit_ellipse``: also fit the outline (``u_ellipse_px``, ``v_ellipse_px``, ``edge_rms_px``; NaN
     otherwise). Windows without any support above the noise floor give NaN measurements.
     """
@@ -91,13 +85,7 @@ def measure_windows(image: Images, rows: np.ndarray, cols: np.ndarray, half_px: 
     flags = np.empty((3, n), dtype=bool)
     signal = np.empty((n if fit_ellipse else 0, w, w), dtype=np.float32)
     rows, cols = np.ascontiguousarray(rows, dtype=np.int64), np.ascontiguousarray(cols, dtype=np.int64)
-    if frame is None:
-        kernel.measure_range(_frame(image), rows, cols, 0, n, half_px, dark, out, flags, signal)
-    else:  # one call per run of windows in the same frame
-        bounds = np.r_[0, np.flatnonzero(np.diff(frame)) + 1, n]
-        for lo, hi in zip(bounds[:-1].tolist(), bounds[1:].tolist(), strict=True):
-            kernel.measure_range(_frame(image[int(frame[lo])]), rows, cols, lo, hi, half_px, dark, out,
-                                 flags, signal)
+    kernel.measure_range(_frame(image), rows, cols, 0, n, half_px, dark, out, flags, signal)
     u_e, v_e, edge_rms, edge_noise = np.full((4, n), np.nan)
     contrast = out[kernel.OUT_CONTRAST]
     if fit_ellipse:
