@@ -57,3 +57,22 @@ def test_find_candidates_compiled_equals_opencv_on_a_region_view() -> None:
     rows, cols, half = mb.find_candidates(view, dark=False, threshold=None, factor=4, min_area_px=80.0,
                                           max_area_px=2000.0, min_contrast=40.0, min_roundness=0.5)
     assert len(rows) == len(cols) == len(half) <= len(boxes)
+
+
+def test_blobs_of_a_frame_full_of_them_equal_opencv() -> None:
+    """Rows with many foreground pixels (box sums from prefix sums) and few (summed pixel by pixel), and
+    thousands of runs (the run arrays grow): the same blobs as OpenCV's chain."""
+    rng = np.random.default_rng(11)
+    low = rng.integers(0, 256, (300, 400)).astype(np.uint8)
+    low[150:] = (low[150:] // 8 + 20).astype(np.uint8)  # a quiet half with a few bright specks
+    low[200:300:17, 30:380:23] = 250
+    blobs = []
+    for block, offset in ((3, 0), (9, 5), (39, 20)):
+        level = cv2.add(cv2.blur(low, (block, block), borderType=cv2.BORDER_REPLICATE),
+                        np.array([float(offset)]))
+        binary = cv2.compare(low, level, cv2.CMP_GT)
+        n, _, stats, _ = cv2.connectedComponentsWithStats(binary, connectivity=8)
+        found = local_blobs(low, block, offset)
+        assert np.array_equal(_sorted(found), _sorted(stats[1:, :4].astype(np.int64)))
+        blobs.append(n - 1)
+    assert max(blobs) > 1024  # more runs than the arrays' first size

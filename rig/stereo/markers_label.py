@@ -72,6 +72,93 @@ def _find(parent: np.ndarray, k: int) -> int:
 
 
 @_jit
+def _grown(a: np.ndarray, size: int) -> np.ndarray:
+    """``a`` (1-D int64) copied into the start of a new array of ``size``."""
+    out = np.empty(size, np.int64)
+    out[:len(a)] = a
+    return out
+
+
+@_jit
+def _row_runs(  # noqa: PLR0917 (numba: no keyword-only arguments)
+        fg: np.ndarray, y: int, runs: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray], n_runs: int,
+        prev_lo: int, prev_hi: int) -> int:
+    """The runs of row ``y``'s foreground ``fg`` (its last element 0) appended to ``runs`` (row, first
+    and last column, union–find parent; room for them) from index ``n_runs``, each joined to the runs
+    ``prev_lo … prev_hi − 1`` of the row above that touch it (8-connected); returns the new run count."""
+    run_y, run_a, run_b, parent = runs
+    start = -1
+    for x in range(len(fg)):
+        if fg[x] and start < 0:
+            start = x
+        elif not fg[x] and start >= 0:  # a run start..x−1
+            run_y[n_runs], run_a[n_runs], run_b[n_runs] = y, start, x - 1
+            parent[n_runs] = n_runs
+            for q in range(prev_lo, prev_hi):
+                if run_a[q] <= x and run_b[q] >= start - 1:
+                    a, b = _find(parent, q), _find(parent, n_runs)
+                    if a != b:
+                        parent[max(a, b)] = min(a, b)
+            n_runs += 1
+            start = -1
+    return n_runs
+
+
+@_jit
+def _foreground(  # noqa: PLR0917 (numba: no keyword-only arguments)
+        row: np.ndarray, col: np.ndarray, r: int, offset: int, area: int, prefix: np.ndarray,
+        fg: np.ndarray) -> int:
+    """``fg[x]`` = pixel x of ``row`` is brighter than the rounded mean of its box (column sums ``col`` of
+    the box's rows, 2r + 1 columns, edges replicated) plus ``offset``; returns how many are.
+
+    First, branch-free (vectorized), the pixels that could be: against the smallest possible box sum,
+    (2r + 1) × the smallest column sum. Most rows of a frame of markers have none (the row is done) or a
+    few (their box sums are added up column by column); a row with many gets the box sums of every pixel
+    from prefix sums of its column sums (``prefix``: scratch, w + 2r + 2)."""
+    w = len(row)
+    block = 2 * r + 1
+    off32, area32 = np.int32(offset), np.int32(area)
+    least = np.int32(2 * block) * col.min()  # twice the smallest possible box sum
+    count = 0
+    for x in range(w):
+        v = np.int32(row[x]) - off32
+        on = (v >= 1) & (least < (np.int32(2) * v - np.int32(1)) * area32)
+        fg[x] = on
+        count += on
+    if count == 0:
+        return 0
+    if count <= w // 16:
+        count = 0
+        for x in range(w):
+            if fg[x]:
+                total = np.int32(0)
+                for t in range(x - r, x + r + 1):
+                    total += col[min(max(t, 0), w - 1)]
+                on = np.int32(2) * total < (np.int32(2) * (np.int32(row[x]) - off32) - np.int32(1)) * area32
+                fg[x] = on
+                count += int(on)
+        return count
+    total = np.int32(0)
+    for i in range(r):  # the left edge replicated
+        total += col[0]
+        prefix[i + 1] = total
+    for x in range(w):
+        total += col[x]
+        prefix[r + x + 1] = total
+    for i in range(r + w, w + 2 * r + 1):  # the right edge replicated
+        total += col[w - 1]
+        prefix[i + 1] = total
+    count = 0
+    for x in range(w):  # branch-free: vectorized
+        v = np.int32(row[x]) - off32
+        twice_sum = np.int32(2) * (prefix[x + block] - prefix[x])
+        on = (v >= 1) & (twice_sum < (np.int32(2) * v - np.int32(1)) * area32)
+        fg[x] = on
+        count += on
+    return count
+
+
+@_jit
 def local_blobs(low: np.ndarray, block: int, offset: int) -> np.ndarray:
     """Bounding boxes (B, 4) int64 (x0, y0, width, height) of the 8-connected blobs of pixels brighter
     than the rounded mean of their ``block`` × ``block`` neighbourhood (odd, edges replicated) plus
@@ -85,9 +172,11 @@ def local_blobs(low: np.ndarray, block: int, offset: int) -> np.ndarray:
         col[x] = np.int32(r + 1) * np.int32(low[0, x])
         for i in range(1, r + 1):
             col[x] += np.int32(low[min(i, h - 1), x])
-    cap = h * w // 2 + 1
-    run_y, run_a, run_b = np.empty(cap, np.int64), np.empty(cap, np.int64), np.empty(cap, np.int64)
-    parent = np.empty(cap, np.int64)
+    # the runs (row, first and last column) and their union–find parents, grown as needed
+    # (the largest possible count, h·w/2, is 2 MB for a 1080p frame reduced ×4: allocating that each
+    # call cost more than the labelling)
+    run_y, run_a = np.empty(1024, np.int64), np.empty(1024, np.int64)
+    run_b, parent = np.empty(1024, np.int64), np.empty(1024, np.int64)
     prefix = np.zeros(w + 2 * r + 2, np.int32)  # prefix sums of the column sums, edges replicated
     fg = np.zeros(w + 1, np.uint8)  # the row's foreground (fg[w] stays 0: a run ends there)
     n_runs, prev_lo, prev_hi = 0, 0, 0
@@ -96,43 +185,16 @@ def local_blobs(low: np.ndarray, block: int, offset: int) -> np.ndarray:
             add, sub = low[min(y + r, h - 1)], low[max(y - r - 1, 0)]
             for x in range(w):
                 col[x] += np.int32(add[x]) - np.int32(sub[x])
-        total = np.int32(0)
-        for i in range(r):  # the left edge replicated
-            total += col[0]
-            prefix[i + 1] = total
-        for x in range(w):
-            total += col[x]
-            prefix[r + x + 1] = total
-        for i in range(r + w, w + 2 * r + 1):  # the right edge replicated
-            total += col[w - 1]
-            prefix[i + 1] = total
         row = low[y]
-        count = 0
-        off32, area32 = np.int32(offset), np.int32(area)
-        for x in range(w):  # branch-free: vectorized
-            v = np.int32(row[x]) - off32
-            twice_sum = np.int32(2) * (prefix[x + block] - prefix[x])
-            on = (v >= 1) & (twice_sum < (np.int32(2) * v - np.int32(1)) * area32)
-            fg[x] = on
-            count += on
-        if count == 0:
+        if _foreground(row, col, r, offset, area, prefix, fg) == 0:
             prev_lo = prev_hi = n_runs
             continue
-        start = -1
+        if n_runs + (w + 1) // 2 > len(run_y):  # room for the most runs a row can have
+            size = 2 * len(run_y) + w
+            run_y, run_a, run_b, parent = (_grown(run_y, size), _grown(run_a, size), _grown(run_b, size),
+                                           _grown(parent, size))
         this_lo = n_runs
-        for x in range(w + 1):
-            if fg[x] and start < 0:
-                start = x
-            elif not fg[x] and start >= 0:  # a run start..x−1: joined to the runs above it that touch it
-                run_y[n_runs], run_a[n_runs], run_b[n_runs] = y, start, x - 1
-                parent[n_runs] = n_runs
-                for q in range(prev_lo, prev_hi):
-                    if run_a[q] <= x and run_b[q] >= start - 1:
-                        a, b = _find(parent, q), _find(parent, n_runs)
-                        if a != b:
-                            parent[max(a, b)] = min(a, b)
-                n_runs += 1
-                start = -1
+        n_runs = _row_runs(fg, y, (run_y, run_a, run_b, parent), n_runs, prev_lo, prev_hi)
         prev_lo, prev_hi = this_lo, n_runs
     boxes = np.empty((n_runs, 4), np.int64)
     slot = np.full(n_runs, -1, np.int64)
