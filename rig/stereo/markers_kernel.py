@@ -147,16 +147,18 @@ def _ring_plane(  # noqa: PLR0917 (numba: no keyword-only arguments)
                 level += 1
         reach = OUTLIER_SPREADS * max(min(p50 - p16, p84 - p50), 1.0)
         if max(hi - p50, p50 - lo) <= reach:  # no outlier: the plain fit from the ring's moments
-            m0 = mx = my = s2 = sxx = syy = 0.0
+            # integer sums (vectorized; exact, as the float64 sums of these integers were)
+            i0 = ix = iy = i2 = ixx = iyy = 0
             for p in range(n_ring):
-                v = float(vals[p])
-                m0 += v
-                mx += v * xs[p]
-                my += v * ys[p]
-                s2 += v * v
-                sxx += xs[p] * xs[p]
-                syy += ys[p] * ys[p]
-            a, b, c = m0 / n_ring, mx / sxx, my / syy
+                v, x, y = int(vals[p]), int(xs[p]), int(ys[p])
+                i0 += v
+                ix += v * x
+                iy += v * y
+                i2 += v * v
+                ixx += x * x
+                iyy += y * y
+            m0, mx, my, s2 = float(i0), float(ix), float(iy), float(i2)
+            a, b, c = m0 / n_ring, mx / float(ixx), my / float(iyy)
             rss = s2 - (a * m0 + b * mx + c * my)
             return a, b, c, max(np.sqrt(max(rss, 0.0) / (n_ring - 3.0)), MIN_SIGMA_DN)
     else:
