@@ -34,14 +34,15 @@ Run: .venv/bin/python benchmarks/markers.py [--rounds N] [--frames N] [--clock b
 The wall figures on a quiet machine (about 2 minutes):
   PYTHONPATH=. .venv/bin/python benchmarks/markers.py --clock wall --rounds 3 --frames 20
 
-Figures: README.md ("Marker extraction"), three runs of --rounds 3 --frames 20 at load average 10–18:
-single-thread CPU, full frame 9.5–12.7× sbd/default and 6.9–8.9× sbd/tuned (the ranges of the rounds'
-medians), tracking one call per frame 45–62× sbd/tuned with 12 markers and 28.7–37.1× with 30, one marker
-alone 159–223×; centroid RMS 0.0056–0.0081 px.
+Figures: README.md ("Marker extraction"), three runs of --clock cpu --rounds 3 --frames 20 on 2026-12-02 at
+load average 8–10 (other processes using 1.5–1.7 of the 2 cores): single-thread CPU, full frame
+10.0–13.3× sbd/default and 6.9–9.3× sbd/tuned (the ranges of the rounds' medians), tracking one call per
+frame 45–58× sbd/tuned with 12 markers and 27.1–42.4× with 30, one marker alone 173–219×; centroid RMS
+0.0056–0.0081 px. No quiet-machine wall figures yet.
 What limits them now:
-  - tracking: 35–58 µs fixed per call (option checks, one compiled call per frame: markers_kernel.track_frame)
-    and ~8–10 µs per marker, mostly the support's flood fill and reading the window after the sbd variants
-    have flushed the caches.
+  - tracking: 35–50 µs fixed per call (option checks, one compiled call per frame: markers_kernel.track_frame)
+    and ≈ 6 µs per marker warm (the support's flood fill 2.6, the ring's fit 1.3, centroid and plateau 1.0),
+    up to 1.6× that in the interleaved order after the sbd variants.
   - full frame: the binarization (one compiled pass, rig/stereo/markers_label.py) is about 40 % of it.
   - tried and measured before, not kept: cv2.adaptiveThreshold for blur + offset + compare (2× slower);
     the local mean on a further-reduced frame; cv2.resize INTER_NEAREST_EXACT for the subsample.

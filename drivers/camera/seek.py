@@ -2,8 +2,8 @@
 
 A frame is identified by its presentation time stamp. :func:`frame_times_s` lists the time stamps of every
 frame of the video stream by demuxing its packets without decoding them (OpenCV's raw-stream mode,
-``CAP_PROP_FORMAT`` −1: about 1 ms per 100 frames of 1080p, where decoding costs 2–10 ms a frame), sorted
-into presentation order — frame k of a sequential decode is the frame stamped ``times_s[k]``.
+``CAP_PROP_FORMAT`` −1: 5 ms of CPU for 240 frames of a 1080p MP4 (mp4v), whose decoding took 0.9 s),
+sorted into presentation order — frame k of a sequential decode is the frame stamped ``times_s[k]``.
 
 :func:`seek_frame` positions an open capture on frame k and **verifies** where it landed: OpenCV's
 ``CAP_PROP_POS_FRAMES`` seeks to the key frame before a time computed from k and the average frame rate,

@@ -55,7 +55,8 @@ class ExtractOptions:
     duplicate_policy: str = "replace"
     fps: float | None = None
     # only frames with start_s ≤ time stamp ≤ stop_s (the file's clock, s; None: from the start, to the end)
-    # are reduced; frames before start_s are decoded and passed over, decoding stops after stop_s
+    # are reduced; decoding starts by a verified seek shortly before start_s (VideoFile.frames), stops after
+    # stop_s
     start_s: float | None = None
     stop_s: float | None = None
 
