@@ -23,9 +23,11 @@ pairs moves less with the load than the ratio of two leasts taken minutes apart)
 from __future__ import annotations
 
 import argparse
+import hashlib
 import json
 import os
 import statistics
+import subprocess
 import sys
 import tempfile
 import time
@@ -33,12 +35,15 @@ from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from functools import partial
 from pathlib import Path
+from typing import Any
 
 import cv2
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-sys.path.insert(0, str(ROOT / "tests"))
+# the code measured: this tree, or another one's export (--interleave runs workers on a base tree)
+TREE = Path(os.environ.get("RIG_BENCH_TREE", ROOT))
+sys.path.insert(0, str(TREE))
+sys.path.insert(0, str(TREE / "tests"))
 
 import measure_twin as mt  # noqa: E402
 
@@ -46,7 +51,9 @@ from drivers.camera.video_file import VideoFile  # noqa: E402
 from reports.measurement import write_measurement_report  # noqa: E402
 from rig.deploy.measure import MeasureOptions, MeasureResult, measure_videos  # noqa: E402
 from rig.deploy.onsite_calibration import calibrate_from_videos, write_calibration  # noqa: E402
-from rig.deploy.video_markers import extract_video  # noqa: E402
+from rig.deploy.video_markers import ExtractOptions, extract_video  # noqa: E402
+
+IMPORT_CPU_S = time.process_time()  # the interpreter and the imports above: a fixed cost of every run
 
 
 def decode_naive(path: Path) -> tuple[int, float]:
@@ -107,15 +114,123 @@ def decode_ours(path: Path) -> tuple[int, float]:
     return n, time.perf_counter() - t0
 
 
+def decode_until(path: Path, stop_s: float | None = None) -> int:
+    """The decode-only baseline up to the first frame stamped after ``stop_s`` (s; None: to the end), as
+    :func:`rig.deploy.video_markers.extract_video` with ``ExtractOptions(stop_s=…)`` decodes."""
+    if stop_s is None:
+        return decode_luma(path)
+    cap = cv2.VideoCapture(str(path), cv2.CAP_FFMPEG)
+    cap.set(cv2.CAP_PROP_CONVERT_RGB, 0)
+    n = 0
+    while cap.grab():
+        cap.retrieve()
+        n += 1
+        if cap.get(cv2.CAP_PROP_POS_MSEC) / 1000.0 > stop_s:
+            break
+    cap.release()
+    return n
+
+
+def tables_digest(out: Path) -> str:
+    """SHA-256 over the measurement's CSV tables and observations (to compare two trees bit for bit)."""
+    h = hashlib.sha256()
+    for f in sorted([*(out / "tables").glob("*.csv"), *(out / "observations").glob("*.csv")]):
+        h.update(f.name.encode() + b"\0" + f.read_bytes())
+    return h.hexdigest()[:16]
+
+
+def worker(folder: Path, seconds: float) -> dict[str, object]:
+    """One process of ``--interleave``: a warm-up run, then for half and the whole of the videos the
+    decode-only CPU and ``rig measure --timing`` + report (CPU, wall, steps, tables' digest)."""
+    cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_ERROR)
+    paths = folder / "left.mp4", folder / "right.mp4"
+    calibration = folder / "calibration.json"
+
+    def options(length_s: float) -> MeasureOptions:
+        stop = None if length_s >= seconds else length_s
+        return MeasureOptions(window_s=(0.6, length_s - 0.1), extract=ExtractOptions(stop_s=stop))
+
+    measure_once(folder, paths, calibration, options(seconds / 2))  # numba kernels, lazy imports
+    runs: dict[str, object] = {"import_cpu_s": IMPORT_CPU_S}
+    for length_s in (seconds / 2, seconds):
+        stop = None if length_s >= seconds else length_s
+        decode_cpu = cpu_both(partial(decode_until, stop_s=stop), paths)[0]
+        cpu, wall, res = measure_once(folder, paths, calibration, options(length_s))
+        runs[f"{length_s:g}"] = {
+            "decode_cpu_s": decode_cpu, "measure_cpu_s": cpu, "wall_s": wall,
+            "steps_cpu_s": {k[9:]: v for k, v in res.timings_s.items() if k.startswith("cpu_step_")},
+            "frames": sum(res.timings_s[f"{c}_frames"] for c in ("left", "right")),
+            "digest": tables_digest(folder / "out")}
+    return runs
+
+
+def interleave(base: Path, folder: Path, seconds: float, pairs: int) -> int:
+    """Runs :func:`worker` in fresh processes alternately on ``base`` (an exported tree) and this tree and
+    prints the medians: the load changes within minutes, so each figure is compared with its neighbours'."""
+    trees = {"base": base.resolve(), "branch": ROOT}
+    results: dict[str, list[dict[str, object]]] = {k: [] for k in trees}
+    loads = []
+    for _ in range(pairs):
+        for name, tree in trees.items():
+            loads.append(os.getloadavg()[0])
+            env = {**os.environ, "RIG_BENCH_TREE": str(tree), "PYTHONPATH": str(tree)}
+            done = subprocess.run([sys.executable, __file__, "--worker", "--keep", str(folder), "--seconds",
+                                   str(seconds)], env=env, capture_output=True, text=True, check=True)
+            results[name].append(json.loads(done.stdout.strip().splitlines()[-1]))
+    print(f"interleaved: {pairs} pairs of processes (base, branch, …), load average "
+          f"{min(loads):.1f}–{max(loads):.1f} on {os.cpu_count()} cores; medians; CPU per s of video")
+    for name, runs in results.items():
+        print_interleaved(name, runs, seconds)
+    return 0
+
+
+def print_interleaved(name: str, runs: list[dict[str, object]], seconds: float) -> None:
+    """One tree's medians: whole-video and marginal (half → whole) ratios to decode-only, fixed costs."""
+    def med(fn: Callable[[dict[str, Any]], float]) -> float:
+        return statistics.median(fn(r) for r in runs)  # type: ignore[arg-type]
+
+    whole, part = f"{seconds:g}", f"{seconds / 2:g}"
+    video_s = 2 * seconds
+    ratio = med(lambda r: r[whole]["measure_cpu_s"] / r[whole]["decode_cpu_s"])
+    marginal = med(lambda r: (r[whole]["measure_cpu_s"] - r[part]["measure_cpu_s"])
+                   / (r[whole]["decode_cpu_s"] - r[part]["decode_cpu_s"]))
+    report = med(lambda r: r[whole]["steps_cpu_s"]["report"])
+    steps = {k: med(lambda r, k=k: r[whole]["steps_cpu_s"][k]) for k in runs[0][whole]["steps_cpu_s"]}  # type: ignore[index]
+    digests = sorted({str(r[whole]["digest"]) for r in runs} | {str(r[part]["digest"]) for r in runs})
+    each = ", ".join(f"{r[whole]['measure_cpu_s'] / r[whole]['decode_cpu_s']:.2f}" for r in runs)  # type: ignore[index]
+    print(f"  {name:<7} decode-only {med(lambda r: r[whole]['decode_cpu_s']) / video_s:.3f}, rig measure + "
+          f"report {med(lambda r: r[whole]['measure_cpu_s']) / video_s:.3f} = {ratio:.2f} × (each run / "
+          f"its own decode-only run; runs "
+          f"{each})")
+    print(f"          per added second of video (half → whole): {marginal:.2f} × the decode-only CPU "
+          f"(target ≤ 1.3×); fixed per run: report {report:.2f} CPU-s, imports "
+          f"{med(lambda r: r['import_cpu_s']):.2f} CPU-s")
+    print(f"          wall {med(lambda r: r[whole]['wall_s']):.2f} s = "
+          f"{video_s / med(lambda r: r[whole]['wall_s']):.2f} × real time (target ≥ 2×); steps (CPU-s) "
+          + ", ".join(f"{k} {v:.2f}" for k, v in steps.items()) + f"; tables {', '.join(digests)}")
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--seconds", type=float, default=5.0, help="video length per camera, s")
     ap.add_argument("--keep", type=Path, help="write the videos and outputs here (default: a temp folder)")
     ap.add_argument("--reuse", action="store_true", help="reuse the videos and calibration in --keep")
     ap.add_argument("--repeat", type=int, default=3, help="runs of each CPU figure (the least is printed)")
+    ap.add_argument("--interleave", type=Path, metavar="BASE",
+                    help="compare with the tree exported at BASE (e.g. `git archive main | tar -x -C BASE`): "
+                         "fresh processes alternately on BASE and this tree, on the videos in --keep")
+    ap.add_argument("--pairs", type=int, default=4, help="--interleave: pairs of processes")
+    ap.add_argument("--worker", action="store_true", help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
     folder = args.keep or Path(tempfile.mkdtemp(prefix="bench-measure-"))
     folder.mkdir(parents=True, exist_ok=True)
+    if args.worker:
+        print(json.dumps(worker(folder, args.seconds)))
+        return 0
+    if args.interleave:
+        if not all((folder / f).is_file() for f in ("left.mp4", "right.mp4", "calibration.json")):
+            ap.error("--interleave needs the videos and calibration in --keep (run once with --keep first)")
+        return interleave(args.interleave, folder, args.seconds, args.pairs)
 
     t0 = time.perf_counter()
     world = mt.measurement_world()
