@@ -7,8 +7,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from drivers.camera.change_kernel import half_and_change, half_only
-from drivers.camera.video_file import _block_change, _half, _half_and_change
+from drivers.camera.change_kernel import block_change, half_and_change, half_change_stats, half_only
+from drivers.camera.video_file import _block_change, _half, _half_and_change, _noise_floor
 
 
 @st.composite
@@ -33,6 +33,10 @@ def test_the_kernel_gives_opencvs_half_image_and_block_change(pair: tuple[np.nda
     np.testing.assert_array_equal(half, _half(a))
     np.testing.assert_array_equal(change, _block_change(_half(a), prev_half))
     np.testing.assert_array_equal(half_only(a), _half(a))
+    _, _, max_dn, floor_dn = half_change_stats(a, prev_half)
+    assert max_dn == float(change.max()) and floor_dn == _noise_floor(change)
+    assert floor_dn == float(np.median(change[::2, ::2]))
+    np.testing.assert_array_equal(block_change(_half(a), prev_half), _block_change(_half(a), prev_half))
 
 
 def test_the_extremes_and_a_non_contiguous_frame() -> None:
@@ -51,7 +55,19 @@ def test_sizes_off_the_kernels_grid_take_opencv_and_a_wrong_previous_image_is_re
     half, change = _half_and_change(a, _half(b))
     np.testing.assert_array_equal(half, _half(a))
     assert change is not None
-    np.testing.assert_array_equal(change, _block_change(_half(a), _half(b)))
+    np.testing.assert_array_equal(change.map, _block_change(_half(a), _half(b)))
+    assert change.max_dn == float(change.map.max()) and change.floor_dn == _noise_floor(change.map)
     assert _half_and_change(a, None)[1] is None
     with pytest.raises(ValueError, match="prev_half has shape"):
         half_and_change(np.zeros((16, 16), np.uint8), np.zeros((4, 4), np.uint8))
+    with pytest.raises(ValueError, match="sides multiples of 4"):
+        block_change(np.zeros((6, 8), np.uint8), np.zeros((6, 8), np.uint8))
+
+
+@pytest.mark.parametrize("blocks", [(1, 1), (2, 2), (3, 4), (4, 6)])
+def test_the_compiled_median_counts_odd_and_even_numbers_of_blocks(blocks: tuple[int, int]) -> None:
+    """Every 4th block of a (rows × cols)-block frame: 1, 1, 4 and 6 blocks — odd and even counts."""
+    rng = np.random.default_rng(sum(blocks))
+    a, b = (rng.integers(0, 256, (8 * blocks[0], 8 * blocks[1]), dtype=np.uint8) for _ in range(2))
+    _, change, max_dn, floor_dn = half_change_stats(a, _half(b))
+    assert floor_dn == float(np.median(change[::2, ::2])) and max_dn == float(change.max())

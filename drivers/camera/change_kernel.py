@@ -22,7 +22,9 @@ import numba
 import numpy as np
 from numpy.typing import NDArray
 
-__all__ = ["half_and_change", "half_only"]
+__all__ = ["block_change", "half_and_change", "half_change_stats", "half_only"]
+
+_LEVELS = 16 * 255 + 1  # a block's change × 16 is an integer sum of 16 absolute differences: 0 … 4080
 
 _F = TypeVar("_F", bound=Callable[..., Any])
 
@@ -56,16 +58,56 @@ def _half_kernel(image: np.ndarray, half: np.ndarray) -> None:
 
 
 @_jit
-def _half_change_kernel(image: np.ndarray, prev_half: np.ndarray, half: np.ndarray,
-                        change: np.ndarray) -> None:
-    """``half`` ← the half-size ``image``; ``change`` ← mean |half − prev_half| per 4×4 half-size block."""
+def _half_change_kernel(image: np.ndarray, prev_half: np.ndarray, half: np.ndarray, change: np.ndarray,
+                        counts: np.ndarray) -> int:
+    """``half`` ← the half-size ``image``; ``change`` ← mean |half − prev_half| per 4×4 half-size block;
+    ``counts`` ← how many of every 4th block (even block rows and columns) have each change × 16; returns
+    the largest change × 16."""
     width = half.shape[1]
     column = np.zeros(width, np.int32)  # |half − prev_half| summed over the block row's 4 rows
     pairs = np.empty(image.shape[1], np.int16)
+    counts[:] = 0
+    largest = 0
     for r in range(half.shape[0]):
         _half_rows(image, half, r, pairs)
         for q in range(width):
             column[q] += abs(np.int32(half[r, q]) - np.int32(prev_half[r, q]))
+        if r % 4 == 3:
+            for j in range(change.shape[1]):
+                total = column[4 * j] + column[4 * j + 1] + column[4 * j + 2] + column[4 * j + 3]
+                change[r >> 2, j] = np.float32(total) * np.float32(0.0625)
+                largest = max(largest, total)
+                if (r >> 2) % 2 == 0 and j % 2 == 0:
+                    counts[total] += 1
+            column[:] = 0
+    return largest
+
+
+@_jit
+def _median_of_counts(counts: np.ndarray) -> float:
+    """The median (× 16) of the values whose occurrences ``counts`` holds (mean of the middle two when
+    their number is even), as ``np.median``."""
+    n = counts.sum()
+    k = n // 2
+    seen = 0
+    low = -1
+    for value in range(counts.shape[0]):
+        seen += counts[value]
+        if low < 0 and seen >= k:  # rank k−1 (0-based) reached: the lower middle value
+            low = value
+        if seen > k:  # rank k: the upper middle value
+            return float(value) if n % 2 else 0.5 * (float(low) + float(value))
+    return 0.0
+
+
+@_jit
+def _block_change_kernel(a_half: np.ndarray, b_half: np.ndarray, change: np.ndarray) -> None:
+    """``change`` ← mean |a_half − b_half| per 4×4 block."""
+    width = a_half.shape[1]
+    column = np.zeros(width, np.int32)
+    for r in range(a_half.shape[0]):
+        for q in range(width):
+            column[q] += abs(np.int32(a_half[r, q]) - np.int32(b_half[r, q]))
         if r % 4 == 3:
             for j in range(change.shape[1]):
                 change[r >> 2, j] = np.float32(column[4 * j] + column[4 * j + 1] + column[4 * j + 2]
@@ -81,15 +123,36 @@ def half_only(image: NDArray[np.uint8]) -> NDArray[np.uint8]:
     return half
 
 
-def half_and_change(image: NDArray[np.uint8], prev_half: NDArray[np.uint8],
-                    ) -> tuple[NDArray[np.uint8], NDArray[np.float32]]:
-    """(half-size image, 8×8-block change map in DN to ``prev_half``, the previous frame's half-size image)
-    of ``image`` (sides multiples of 8)."""
+def half_change_stats(image: NDArray[np.uint8], prev_half: NDArray[np.uint8],
+                      ) -> tuple[NDArray[np.uint8], NDArray[np.float32], float, float]:
+    """(half-size image, 8×8-block change map in DN to ``prev_half`` — the previous frame's half-size
+    image —, the map's largest value, the median of every 4th block ``change[::2, ::2]``) of ``image``
+    (sides multiples of 8). The two statistics are the duplicate test's, counted in the same pass."""
     h, w = image.shape
     if prev_half.shape != (h // 2, w // 2):
         raise ValueError(f"prev_half has shape {prev_half.shape}; expected {(h // 2, w // 2)} for a frame of "
                          f"{(h, w)}")
     half = np.empty((h // 2, w // 2), np.uint8)
     change = np.empty((h // 8, w // 8), np.float32)
-    _half_change_kernel(np.ascontiguousarray(image), np.ascontiguousarray(prev_half), half, change)
+    counts = np.empty(_LEVELS, np.int64)
+    largest = _half_change_kernel(np.ascontiguousarray(image), np.ascontiguousarray(prev_half), half, change,
+                                  counts)
+    return half, change, largest / 16, _median_of_counts(counts) / 16
+
+
+def half_and_change(image: NDArray[np.uint8], prev_half: NDArray[np.uint8],
+                    ) -> tuple[NDArray[np.uint8], NDArray[np.float32]]:
+    """(half-size image, 8×8-block change map in DN to ``prev_half``, the previous frame's half-size image)
+    of ``image`` (sides multiples of 8)."""
+    half, change, _, _ = half_change_stats(image, prev_half)
     return half, change
+
+
+def block_change(a_half: NDArray[np.uint8], b_half: NDArray[np.uint8]) -> NDArray[np.float32]:
+    """Mean |a_half − b_half| per 4×4 block of two half-size images (sides multiples of 4), DN."""
+    if a_half.shape != b_half.shape or a_half.shape[0] % 4 or a_half.shape[1] % 4:
+        raise ValueError(f"half-size images of shapes {a_half.shape} and {b_half.shape}; expected one shape "
+                         "with sides multiples of 4")
+    change = np.empty((a_half.shape[0] // 4, a_half.shape[1] // 4), np.float32)
+    _block_change_kernel(np.ascontiguousarray(a_half), np.ascontiguousarray(b_half), change)
+    return change

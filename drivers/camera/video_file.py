@@ -177,14 +177,27 @@ class _Decoded:
     pts_s: float
     image: NDArray[np.uint8]
     half: NDArray[np.uint8]  # the image averaged over 2×2 pixels (the change maps are computed on it)
-    change: NDArray[np.float32] | None = None  # 8×8-block mean |image − previous image|, DN
+    change: _Change | None = None  # to the previous image (None for the first frame)
 
 
-def _ratio_where_moved(change: NDArray[np.float32], motion: NDArray[np.float32]) -> float:
+@dataclass(frozen=True)
+class _Change:
+    """The 8×8-block mean |image − previous image| (DN) and the duplicate test's two statistics of it."""
+
+    map: NDArray[np.float32]
+    max_dn: float  # the largest block change
+    floor_dn: float  # the median over every 4th block (:func:`_noise_floor`)
+
+    @classmethod
+    def of(cls, change: NDArray[np.float32]) -> _Change:
+        return cls(change, float(change.max()), _noise_floor(change))
+
+
+def _ratio_where_moved(change: NDArray[np.float32], motion: _Change) -> float:
     """Mean of ``change`` over the blocks where ``motion`` reaches half its largest value, relative to the
     mean of ``motion`` there: ≈ 0 when the image did not change where the neighbour's markers moved."""
-    where = motion >= 0.5 * float(motion.max())
-    return float(change[where].mean() / max(float(motion[where].mean()), 1e-9))
+    where = motion.map >= 0.5 * motion.max_dn
+    return float(change[where].mean() / max(float(motion.map[where].mean()), 1e-9))
 
 
 def _noise_floor(change: NDArray[np.float32]) -> float:
@@ -215,18 +228,28 @@ def _half(image: NDArray[np.uint8]) -> NDArray[np.uint8]:
 
 
 def _half_and_change(image: NDArray[np.uint8], prev_half: NDArray[np.uint8] | None,
-                     ) -> tuple[NDArray[np.uint8], NDArray[np.float32] | None]:
-    """(half-size image, 8×8-block change map to ``prev_half`` or None for the first frame): in one compiled
-    pass (:mod:`drivers.camera.change_kernel`, the same numbers) when the sides are multiples of 8, else by
-    OpenCV."""
+                     ) -> tuple[NDArray[np.uint8], _Change | None]:
+    """(half-size image, 8×8-block change to ``prev_half`` or None for the first frame): in one compiled
+    pass with its statistics (:mod:`drivers.camera.change_kernel`, the same numbers) when the sides are
+    multiples of 8, else by OpenCV and numpy."""
     if image.shape[0] % 8 == 0 and image.shape[1] % 8 == 0:
         from drivers.camera import change_kernel  # numba: loaded by the first frame, not by the import
 
         if prev_half is None:
             return change_kernel.half_only(image), None
-        return change_kernel.half_and_change(image, prev_half)
+        half, change, max_dn, floor_dn = change_kernel.half_change_stats(image, prev_half)
+        return half, _Change(change, max_dn, floor_dn)
     half = _half(image)
-    return half, _block_change(half, prev_half) if prev_half is not None else None
+    return half, _Change.of(_block_change(half, prev_half)) if prev_half is not None else None
+
+
+def _across_change(a_half: NDArray[np.uint8], b_half: NDArray[np.uint8]) -> NDArray[np.float32]:
+    """:func:`_block_change` of two frames apart, compiled when the half-size sides are multiples of 4."""
+    if a_half.shape[0] % 4 == 0 and a_half.shape[1] % 4 == 0:
+        from drivers.camera import change_kernel
+
+        return change_kernel.block_change(a_half, b_half)
+    return _block_change(a_half, b_half)
 
 
 def _block_change(a_half: NDArray[np.uint8], b_half: NDArray[np.uint8]) -> NDArray[np.float32]:
@@ -278,13 +301,12 @@ class DuplicateJudge:
         predecessor, or None. ``frames``: [k−2 | None, k−1, k, k+1 | None], k−1 and k decoded."""
         before2, prev, cur, nxt = frames
         assert prev is not None and cur is not None and cur.change is not None
-        s_k = float(cur.change.max())
-        floor = _noise_floor(cur.change)
+        s_k = cur.change.max_dn
+        floor = cur.change.floor_dn
         typical = statistics.median(self._floors) if len(self._floors) >= 3 else None
         out = {"change_dn": s_k, "noise_floor_dn": floor, "typical_noise_dn": typical,
-               "change_before_dn": float(prev.change.max()) if prev.change is not None else None,
-               "change_after_dn": (float(nxt.change.max()) if nxt is not None and nxt.change is not None
-                                   else None),
+               "change_before_dn": prev.change.max_dn if prev.change is not None else None,
+               "change_after_dn": nxt.change.max_dn if nxt is not None and nxt.change is not None else None,
                "change_across_dn": None, "identity_ratio": None, "across_ratio": None}
         if typical is not None and typical >= self.MIN_FLOOR_DN and floor < self.noise_ratio * typical:
             return {**out, "evidence": f"sensor noise not renewed: median block change {floor:.1f} DN < "
@@ -299,12 +321,12 @@ class DuplicateJudge:
         ratio = s_k / min(before, after)
         if ratio > self.IDENTICAL_RATIO:  # the cheap part of the maximum decides a moving frame at once
             return None
-        ratio = max(ratio, _ratio_where_moved(cur.change, prev.change),
-                    _ratio_where_moved(cur.change, nxt.change))
+        ratio = max(ratio, _ratio_where_moved(cur.change.map, prev.change),
+                    _ratio_where_moved(cur.change.map, nxt.change))
         out["identity_ratio"] = ratio
         if ratio > self.IDENTICAL_RATIO:
             return None
-        across_map = _block_change(nxt.half, before2.half)
+        across_map = _across_change(nxt.half, before2.half)
         across = min(_ratio_where_moved(across_map, prev.change), _ratio_where_moved(across_map, nxt.change),
                      float(across_map.max()) / max(before, after))
         out["change_across_dn"], out["across_ratio"] = float(across_map.max()), across
@@ -582,7 +604,7 @@ class VideoFile(Camera):
         evidence = judge.judge(frames) if cur.change is not None and frames[1] is not None else None
         if repeated and cur.change is not None:
             evidence = evidence or {"evidence": "time stamp repeated"}
-            judge.forget(_noise_floor(cur.change))
+            judge.forget(cur.change.floor_dn)
         if evidence is not None:
             self.duplicate_indices.add(index)
             rep.duplicated.append({"index": index, "pts_s": pts, "pts_repeated": bool(repeated),
@@ -592,7 +614,7 @@ class VideoFile(Camera):
                 rep.corrections.append({"from_index": index + 1, "shift_s": state.shift_s})
             stamp = pts + state.shift_s if not repeated else prev_pts
         else:
-            if cur.change is not None and float(cur.change.max()) <= judge.UNDECIDED_DN:
+            if cur.change is not None and cur.change.max_dn <= judge.UNDECIDED_DN:
                 rep.undecided.append(index)
             if prev_pts > -math.inf and not repeated:
                 gap = pts - prev_pts
