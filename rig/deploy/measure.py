@@ -53,6 +53,7 @@ from rig.analysis.sync_tracks import (
 )
 from rig.deploy.choices import DEFAULT_CLOCK_AGREEMENT_S, MEASURE_SYNC
 from rig.deploy.container_prior import OffsetWindow, offset_window
+from rig.deploy.csv_table import write_csv
 from rig.deploy.series import SeriesError, reference_tracks, stabilised_displacement, summarise
 from rig.deploy.video_markers import ExtractOptions, VideoObservations, extract_video
 from rig.deploy.video_timing import VideoTimingError, estimate_video_timing, rotor_timing, tracked
@@ -115,7 +116,7 @@ class MeasureResult:
 
 def _write_csv(frame: pd.DataFrame, path: Path) -> None:
     with atomic_path(path) as tmp:
-        frame.to_csv(tmp, index=False)
+        write_csv(frame, tmp)  # the text of frame.to_csv(tmp, index=False)
 
 
 def _load_json(path: Path | None, what: str, how: str) -> dict[str, Any]:

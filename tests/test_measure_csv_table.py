@@ -1,0 +1,64 @@
+"""rig measure's CSV writer gives the text of pandas' ``to_csv(index=False)`` character for character."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from rig.deploy.csv_table import csv_text, write_csv
+
+_TEXT = st.text(alphabet=st.sampled_from(list('ab ,"\n\r;é0.-')), max_size=6)
+
+
+@st.composite
+def frames(draw: st.DrawFn) -> pd.DataFrame:
+    rows = draw(st.integers(0, 12))
+    out: dict[str, object] = {}
+    for i in range(draw(st.integers(1, 5))):
+        kind = draw(st.sampled_from(["float", "bits", "int", "uint8", "bool", "str", "object", "float32"]))
+        if kind == "float":
+            out[f"c{i}_mm"] = np.array(draw(st.lists(st.floats(allow_nan=True, allow_infinity=True),
+                                                     min_size=rows, max_size=rows)), dtype=np.float64)
+        elif kind == "bits":  # any bit pattern: subnormals, every exponent, NaN payloads
+            seed = draw(st.integers(0, 2**32 - 1))
+            bits = np.random.default_rng(seed).integers(0, 2**63, rows, dtype=np.uint64)
+            out[f"c{i}"] = bits.view(np.float64)
+        elif kind == "int":
+            out[f"c{i}"] = np.array(draw(st.lists(st.integers(-2**62, 2**62), min_size=rows, max_size=rows)),
+                                    dtype=np.int64)
+        elif kind == "uint8":
+            out[f"c{i}"] = np.arange(rows, dtype=np.uint8)
+        elif kind == "bool":
+            out[f"c{i}"] = np.array(draw(st.lists(st.booleans(), min_size=rows, max_size=rows)), dtype=bool)
+        elif kind == "str":
+            out[f"c{i}"] = pd.array(draw(st.lists(st.one_of(_TEXT, st.none()), min_size=rows, max_size=rows)),
+                                    dtype="string")
+        elif kind == "object":  # text with missing values, or mixed (left to pandas)
+            out[f"c{i}"] = pd.Series(draw(st.lists(st.one_of(_TEXT, st.none(), st.just(np.nan),
+                                                             st.just(1.5)), min_size=rows, max_size=rows)),
+                                     dtype=object)
+        else:
+            out[f"c{i}"] = np.linspace(0, 1, rows, dtype=np.float32)
+    return pd.DataFrame(out)
+
+
+@settings(max_examples=300, deadline=None)
+@given(frames())
+def test_the_text_is_pandas_to_csv(frame: pd.DataFrame) -> None:
+    assert csv_text(frame) == frame.to_csv(index=False)
+
+
+def test_the_file_is_pandas_file_and_odd_frames_are_left_to_pandas(tmp_path: Path) -> None:
+    frame = pd.DataFrame({"time_s": [0.1, 1e-5, 1e16, -0.0, np.nan, np.inf],
+                          "track_id": ["T1", "a,b", 'q"', "", None, "x\ny"]})
+    write_csv(frame, tmp_path / "ours.csv")
+    frame.to_csv(tmp_path / "pandas.csv", index=False)
+    assert (tmp_path / "ours.csv").read_bytes() == (tmp_path / "pandas.csv").read_bytes()
+    for odd in (pd.DataFrame(), pd.DataFrame({"t": pd.to_datetime(["2026-01-01"])}),
+                pd.DataFrame([[1, 2]], columns=["a", "a"]), pd.DataFrame({"n": pd.array([1, None], "Int64")}),
+                pd.DataFrame({"c": pd.Categorical(["x", None])})):
+        assert csv_text(odd) == odd.to_csv(index=False)
