@@ -18,6 +18,14 @@ Run: ``.venv/bin/python benchmarks/measure.py [--seconds 5] [--keep DIR] [--reus
 figure is the least of ``--repeat`` runs, and the load average is printed; compare the ratios. ``rig
 measure``'s ratio is also given run by run against a decode-only run just before it (the median of those
 pairs moves less with the load than the ratio of two leasts taken minutes apart).
+
+``--interleave BASE --pairs N`` (videos already in ``--keep``) compares two trees on a shared, loaded
+machine: fresh processes alternately on BASE (e.g. ``git archive main | tar -x -C BASE``) and this tree,
+each one warm-up run, then for half and the whole of the videos the decode-only CPU and ``rig measure
+--timing`` + report; printed per tree (medians): the whole-video ratio, the **marginal** ratio (the CPU
+one more second of video adds, half → whole, over the decode-only CPU it adds: what a long record costs),
+the fixed costs per run (report; the interpreter and imports of a fresh process), wall clock, the steps'
+CPU and the digest of the tables (identical trees' results give one digest).
 """
 
 from __future__ import annotations
@@ -139,7 +147,7 @@ def tables_digest(out: Path) -> str:
     return h.hexdigest()[:16]
 
 
-def worker(folder: Path, seconds: float) -> dict[str, object]:
+def worker(folder: Path, seconds: float) -> dict[str, Any]:
     """One process of ``--interleave``: a warm-up run, then for half and the whole of the videos the
     decode-only CPU and ``rig measure --timing`` + report (CPU, wall, steps, tables' digest)."""
     cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_ERROR)
@@ -151,7 +159,7 @@ def worker(folder: Path, seconds: float) -> dict[str, object]:
         return MeasureOptions(window_s=(0.6, length_s - 0.1), extract=ExtractOptions(stop_s=stop))
 
     measure_once(folder, paths, calibration, options(seconds / 2))  # numba kernels, lazy imports
-    runs: dict[str, object] = {"import_cpu_s": IMPORT_CPU_S}
+    runs: dict[str, Any] = {"import_cpu_s": IMPORT_CPU_S}
     for length_s in (seconds / 2, seconds):
         stop = None if length_s >= seconds else length_s
         decode_cpu = cpu_both(partial(decode_until, stop_s=stop), paths)[0]
@@ -168,7 +176,7 @@ def interleave(base: Path, folder: Path, seconds: float, pairs: int) -> int:
     """Runs :func:`worker` in fresh processes alternately on ``base`` (an exported tree) and this tree and
     prints the medians: the load changes within minutes, so each figure is compared with its neighbours'."""
     trees = {"base": base.resolve(), "branch": ROOT}
-    results: dict[str, list[dict[str, object]]] = {k: [] for k in trees}
+    results: dict[str, list[dict[str, Any]]] = {k: [] for k in trees}
     loads = []
     for _ in range(pairs):
         for name, tree in trees.items():
@@ -184,10 +192,10 @@ def interleave(base: Path, folder: Path, seconds: float, pairs: int) -> int:
     return 0
 
 
-def print_interleaved(name: str, runs: list[dict[str, object]], seconds: float) -> None:
+def print_interleaved(name: str, runs: list[dict[str, Any]], seconds: float) -> None:
     """One tree's medians: whole-video and marginal (half → whole) ratios to decode-only, fixed costs."""
     def med(fn: Callable[[dict[str, Any]], float]) -> float:
-        return statistics.median(fn(r) for r in runs)  # type: ignore[arg-type]
+        return float(statistics.median(fn(r) for r in runs))
 
     whole, part = f"{seconds:g}", f"{seconds / 2:g}"
     video_s = 2 * seconds
@@ -195,9 +203,10 @@ def print_interleaved(name: str, runs: list[dict[str, object]], seconds: float) 
     marginal = med(lambda r: (r[whole]["measure_cpu_s"] - r[part]["measure_cpu_s"])
                    / (r[whole]["decode_cpu_s"] - r[part]["decode_cpu_s"]))
     report = med(lambda r: r[whole]["steps_cpu_s"]["report"])
-    steps = {k: med(lambda r, k=k: r[whole]["steps_cpu_s"][k]) for k in runs[0][whole]["steps_cpu_s"]}  # type: ignore[index]
+    steps = {k: float(statistics.median(r[whole]["steps_cpu_s"][k] for r in runs))
+             for k in runs[0][whole]["steps_cpu_s"]}
     digests = sorted({str(r[whole]["digest"]) for r in runs} | {str(r[part]["digest"]) for r in runs})
-    each = ", ".join(f"{r[whole]['measure_cpu_s'] / r[whole]['decode_cpu_s']:.2f}" for r in runs)  # type: ignore[index]
+    each = ", ".join(f"{r[whole]['measure_cpu_s'] / r[whole]['decode_cpu_s']:.2f}" for r in runs)
     print(f"  {name:<7} decode-only {med(lambda r: r[whole]['decode_cpu_s']) / video_s:.3f}, rig measure + "
           f"report {med(lambda r: r[whole]['measure_cpu_s']) / video_s:.3f} = {ratio:.2f} × (each run / "
           f"its own decode-only run; runs "
@@ -205,8 +214,10 @@ def print_interleaved(name: str, runs: list[dict[str, object]], seconds: float) 
     print(f"          per added second of video (half → whole): {marginal:.2f} × the decode-only CPU "
           f"(target ≤ 1.3×); fixed per run: report {report:.2f} CPU-s, imports "
           f"{med(lambda r: r['import_cpu_s']):.2f} CPU-s")
+    marginal_wall = med(lambda r: seconds / max(r[whole]["wall_s"] - r[part]["wall_s"], 1e-9))
     print(f"          wall {med(lambda r: r[whole]['wall_s']):.2f} s = "
-          f"{video_s / med(lambda r: r[whole]['wall_s']):.2f} × real time (target ≥ 2×); steps (CPU-s) "
+          f"{video_s / med(lambda r: r[whole]['wall_s']):.2f} × real time (target ≥ 2×), per added second "
+          f"{marginal_wall:.2f} × real time; steps (CPU-s) "
           + ", ".join(f"{k} {v:.2f}" for k, v in steps.items()) + f"; tables {', '.join(digests)}")
 
 
