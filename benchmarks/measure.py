@@ -185,6 +185,7 @@ def interleave(base: Path, folder: Path, seconds: float, pairs: int) -> int:
             done = subprocess.run([sys.executable, __file__, "--worker", "--keep", str(folder), "--seconds",
                                    str(seconds)], env=env, capture_output=True, text=True, check=True)
             results[name].append(json.loads(done.stdout.strip().splitlines()[-1]))
+    (folder / "interleave.json").write_text(json.dumps(results, indent=1))  # every run's figures
     print(f"interleaved: {pairs} pairs of processes (base, branch, …), load average "
           f"{min(loads):.1f}–{max(loads):.1f} on {os.cpu_count()} cores; medians; CPU per s of video")
     for name, runs in results.items():
@@ -219,6 +220,11 @@ def print_interleaved(name: str, runs: list[dict[str, Any]], seconds: float) -> 
           f"{video_s / med(lambda r: r[whole]['wall_s']):.2f} × real time (target ≥ 2×), per added second "
           f"{marginal_wall:.2f} × real time; steps (CPU-s) "
           + ", ".join(f"{k} {v:.2f}" for k, v in steps.items()) + f"; tables {', '.join(digests)}")
+    added = {k: float(statistics.median((r[whole]["steps_cpu_s"][k] - r[part]["steps_cpu_s"][k])
+                                        / (r[whole]["decode_cpu_s"] - r[part]["decode_cpu_s"]) for r in runs))
+             for k in steps}
+    print("          per added second, each step over the decode-only CPU: "
+          + ", ".join(f"{k} {v:.2f}" for k, v in added.items()))
 
 
 def main(argv: list[str] | None = None) -> int:
