@@ -177,7 +177,9 @@ def interleave(base: Path, folder: Path, seconds: float, pairs: int) -> int:
     prints the medians: the load changes within minutes, so each figure is compared with its neighbours'."""
     trees = {"base": base.resolve(), "branch": ROOT}
     results: dict[str, list[dict[str, Any]]] = {k: [] for k in trees}
-    loads = []
+    loads = [os.getloadavg()[0]]
+    if pairs == 0:  # print the last interleaved runs again
+        results = json.loads((folder / "interleave.json").read_text())
     for _ in range(pairs):
         for name, tree in trees.items():
             loads.append(os.getloadavg()[0])
@@ -186,7 +188,7 @@ def interleave(base: Path, folder: Path, seconds: float, pairs: int) -> int:
                                    str(seconds)], env=env, capture_output=True, text=True, check=True)
             results[name].append(json.loads(done.stdout.strip().splitlines()[-1]))
     (folder / "interleave.json").write_text(json.dumps(results, indent=1))  # every run's figures
-    print(f"interleaved: {pairs} pairs of processes (base, branch, …), load average "
+    print(f"interleaved: {len(results['base'])} pairs of processes (base, branch, …), load average "
           f"{min(loads):.1f}–{max(loads):.1f} on {os.cpu_count()} cores; medians; CPU per s of video")
     for name, runs in results.items():
         print_interleaved(name, runs, seconds)
@@ -201,8 +203,12 @@ def print_interleaved(name: str, runs: list[dict[str, Any]], seconds: float) -> 
     whole, part = f"{seconds:g}", f"{seconds / 2:g}"
     video_s = 2 * seconds
     ratio = med(lambda r: r[whole]["measure_cpu_s"] / r[whole]["decode_cpu_s"])
-    marginal = med(lambda r: (r[whole]["measure_cpu_s"] - r[part]["measure_cpu_s"])
-                   / (r[whole]["decode_cpu_s"] - r[part]["decode_cpu_s"]))
+    # per added second: the medians' differences (a ratio per pair of runs explodes when the load shrinks
+    # one decode-only difference); the fixed part is what the whole run costs beyond that rate
+    added_decode = med(lambda r: r[whole]["decode_cpu_s"]) - med(lambda r: r[part]["decode_cpu_s"])
+    added_measure = med(lambda r: r[whole]["measure_cpu_s"]) - med(lambda r: r[part]["measure_cpu_s"])
+    marginal = added_measure / added_decode
+    fixed = med(lambda r: r[whole]["measure_cpu_s"]) - marginal * med(lambda r: r[whole]["decode_cpu_s"])
     report = med(lambda r: r[whole]["steps_cpu_s"]["report"])
     steps = {k: float(statistics.median(r[whole]["steps_cpu_s"][k] for r in runs))
              for k in runs[0][whole]["steps_cpu_s"]}
@@ -213,16 +219,16 @@ def print_interleaved(name: str, runs: list[dict[str, Any]], seconds: float) -> 
           f"its own decode-only run; runs "
           f"{each})")
     print(f"          per added second of video (half → whole): {marginal:.2f} × the decode-only CPU "
-          f"(target ≤ 1.3×); fixed per run: report {report:.2f} CPU-s, imports "
+          f"(target ≤ 1.3×); fixed per run {fixed:.2f} CPU-s (of it report {report:.2f}); imports "
           f"{med(lambda r: r['import_cpu_s']):.2f} CPU-s")
-    marginal_wall = med(lambda r: seconds / max(r[whole]["wall_s"] - r[part]["wall_s"], 1e-9))
+    added_wall = med(lambda r: r[whole]["wall_s"]) - med(lambda r: r[part]["wall_s"])
+    marginal_wall = f"{seconds / added_wall:.2f}" if added_wall > 0 else "n/a (load)"
     print(f"          wall {med(lambda r: r[whole]['wall_s']):.2f} s = "
           f"{video_s / med(lambda r: r[whole]['wall_s']):.2f} × real time (target ≥ 2×), per added second "
-          f"{marginal_wall:.2f} × real time; steps (CPU-s) "
+          f"{marginal_wall} × real time; steps (CPU-s) "
           + ", ".join(f"{k} {v:.2f}" for k, v in steps.items()) + f"; tables {', '.join(digests)}")
-    added = {k: float(statistics.median((r[whole]["steps_cpu_s"][k] - r[part]["steps_cpu_s"][k])
-                                        / (r[whole]["decode_cpu_s"] - r[part]["decode_cpu_s"]) for r in runs))
-             for k in steps}
+    added = {k: (statistics.median(r[whole]["steps_cpu_s"][k] for r in runs)
+                 - statistics.median(r[part]["steps_cpu_s"][k] for r in runs)) / added_decode for k in steps}
     print("          per added second, each step over the decode-only CPU: "
           + ", ".join(f"{k} {v:.2f}" for k, v in added.items()))
 
@@ -236,7 +242,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--interleave", type=Path, metavar="BASE",
                     help="compare with the tree exported at BASE (e.g. `git archive main | tar -x -C BASE`): "
                          "fresh processes alternately on BASE and this tree, on the videos in --keep")
-    ap.add_argument("--pairs", type=int, default=4, help="--interleave: pairs of processes")
+    ap.add_argument("--pairs", type=int, default=4,
+                    help="--interleave: pairs of processes (0: print the last ones, from interleave.json)")
     ap.add_argument("--worker", action="store_true", help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
     folder = args.keep or Path(tempfile.mkdtemp(prefix="bench-measure-"))
