@@ -46,6 +46,7 @@ from pathlib import Path
 from typing import Any
 
 import cv2
+import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 # the code measured: this tree, or another one's export (--interleave runs workers on a base tree)
@@ -209,6 +210,10 @@ def print_interleaved(name: str, runs: list[dict[str, Any]], seconds: float) -> 
     added_measure = med(lambda r: r[whole]["measure_cpu_s"]) - med(lambda r: r[part]["measure_cpu_s"])
     marginal = added_measure / added_decode
     fixed = med(lambda r: r[whole]["measure_cpu_s"]) - marginal * med(lambda r: r[whole]["decode_cpu_s"])
+    # the same from every run of both lengths: least squares of CPU = fixed + rate × decode-only CPU
+    points = [(r[k]["decode_cpu_s"], r[k]["measure_cpu_s"]) for r in runs for k in (part, whole)]
+    design = np.array([[1.0, d] for d, _ in points])
+    fit_fixed, fit_rate = np.linalg.lstsq(design, np.array([m for _, m in points]), rcond=None)[0]
     report = med(lambda r: r[whole]["steps_cpu_s"]["report"])
     steps = {k: float(statistics.median(r[whole]["steps_cpu_s"][k] for r in runs))
              for k in runs[0][whole]["steps_cpu_s"]}
@@ -220,7 +225,8 @@ def print_interleaved(name: str, runs: list[dict[str, Any]], seconds: float) -> 
           f"{each})")
     print(f"          per added second of video (half → whole): {marginal:.2f} × the decode-only CPU "
           f"(target ≤ 1.3×); fixed per run {fixed:.2f} CPU-s (of it report {report:.2f}); imports "
-          f"{med(lambda r: r['import_cpu_s']):.2f} CPU-s")
+          f"{med(lambda r: r['import_cpu_s']):.2f} CPU-s; fitted over every run: {fit_rate:.2f} × the "
+          f"decode-only CPU + {fit_fixed:.2f} CPU-s")
     added_wall = med(lambda r: r[whole]["wall_s"]) - med(lambda r: r[part]["wall_s"])
     marginal_wall = f"{seconds / added_wall:.2f}" if added_wall > 0 else "n/a (load)"
     print(f"          wall {med(lambda r: r[whole]['wall_s']):.2f} s = "
