@@ -29,6 +29,7 @@ from dataclasses import dataclass
 
 from procedures import sweep
 from procedures._common import mount, poll_event, required
+from procedures._shaker import phase_origin
 from rig.config.rig_config import RigConfig
 from rig.record.events import BandSweepEvent
 from rig.run.acquire import Acquirer, ReduceOptions
@@ -112,18 +113,7 @@ def _run(ctx: Context, params: BandParameters) -> None:
         fiducial = acq.fiducial
 
         def drive() -> tuple[float, float, tuple[float, float], str]:
-            if fiducial is not None and fiducial.last_start is not None:
-                origin = fiducial.last_start
-                how = ("PHASe:SYNChronize of the timing fiducial (the generator's other channel, one "
-                       "timebase): the cameras are dated against the same instant, so the bracket's width "
-                       "cancels; what remains is the fiducial's fit and the channels' alignment")
-            else:
-                t_sent = ctx.clock.now_s()
-                shaker.generator.synchronize_phase()
-                shaker.generator.wait_complete()
-                origin = (t_sent, ctx.clock.now_s())
-                how = ("PHASe:SYNChronize issued by the step without a timing fiducial: the origin is known "
-                       "to the command's bracket only")
+            origin, how = phase_origin(ctx, shaker, fiducial)
             t_steady, t_end = shaker.drive_armed(vpp, 0.5 * (origin[0] + origin[1]) + T,
                                                  poll_interval_s=POLL_INTERVAL_S, on_poll=on_poll)
             return t_steady, t_end, origin, how

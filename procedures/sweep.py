@@ -45,7 +45,7 @@ from procedures._common import (
     stop_polled,
     vfd_config,
 )
-from procedures._shaker import follow_staircase, staircase_plan
+from procedures._shaker import StaircaseRun, arm_first_step, follow_staircase, phase_origin, staircase_plan
 from procedures.params.sweep import DESCRIPTION, NAME, Parameters  # noqa: F401 (its declaration)
 from rig.config.rig_config import RigConfig
 from rig.config.targets import SweepColumnTarget
@@ -213,15 +213,23 @@ def _run_shaker(ctx: Context, params: Parameters, column: SweepColumnTarget, ste
 
 def _run_shaker_steps(ctx: Context, params: Parameters, column: SweepColumnTarget, shaker: Shaker, *,
                       step_name: str, on_poll: Callable[[], None]) -> None:
-    """The Fig. 17 points profile as timed frequency steps (:mod:`procedures._shaker`)."""
+    """The Fig. 17 points profile as timed frequency steps (:mod:`procedures._shaker`), armed at the first
+    step with the output OFF so that the recording's phase restart makes the staircase's phase law exact."""
     profile = profile_of(params)
     points = profile.points(params.update_interval_s)
     plan = staircase_plan(points, params.update_interval_s)
+    arm_first_step(shaker, plan[0][1], params.shaker_amplitude_mm)
     with Acquirer(ctx, ReduceOptions(mode="track", window_px=51)) as acq:
-        rec = acq.record(step_name, lambda: follow_staircase(
-            ctx, shaker, plan, total_s=points[-1][0], amplitude_mm=params.shaker_amplitude_mm,
-            on_step=on_poll))
-    result = rec.result
+        fiducial = acq.fiducial
+
+        def drive() -> tuple[StaircaseRun, tuple[float, float], str]:
+            origin, how = phase_origin(ctx, shaker, fiducial)
+            return follow_staircase(ctx, shaker, plan, total_s=points[-1][0],
+                                    amplitude_mm=params.shaker_amplitude_mm, on_step=on_poll,
+                                    origin_s=0.5 * (origin[0] + origin[1])), origin, how
+
+        rec = acq.record(step_name, drive)
+    result, origin, how = rec.result
     ctx.event("sweep", SweepEvent(
         t_start_s=result.t_start_s, t_stop_s=result.t_stop_s, amplitude_mm=params.shaker_amplitude_mm,
         axis=list(column.axis), marker_ids=[f"col{k}" for k in range(column.count)],
@@ -231,7 +239,9 @@ def _run_shaker_steps(ctx: Context, params: Parameters, column: SweepColumnTarge
         profile_source=f"commanded staircase: phase-continuous CW frequency steps every "
                        f"{params.update_interval_s:g} s, each at the Fig. 17 profile's mean frequency over "
                        "its step (volts per step from the sensitivity table), at the times the commands "
-                       "were sent"))
+                       "were sent, from the phase restart at the first profile time",
+        phase_origin_s=list(origin), phase_origin=how,
+        step_brackets_s=[list(b) for b in result.brackets]))
     poll_event(ctx, "generator", shaker.read_state())  # after the stop: amplitude down, output OFF
 
 

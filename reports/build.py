@@ -28,7 +28,7 @@ from typing import Any, Protocol
 import numpy as np
 import pandas as pd
 
-from reports import band_phase, figures, html, summaries
+from reports import band_phase, figures, html, step_phase, summaries
 from reports.certificate import acceptance_from_config, build_certificate, evaluate
 from reports.errors import AnalysisFailedError, ReportError
 from reports.load import RunData, load_record
@@ -306,6 +306,7 @@ def _extra(t: ReportTables, primary: str) -> dict[str, Any]:
         "band": t.band,
         "phase": phase_section(t.phase),
         "extended_band": band_phase.section(t.extended),
+        "steady_steps": step_phase.section(t.steps),
         "usable_frequency": {
             m: {
                 "tolerance_pct": lim.tolerance,
@@ -362,6 +363,8 @@ def _table_frames(t: ReportTables, measured: dict[str, Any],
         frames["band_bins"] = t.band_bins
     if t.extended is not None and len(t.extended.bins):
         frames["extended_band"] = t.extended.bins
+    if t.steps is not None and len(t.steps.bins):
+        frames["steady_steps"] = t.steps.bins
     return frames
 
 

@@ -56,6 +56,11 @@ BAND_CRITERIA: tuple[CriterionSpec, ...] = (
     CriterionSpec("band_min_hz", "Certified upper edge of the shaker's band (amplitude and phase within "
                                  "their limits in every bin from its start)", "Hz", ">="),
 )
+# phase per steady step of a stepped profile (reports.step_phase): required when configured
+STEP_CRITERIA: tuple[CriterionSpec, ...] = (
+    CriterionSpec("step_phase_deg", "Largest phase error |φ| over the sweep's steady steps against the "
+                                    "excitation", "°", "<="),
+)
 CRITERIA: tuple[CriterionSpec, ...] = (
     CriterionSpec("position_max_mm", "Largest 3D position error over the commanded poses", "mm", "<="),
     CriterionSpec("position_rms_mm", "RMS 3D position error over the commanded poses", "mm", "<="),
@@ -81,6 +86,7 @@ CRITERIA: tuple[CriterionSpec, ...] = (
     CriterionSpec("sync_uncertainty_ms", "Standard uncertainty of the camera offset estimate", "ms", "<="),
     *TIMING_CRITERIA,
     *BAND_CRITERIA,
+    *STEP_CRITERIA,
 )
 CRITERION_IDS = tuple(c.id for c in CRITERIA)
 
@@ -145,7 +151,7 @@ def acceptance_from_config(rig: dict[str, Any] | None) -> dict[str, Any]:
                 )
             out[key] = value
             continue
-        if value is None and DEFAULT_SETTINGS.get(key, 0) is None:
+        if value is None and out.get(key, 0) is None:  # an optional limit or setting left unset
             continue
         if (
             isinstance(value, bool)

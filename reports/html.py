@@ -255,6 +255,7 @@ def render(
         _band_section(t),
         _phase_section(t, pngs),
         _extended_band_section(t, pngs),
+        _steps_section(t),
         _motion_section(t, pngs, tables_html),
         _calibration_section(t, tables_html),
         _conditions_section(cert["conditions"]),
@@ -418,6 +419,24 @@ def _extended_band_section(t: ReportTables, pngs: dict[str, bytes]) -> str:
         f"{html.escape(ext.why_it_ends)}.</p>"
         + figure(pngs, "extended_band", "Amplitude error and phase per bin over the shaker's band")
         + table(ext.bins, digits=4, text_cols=("refused",))
+        + "</section>"
+    )
+
+
+def _steps_section(t: ReportTables) -> str:
+    """The sweep's steady steps: amplitude, frequency, phase and delay per step (reports.step_phase)."""
+    sp = t.steps
+    if sp is None:
+        return ""
+    notes = "".join(f"<p class='note'>{html.escape(n)}</p>" for n in sp.notes)
+    return (
+        "<section id='steps'><h2>Phase per steady step</h2>"
+        f"<p>Every flat stretch of the sweep's reference profile, from {sp.settle_s:g} s after it begins "
+        f"(settle time) to its end, fitted per marker (sync '{sp.sync_method}', four-parameter sine fit); "
+        f"mean over the markers. Reference: {html.escape(sp.reference)}. Controller↔camera clock: "
+        f"{html.escape(sp.clock_source)} (u = {1e6 * sp.u_clock_s:.3g} µs). Phase budget per step: fit (A), "
+        "reference phase law (B), clock (B); delay = −phase/(360°·f).</p>" + notes
+        + (table(sp.bins, digits=4) if len(sp.bins) else "")
         + "</section>"
     )
 

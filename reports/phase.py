@@ -58,6 +58,8 @@ class PhaseResult:
     clock_source: str
     reference: ReferenceResolution
     notes: list[str] = field(default_factory=list)
+    intercept_deg: float = float("nan")  # the line's constant c (°) against each track's first bin
+    u_intercept_deg: float = float("nan")
 
     @property
     def u_delay_ms(self) -> float:
@@ -137,7 +139,8 @@ def phase_of_sweep(bins: pd.DataFrame, method: str, *, u_clock_s: float, clock_s
         "frequency_hz": f, "t_mid_s": t, "n_tracks": p["n_tracks"].to_numpy(int), "phase_deg": err,
         "u_phase_deg": u_phase, "delay_ms": -err / (360.0 * f) * 1000.0,
         "u_delay_ms": u_phase / (360.0 * f) * 1000.0})
-    return PhaseResult(method, 1000.0 * tau_s, budget, table[PHASE_COLUMNS], clock_source, reference)
+    return PhaseResult(method, 1000.0 * tau_s, budget, table[PHASE_COLUMNS], clock_source, reference,
+                       intercept_deg=c, u_intercept_deg=u_c)
 
 
 def phase_section(result: PhaseResult | None) -> dict[str, Any] | None:

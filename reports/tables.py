@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from reports import band, band_phase, frequency, motion, phase, position
+from reports import band, band_phase, frequency, motion, phase, position, step_phase
 from reports.certificate import Measured
 from reports.errors import FitError
 from reports.load import (
@@ -73,6 +73,7 @@ class ReportTables:
     band_bins: pd.DataFrame | None = None  # the interleaved per-bin fits (reports.band.BAND_COLUMNS)
     band: dict[str, Any] | None = None  # the band by method and the certified edge (reports.band)
     extended: band_phase.ExtendedBand | None = None  # certify's shaker band step (reports.band_phase)
+    steps: step_phase.StepPhase | None = None  # the sweep's steady steps (reports.step_phase)
 
 
 def camera_fps(rig: dict[str, Any]) -> tuple[float, str]:
@@ -146,6 +147,7 @@ def compute_tables(
     _band_tables(out, run, tracks, acceptance, bin_hz)
     out.extended = _extended_band(out, run, tracks, acceptance, bin_hz)
     out.phase = _sweep_phase(out, run, sweep)
+    out.steps = _sweep_steps(out, run, tracks, sweep, acceptance)
     _plate_tables(out, run, tracks, gate_mm)
     rotations = stream_events(run.events, "rotation")
     if len(sweeps) > 1 or len(rotations) > 1:
@@ -190,6 +192,34 @@ def _sweep_phase(out: ReportTables, run: RunData, sweep: dict[str, Any] | None) 
     return phase.phase_of_sweep(out.sweep_bins, out.primary_sync, u_clock_s=float(row["u_offset_s"]),
                                 clock_source=str(row["source"]), reference=phase.reference_resolution(polled,
                                                                                                        source))
+
+
+def _segment_clock(out: ReportTables, segment: Any) -> tuple[float, str] | None:
+    """(u_offset_s at worst, source) of the analysis' controller clock over ``segment``; None when absent."""
+    if out.clock is None:
+        return None
+    rows = out.clock[out.clock["segment"].astype(str) == str(segment)]
+    if not len(rows):
+        return None
+    row = rows.loc[rows["u_offset_s"].astype(float).idxmax()]
+    return float(row["u_offset_s"]), str(row["source"])
+
+
+def _sweep_steps(out: ReportTables, run: RunData, tracks: pd.DataFrame, sweep: dict[str, Any] | None,
+                 acceptance: dict[str, Any]) -> step_phase.StepPhase | None:
+    """The sweep's steady steps (:mod:`reports.step_phase`) on the primary method's tracks; None without a
+    sweep, a dated segment or a flat stretch in its reference profile."""
+    clock = _segment_clock(out, sweep.get("segment")) if sweep is not None else None
+    if sweep is None or clock is None:
+        return None
+    polled = stream_events(run.events, "exciter")
+    reference, source = frequency.reference_sweep(sweep, polled)
+    settle = acceptance.get("step_settle_s")
+    return step_phase.step_phase(
+        tracks, sweep, reference, fs_hz=out.fs_hz, u_clock_s=clock[0], clock_source=clock[1],
+        sync_method=out.primary_sync,
+        settle_s=float(settle) if settle is not None else step_phase.DEFAULT_SETTLE_S,
+        sweep_phase=out.phase, resolution=phase.reference_resolution(polled, source))
 
 
 def _fit_method(out: ReportTables, method: str, acceptance: dict[str, Any]) -> None:
@@ -355,6 +385,7 @@ def measured_values(t: ReportTables, acceptance: dict[str, Any]) -> dict[str, Me
         m["sync_uncertainty_ms"] = sync
     m.update(_timing_values(t.phase, acceptance))
     m.update(band_phase.measured_values(t.extended))
+    m.update(step_phase.measured_values(t.steps))
     return m
 
 

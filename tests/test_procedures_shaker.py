@@ -243,12 +243,17 @@ def test_shaker_fig17_sweep_runs_as_phase_continuous_steps(tmp_path: Path) -> No
     assert event["spacing"] == "steps" and event["amplitude_mm"] == amp_mm
     stair = np.asarray(event["profile"], float)
     assert np.all(np.diff(stair[:, 0]) >= 0) and np.all(np.diff(stair[:, 1]) >= 0)
-    assert stair[-1, 0] - stair[0, 0] == pytest.approx(rise_s + 0.5)
+    t0 = event["t_start_s"]  # the output on at the first step's frequency; the steps are timed from it
+    assert stair[-1, 0] - t0 == pytest.approx(rise_s + 0.5)
+    # the profile starts at channel 1's phase restart (armed with the output OFF), its law exact from there
+    assert stair[0, 0] == pytest.approx(np.mean(event["phase_origin_s"])) and stair[0, 0] <= t0
+    assert len(event["step_brackets_s"]) == len(np.unique(stair[1:-1, 0]))
     # the phase at every step's end is the Fig. 17 profile's (points from the procedure's own law)
     law = profile_of(Parameters(start_hz=f0, max_hz=f1, duration_s=rise_s, hold_s=0.5)).points(step_s)
-    law = [(stair[0, 0] + t, f) for t, f in law]
+    law = [(t0 + t, f) for t, f in law]
     ends = np.unique(stair[1:, 0])
-    assert np.allclose(sweep_phase_rad(event, ends), sweep_phase_rad({"profile": law}, ends), atol=1e-6)
+    measured = sweep_phase_rad(event, ends) - sweep_phase_rad(event, np.array([t0]))
+    assert np.allclose(measured, sweep_phase_rad({"profile": law}, ends), atol=1e-6)
 
     # the generator reported, after every step, the CW frequency of the staircase at that instant
     gen = [d["data"] for d in run.event_documents("generator")]

@@ -147,8 +147,9 @@ def test_certificate_states_rule_and_conditions() -> None:
     )
     assert cert["run_id"] == "r1" and cert["date_utc"].startswith("2026")
     assert "ILAC-G8" in cert["decision_rule"]["text"]
-    # the band criteria are required only when [criteria] sets them (a rig without a shaker band)
-    assert [r["id"] for r in cert["criteria"]] == [c for c in CRITERION_IDS if not c.startswith("band_")]
+    # the band and step criteria are required only when [criteria] sets them (a rig without a shaker)
+    assert [r["id"] for r in cert["criteria"]] == [c for c in CRITERION_IDS
+                                                   if not c.startswith(("band_", "step_"))]
     assert cert["result"] == "INCOMPLETE"
     acc = acceptance_from_config({"criteria": {"band_min_hz": 45.0}})
     rows = {r["id"]: r for r in build_certificate({}, acc, {"exit_status": "success"})["criteria"]}

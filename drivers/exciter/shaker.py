@@ -295,9 +295,12 @@ class Shaker(Generator):
         self._guarded(run)
         return vpp
 
-    def retune(self, frequency_hz: float, amplitude_mm: float) -> float:
+    def retune(self, frequency_hz: float, amplitude_mm: float, *,
+               frequency_set: Callable[[], None] | None = None) -> float:
         """While running: CW frequency to ``frequency_hz`` (phase-continuous on the instrument), then the
-        volts for ``amplitude_mm`` there (in amplitude steps); limits checked first. Returns the Vpp."""
+        volts for ``amplitude_mm`` there (in amplitude steps); limits checked first. Returns the Vpp.
+        ``frequency_set()`` is called as soon as the frequency command returned (before the volts: the
+        caller brackets the frequency change's instant with it)."""
         vpp = self.amplitude_vpp_for(frequency_hz, amplitude_mm)
         self.check_point(frequency_hz, vpp)
         if not self._output_on:
@@ -305,6 +308,8 @@ class Shaker(Generator):
 
         def run() -> None:
             self.generator.set_frequency_hz(frequency_hz)
+            if frequency_set is not None:
+                frequency_set()
             if vpp != self._amplitude_vpp:
                 self._ramp_amplitude(vpp)
         self._guarded(run)

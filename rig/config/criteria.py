@@ -37,17 +37,20 @@ class CriteriaConfig:
                                                    metadata=spec(lo=0.0, lo_open=True, hi=100.0))
     band_phase_deg: float | None = field(default=None, metadata=spec(lo=0.0, lo_open=True, hi=180.0))
     band_min_hz: float | None = field(default=None, metadata=_POSITIVE)
+    # phase per steady step of a stepped profile (reports.step_phase): required only when set
+    step_phase_deg: float | None = field(default=None, metadata=spec(lo=0.0, lo_open=True, hi=180.0))
     # settings of the decision (reports/certificate.py)
     decision_rule: str = field(default="guarded", metadata=spec(choices=("guarded", "simple")))
     reference_u_mm: float = field(default=0.02, metadata=spec(lo=0.0, hi=100.0))
     fit_max_hz: float | None = field(default=None, metadata=_POSITIVE)
     frequency_bin_hz: float = field(default=1.0, metadata=_POSITIVE)
     identification_gate_mm: float = field(default=50.0, metadata=_POSITIVE)
+    step_settle_s: float = field(default=0.1, metadata=spec(lo=0.0, hi=60.0))  # a step's transient, s
 
 
 # Fields of [criteria] that configure the decision rather than bound a measured value.
 SETTING_FIELDS = ("decision_rule", "amplitude_error_up_to_hz", "reference_u_mm", "fit_max_hz",
-                  "frequency_bin_hz", "identification_gate_mm")
+                  "frequency_bin_hz", "identification_gate_mm", "step_settle_s")
 
 
 def default_limits() -> dict[str, float | None]:

@@ -144,6 +144,11 @@ class SweepEvent(Event):
     amplitude_vpp: float | list[float] | None = None  # shaker: the generator's amplitude (per step: a list)
     spacing: str | None = None  # shaker: "linear", "log" or "steps"
     profile_source: str | None = None  # how the profile was obtained (shaker: the commanded law)
+    # a generator's phase restart (PHASe:SYNChronize) at the first profile time: [sent, confirmed] and how
+    # that instant relates to the cameras' clocks; None: the phase origin is not known (the crank)
+    phase_origin_s: list[float] | None = None
+    phase_origin: str = ""
+    step_brackets_s: list[list[float]] | None = None  # shaker steps: each FREQ change's [sent, returned]
 
 
 @dataclass(frozen=True)
@@ -156,8 +161,6 @@ class BandSweepEvent(SweepEvent):
 
     KIND: ClassVar[str] = "band_sweep"
     STREAM: ClassVar[str] = "band_sweep"
-    phase_origin_s: list[float] | None = None
-    phase_origin: str = ""
 
 
 @dataclass(frozen=True)
