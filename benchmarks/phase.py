@@ -22,6 +22,16 @@ the phase against the generator's waveform (reference: its sweep law from the fi
 the truth is the twin shaker's own phase, so the printed "vs truth" adds the reference's error (the law at
 the bracket's midpoint against the shaker) to the stated phase. Baseline in the same run: the cameras dated
 by the start events alone (±½ frame).
+
+    .venv/bin/python benchmarks/phase.py --steps [--seeds N] [--duration S]
+
+Phase per steady step (issue 18): per seed ``rig run sweep`` with the sweep column on the shaker
+(``targets.sweep_column.body = "shaker"``), the Fig. 17 profile 1 → 30 Hz as the generator's staircase of
+0.5-s phase-continuous CW steps, armed at its first step so the recording's fiducial restart
+(``PHASe:SYNChronize``) fixes its phase origin; the twin's shaker kept. Per steady step
+(:mod:`reports.step_phase`) the stated phase against the staircase's law and, as the truth, the phase of
+the same tracks fitted against the twin shaker's own phase; baseline: the cameras dated by the start
+events in the same runs.
 """
 
 from __future__ import annotations
@@ -42,7 +52,7 @@ sys.path.insert(0, str(ROOT))
 
 import rig.analysis.analyse as analyse_module  # noqa: E402
 import rig.run.station as station_module  # noqa: E402
-from reports import band, band_phase, frequency, phase  # noqa: E402
+from reports import band, band_phase, frequency, phase, step_phase  # noqa: E402
 from reports.load import load_record, stream_events, typed_events  # noqa: E402
 from rig.cli import main as rig_main  # noqa: E402
 from rig.record.catalogue import run_folders  # noqa: E402
@@ -51,10 +61,11 @@ from rig.record.events import BandSweepEvent, SweepEvent  # noqa: E402
 SIM_TOML = (ROOT / "rig" / "data" / "sim.toml").read_text()
 
 
-def _run_keeping_world(tmp: Path, seed: int, command: list[str], options: list[str]) -> tuple[Path, Any]:
-    """``rig COMMAND --config RIG OPTIONS`` on the built-in rig with ``seed`` and its runs under ``tmp``;
-    (run folder, the station's twin world, kept by wrapping ``open_station`` for the run)."""
-    text = SIM_TOML.replace('runs_dir = "runs"', f'runs_dir = "{(tmp / "runs").as_posix()}"')
+def _run_keeping_world(tmp: Path, seed: int, command: list[str], options: list[str],
+                       rig_toml: str = SIM_TOML) -> tuple[Path, Any]:
+    """``rig COMMAND --config RIG OPTIONS`` on ``rig_toml`` (the built-in rig) with ``seed`` and its runs
+    under ``tmp``; (run folder, the station's twin world, kept by wrapping ``open_station`` for the run)."""
+    text = rig_toml.replace('runs_dir = "runs"', f'runs_dir = "{(tmp / "runs").as_posix()}"')
     config = tmp / "rig.toml"
     config.write_text(text.replace("seed = 20261121", f"seed = {seed}"))
     kept: dict[str, Any] = {}
@@ -169,14 +180,81 @@ def band_main(seeds: int) -> None:
     print(f"ratio start events / fiducial: {max(worst['start events']) / max(worst['fiducial']):.0f}×")
 
 
+def steps_run(tmp: Path, seed: int, duration_s: float) -> tuple[Path, Any]:
+    """``rig run sweep`` of the column on the shaker (the Fig. 17 staircase); (run folder, twin shaker)."""
+    column = "[targets.sweep_column]\nbody = "
+    rig_toml = SIM_TOML.replace(f'{column}"exciter"', f'{column}"shaker"')
+    assert rig_toml != SIM_TOML, "sim.toml: targets.sweep_column.body not found"
+    run_dir, world = _run_keeping_world(tmp, seed, ["run", "sweep"], ["--set", f"duration_s={duration_s}"],
+                                        rig_toml)
+    return run_dir, world.shaker
+
+
+def step_table(run_dir: Path, shaker: Any, tracks: pd.DataFrame, clock: pd.DataFrame) -> pd.DataFrame:
+    """The steps as the report states them, plus each step's phase against the twin shaker's true phase
+    (the same tracks and four-parameter fit, the truth's φ in place of the staircase's law)."""
+    run = load_record(run_dir)
+    sweep = typed_events(run.events, SweepEvent)[-1].to_dict()
+    row = clock[clock["segment"] == sweep["segment"]].iloc[0]
+    sp = step_phase.step_phase(tracks, sweep, sweep, fs_hz=60.0, u_clock_s=float(row["u_offset_s"]),
+                               clock_source=str(row["source"]), sync_method="trajectory")
+    assert sp is not None and len(sp.bins), "no steady step"
+    samples = frequency.sweep_samples(tracks, sweep)
+    truth = []
+    for r in sp.bins.itertuples():
+        z = []
+        for _, g in samples.groupby("track"):
+            t, x = g["time_s"].to_numpy(float), g["displacement_mm"].to_numpy(float)
+            m = (t >= r.t_start_s) & (t <= r.t_stop_s)
+            if m.sum() >= step_phase.MIN_SAMPLES:
+                fit = step_phase.fit_step(t[m], x[m], np.asarray(shaker.phase_rad(t[m])), r.frequency_ref_hz)
+                z.append(np.exp(1j * fit.phase_rad))
+        truth.append(float(np.rad2deg(np.angle(np.mean(z)))))
+    return sp.bins.assign(vs_truth_deg=truth)
+
+
+def steps_main(seeds: int, duration_s: float) -> None:
+    """The per-step figures (module docstring, ``--steps``)."""
+    print(f"{'seed':>4} {'clock':>12} {'f Hz':>6} {'e %':>8} {'phase °':>8} {'u °':>6} {'vs truth °':>10} "
+          f"{'delay ms':>9} {'u ms':>7}")
+    worst: dict[str, list[float]] = {"fiducial": [], "start events": []}
+    for seed in range(seeds):
+        with tempfile.TemporaryDirectory() as tmp:
+            run_dir, shaker = steps_run(Path(tmp), 1000 + seed, duration_s)
+            for label, values in worst.items():
+                with start_events_only() if label == "start events" else contextlib.nullcontext():
+                    a = analyse_module.analyse(run_dir, sync="trajectory")
+                table = step_table(run_dir, shaker, a.tracks, a.clock)
+                values.append(float(table["vs_truth_deg"].abs().max()))
+                for f_hz in (10.0, 20.0, 28.0):
+                    r = table.iloc[(table["frequency_ref_hz"] - f_hz).abs().argmin()]
+                    print(f"{seed:>4} {label:>12} {r['frequency_ref_hz']:>6.2f} "
+                          f"{r['amplitude_error_pct']:>+8.3f} {r['phase_deg']:>+8.3f} "
+                          f"{r['u_phase_deg']:>6.3f} {r['vs_truth_deg']:>+10.3f} {r['delay_ms']:>+9.4f} "
+                          f"{r['u_delay_ms']:>7.4f}")
+                print(f"{seed:>4} {label:>12} {len(table)} steps "
+                      f"{table['frequency_ref_hz'].min():.2f}–{table['frequency_ref_hz'].max():.2f} Hz: "
+                      f"max |stated phase| {table['phase_deg'].abs().max():.3f}°, max |vs truth| "
+                      f"{table['vs_truth_deg'].abs().max():.3f}°, max |stated − truth| "
+                      f"{(table['phase_deg'] - table['vs_truth_deg']).abs().max():.4f}°, max u "
+                      f"{table['u_phase_deg'].max():.3f}°")
+    for label, values in worst.items():
+        print(f"{label}: max |phase vs truth| over the steps {max(values):.3f}° (over {seeds} seeds)")
+    print(f"ratio start events / fiducial: {max(worst['start events']) / max(worst['fiducial']):.0f}×")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seeds", type=int, default=3, help="independent runs (twin seeds)")
     parser.add_argument("--duration", type=float, default=24.0, help="sweep rise time (s), 1 → 30 Hz")
     parser.add_argument("--band", action="store_true", help="the certify band step (27 → 50 Hz, shaker)")
+    parser.add_argument("--steps", action="store_true", help="phase per steady step (the shaker staircase)")
     args = parser.parse_args()
     if args.band:
         band_main(args.seeds)
+        return
+    if args.steps:
+        steps_main(args.seeds, args.duration)
         return
     print(f"{'seed':>4} {'clock':>12} {'10 Hz °':>8} {'25 Hz °':>8} {'stated τ ms':>12} {'u(τ) ms':>8}")
     found: dict[str, list[tuple[float, float]]] = {"fiducial": [], "start events": []}

@@ -127,6 +127,21 @@ def test_shaker_sweep_runs_the_generator_sweep_at_constant_amplitude(tmp_path: P
     assert (np.abs(err) <= bound).all(), bins.assign(err_mm=err, bound_mm=bound)[
         ["track", "frequency_hz", "err_mm", "bound_mm"]]
 
+    # phase per steady step against the staircase's law (the twin shaker follows it: truth 0), within 3 ×
+    # its stated u plus the cameras' relative offset's share (10 u, as in test_phase_e2e)
+    cert = read_json(run_dir / "certificate.json")
+    steps = cert["steady_steps"]
+    assert "timing fiducial" in steps["clock_source"] and steps["settle_s"] == pytest.approx(0.1)
+    table = pd.DataFrame(steps["steps"])
+    assert len(table) >= 3 and table["frequency_ref_hz"].max() == pytest.approx(f1)  # the hold is a step
+    u_cameras_s = max(read_json(run_dir / "timing.json")["uncertainty"]["offset_s"].values())
+    f = table["frequency_ref_hz"].to_numpy(float)
+    tolerance = 3 * table["u_phase_deg"].to_numpy(float) + 360.0 * f * 10 * u_cameras_s
+    assert (np.abs(table["phase_deg"].to_numpy(float)) <= tolerance).all(), table
+    assert (np.abs(table["amplitude_error_pct"]) <= 100 * bound.max() / amp_mm).all(), table
+    assert (run_dir / "tables" / "steady_steps.csv").is_file()
+    assert "id='steps'" in (run_dir / "report.html").read_text()
+
 
 @pytest.mark.slow
 def test_shaker_plate_matches_the_twin(tmp_path: Path) -> None:
@@ -233,7 +248,7 @@ def test_staircase_has_the_profiles_phase_at_every_step_end(segments: list[tuple
 
 @pytest.mark.slow
 def test_shaker_fig17_sweep_runs_as_phase_continuous_steps(tmp_path: Path) -> None:
-    amp_mm, f0, f1, rise_s, step_s = 2.0, 2.0, 12.0, 8.0, 0.25
+    amp_mm, f0, f1, rise_s, step_s = 2.0, 2.0, 12.0, 8.0, 0.5
     config = _config(tmp_path, "sweep_column")
     code, run_dir = _run(tmp_path, config, "sweep", f"start_hz={f0}", f"max_hz={f1}", f"duration_s={rise_s}",
                          "hold_s=0.5", f"update_interval_s={step_s}", f"shaker_amplitude_mm={amp_mm}")
@@ -274,6 +289,21 @@ def test_shaker_fig17_sweep_runs_as_phase_continuous_steps(tmp_path: Path) -> No
     bound = 5 * sigma_px * mm_per_px * np.sqrt(2 / n) + 3 * sigma_px * mm_per_px
     assert (np.abs(err) <= bound).all(), bins.assign(err_mm=err, bound_mm=bound)[
         ["track", "frequency_hz", "err_mm", "bound_mm"]]
+
+    # phase per steady step against the staircase's law (the twin shaker follows it: truth 0), within 3 ×
+    # its stated u plus the cameras' relative offset's share (10 u, as in test_phase_e2e)
+    cert = read_json(run_dir / "certificate.json")
+    steps = cert["steady_steps"]
+    assert "timing fiducial" in steps["clock_source"] and steps["settle_s"] == pytest.approx(0.1)
+    table = pd.DataFrame(steps["steps"])
+    assert len(table) >= 3 and table["frequency_ref_hz"].max() == pytest.approx(f1)  # the hold is a step
+    u_cameras_s = max(read_json(run_dir / "timing.json")["uncertainty"]["offset_s"].values())
+    f = table["frequency_ref_hz"].to_numpy(float)
+    tolerance = 3 * table["u_phase_deg"].to_numpy(float) + 360.0 * f * 10 * u_cameras_s
+    assert (np.abs(table["phase_deg"].to_numpy(float)) <= tolerance).all(), table
+    assert (np.abs(table["amplitude_error_pct"]) <= 100 * bound.max() / amp_mm).all(), table
+    assert (run_dir / "tables" / "steady_steps.csv").is_file()
+    assert "id='steps'" in (run_dir / "report.html").read_text()
 
 
 def test_retune_keeps_the_displacement_and_the_phase_and_checks_limits_first() -> None:
