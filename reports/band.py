@@ -35,7 +35,7 @@ import pandas as pd
 from reports import frequency
 from reports.load import RunData
 from reports.select import event_window
-from rig.analysis import fiducial as fiducial_clock
+from rig.analysis.fiducial import CameraDating, own_camera_dating
 from rig.config.analysis import SYNC_METHODS
 from rig.stereo.band import BinFit, PairBand, fit_bin, instants_alpha, pair_band
 from rig.stereo.dlt import DLTCamera
@@ -46,7 +46,6 @@ GATE_PX = 10.0
 CONDITIONING_HZ = 2.0
 LINE_BINS = 8  # free fits (spread over the sweep) that give a marker's line of motion
 MIN_PER_CAMERA = 6
-OWN_FIDUCIAL_PRIOR_S = 2e-3  # another camera's fiducial edges told apart within ± this of the model's date
 BAND_COLUMNS = [
     "track", "bin", "frequency_lo_hz", "frequency_hi_hz", "frequency_hz", "n_observations", "alpha_frames",
     "amplitude_ref_mm", "amplitude_meas_mm", "u_amplitude_mm", "amplitude_error_pct", "u_amplitude_error_pct",
@@ -121,39 +120,38 @@ def _segment_observations(run: RunData, cameras: dict[str, DLTCamera], segment: 
             # as the analysis dates the segment (rig.analysis.analyse.SegmentClock): the line time the
             # timing fiducial measured, then offset and rate — the other cameras by their own fiducial fit
             # when the segment has one (else the timing model's drift, extrapolated from the sync step)
-            own = _own_fiducial_clock(run, cam, segment, r) if cam != timing.reference_camera else None
-            offset, rate, t_ref, line_error = own or (
-                float(r.offset_s), float(getattr(r, "rate", 0.0) or 0.0),
-                float(getattr(r, "t_ref_s", 0.0) or 0.0), float(getattr(r, "line_time_error_s", 0.0) or 0.0))
-            dated = timing if not line_error else dataclasses.replace(
-                timing, line_time_s={c: v + line_error for c, v in timing.line_time_s.items()})
-            t = dated.times(cam, sel["timestamp_s"].to_numpy(float), sel["v_px"].to_numpy(float))
+            ts, rows_px = sel["timestamp_s"].to_numpy(float), sel["v_px"].to_numpy(float)
+            own = _own_dating(run, cam, segment, r, float(np.median(rows_px))) \
+                if cam != timing.reference_camera else None
+            if own is not None:
+                t_ctrl = own.controller_times_s(timing, ts, rows_px)
+            else:
+                line_error = float(getattr(r, "line_time_error_s", 0.0) or 0.0)
+                rate, t_ref = float(getattr(r, "rate", 0.0) or 0.0), float(getattr(r, "t_ref_s", 0.0) or 0.0)
+                dated = timing if not line_error else dataclasses.replace(
+                    timing, line_time_s={c: v + line_error for c, v in timing.line_time_s.items()})
+                t = dated.times(cam, ts, rows_px)
+                t_ctrl = t + float(r.offset_s) + rate * (t - t_ref)
             uv = model.undistort_px(sel[["u_px", "v_px"]].to_numpy(float), strict=False)
-            parts.append(pd.DataFrame({"t_s": t + offset + rate * (t - t_ref), "u": uv[:, 0], "v": uv[:, 1]}))
+            parts.append(pd.DataFrame({"t_s": t_ctrl, "u": uv[:, 0], "v": uv[:, 1]}))
         if parts:
             out[cam] = pd.concat(parts, ignore_index=True)
     return out
 
 
-def _own_fiducial_clock(run: RunData, camera: str, segment: str,
-                        row: Any) -> tuple[float, float, float, float] | None:
-    """(offset at row 0 with half the exposure, rate, t_ref_s, line-time error) of ``camera``'s own timing
-    fiducial fit over the segment (its LED rows, dated by the timing model on the reference clock), with
-    the reference camera's fiducial offset as the prior; None when the segment was not dated by a fiducial
-    or this camera's fit is not usable."""
+def _own_dating(run: RunData, camera: str, segment: str, row: Any, row_px: float) -> CameraDating | None:
+    """``camera``'s own timing fiducial fit over the segment (:func:`own_camera_dating`, the reference
+    camera's fiducial offset as the prior); None when the segment was not dated by a fiducial or this
+    camera's fit is not usable."""
     timing = run.timing
     if timing is None or not str(getattr(row, "source", "")).startswith("timing fiducial"):
         return None
     exposure = ((run.rig.get("cameras") or {}).get(camera) or {}).get("exposure_s")
     exposure_s = float(exposure) if isinstance(exposure, int | float) and 0 <= exposure < 1 else 0.0
-    fid, _ = fiducial_clock.segment_clock(
-        run.folder.run_dir, run.folder.run.events.get("fiducial"), segment, int(row.session), camera,
-        row_start_s=lambda ts, rows: timing.times(camera, ts, rows), exposure_s=exposure_s,
-        prior_offset_s=float(row.offset_s) - 0.5 * exposure_s, prior_half_width_s=OWN_FIDUCIAL_PRIOR_S)
-    if fid is None:
-        return None
-    return (fid.offset_s - fid.line_time_error_s * fid.row_ref_px + 0.5 * exposure_s, fid.rate, fid.t_ref_s,
-            fid.line_time_error_s)
+    own, _ = own_camera_dating(run.folder.run_dir, run.folder.run.events.get("fiducial"), segment,
+                               int(row.session), camera, timing=timing, exposure_s=exposure_s,
+                               prior_offset_s=float(row.offset_s), row_px=row_px)
+    return own
 
 
 def _assign(obs: pd.DataFrame, model: DLTCamera, markers: list[_Marker], reach_mm: np.ndarray,

@@ -66,6 +66,10 @@ def test_sweep_phase_against_the_twins_crank(tmp_path: Path) -> None:
     assert abs(ph["delay_ms"]) <= 3 * ph["u_delay_ms"], ph  # truth: no delay
     assert (run_dir / "tables" / "phase_bins.csv").is_file()
     assert "id='phase'" in (run_dir / "report.html").read_text()
+    # both cameras dated by their own fiducial fit (not the timing model's drift from the sync step)
+    sweep_clock = next(c for c in cert["controller_clock"] if c["segment"] == "sweep")
+    assert "by its own fiducial fit" in sweep_clock["source"], sweep_clock
+    assert "through the timing model" not in sweep_clock["source"], sweep_clock
 
     # the measured motion against the crank's true phase, bin by bin
     u_clock_s = next(c["u_ms"] for c in ph["budget"] if c["component"] == "controller↔camera clock") / 1e3
@@ -90,3 +94,12 @@ def test_sweep_phase_against_the_twins_crank(tmp_path: Path) -> None:
             assert abs(np.rad2deg(delta)) <= tolerance, (lo, np.rad2deg(delta), u_deg, tolerance)
             checked += 1
     assert checked >= 40
+
+    # the hold at 26 Hz is a steady step: its phase against the sweep line (the polled reference's constant
+    # c fitted by reports.phase) within 3 × its stated u of the truth (no delay), plus the cameras' share
+    steps = cert["steady_steps"]
+    (step,) = [r for r in steps["steps"] if abs(r["frequency_ref_hz"] - 26.0) < 1e-6]
+    tolerance = 3 * step["u_phase_deg"] + 360.0 * 26.0 * 10 * u_cameras_s
+    assert abs(step["phase_deg"]) <= tolerance, step
+    assert step["u_reference_deg"] > 0  # the drive's read-back random walk over the sweep is in its budget
+    assert abs(step["frequency_hz"] - 26.0) <= 4 * step["u_frequency_hz"] + 0.005, step

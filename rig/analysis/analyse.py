@@ -63,7 +63,7 @@ from rig.analysis.errors import (
     MissingObservationsError,
     NoPairableTracksError,
 )
-from rig.analysis.fiducial import clock_row, segment_clock
+from rig.analysis.fiducial import CameraDating, clock_row, own_camera_dating, segment_clock
 from rig.analysis.sync_tracks import (
     SYNC_METHODS,
     TRACK_COLUMNS,
@@ -274,6 +274,20 @@ class SegmentClock:
     rate: float = 0.0
     t_ref_s: float = 0.0
     line_time_error_s: float = 0.0
+    others: tuple[CameraDating, ...] = ()  # the other cameras dated by their own fiducial fits
+
+
+def own_dated(sel: dict[str, pd.DataFrame], timing: TimingResult,
+              clock: SegmentClock) -> dict[str, pd.DataFrame]:
+    """``sel`` with every camera of ``clock.others`` re-dated by its own fiducial fit, its ``time_s`` put on
+    the reference camera's clock of the segment (the inverse of ``clock``'s relation)."""
+    out = dict(sel)
+    for d in clock.others:
+        o = sel[d.camera]
+        t_ctrl = d.controller_times_s(timing, o["timestamp_s"].to_numpy(float), o["v_px"].to_numpy(float))
+        t_ref_clock = (t_ctrl - clock.offset_s + clock.rate * clock.t_ref_s) / (1 + clock.rate)
+        out[d.camera] = o.assign(time_s=t_ref_clock)
+    return out
 
 
 def redated(sel: dict[str, pd.DataFrame], timing: TimingResult,
@@ -325,7 +339,8 @@ class _SegmentAnalysis:
             self.notes.append(f"segment {segment!r} (session {session}): no pairable tracks")
             return
         clock = self.date(segment, session, sel)
-        t = triangulate_tracks(redated(sel, self.timing, clock.line_time_error_s), self.cameras, self.timing,
+        dated = own_dated(redated(sel, self.timing, clock.line_time_error_s), self.timing, clock)
+        t = triangulate_tracks(dated, self.cameras, self.timing,
                                sync=self.sync, reference=ref, pairs=p,
                                knot_spacing_frames=self.knot_spacing_frames)
         self.notes += t.attrs.get("notes", [])
@@ -452,9 +467,26 @@ def _segment_dating(folder: RunFolder, timing: TimingResult, offsets: pd.DataFra
         # the instants get the fitted line time (SegmentClock.line_time_error_s): the offset is then the one
         # at row 0; its uncertainty is the one at the markers' median row
         u_offset = fid.offset_at_row_s(float(sel[ref]["v_px"].median()))[1]
-        offset = fid.offset_s - fid.line_time_error_s * fid.row_ref_px
-        return SegmentClock(offset + 0.5 * exposure_s, u_offset, clock_row(ref, fid)["source"], fid.rate,
-                            fid.t_ref_s, fid.line_time_error_s)
+        offset = fid.offset_s - fid.line_time_error_s * fid.row_ref_px + 0.5 * exposure_s
+        others, how = _other_cameras(segment, session, sel, offset)
+        return SegmentClock(offset, u_offset, clock_row(ref, fid)["source"] + how, fid.rate, fid.t_ref_s,
+                            fid.line_time_error_s, others)
+
+    def _other_cameras(segment: str, session: int, sel: dict[str, pd.DataFrame],
+                       offset_s: float) -> tuple[tuple[CameraDating, ...], str]:
+        """The other cameras' own fiducial datings and how each camera was dated (for the clock's source)."""
+        others, how = [], []
+        for cam in sorted(c for c in sel if c != ref):
+            d, why = own_camera_dating(run_dir, run.events.get("fiducial"), segment, session, cam,
+                                       timing=timing, exposure_s=_exposure_s(rig, cam),
+                                       prior_offset_s=offset_s, row_px=float(sel[cam]["v_px"].median()))
+            if d is not None:
+                others.append(d)
+                how.append(f"camera {cam!r} by its own fiducial fit (u {1e6 * d.u_offset_s:.2f} µs)")
+            else:
+                how.append(f"camera {cam!r} through the timing model's offset and drift from the sync step "
+                           f"({why})")
+        return tuple(others), "; " + "; ".join(how) if how else ""
 
     return date
 

@@ -14,6 +14,7 @@ rest. Without a fiducial the start-event method of :mod:`rig.analysis.analyse` r
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -25,12 +26,15 @@ import pandas as pd
 from rig.analysis.errors import AnalysisError
 from rig.stereo.errors import StereoError
 from rig.stereo.fiducial import DriveEdges, FiducialClock, RowSamples, fit_fiducial_clock, square_wave_edges
+from rig.stereo.timing import TimingResult
 
-__all__ = ["ROWS_DIR", "ROW_COLUMNS", "FiducialStart", "camera_clock", "clock_row", "segment_clock"]
+__all__ = ["OWN_FIDUCIAL_PRIOR_S", "ROWS_DIR", "ROW_COLUMNS", "CameraDating", "FiducialStart", "camera_clock",
+           "clock_row", "own_camera_dating", "segment_clock"]
 
 ROW_COLUMNS = ("frame_index", "timestamp_s", "row_px", "brightness_dn")
 ROWS_DIR = "fiducial"  # run folder: fiducial/<camera>/<segment>.<n>.parquet (rig.run.fiducial)
 METHOD = "fiducial"
+OWN_FIDUCIAL_PRIOR_S = 2e-3  # another camera's fiducial edges told apart within ± this of the model's date
 
 
 @dataclass(frozen=True)
@@ -176,3 +180,43 @@ def clock_row(camera: str, fit: FiducialClock) -> dict[str, Any]:
             "source": f"timing fiducial: {fit.n_edges_seen} edges in {fit.n_transition_rows} rows lit "
                       f"part-way (fit ±{1e6 * fit.u_fit_s:.2f} µs; LED rise and edge knowledge included; "
                       f"{drift}{line})"}
+
+
+@dataclass(frozen=True)
+class CameraDating:
+    """One camera's own fiducial dating over a segment: the controller time of its instants t (the timing
+    model's, with the line time plus ``line_time_error_s``) is t + offset_s + rate·(t − t_ref_s);
+    ``u_offset_s`` at the markers' rows."""
+
+    camera: str
+    offset_s: float
+    u_offset_s: float
+    rate: float
+    t_ref_s: float
+    line_time_error_s: float
+
+    def controller_times_s(self, timing: TimingResult, timestamp_s: np.ndarray,
+                           row_px: np.ndarray) -> np.ndarray:
+        """The camera's observations (frame time stamps, rows) on the controller clock."""
+        dated = timing if not self.line_time_error_s else dataclasses.replace(
+            timing, line_time_s={c: v + self.line_time_error_s for c, v in timing.line_time_s.items()})
+        t = dated.times(self.camera, timestamp_s, row_px)
+        return np.asarray(t + self.offset_s + self.rate * (t - self.t_ref_s), dtype=float)
+
+
+def own_camera_dating(run_dir: Path, events: pd.DataFrame | None, segment: str, session: int, camera: str, *,
+                      timing: TimingResult, exposure_s: float, prior_offset_s: float,
+                      row_px: float) -> tuple[CameraDating | None, str]:
+    """``camera``'s own fiducial fit over a segment (its LED rows, dated by the timing model on the reference
+    clock), its edges told apart within ±``OWN_FIDUCIAL_PRIOR_S`` of ``prior_offset_s`` (the reference
+    camera's controller offset at row 0, with half its exposure); (None, why) when not usable. ``row_px``:
+    the markers' median row, where the stated uncertainty holds."""
+    fid, why = segment_clock(run_dir, events, segment, session, camera,
+                             row_start_s=lambda ts, rows: timing.times(camera, ts, rows),
+                             exposure_s=exposure_s,
+                             prior_offset_s=prior_offset_s - 0.5 * exposure_s,
+                             prior_half_width_s=OWN_FIDUCIAL_PRIOR_S)
+    if fid is None:
+        return None, why or "no fiducial rows of this camera in the segment"
+    return CameraDating(camera, fid.offset_s - fid.line_time_error_s * fid.row_ref_px + 0.5 * exposure_s,
+                        fid.offset_at_row_s(row_px)[1], fid.rate, fid.t_ref_s, fid.line_time_error_s), ""
