@@ -87,7 +87,8 @@ def _run_keeping_world(tmp: Path, seed: int, command: list[str], options: list[s
 
 def sweep_run(tmp: Path, seed: int, duration_s: float) -> tuple[Path, Any]:
     """One ``rig run sweep`` on the built-in rig with ``seed``; (run folder, the twin's exciter body)."""
-    run_dir, world = _run_keeping_world(tmp, seed, ["run", "sweep"], ["--set", f"duration_s={duration_s}"])
+    run_dir, world = _run_keeping_world(tmp, seed, ["run", "sweep"],
+                                        ["--no-dashboard", "--set", f"duration_s={duration_s}"])
     return run_dir, world.exciter
 
 
@@ -185,8 +186,8 @@ def steps_run(tmp: Path, seed: int, duration_s: float) -> tuple[Path, Any]:
     column = "[targets.sweep_column]\nbody = "
     rig_toml = SIM_TOML.replace(f'{column}"exciter"', f'{column}"shaker"')
     assert rig_toml != SIM_TOML, "sim.toml: targets.sweep_column.body not found"
-    run_dir, world = _run_keeping_world(tmp, seed, ["run", "sweep"], ["--set", f"duration_s={duration_s}"],
-                                        rig_toml)
+    run_dir, world = _run_keeping_world(tmp, seed, ["run", "sweep"],
+                                        ["--no-dashboard", "--set", f"duration_s={duration_s}"], rig_toml)
     return run_dir, world.shaker
 
 
