@@ -196,9 +196,11 @@ def _run_shaker(ctx: Context, params: Parameters, column: SweepColumnTarget, ste
             poll_interval_s=params.update_interval_s, on_poll=on_poll))
     result = rec.result
     t0 = result.t_start_s
-    # the generator's sweep law, sampled densely enough that straight lines between points follow it
-    # (chord error of the log law ≤ (ln(f1/f0)·Δ/T)²/8 relative: 6e-6 for the defaults; ≤ 2000 points)
-    law = LogSweep(f0, f1, T).points(max(0.05, T / 2000)) if params.shape == "log" else [(0.0, f0), (T, f1)]
+    # the generator's sweep law, sampled densely enough that straight lines between points follow it: a
+    # chord of the log law runs ahead of it by ≤ (ln(f1/f0)·Δ/T)²/8 relative, which the phase accumulates
+    # over the sweep's N cycles (≈ ⅔ of that × N cycles: with Δ = T/2000, 5e-5 cycles = 0.02° for 1 → 30 Hz;
+    # a 0.05-s floor had let a 6-s sweep's reference lead by 0.25°, a spurious 0.06-ms delay); 2000 points
+    law = LogSweep(f0, f1, T).points(T / 2000) if params.shape == "log" else [(0.0, f0), (T, f1)]
     profile = [[t0 + t, f] for t, f in law] + [list(p) for p in result.profile if p[0] > t0 + T]
     ctx.event("sweep", SweepEvent(
         t_start_s=t0, t_stop_s=result.t_stop_s, amplitude_mm=params.shaker_amplitude_mm,
