@@ -8,6 +8,12 @@ frequency back afterwards. A clean stop leaves both at 0 Hz with the stop docume
 after SIGKILL nobody stops them but the drives themselves: their communication-loss stop (armed by the
 station, ``devices.<name>.comm_timeout_s``) trips ``comm_timeout_s`` after the last request — on the
 mock's own clock, from its log — and the output ramps to 0 within the stated bound.
+
+Every watchdog here is wall time between processes, so the ``rig.toml`` sets them for a host that may stall
+(a loaded CI machine): b-CAP WDT 2 s (the robot mock ends a session silent for 4 × WDT = 8 s), heartbeat
+6 s (idle devices probed every 1.5 s), drive communication time-out 5 s. A rig process stopped outright for
+``STALL_S`` (SIGSTOP … SIGCONT) keeps every device: with DENSO's 400 ms WDT the mock ended the session
+after 1.6 s of silence.
 """
 
 from __future__ import annotations
@@ -35,7 +41,10 @@ SPIN = ROOT / "tests" / "spin_procedure.py"
 FAULT, FREQ_OUT = 0x2100, 0x2103  # docs/exciter.md register map (wire addresses)
 UNIT = {"exciter": 1, "rotor": 2}  # sim.toml and the stand-alone mocks' defaults
 FAULT_COMM_TIMEOUT = 0x42  # the mock drive's CE10
-COMM_TIMEOUT_S = 2.0  # rig.toml default (devices.<name>.comm_timeout_s)
+WDT_MS = 2000  # devices.robot.wdt_ms (default 400)
+HEARTBEAT_S = 6.0  # station.heartbeat_timeout_s (default 2): above the WDT
+COMM_TIMEOUT_S = 5.0  # devices.<name>.comm_timeout_s (default 2): above 2 × the 1.5 s probe interval
+STALL_S = 3.0  # a stall every watchdog above tolerates: the drives' 5 s less a probe interval, at least
 TRIP = re.compile(r"drive fault 0x42 at t = ([\d.]+) s \(last request t = ([\d.]+) s\): output ([\d.]+) Hz "
                   r"ramps to 0 at ([\d.]+) Hz/s, at rest by t = ([\d.]+) s")  # the mock drive's log
 WAIT_S = 120.0  # generous bound for waits on a loaded machine; each ends as soon as its event is seen
@@ -76,15 +85,19 @@ def _start_mock(tmp_path: Path, name: str) -> Mock:
 
 def _config(tmp_path: Path, ports: dict[str, int]) -> Path:
     """The built-in rig's configuration with the robot, exciter and rotor on the stand-alone mocks (each on
-    its own TCP port) and the station clock paced at real time, like the mocks."""
+    its own TCP port), the station clock paced at real time, like the mocks, and the watchdogs above."""
     text = (ROOT / "rig" / "data" / "sim.toml").read_text()
     tables = text.split("\n[")
     for i, table in enumerate(tables):
         name = table.split("]", 1)[0]
         if name in ("devices.robot", "devices.exciter", "devices.rotor"):
-            address = f'address = "tcp://127.0.0.1:{ports[name.split(".")[1]]}"'
-            table_at = re.sub(r'address = "mock://\w+"', address, table)
-            tables[i] = table_at  # unit ids as in sim.toml: the mocks' defaults (exciter 1, rotor 2)
+            device = name.split(".")[1]
+            address = f'address = "tcp://127.0.0.1:{ports[device]}"'
+            address += f"\nwdt_ms = {WDT_MS}" if device == "robot" else f"\ncomm_timeout_s = {COMM_TIMEOUT_S}"
+            # unit ids as in sim.toml: the mocks' defaults (exciter 1, rotor 2)
+            tables[i] = re.sub(r'address = "mock://\w+"', address, table)
+        elif name == "station":
+            tables[i] = table.replace("\n", f"\nheartbeat_timeout_s = {HEARTBEAT_S}\n", 1)
         elif name == "sim":
             tables[i] = table.replace("\n", "\nrate = 1.0\n", 1)
     path = tmp_path / "rig.toml"
@@ -147,6 +160,22 @@ def _wait_for_file(path: Path, proc: subprocess.Popen[str], needle: str) -> None
     raise AssertionError(f"{needle} never appeared in {path.name}")
 
 
+def _count(run_dir: Path, stream: str) -> int:
+    return (run_dir / "record.jsonl").read_text().count(f'"stream":"{stream}"')
+
+
+def _wait_for_count(path: Path, proc: subprocess.Popen[str], needle: str, count: int) -> None:
+    """Until ``needle`` appears ``count`` times in ``path`` (rig still running)."""
+    deadline = time.monotonic() + WAIT_S
+    while time.monotonic() < deadline:
+        if path.read_text().count(needle) >= count:
+            return
+        assert proc.poll() is None, proc.communicate()
+        time.sleep(0.05)
+    proc.kill()
+    raise AssertionError(f"{needle} never appeared {count} times in {path.name}")
+
+
 def _read(mock: Mock, address: int) -> int:
     """One FC03 with a stock pymodbus client (not our driver)."""
     client = ModbusTcpClient("127.0.0.1", port=mock.port, timeout=5.0, retries=1)
@@ -163,11 +192,17 @@ def _documents(run_dir: Path) -> list[dict]:
     return [json.loads(line) for line in (run_dir / "record.jsonl").read_text().splitlines() if line.strip()]
 
 
-def _signal_and_check(rig: StandaloneRig, phase: str, signals: list[signal.Signals]) -> None:
+def _signal_and_check(rig: StandaloneRig, phase: str, signals: list[signal.Signals], *,
+                      stall: bool = False) -> None:
     # one signal in the report step (no checkpoint) takes effect when the step ends: keep it short then
     settings = (f"report_s={600 if len(signals) > 1 else 8}",) if phase == "report" else ()
     proc, run_dir = _start_rig(rig, "hold_s=0" if phase == "report" else "hold_s=600", *settings)
     _wait_for(run_dir, proc, '"stream":"report_tick"' if phase == "report" else '"stream":"hold"')
+    if stall:  # the whole rig process stopped, as a starved one is, then carrying on
+        proc.send_signal(signal.SIGSTOP)
+        time.sleep(STALL_S)  # the stall itself (nothing is timed)
+        proc.send_signal(signal.SIGCONT)
+        _wait_for_count(run_dir / "record.jsonl", proc, '"stream":"hold"', _count(run_dir, "hold") + 3)
     for i, sig in enumerate(signals):
         if i:  # only once rig handled the first: two signals sent before that are one (POSIX)
             _wait_for_file(rig.config.parent / "rig.stderr", proc, "abort requested; stopping at the next")
@@ -178,6 +213,7 @@ def _signal_and_check(rig: StandaloneRig, phase: str, signals: list[signal.Signa
     stop = [d for d in _documents(run_dir) if d["type"] == "stop"]
     assert len(stop) == 1 and stop[0]["signal"] == signals[0].name and stop[0]["exit_status"] == "abort"
     assert stop[0]["safe_state_failures"] == []
+    assert "client silent" not in rig.mocks["robot"].log()  # the controller kept the session to the end
     for device in ("exciter", "rotor"):
         assert _read(rig.mocks[device], FREQ_OUT) == 0, device  # at rest, read by a stock client
         assert _read(rig.mocks[device], FAULT) == 0, device  # stopped by the controller, no comm fault
@@ -195,6 +231,14 @@ def _signal_and_check(rig: StandaloneRig, phase: str, signals: list[signal.Signa
 def test_a_stop_signal_leaves_both_drives_at_rest(standalone: StandaloneRig, phase: str,
                                                   signals: list[signal.Signals]) -> None:
     _signal_and_check(standalone, phase, signals)
+
+
+@pytest.mark.slow
+def test_a_stalled_rig_keeps_every_device_then_stops_them_safely(standalone: StandaloneRig) -> None:
+    """The rig process stopped for STALL_S mid-hold (a starved host): no watchdog trips — the robot mock
+    keeps the session, the drives do not stop themselves, rig's heartbeat loses nothing — and a SIGTERM
+    afterwards is the usual safe abort."""
+    _signal_and_check(standalone, "hold", [signal.SIGTERM], stall=True)
 
 
 @pytest.mark.slow
@@ -237,9 +281,9 @@ def test_sigkill_mid_run_the_drives_stop_themselves_within_the_bound(standalone:
 @pytest.mark.slow
 def test_heartbeat_probes_keep_the_drives_armed_but_running_through_a_quiet_step(
         standalone: StandaloneRig) -> None:
-    """No poll for 6 s (three comm time-outs) in the report step: the watchdog's probes are the
-    keep-alives, the drives do not stop themselves, the run passes, and a clean close disarms them."""
-    proc, _run_dir = _start_rig(standalone, "hold_s=0", "report_s=6")
+    """No poll for two comm time-outs in the report step: the watchdog's probes are the keep-alives, the
+    drives do not stop themselves, the run passes, and a clean close disarms them."""
+    proc, _run_dir = _start_rig(standalone, "hold_s=0", f"report_s={2 * COMM_TIMEOUT_S:g}")
     out, _ = proc.communicate(timeout=WAIT_S)
     assert proc.returncode == 0, (out, (standalone.config.parent / "rig.stderr").read_text())
     with contextlib.suppress(FileNotFoundError):

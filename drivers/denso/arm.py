@@ -253,16 +253,19 @@ class DensoArm(Arm):
             raise ValueError(f"make_safe_deadline_s={make_safe_deadline_s}: must be > 0 s")
         self.make_safe_deadline_s = float(make_safe_deadline_s)
         self.last_make_safe: HaltReport | None = None
+        self.wdt_ms: int | None = None  # the watchdog the session was opened with (open())
         self.heartbeat_monitor = Heartbeat("robot", client.link.contact, self._probe,
                                            timeout_s=heartbeat_timeout_s)
 
     # ------------------------------------------------------------------------------------ session
     def open(self, *, wdt_ms: int | None = 400) -> None:
-        """Service_Start … TakeArm, Motor on, ExtSpeed 100 % with the acceleration cap."""
+        """Service_Start with the watchdog ``wdt_ms`` (keep-alive period, ms; None: none — rig.toml's
+        ``devices.robot.wdt_ms``) … TakeArm, Motor on, ExtSpeed 100 % with the acceleration cap."""
         if wdt_ms is not None and wdt_ms / 1000.0 >= self.heartbeat_monitor.timeout_s:
             raise ValueError(f"wdt_ms={wdt_ms}: the keep-alive period must be shorter than the heartbeat "
                              f"timeout {self.heartbeat_monitor.timeout_s:g} s")
         self.client.open_robot(wdt_ms=wdt_ms, ext_speed_percent=100.0, ext_accel_percent=self.accel_percent)
+        self.wdt_ms = wdt_ms
         self._pose_known = np.asarray(self.client.cur_pos()[:6], dtype=float)  # the first move starts here
 
     def close(self) -> None:
@@ -465,6 +468,7 @@ class DensoArm(Arm):
             "transport": link.transport.url,
             "serial_line": link.serial_line,
             "timeout_s": link.timeout_s,
+            "wdt_ms": self.wdt_ms,
             "envelope": {type(self.envelope).__name__: asdict(self.envelope)},
             "max_speed_mm_s": self.max_speed_mm_s,
             "speed_mm_s": self.speed_mm_s,

@@ -25,6 +25,11 @@ class RobotConfig:
     wait_mode: str | None = field(default=None, metadata=spec(choices=("next", "blocking"), doc="move end: "
                                   "NEXT + @BUSY_STATUS polls, halt works mid-move (rc8) or blocking (rc7m)"))
     busy_poll_interval_s: float = field(default=0.05, metadata=spec(lo=0.0, lo_open=True, hi=5.0))
+    wdt_ms: int = field(default=400, metadata=spec(lo=80, hi=60000, doc=(
+        "b-CAP watchdog (Service_Start WDT, ms): the controller sends keep-alives every wdt_ms during a "
+        "blocking call; the stand-alone mock ends a session silent for 4 × wdt_ms (halt, motor off). Below "
+        "station.heartbeat_timeout_s, and 1.5 × wdt_ms within timeout_s. Raise it on a host that may stall "
+        "the controller for longer than 4 × wdt_ms")))
 
 
 @dataclass(frozen=True)

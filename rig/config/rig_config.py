@@ -175,6 +175,7 @@ def _cross_check(cfg: RigConfig) -> None:
                               f"{dev.comm_timeout_s:g} s must exceed twice the heartbeat probe interval "
                               f"(station.heartbeat_timeout_s / 4 = {probe_interval_s:g} s), or an idle drive "
                               "would stop itself")
+    _check_robot_watchdog(cfg)
     if cfg.devices.robot is not None and cfg.limits.robot is not None \
             and cfg.limits.robot.max_speed_mm_s > cfg.devices.robot.full_speed_mm_s:
         raise ConfigError("limits.robot.max_speed_mm_s", f"{cfg.limits.robot.max_speed_mm_s:g} exceeds "
@@ -192,6 +193,23 @@ def _cross_check(cfg: RigConfig) -> None:
     _check_distinct_endpoints(cfg)
     _check_configured_poses(cfg)
     _check_fiducial(cfg)
+
+
+def _check_robot_watchdog(cfg: RigConfig) -> None:
+    """``devices.robot.wdt_ms`` against the times that must exceed it: the heartbeat (a blocking move's only
+    packets are the keep-alives) and the b-CAP receive time-out (each keep-alive restarts it)."""
+    robot = cfg.devices.robot
+    if robot is None:
+        return
+    wdt_s = robot.wdt_ms / 1000.0
+    if wdt_s >= cfg.station.heartbeat_timeout_s:
+        raise ConfigError("devices.robot.wdt_ms", f"{robot.wdt_ms} ms; allowed: 80 ≤ value < "
+                          f"station.heartbeat_timeout_s = {cfg.station.heartbeat_timeout_s * 1000.0:g} ms "
+                          "(keep-alives must arrive before the heartbeat counts the controller lost)")
+    if 1.5 * wdt_s > robot.timeout_s:
+        raise ConfigError("devices.robot.wdt_ms", f"{robot.wdt_ms} ms; allowed: 80 ≤ value ≤ "
+                          f"devices.robot.timeout_s / 1.5 = {robot.timeout_s / 1.5 * 1000.0:g} ms (the "
+                          "receive time-out must exceed 1.5 × WDT so keep-alives can arrive)")
 
 
 def _check_fiducial(cfg: RigConfig) -> None:

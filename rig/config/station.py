@@ -16,4 +16,4 @@ class StationConfig:
     heartbeat_timeout_s: float = field(default=2.0, metadata=spec(lo=0.5, hi=60.0, doc=(
         "Wall seconds without any reply from a device (b-CAP keep-alives count) before the watchdog trips "
         "the interlock (exit 3); an idle device is probed after a quarter of it. Above the b-CAP WDT "
-        "(0.4 s).")))
+        "(devices.robot.wdt_ms).")))

@@ -239,7 +239,7 @@ def _build_robot(st: Station, cfg: RigConfig) -> None:
                    max_accel_mm_s2=lim.max_accel_mm_s2, full_accel_mm_s2=rc.full_accel_mm_s2,
                    heartbeat_timeout_s=cfg.station.heartbeat_timeout_s,
                    wait=WaitSettings(wait_mode=wait_mode, poll_interval_s=rc.busy_poll_interval_s))
-    arm.open()
+    arm.open(wdt_ms=rc.wdt_ms)
     st._closers.append(("robot session", arm.close))
     st.add("robot", Role.ARM, arm, url)
 
