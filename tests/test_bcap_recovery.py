@@ -20,7 +20,7 @@ from drivers.denso.motion import WaitSettings
 from drivers.mock.bcap_server import BcapMockServer
 from drivers.sim.clock import VirtualClock
 from drivers.sim.world import World
-from drivers.transport import open_transport
+from drivers.transport import Transport, open_transport
 
 ENVELOPE = BoxEnvelope((100.0, 600.0), (-300.0, 300.0), (50.0, 600.0))
 
@@ -28,10 +28,19 @@ ENVELOPE = BoxEnvelope((100.0, 600.0), (-300.0, 300.0), (50.0, 600.0))
 def _arm(server: BcapMockServer, world: World, timeout_s: float = 0.5, wdt_ms: int | None = None,
          **kwargs) -> DensoArm:
     """An arm opened (Service_Start … TakeArm) with a 30 s reply time-out — a loaded machine may answer the
-    set-up late, and that is no fault — then given ``timeout_s`` for the test's faults."""
-    transport = open_transport(f"tcp://127.0.0.1:{server.serve_tcp()}", 30.0)
-    arm = DensoArm(BcapClient(transport, timeout_s=30.0), envelope=ENVELOPE, max_speed_mm_s=250.0,
-                   position_tolerance_mm=0.01, clock=world.clock, **kwargs)
+    set-up late, and that is no fault — then given ``timeout_s`` for the test's faults. A fresh link (a
+    make-safe's reconnect) gets the 30 s back as it opens: it is healthy, however late a loaded host
+    answers it; only the faulty link is judged by ``timeout_s``."""
+    url = f"tcp://127.0.0.1:{server.serve_tcp()}"
+    client: BcapClient
+
+    def reopen() -> Transport:
+        client.link.timeout_s = 30.0
+        return open_transport(url, 30.0)
+
+    client = BcapClient(open_transport(url, 30.0), timeout_s=30.0, reopen=reopen)
+    arm = DensoArm(client, envelope=ENVELOPE, max_speed_mm_s=250.0, position_tolerance_mm=0.01,
+                   clock=world.clock, **kwargs)
     arm.open(wdt_ms=wdt_ms)
     arm.client.link.timeout_s = timeout_s
     return arm
@@ -118,6 +127,33 @@ def test_make_safe_halts_on_a_fresh_link_when_the_current_one_fails(rig, fault: 
     fresh = sent[len(sent) - 1 - sent[::-1].index(bcap.SERVICE_START):]
     assert fresh == [bcap.SERVICE_START, bcap.CONTROLLER_CONNECT, bcap.CONTROLLER_GET_ROBOT, bcap.ROBOT_HALT]
     assert arm.snapshot()["last_make_safe"]["fresh_link"] is True
+
+
+def test_a_client_reconnecting_at_once_is_not_refused_for_its_own_closed_session() -> None:
+    """The controller ends a session whose client closed its connection as soon as another client asks,
+    even while the thread serving it is still busy with a late reply (a make-safe after a call that got no
+    answer: the old session must not hold the controller against the fresh link, E_MAX_CONNECT)."""
+    world = World(VirtualClock())
+    with BcapMockServer(world.robot, world.clock) as server:
+        url = f"tcp://127.0.0.1:{server.serve_tcp()}"
+        old = BcapClient(open_transport(url, 30.0), timeout_s=30.0)
+        old.service_start()
+        old.controller_connect()
+        server.faults.delay_reply_s, server.faults.delay_function = 60.0, bcap.CONTROLLER_EXECUTE
+        old.link.timeout_s = 0.2
+        with pytest.raises(hr.BcapTimeoutError):
+            old.clear_error()  # answered 60 s late: the session's thread waits in there meanwhile
+        deadline = time.monotonic() + 30.0
+        while not server.requests or server.requests[-1][2] != bcap.CONTROLLER_EXECUTE:
+            assert time.monotonic() < deadline  # the request was taken: nothing of it is left unread
+            time.sleep(0.01)
+        old.link.transport.close()
+        fresh = BcapClient(open_transport(url, 30.0), timeout_s=30.0)
+        try:
+            fresh.service_start()  # E_MAX_CONNECT when the closed session still held the controller
+            assert fresh.controller_connect() is not None  # the fresh client holds the controller
+        finally:
+            fresh.link.transport.close()
 
 
 def test_make_safe_reports_failure_when_the_controller_is_gone() -> None:

@@ -30,6 +30,11 @@ class Channel(abc.ABC):
     def close(self) -> None:
         """Release the channel (idempotent)."""
 
+    def peer_closed(self) -> bool:
+        """True when the client has closed its end and nothing it sent is left unread (a connection's end
+        seen without waiting for the thread that reads it); False when unknown (no connection to end)."""
+        return False
+
 
 class TcpChannel(Channel):
     def __init__(self, sock: socket.socket) -> None:
@@ -54,6 +59,14 @@ class TcpChannel(Channel):
             self.sock.sendall(data)
         except OSError as exc:
             raise EOFError(str(exc)) from exc
+
+    def peer_closed(self) -> bool:
+        try:
+            readable, _, _ = select.select([self.sock], [], [], 0)
+            # readable: data or the end; peeked, so the session's own reader still gets what it holds
+            return bool(readable) and self.sock.recv(1, socket.MSG_PEEK | socket.MSG_DONTWAIT) == b""
+        except (OSError, ValueError):  # reset, or the socket closed here meanwhile (fd -1)
+            return True
 
     def close(self) -> None:
         with contextlib.suppress(OSError):

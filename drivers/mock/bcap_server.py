@@ -203,9 +203,12 @@ class _Session:
         return True
 
     def _drop_connection(self) -> None:
-        """The controller goes away (fault): it stops the arm first, as a controller would."""
+        """The controller goes away (fault), or the client did during a blocking call: the arm is stopped
+        first, as a controller would — unless a new client already holds it (its session was ended and the
+        arm stopped when that client took over: :meth:`BcapMockServer._claim`)."""
         with self.server.lock:
-            self.server.state.release_all()
+            if self.server._active in (self, None):
+                self.server.state.release_all()
         self.stop()
 
     def _bare(self, packet: w.Packet, code: int) -> None:
@@ -426,8 +429,16 @@ class BcapMockServer:
             return self._active.channel.name if self._active is not None else None
 
     def _claim(self, session: _Session) -> bool:
-        """True if ``session`` holds the controller (taking it when free); False if another client does."""
+        """True if ``session`` holds the controller (taking it when free); False if another client does.
+        A holder whose client closed its connection is ended here, at once (arm stopped, handles dropped)
+        rather than when its own thread next reads: a client reconnecting at once (a make-safe on a fresh
+        link) is never refused for the session it has just closed, however late that thread runs."""
         with self.lock:
+            holder = self._active
+            if holder is not None and holder is not session and holder.channel.peer_closed():
+                log.info("%s: client gone; session ended for %s", holder.channel.name, session.channel.name)
+                self.state.release_all()
+                self._active = None
             if self._active is None:
                 self._active = session
                 log.info("%s: holds the controller", session.channel.name)
