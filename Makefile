@@ -6,6 +6,8 @@ STAMP := $(VENV)/.installed
 # pytest-xdist: one worker per core, each test file whole on one worker (module fixtures built once), in
 # tests/conftest.py's order (files with slow cases first) rather than xdist's (most tests first)
 PYTEST_PARALLEL ?= -n auto --dist loadfile --no-loadscope-reorder
+# the test files to run (default: all); e.g. make test-load TESTS="tests/test_bcap_recovery.py"
+TESTS ?=
 
 .PHONY: certify test test-load lint bench browser
 
@@ -22,11 +24,11 @@ certify: $(STAMP)
 test: $(STAMP) browser
 	$(VENV)/bin/ruff check .
 	$(VENV)/bin/mypy  # every package ([tool.mypy]: strict for rig.stereo, rig.config, rig.record, drivers)
-	$(VENV)/bin/python -m pytest -q $(PYTEST_PARALLEL)
+	$(VENV)/bin/python -m pytest -q $(PYTEST_PARALLEL) $(TESTS)
 
 # the same suite with a busy loop on every core (tests/conftest.py): timing must not depend on an idle machine
 test-load: $(STAMP) browser
-	RIG_TEST_LOAD=1 $(VENV)/bin/python -m pytest -q $(PYTEST_PARALLEL)
+	RIG_TEST_LOAD=1 $(VENV)/bin/python -m pytest -q $(PYTEST_PARALLEL) $(TESTS)
 
 bench: $(STAMP)
 	for b in benchmarks/*.py; do case $$b in benchmarks/fuzz_*) continue;; esac; \

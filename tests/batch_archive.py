@@ -2,15 +2,21 @@
 
 Two camera pairs film a vibrating marker column (half-size sensors, the simulated rig's geometry): each
 camera writes consecutive segment files named by their start time (``left_20261201-120000.mp4``, …); the
-right camera runs ``RIGHT_DELAY_S`` behind the left. One calibration (from the demo plate videos, through
-``rig calibrate``) serves both pairs: they share the simulated rig's camera geometry.
+right camera runs ``RIGHT_DELAY_S`` behind the left. One calibration serves both pairs: they share the
+simulated rig's camera geometry (the demo plate videos through ``rig calibrate``, or one given, e.g. the
+session's ``calibrated_site``). Each pair also gets ``timing.json``, the twin's true timing of its first
+segment, for manifests whose tests are not about the timing estimate (a task then costs ≈ 1 CPU-s, not 11).
 """
 
 from __future__ import annotations
 
 import datetime as dt
+import json
+import shutil
 from dataclasses import dataclass
 from pathlib import Path
+
+import measure_twin as mt
 
 from drivers.sim.clock import VirtualClock
 from drivers.sim.world import World, WorldLayout
@@ -27,8 +33,10 @@ PAIRS = {"p1": (5.0, 3, 11), "p2": (7.0, 2, 12)}  # name: (frequency Hz, segment
 @dataclass(frozen=True)
 class Archive:
     folder: Path
-    manifest: Path  # both pairs
-    manifest_of: dict[str, Path]  # one pair alone (smaller batches for the slower tests)
+    manifest: Path  # both pairs, each segment's timing estimated from its videos
+    manifest_mixed: Path  # both pairs: p1 with its timing.json, p2 estimated
+    manifest_of: dict[str, Path]  # one pair alone, with its timing.json (smaller, cheaper batches)
+    timing_of: dict[str, Path]  # each pair's timing.json (the twin's truth for its first segment)
     calibration: Path
     frequency_hz: dict[str, float]
     amplitude_mm: float
@@ -40,11 +48,16 @@ def _stamp(t: dt.datetime) -> str:
 
 def _pair_segments(folder: Path, frequency_hz: float, segments: int, seed: int,
                    segment_s: float = SEGMENT_S) -> float:
+    """The pair's segments in ``folder/left``, ``folder/right`` and ``folder/timing.json`` (the true timing of
+    the first segment; later ones drift from it by the cameras' clock-rate difference, 47 ppm); the crank
+    radius (mm)."""
     world = World(VirtualClock(), seed=seed, layout=WorldLayout(initial_scene="sweep_column"))
     world.exciter.set_frequency(0.0, frequency_hz)
     left, right = camera_pair(world)
     (folder / "left").mkdir(parents=True)
     (folder / "right").mkdir(parents=True)
+    truth = mt.truth_timing(left, right, SPINUP_S, SPINUP_S + RIGHT_DELAY_S)
+    (folder / "timing.json").write_text(json.dumps(truth), encoding="utf-8")
     for k in range(segments):
         t0 = SPINUP_S + k * segment_s
         name = _stamp(ARCHIVE_START + dt.timedelta(seconds=k * segment_s))
@@ -63,29 +76,41 @@ def write_calibration(folder: Path) -> Path:
     return calibration
 
 
-def write_long_pair(folder: Path, seconds: float, frequency_hz: float = 5.0, seed: int = 13) -> Path:
+def _calibration(folder: Path, calibration: Path | None) -> Path:
+    """``folder/calibration.json``: a copy of ``calibration``, or made from the demo plate videos."""
+    if calibration is None:
+        return write_calibration(folder)
+    return Path(shutil.copyfile(calibration, folder / "calibration.json"))
+
+
+def write_long_pair(folder: Path, seconds: float, frequency_hz: float = 5.0, seed: int = 13,
+                    calibration: Path | None = None) -> Path:
     """One long recording per camera (``pair/left/left_….mp4``, ``pair/right/…``) of the vibrating column
-    and its calibration in ``folder``; returns the calibration's path."""
-    calibration = write_calibration(folder)
+    and its calibration (``calibration`` copied, or made) in ``folder``; returns the calibration's path."""
+    calibration = _calibration(folder, calibration)
     _pair_segments(folder / "pair", frequency_hz, 1, seed, segment_s=seconds)
     return calibration
 
 
-def write_archive(folder: Path) -> Archive:
-    """The archive, its calibration and ``manifest.toml`` in ``folder``."""
-    calibration = write_calibration(folder)
+def write_archive(folder: Path, calibration: Path | None = None) -> Archive:
+    """The archive, its calibration (``calibration`` copied, or made) and its manifests in ``folder``."""
+    calibration = _calibration(folder, calibration)
     amplitude_mm = 0.0
-    pairs = {}
     for name, (frequency_hz, segments, seed) in PAIRS.items():
         amplitude_mm = _pair_segments(folder / name, frequency_hz, segments, seed)
-        pairs[name] = (f'[[sites.pairs]]\nname = "{name}"\ncalibration = "calibration.json"\n'
-                       f'left = ["{name}/left/*.mp4"]\nright = ["{name}/right/*.mp4"]\n')
 
-    def manifest(path: Path, names: list[str]) -> Path:
+    def pair(name: str, given_timing: bool) -> str:
+        return (f'[[sites.pairs]]\nname = "{name}"\ncalibration = "calibration.json"\n'
+                f'left = ["{name}/left/*.mp4"]\nright = ["{name}/right/*.mp4"]\n'
+                + (f'timing = "{name}/timing.json"\n' if given_timing else ""))
+
+    def manifest(path: Path, pairs: dict[str, bool]) -> Path:
         path.write_text('[batch]\nname = "test-archive"\nmax_retries = 1\n\n[[sites]]\nname = "bridge"\n\n'
-                        + "\n".join(pairs[n] for n in names), encoding="utf-8")
+                        + "\n".join(pair(n, given) for n, given in pairs.items()), encoding="utf-8")
         return path
 
-    return Archive(folder, manifest(folder / "manifest.toml", list(pairs)),
-                   {n: manifest(folder / f"manifest_{n}.toml", [n]) for n in pairs}, calibration,
+    return Archive(folder, manifest(folder / "manifest.toml", dict.fromkeys(PAIRS, False)),
+                   manifest(folder / "manifest_mixed.toml", {"p1": True, "p2": False}),
+                   {n: manifest(folder / f"manifest_{n}.toml", {n: True}) for n in PAIRS},
+                   {n: folder / n / "timing.json" for n in PAIRS}, calibration,
                    {n: f for n, (f, _, _) in PAIRS.items()}, amplitude_mm)

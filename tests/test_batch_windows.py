@@ -31,9 +31,9 @@ def _manifest(folder: Path, window_s: float = WINDOW_S, overlap_s: float = OVERL
 
 
 @pytest.fixture(scope="module")
-def long_pair(tmp_path_factory: pytest.TempPathFactory) -> Path:
+def long_pair(tmp_path_factory: pytest.TempPathFactory, calibrated_site: dict) -> Path:
     folder = tmp_path_factory.mktemp("long")
-    write_long_pair(folder, SECONDS)
+    write_long_pair(folder, SECONDS, calibration=calibrated_site["calibration"])
     return folder
 
 

@@ -22,12 +22,14 @@ A recording longer than two windows (``window_s`` of its pair in the manifest) i
 :mod:`drivers.camera.seek`, so a window late in a long file costs no more than an early one), the
 summary over the window alone and the displacement series trimmed to it, so consecutive windows join
 without a duplicate or a gap. Each window's timing is estimated on its own and checked for continuity with
-the others like the segments' (below).
+the others like the segments' (below) — unless the pair gives a ``timing`` file, which then serves every
+task of the pair (``rig measure --timing``), with no continuity check.
 
 A task is named by the hash of its inputs (video names, sizes and modification times, the calibration's
-bytes, the options, the software version): a rerun skips every task whose outcome file says ``done`` for
-the same inputs, so a batch killed at any instant carries on where it stopped. A failing task is retried
-``max_retries`` times by Dask, then reported as failed (with the error) — never silently dropped.
+and the timing file's bytes, the options, the software version): a rerun skips every task whose outcome
+file says ``done`` for the same inputs, so a batch killed at any instant carries on where it stopped. A
+failing task is retried ``max_retries`` times by Dask, then reported as failed (with the error) — never
+silently dropped.
 
 The engine is ``dask.distributed``: without ``scheduler`` a ``LocalCluster`` of one single-threaded worker
 process per core on 127.0.0.1; with ``scheduler="tcp://HOST:8786"`` the same tasks go to an existing
@@ -81,6 +83,7 @@ class Task:
     # end is inf), measured overlap_s longer at both ends and trimmed back to it; None: the whole files
     core_s: tuple[float, float] | None = None
     overlap_s: float = 0.0
+    timing: Path | None = None  # the pair's timing.json (rig measure --timing); None: estimated per task
 
     @property
     def partition(self) -> str:
@@ -120,6 +123,8 @@ def task_id(pair: PairSpec, left: Segment, right: Segment,
     if core_s is not None:
         identity["core_s"] = [core_s[0], str(core_s[1])]  # str: inf is no JSON number
         identity["overlap_s"] = pair.overlap_s
+    if pair.timing is not None:
+        identity["timing"] = hashlib.sha256(pair.timing.read_bytes()).hexdigest()
     return hashlib.sha256(json.dumps(identity, sort_keys=True).encode()).hexdigest()[:20]
 
 
@@ -160,7 +165,8 @@ def plan(manifest: BatchManifest) -> tuple[list[Task], list[Segment]]:
                            start_utc=left.start_utc + dt.timedelta(seconds=core[0] if core else 0.0),
                            left=left.path, right=right.path, calibration=pair.calibration, sync=pair.sync,
                            reference_markers=pair.reference_markers, static_mm=pair.static_mm,
-                           core_s=core if core and len(cores) > 1 else None, overlap_s=pair.overlap_s)
+                           core_s=core if core and len(cores) > 1 else None, overlap_s=pair.overlap_s,
+                           timing=pair.timing)
                       for core in cores]
     return tasks, alone
 
@@ -214,7 +220,7 @@ def run_task(task: Task, out_dir: str) -> dict[str, Any]:
         last_s = end_s if math.isfinite(end_s) else sys.float_info.max
         options = dataclasses.replace(options, extract=extract, window_s=(start_s, last_s))
     result = measure_videos({"left": task.left, "right": task.right}, task.calibration, work, options=options,
-                            force=True)  # the task's own work folder: a retry replaces what it left
+                            timing=task.timing, force=True)  # its own work folder: a retry replaces it
     timing = _timing_columns(result.timing, "left")
     displacement = result.displacement
     if task.core_s is not None:  # trimmed to the core: windows join without a duplicate or a gap
@@ -240,6 +246,7 @@ def run_task(task: Task, out_dir: str) -> dict[str, Any]:
                "start_utc": task.start_utc.isoformat(), "left": str(task.left), "right": str(task.right),
                "status": "done", "seconds": time.perf_counter() - t0, "video_s": video_s,
                "problems": result.problems, "timing": timing,
+               "timing_file": None if task.timing is None else str(task.timing),
                "core_s": None if task.core_s is None else [task.core_s[0], task.core_s[1]
                                                            if math.isfinite(task.core_s[1]) else None],
                "targets": int((summary["role"] == "target").sum()) if "role" in summary else None}
@@ -408,11 +415,13 @@ def timing_continuity(outcomes: Iterable[dict[str, Any]], frame_period_s: float 
     between segments: ``φ_k ≈ φ_{k−1} + drift·(t_k − t_{k−1})`` (mod T), with drift the weighted mean of
     the segments' estimates (weights 1/u²). A residual beyond ``JUMP_SIGMAS`` standard uncertainties (and
     beyond ``JUMP_FLOOR_S``) is a jump — a camera restarted, dropped frames, or a wrong estimate —
-    reported, not smoothed over. The first segment of a pair has no residual.
+    reported, not smoothed over. The first segment of a pair has no residual. Segments measured with a given
+    timing (``timing_file``) are left out: their timing was not estimated, there is nothing to check.
     """
     rows = []
     keys = ("site", "pair", "start_utc", "task_id")
-    frame = pd.DataFrame([{**{k: o[k] for k in keys}, **o.get("timing", {})} for o in outcomes])
+    frame = pd.DataFrame([{**{k: o[k] for k in keys}, **o.get("timing", {})} for o in outcomes
+                          if not o.get("timing_file")])
     if frame.empty or "offset_s" not in frame:
         return pd.DataFrame()
     frame = frame.dropna(subset=["offset_s"]).sort_values("start_utc")

@@ -16,16 +16,20 @@ A manifest is a TOML file; paths in it are relative to the manifest's folder::
     left = ["pier-3/left/*.mp4"]  # globs or files: the segments the camera wrote
     right = ["pier-3/right/*.mp4"]
     sync = "trajectory"           # as rig measure --sync
+    timing = "pier-3/timing.json" # optional, as rig measure --timing: one timing for every segment
     reference_markers = "auto"    # "auto", "none", or a list of [x, y, z] (mm)
     static_mm = 0.1
     window_s = 600.0              # long recordings: a task per window of this length (0: a task per file)
     overlap_s = 5.0               # each window measured this much longer at both ends, then trimmed
 
 A segment's start time is read from its file name (``YYYYmmdd-HHMMSS``, ``YYYYmmdd_HHMMSS`` or
-``YYYYmmddTHHMMSS``, UTC), the form segmenting cameras and recorders write. Segments of the two cameras of a
-pair are matched by start time; a segment without a partner is reported, never silently dropped. With
-``window_s``, a recording longer than two windows is split into windows, each a task
-(:mod:`rig.deploy.batch`).
+``YYYYmmddTHHMMSS``, UTC), the form segmenting cameras and recorders write. Without ``timing`` each
+segment's timing is estimated from its videos' motion (as ``rig measure`` does by default); with it, that
+``timing.json`` serves every segment of the pair (cameras triggered together, or a timing measured once
+with ``rig run sync``), and the pair's timing continuity is not checked (there is nothing estimated).
+Segments of the two cameras of a pair are matched by start time; a segment without a partner is reported,
+never silently dropped. With ``window_s``, a recording longer than two windows is split into windows, each
+a task (:mod:`rig.deploy.batch`).
 """
 
 from __future__ import annotations
@@ -33,6 +37,7 @@ from __future__ import annotations
 import datetime as dt
 import glob
 import hashlib
+import json
 import re
 import tomllib
 from dataclasses import dataclass, field
@@ -74,6 +79,7 @@ class PairSpec:
     static_mm: float = 0.1
     window_s: float = 0.0  # 0: one task per segment pair; else one per window of the recording (s)
     overlap_s: float = 5.0  # a window is measured this much longer at both ends (s), then trimmed
+    timing: Path | None = None  # a timing.json for every segment (rig measure --timing); None: estimated
 
 
 @dataclass(frozen=True)
@@ -158,7 +164,7 @@ def _reference_markers(value: Any, where: str) -> str | tuple[tuple[float, float
 
 
 PAIR_FIELDS = {"name", "calibration", "left", "right", "sync", "reference_markers", "static_mm", "window_s",
-               "overlap_s"}
+               "overlap_s", "timing"}
 
 
 def _pair(table: Any, site: str, folder: Path, where: str) -> PairSpec:
@@ -182,8 +188,31 @@ def _pair(table: Any, site: str, folder: Path, where: str) -> PairSpec:
                                              f"{where}.reference_markers"),
         static_mm=_number(table, "static_mm", 0.1, (1e-6, 1e3), f"{where}."),
         window_s=float(_number(table, "window_s", 0.0, (0.0, 1e6), f"{where}.")),
-        overlap_s=_overlap(table, where),
+        overlap_s=_overlap(table, where), timing=_timing(table.get("timing"), folder, f"{where}.timing"),
     )
+
+
+def _timing(value: Any, folder: Path, where: str) -> Path | None:
+    """``timing``: a readable ``timing.json`` for the cameras ``left`` and ``right`` (checked now, not when a
+    task runs), or None when absent."""
+    from rig.analysis.errors import AnalysisError
+    from rig.analysis.sync_tracks import timing_result
+
+    if value is None:
+        return None
+    if not isinstance(value, str):
+        raise ManifestError(where, f"{value!r}: the path of a timing.json is required")
+    path = (folder / value).resolve()
+    try:
+        cameras = set(timing_result(json.loads(path.read_text(encoding="utf-8"))).offset_s)
+    except OSError as exc:
+        raise ManifestError(where, f"{path}: cannot read it ({exc.strerror or exc})") from exc
+    except (ValueError, AnalysisError) as exc:  # JSON errors are ValueErrors
+        raise ManifestError(where, f"{path}: not a timing.json ({exc})") from exc
+    if cameras != {"left", "right"}:
+        raise ManifestError(where, f"{path}: timing of cameras {sorted(cameras)}; a pair's timing names "
+                                   "'left' and 'right'")
+    return path
 
 
 def _overlap(table: dict[str, Any], where: str) -> float:
