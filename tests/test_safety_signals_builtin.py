@@ -22,15 +22,21 @@ WAIT_S = 300.0  # generous bound on a loaded machine; each wait ends as soon as 
 TEST_TIMEOUT_S = 2 * WAIT_S + 60.0
 PHASES = {"acquisition": '"name":"sync","status":"begin"', "sweep": '"stream":"sweep"',
           "report": '"name":"report","status":"begin"'}
+# the report phase comes after the whole sweep is filmed: a 3 s sweep to 4 Hz reaches it (the default,
+# 24 s to 30 Hz and the ramp back down, is most of these tests' CPU); the other phases begin before it
+SWEEP_SETTINGS = {"report": ("duration_s=3", "max_hz=4", "shape=linear")}
 
 
 def _documents(run_dir: Path) -> list[dict]:
     return [json.loads(line) for line in (run_dir / "record.jsonl").read_text().splitlines() if line.strip()]
 
 
-def _run_until(tmp_path: Path, needle: str) -> tuple[subprocess.Popen[str], Path]:
+def _run_until(tmp_path: Path, needle: str,
+               settings: tuple[str, ...] = ()) -> tuple[subprocess.Popen[str], Path]:
     argv = [sys.executable, "-m", "rig.cli", "run", "sweep", "--runs-dir", str(tmp_path / "runs"),
             "--set", "hold_s=0"]
+    for setting in settings:
+        argv += ["--set", setting]
     with open(tmp_path / "rig.stderr", "w") as err:  # a file the test watches while the run goes on
         proc = subprocess.Popen(argv, cwd=tmp_path, env={**os.environ, "PYTHONPATH": str(ROOT)},
                                 stdout=subprocess.PIPE, stderr=err, text=True)
@@ -65,7 +71,7 @@ def _acknowledged(proc: subprocess.Popen[str], stderr: Path) -> None:
 ], ids=["acquisition-SIGTERM", "sweep-SIGHUP", "sweep-SIGINTx2", "report-SIGINT", "report-SIGQUITx2"])
 def test_stop_signal_in_each_phase_is_a_safe_abort(tmp_path: Path, phase: str,
                                                    signals: list[signal.Signals]) -> None:
-    proc, run_dir = _run_until(tmp_path, PHASES[phase])
+    proc, run_dir = _run_until(tmp_path, PHASES[phase], SWEEP_SETTINGS.get(phase, ()))
     for i, sig in enumerate(signals):
         if i:
             _acknowledged(proc, tmp_path / "rig.stderr")
