@@ -85,7 +85,7 @@ class Faults:
     move_error: int | None = None    # HRESULT every Move fails with
     busy_replies: int = 0            # requests answered E_BUSY_PROC without executing
     busy_function: int | None = None
-    wrong_serial_first: bool = False  # send a copy of each reply under another serial first
+    wrong_serial_first: bool = False  # first a copy of each reply under the previous serial (a late reply)
     stray_keepalive: bool = False     # send an S_EXECUTING before each reply
     fragment_replies: bool = False    # opt-in: send replies byte by byte (tests client reassembly)
     duplicate_replies: int = 0       # replies sent twice
@@ -315,7 +315,9 @@ class _Session:
         if faults.stray_keepalive:
             self._write(w.build(serial, 0, w.S_EXECUTING, serial_line=serial_line))
         if faults.wrong_serial_first:
-            self._write(w.build(serial % 0xFFFF + 1, 0, code, args, serial_line=serial_line))
+            # the previous request's serial, which the client has used up: the next serial (a retry's) would
+            # let a client that timed out on a loaded machine take the copy for its retry's reply
+            self._write(w.build((serial - 2) % 0xFFFF + 1, 0, code, args, serial_line=serial_line))
         self._write_faulty(bytes(data))
 
     def _write_faulty(self, data: bytes) -> None:
