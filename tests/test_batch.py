@@ -139,6 +139,18 @@ def test_trend_follows_each_target_over_the_archive(archive: Archive, local_batc
         # 1 %: the deployment target for amplitudes to 10 Hz; the twin's noise gives ≈ 0.5 % on 2 s segments
         assert rows["amplitude_mm"].to_numpy() == pytest.approx(archive.amplitude_mm, rel=0.01)
         assert rows["frequency_hz"].to_numpy() == pytest.approx(frequency_hz, rel=1e-3)
+    # each estimated offset is the true one (its first segment's; 47 ppm of drift over the archive moves it
+    # < 0.2 ms) — or a whole period of the steady 7 Hz away, and then the segment states the candidates
+    segments = pd.read_parquet(local_batch / "segments").drop_duplicates("task_id")
+    estimated = segments[segments["pair"].astype(str) == "p2"]
+    true_s = json.loads(archive.timing_of["p2"].read_text(encoding="utf-8"))["offset_s"]["right"]
+    period_s = 1.0 / archive.frequency_hz["p2"]
+    assert len(estimated) == 2
+    for offset_s, candidates in estimated[["offset_s", "offset_candidates"]].itertuples(index=False):
+        periods = round((offset_s - true_s) / period_s)
+        assert abs(offset_s - true_s - periods * period_s) < 0.5e-3
+        assert periods == 0 or candidates > 1, (offset_s, true_s, candidates)
+    assert segments[segments["pair"].astype(str) == "p1"]["offset_candidates"].isna().all()  # given
     continuity = pd.read_csv(local_batch / "continuity.csv")
     assert set(continuity["pair"]) == {"p2"}  # p1's timing was given, not estimated: nothing to check
     assert len(continuity) == 2 and not continuity["jump"].any()  # the twin's cameras run on unbroken

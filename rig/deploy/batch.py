@@ -185,7 +185,10 @@ def _write_atomic(path: Path, write: Callable[[Path], None]) -> None:
 
 
 def _timing_columns(timing: dict[str, Any], reference: str) -> dict[str, float]:
-    """The second camera's offset, drift and line time (s, ppm) and the offset's uncertainty."""
+    """The second camera's offset, drift and line time (s, ppm), the offset's uncertainty, and
+    ``offset_candidates``: how many offsets explain the motion equally well (1: decided; more: whole
+    periods of a steady motion the videos cannot tell apart, the offset is one of them — see the task's
+    timing.json; NaN: no coarse search on record, e.g. a timing given from elsewhere)."""
     other = next((c for c in timing.get("offset_s", {}) if c != reference), None)
     if other is None:
         return {}
@@ -195,8 +198,19 @@ def _timing_columns(timing: dict[str, Any], reference: str) -> dict[str, float]:
         return float(table.get(other, np.nan)) if isinstance(table, dict) else np.nan
 
     return {"offset_s": value(timing["offset_s"]), "u_offset_s": value(unc.get("offset_s")),
+            "offset_candidates": _offset_candidates(timing),
             "drift_ppm": value(timing.get("drift_ppm")), "u_drift_ppm": value(unc.get("drift_ppm")),
             "line_time_s": value(timing.get("line_time_s"))}
+
+
+def _offset_candidates(timing: dict[str, Any]) -> float:
+    """How many offsets of the coarse search explain the motion equally well (rig.deploy.video_timing)."""
+    coarse = (timing.get("details") or {}).get("coarse")
+    if not coarse:
+        return np.nan
+    if not coarse.get("ambiguous"):
+        return 1.0
+    return float(max(1, sum(1 for c in coarse["candidates"] if "error" not in c and not c["distinct"])))
 
 
 def run_task(task: Task, out_dir: str) -> dict[str, Any]:
