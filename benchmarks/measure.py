@@ -78,18 +78,6 @@ def decode_naive(path: Path) -> tuple[int, float]:
     return n, time.perf_counter() - t0
 
 
-def decode_luma(path: Path) -> int:
-    """The decode-only baseline: every frame's luma plane grabbed and retrieved, nothing else."""
-    cap = cv2.VideoCapture(str(path), cv2.CAP_FFMPEG)
-    cap.set(cv2.CAP_PROP_CONVERT_RGB, 0)
-    n = 0
-    while cap.grab():
-        cap.retrieve()
-        n += 1
-    cap.release()
-    return n
-
-
 def cpu_both(fn: Callable[[Path], object], paths: tuple[Path, Path]) -> tuple[float, float]:
     """(process CPU s, wall s) of ``fn`` on both videos in two threads."""
     c0, w0 = time.process_time(), time.perf_counter()
@@ -124,17 +112,16 @@ def decode_ours(path: Path) -> tuple[int, float]:
 
 
 def decode_until(path: Path, stop_s: float | None = None) -> int:
-    """The decode-only baseline up to the first frame stamped after ``stop_s`` (s; None: to the end), as
+    """The decode-only baseline: every frame's luma plane grabbed and retrieved, nothing else, up to the
+    first frame stamped after ``stop_s`` (s; None: to the end), as
     :func:`rig.deploy.video_markers.extract_video` with ``ExtractOptions(stop_s=…)`` decodes."""
-    if stop_s is None:
-        return decode_luma(path)
     cap = cv2.VideoCapture(str(path), cv2.CAP_FFMPEG)
     cap.set(cv2.CAP_PROP_CONVERT_RGB, 0)
     n = 0
     while cap.grab():
         cap.retrieve()
         n += 1
-        if cap.get(cv2.CAP_PROP_POS_MSEC) / 1000.0 > stop_s:
+        if stop_s is not None and cap.get(cv2.CAP_PROP_POS_MSEC) / 1000.0 > stop_s:
             break
     cap.release()
     return n
@@ -306,7 +293,7 @@ def run(folder: Path, paths: tuple[Path, Path], calibration: Path, seconds: floa
     cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_ERROR)  # the luma plane warns once a frame
     print(f"\nCPU seconds per second of video ({video_s:.0f} s: 2 cameras × {seconds:g} s, two threads; "
           f"least of {repeat} runs each, load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores)")
-    cpu_decode, wall_decode = least(repeat, lambda: cpu_both(decode_luma, paths))
+    cpu_decode, wall_decode = least(repeat, lambda: cpu_both(decode_until, paths))
     print(f"  decode only (baseline)    {cpu_decode / video_s:6.3f}   (wall {wall_decode:.2f} s)")
     readers: tuple[tuple[str, Callable[[Path], object]], ...] = (
         ("VideoFile (+ duplicates)", lambda p: sum(1 for _ in VideoFile(p).frames())),
@@ -318,7 +305,7 @@ def run(folder: Path, paths: tuple[Path, Path], calibration: Path, seconds: floa
     opts = MeasureOptions(window_s=(0.6, seconds - 0.1))
     runs, ratios = [], []
     for _ in range(repeat):  # each run beside its own decode-only run: the load changes within seconds
-        decode_now = cpu_both(decode_luma, paths)[0]
+        decode_now = cpu_both(decode_until, paths)[0]
         runs.append(measure_once(folder, paths, calibration, opts))
         ratios.append(runs[-1][0] / decode_now)
     cpu_measure, wall, res = min(runs, key=lambda r: r[0])

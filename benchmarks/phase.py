@@ -40,7 +40,7 @@ import argparse
 import contextlib
 import sys
 import tempfile
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -103,6 +103,23 @@ def start_events_only() -> Iterator[None]:
         analyse_module.segment_clock = original
 
 
+CLOCKS = ("fiducial", "start events")
+
+
+def analyses_by_clock(seeds: int, run: Callable[[Path, int], tuple[Path, Any]],
+                      ) -> Iterator[tuple[int, str, Path, Any, Any]]:
+    """Per seed one run (``run(tmp, seed)`` → (run folder, the twin's body)), analysed (``trajectory``
+    sync) once per clock of :data:`CLOCKS`: (seed, clock, run folder, body, analysis). The run folder
+    lives until the next seed's run."""
+    for seed in range(seeds):
+        with tempfile.TemporaryDirectory() as tmp:
+            run_dir, body = run(Path(tmp), 1000 + seed)
+            for label in CLOCKS:
+                with start_events_only() if label == "start events" else contextlib.nullcontext():
+                    a = analyse_module.analyse(run_dir, sync="trajectory")
+                yield seed, label, run_dir, body, a
+
+
 def true_phase_errors_deg(run_dir: Path, exciter: Any, tracks: pd.DataFrame) -> dict[float, float]:
     """Phase (°) of the measured motion against the crank's true phase, at 10 and 25 Hz."""
     run = load_record(run_dir)
@@ -161,21 +178,16 @@ def band_main(seeds: int) -> None:
     """The band step's figures (module docstring, ``--band``)."""
     print(f"{'seed':>4} {'clock':>12} {'f Hz':>6} {'e %':>8} {'u(e) %':>7} {'phase °':>8} {'u °':>6} "
           f"{'vs truth °':>10} {'ref err °':>9}")
-    worst: dict[str, list[float]] = {"fiducial": [], "start events": []}
-    for seed in range(seeds):
-        with tempfile.TemporaryDirectory() as tmp:
-            run_dir, shaker = band_run(Path(tmp), 1000 + seed)
-            for label, values in worst.items():
-                with start_events_only() if label == "start events" else contextlib.nullcontext():
-                    a = analyse_module.analyse(run_dir, sync="trajectory")
-                table = band_table(run_dir, shaker, a.tracks, a.clock)
-                values.append(float(table["vs_truth_deg"].abs().max()))
-                for f_hz in (32.0, 40.0, 49.5):
-                    r = table.iloc[(table["frequency_hz"] - f_hz).abs().argmin()]
-                    print(f"{seed:>4} {label:>12} {r['frequency_hz']:>6.1f} "
-                          f"{r['amplitude_error_pct']:>+8.3f} {r['u_amplitude_error_pct']:>7.3f} "
-                          f"{r['phase_deg']:>+8.3f} {r['u_phase_deg']:>6.3f} "
-                          f"{r['vs_truth_deg']:>+10.3f} {r['reference_error_deg']:>+9.4f}")
+    worst: dict[str, list[float]] = {label: [] for label in CLOCKS}
+    for seed, label, run_dir, shaker, a in analyses_by_clock(seeds, band_run):
+        table = band_table(run_dir, shaker, a.tracks, a.clock)
+        worst[label].append(float(table["vs_truth_deg"].abs().max()))
+        for f_hz in (32.0, 40.0, 49.5):
+            r = table.iloc[(table["frequency_hz"] - f_hz).abs().argmin()]
+            print(f"{seed:>4} {label:>12} {r['frequency_hz']:>6.1f} "
+                  f"{r['amplitude_error_pct']:>+8.3f} {r['u_amplitude_error_pct']:>7.3f} "
+                  f"{r['phase_deg']:>+8.3f} {r['u_phase_deg']:>6.3f} "
+                  f"{r['vs_truth_deg']:>+10.3f} {r['reference_error_deg']:>+9.4f}")
     for label, values in worst.items():
         print(f"{label}: max |phase vs truth| over the band {max(values):.3f}° (over {seeds} seeds)")
     print(f"ratio start events / fiducial: {max(worst['start events']) / max(worst['fiducial']):.0f}×")
@@ -218,27 +230,23 @@ def steps_main(seeds: int, duration_s: float) -> None:
     """The per-step figures (module docstring, ``--steps``)."""
     print(f"{'seed':>4} {'clock':>12} {'f Hz':>6} {'e %':>8} {'phase °':>8} {'u °':>6} {'vs truth °':>10} "
           f"{'delay ms':>9} {'u ms':>7}")
-    worst: dict[str, list[float]] = {"fiducial": [], "start events": []}
-    for seed in range(seeds):
-        with tempfile.TemporaryDirectory() as tmp:
-            run_dir, shaker = steps_run(Path(tmp), 1000 + seed, duration_s)
-            for label, values in worst.items():
-                with start_events_only() if label == "start events" else contextlib.nullcontext():
-                    a = analyse_module.analyse(run_dir, sync="trajectory")
-                table = step_table(run_dir, shaker, a.tracks, a.clock)
-                values.append(float(table["vs_truth_deg"].abs().max()))
-                for f_hz in (10.0, 20.0, 28.0):
-                    r = table.iloc[(table["frequency_ref_hz"] - f_hz).abs().argmin()]
-                    print(f"{seed:>4} {label:>12} {r['frequency_ref_hz']:>6.2f} "
-                          f"{r['amplitude_error_pct']:>+8.3f} {r['phase_deg']:>+8.3f} "
-                          f"{r['u_phase_deg']:>6.3f} {r['vs_truth_deg']:>+10.3f} {r['delay_ms']:>+9.4f} "
-                          f"{r['u_delay_ms']:>7.4f}")
-                print(f"{seed:>4} {label:>12} {len(table)} steps "
-                      f"{table['frequency_ref_hz'].min():.2f}–{table['frequency_ref_hz'].max():.2f} Hz: "
-                      f"max |stated phase| {table['phase_deg'].abs().max():.3f}°, max |vs truth| "
-                      f"{table['vs_truth_deg'].abs().max():.3f}°, max |stated − truth| "
-                      f"{(table['phase_deg'] - table['vs_truth_deg']).abs().max():.4f}°, max u "
-                      f"{table['u_phase_deg'].max():.3f}°")
+    worst: dict[str, list[float]] = {label: [] for label in CLOCKS}
+    runs = analyses_by_clock(seeds, lambda tmp, seed: steps_run(tmp, seed, duration_s))
+    for seed, label, run_dir, shaker, a in runs:
+        table = step_table(run_dir, shaker, a.tracks, a.clock)
+        worst[label].append(float(table["vs_truth_deg"].abs().max()))
+        for f_hz in (10.0, 20.0, 28.0):
+            r = table.iloc[(table["frequency_ref_hz"] - f_hz).abs().argmin()]
+            print(f"{seed:>4} {label:>12} {r['frequency_ref_hz']:>6.2f} "
+                  f"{r['amplitude_error_pct']:>+8.3f} {r['phase_deg']:>+8.3f} "
+                  f"{r['u_phase_deg']:>6.3f} {r['vs_truth_deg']:>+10.3f} {r['delay_ms']:>+9.4f} "
+                  f"{r['u_delay_ms']:>7.4f}")
+        print(f"{seed:>4} {label:>12} {len(table)} steps "
+              f"{table['frequency_ref_hz'].min():.2f}–{table['frequency_ref_hz'].max():.2f} Hz: "
+              f"max |stated phase| {table['phase_deg'].abs().max():.3f}°, max |vs truth| "
+              f"{table['vs_truth_deg'].abs().max():.3f}°, max |stated − truth| "
+              f"{(table['phase_deg'] - table['vs_truth_deg']).abs().max():.4f}°, max u "
+              f"{table['u_phase_deg'].max():.3f}°")
     for label, values in worst.items():
         print(f"{label}: max |phase vs truth| over the steps {max(values):.3f}° (over {seeds} seeds)")
     print(f"ratio start events / fiducial: {max(worst['start events']) / max(worst['fiducial']):.0f}×")
@@ -257,20 +265,20 @@ def main() -> None:
     if args.steps:
         steps_main(args.seeds, args.duration)
         return
+    sweep_main(args.seeds, args.duration)
+
+
+def sweep_main(seeds: int, duration_s: float) -> None:
+    """The crank sweep's figures at 10 and 25 Hz (module docstring, the default)."""
     print(f"{'seed':>4} {'clock':>12} {'10 Hz °':>8} {'25 Hz °':>8} {'stated τ ms':>12} {'u(τ) ms':>8}")
-    found: dict[str, list[tuple[float, float]]] = {"fiducial": [], "start events": []}
-    for seed in range(args.seeds):
-        with tempfile.TemporaryDirectory() as tmp:
-            run_dir, exciter = sweep_run(Path(tmp), 1000 + seed, args.duration)
-            for label, values in found.items():
-                with start_events_only() if label == "start events" else contextlib.nullcontext():
-                    a = analyse_module.analyse(run_dir, sync="trajectory")
-                err = true_phase_errors_deg(run_dir, exciter, a.tracks)
-                stated = stated_delay(run_dir, a.tracks, a.clock)
-                values.append((err[10.0], err[25.0]))
-                tau = (stated.delay_ms, stated.u_delay_ms) if stated else (float("nan"),) * 2
-                print(f"{seed:>4} {label:>12} {err[10.0]:>+8.3f} {err[25.0]:>+8.3f} {tau[0]:>+12.4f} "
-                      f"{tau[1]:>8.4f}")
+    found: dict[str, list[tuple[float, float]]] = {label: [] for label in CLOCKS}
+    runs = analyses_by_clock(seeds, lambda tmp, seed: sweep_run(tmp, seed, duration_s))
+    for seed, label, run_dir, exciter, a in runs:
+        err = true_phase_errors_deg(run_dir, exciter, a.tracks)
+        stated = stated_delay(run_dir, a.tracks, a.clock)
+        found[label].append((err[10.0], err[25.0]))
+        tau = (stated.delay_ms, stated.u_delay_ms) if stated else (float("nan"),) * 2
+        print(f"{seed:>4} {label:>12} {err[10.0]:>+8.3f} {err[25.0]:>+8.3f} {tau[0]:>+12.4f} {tau[1]:>8.4f}")
     for label, values in found.items():
         e = np.abs(np.array(values))
         print(f"{label}: max |phase error| {e[:, 0].max():.3f}° at 10 Hz (target ≤ 0.5°), "
