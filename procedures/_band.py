@@ -66,12 +66,32 @@ class BandParameters:
                                 shaker_amplitude_mm=self.amplitude_mm)
 
 
+def band_criteria_set(config: RigConfig) -> tuple[str, ...]:
+    """The band's ``[criteria]`` fields that ``config`` sets (required: only this step evaluates them)."""
+    criteria = config.criteria
+    limits = {"band_amplitude_error_pct": criteria.band_amplitude_error_pct,
+              "band_phase_deg": criteria.band_phase_deg, "band_min_hz": criteria.band_min_hz}
+    return tuple(name for name, limit in limits.items() if limit is not None)
+
+
+def left_out_note(params: BandParameters, config: RigConfig) -> str:
+    """What leaving the step out costs the certificate ("" when the step runs or no band criterion is set):
+    the band criteria stay NOT EVALUATED, so the certificate cannot PASS."""
+    unevaluated = band_criteria_set(config) if not params.enabled else ()
+    if not unevaluated:
+        return ""
+    names = ", ".join(f"criteria.{name}" for name in unevaluated)
+    return (f"the band's criteria ({names}, set in {config.source}) stay NOT EVALUATED without the band "
+            "step: the certificate will be INCOMPLETE (exit 1); --set band=true adds the step")
+
+
 def own_plan(params: BandParameters, config: RigConfig) -> Plan:
     """Step ``band``: the shaker's linear sweep (checked as the sweep procedure checks a shaker sweep), or
-    a step that states it was left out."""
+    a step that states it was left out and what that costs the certificate."""
     if not params.enabled:
-        return Plan("certify", (PlanStep(STEP, 0.0, what="left out by this preset: the shaker's band beyond "
-                                                         "the crank sweep runs in the full preset"),))
+        what = "left out by this preset: the shaker's band beyond the crank sweep runs in the full preset"
+        note = left_out_note(params, config)
+        return Plan("certify", (PlanStep(STEP, 0.0, what=f"{what}; {note}" if note else what),))
     vibration = sweep.shaker_vibration(params.as_sweep(), config)
     names = {"sweep.shaker_amplitude_mm": "band.amplitude_mm",
              "sweep.shape = linear": "the generator's linear sweep", "sweep.": "band."}

@@ -93,6 +93,8 @@ def run(ctx: Context, params: Parameters) -> dict[str, Any]:
                  {"calibrate": dataclasses.asdict(sub["calibrate"]), "sync": dataclasses.asdict(sub["sync"]),
                   "accuracy": dataclasses.asdict(sub["accuracy"]), "sweep": dataclasses.asdict(sub["sweep"]),
                   "band": dataclasses.asdict(sub["band"])})
+    if note := _band.left_out_note(sub["band"], ctx.config):  # said before the first move, not after the run
+        ctx.log.warning("certify (%s): %s", params.preset, note)
     calibrate.run_step(ctx, sub["calibrate"])
     sync.run_step(ctx, sub["sync"])
     accuracy.run_steps(ctx, sub["accuracy"])

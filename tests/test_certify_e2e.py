@@ -110,6 +110,12 @@ def test_certify_fast_preset_end_to_end(tmp_path: Path) -> None:
     assert run.stop["verdict"] == {"PASS": "pass", "FAIL": "fail", "INCOMPLETE": "incomplete"}[cert["result"]]
     assert cert["conditions"]["exit_status"] == "success"
     assert not any("killed" in note for note in cert["conditions"]["notes"]), cert["conditions"]["notes"]
+    # sim.toml sets the band's criteria and the fast preset has no band step: said in the log before the
+    # first move, and the certificate cannot pass through them
+    assert {s for c, s in statuses.items() if c.startswith("band_")} == {"NOT EVALUATED"}, statuses
+    assert cert["result"] == "INCOMPLETE" and code == 1
+    log = (run_dir / "rig.log").read_text()
+    assert log.index("stay NOT EVALUATED without the band step") < log.index("mounted target"), log[:2000]
     for stream in ("arm", "calibration_position", "accuracy_pose", "sweep", "rotation", "camera", "exciter"):
         assert stream in run.events, stream
     _check_against_truth(run_dir, tmp_path / "rig.toml")

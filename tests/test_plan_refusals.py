@@ -113,6 +113,16 @@ def test_dry_run_prints_the_whole_certification_plan_and_passes(capsys: pytest.C
     assert re.search(r"^  PASS  sweep\s+exciter\s+acceleration\s+22.74 m/s²\s+≤ 250 m/s²\s+margin \+227.3",
                      out, re.M), out
     assert "FAIL" not in out and "all 26 checks pass; nothing was connected" in out
+    # sim.toml sets the band's criteria, which the fast preset cannot evaluate: the plan says what it costs
+    left_out = (r"^  band\s+not timed\s+left out by this preset.*criteria\.band_amplitude_error_pct.* "
+                r"stay NOT EVALUATED .*INCOMPLETE \(exit 1\); --set band=true adds the step$")
+    assert re.search(left_out, out, re.M), out
+
+
+def test_dry_run_of_the_full_preset_leaves_no_criterion_unevaluated(capsys: pytest.CaptureFixture[str]
+                                                                    ) -> None:
+    assert main(["certify", "--dry-run"]) == 0
+    assert "NOT EVALUATED" not in capsys.readouterr().out
 
 
 def test_dry_run_of_a_plan_beyond_the_limits_fails_with_exit_4(capsys: pytest.CaptureFixture[str]) -> None:
