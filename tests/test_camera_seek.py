@@ -183,3 +183,42 @@ def test_video_file_start_near_the_beginning_or_with_insert_policy_decodes_from_
     # "insert" shifts every stamp after a duplicate: the stamps depend on every earlier frame
     insert = [f.index for f in VideoFile(path, duplicate_policy="insert").frames(start_s=100 / FPS)]
     assert insert[0] == 0 and len(insert) == N_FRAMES
+
+
+def _damage_mp4_sample(path: Path, dst: Path, index: int) -> Path:
+    """``path`` (an OpenCV-written MP4: one chunk) with the payload of video sample ``index`` overwritten by
+    random bytes (its size and the container intact): a packet the decoder reports damaged and conceals."""
+    data = bytearray(path.read_bytes())
+
+    def table(kind: bytes) -> tuple[int, ...]:
+        at = data.index(kind) + 4  # version/flags
+        if kind == b"stsz":
+            at += 4  # the common sample size (0: one size per sample)
+        (count,) = struct.unpack(">I", data[at + 4:at + 8])
+        return struct.unpack(f">{count}I", data[at + 8:at + 8 + 4 * count])
+    sizes, (chunk,) = table(b"stsz"), table(b"stco")
+    start = chunk + sum(sizes[:index])
+    noise = np.random.default_rng(1).integers(0, 256, sizes[index] - 12, dtype=np.uint8).tobytes()
+    data[start + 8:start + sizes[index] - 4] = noise
+    dst.write_bytes(bytes(data))
+    return dst
+
+
+def test_windows_before_across_and_after_a_damaged_packet_get_the_frames_of_a_whole_decode(tmp_path: Path
+                                                                                          ) -> None:
+    """A damaged P-frame packet (frame 75: the decoder conceals it, and its error runs on to the next key
+    frame, 82): a window seeking to a start before, inside or after the damage decodes what a decode from
+    frame 0 decodes there — the concealed frames included — and judges the same duplicates in its range."""
+    damaged = _damage_mp4_sample(write_video(tmp_path / "v.mp4", "mp4v"), tmp_path / "damaged.mp4", 75)
+    clean, broken = sequential(tmp_path / "v.mp4"), sequential(damaged)
+    assert len(broken) == N_FRAMES and broken[75] != clean[75]  # the damage is real and visible
+    whole_video = VideoFile(damaged)
+    whole = [(f.index, f.timestamp_s, hashlib.sha1(f.image.tobytes()).hexdigest())
+             for f in whole_video.frames()]
+    for start in (60, 78, 90, 120):
+        video = VideoFile(damaged)
+        part = [(f.index, f.timestamp_s, hashlib.sha1(f.image.tobytes()).hexdigest())
+                for f in video.frames(start_s=whole[start][1])]
+        first = part[0][0]
+        assert first == start - SEEK_PREROLL_FRAMES and part == whole[first:], start
+        assert video.duplicate_indices == {i for i in whole_video.duplicate_indices if i >= first}, start
