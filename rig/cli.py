@@ -43,7 +43,8 @@ log = logging.getLogger("rig.cli")
 MOCK_MODULES = {"robot": ("drivers.mock.bcap_server", []),
                 "exciter": ("drivers.mock.vfd_server", ["--body", "exciter"]),
                 "rotor": ("drivers.mock.vfd_server", ["--body", "rotor"]),
-                "generator": ("drivers.mock.generator_server", [])}
+                "generator": ("drivers.mock.generator_server", []),
+                "lab": ("rig.run.lab", [])}  # every device and the cameras on one world
 
 
 def load_config(path: str | None) -> RigConfig:

@@ -125,6 +125,12 @@ class OpenCVCamera(Camera):
         self.stats = CaptureStats()
 
     @property
+    def streamed(self) -> bool:
+        """True for a network stream (a URL such as an IP camera's ``http://…/video.mjpg``): it cannot be
+        asked for a frame rate and reports none of its own; its rate shows in the arrival times."""
+        return isinstance(self.source, str) and "://" in self.source
+
+    @property
     def recording(self) -> bool:
         return self._thread is not None and self._thread.is_alive()
 
@@ -160,6 +166,8 @@ class OpenCVCamera(Camera):
                                     f"the device gives {granted[0]}×{granted[1]}; configure resolution_px to "
                                     "match")
         granted_fps = float(cap.get(cv2.CAP_PROP_FPS) or 0.0)
+        if self.streamed:  # a network stream's nominal rate (FFmpeg's MJPEG demuxer: 25) is not the camera's
+            granted_fps = 0.0
         if math.isfinite(granted_fps) and granted_fps > 0 and abs(granted_fps - self.fps) > 0.01 * self.fps:
             cap.release()
             raise CameraDeviceError(f"camera {self.name!r}: requested {self.fps:g} fps, the device gives "

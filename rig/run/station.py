@@ -40,7 +40,7 @@ import numpy as np
 from drivers.clock import Clock
 from drivers.roles import Assignment, Camera, Device, Role
 from rig.config.address import endpoint, parse_address
-from rig.config.devices import VfdConfig
+from rig.config.devices import GeneratorConfig, RobotConfig, VfdConfig
 from rig.config.limits import VibrationLimits
 from rig.config.rig_config import RigConfig
 from rig.config.schema import ConfigError, to_dict
@@ -48,12 +48,16 @@ from rig.config.schema import ConfigError, to_dict
 if TYPE_CHECKING:
     from drivers.exciter.axis import VfdAxis
     from drivers.exciter.vfd import VfdDriver
+    from drivers.mock.bcap_server import BcapMockServer
+    from drivers.mock.generator_instrument import GeneratorInstrument
+    from drivers.mock.vfd_drive import DriveModel
     from drivers.modbus_link import ModbusLink
     from drivers.sim.bodies import OscillatorBody
     from drivers.sim.stereo_rig import CameraSpec
     from drivers.sim.world import World, WorldLayout
 
-__all__ = ["Station", "StationError", "camera_specs", "open_station", "world_layout"]
+__all__ = ["Station", "StationError", "add_fiducial_led", "camera_specs", "mock_drive", "mock_generator",
+           "mock_robot_server", "open_station", "world_layout"]
 
 log = logging.getLogger("rig.run.station")
 SCENE_OF_TARGET = {"calibration_plate": "calibration_plate", "single_marker": "single_marker",
@@ -145,7 +149,7 @@ def _tuples(value: Any) -> Any:
     return tuple(_tuples(v) for v in value) if isinstance(value, list) else value
 
 
-def _add_fiducial_led(world: World, config: RigConfig) -> None:
+def add_fiducial_led(world: World, config: RigConfig) -> None:
     """The twin's timing fiducial LED (``[sim.fiducial]``), lit by the generator mock's sync output."""
     sim = config.sim.fiducial if config.sim is not None else None
     if config.fiducial is None or sim is None:
@@ -202,6 +206,37 @@ def camera_specs(config: RigConfig) -> list[CameraSpec]:
     return specs
 
 
+# ------------------------------------------------------------------------------------------- mock devices
+# The twin's devices as configured: what the station serves for ``mock://`` addresses and ``rig mock lab``
+# (rig.run.lab) serves on its own endpoints, built the same way.
+def mock_robot_server(rc: RobotConfig, world: World, *, client_watchdog: bool = False) -> BcapMockServer:
+    """The b-CAP controller mock moving ``world``'s arm with the configured full speed and acceleration;
+    ``client_watchdog``: end a session silent for 4 × its WDT (a controller in another process)."""
+    from drivers.mock.bcap_server import BcapMockServer
+
+    return BcapMockServer(world.robot, world.clock, full_speed_mm_s=rc.full_speed_mm_s,
+                          full_accel_mm_s2=rc.full_accel_mm_s2, client_watchdog=client_watchdog)
+
+
+def mock_drive(dc: VfdConfig, body: OscillatorBody, clock: Clock) -> DriveModel:
+    """The VFD model driving ``body`` with the configured register map, gear ratio and output limit."""
+    from drivers.mock.vfd_drive import DriveModel
+
+    return DriveModel(body, clock, register_map=dc.resolved_register_map(), gear_ratio=dc.gear_ratio,
+                      max_output_hz=dc.max_output_hz)
+
+
+def mock_generator(gc: GeneratorConfig, world: World) -> GeneratorInstrument:
+    """The SCPI generator instrument driving ``world``'s shaker (and its first LED from the Sync output)
+    with the configured channels and shaker sensitivity."""
+    from drivers.mock.generator_instrument import GeneratorInstrument, identity_for
+
+    leds = world.leds
+    return GeneratorInstrument(world.shaker, world.clock,
+                               sensitivity_mm_per_v=[(p[0], p[1]) for p in gc.sensitivity_mm_per_v],
+                               identity=identity_for(gc.channels), sync_led=leds[0] if leds else None)
+
+
 # ------------------------------------------------------------------------------------------- builders
 def _build_robot(st: Station, cfg: RigConfig) -> None:
     from drivers.denso.arm import DensoArm
@@ -216,11 +251,8 @@ def _build_robot(st: Station, cfg: RigConfig) -> None:
     serial_line = addr["scheme"] == "serial" or addr.get("link") == "pty"
     url = rc.address
     if addr["scheme"] == "mock":
-        from drivers.mock.bcap_server import BcapMockServer
-
         assert world is not None, "a mock:// address needs the simulated station (configuration check)"
-        server = BcapMockServer(world.robot, st.clock, full_speed_mm_s=rc.full_speed_mm_s,
-                                full_accel_mm_s2=rc.full_accel_mm_s2)
+        server = mock_robot_server(rc, world)
         st._closers.append(("robot mock server", server.close))
         if addr["link"] == "tcp":
             url = f"tcp://127.0.0.1:{server.serve_tcp('127.0.0.1', 0)}"
@@ -271,13 +303,11 @@ def _build_vfd(st: Station, cfg: RigConfig, name: str, *, dc: VfdConfig | None, 
     url = dc.address
     mock = addr["scheme"] == "mock"
     if mock:
-        from drivers.mock.vfd_drive import DriveModel
         from drivers.mock.vfd_server import VfdServer
 
         assert body is not None, "a mock:// address needs the simulated station (configuration check)"
-        drive = DriveModel(body, st.clock, register_map=regs, gear_ratio=dc.gear_ratio,
-                           max_output_hz=dc.max_output_hz)
-        server = VfdServer(drive, mode="tcp" if addr["link"] == "tcp" else "rtu").start()
+        server = VfdServer(mock_drive(dc, body, st.clock),
+                           mode="tcp" if addr["link"] == "tcp" else "rtu").start()
         st._closers.append((f"{name} mock server", server.stop))
         url = server.url if addr["link"] == "tcp" else f"serial://{server.client_port}?baud=115200"
         st._liveness.append((name, lambda: None if server.serving else "mock server died"))
@@ -359,16 +389,10 @@ def _build_generator(st: Station, cfg: RigConfig) -> None:
     addr = parse_address(gc.address, "devices.generator.address")
     url = gc.address
     if addr["scheme"] == "mock":
-        from drivers.mock.generator_instrument import GeneratorInstrument, identity_for
         from drivers.mock.generator_server import GeneratorServer
 
         assert st.world is not None, "a mock:// address needs the simulated station (configuration check)"
-        leds = st.world.leds
-        instrument = GeneratorInstrument(st.world.shaker, st.clock,
-                                         sensitivity_mm_per_v=[(p[0], p[1]) for p in gc.sensitivity_mm_per_v],
-                                         identity=identity_for(gc.channels),
-                                         sync_led=leds[0] if leds else None)
-        server = GeneratorServer(instrument, mode=addr["link"]).start()
+        server = GeneratorServer(mock_generator(gc, st.world), mode=addr["link"]).start()
         st._closers.append(("generator mock server", server.stop))
         url = server.url if addr["link"] == "tcp" else f"serial://{server.client_port}?baud=115200"
     def reopen() -> Transport:
@@ -468,7 +492,7 @@ def open_station(config: RigConfig, clock: Clock, *, keep_going: bool = False) -
                 raise ConfigError("station.clock", "a simulated station needs the virtual clock")
             seed = config.sim.seed if config.sim else 0
             station.world = World(clock, seed=seed, layout=world_layout(config))
-            _add_fiducial_led(station.world, config)
+            add_fiducial_led(station.world, config)
         for name, address, build in _builders(station, config):
             try:
                 try:

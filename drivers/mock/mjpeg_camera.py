@@ -1,0 +1,212 @@
+"""A simulated camera served as an IP camera: MJPEG over HTTP (``multipart/x-mixed-replace``, one JPEG per
+part), the protocol of most network cameras, which ``cv2.VideoCapture("http://…")`` (FFmpeg) opens.
+
+:class:`MjpegCameraServer` renders a :class:`drivers.sim.camera.SimCamera` (rolling shutter, noise, the
+world's LEDs, as the twin renders it) at the camera's frame rate, paced to the world clock: frame ``i`` is
+rendered once its last row has been exposed (world time ``frame_start_true_s(i) + readout_s``) and sent at
+once to every connected client at ``http://127.0.0.1:PORT/<name>.mjpg``. Frames carry no time stamp (like
+most IP cameras): the client stamps them on arrival.
+
+A real IP camera drops frames when the host or the network is slow; so does this one: a frame whose
+successor is already fully exposed when its turn comes (rendering fell behind) is skipped, never sent late
+as if on time — the client's driver sees the gap in its arrival times (``stats.skipped`` counts them). A
+client that reads slowly gets the newest frame when it asks again (the older ones are gone for it).
+Frames are rendered only while a client is connected (an idle camera costs no CPU).
+
+Binds a loopback address only (:func:`drivers.mock._serve.require_loopback`).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import math
+import threading
+import time
+from dataclasses import dataclass
+from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
+from typing import Any
+
+import cv2
+import numpy as np
+
+from drivers.mock._serve import require_loopback
+from drivers.sim.camera import SimCamera
+
+__all__ = ["BOUNDARY", "MjpegCameraServer", "StreamStats"]
+
+log = logging.getLogger("drivers.mock.mjpeg")
+BOUNDARY = "rigframe"
+_POLL_S = 0.1  # (wall s) how often waiting threads look at the stop flag
+
+
+@dataclass
+class StreamStats:
+    """What the camera did: frames rendered and published, frames skipped because rendering fell behind,
+    render + encode CPU time (thread CPU seconds)."""
+
+    published: int = 0
+    skipped: int = 0
+    render_cpu_s: float = 0.0
+
+
+class _Server(ThreadingHTTPServer):
+    daemon_threads = True
+    camera_server: MjpegCameraServer
+
+
+class _Handler(BaseHTTPRequestHandler):
+    server: _Server
+    protocol_version = "HTTP/1.0"
+
+    def log_message(self, format: str, *args: Any) -> None:
+        log.debug("mjpeg %s: " + format, self.address_string(), *args)
+
+    def do_GET(self) -> None:
+        cam = self.server.camera_server
+        if self.path.split("?", 1)[0] != cam.path:
+            self.send_error(404, f"no such stream; this camera serves {cam.path}")
+            return
+        self.send_response(200)
+        self.send_header("Content-Type", f"multipart/x-mixed-replace; boundary={BOUNDARY}")
+        self.send_header("Cache-Control", "no-cache, no-store")
+        self.send_header("Connection", "close")
+        self.end_headers()
+        with contextlib.suppress(OSError):  # the client hung up
+            cam.stream_to(self.wfile)
+
+
+class MjpegCameraServer:
+    """Serve ``camera`` (see the module docstring) on ``host:port`` (loopback only; port 0 = any free port)
+    at path ``/<camera.name>.mjpg``. ``jpeg_quality``: 1..100."""
+
+    def __init__(self, camera: SimCamera, *, host: str = "127.0.0.1", port: int = 0,
+                 jpeg_quality: int = 90) -> None:
+        if not 1 <= int(jpeg_quality) <= 100:
+            raise ValueError(f"jpeg_quality={jpeg_quality!r}; allowed: 1..100")
+        self.camera = camera
+        self.clock = camera.world.clock
+        self.host = require_loopback(host)
+        self.path = f"/{camera.name}.mjpg"
+        self.jpeg_quality = int(jpeg_quality)
+        self.stats = StreamStats()
+        self._httpd = _Server((self.host, int(port)), _Handler, bind_and_activate=True)
+        self._httpd.camera_server = self
+        self.port: int = self._httpd.server_address[1]
+        self._cond = threading.Condition()
+        self._latest: tuple[int, bytes] | None = None  # (frame index, JPEG) last published
+        self._clients = 0
+        self._stopped = threading.Event()
+        self._threads: list[threading.Thread] = []
+
+    @property
+    def url(self) -> str:
+        return f"http://{self.host}:{self.port}{self.path}"
+
+    def start(self) -> MjpegCameraServer:
+        for target, name in ((self._httpd.serve_forever, "http"), (self._produce, "render")):
+            thread = threading.Thread(target=target, name=f"mjpeg-{self.camera.name}-{name}", daemon=True)
+            thread.start()
+            self._threads.append(thread)
+        log.info("camera %s: MJPEG over HTTP at %s (%d×%d px, %g fps)", self.camera.name, self.url,
+                 self.camera.width_px, self.camera.height_px, self.camera.fps)
+        return self
+
+    def stop(self) -> None:
+        """Stop rendering, end every stream, close the socket."""
+        self._stopped.set()
+        with self._cond:
+            self._cond.notify_all()
+        self._httpd.shutdown()
+        self._httpd.server_close()
+        for thread in self._threads:
+            thread.join(timeout=5.0)
+
+    def __enter__(self) -> MjpegCameraServer:
+        return self.start()
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()
+
+    # ------------------------------------------------------------------ rendering (one thread)
+    def _ready_s(self, index: int) -> float:
+        """World time at which frame ``index`` is fully exposed (its last row's exposure ended)."""
+        return self.camera.frame_start_true_s(index) + self.camera.readout_s
+
+    def _latest_ready(self, now_s: float) -> int:
+        """The newest frame fully exposed at world time ``now_s`` (−1 if none)."""
+        cam = self.camera
+        k = math.floor((now_s - cam.readout_s - cam.start_offset_s) / cam.frame_period_true_s + 1e-9)
+        return cam.first_frame_index_at_or_after(cam.start_offset_s + (k + 0.5) * cam.frame_period_true_s) - 1
+
+    def _wait_world(self, t_s: float) -> bool:
+        """Sleep until world time ``t_s`` in slices (stop looked at); False when stopped."""
+        while not self._stopped.is_set():
+            remaining_s = t_s - self.clock.now_s()
+            if remaining_s <= 0:
+                return True
+            rate = self.clock.rate or 1.0
+            self._stopped.wait(min(_POLL_S, remaining_s / rate))
+        return False
+
+    def _wait_for_client(self) -> bool:
+        with self._cond:
+            while self._clients == 0 and not self._stopped.is_set():
+                self._cond.wait(_POLL_S)
+        return not self._stopped.is_set()
+
+    def _produce(self) -> None:
+        index: int | None = None
+        while self._wait_for_client():
+            if index is None:  # (re)starting: the next frame from now on
+                index = self.camera.first_frame_index_at_or_after(self.clock.now_s())
+            if not self._wait_world(self._ready_s(index)):
+                return
+            newest = self._latest_ready(self.clock.now_s())
+            if newest > index:  # fell behind: the frames before the newest exposed one are dropped
+                self.stats.skipped += newest - index
+                index = newest
+            cpu0_s = time.thread_time()
+            image = self.camera.render(index)
+            ok, jpeg = cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, self.jpeg_quality])
+            self.stats.render_cpu_s += time.thread_time() - cpu0_s
+            if not ok:
+                log.error("camera %s: frame %d could not be JPEG-encoded; skipped", self.camera.name, index)
+            elif self._latest_ready(self.clock.now_s()) > index + 1:
+                self.stats.skipped += 1  # rendered too late: its successor's successor is exposed already
+            else:
+                self._publish(index, np.asarray(jpeg).tobytes())
+            index += 1
+            with self._cond:
+                if self._clients == 0:
+                    index = None
+
+    def _publish(self, index: int, jpeg: bytes) -> None:
+        with self._cond:
+            self._latest = (index, jpeg)
+            self.stats.published += 1
+            self._cond.notify_all()
+
+    # ------------------------------------------------------------------ streaming (one thread per client)
+    def stream_to(self, out: Any) -> None:
+        """Write every frame published from now on to ``out`` (a binary file) as multipart parts, until the
+        server stops or the client hangs up (``OSError``)."""
+        with self._cond:
+            self._clients += 1
+            sent = self._latest[0] if self._latest is not None else -1
+            self._cond.notify_all()
+        try:
+            while True:
+                with self._cond:
+                    while not self._stopped.is_set() and (self._latest is None or self._latest[0] <= sent):
+                        self._cond.wait(_POLL_S)
+                    if self._stopped.is_set() or self._latest is None:
+                        return
+                    sent, jpeg = self._latest
+                out.write(f"--{BOUNDARY}\r\nContent-Type: image/jpeg\r\nContent-Length: {len(jpeg)}\r\n\r\n"
+                          .encode("ascii") + jpeg + b"\r\n")
+                out.flush()
+        finally:
+            with self._cond:
+                self._clients -= 1
+
