@@ -9,7 +9,9 @@ most IP cameras): the client stamps them on arrival.
 
 A real IP camera drops frames when the host or the network is slow; so does this one: a frame whose
 successor is already fully exposed when its turn comes (rendering fell behind) is skipped, never sent late
-as if on time — the client's driver sees the gap in its arrival times (``stats.skipped`` counts them). A
+as if on time — the client's driver sees the gap in its arrival times (``stats.skipped`` counts them). The
+frame sent is always the newest one exposed when its rendering began: its latency is one render + encode
+(like a camera's encoder), never a queue of older frames. A
 client that reads slowly gets the newest frame when it asks again (the older ones are gone for it).
 Frames are rendered only while a client is connected (an idle camera costs no CPU).
 
@@ -170,12 +172,10 @@ class MjpegCameraServer:
             image = self.camera.render(index)
             ok, jpeg = cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, self.jpeg_quality])
             self.stats.render_cpu_s += time.thread_time() - cpu0_s
-            if not ok:
-                log.error("camera %s: frame %d could not be JPEG-encoded; skipped", self.camera.name, index)
-            elif self._latest_ready(self.clock.now_s()) > index + 1:
-                self.stats.skipped += 1  # rendered too late: its successor's successor is exposed already
-            else:
+            if ok:
                 self._publish(index, np.asarray(jpeg).tobytes())
+            else:
+                log.error("camera %s: frame %d could not be JPEG-encoded; skipped", self.camera.name, index)
             index += 1
             with self._cond:
                 if self._clients == 0:

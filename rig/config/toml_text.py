@@ -7,18 +7,26 @@ for the user (``rig mock lab --write-config``); what it writes reads back equal 
 
 from __future__ import annotations
 
-import json
 import math
 import re
 from typing import Any
 
 __all__ = ["to_toml"]
 
-_BARE_KEY = re.compile(r"^[A-Za-z0-9_-]+$")
+_BARE_KEY = re.compile(r"[A-Za-z0-9_-]+")
+
+
+_ESCAPES = {'"': '\\"', "\\": "\\\\", "\b": "\\b", "\t": "\\t", "\n": "\\n", "\f": "\\f", "\r": "\\r"}
+
+
+def _string(text: str) -> str:
+    """A TOML basic string: quotes, backslashes and control characters (U+0000–U+001F, U+007F) escaped."""
+    return '"' + "".join(_ESCAPES.get(c) or (f"\\u{ord(c):04X}" if ord(c) < 0x20 or ord(c) == 0x7F else c)
+                         for c in text) + '"'
 
 
 def _key(name: str) -> str:
-    return name if _BARE_KEY.match(name) else json.dumps(name, ensure_ascii=False)
+    return name if _BARE_KEY.fullmatch(name) else _string(name)
 
 
 def _value(value: Any, where: str) -> str:
@@ -31,7 +39,7 @@ def _value(value: Any, where: str) -> str:
             return "nan"
         return repr(value) if math.isfinite(value) else ("inf" if value > 0 else "-inf")
     if isinstance(value, str):
-        return json.dumps(value, ensure_ascii=False)  # a TOML basic string: the same escapes as JSON's
+        return _string(value)
     if isinstance(value, (list, tuple)):
         return "[" + ", ".join(_value(v, where) for v in value) + "]"
     if isinstance(value, dict):
