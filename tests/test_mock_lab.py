@@ -19,8 +19,8 @@ from drivers.sim.stereo_rig import default_camera_specs, make_camera
 from drivers.sim.world import World
 from rig.config.rig_config import config_from_dict, default_config
 from rig.config.toml_text import to_toml
-from rig.run.lab import client_table, lab_table
-from rig.run.station import camera_specs
+from rig.run.lab import client_table, lab_table, open_lab
+from rig.run.station import StationError, camera_specs, mount_in_lab
 
 WAIT_S = 60.0  # socket time-out on a loaded machine
 
@@ -138,15 +138,40 @@ def test_the_client_config_puts_every_device_and_camera_at_its_endpoint() -> Non
     endpoints = {"robot": "tcp://127.0.0.1:5007", "exciter": "tcp://127.0.0.1:5008",
                  "rotor": "tcp://127.0.0.1:5009", "generator": "tcp://127.0.0.1:5010",
                  "cameras.left": "http://127.0.0.1:5011/left.mjpg",
-                 "cameras.right": "http://127.0.0.1:5012/right.mjpg"}
+                 "cameras.right": "http://127.0.0.1:5012/right.mjpg", "control": "http://127.0.0.1:5013"}
     text = to_toml(client_table(served, endpoints, rate=1.0), "header")
     config = config_from_dict(tomllib.loads(text), "written")
     assert {name: dev.address for name, dev in config.devices.configured().items()} == \
-        {k: v for k, v in endpoints.items() if "." not in k}
+        {k: v for k, v in endpoints.items() if k in ("robot", "exciter", "rotor", "generator")}
     for name, cam in config.cameras.items():
         assert (cam.driver, cam.source, cam.fps, cam.resolution_px) == \
             ("opencv", endpoints[f"cameras.{name}"], 30.0, (960, 540))
-    assert config.sim is not None and config.sim.rate == 1.0
+    assert config.sim is not None and (config.sim.rate, config.sim.lab_url) == (1.0, endpoints["control"])
+
+
+@pytest.mark.parametrize("url", ["http://10.0.0.5:8000", "https://127.0.0.1:8000", "http://127.0.0.1",
+                                 "127.0.0.1:8000"])
+def test_lab_url_must_be_a_loopback_http_endpoint(url: str) -> None:
+    table = lab_table(default_config(), 0.5)
+    table["sim"]["lab_url"] = url
+    with pytest.raises(ValueError, match=r"sim\.lab_url.*allowed: http://127\.0\.0\.1:PORT"):
+        config_from_dict(table, "t")
+
+
+def test_the_station_mounts_targets_in_the_lab_world() -> None:
+    import urllib.request
+
+    with open_lab(default_config()) as lab:
+        control = lab.endpoints["control"]
+        with urllib.request.urlopen(f"{control}/mount", timeout=WAIT_S) as reply:
+            assert reply.read().decode().strip() == "calibration_plate"  # [sim] initial_scene
+        mount_in_lab(control, "sweep_column")
+        with urllib.request.urlopen(f"{control}/mount", timeout=WAIT_S) as reply:
+            assert reply.read().decode().strip() == "sweep_column"
+        with pytest.raises(StationError, match=r"mount 'spinning_top'.*sim\.lab_url.*404"):
+            mount_in_lab(control, "spinning_top")
+    with pytest.raises(StationError, match="did not mount it"):  # the lab is gone
+        mount_in_lab(control, "rotor", timeout_s=WAIT_S)
 
 
 _names = st.text(st.characters(codec="utf-8", exclude_categories=("Cs",)), min_size=1, max_size=8)

@@ -16,14 +16,18 @@ import re
 import signal
 import subprocess
 import sys
+import time
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
 import pytest
+from pymodbus.client import ModbusTcpClient
 
 ROOT = Path(__file__).resolve().parents[1]
 WAIT_S = 900.0  # a calibrate on a loaded host; the run ends as soon as it is done
+FREQ_OUT = 0x2103  # the drives' output frequency register (docs/exciter.md; 0.01 Hz)
+UNIT = {"exciter": 1, "rotor": 2}  # the built-in rig's unit ids
 
 
 def _env() -> dict[str, str]:
@@ -82,3 +86,47 @@ def test_rig_calibrates_against_the_lab(lab: RunningLab, tmp_path: Path) -> None
     assert set(rms) == {"left", "right"}
     # the lab's camera served the plate the arm moved: the fit is the criterion's (calibration_rms_px)
     assert all(value <= 0.5 for value in rms.values()), rms
+
+
+def _output_hz(url: str, device: str) -> float:
+    """The drive's output frequency read with a stock pymodbus client (not our driver)."""
+    host, port = url.removeprefix("tcp://").split(":")
+    client = ModbusTcpClient(host, port=int(port), timeout=10.0, retries=1)
+    assert client.connect()
+    try:
+        reply = client.read_holding_registers(FREQ_OUT, count=1, device_id=UNIT[device])
+        assert not reply.isError(), reply
+        return int(reply.registers[0]) / 100.0
+    finally:
+        client.close()
+
+
+@pytest.mark.slow
+def test_sigterm_while_the_rotor_spins_leaves_both_drives_of_the_lab_at_rest(lab: RunningLab,
+                                                                              tmp_path: Path) -> None:
+    """``rig run sweep`` calibrates, then spins the rotor to sync the cameras: a SIGTERM then stops both
+    drives (read back from the lab by a stock Modbus client) and the stop document names the signal."""
+    runs = tmp_path / "runs"
+    with open(tmp_path / "rig.stderr", "w") as err:
+        proc = subprocess.Popen([sys.executable, "-m", "rig.cli", "run", "sweep", "--config", str(lab.config),
+                                 "--runs-dir", str(runs), "--no-dashboard"], cwd=tmp_path, env=_env(),
+                                stdout=subprocess.PIPE, stderr=err, text=True)
+    try:
+        deadline = time.monotonic() + WAIT_S
+        while _output_hz(lab.endpoints["rotor"], "rotor") < 1.0:  # the lab's rotor turns: rig is syncing
+            assert proc.poll() is None, (tmp_path / "rig.stderr").read_text()[-3000:]
+            assert time.monotonic() < deadline, "the rotor never turned"
+            time.sleep(0.2)
+        proc.send_signal(signal.SIGTERM)
+        proc.communicate(timeout=WAIT_S)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.communicate()
+    assert proc.returncode == 2, (tmp_path / "rig.stderr").read_text()[-3000:]
+    (record,) = runs.glob("*/record.jsonl")
+    stops = [d for line in record.read_text().splitlines() if line.strip()
+             for d in [json.loads(line)] if d["type"] == "stop"]
+    assert len(stops) == 1 and stops[0]["signal"] == "SIGTERM" and stops[0]["safe_state_failures"] == []
+    for device in ("exciter", "rotor"):
+        assert _output_hz(lab.endpoints[device], device) == 0.0, device

@@ -5,7 +5,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 from rig.config.fiducial import SimFiducialConfig
-from rig.config.schema import spec
+from rig.config.schema import ConfigError, spec
 from rig.config.targets import VEC3_MM
 
 
@@ -42,6 +42,23 @@ class SimCameraConfig:
     noise: SimNoise = field(default_factory=SimNoise)
 
 
+def _check_lab_url(value: str, path: str) -> None:
+    """``http://127.0.0.1:PORT`` (a loopback address: the lab is a mock, never on the network)."""
+    from urllib.parse import urlsplit
+
+    from drivers.mock._serve import require_loopback
+
+    parts = urlsplit(value)
+    try:
+        host = require_loopback(parts.hostname or "")
+        ok = parts.scheme == "http" and parts.port is not None and bool(host)
+    except ValueError:
+        ok = False
+    if not ok:
+        raise ConfigError(path, f"{value!r}; allowed: http://127.0.0.1:PORT (the control endpoint `rig mock "
+                                "lab` prints, on a loopback address)")
+
+
 @dataclass(frozen=True)
 class SimConfig:
     """The twin: ``seed`` for all noise, the virtual clock (``rate`` None = instant, else virtual s per
@@ -57,3 +74,6 @@ class SimConfig:
         "calibration_plate", "single_marker", "marker_frame", "plate", "rotor", "sweep_column", "none")))
     cameras: dict[str, SimCameraConfig] = field(default_factory=dict)
     fiducial: SimFiducialConfig | None = None
+    lab_url: str | None = field(default=None, metadata=spec(check=_check_lab_url, doc=(
+        "the `rig mock lab` whose world the cameras film (its control endpoint): the station mounts each "
+        "target there as well as on its own twin")))

@@ -17,10 +17,9 @@ writes with ``--write-config``) is the configuration the lab serves, with every 
 ``[cameras.*] driver = "opencv"`` at its stream; the watchdogs are raised for a host that may stall (b-CAP
 WDT 2 s, heartbeat 6 s, drive communication time-out 5 s), as between any two processes on a loaded machine.
 
-Targets: a procedure mounts one (``station.mount``); on the lab's ``rig.toml`` (``station.simulated`` keeps
-the virtual clock) that switches the rig process's own twin only, not the lab's world, which keeps the target
-mounted at start (``[sim] initial_scene``, or ``--scene``). Calibrate films the calibration plate (the
-default); a procedure that mounts another target needs the lab started with it.
+Targets: a procedure mounts one (``station.mount``); the lab's ``rig.toml`` names the lab's control endpoint
+(``[sim] lab_url``), where the station mounts each target in the lab's world (``POST /mount/<scene>``, what
+an operator does by hand at a real bench) as well as on its own twin. ``--scene`` mounts one at start.
 """
 
 from __future__ import annotations
@@ -29,14 +28,16 @@ import argparse
 import contextlib
 import logging
 import math
+import threading
 import tomllib
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
+from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from pathlib import Path
 from typing import Any
 
 from drivers.mock._serve import loopback_host, wait_for_interrupt
-from drivers.sim.world import SCENES
+from drivers.sim.world import SCENES, World
 from rig.config.rig_config import RigConfig, config_from_dict, load_config
 from rig.config.schema import ConfigError, to_dict
 from rig.config.toml_text import to_toml
@@ -98,6 +99,7 @@ def client_table(served: dict[str, Any], endpoints: dict[str, str], rate: float)
     table: dict[str, Any] = _copy(served)
     table["station"]["heartbeat_timeout_s"] = HEARTBEAT_TIMEOUT_S
     table["sim"]["rate"] = rate
+    table["sim"]["lab_url"] = endpoints["control"]  # procedures mount their targets in the lab's world
     for name, device in table["devices"].items():
         device["address"] = endpoints[name]
         device.update(TOLERANT.get(name, {}))
@@ -146,7 +148,7 @@ def _port(base: int, offset: int) -> int:
     return 0 if base == 0 else base + offset
 
 
-def _serve_devices(lab: Lab, config: RigConfig, world: Any, host: str, port_base: int) -> None:
+def _serve_devices(lab: Lab, config: RigConfig, world: World, host: str, port_base: int) -> None:
     from drivers.mock.generator_server import GeneratorServer
     from drivers.mock.vfd_server import VfdServer
     from rig.run.station import mock_drive, mock_generator, mock_robot_server
@@ -170,7 +172,63 @@ def _serve_devices(lab: Lab, config: RigConfig, world: Any, host: str, port_base
         lab.endpoints["generator"] = generator.url
 
 
-def _serve_cameras(lab: Lab, config: RigConfig, world: Any, *, host: str, port_base: int,
+class _MountHandler(BaseHTTPRequestHandler):
+    """``POST /mount/<scene>``: mount a target in the lab's world now (what an operator does by hand);
+    ``GET /mount``: the target mounted now."""
+
+    server: _ControlServer
+    protocol_version = "HTTP/1.0"
+
+    def log_message(self, format: str, *args: Any) -> None:
+        log.debug("lab control %s: " + format, self.address_string(), *args)
+
+    def _reply(self, status: int, text: str) -> None:
+        body = (text + "\n").encode()
+        self.send_response(status)
+        self.send_header("Content-Type", "text/plain; charset=utf-8")
+        self.send_header("Content-Length", str(len(body)))
+        self.end_headers()
+        self.wfile.write(body)
+
+    def do_GET(self) -> None:
+        if self.path != "/mount":
+            self._reply(404, "GET /mount (the target mounted now) or POST /mount/<scene>")
+            return
+        self._reply(200, self.server.world.scene)
+
+    def do_POST(self) -> None:
+        scene = self.path.removeprefix("/mount/")
+        if not self.path.startswith("/mount/") or scene not in SCENES:
+            self._reply(404, f"POST /mount/<scene>; scenes: {', '.join(SCENES)}")
+            return
+        self.server.world.set_scene(scene)
+        log.info("lab: target %s mounted at t = %.3f s", scene, self.server.world.clock.now_s())
+        self._reply(200, scene)
+
+
+class _ControlServer(ThreadingHTTPServer):
+    daemon_threads = True
+
+    def __init__(self, address: tuple[str, int], world: World) -> None:
+        super().__init__(address, _MountHandler)
+        self.world = world
+
+
+def _serve_control(lab: Lab, world: World, *, host: str, port: int) -> None:
+    server = _ControlServer((host, port), world)
+    thread = threading.Thread(target=server.serve_forever, name="lab-control", daemon=True)
+    thread.start()
+
+    def stop() -> None:
+        server.shutdown()
+        server.server_close()
+        thread.join(timeout=5.0)
+
+    lab._closers.append(("control", stop))
+    lab.endpoints["control"] = f"http://{host}:{server.server_address[1]}"
+
+
+def _serve_cameras(lab: Lab, config: RigConfig, world: World, *, host: str, port_base: int,
                    jpeg_quality: int) -> None:
     from drivers.mock.mjpeg_camera import MjpegCameraServer
     from drivers.sim.stereo_rig import make_camera
@@ -192,9 +250,8 @@ def open_lab(config: RigConfig, *, scale: float = 0.5, rate: float = 1.0, port_b
              jpeg_quality: int = 90) -> Iterator[Lab]:
     """Serve the lab of ``config`` (see the module docstring) until the context ends; every server is
     stopped on the way out. ``port_base`` 0: any free ports; else robot N, exciter N+1, rotor N+2,
-    generator N+3, cameras N+4, N+5, …"""
+    generator N+3, cameras N+4, N+5, …, then the control endpoint."""
     from drivers.sim.clock import VirtualClock
-    from drivers.sim.world import World
     from rig.run.station import add_fiducial_led, world_layout
 
     if not (math.isfinite(rate) and rate > 0):
@@ -206,6 +263,8 @@ def open_lab(config: RigConfig, *, scale: float = 0.5, rate: float = 1.0, port_b
     add_fiducial_led(world, lab_config)
     lab = Lab(served, rate)
     try:
+        control_port = _port(port_base, len(DEVICE_ORDER) + len(lab_config.cameras))
+        _serve_control(lab, world, host=host, port=control_port)
         _serve_devices(lab, lab_config, world, host, port_base)
         _serve_cameras(lab, lab_config, world, host=host, port_base=port_base, jpeg_quality=jpeg_quality)
         yield lab
@@ -222,8 +281,8 @@ def _parser(prog: str | None) -> argparse.ArgumentParser:
                     "endpoints and a rig.toml that uses them.")
     parser.add_argument("--config", default=None, help="the rig.toml to simulate (default: the built-in rig)")
     parser.add_argument("--port-base", type=int, default=0,
-                        help="first TCP port: robot N, exciter N+1, rotor N+2, generator N+3, cameras N+4… "
-                             "(default 0: any free ports)")
+                        help="first TCP port: robot N, exciter N+1, rotor N+2, generator N+3, cameras "
+                             "N+4…, then the control endpoint (default 0: any free ports)")
     parser.add_argument("--host", default="127.0.0.1", type=loopback_host,
                         help="loopback address to bind (default 127.0.0.1; other addresses are refused)")
     parser.add_argument("--rate", type=float, default=1.0, help="virtual seconds per wall second (default 1)")

@@ -57,7 +57,7 @@ if TYPE_CHECKING:
     from drivers.sim.world import World, WorldLayout
 
 __all__ = ["Station", "StationError", "add_fiducial_led", "camera_specs", "mock_drive", "mock_generator",
-           "mock_robot_server", "open_station", "world_layout"]
+           "mock_robot_server", "mount_in_lab", "open_station", "world_layout"]
 
 log = logging.getLogger("rig.run.station")
 SCENE_OF_TARGET = {"calibration_plate": "calibration_plate", "single_marker": "single_marker",
@@ -133,6 +133,9 @@ class Station:
         if self.world is None:
             raise StationError(f"mount {scene!r}: a real bench needs the operator to mount the target")
         self.world.set_scene(SCENE_OF_TARGET[scene])
+        lab_url = self.config.sim.lab_url if self.config.sim is not None else None
+        if lab_url is not None:  # the cameras film `rig mock lab`'s world: mount it there
+            mount_in_lab(lab_url, SCENE_OF_TARGET[scene])
 
     def close(self) -> None:
         while self._closers:
@@ -141,6 +144,21 @@ class Station:
                 closer()
             except Exception as exc:
                 log.error("closing %s failed: %s", name, exc)
+
+
+def mount_in_lab(lab_url: str, scene: str, timeout_s: float = 10.0) -> None:
+    """Mount ``scene`` in the world of the ``rig mock lab`` at ``lab_url`` (``POST <lab_url>/mount/<scene>``);
+    :class:`StationError` naming the lab when it does not confirm."""
+    import urllib.error
+    import urllib.request
+
+    request = urllib.request.Request(f"{lab_url}/mount/{scene}", data=b"", method="POST")
+    try:
+        with urllib.request.urlopen(request, timeout=timeout_s) as reply:
+            reply.read()
+    except (urllib.error.URLError, OSError) as exc:
+        raise StationError(f"mount {scene!r}: the lab at sim.lab_url = {lab_url!r} did not mount it: "
+                           f"{exc}") from exc
 
 
 # ------------------------------------------------------------------------------------------- twin
