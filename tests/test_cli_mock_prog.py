@@ -35,10 +35,10 @@ def test_rig_mock_help_lists_the_devices(capsys: pytest.CaptureFixture[str]) -> 
         cli.main(["mock", "--help"])
     assert exit_info.value.code == 0
     out = capsys.readouterr().out
-    assert out.startswith("usage: rig mock ") and "{exciter,generator,robot,rotor}" in out
+    assert out.startswith("usage: rig mock ") and "{exciter,generator,lab,robot,rotor}" in out
 
 
-@pytest.mark.parametrize("device", ["robot", "exciter", "generator"])
+@pytest.mark.parametrize("device", ["robot", "exciter", "generator", "lab"])
 def test_mock_help_usage_names_rig_mock_device(device: str) -> None:
     proc = subprocess.run([sys.executable, "-m", "rig.cli", "mock", device, "--help"], capture_output=True,
                           text=True, timeout=60, env={**os.environ, "PYTHONPATH": str(ROOT)}, check=False)

@@ -139,7 +139,7 @@ def test_the_client_config_puts_every_device_and_camera_at_its_endpoint() -> Non
                  "rotor": "tcp://127.0.0.1:5009", "generator": "tcp://127.0.0.1:5010",
                  "cameras.left": "http://127.0.0.1:5011/left.mjpg",
                  "cameras.right": "http://127.0.0.1:5012/right.mjpg", "control": "http://127.0.0.1:5013"}
-    text = to_toml(client_table(served, endpoints, rate=1.0), "header")
+    text = to_toml(client_table(served, endpoints), "header")
     config = config_from_dict(tomllib.loads(text), "written")
     assert {name: dev.address for name, dev in config.devices.configured().items()} == \
         {k: v for k, v in endpoints.items() if k in ("robot", "exciter", "rotor", "generator")}
@@ -187,3 +187,16 @@ _tables = st.recursive(st.dictionaries(_names, _values, max_size=4),
 @given(_tables)
 def test_toml_text_reads_back_equal(table: dict) -> None:
     assert tomllib.loads(to_toml(table, "a header\nof two lines")) == table
+
+
+@pytest.mark.parametrize(("argv", "message"), [(["--scale", "2"], r"--scale: 2\.0; allowed: within \(0, 1\]"),
+                                               (["--fps", "0"], r"fps"),
+                                               (["--host", "0.0.0.0"], "loopback")])
+def test_bad_lab_options_exit_4_naming_the_option(argv: list[str], message: str,
+                                                  capsys: pytest.CaptureFixture[str]) -> None:
+    from rig.run.lab import main
+
+    with pytest.raises(SystemExit) as exit_info:
+        main(argv, prog="rig mock lab")
+    assert exit_info.value.code == 4
+    assert re.search(message, capsys.readouterr().err)

@@ -1,13 +1,15 @@
 """``rig mock lab``: one simulated lab — every device a configuration names and both cameras — in one
 process, on one simulated world, each on its own loopback endpoint, so that a ``rig.toml`` pointing at it
-runs every procedure (calibrate, sync, sweep, …) as on a real bench.
+drives and films the same bench, as a lab's controller does (the sub-frame sync does not pass yet: the IP
+cameras' frames are stamped on arrival, see the README's "The whole lab on mocks").
 
 The world (:class:`drivers.sim.world.World`) is built from the configuration as the station builds its twin
-(:func:`rig.run.station.world_layout`, the fiducial LED) on a virtual clock paced at ``--rate`` (real time by
-default). On it run the same mock servers the station starts for ``mock://`` addresses (b-CAP controller,
-exciter and rotor VFDs on Modbus TCP, SCPI generator; built by :func:`rig.run.station.mock_robot_server`,
-:func:`~rig.run.station.mock_drive`, :func:`~rig.run.station.mock_generator`) and one IP camera per
-``[sim.cameras.*]`` (:class:`drivers.mock.mjpeg_camera.MjpegCameraServer`, MJPEG over HTTP) rendering the
+(:func:`rig.run.station.world_layout`, the fiducial LED) on a virtual clock paced at real time (the client
+stamps the cameras' frames with its host clock). On it run the mock servers the station starts for
+``mock://`` addresses (b-CAP controller, exciter and rotor VFDs on Modbus TCP, SCPI generator; built by
+:func:`rig.run.station.mock_robot_server`, :func:`~rig.run.station.mock_drive`,
+:func:`~rig.run.station.mock_generator`) and one IP camera per ``[sim.cameras.*]``
+(:class:`drivers.mock.mjpeg_camera.MjpegCameraServer`, MJPEG over HTTP) rendering the
 same world, so what the arm and the drives do is what the cameras film.
 
 Rendering two 60 fps cameras at 1920×1080 costs more than a shared 2-core host has next to ``rig``; the lab
@@ -28,13 +30,14 @@ import argparse
 import contextlib
 import logging
 import math
+import sys
 import threading
 import tomllib
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from pathlib import Path
-from typing import Any
+from typing import Any, NoReturn
 
 from drivers.mock._serve import loopback_host, wait_for_interrupt
 from drivers.sim.world import SCENES, World
@@ -42,12 +45,14 @@ from rig.config.rig_config import RigConfig, config_from_dict, load_config
 from rig.config.schema import ConfigError, to_dict
 from rig.config.toml_text import to_toml
 from rig.record.atomic import write_text
+from rig.run.exit_codes import EXIT_BAD_INPUT
 
 __all__ = ["Lab", "client_table", "lab_table", "main", "open_lab"]
 
 log = logging.getLogger("rig.run.lab")
 DEVICE_ORDER = ("robot", "exciter", "rotor", "generator")  # --port-base N: robot N, exciter N+1, …, cameras
 TOLERANT = {"robot": {"wdt_ms": 2000}, "exciter": {"comm_timeout_s": 5.0}, "rotor": {"comm_timeout_s": 5.0}}
+REAL_TIME = 1.0  # virtual s per wall s: the cameras' frames are stamped by the client's host clock
 HEARTBEAT_TIMEOUT_S = 6.0  # above the 2 s WDT; drives probed every 1.5 s, their 5 s time-out above 2 probes
 
 
@@ -92,13 +97,13 @@ def lab_table(config: RigConfig, scale: float, scene: str | None = None,
     return table
 
 
-def client_table(served: dict[str, Any], endpoints: dict[str, str], rate: float) -> dict[str, Any]:
+def client_table(served: dict[str, Any], endpoints: dict[str, str]) -> dict[str, Any]:
     """The ``rig.toml`` of a controller using the lab: ``served`` (see :func:`lab_table`) with every device at
     its lab endpoint, every camera an ``opencv`` camera at its stream, the station's virtual clock paced at
-    the lab's ``rate`` and the watchdogs of :data:`TOLERANT`."""
+    real time as the lab's and the watchdogs of :data:`TOLERANT`."""
     table: dict[str, Any] = _copy(served)
     table["station"]["heartbeat_timeout_s"] = HEARTBEAT_TIMEOUT_S
-    table["sim"]["rate"] = rate
+    table["sim"]["rate"] = REAL_TIME
     table["sim"]["lab_url"] = endpoints["control"]  # procedures mount their targets in the lab's world
     for name, device in table["devices"].items():
         device["address"] = endpoints[name]
@@ -127,13 +132,12 @@ class Lab:
     ``cameras.<name>`` to the address a client uses; ``cameras`` the camera servers (their stats)."""
 
     served: dict[str, Any]
-    rate: float
     endpoints: dict[str, str] = field(default_factory=dict)
     cameras: dict[str, Any] = field(default_factory=dict)  # name → MjpegCameraServer
     _closers: list[tuple[str, Callable[[], None]]] = field(default_factory=list, repr=False)
 
     def client_config(self) -> dict[str, Any]:
-        return client_table(self.served, self.endpoints, self.rate)
+        return client_table(self.served, self.endpoints)
 
     def close(self) -> None:
         while self._closers:
@@ -245,7 +249,7 @@ def _serve_cameras(lab: Lab, config: RigConfig, world: World, *, host: str, port
 
 
 @contextlib.contextmanager
-def open_lab(config: RigConfig, *, scale: float = 0.5, rate: float = 1.0, port_base: int = 0,
+def open_lab(config: RigConfig, *, scale: float = 0.5, port_base: int = 0,
              host: str = "127.0.0.1", scene: str | None = None, fps: float | None = None,
              jpeg_quality: int = 90) -> Iterator[Lab]:
     """Serve the lab of ``config`` (see the module docstring) until the context ends; every server is
@@ -254,14 +258,12 @@ def open_lab(config: RigConfig, *, scale: float = 0.5, rate: float = 1.0, port_b
     from drivers.sim.clock import VirtualClock
     from rig.run.station import add_fiducial_led, world_layout
 
-    if not (math.isfinite(rate) and rate > 0):
-        raise ConfigError("--rate", f"{rate!r}; allowed: > 0 virtual seconds per wall second")
     served = lab_table(config, scale, scene, fps)
     lab_config = config_from_dict(served, "rig mock lab")
     assert lab_config.sim is not None  # lab_table requires [sim]
-    world = World(VirtualClock(rate=rate), seed=lab_config.sim.seed, layout=world_layout(lab_config))
+    world = World(VirtualClock(rate=REAL_TIME), seed=lab_config.sim.seed, layout=world_layout(lab_config))
     add_fiducial_led(world, lab_config)
-    lab = Lab(served, rate)
+    lab = Lab(served)
     try:
         control_port = _port(port_base, len(DEVICE_ORDER) + len(lab_config.cameras))
         _serve_control(lab, world, host=host, port=control_port)
@@ -273,8 +275,16 @@ def open_lab(config: RigConfig, *, scale: float = 0.5, rate: float = 1.0, port_b
 
 
 # ------------------------------------------------------------------------------------------- command line
+class _Parser(argparse.ArgumentParser):
+    """argparse with a usage error exiting 4 (bad input), as ``rig``'s own, not argparse's 2 (aborted)."""
+
+    def error(self, message: str) -> NoReturn:
+        self.print_usage(sys.stderr)
+        self.exit(EXIT_BAD_INPUT, f"{self.prog}: error: {message}\n")
+
+
 def _parser(prog: str | None) -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = _Parser(
         prog=prog or "python -m rig.run.lab",
         description="One simulated lab: every device of the configuration and one MJPEG-over-HTTP camera "
                     "per camera, on one simulated world, each on its own 127.0.0.1 endpoint. Prints the "
@@ -285,7 +295,6 @@ def _parser(prog: str | None) -> argparse.ArgumentParser:
                              "N+4…, then the control endpoint (default 0: any free ports)")
     parser.add_argument("--host", default="127.0.0.1", type=loopback_host,
                         help="loopback address to bind (default 127.0.0.1; other addresses are refused)")
-    parser.add_argument("--rate", type=float, default=1.0, help="virtual seconds per wall second (default 1)")
     parser.add_argument("--scale", type=float, default=0.5,
                         help="camera image scale (default 0.5: 1920×1080 is served as 960×540)")
     parser.add_argument("--fps", type=float, default=None,
@@ -306,14 +315,14 @@ def main(argv: list[str] | None = None, prog: str | None = None) -> int:
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(message)s")
     try:
         config = load_config(args.config)
-        lab_context = open_lab(config, scale=args.scale, rate=args.rate, port_base=args.port_base,
+        lab_context = open_lab(config, scale=args.scale, port_base=args.port_base,
                                host=args.host, scene=args.scene, fps=args.fps,
                                jpeg_quality=args.jpeg_quality)
         lab = lab_context.__enter__()
     except (ConfigError, ValueError) as exc:
         parser.error(str(exc))
     except OSError as exc:  # a port in use
-        parser.error(f"cannot serve: {exc}")
+        parser.error(f"--port-base {args.port_base}: cannot serve: {exc}")
     try:
         header = (f"rig.toml for `rig mock lab` ({config.source}, cameras scaled {args.scale:g}); "
                   "its devices and cameras are the lab's endpoints")
