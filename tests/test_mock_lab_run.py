@@ -68,7 +68,8 @@ def lab(tmp_path: Path) -> Iterator[RunningLab]:
 
 @pytest.mark.slow
 def test_rig_calibrates_against_the_lab(lab: RunningLab, tmp_path: Path) -> None:
-    assert set(lab.endpoints) == {"robot", "exciter", "rotor", "generator", "cameras.left", "cameras.right"}
+    assert set(lab.endpoints) == {"robot", "exciter", "rotor", "generator", "cameras.left", "cameras.right",
+                                  "control"}
     assert all("127.0.0.1" in url for url in lab.endpoints.values())
     text = lab.config.read_text()
     assert 'driver = "opencv"' in text and lab.endpoints["cameras.left"] in text
@@ -101,21 +102,29 @@ def _output_hz(url: str, device: str) -> float:
         client.close()
 
 
+SPIN = ROOT / "tests" / "spin_procedure.py"  # spins both drives and holds (the safety tests' procedure)
+
+
 @pytest.mark.slow
-def test_sigterm_while_the_rotor_spins_leaves_both_drives_of_the_lab_at_rest(lab: RunningLab,
-                                                                              tmp_path: Path) -> None:
-    """``rig run sweep`` calibrates, then spins the rotor to sync the cameras: a SIGTERM then stops both
-    drives (read back from the lab by a stock Modbus client) and the stop document names the signal."""
+@pytest.mark.parametrize(("procedure", "spinning"),
+                         [("sweep", ("rotor",)), (str(SPIN), ("exciter", "rotor"))],
+                         ids=["sweep-sync-step", "spin-both-drives"])
+def test_sigterm_while_drives_spin_leaves_both_drives_of_the_lab_at_rest(lab: RunningLab, tmp_path: Path,
+                                                                         procedure: str,
+                                                                         spinning: tuple[str, ...]) -> None:
+    """``rig run sweep`` calibrates, then spins the rotor to sync the cameras; the spin procedure runs both
+    drives. A SIGTERM while they turn (read from the lab by a stock Modbus client) stops both drives, exit 2,
+    and the stop document names the signal."""
     runs = tmp_path / "runs"
     with open(tmp_path / "rig.stderr", "w") as err:
-        proc = subprocess.Popen([sys.executable, "-m", "rig.cli", "run", "sweep", "--config", str(lab.config),
-                                 "--runs-dir", str(runs), "--no-dashboard"], cwd=tmp_path, env=_env(),
-                                stdout=subprocess.PIPE, stderr=err, text=True)
+        proc = subprocess.Popen([sys.executable, "-m", "rig.cli", "run", procedure, "--config",
+                                 str(lab.config), "--runs-dir", str(runs), "--no-dashboard"], cwd=tmp_path,
+                                env=_env(), stdout=subprocess.PIPE, stderr=err, text=True)
     try:
         deadline = time.monotonic() + WAIT_S
-        while _output_hz(lab.endpoints["rotor"], "rotor") < 1.0:  # the lab's rotor turns: rig is syncing
+        while min(_output_hz(lab.endpoints[d], d) for d in spinning) < 1.0:
             assert proc.poll() is None, (tmp_path / "rig.stderr").read_text()[-3000:]
-            assert time.monotonic() < deadline, "the rotor never turned"
+            assert time.monotonic() < deadline, f"{spinning} never turned"
             time.sleep(0.2)
         proc.send_signal(signal.SIGTERM)
         proc.communicate(timeout=WAIT_S)
