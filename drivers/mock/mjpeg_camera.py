@@ -27,6 +27,7 @@ import threading
 import time
 from dataclasses import dataclass
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
+from io import BufferedIOBase
 from typing import Any
 
 import cv2
@@ -188,7 +189,7 @@ class MjpegCameraServer:
             self._cond.notify_all()
 
     # ------------------------------------------------------------------ streaming (one thread per client)
-    def stream_to(self, out: Any) -> None:
+    def stream_to(self, out: BufferedIOBase) -> None:
         """Write every frame published from now on to ``out`` (a binary file) as multipart parts, until the
         server stops or the client hangs up (``OSError``)."""
         with self._cond:

@@ -37,7 +37,7 @@ from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from pathlib import Path
-from typing import Any, NoReturn
+from typing import TYPE_CHECKING, Any, NoReturn
 
 from drivers.mock._serve import loopback_host, wait_for_interrupt
 from drivers.sim.world import SCENES, World
@@ -45,7 +45,10 @@ from rig.config.rig_config import RigConfig, config_from_dict, load_config
 from rig.config.schema import ConfigError, to_dict
 from rig.config.toml_text import to_toml
 from rig.record.atomic import write_text
-from rig.run.exit_codes import EXIT_BAD_INPUT
+from rig.run.exit_codes import EXIT_BAD_INPUT, EXIT_FAULT
+
+if TYPE_CHECKING:
+    from drivers.mock.mjpeg_camera import MjpegCameraServer
 
 __all__ = ["Lab", "client_table", "lab_table", "main", "open_lab"]
 
@@ -133,7 +136,7 @@ class Lab:
 
     served: dict[str, Any]
     endpoints: dict[str, str] = field(default_factory=dict)
-    cameras: dict[str, Any] = field(default_factory=dict)  # name → MjpegCameraServer
+    cameras: dict[str, MjpegCameraServer] = field(default_factory=dict)
     _closers: list[tuple[str, Callable[[], None]]] = field(default_factory=list, repr=False)
 
     def client_config(self) -> dict[str, Any]:
@@ -313,17 +316,16 @@ def main(argv: list[str] | None = None, prog: str | None = None) -> int:
     parser = _parser(prog)
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(message)s")
-    try:
-        config = load_config(args.config)
-        lab_context = open_lab(config, scale=args.scale, port_base=args.port_base,
-                               host=args.host, scene=args.scene, fps=args.fps,
-                               jpeg_quality=args.jpeg_quality)
-        lab = lab_context.__enter__()
-    except (ConfigError, ValueError) as exc:
-        parser.error(str(exc))
-    except OSError as exc:  # a port in use
-        parser.error(f"--port-base {args.port_base}: cannot serve: {exc}")
-    try:
+    with contextlib.ExitStack() as stack:  # every server is stopped on the way out
+        try:
+            config = load_config(args.config)
+            lab = stack.enter_context(open_lab(config, scale=args.scale, port_base=args.port_base,
+                                               host=args.host, scene=args.scene, fps=args.fps,
+                                               jpeg_quality=args.jpeg_quality))
+        except (ConfigError, ValueError) as exc:
+            parser.error(str(exc))
+        except OSError as exc:  # a port in use
+            parser.error(f"--port-base {args.port_base}: cannot serve: {exc}")
         header = (f"rig.toml for `rig mock lab` ({config.source}, cameras scaled {args.scale:g}); "
                   "its devices and cameras are the lab's endpoints")
         text = to_toml(lab.client_config(), header)
@@ -331,14 +333,17 @@ def main(argv: list[str] | None = None, prog: str | None = None) -> int:
         for name, url in lab.endpoints.items():
             print(f"lab {name}: {url}", flush=True)
         if args.write_config:
-            write_text(Path(args.write_config), text)
+            try:
+                write_text(Path(args.write_config), text)
+            except OSError as exc:
+                print(f"{parser.prog}: cannot write --write-config {args.write_config}: {exc}",
+                      file=sys.stderr)
+                return EXIT_FAULT
             print(f"lab rig.toml written to {args.write_config}", flush=True)
         else:
             print(f"--- rig.toml ---\n{text}--- end ---", flush=True)
         print("lab ready (Ctrl-C or SIGTERM stops it)", flush=True)
         wait_for_interrupt()
-    finally:
-        lab_context.__exit__(None, None, None)
     for name, cam in lab.cameras.items():
         print(f"lab camera {name}: {cam.stats.published} frames sent, {cam.stats.skipped} skipped, "
               f"render + encode {cam.stats.render_cpu_s:.1f} CPU-s", flush=True)
