@@ -3,6 +3,7 @@ rendering falls behind), the scaled configuration it serves and the ``rig.toml``
 
 from __future__ import annotations
 
+import itertools
 import re
 import socket
 import tomllib
@@ -200,3 +201,23 @@ def test_bad_lab_options_exit_4_naming_the_option(argv: list[str], message: str,
         main(argv, prog="rig mock lab")
     assert exit_info.value.code == 4
     assert re.search(message, capsys.readouterr().err)
+
+
+def test_the_opencv_camera_driver_records_the_stream_at_the_configured_rate() -> None:
+    """FFmpeg reports 25 fps for any MJPEG stream: the driver takes a URL source's rate from arrival times
+    instead of refusing the 60 fps it was configured with; the size is still checked."""
+    from drivers.camera.opencv_device import CameraDeviceError, OpenCVCamera
+
+    with _camera(rate=1.0) as server:
+        camera = OpenCVCamera("left", server.url, fps=60.0, width_px=320, height_px=180)
+        assert camera.streamed
+        camera.start()
+        frames = []
+        for frame in camera.frames():
+            frames.append(frame)
+            if len(frames) == 5:
+                camera.stop()
+        assert len(frames) >= 5 and frames[0].image.shape == (180, 320)
+        assert all(b.timestamp_s > a.timestamp_s for a, b in itertools.pairwise(frames))
+        with pytest.raises(CameraDeviceError, match="requested 640×360 px, the device gives 320×180"):
+            OpenCVCamera("left", server.url, fps=60.0, width_px=640, height_px=360).start()
