@@ -9,7 +9,7 @@ PYTEST_PARALLEL ?= -n auto --dist loadfile --no-loadscope-reorder
 # the test files to run (default: all); e.g. make test-load TESTS="tests/test_bcap_recovery.py"
 TESTS ?=
 
-.PHONY: certify test test-load lint bench browser
+.PHONY: certify test test-load test-times lint bench browser
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -29,6 +29,16 @@ test: $(STAMP) browser
 # the same suite with a busy loop on every core (tests/conftest.py): timing must not depend on an idle machine
 test-load: $(STAMP) browser
 	RIG_TEST_LOAD=1 $(VENV)/bin/python -m pytest -q $(PYTEST_PARALLEL) $(TESTS)
+
+# the suite once with per-test CPU recorded (tests/conftest.py, RIG_TEST_TIMES), summed per file into
+# tests/file_costs.tsv: the order in which the xdist workers take the files (costliest first)
+test-times: $(STAMP) browser
+	rm -f .test-times.tsv
+	RIG_TEST_TIMES=.test-times.tsv $(VENV)/bin/python -m pytest -q $(PYTEST_PARALLEL) $(TESTS)
+	{ printf '# file\tcpu_s\twall_s (make test-times: per-test CPU incl. children, summed per file)\n'; \
+	  awk -F'\t' '{split($$1, id, "::"); c[id[1]] += $$3; w[id[1]] += $$2} \
+	    END {for (f in c) printf "%s\t%.1f\t%.1f\n", f, c[f], w[f]}' .test-times.tsv | sort -k2,2nr; \
+	} > tests/file_costs.tsv
 
 bench: $(STAMP)
 	for b in benchmarks/*.py; do case $$b in benchmarks/fuzz_*) continue;; esac; \

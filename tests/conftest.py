@@ -5,8 +5,8 @@ exactly; a developer's run explores new examples each time and keeps failures in
 ``RIG_TEST_LOAD=1`` (``make test-load``) runs the suite under CPU load: a busy loop on every core.
 
 Under pytest-xdist (``make test``: ``-n auto --dist loadfile``) each test file runs whole on one worker, the
-files holding slow-marked cases first (so the longest files do not start last), and the twin's calibrated
-sites that several files read are built once per session for all workers (``built_once``).
+costliest files first (``file_costs.tsv``, recorded by ``make test-times``), and the twin's calibrated sites
+that several files read are built once per session for all workers (``built_once``).
 """
 
 from __future__ import annotations
@@ -99,14 +99,36 @@ def pytest_runtest_protocol(item: pytest.Item, nextitem: pytest.Item | None) -> 
 
 
 # ----------------------------------------------------------------------------- order (xdist: longest first)
+# tests/file_costs.tsv: per test file, the CPU seconds (the worker's and its children's) and the wall seconds
+# of one `make test-times` run (RIG_TEST_TIMES summed per file). A file's cost to its worker is its CPU, or
+# more where it waits (real-time mocks, watchdog bounds): its wall divided by the run's typical wall/CPU
+# ratio (the load that run had), so a loaded recording does not overstate the CPU-bound files.
+FILE_COSTS = Path(__file__).with_name("file_costs.tsv")
+
+
+def file_costs_s(path: Path = FILE_COSTS) -> dict[str, float]:
+    """{test file: estimated seconds a worker is busy with it}, from ``path`` (empty when it is missing)."""
+    if not path.is_file():
+        return {}
+    rows = [line.split("\t") for line in path.read_text(encoding="utf-8").splitlines()
+            if line.strip() and not line.startswith("#")]
+    costs = {name: (float(cpu_s), float(wall_s)) for name, cpu_s, wall_s in rows}
+    ratios = sorted(wall_s / cpu_s for cpu_s, wall_s in costs.values() if cpu_s >= 1.0)
+    load = ratios[len(ratios) // 2] if ratios else 1.0
+    return {name: max(cpu_s, wall_s / load) for name, (cpu_s, wall_s) in costs.items()}
+
+
 def pytest_collection_modifyitems(session: pytest.Session, config: pytest.Config,
                                   items: list[pytest.Item]) -> None:
-    """Files with more slow-marked cases first, otherwise in collection order; a file's tests stay together
-    in their own order (module fixtures are built once). With ``--dist loadfile`` the workers take files in
-    this order, so the long end-to-end files start early instead of leaving one worker busy at the end."""
-    slow = Counter(item.nodeid.split("::", 1)[0] for item in items if item.get_closest_marker("slow"))
-    first_seen = {f: k for k, f in reversed(list(enumerate(item.nodeid.split("::", 1)[0] for item in items)))}
-    items.sort(key=lambda item: (-slow[f := item.nodeid.split("::", 1)[0]], first_seen[f]))
+    """Files by their recorded cost (``file_costs.tsv``), longest first; files not recorded yet by their
+    slow-marked cases, then in collection order. A file's tests stay together in their own order (module
+    fixtures are built once). With ``--dist loadfile`` the workers take files in this order (longest
+    processing time first), so the long files start early and the short ones fill the end evenly."""
+    costs = file_costs_s()
+    files = {item.nodeid: item.nodeid.split("::", 1)[0] for item in items}
+    slow = Counter(files[item.nodeid] for item in items if item.get_closest_marker("slow"))
+    first_seen = {f: k for k, f in reversed(list(enumerate(files[item.nodeid] for item in items)))}
+    items.sort(key=lambda item: (-costs.get(f := files[item.nodeid], 0.0), -slow[f], first_seen[f]))
 
 
 # ----------------------------------------------------------------------------- artefacts shared by files
