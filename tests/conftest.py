@@ -120,15 +120,21 @@ def file_costs_s(path: Path = FILE_COSTS) -> dict[str, float]:
 
 def pytest_collection_modifyitems(session: pytest.Session, config: pytest.Config,
                                   items: list[pytest.Item]) -> None:
-    """Files by their recorded cost (``file_costs.tsv``), longest first; files not recorded yet by their
-    slow-marked cases, then in collection order. A file's tests stay together in their own order (module
-    fixtures are built once). With ``--dist loadfile`` the workers take files in this order (longest
-    processing time first), so the long files start early and the short ones fill the end evenly."""
+    """Files not recorded yet in ``file_costs.tsv`` first (their cost is unknown: starting early is safe),
+    by their slow-marked cases; then the recorded ones, costliest first; ties in collection order. A file's
+    tests stay together in their own order (module fixtures are built once). With ``--dist loadfile`` the
+    workers take files in this order (longest processing time first): the long files start early and the
+    short ones fill the end evenly."""
     costs = file_costs_s()
     files = {item.nodeid: item.nodeid.split("::", 1)[0] for item in items}
     slow = Counter(files[item.nodeid] for item in items if item.get_closest_marker("slow"))
     first_seen = {f: k for k, f in reversed(list(enumerate(files[item.nodeid] for item in items)))}
-    items.sort(key=lambda item: (-costs.get(f := files[item.nodeid], 0.0), -slow[f], first_seen[f]))
+
+    def key(item: pytest.Item) -> tuple[bool, float, int, int]:
+        f = files[item.nodeid]
+        return f in costs, -costs.get(f, 0.0), -slow[f], first_seen[f]
+
+    items.sort(key=key)
 
 
 # ----------------------------------------------------------------------------- artefacts shared by files
