@@ -209,7 +209,8 @@ def test_batch_through_an_external_scheduler_with_two_workers(archive: Archive, 
         _wait_for(lambda: scheduler_file.is_file() and scheduler_file.stat().st_size > 0)
         address = json.loads(scheduler_file.read_text())["address"]
         assert address.startswith("tcp://127.0.0.1:")
-        worker = [str(BIN / "dask"), "worker", address, "--nworkers", "1", "--nthreads", "1",
+        # without a nanny: each worker one process (a nanny doubles the processes importing the stack)
+        worker = [str(BIN / "dask"), "worker", address, "--no-nanny", "--nthreads", "1",
                   "--no-dashboard", "--host", "127.0.0.1"]
         procs += [subprocess.Popen(worker, env=_env(), stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
                   for _ in range(2)]
