@@ -73,7 +73,8 @@ def pytest_report_header(config: pytest.Config) -> str | None:
 
 # ----------------------------------------------------------------------------- per-test CPU (RIG_TEST_TIMES)
 # RIG_TEST_TIMES=FILE appends one line per test (nodeid, wall s, CPU s of the worker process and of the
-# children it waited for): on a shared, loaded machine the CPU seconds, unlike --durations' wall time,
+# children it waited for — their own waited-for children included, e.g. a `rig` subprocess's mocks —, the
+# xdist worker): on a shared, loaded machine the CPU seconds, unlike --durations' wall time,
 # say what a test costs, and a file's sum is what it adds to its xdist worker. Written as each test ends.
 def _cpu_s() -> float:
     import resource
@@ -93,16 +94,18 @@ def pytest_runtest_protocol(item: pytest.Item, nextitem: pytest.Item | None) -> 
     try:
         return (yield)
     finally:
-        line = f"{item.nodeid}\t{time.perf_counter() - wall0:.3f}\t{_cpu_s() - cpu0:.3f}\n"
+        worker = os.environ.get("PYTEST_XDIST_WORKER", "main")
+        line = f"{item.nodeid}\t{time.perf_counter() - wall0:.3f}\t{_cpu_s() - cpu0:.3f}\t{worker}\n"
         with open(path, "a", encoding="utf-8") as out:  # one short append per test: whole lines
             out.write(line)
 
 
 # ----------------------------------------------------------------------------- order (xdist: longest first)
 # tests/file_costs.tsv: per test file, the CPU seconds (the worker's and its children's) and the wall seconds
-# of one `make test-times` run (RIG_TEST_TIMES summed per file). A file's cost to its worker is its CPU, or
-# more where it waits (real-time mocks, watchdog bounds): its wall divided by the run's typical wall/CPU
-# ratio (the load that run had), so a loaded recording does not overstate the CPU-bound files.
+# of one `make test-times` run (RIG_TEST_TIMES summed per file). A file's cost to its worker is its CPU plus
+# what it waits (real-time mocks, watchdog bounds). On the recorded run, wall = CPU × load + waits, with the
+# load that run had (the median wall/CPU ratio): waits = wall − CPU × load; a file whose children ran in
+# parallel (wall < CPU) costs its CPU.
 FILE_COSTS = Path(__file__).with_name("file_costs.tsv")
 
 
@@ -115,7 +118,7 @@ def file_costs_s(path: Path = FILE_COSTS) -> dict[str, float]:
     costs = {name: (float(cpu_s), float(wall_s)) for name, cpu_s, wall_s in rows}
     ratios = sorted(wall_s / cpu_s for cpu_s, wall_s in costs.values() if cpu_s >= 1.0)
     load = ratios[len(ratios) // 2] if ratios else 1.0
-    return {name: max(cpu_s, wall_s / load) for name, (cpu_s, wall_s) in costs.items()}
+    return {name: cpu_s + max(0.0, wall_s - cpu_s * load) for name, (cpu_s, wall_s) in costs.items()}
 
 
 def pytest_collection_modifyitems(session: pytest.Session, config: pytest.Config,
