@@ -240,21 +240,27 @@ def test_kill_9_then_rerun_completes_without_redoing_finished_tasks(archive: Arc
                             start_new_session=True)
     try:
         # killed as soon as one task is done: the two others take ≥ 2 CPU-s more on the one worker
-        _wait_for(lambda: (out / "tasks").is_dir() and any((out / "tasks").glob("*.json")), poll_s=0.02)
+        _wait_for(lambda: (out / "tasks").is_dir() and bool(_final(out / "tasks", "*.json")), poll_s=0.02)
         os.killpg(proc.pid, signal.SIGKILL)  # the batch and its LocalCluster's processes, at once
         proc.wait(timeout=60)
     finally:
         if proc.poll() is None:
             os.killpg(proc.pid, signal.SIGKILL)
-    finished = {p.name: p.stat().st_mtime_ns for p in (out / "tasks").glob("*.json")}
+    finished = {p.name: p.stat().st_mtime_ns for p in _final(out / "tasks", "*.json")}
     assert 1 <= len(finished) < 3
     done = subprocess.run(argv, env=_env(), capture_output=True, text=True, timeout=WAIT_S, check=False)
     assert done.returncode == 0, done.stderr[-2000:]
     assert f"{len(finished)} skipped as done before" in done.stdout
     assert {n: (out / "tasks" / n).stat().st_mtime_ns for n in finished} == finished
-    assert len(list((out / "tasks").glob("*.json"))) == 3
-    for path in out.rglob("*.parquet"):  # a file killed half-written never has its final name
+    assert len(_final(out / "tasks", "*.json")) == 3
+    for path in _final(out, "**/*.parquet"):  # a file killed half-written never has its final name
         pd.read_parquet(path)
+
+
+def _final(folder: Path, pattern: str) -> list[Path]:
+    """The files matching ``pattern`` under their final names: pathlib's ``*`` also matches the atomic
+    writer's temporaries (``.stem.<hex>.tmp.json``: dot names), which a SIGKILL can leave half-written."""
+    return [p for p in folder.glob(pattern) if not p.name.startswith(".")]
 
 
 def _wait_for(condition, timeout_s: float = WAIT_S, poll_s: float = 0.2) -> None:
