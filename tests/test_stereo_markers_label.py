@@ -1,13 +1,18 @@
-"""The compiled binarization (rig.stereo.markers_label) finds the blobs OpenCV's chain finds."""
+"""The compiled binarization (rig.stereo.markers_label) finds the blobs OpenCV's chain finds, whatever the
+row bands it is split into."""
 
 from __future__ import annotations
+
+import itertools
 
 import cv2
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from rig.stereo import markers_binarize as mb
-from rig.stereo.markers_label import local_blobs, subsample_noise
+from rig.stereo.markers_label import band_runs, join_boxes, local_blobs, reduced_shape, subsample_sigma
 
 
 def _sorted(boxes: np.ndarray) -> np.ndarray:
@@ -25,22 +30,55 @@ def _frame(seed: int, shape: tuple[int, int], noise_dn: float = 60.0) -> np.ndar
 
 @pytest.mark.parametrize("seed", range(12))
 @pytest.mark.parametrize("factor", [2, 4])
-def test_subsample_noise_and_blobs_equal_opencv(seed: int, factor: int) -> None:
+def test_subsampled_bands_equal_opencv(seed: int, factor: int) -> None:
+    """The subsample's noise σ and its blobs, labelled in one band and in three (the subsample and the
+    polarity done by the kernel, in bands), against numpy's subsample and OpenCV's chain."""
     shape = ((200, 300), (97, 131), (64, 64))[seed % 3]  # widths that are and are not multiples of 4
     img = _frame(seed, shape)
     dark = bool(seed % 2)
-    low, sigma = subsample_noise(img, factor, dark)
     start = factor // 2
-    want = img[start::factor, start::factor]
-    assert np.array_equal(low, 255 - want if dark else want)
-    assert sigma == pytest.approx(mb.noise_sigma(np.ascontiguousarray(want)), abs=1e-12)
+    want = np.ascontiguousarray(img[start::factor, start::factor])
+    low = 255 - want if dark else want
+    assert reduced_shape(img.shape, factor) == low.shape
+    sigma = subsample_sigma(img, factor)
+    assert sigma == pytest.approx(mb.noise_sigma(want), abs=1e-12)
     block, offset = mb._local_level(low.shape, 50.0 + 300.0 * seed, factor, 20.0, sigma)
     level = cv2.add(cv2.blur(low, (block, block), borderType=cv2.BORDER_REPLICATE),
                     np.array([float(min(offset, 255))]))
     binary = cv2.compare(low, level, cv2.CMP_GT)
     _, _, stats, _ = cv2.connectedComponentsWithStats(binary, connectivity=8)
-    found = local_blobs(low, block, offset)
-    assert np.array_equal(_sorted(found), _sorted(stats[1:, :4].astype(np.int64)))
+    whole = _banded(img, [0, low.shape[0]], factor=factor, dark=dark, block=block, offset=offset)
+    assert np.array_equal(_sorted(whole), _sorted(stats[1:, :4].astype(np.int64)))
+    h = low.shape[0]
+    assert np.array_equal(_banded(img, [0, h // 3, 2 * h // 3, h], factor=factor, dark=dark, block=block,
+                                  offset=offset), whole)
+    assert np.array_equal(local_blobs(low, block, offset), whole)
+
+
+def _banded(img: np.ndarray, edges: list[int], *, factor: int, dark: bool, block: int,
+            offset: int) -> np.ndarray:
+    """Boxes of ``img`` labelled in the bands between consecutive ``edges`` (reduced rows)."""
+    runs = [band_runs(img, factor, dark, y0, y1, block, offset) for y0, y1 in itertools.pairwise(edges)]
+    return join_boxes(runs, edges[:-1])
+
+
+@settings(max_examples=60, deadline=None)
+@given(seed=st.integers(0, 2**16), cuts=st.lists(st.floats(0.0, 1.0), min_size=1, max_size=4),
+       block=st.sampled_from([3, 9, 21]))
+def test_any_bands_give_the_boxes_of_one(seed: int, cuts: list[float], block: int) -> None:
+    """Blobs straddling one or several band edges (bands down to one row) are found once, with the same
+    boxes in the same order as in one band."""
+    rng = np.random.default_rng(seed)
+    img = (rng.random((60, 90)) * 30).astype(np.uint8)
+    for _ in range(int(rng.integers(1, 30))):  # discs, rings and bars of any size, touching, at the edges
+        y, x, r = rng.integers(0, 60), rng.integers(0, 90), rng.integers(1, 12)
+        yy, xx = np.ogrid[:60, :90]
+        d2 = (yy - y) ** 2 + (xx - x) ** 2
+        shape = d2 <= r * r if rng.random() < 0.6 else (d2 <= r * r) & (d2 >= (r // 2) ** 2)
+        img[shape] = rng.integers(60, 256)
+    edges = sorted({0, 60, *(int(c * 60) for c in cuts)})
+    whole = _banded(img, [0, 60], factor=1, dark=False, block=block, offset=10)
+    assert np.array_equal(_banded(img, edges, factor=1, dark=False, block=block, offset=10), whole)
 
 
 def test_find_candidates_compiled_equals_opencv_on_a_region_view() -> None:
@@ -48,8 +86,9 @@ def test_find_candidates_compiled_equals_opencv_on_a_region_view() -> None:
     view = img[17:201, 9:290]  # not contiguous, width not a multiple of 4
     boxes = mb._blobs_opencv(view, dark=False, threshold=None, factor=4, max_area_px=2000.0,
                              min_contrast=40.0)
-    low, sigma = subsample_noise(np.ascontiguousarray(view), 4, False)
+    sigma = subsample_sigma(np.ascontiguousarray(view), 4)
     assert 4.0 * sigma <= 0.5 * 40.0  # min_contrast
+    low = np.ascontiguousarray(view[2::4, 2::4])
     block, offset = mb._local_level(low.shape, 2000.0, 4, 40.0, sigma)
     found = {tuple(b) for b in local_blobs(low, block, offset).tolist()}
     # every outer contour's box is a blob's; a blob inside another's hole is a candidate of its own here

@@ -31,6 +31,7 @@ from rig.stereo.errors import InputArrayError, NoMarkersError
 from rig.stereo.markers_binarize import find_candidates
 from rig.stereo.markers_refine import Measured, measure_windows
 from rig.stereo.markers_roi import inside_any, parse_roi, roi_bounds
+from rig.stereo.markers_threads import check_threads, run_parts, split
 
 MARKER_DTYPE = np.dtype([("u_px", "f8"), ("v_px", "f8"), ("area_px", "f8"), ("roundness", "f8"),
                          ("contrast", "f8"), ("flags", "u1")])
@@ -98,6 +99,8 @@ def _ladder(half_px: np.ndarray) -> np.ndarray:
     return _HALF_LADDER[idx]
 
 
+# windows per thread at least: handing a part to another thread costs about as much as measuring this many
+WINDOWS_PER_THREAD = 4
 MERGE_PIXELS = 40_000  # extra window pixels that cost about as much as one more batch call
 
 
@@ -233,6 +236,7 @@ def detect_markers(
     outline_check: bool = False,
     max_edge_rms_px: float = MAX_EDGE_RMS_PX,
     require: bool = False,
+    threads: int = 1,
 ) -> np.ndarray:
     """Find circular markers in a uint8 frame; one :data:`MARKER_DTYPE` row per marker, sorted by (v, u).
 
@@ -256,6 +260,8 @@ def detect_markers(
         when its outline is fitted (centre="ellipse" or outline_check=True, slower), when the outline's
         RMS distance from the fitted ellipse exceeds max_edge_rms_px (plus a noise allowance).
     require: raise NoMarkersError instead of returning an empty array when nothing is found.
+    threads: threads one frame's work is split over (1 … 64; the same result for any): 1 where each
+        camera already has a core (two cameras reduced in parallel), more to cut one frame's wall time.
 
     Raises InputArrayError for a frame that is not a non-empty 2-D uint8 array or for invalid options.
     """
@@ -263,6 +269,7 @@ def detect_markers(
     _check_options(polarity, centre, min_area_px=min_area_px, max_area_px=max_area_px,
                    min_roundness=min_roundness, min_contrast=min_contrast)
     factor = _binarize_factor(threshold, downsample, min_area_px)
+    threads = check_threads(threads)
     dark = polarity == "dark"
     regions = None if roi is None else parse_roi(roi)
     area = _search_area(gray, regions, max_area_px)
@@ -271,7 +278,8 @@ def detect_markers(
     r_off, c_off, search = area
     rows, cols, half = find_candidates(search, dark=dark, threshold=threshold, factor=factor,
                                        min_area_px=min_area_px, max_area_px=max_area_px,
-                                       min_contrast=min_contrast, min_roundness=min_roundness)
+                                       min_contrast=min_contrast, min_roundness=min_roundness,
+                                       threads=threads)
     fit = centre == "ellipse" or outline_check
     limits = (min_area_px, max_area_px, min_roundness, min_contrast)
     if fit:
@@ -279,7 +287,8 @@ def detect_markers(
         rec, passed = _rows_passed(measured, centre, max_edge_rms_px, max_skewness, fitted=fit, limits=limits)
     else:
         rec, passed = _detect_compiled(gray, rows + r_off, cols + c_off, half, dark=dark,
-                                       limits=np.array([max_skewness, SKEW_NOISE_FACTOR, *limits]))
+                                       limits=np.array([max_skewness, SKEW_NOISE_FACTOR, *limits]),
+                                       threads=threads)
     rec = rec[passed]
     if regions is not None and len(rec):
         rec = rec[inside_any(rec["u_px"], rec["v_px"], regions)]
@@ -345,25 +354,29 @@ def _measure_candidates(gray: np.ndarray, rows: np.ndarray, cols: np.ndarray, ha
 
 
 def _measure_compiled(gray: np.ndarray, rows: np.ndarray, cols: np.ndarray, halves: np.ndarray, *,
-                      dark: bool, limits: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Output rows and the filters of windows of half sizes ``halves``, one compiled call
+                      dark: bool, limits: np.ndarray, threads: int) -> tuple[np.ndarray, np.ndarray]:
+    """Output rows and the filters of windows of half sizes ``halves``, one compiled call per thread
     (:func:`rig.stereo.markers_kernel.measure_rows`; a window too small for its marker is retried larger)."""
     from rig.stereo.markers_kernel import measure_rows  # numba: loaded by the first measurement
 
     rec = np.empty(len(rows), dtype=MARKER_DTYPE)
     passed = np.empty(len(rows), dtype=bool)
-    measure_rows(gray, np.ascontiguousarray(rows, dtype=np.int64), np.ascontiguousarray(cols, dtype=np.int64),
-                 np.ascontiguousarray(halves, dtype=np.int64), dark, limits, _HALF_LADDER, 2, rec, passed)
+    rows, cols = np.ascontiguousarray(rows, dtype=np.int64), np.ascontiguousarray(cols, dtype=np.int64)
+    halves = np.ascontiguousarray(halves, dtype=np.int64)
+    parts = split(len(rows), threads, WINDOWS_PER_THREAD)
+    run_parts(measure_rows, [(gray, rows[lo:hi], cols[lo:hi], halves[lo:hi], dark, limits, _HALF_LADDER, 2,
+                              rec[lo:hi], passed[lo:hi]) for lo, hi in parts])
     return rec, passed
 
 
 def _detect_compiled(gray: np.ndarray, rows: np.ndarray, cols: np.ndarray, half: np.ndarray, *, dark: bool,
-                     limits: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+                     limits: np.ndarray, threads: int) -> tuple[np.ndarray, np.ndarray]:
     """:func:`_measure_candidates` + :func:`_rows_passed` without an outline fit: rows and the filters
     (``limits``: as :func:`rig.stereo.markers_kernel.finish_rows`), a compiled call per pass."""
     if len(rows) == 0:
         return np.empty(0, dtype=MARKER_DTYPE), np.zeros(0, dtype=bool)
-    rec, passed = _measure_compiled(gray, rows, cols, _merge_sizes(_ladder(half)), dark=dark, limits=limits)
+    rec, passed = _measure_compiled(gray, rows, cols, _merge_sizes(_ladder(half)), dark=dark, limits=limits,
+                                    threads=threads)
     with np.errstate(invalid="ignore"):
         off = np.hypot(rec["u_px"] - cols, rec["v_px"] - rows) > np.maximum(2.0, 0.25 * half)
         off &= np.isfinite(rec["area_px"])
@@ -375,7 +388,7 @@ def _detect_compiled(gray: np.ndarray, rows: np.ndarray, cols: np.ndarray, half:
     again, again_passed = _measure_compiled(
         gray, np.rint(np.concatenate([v_found, 2 * rows[sel] - v_found])).astype(np.int64),
         np.rint(np.concatenate([u_found, 2 * cols[sel] - u_found])).astype(np.int64),
-        _merge_sizes(_ladder(np.concatenate([size, size]))), dark=dark, limits=limits)
+        _merge_sizes(_ladder(np.concatenate([size, size]))), dark=dark, limits=limits, threads=threads)
     keep = np.ones(len(rec), dtype=bool)
     keep[sel] = False  # replaced by their second measurement
     return (np.concatenate([rec[keep], again]), np.concatenate([passed[keep], again_passed]))
@@ -428,6 +441,7 @@ def track_markers(
     max_skewness: float = MAX_SKEWNESS,
     outline_check: bool = False,
     max_edge_rms_px: float = MAX_EDGE_RMS_PX,
+    threads: int = 1,
 ) -> np.ndarray:
     """Measure markers near predicted positions only; one :data:`MARKER_DTYPE` row per prediction, in order.
 
@@ -437,7 +451,8 @@ def track_markers(
         pixels of background around: make it the marker diameter + 8 px + twice the largest expected
         frame-to-frame motion. A marker that reaches the window's edge is measured again in a larger
         window; one larger than the window is lost. The marker is the blob under the window's centre,
-        else the strong blob nearest to it. Other options as in :func:`detect_markers`.
+        else the strong blob nearest to it. Other options (``threads`` included) as in
+        :func:`detect_markers`.
     A prediction that is NaN, outside the frame, or whose window holds no marker passing the filters gives
     a row with u_px = v_px = NaN and FLAG_LOST (area, roundness, contrast keep what was measured, or NaN).
     """
@@ -445,7 +460,8 @@ def track_markers(
     options = TrackOptions.checked(window_px=window_px, polarity=polarity, min_area_px=min_area_px,
                                    max_area_px=max_area_px, min_roundness=min_roundness,
                                    min_contrast=min_contrast, centre=centre, max_skewness=max_skewness,
-                                   outline_check=outline_check, max_edge_rms_px=max_edge_rms_px)
+                                   outline_check=outline_check, max_edge_rms_px=max_edge_rms_px,
+                                   threads=threads)
     pred = np.asarray(predicted_uv_px, dtype=np.float64)
     if pred.ndim != 2 or pred.shape[1] != 2:
         raise InputArrayError(f"predicted_uv_px has shape {pred.shape}; give a (K, 2) array of (u, v) in px")
@@ -466,11 +482,12 @@ class TrackOptions:
     min_contrast: float
     max_skewness: float
     max_edge_rms_px: float
+    threads: int = 1  # threads one frame's windows are split over (without an outline fit)
 
     @classmethod
     def checked(cls, *, window_px: int, polarity: str, min_area_px: float, max_area_px: float,
                 min_roundness: float, min_contrast: float, centre: str, max_skewness: float,
-                outline_check: bool, max_edge_rms_px: float) -> TrackOptions:
+                outline_check: bool, max_edge_rms_px: float, threads: int = 1) -> TrackOptions:
         """Options from :func:`track_markers`' keywords; InputArrayError names an invalid one."""
         _check_options(polarity, centre, min_area_px=min_area_px, max_area_px=max_area_px,
                        min_roundness=min_roundness, min_contrast=min_contrast)
@@ -479,13 +496,14 @@ class TrackOptions:
         return cls(half_px=int(window_px) // 2, dark=polarity == "dark",
                    fit=centre == "ellipse" or outline_check, centre=centre, min_area_px=min_area_px,
                    max_area_px=max_area_px, min_roundness=min_roundness, min_contrast=min_contrast,
-                   max_skewness=max_skewness, max_edge_rms_px=max_edge_rms_px)
+                   max_skewness=max_skewness, max_edge_rms_px=max_edge_rms_px,
+                   threads=check_threads(threads))
 
 
 def track_rows(gray: np.ndarray, pred: np.ndarray, opt: TrackOptions) -> np.ndarray:
     """:func:`track_markers` of the predictions ``pred`` (N, 2) float64 in the checked frame ``gray``: one
-    row per prediction. Without an outline fit, one compiled call
-    (:func:`rig.stereo.markers_kernel.track_frame`).
+    row per prediction. Without an outline fit, one compiled call per thread
+    (:func:`rig.stereo.markers_kernel.track_frame`, the predictions split over ``opt.threads``).
     """
     if len(pred) == 0:
         return np.empty(0, dtype=MARKER_DTYPE)
@@ -529,12 +547,13 @@ def track_rows(gray: np.ndarray, pred: np.ndarray, opt: TrackOptions) -> np.ndar
 
 
 def _track_compiled(gray: np.ndarray, pred: np.ndarray, opt: TrackOptions) -> np.ndarray:
-    """:func:`track_rows` without an outline fit: one compiled call."""
+    """:func:`track_rows` without an outline fit: one compiled call per thread."""
     from rig.stereo.markers_kernel import track_frame  # numba: loaded by the first measurement
 
     rec = np.empty(len(pred), dtype=MARKER_DTYPE)
     limits = np.array([opt.max_skewness, SKEW_NOISE_FACTOR, opt.min_area_px, opt.max_area_px,
                        opt.min_roundness, opt.min_contrast])
-    track_frame(np.ascontiguousarray(gray, dtype=np.uint8), pred, opt.half_px, opt.dark, limits,
-                _HALF_LADDER, 2, rec)
+    image = np.ascontiguousarray(gray, dtype=np.uint8)
+    run_parts(track_frame, [(image, pred[lo:hi], opt.half_px, opt.dark, limits, _HALF_LADDER, 2, rec[lo:hi])
+                            for lo, hi in split(len(pred), opt.threads, WINDOWS_PER_THREAD)])
     return rec

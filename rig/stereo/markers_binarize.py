@@ -78,21 +78,39 @@ def _blobs_opencv(gray: np.ndarray, *, dark: bool, threshold: float | str | None
     return np.array([cv2.boundingRect(c) for c in contours], dtype=np.int64).reshape(-1, 4)
 
 
+BAND_ROWS = 32  # reduced rows per band at least: a thinner band costs more than it saves
+
+
+def _blobs_compiled(gray: np.ndarray, *, dark: bool, factor: int, max_area_px: float, min_contrast: float,
+                    threads: int) -> np.ndarray | None:
+    """Boxes as :func:`_blobs_opencv` of the local threshold on the subsampled frame (``gray``
+    C-contiguous), in row bands on ``threads`` threads; None when the noise calls for the averaged
+    reduction instead (:func:`reduce_frame`)."""
+    from rig.stereo.markers_label import band_runs, join_boxes, reduced_shape, subsample_sigma
+    from rig.stereo.markers_threads import run_parts, split
+
+    sigma = subsample_sigma(gray, factor)
+    if 4.0 * sigma > 0.5 * min_contrast:
+        return None
+    shape = reduced_shape(gray.shape, factor)
+    block, offset = _local_level(shape, max_area_px, factor, min_contrast, sigma)
+    bands = split(shape[0], threads, BAND_ROWS)
+    runs = run_parts(band_runs, [(gray, factor, dark, y0, y1, block, offset) for y0, y1 in bands])
+    return join_boxes(runs, [y0 for y0, _ in bands])
+
+
 def find_candidates(gray: np.ndarray, *, dark: bool, threshold: float | str | None, factor: int,
                     min_area_px: float, max_area_px: float, min_contrast: float,
-                    min_roundness: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                    min_roundness: float, threads: int = 1) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Blobs of the binarized frame reduced ``factor`` (1, 2, 4) times.
 
+    ``threads``: the usual case (compiled) is labelled in that many row bands at once (the same blobs).
     Returns full-resolution integer window centres (rows, cols) and window half sizes, int64 arrays.
     """
     boxes = None
-    if threshold is None and factor > 1:  # the usual case: one compiled call (rig.stereo.markers_label)
-        from rig.stereo.markers_label import local_blobs, subsample_noise
-
-        low, sigma = subsample_noise(np.ascontiguousarray(gray), factor, dark)
-        if 4.0 * sigma <= 0.5 * min_contrast:  # else the averaged reduction below
-            block, offset = _local_level(low.shape, max_area_px, factor, min_contrast, sigma)
-            boxes = local_blobs(low, block, offset)
+    if threshold is None and factor > 1:  # the usual case: compiled (rig.stereo.markers_label)
+        boxes = _blobs_compiled(np.ascontiguousarray(gray), dark=dark, factor=factor, max_area_px=max_area_px,
+                                min_contrast=min_contrast, threads=threads)
     if boxes is None:
         boxes = _blobs_opencv(gray, dark=dark, threshold=threshold, factor=factor, max_area_px=max_area_px,
                               min_contrast=min_contrast)

@@ -12,6 +12,11 @@ sum along each row), the comparison ``pixel > round(mean) + offset`` (without a 
 hole is a blob of its own here (``cv2.findContours(RETR_EXTERNAL)`` skipped it): one more candidate,
 measured and filtered like the others.
 
+The frame can be labelled in row bands (:func:`band_runs`, one per thread: numba ``nogil``), each
+subsampling the rows its box sums need; :func:`join_boxes` then joins the runs of each band's first row
+to those of the row above it, so a blob straddling a band edge is one blob, and the boxes — in the
+order of their first run, as in one band — are the same whatever the bands.
+
 Imported by the first detection (numba is not loaded by ``import rig.stereo``); compiled code cached on
 disk as :mod:`rig.stereo.markers_kernel` explains.
 """
@@ -27,40 +32,53 @@ from rig.stereo.markers_kernel import _jit
 _LITTLE_ENDIAN = sys.byteorder == "little"  # the 32-bit-word subsample reads byte 2 of a word
 
 
+def reduced_shape(shape: tuple[int, ...], factor: int) -> tuple[int, int]:
+    """Shape of ``gray[s::factor, s::factor]`` (s = factor // 2) for a frame of ``shape``."""
+    start = factor // 2
+    return (shape[0] - start + factor - 1) // factor, (shape[1] - start + factor - 1) // factor
+
+
 @_jit
-def subsample_noise(gray: np.ndarray, factor: int, dark: bool) -> tuple[np.ndarray, float]:
-    """``gray`` (C-contiguous) reduced: ``gray[s::factor, s::factor]`` (s = factor // 2; 255 − value when
-    ``dark``) and its noise σ (DN): 1.4826 · median |horizontal difference| / √2 over every 32nd row,
-    at least 0.5."""
+def subsample_sigma(gray: np.ndarray, factor: int) -> float:
+    """Noise σ (DN) of ``gray[s::factor, s::factor]`` (s = factor // 2), read from ``gray`` itself:
+    1.4826 · median |horizontal difference| / √2 over every 32nd reduced row, at least 0.5 (as
+    :func:`rig.stereo.markers_binarize.noise_sigma`; the same for either polarity)."""
     start = factor // 2
     height, width = gray.shape
     h, w = (height - start + factor - 1) // factor, (width - start + factor - 1) // factor
-    low = np.empty((h, w), np.uint8)
-    words = _LITTLE_ENDIAN and factor == 4 and width % 4 == 0
-    for i in range(h):
-        src = gray[start + i * factor]
-        if words:  # byte 2 of each little-endian 32-bit word (vectorized)
-            packed = src.view(np.uint32)
-            for j in range(w):
-                low[i, j] = (packed[j] >> 16) & 0xFF
-        else:
-            for j in range(w):
-                low[i, j] = src[start + j * factor]
     hist = np.zeros(256, np.int64)
     n = 0
     for i in range(0, h, 32):
+        src = gray[start + i * factor]
         for j in range(w - 1):
-            hist[abs(np.int64(low[i, j + 1]) - np.int64(low[i, j]))] += 1
+            hist[abs(np.int64(src[start + (j + 1) * factor]) - np.int64(src[start + j * factor]))] += 1
             n += 1
     half, seen, median = n / 2.0, 0, 0
     while median < 255 and seen + hist[median] < half:
         seen += hist[median]
         median += 1
-    if dark:
-        for i in range(h):
+    return max(1.4826 * median / float(np.sqrt(2.0)), 0.5)
+
+
+@_jit
+def _subsample_rows(gray: np.ndarray, factor: int, dark: bool, r0: int, low: np.ndarray) -> None:
+    """Reduced rows r0 … r0 + len(low) − 1 of ``gray`` (C-contiguous): ``gray[s::factor, s::factor]``
+    (s = factor // 2; 255 − value when ``dark``) into ``low``."""
+    start = factor // 2
+    w = low.shape[1]
+    words = _LITTLE_ENDIAN and factor == 4 and gray.shape[1] % 4 == 0
+    for i in range(low.shape[0]):
+        src, dst = gray[start + (r0 + i) * factor], low[i]
+        if words:  # byte 2 of each little-endian 32-bit word (vectorized)
+            packed = src.view(np.uint32)
             for j in range(w):
-                low[i, j] = 255 - low[i, j]
-    return low, max(1.4826 * median / np.sqrt(2.0), 0.5)
+                dst[j] = (packed[j] >> 16) & 0xFF
+        else:
+            for j in range(w):
+                dst[j] = src[start + j * factor]
+        if dark:
+            for j in range(w):
+                dst[j] = 255 - dst[j]
 
 
 @_jit
@@ -159,34 +177,41 @@ def _foreground(  # noqa: PLR0917 (numba: no keyword-only arguments)
 
 
 @_jit
-def local_blobs(low: np.ndarray, block: int, offset: int) -> np.ndarray:
-    """Bounding boxes (B, 4) int64 (x0, y0, width, height) of the 8-connected blobs of pixels brighter
-    than the rounded mean of their ``block`` × ``block`` neighbourhood (odd, edges replicated) plus
-    ``offset`` DN, in reduced pixels."""
-    h, w = low.shape
+def band_runs(  # noqa: PLR0917 (numba: no keyword-only arguments)
+        gray: np.ndarray, factor: int, dark: bool, y0: int, y1: int, block: int,
+        offset: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Foreground runs of the reduced rows ``y0 … y1 − 1`` of ``gray`` (C-contiguous; reduced as
+    :func:`_subsample_rows`): pixels brighter than the rounded mean of their ``block`` × ``block``
+    neighbourhood (odd, edges replicated) plus ``offset`` DN, 8-connected within the band.
+
+    Returns (row, first column, last column, root) int64 arrays, one element per run in row-major order;
+    root: the index of the first run of its blob within the band (a union–find forest of roots)."""
+    height, width = gray.shape
+    h, w = (height - factor // 2 + factor - 1) // factor, (width - factor // 2 + factor - 1) // factor
     r = block // 2
     area = block * block
+    b0, b1 = max(y0 - r, 0), min(y1 + r, h)  # the reduced rows the band's box sums read
+    low = np.empty((b1 - b0, w), np.uint8)
+    _subsample_rows(gray, factor, dark, b0, low)
     # int32 throughout (vectorized; sums ≤ 255·block·(w + block) < 2³¹ for any frame up to 8k × 8k)
-    col = np.empty(w, np.int32)
-    for x in range(w):
-        col[x] = np.int32(r + 1) * np.int32(low[0, x])
-        for i in range(1, r + 1):
-            col[x] += np.int32(low[min(i, h - 1), x])
-    # the runs (row, first and last column) and their union–find parents, grown as needed
-    # (the largest possible count, h·w/2, is 2 MB for a 1080p frame reduced ×4: allocating that each
-    # call cost more than the labelling)
+    col = np.zeros(w, np.int32)  # column sums of rows y0 − r … y0 + r, edges replicated
+    for i in range(y0 - r, y0 + r + 1):
+        src = low[min(max(i, 0), h - 1) - b0]
+        for x in range(w):
+            col[x] += np.int32(src[x])
+    # the runs and their union–find parents, grown as needed (the largest possible count, h·w/2, is
+    # 2 MB for a 1080p frame reduced ×4: allocating that each call cost more than the labelling)
     run_y, run_a = np.empty(1024, np.int64), np.empty(1024, np.int64)
     run_b, parent = np.empty(1024, np.int64), np.empty(1024, np.int64)
     prefix = np.zeros(w + 2 * r + 2, np.int32)  # prefix sums of the column sums, edges replicated
     fg = np.zeros(w + 1, np.uint8)  # the row's foreground (fg[w] stays 0: a run ends there)
     n_runs, prev_lo, prev_hi = 0, 0, 0
-    for y in range(h):
-        if y:  # column sums of rows y − r … y + r
-            add, sub = low[min(y + r, h - 1)], low[max(y - r - 1, 0)]
+    for y in range(y0, y1):
+        if y > y0:  # column sums of rows y − r … y + r
+            add, sub = low[min(y + r, h - 1) - b0], low[max(y - r - 1, 0) - b0]
             for x in range(w):
                 col[x] += np.int32(add[x]) - np.int32(sub[x])
-        row = low[y]
-        if _foreground(row, col, r, offset, area, prefix, fg) == 0:
+        if _foreground(low[y - b0], col, r, offset, area, prefix, fg) == 0:
             prev_lo = prev_hi = n_runs
             continue
         if n_runs + (w + 1) // 2 > len(run_y):  # room for the most runs a row can have
@@ -196,6 +221,40 @@ def local_blobs(low: np.ndarray, block: int, offset: int) -> np.ndarray:
         this_lo = n_runs
         n_runs = _row_runs(fg, y, (run_y, run_a, run_b, parent), n_runs, prev_lo, prev_hi)
         prev_lo, prev_hi = this_lo, n_runs
+    for k in range(n_runs):
+        parent[k] = _find(parent, k)
+    return run_y[:n_runs], run_a[:n_runs], run_b[:n_runs], parent[:n_runs]
+
+
+@_jit
+def _joined(runs: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray],
+            below: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray],
+            edge_y: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The runs of two bands, ``runs`` above ``below`` whose first row is ``edge_y``, in one forest:
+    each run of row ``edge_y`` joined to the runs of row ``edge_y − 1`` that touch it (8-connected)."""
+    n_a, n_b = len(runs[0]), len(below[0])
+    run_y, run_a = np.concatenate((runs[0], below[0])), np.concatenate((runs[1], below[1]))
+    run_b, parent = np.concatenate((runs[2], below[2])), np.concatenate((runs[3], below[3] + n_a))
+    first = n_a  # the runs of row edge_y − 1 are the last of the upper band's
+    while first > 0 and run_y[first - 1] == edge_y - 1:
+        first -= 1
+    for k in range(n_a, n_a + n_b):
+        if run_y[k] != edge_y:
+            break
+        for q in range(first, n_a):
+            if run_a[q] <= run_b[k] + 1 and run_b[q] >= run_a[k] - 1:
+                a, b = _find(parent, q), _find(parent, k)
+                if a != b:
+                    parent[max(a, b)] = min(a, b)
+    return run_y, run_a, run_b, parent
+
+
+@_jit
+def _boxes(runs: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]) -> np.ndarray:
+    """Bounding boxes (B, 4) int64 (x0, y0, width, height) of the blobs of ``runs`` (row-major order;
+    :func:`band_runs`), in the order of each blob's first run."""
+    run_y, run_a, run_b, parent = runs
+    n_runs = len(run_y)
     boxes = np.empty((n_runs, 4), np.int64)
     slot = np.full(n_runs, -1, np.int64)
     n_blobs = 0
@@ -212,3 +271,21 @@ def local_blobs(low: np.ndarray, block: int, offset: int) -> np.ndarray:
     out[:, 2] = out[:, 2] - out[:, 0] + 1
     out[:, 3] = out[:, 3] - out[:, 1] + 1
     return out
+
+
+def join_boxes(bands: list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]],
+               first_rows: list[int]) -> np.ndarray:
+    """Bounding boxes (B, 4) int64 (x0, y0, width, height; reduced px) of the blobs of consecutive
+    bands' runs (:func:`band_runs`; ``first_rows``: each band's first reduced row), a blob straddling
+    band edges counted once; the same boxes, in the same order, for any split into bands."""
+    runs = bands[0]
+    for below, edge_y in zip(bands[1:], first_rows[1:], strict=True):
+        runs = _joined(runs, below, edge_y)
+    return _boxes(runs)
+
+
+def local_blobs(low: np.ndarray, block: int, offset: int) -> np.ndarray:
+    """Bounding boxes (B, 4) int64 (x0, y0, width, height) of the 8-connected blobs of pixels of ``low``
+    brighter than the rounded mean of their ``block`` × ``block`` neighbourhood (odd, edges replicated)
+    plus ``offset`` DN: one band, without reduction."""
+    return _boxes(band_runs(np.ascontiguousarray(low), 1, False, 0, low.shape[0], block, offset))
