@@ -12,7 +12,14 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from rig.stereo import markers_binarize as mb
-from rig.stereo.markers_label import band_runs, join_boxes, local_blobs, reduced_shape, subsample_sigma
+from rig.stereo.markers_label import (
+    _least_level,
+    band_runs,
+    join_boxes,
+    local_blobs,
+    reduced_shape,
+    subsample_sigma,
+)
 
 
 def _sorted(boxes: np.ndarray) -> np.ndarray:
@@ -115,3 +122,11 @@ def test_blobs_of_a_frame_full_of_them_equal_opencv() -> None:
         assert np.array_equal(_sorted(found), _sorted(stats[1:, :4].astype(np.int64)))
         blobs.append(n - 1)
     assert max(blobs) > 1024  # more runs than the arrays' first size
+
+
+@given(least=st.integers(0, 255 * 81 * 2 * 81 * 9), offset=st.integers(0, 255),
+       block=st.sampled_from([3, 9, 39, 81]))
+def test_least_level_is_the_first_pixel_value_that_can_pass(least: int, offset: int, block: int) -> None:
+    area = block * block
+    first = next((p for p in range(256) if p - offset >= 1 and least < (2 * (p - offset) - 1) * area), 256)
+    assert _least_level(least, offset, area) == first

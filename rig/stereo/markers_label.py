@@ -123,39 +123,68 @@ def _row_runs(  # noqa: PLR0917 (numba: no keyword-only arguments)
 
 
 @_jit
+def _least_level(least_twice_sum: int, offset: int, area: int) -> int:
+    """The smallest pixel value p (capped at 256: none) with v = p − offset ≥ 1 and (2v − 1)·area above
+    ``least_twice_sum`` (≥ 0): a pixel below it is background whatever its box sum (the test is monotone
+    in p). In integers: (2v − 1)·area > s ⇔ 2v − 1 > ⌊s / area⌋ ⇔ v ≥ (⌊s / area⌋ + 3) // 2."""
+    return min(offset + max(1, (least_twice_sum // area + 3) // 2), 256)
+
+
+@_jit
+def _box_sum(col: np.ndarray, x: int, r: int) -> int:
+    """Sum of the column sums ``col[x − r … x + r]``, edges replicated."""
+    w = len(col)
+    total = 0
+    if x - r >= 0 and x + r < w:  # inside: no clamping (vectorized)
+        for t in range(x - r, x + r + 1):
+            total += col[t]
+        return total
+    for t in range(x - r, x + r + 1):
+        total += col[min(max(t, 0), w - 1)]
+    return total
+
+
+@_jit
 def _foreground(  # noqa: PLR0917 (numba: no keyword-only arguments)
         row: np.ndarray, col: np.ndarray, r: int, offset: int, area: int, prefix: np.ndarray,
         fg: np.ndarray) -> int:
     """``fg[x]`` = pixel x of ``row`` is brighter than the rounded mean of its box (column sums ``col`` of
-    the box's rows, 2r + 1 columns, edges replicated) plus ``offset``; returns how many are.
+    the box's rows, 2r + 1 columns, edges replicated) plus ``offset``; returns how many are (0: ``fg``
+    left as it was).
 
-    First, branch-free (vectorized), the pixels that could be: against the smallest possible box sum,
-    (2r + 1) × the smallest column sum. Most rows of a frame of markers have none (the row is done) or a
-    few (their box sums are added up column by column); a row with many gets the box sums of every pixel
-    from prefix sums of its column sums (``prefix``: scratch, w + 2r + 2)."""
+    First the pixels that could be, against the smallest possible box sum, (2r + 1) × the smallest column
+    sum: those at or above one level (:func:`_least_level`). Most rows of a frame of markers have none
+    (their maximum is below it: the row is done) or a few (their box sums are added up, sliding along
+    runs of neighbours); a row with many gets the box sums of every pixel from prefix sums of its column
+    sums (``prefix``: scratch, w + 2r + 2)."""
     w = len(row)
     block = 2 * r + 1
-    off32, area32 = np.int32(offset), np.int32(area)
-    least = np.int32(2 * block) * col.min()  # twice the smallest possible box sum
+    level = _least_level(2 * block * int(col.min()), offset, area)
+    top = 0
+    for x in range(w):  # vectorized
+        top = max(top, int(row[x]))
+    if top < level:
+        return 0
+    low = np.uint8(level)
     count = 0
     for x in range(w):
-        v = np.int32(row[x]) - off32
-        on = (v >= 1) & (least < (np.int32(2) * v - np.int32(1)) * area32)
+        on = row[x] >= low
         fg[x] = on
         count += on
-    if count == 0:
-        return 0
     if count <= w // 16:
-        count = 0
+        count, last, total = 0, -2, 0
         for x in range(w):
             if fg[x]:
-                total = np.int32(0)
-                for t in range(x - r, x + r + 1):
-                    total += col[min(max(t, 0), w - 1)]
-                on = np.int32(2) * total < (np.int32(2) * (np.int32(row[x]) - off32) - np.int32(1)) * area32
+                if x == last + 1:  # slide the box one column
+                    total += col[min(x + r, w - 1)] - col[max(x - r - 1, 0)]
+                else:
+                    total = _box_sum(col, x, r)
+                last = x
+                on = 2 * total < (2 * (int(row[x]) - offset) - 1) * area
                 fg[x] = on
-                count += int(on)
+                count += on
         return count
+    off32, area32 = np.int32(offset), np.int32(area)
     total = np.int32(0)
     for i in range(r):  # the left edge replicated
         total += col[0]
