@@ -7,10 +7,15 @@ about fixed positions at 1–12 Hz, 60 frames/s (a structure under monitoring). 
 previous frame's result.
 
 Methods, timed in the same run:
-  ours/full      rig.stereo.detect_markers on the whole frame
-  ours/track     rig.stereo.track_markers around the previous frame's centres, one call per frame
+  ours/full      rig.stereo.detect_markers on the whole frame (threads: 1 in the CPU pass, every core —
+                 --ours-threads — in the wall pass: one frame's work split over them)
+  ours/track     rig.stereo.track_markers around the previous frame's centres, one call per frame (threads
+                 as ours/full)
+  ours/full@1, ours/track@1  (wall pass only, when ours runs on more than one thread there) the same on
+                 one thread: what the threads gain
   ours/track1    ours/track of the first marker alone: the fixed cost of a call, whatever the markers
-  ours/binarize  ours/full's binarization stage alone (candidate windows, integer px, not measured)
+  ours/binarize  ours/full's binarization stage alone (candidate windows, integer px, not measured; threads
+                 as ours/full)
   sbd/default    cv2.SimpleBlobDetector, OpenCV's default thresholds (50..220 step 10); bright blobs,
                  area 50..2000 px², circularity ≥ 0.6 (in all three sbd variants)
   sbd/tuned      thresholds tuned to these markers (peak 170 DN): 50..170 step 10
@@ -24,15 +29,16 @@ and worst round), the speed-up over each SimpleBlobDetector variant (median of t
 ratios), and the centroid RMS error per axis vs truth (first round, matched within 3 px). Two passes by
 default: CPU time of this thread with OpenCV on one thread (insensitive to other processes), then wall
 time with each method free to use every core (OpenCV's SimpleBlobDetector uses the second core; a quiet
-machine's wall figures are the reference). Whether the wall figures are honest: each case prints the CPU
+machine's wall figures are the reference; ours splits a frame over every core too, and the header
+says on how many threads). Whether the wall figures are honest: each case prints the CPU
 that other processes used while it ran (/proc/stat, this process's own CPU time deducted; above 0.1 core
 the case is flagged "NOT a quiet machine"), and the wall pass prints the cores each method used (its
 process CPU time / wall time: ≈ 1 for ours, up to 2 for SimpleBlobDetector when its second thread gets
 the second core; less than that when other processes take it).
 Run: .venv/bin/python benchmarks/markers.py [--rounds N] [--frames N] [--clock both|cpu|wall]
-[--scene both|drift|vibration] [--markers 12 30]
-The wall figures on a quiet machine (about 2 minutes):
-  PYTHONPATH=. .venv/bin/python benchmarks/markers.py --clock wall --rounds 3 --frames 20
+[--scene both|drift|vibration] [--markers 12 30] [--ours-threads N]
+Both clocks on a quiet machine (under 3 minutes; check that no case says "NOT a quiet machine"):
+  PYTHONPATH=. .venv/bin/python benchmarks/markers.py --rounds 3 --frames 20
 
 Figures: README.md ("Marker extraction"), three runs of --clock cpu --rounds 3 --frames 20 on 2026-12-02 at
 load average 8–10 (other processes using 1.5–1.7 of the 2 cores): single-thread CPU, full frame
@@ -54,6 +60,7 @@ import argparse
 import os
 import sys
 import time
+from functools import partial
 from pathlib import Path
 
 import cv2
@@ -124,13 +131,13 @@ def thr_cc(img, _prev):
     return centroids[1:][keep]
 
 
-def ours_full(img, _prev):
-    r = detect_markers(img, **DETECT_KW)
+def ours_full(img, _prev, threads: int = 1):
+    r = detect_markers(img, threads=threads, **DETECT_KW)
     return np.stack([r["u_px"], r["v_px"]], axis=1)
 
 
-def ours_track(img, prev):
-    r = track_markers(img, prev, window_px=TRACK_WINDOW_PX, **DETECT_KW)
+def ours_track(img, prev, threads: int = 1):
+    r = track_markers(img, prev, window_px=TRACK_WINDOW_PX, threads=threads, **DETECT_KW)
     return np.stack([r["u_px"], r["v_px"]], axis=1)
 
 
@@ -139,24 +146,36 @@ def ours_track_one(img, prev):
     return ours_track(img, prev[:1])
 
 
-def ours_binarize(img, _prev):
+def ours_binarize(img, _prev, threads: int = 1):
     """The binarization stage of ours/full alone: candidate window centres (integer px, not measured)."""
     limits = {k: DETECT_KW[k] for k in ("min_area_px", "max_area_px", "min_contrast")}
-    rows, cols, _ = find_candidates(img, dark=False, threshold=None, factor=4, min_roundness=0.5, **limits)
+    rows, cols, _ = find_candidates(img, dark=False, threshold=None, factor=4, min_roundness=0.5,
+                                    threads=threads, **limits)
     return np.stack([cols, rows], axis=1).astype(np.float64)
 
 
 ONE = "ours/track1"  # one marker tracked (its errors are against that marker's truth alone)
-METHODS = {
-    "ours/full": ours_full,
-    "ours/track": ours_track,
-    ONE: ours_track_one,
-    "ours/binarize": ours_binarize,
+REFERENCES = {
     "sbd/default": sbd({}),
     "sbd/tuned": sbd({"minThreshold": 50, "maxThreshold": 170}),
     "sbd/coarse": sbd({"minThreshold": 50, "maxThreshold": 170, "thresholdStep": 20}),
     "thr+cc": thr_cc,
 }
+
+
+def methods(threads: int) -> dict:
+    """The methods timed, ours on ``threads`` threads (and on one as well, @1, when that is more)."""
+    ours = {"ours/full": partial(ours_full, threads=threads),
+            "ours/track": partial(ours_track, threads=threads)}
+    if threads > 1:
+        ours |= {"ours/full@1": ours_full, "ours/track@1": ours_track}
+    binarize = partial(ours_binarize, threads=threads)
+    return {**ours, ONE: ours_track_one, "ours/binarize": binarize, **REFERENCES}
+
+
+def is_tracker(name: str) -> bool:
+    """Whether the method is fed its own previous result (a tracker following its markers)."""
+    return name.startswith("ours/track") and name != ONE
 
 
 def errors(found: np.ndarray, truth: np.ndarray):
@@ -193,11 +212,12 @@ def busy_s() -> float | None:
 
 
 def run(n_markers: int, n_frames: int, rounds: int, *, clock=time.perf_counter,
-        order: str = "interleaved", scene: str = "drift") -> None:
+        order: str = "interleaved", scene: str = "drift", threads: int = 1) -> None:
     frames, truth = make_sequence(n_markers, n_frames + 1, seed=n_markers, scene=scene)
-    names = list(METHODS)
-    for name in names:  # warm-up (caches, first-call costs)
-        METHODS[name](frames[0], truth[0])
+    timed = methods(threads)
+    names = list(timed)
+    for name in names:  # warm-up (caches, first-call costs, the threads' start)
+        timed[name](frames[0], truth[0])
     # times[name][round, frame]; speed-ups are medians of the ratios paired by (round, frame); cpu: this
     # process's CPU time (every thread) of the same calls: cores used = cpu / wall in the wall pass
     times = {name: np.zeros((rounds, n_frames)) for name in names}
@@ -206,23 +226,24 @@ def run(n_markers: int, n_frames: int, rounds: int, *, clock=time.perf_counter,
     load_start, busy_start, own_start, wall_start = os.getloadavg()[0], busy_s(), time.process_time(), \
         time.perf_counter()
     for r in range(rounds):
-        prev_track = truth[0]
+        prev_track = {name: truth[0] for name in names if is_tracker(name)}
         for f, name in schedule(names, r, n_frames, order):
-            prev = prev_track if name == "ours/track" else truth[f - 1]
+            prev = prev_track[name] if is_tracker(name) else truth[f - 1]
             c0 = time.process_time()
             t0 = clock()
-            found = METHODS[name](frames[f], prev)
+            found = timed[name](frames[f], prev)
             times[name][r, f - 1] = clock() - t0
             cpu[name][r, f - 1] = time.process_time() - c0
-            if name == "ours/track":
-                prev_track = found
+            if is_tracker(name):
+                prev_track[name] = found
             if r == 0:
                 results[name].append(found)
     wall_s, busy_end = time.perf_counter() - wall_start, busy_s()
     others = (None if busy_start is None or busy_end is None
               else (busy_end - busy_start - (time.process_time() - own_start)) / wall_s)
     report(times, results, truth,
-           f"{n_markers} markers, {scene}, {n_frames} frames 1920×1080, {rounds} rounds, {order}; "
+           f"{n_markers} markers, {scene}, {n_frames} frames 1920×1080, {rounds} rounds, {order}, ours on "
+           f"{threads} thread(s); "
            f"load average {load_start:.1f} at the start, {os.getloadavg()[0]:.1f} at the end",
            cores={name: cpu[name] / times[name] for name in names} if clock is time.perf_counter else None)
     if others is not None:
@@ -239,7 +260,7 @@ def report(times: dict[str, np.ndarray], results: dict[str, list[np.ndarray]], t
     per_round = {name: np.median(t, axis=1) * 1e3 for name, t in times.items()}
     print(f"\n{title}")
     refs = ("sbd/default", "sbd/tuned", "sbd/coarse")
-    print(f"{'method':<12} {'ms/frame':>8} {'(worst)':>8} " + " ".join(f"{'×' + r[4:]:>15}" for r in refs)
+    print(f"{'method':<13} {'ms/frame':>8} {'(worst)':>8} " + " ".join(f"{'×' + r[4:]:>15}" for r in refs)
           + f" {'RMS px':>7} {'bias u,v px':>16} {'missed':>6} {'false':>5}" + (" cores" if cores else ""))
     for name, t in times.items():
         ms = per_round[name]
@@ -255,7 +276,7 @@ def report(times: dict[str, np.ndarray], results: dict[str, list[np.ndarray]], t
         e = np.concatenate(errs)
         rms = np.sqrt((e**2).sum(axis=1).mean() / 2) if len(e) else np.nan
         bias = e.mean(axis=0) if len(e) else (np.nan, np.nan)
-        print(f"{name:<12} {ms.min():8.3f} {ms.max():8.3f} " + " ".join(f"{r:>15}" for r in ratios)
+        print(f"{name:<13} {ms.min():8.3f} {ms.max():8.3f} " + " ".join(f"{r:>15}" for r in ratios)
               + f" {rms:7.4f} {bias[0]:+7.4f},{bias[1]:+7.4f} {missed:6d} {false:5d}"
               + (f" {np.median(cores[name]):5.2f}" if cores else ""))
 
@@ -267,6 +288,9 @@ def main() -> None:
     parser.add_argument("--threads", type=int, default=None,
                         help="cv2.setNumThreads for every method in the wall-clock pass (default: OpenCV's "
                              "own choice, every core); the CPU-time pass always runs on one thread")
+    parser.add_argument("--ours-threads", type=int, default=None,
+                        help="threads ours splits a frame over in the wall-clock pass (default: every core); "
+                             "the CPU-time pass (this thread's CPU time) always runs ours on one thread")
     parser.add_argument("--clock", choices=("both", "wall", "cpu"), default="both",
                         help="cpu: time.thread_time, the CPU time of this thread with OpenCV on one thread "
                              "(insensitive to other processes); wall: time.perf_counter, each method free to "
@@ -279,6 +303,7 @@ def main() -> None:
                              "(as in a pipeline that only detects markers)")
     args = parser.parse_args()
     all_cores = cv2.getNumThreads() if args.threads is None else args.threads
+    ours_cores = (os.cpu_count() or 1) if args.ours_threads is None else args.ours_threads
     print(f"OpenCV {cv2.__version__}, numpy {np.__version__}, {os.cpu_count()} cores, "
           f"load average {' '.join(f'{x:.1f}' for x in os.getloadavg())}")
     print("ms/frame: median over frames, best (and worst) round; ×: speed-up, median of per-frame paired "
@@ -286,11 +311,13 @@ def main() -> None:
     scenes = ("drift", "vibration") if args.scene == "both" else (args.scene,)
     for clock in (("cpu", "wall") if args.clock == "both" else (args.clock,)):
         cv2.setNumThreads(1 if clock == "cpu" else all_cores)
+        ours = 1 if clock == "cpu" else ours_cores
         print(f"\n=== clock: {clock} ({'CPU time of this thread' if clock == 'cpu' else 'wall time'}), "
-              f"OpenCV on {cv2.getNumThreads()} thread(s) ===")
+              f"OpenCV on {cv2.getNumThreads()} thread(s), ours on {ours} ===")
         for scene in scenes:
             for n in args.markers:
-                run(n, args.frames, args.rounds, clock=CLOCKS[clock], order=args.order, scene=scene)
+                run(n, args.frames, args.rounds, clock=CLOCKS[clock], order=args.order, scene=scene,
+                    threads=ours)
 
 
 if __name__ == "__main__":
