@@ -125,3 +125,13 @@ def test_split_covers_the_range_in_parts_of_at_least_least(n: int, threads: int,
     assert all(a[1] == b[0] for a, b in itertools.pairwise(parts))
     assert 1 <= len(parts) <= threads
     assert len(parts) == 1 or all(hi - lo >= least for lo, hi in parts)
+
+
+def test_remembered_track_options_tell_equal_values_of_other_types_apart() -> None:
+    img = np.zeros((64, 64), np.uint8)
+    track_markers(img, np.zeros((1, 2)), threads=1, window_px=21)
+    for threads in (True, 1.0):  # equal to 1 (and hashed alike), refused all the same
+        with pytest.raises(InputArrayError, match="threads="):
+            track_markers(img, np.zeros((1, 2)), threads=threads, window_px=21)  # type: ignore[arg-type]
+    with pytest.raises(InputArrayError, match="window_px="):
+        track_markers(img, np.zeros((1, 2)), window_px=[21])  # type: ignore[arg-type]

@@ -22,8 +22,10 @@ passes ``require=True``; then :class:`~rig.stereo.errors.NoMarkersError` is rais
 from __future__ import annotations
 
 import dataclasses
+import functools
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -457,15 +459,28 @@ def track_markers(
     a row with u_px = v_px = NaN and FLAG_LOST (area, roundness, contrast keep what was measured, or NaN).
     """
     gray = check_gray(gray)
-    options = TrackOptions.checked(window_px=window_px, polarity=polarity, min_area_px=min_area_px,
-                                   max_area_px=max_area_px, min_roundness=min_roundness,
-                                   min_contrast=min_contrast, centre=centre, max_skewness=max_skewness,
-                                   outline_check=outline_check, max_edge_rms_px=max_edge_rms_px,
-                                   threads=threads)
+    options = _track_options(window_px=window_px, polarity=polarity, min_area_px=min_area_px,
+                             max_area_px=max_area_px, min_roundness=min_roundness, min_contrast=min_contrast,
+                             centre=centre, max_skewness=max_skewness, outline_check=outline_check,
+                             max_edge_rms_px=max_edge_rms_px, threads=threads)
     pred = np.asarray(predicted_uv_px, dtype=np.float64)
     if pred.ndim != 2 or pred.shape[1] != 2:
         raise InputArrayError(f"predicted_uv_px has shape {pred.shape}; give a (K, 2) array of (u, v) in px")
     return track_rows(gray, pred, options)
+
+
+def _track_options(**options: Any) -> TrackOptions:
+    """:meth:`TrackOptions.checked`, remembered for options seen before (a tracker passes the same ones
+    every frame: checking them again cost 5–7 µs a call)."""
+    try:  # keyed by the values' types too: True == 1 and 1.0 == 1, but threads=True is refused
+        return _remembered_track_options(tuple((key, type(value), value) for key, value in options.items()))
+    except TypeError:  # an unhashable option: checked (and refused) without the memory
+        return TrackOptions.checked(**options)
+
+
+@functools.lru_cache(maxsize=64)
+def _remembered_track_options(options: tuple[tuple[str, type, Any], ...]) -> TrackOptions:
+    return TrackOptions.checked(**{key: value for key, _, value in options})
 
 
 @dataclass(frozen=True)
@@ -484,6 +499,14 @@ class TrackOptions:
     max_edge_rms_px: float
     threads: int = 1  # threads one frame's windows are split over (without an outline fit)
 
+    @functools.cached_property
+    def limits(self) -> np.ndarray:
+        """The filters as :func:`rig.stereo.markers_kernel.finish_rows` takes them (read-only)."""
+        limits = np.array([self.max_skewness, SKEW_NOISE_FACTOR, self.min_area_px, self.max_area_px,
+                           self.min_roundness, self.min_contrast])
+        limits.flags.writeable = False
+        return limits
+
     @classmethod
     def checked(cls, *, window_px: int, polarity: str, min_area_px: float, max_area_px: float,
                 min_roundness: float, min_contrast: float, centre: str, max_skewness: float,
@@ -491,7 +514,8 @@ class TrackOptions:
         """Options from :func:`track_markers`' keywords; InputArrayError names an invalid one."""
         _check_options(polarity, centre, min_area_px=min_area_px, max_area_px=max_area_px,
                        min_roundness=min_roundness, min_contrast=min_contrast)
-        if int(window_px) != window_px or window_px < 7:
+        if (not isinstance(window_px, int | float | np.integer | np.floating) or not np.isfinite(window_px)
+                or int(window_px) != window_px or window_px < 7):
             raise InputArrayError(f"window_px={window_px}; give an integer side of at least 7 px")
         return cls(half_px=int(window_px) // 2, dark=polarity == "dark",
                    fit=centre == "ellipse" or outline_check, centre=centre, min_area_px=min_area_px,
@@ -551,9 +575,10 @@ def _track_compiled(gray: np.ndarray, pred: np.ndarray, opt: TrackOptions) -> np
     from rig.stereo.markers_kernel import track_frame  # numba: loaded by the first measurement
 
     rec = np.empty(len(pred), dtype=MARKER_DTYPE)
-    limits = np.array([opt.max_skewness, SKEW_NOISE_FACTOR, opt.min_area_px, opt.max_area_px,
-                       opt.min_roundness, opt.min_contrast])
     image = np.ascontiguousarray(gray, dtype=np.uint8)
-    run_parts(track_frame, [(image, pred[lo:hi], opt.half_px, opt.dark, limits, _HALF_LADDER, 2, rec[lo:hi])
-                            for lo, hi in split(len(pred), opt.threads, WINDOWS_PER_THREAD)])
+    if opt.threads == 1:  # the usual case, without the split's few µs
+        track_frame(image, pred, opt.half_px, opt.dark, opt.limits, _HALF_LADDER, 2, rec)
+        return rec
+    run_parts(track_frame, [(image, pred[lo:hi], opt.half_px, opt.dark, opt.limits, _HALF_LADDER, 2,
+                             rec[lo:hi]) for lo, hi in split(len(pred), opt.threads, WINDOWS_PER_THREAD)])
     return rec

@@ -185,16 +185,16 @@ def _foreground(  # noqa: PLR0917 (numba: no keyword-only arguments)
                 count += on
         return count
     off32, area32 = np.int32(offset), np.int32(area)
-    total = np.int32(0)
+    running = np.int32(0)
     for i in range(r):  # the left edge replicated
-        total += col[0]
-        prefix[i + 1] = total
+        running += col[0]
+        prefix[i + 1] = running
     for x in range(w):
-        total += col[x]
-        prefix[r + x + 1] = total
+        running += col[x]
+        prefix[r + x + 1] = running
     for i in range(r + w, w + 2 * r + 1):  # the right edge replicated
-        total += col[w - 1]
-        prefix[i + 1] = total
+        running += col[w - 1]
+        prefix[i + 1] = running
     count = 0
     for x in range(w):  # branch-free: vectorized
         v = np.int32(row[x]) - off32
