@@ -14,14 +14,19 @@ import numpy as np
 
 from drivers.camera import change_kernel
 from rig.analysis.frame_reduction import ReduceOptions, warm_up
+from rig.stereo import detect_markers
 
 
 def warm_all() -> float:
-    """Load or compile every kernel (markers: detection and tracking; video: the change map).
+    """Load or compile every kernel (markers: detection and tracking, and the joining of row bands a
+    detection on several threads uses; video: the change map).
 
     Returns the CPU seconds spent."""
     start_s = time.process_time()
     warm_up(ReduceOptions())
+    yy, xx = np.mgrid[0:320, 0:96]
+    disc = np.where((xx - 48.0) ** 2 + (yy - 160.0) ** 2 <= 64.0, 220, 30).astype(np.uint8)
+    detect_markers(disc, threads=2)  # two row bands: the disc straddles their edge
     image = np.zeros((16, 16), np.uint8)
     half = change_kernel.half_only(image)
     change_kernel.half_and_change(image, half)  # the change map and its statistics
