@@ -101,24 +101,32 @@ def _grown(a: np.ndarray, size: int) -> np.ndarray:
 def _row_runs(  # noqa: PLR0917 (numba: no keyword-only arguments)
         fg: np.ndarray, y: int, runs: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray], n_runs: int,
         prev_lo: int, prev_hi: int) -> int:
-    """The runs of row ``y``'s foreground ``fg`` (its last element 0) appended to ``runs`` (row, first
-    and last column, union–find parent; room for them) from index ``n_runs``, each joined to the runs
-    ``prev_lo … prev_hi − 1`` of the row above that touch it (8-connected); returns the new run count."""
+    """The runs of row ``y``'s foreground ``fg`` (its last element 0, its length a multiple of 8)
+    appended to ``runs`` (row, first and last column, union–find parent; room for them) from index
+    ``n_runs``, each joined to the runs ``prev_lo … prev_hi − 1`` of the row above that touch it
+    (8-connected); returns the new run count."""
     run_y, run_a, run_b, parent = runs
     start = -1
-    for x in range(len(fg)):
-        if fg[x] and start < 0:
-            start = x
-        elif not fg[x] and start >= 0:  # a run start..x−1
-            run_y[n_runs], run_a[n_runs], run_b[n_runs] = y, start, x - 1
-            parent[n_runs] = n_runs
-            for q in range(prev_lo, prev_hi):
-                if run_a[q] <= x and run_b[q] >= start - 1:
-                    a, b = _find(parent, q), _find(parent, n_runs)
-                    if a != b:
-                        parent[max(a, b)] = min(a, b)
-            n_runs += 1
-            start = -1
+    words = fg.view(np.uint64)
+    x = 0
+    while x < len(fg):
+        if start < 0 and words[x // 8] == 0:  # x % 8 == 0 here: eight background pixels, skipped
+            x += 8
+            continue
+        for i in range(x, x + 8):
+            if fg[i] and start < 0:
+                start = i
+            elif not fg[i] and start >= 0:  # a run start..i−1
+                run_y[n_runs], run_a[n_runs], run_b[n_runs] = y, start, i - 1
+                parent[n_runs] = n_runs
+                for q in range(prev_lo, prev_hi):
+                    if run_a[q] <= i and run_b[q] >= start - 1:
+                        a, b = _find(parent, q), _find(parent, n_runs)
+                        if a != b:
+                            parent[max(a, b)] = min(a, b)
+                n_runs += 1
+                start = -1
+        x += 8
     return n_runs
 
 
@@ -233,7 +241,8 @@ def band_runs(  # noqa: PLR0917 (numba: no keyword-only arguments)
     run_y, run_a = np.empty(1024, np.int64), np.empty(1024, np.int64)
     run_b, parent = np.empty(1024, np.int64), np.empty(1024, np.int64)
     prefix = np.zeros(w + 2 * r + 2, np.int32)  # prefix sums of the column sums, edges replicated
-    fg = np.zeros(w + 1, np.uint8)  # the row's foreground (fg[w] stays 0: a run ends there)
+    # the row's foreground (fg[w:] stays 0: a run ends there; whole 64-bit words, skipped when 0)
+    fg = np.zeros((w + 8) // 8 * 8, np.uint8)
     n_runs, prev_lo, prev_hi = 0, 0, 0
     for y in range(y0, y1):
         if y > y0:  # column sums of rows y − r … y + r
