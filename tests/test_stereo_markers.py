@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from marker_images import Disc, centroid_noise_px, render
 
 from rig.stereo import (
@@ -14,6 +16,7 @@ from rig.stereo import (
     detect_markers,
     track_markers,
 )
+from rig.stereo.markers import MERGE_PIXELS, _merge_sizes
 
 NOISE_DN = 2.0
 BACKGROUND_DN = 20.0
@@ -326,3 +329,23 @@ def test_close_neighbours(gap_px):
     sigma_c = predicted_sigma({0: [Disc(60.3, 59.8, 8.0)]}, [0], shape=(140, 140))
     for err in (np.concatenate(errs), np.concatenate(tracked_errs)):
         assert np.sqrt((err**2).mean()) < 2.0 * np.hypot(sigma_c, GRID_BIAS_PX)
+
+
+def _merge_sizes_by_groups(sizes: np.ndarray) -> np.ndarray:
+    """The definition: each size's windows, with those already grown to it, grow to the next size in use
+    when that adds fewer than MERGE_PIXELS pixels."""
+    values, counts = np.unique(sizes, return_counts=True)
+    merged = sizes.copy()
+    for i in range(len(values) - 1):
+        small, large = values[i], values[i + 1]
+        if counts[i] * ((2 * large + 1) ** 2 - (2 * small + 1) ** 2) < MERGE_PIXELS:
+            merged[merged == small] = large
+            counts[i + 1] += counts[i]
+    return merged
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.lists(st.sampled_from([6, 8, 10, 12, 14, 16, 20, 24, 32, 64, 128, 256]), max_size=400))
+def test_window_sizes_merge_as_defined(sizes: list[int]) -> None:
+    arr = np.array(sizes, dtype=np.int64)
+    assert np.array_equal(_merge_sizes(arr), _merge_sizes_by_groups(arr))

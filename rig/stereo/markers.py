@@ -108,16 +108,22 @@ MERGE_PIXELS = 40_000  # extra window pixels that cost about as much as one more
 
 def _merge_sizes(sizes: np.ndarray) -> np.ndarray:
     """Grow small windows to the next size in use when that is cheaper than a separate batch."""
-    if len(sizes) == 0 or sizes.min() == sizes.max():  # the usual case: one size
+    every = np.bincount(sizes)  # sizes ≤ 256 (the ladder): one pass, no sort
+    values = np.flatnonzero(every).tolist()
+    if len(values) <= 1:  # the usual case: one size (or none)
         return sizes
-    values, counts = np.unique(sizes, return_counts=True)
-    merged = sizes.copy()
+    counts = every[values].tolist()
+    target = list(values)  # the size each size grows to (Python ints: a few windows, a few sizes)
     for i in range(len(values) - 1):
         small, large = values[i], values[i + 1]
-        extra = counts[i] * ((2 * large + 1) ** 2 - (2 * small + 1) ** 2)
-        if extra < MERGE_PIXELS:
-            merged[merged == small] = large
+        if counts[i] * ((2 * large + 1) ** 2 - (2 * small + 1) ** 2) < MERGE_PIXELS:
             counts[i + 1] += counts[i]
+            for k in range(i + 1):  # every size grown to this one grows on with it
+                if target[k] == small:
+                    target[k] = large
+    lookup = np.zeros(len(every), dtype=sizes.dtype)
+    lookup[values] = target
+    merged: np.ndarray = lookup[sizes]
     return merged
 
 
