@@ -9,7 +9,9 @@ full-frame search: it measures only windows around predicted positions (the spee
 sequences: all windows of a frame in one compiled call). Both measure a marker with
 the same pixels and weights; they differ only through the
 background plane fitted to the ring of their (differently placed) windows — by less than the
-centroid's own noise (tests/test_stereo_markers.py).
+centroid's own noise (tests/test_stereo_markers.py). Both take ``threads``: one frame's work split over
+that many threads (:mod:`rig.stereo.markers_threads`: the binarization in row bands, the windows in
+parts), with the result of one thread bit for bit; 1 (default) where each camera already has a core.
 
 Results are structured arrays of :data:`MARKER_DTYPE`, one row per marker: ``u_px`` (column) and
 ``v_px`` (row) with the centre of the top-left pixel at (0, 0); ``area_px`` (px², integrated signal
