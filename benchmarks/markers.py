@@ -40,18 +40,18 @@ Run: .venv/bin/python benchmarks/markers.py [--rounds N] [--frames N] [--clock b
 Both clocks on a quiet machine (under 3 minutes; check that no case says "NOT a quiet machine"):
   PYTHONPATH=. .venv/bin/python benchmarks/markers.py --rounds 3 --frames 20
 
-Figures: README.md ("Marker extraction"), three runs of --clock cpu --rounds 3 --frames 20 on 2026-12-02 at
-load average 8–10 (other processes using 1.5–1.7 of the 2 cores): single-thread CPU, full frame
-10.0–13.3× sbd/default and 6.9–9.3× sbd/tuned (the ranges of the rounds' medians), tracking one call per
-frame 45–58× sbd/tuned with 12 markers and 27.1–42.4× with 30, one marker alone 173–219×; centroid RMS
-0.0056–0.0081 px. No quiet-machine wall figures yet.
-What limits them now:
-  - tracking: 35–50 µs fixed per call (option checks, one compiled call per frame: markers_kernel.track_frame)
-    and ≈ 6 µs per marker warm (the support's flood fill 2.6, the ring's fit 1.3, centroid and plateau 1.0),
-    up to 1.6× that in the interleaved order after the sbd variants.
-  - full frame: the binarization (one compiled pass, rig/stereo/markers_label.py) is about 40 % of it.
-  - tried and measured before, not kept: cv2.adaptiveThreshold for blur + offset + compare (2× slower);
-    the local mean on a further-reduced frame; cv2.resize INTER_NEAREST_EXACT for the subsample.
+Figures: README.md ("Marker extraction"). The previous session's quiet-machine run (ours on one thread):
+30 markers, full frame 9.7–9.9× sbd/default on CPU and 8.6× on wall, tracking 29.0–29.1× sbd/tuned on CPU
+and 24.4–24.9× on wall. This branch's run (2026-12-02, load average 9–11, other processes 1.5–1.8 cores):
+CPU, 30 markers, full frame 12.0–12.2× sbd/default, tracking 31.3–34.9× sbd/tuned — not the quiet
+reference; ours on 2 threads was slower than on 1 on that saturated machine. Quiet-machine figures with
+threads: not measured yet.
+What limits them now (warm, per stage): a tracking window ≈ 4.6 µs (the support's flood fill 2.4, the
+ring's values and fit 0.85, the signal map 0.56, centroid and plateau 0.64), a call ≈ 8–10 µs fixed; the
+full frame's binarization (rig/stereo/markers_label.py) ≈ 170–190 µs of ≈ 0.6–0.8 ms.
+Tried and measured before, not kept: cv2.adaptiveThreshold for blur + offset + compare (2× slower); the
+local mean on a further-reduced frame; cv2.resize INTER_NEAREST_EXACT for the subsample; speculative
+tracking of many frames in one call (1.1–3× slower than one call per frame).
 """
 
 from __future__ import annotations
