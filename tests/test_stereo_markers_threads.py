@@ -4,7 +4,9 @@ for bit — markers on the binarization's band edges included — and a clear er
 from __future__ import annotations
 
 import itertools
+import multiprocessing
 import threading
+from typing import Any
 
 import numpy as np
 import pytest
@@ -135,3 +137,24 @@ def test_remembered_track_options_tell_equal_values_of_other_types_apart() -> No
             track_markers(img, np.zeros((1, 2)), threads=threads, window_px=21)  # type: ignore[arg-type]
     with pytest.raises(InputArrayError, match="window_px="):
         track_markers(img, np.zeros((1, 2)), window_px=[21])  # type: ignore[arg-type]
+
+
+def _split_in_child(queue: Any) -> None:
+    queue.put(run_parts(lambda k: (k, threading.get_ident()), [(0,), (1,)]))
+
+
+def test_a_forked_child_gets_threads_of_its_own() -> None:
+    """The parent's idle threads do not exist in a forked child: the child starts its own, not waits."""
+    run_parts(lambda k: k, [(0,), (1,)])  # the parent's pool has an idle thread now
+    context = multiprocessing.get_context("fork")
+    queue = context.Queue()
+    child = context.Process(target=_split_in_child, args=(queue,))
+    child.start()
+    try:
+        (first, first_ident), (second, second_ident) = queue.get(timeout=120)
+    finally:
+        child.join(timeout=120)
+        if child.is_alive():
+            child.kill()
+    assert (first, second) == (0, 1) and first_ident != second_ident
+    assert child.exitcode == 0
