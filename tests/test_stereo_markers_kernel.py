@@ -42,3 +42,34 @@ def test_importing_the_stereo_core_does_not_load_numba() -> None:
     at_import, after_measuring, u_px, v_px = done.stdout.split()
     assert (at_import, after_measuring) == ("False", "True")
     assert (float(u_px), float(v_px)) == (31.5, 31.5)  # an 8×8 flat square centred between pixels
+
+
+def test_a_window_reaching_outside_the_frame_keeps_all_its_signal() -> None:
+    """Out-of-image pixels carry no signal, and only they: every in-image pixel above the floor is a
+    support candidate (a conditional clearing loop was miscompiled on an AVX-512 host into stores that
+    also cleared eight in-image columns: a whole marker's centre came out 2.8 px off)."""
+    half = 20
+    scr = markers_kernel.scratch(half)
+    raw, valid, d, free, clipped = scr[5], scr[6], scr[7], scr[8], scr[9]
+    raw[:] = 100
+    valid[:] = True
+    valid[0] = False  # the window's top row lies above the frame
+    markers_kernel._weigh(raw, valid, False, (20.0, 0.0, 0.0), np.float32(6.0), d, clipped, free)
+    pw = 2 * half + 3
+    inner = (np.arange(pw * pw) // pw >= 2) & (np.arange(pw * pw) // pw <= 2 * half + 1) \
+        & (np.arange(pw * pw) % pw >= 1) & (np.arange(pw * pw) % pw <= 2 * half + 1)
+    assert np.array_equal(free.astype(bool), inner)  # rows 1 … W − 1 of the window, all columns
+    assert np.array_equal(d > 0, inner)
+
+
+def test_a_marker_measured_in_a_window_reaching_outside_the_frame_is_measured_whole() -> None:
+    from marker_images import Disc, render
+
+    from rig.stereo import FLAG_BORDER, track_markers
+
+    img = render((72, 72), [Disc(30.3, 19.2, 12.0)], noise_sigma_dn=0.0)
+    inside = track_markers(img, np.array([[30.3, 19.2]]), window_px=35)[0]
+    border = track_markers(img, np.array([[30.3, 19.2]]), window_px=41)[0]  # its top row is outside
+    assert border["flags"] & FLAG_BORDER and not inside["flags"]
+    assert abs(border["u_px"] - inside["u_px"]) < 0.01 and abs(border["v_px"] - inside["v_px"]) < 0.01
+    assert border["area_px"] == pytest.approx(inside["area_px"], rel=0.01)
