@@ -40,12 +40,11 @@ Run: .venv/bin/python benchmarks/markers.py [--rounds N] [--frames N] [--clock b
 Both clocks on a quiet machine (under 3 minutes; check that no case says "NOT a quiet machine"):
   PYTHONPATH=. .venv/bin/python benchmarks/markers.py --rounds 3 --frames 20
 
-Figures: README.md ("Marker extraction"). The previous session's quiet-machine run (ours on one thread):
-30 markers, full frame 9.7–9.9× sbd/default on CPU and 8.6× on wall, tracking 29.0–29.1× sbd/tuned on CPU
-and 24.4–24.9× on wall. This branch's run (2026-12-02, load average 9–11, other processes 1.5–1.8 cores):
-CPU, 30 markers, full frame 12.0–12.2× sbd/default, tracking 31.3–34.9× sbd/tuned — not the quiet
-reference; ours on 2 threads was slower than on 1 on that saturated machine. Quiet-machine figures with
-threads: not measured yet.
+Figures: README.md ("Marker extraction"). Quiet machine, 2026-12-02 (two runs, other processes ≤ 0.01
+core): CPU on one thread, 30 markers, full frame 11.3–11.5× sbd/default, tracking 31.7–32.9× sbd/tuned
+(9.7–9.9× and 29.0–29.1× before this branch); wall, interleaved, ours on one thread: full frame
+11.1–11.6× sbd/default, tracking 25.5–27.4× sbd/tuned; on two threads full frame 9.4–10.2× (slower than
+one), tracking 27.0–30.7× — two threads pay in --order blocked (full frame 0.48 against 0.61 ms).
 What limits them now (warm, per stage): a tracking window ≈ 4.6 µs (the support's flood fill 2.4, the
 ring's values and fit 0.85, the signal map 0.56, centroid and plateau 0.64), a call ≈ 8–10 µs fixed; the
 full frame's binarization (rig/stereo/markers_label.py) ≈ 170–190 µs of ≈ 0.6–0.8 ms.
