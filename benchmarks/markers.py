@@ -42,7 +42,8 @@ Both clocks on a quiet machine (under 3 minutes; check that no case says "NOT a 
 
 Figures: README.md ("Marker extraction"). Quiet machine, 2026-12-02 (two runs, other processes ≤ 0.01
 core): CPU on one thread, 30 markers, full frame 11.3–11.5× sbd/default, tracking 31.7–32.9× sbd/tuned
-(9.7–9.9× and 29.0–29.1× before this branch); wall, interleaved, ours on one thread: full frame
+(9.7–9.9× and 29.0–29.1× in the previous session's quiet run of the code before this branch; paired A/B
+at 1 core of load: full frame +6 %, tracking unchanged); wall, interleaved, ours on one thread: full frame
 11.1–11.6× sbd/default, tracking 25.5–27.4× sbd/tuned; on two threads full frame 9.4–10.2× (slower than
 one), tracking 27.0–30.7× — two threads pay in --order blocked (full frame 0.48 against 0.61 ms).
 What limits them now (warm, per stage): a tracking window ≈ 4.6 µs (the support's flood fill 2.4, the
