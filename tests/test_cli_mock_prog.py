@@ -44,3 +44,14 @@ def test_mock_help_usage_names_rig_mock_device(device: str) -> None:
                           text=True, timeout=60, env={**os.environ, "PYTHONPATH": str(ROOT)}, check=False)
     assert proc.returncode == 0, proc.stderr
     assert proc.stdout.startswith(f"usage: rig mock {device} "), proc.stdout[:200]
+
+
+@pytest.mark.parametrize(("device", "option"), [("robot", "--port=x"), ("exciter", "--rate=fast"),
+                                                ("generator", "--no-such-option"), ("lab", "--scale=2")])
+def test_a_bad_mock_option_exits_4_naming_it(device: str, option: str) -> None:
+    """Bad input is exit 4 across ``rig`` (2 is a stop signal), the mock servers' own options included."""
+    proc = subprocess.run([sys.executable, "-m", "rig.cli", "mock", device, option], capture_output=True,
+                          text=True, timeout=60, env={**os.environ, "PYTHONPATH": str(ROOT)}, check=False)
+    assert proc.returncode == 4, (proc.returncode, proc.stderr)
+    name = option.partition("=")[0].lstrip("-")
+    assert f"rig mock {device}" in proc.stderr and name in proc.stderr, proc.stderr

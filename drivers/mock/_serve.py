@@ -18,9 +18,10 @@ import ipaddress
 import logging
 import signal
 import socket
+import sys
 import threading
 from collections.abc import Callable
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, NoReturn
 
 if TYPE_CHECKING:
     from drivers.sim.world import World
@@ -78,12 +79,24 @@ def accept_loop(listener: socket.socket, stopped: threading.Event,
                 conn.close()
 
 
+EXIT_BAD_INPUT = 4  # rig's exit code for bad input (rig.run.exit_codes; drivers sit below rig's layers)
+
+
+class _BadInputParser(argparse.ArgumentParser):
+    """argparse with ``rig``'s exit code for a usage error: 4 (bad input), not argparse's 2, which ``rig``
+    keeps for a stop signal."""
+
+    def error(self, message: str) -> NoReturn:
+        self.print_usage(sys.stderr)
+        self.exit(EXIT_BAD_INPUT, f"{self.prog}: error: {message}\n")
+
+
 def standalone_parser(module: str, description: str, *, default_port: int,
                       prog: str | None = None) -> argparse.ArgumentParser:
     """Command line of ``python -m drivers.mock.<module>`` (or ``prog``, e.g. ``rig mock robot``) with
     ``--port`` (TCP on 127.0.0.1; 0 = any free port) and ``--rate`` (virtual seconds per wall second);
     callers add their own options."""
-    parser = argparse.ArgumentParser(prog=prog or f"python -m drivers.mock.{module}", description=description)
+    parser = _BadInputParser(prog=prog or f"python -m drivers.mock.{module}", description=description)
     parser.add_argument("--port", type=int, default=default_port,
                         help=f"TCP port (default {default_port}; 0 = any free port)")
     parser.add_argument("--rate", type=float, default=1.0, help="virtual seconds per wall second")
