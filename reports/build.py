@@ -19,6 +19,7 @@ import math
 import os
 import re
 import shutil
+import tempfile
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from importlib import metadata
@@ -158,6 +159,13 @@ def _default_analyse() -> Analyse:
     return analyse
 
 
+def _check_writable(run_dir: Path) -> None:
+    """``OSError`` (e.g. EROFS, EACCES) when ``run_dir`` takes no new file: every output of a report (issued
+    or a revision) is written under it, so a read-only run is refused before minutes of analysis."""
+    with tempfile.TemporaryFile(dir=run_dir, prefix=".write-probe-"):
+        pass
+
+
 def build_report(
     run_dir: str | Path,
     *,
@@ -189,8 +197,10 @@ def build_report(
     no certificate saying "finishing normally" is issued for a run that ends aborted (a later
     ``rig report RUN`` issues it from the record, stop document included).
     An ``OSError`` while writing (full disk, read-only folder) propagates; no output is left half-written.
+    A folder that takes no new file (read-only) raises before the analysis, not after it.
     """
     run = load_record(run_dir)
+    _check_writable(Path(run_dir))
     acceptance = acceptance_from_config(run.rig)
     primary = sync or _configured_sync(run.rig)
     analyses = _analyse_all(run.folder, [primary, *[m for m in compare if m != primary]],

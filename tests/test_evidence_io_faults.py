@@ -17,6 +17,7 @@ from pathlib import Path
 import pytest
 from fs_faults import fill, half_written, remount_read_only, tmpfs, tree
 
+from reports.build import build_report
 from rig.cli import main
 from rig.record import atomic
 from rig.record.writer import load_run
@@ -257,6 +258,10 @@ def test_report_of_a_read_only_run_exits_3(real_run: Path, tmp_path: Path,
         capsys.readouterr()
         assert main(["report", str(run)]) == 3
         _one_line_error(capsys.readouterr().err, "Read-only file system")
+        analysed: list[object] = []  # refused before the analysis (minutes on a long run), not after it
+        with pytest.raises(OSError, match="Read-only file system"):
+            build_report(run, analysis=lambda *args, **kwargs: analysed.append(args))
+        assert analysed == []
 
 
 @pytest.mark.slow
