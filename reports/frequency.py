@@ -23,7 +23,6 @@ from typing import TypeGuard
 
 import numpy as np
 import pandas as pd
-from scipy.signal import lombscargle
 
 from reports.errors import ReportError
 from reports.select import event_window
@@ -229,6 +228,8 @@ def _peak_frequency_hz(t: np.ndarray, x: np.ndarray, lo_hz: float, hi_hz: float)
     freqs = np.arange(max(lo_hz, 0.05), hi_hz, 0.005)
     if len(freqs) < 3:
         return float("nan")
+    from scipy.signal import lombscargle  # scipy.signal costs ≈ 1 CPU-s to import: only where it is used
+
     power = lombscargle(t - t[0], x - x.mean(), 2 * np.pi * freqs)
     k = int(np.argmax(power))
     if 0 < k < len(freqs) - 1:

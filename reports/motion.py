@@ -12,7 +12,6 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 from scipy.optimize import linear_sum_assignment
-from scipy.signal.windows import flattop
 
 from reports.errors import ReportError
 from reports.frequency import _peak_frequency_hz, sweep_samples
@@ -279,6 +278,8 @@ def amplitude_spectrum(t_s: np.ndarray, x: np.ndarray) -> pd.DataFrame:
     grid = t[0] + dt * np.arange(int(np.floor((t[-1] - t[0]) / dt)) + 1)
     y = np.interp(grid, t, v)
     y = y - y.mean()
+    from scipy.signal.windows import flattop  # scipy.signal: ≈ 1 CPU-s to import, only where it is used
+
     w = flattop(len(y), sym=False)
     spec = np.fft.rfft(y * w)
     amp = 2 * np.abs(spec) / w.sum()

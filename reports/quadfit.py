@@ -12,7 +12,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy import stats
 
 from reports.errors import FitError
 
@@ -35,6 +34,8 @@ class QuadraticFit:
     @property
     def t_factor(self) -> float:
         """Student-t quantile for the two-sided ``confidence`` interval with ``dof`` degrees of freedom."""
+        from scipy import stats  # ≈ 0.8 CPU-s to import: only reports that fit a quadratic need it
+
         return float(stats.t.ppf(0.5 + self.confidence / 2, self.dof))
 
     @property

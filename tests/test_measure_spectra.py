@@ -14,7 +14,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from rig.deploy.series import summarise
-from rig.deploy.spectra import time_frequency, tone_peaks, welch
+from rig.deploy.spectra import chi2_median, time_frequency, tone_peaks, welch
 from rig.stereo.spectrum import window_weights
 
 FS_HZ = 60.0
@@ -115,3 +115,14 @@ def test_welch_reads_the_peak_amplitude_of_a_tone_on_a_bin(amplitude, k, phase, 
     ws = welch(t, x)
     assert ws.amplitude[k] == pytest.approx(amplitude, rel=1e-9)
     assert ws.resolution_hz == pytest.approx(FS_HZ / seg)
+
+
+@settings(max_examples=80, deadline=None)
+@given(dof=st.floats(0.5, 400.0), q=st.floats(1e-12, 1.0 - 1e-9), x=st.floats(0.0, 5000.0))
+def test_chi2_functions_are_scipy_stats_bit_for_bit(dof, q, x):
+    # the Welch significance uses scipy.special's χ² functions (scipy.stats costs ≈ 0.8 CPU-s to import)
+    from scipy import special, stats
+
+    assert chi2_median(dof) == float(stats.chi2.median(dof))
+    assert float(special.chdtri(dof, q)) == float(stats.chi2.isf(q, dof))
+    assert float(special.chdtrc(dof, x)) == float(stats.chi2.sf(x, dof))

@@ -138,3 +138,16 @@ def test_bad_inputs_raise_specific_errors():
         fit_sine(t, np.r_[x[:-1], np.nan])
     with pytest.raises(InputArrayError, match="frequency_hz"):
         fit_sine(t, x, frequency_hz=-1.0)
+
+
+@settings(max_examples=60, deadline=None)
+@given(n=st.integers(0, 5000), window=st.sampled_from(["hann", "flattop", "blackmanharris"]))
+def test_windows_are_scipys_bit_for_bit(n, window):
+    # rig.stereo.spectrum computes the windows itself (importing scipy.signal costs ≈ 1 CPU-s per process)
+    from scipy.signal import windows
+
+    from rig.stereo.spectrum import window_weights
+
+    ours, scipys = window_weights(window, n), getattr(windows, window)(n, sym=False)
+    assert ours.dtype == scipys.dtype and ours.shape == scipys.shape
+    assert np.array_equal(ours, scipys)

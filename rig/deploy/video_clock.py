@@ -28,7 +28,6 @@ from typing import Any
 
 import numpy as np
 import pandas as pd
-from scipy.signal import correlate
 
 from rig.analysis.tracks2d import tracks_2d
 
@@ -120,6 +119,8 @@ def relate_to_record(obs: pd.DataFrame, events: dict[str, pd.DataFrame], period_
         raise VideoClockError("no marker moves in the video; its clock cannot be related to the record")
     # the changes of the motion (starts and stops) are what locate the clocks: levels would let a long
     # stretch of steady motion outweigh the edges, and a mean removed over unequal spans biases the peak
+    from scipy.signal import correlate  # ≈ 1 CPU-s to import: paid only where a clock is related
+
     c = correlate(_unit(np.gradient(sr)), _unit(np.gradient(sv)), mode="full", method="fft")
     # c[k] = Σ_i sr[i + L] sv[i] with L = k − (len(sv) − 1): record sample i + L ↔ video sample i
     k = int(np.argmax(c))

@@ -39,7 +39,6 @@ from typing import Any
 import numpy as np
 import pandas as pd
 from scipy.optimize import linear_sum_assignment
-from scipy.signal import correlate
 
 from rig.analysis.tracks2d import tracks_2d
 from rig.stereo import estimate_offset, fundamental_from_projections, triangulate
@@ -148,6 +147,8 @@ def coarse_offset(obs_a: pd.DataFrame, obs_b: pd.DataFrame, pairs: pd.DataFrame,
     n = len(grid)
     if n - 8 < 1:
         raise VideoTimingError(f"the videos are too short ({n} frames) to relate their clocks")
+    from scipy.signal import correlate  # ≈ 1 CPU-s to import: paid only when the timing is estimated
+
     num = np.zeros(2 * n - 1)
     va_all = vb_all = 0.0
     for a, b in zip(pairs["track_a"], pairs["track_b"], strict=True):

@@ -18,13 +18,18 @@ from dataclasses import dataclass
 
 import numpy as np
 from scipy import optimize
-from scipy.signal import windows as sig_windows
 
 from rig.stereo._arrays import FloatArray
 from rig.stereo._series import as_times, as_values, uniform_grid
 from rig.stereo.errors import InputArrayError, TooFewSamplesError
 
 WINDOWS = ("rect", "hann", "flattop", "blackmanharris")
+# the cosine terms of scipy.signal.windows' hann, flattop and blackmanharris; the windows are computed as
+# scipy computes them (its general cosine window), bit for bit (tests/test_stereo_spectrum.py), because
+# importing scipy.signal costs ≈ 1 CPU-s in every process that measures
+_COSINE_TERMS = {"hann": (0.5, 0.5),
+                 "flattop": (0.21557895, 0.41663158, 0.277263158, 0.083578947, 0.006947368),
+                 "blackmanharris": (0.35875, 0.48829, 0.14128, 0.01168)}
 
 
 @dataclass(frozen=True)
@@ -47,18 +52,17 @@ class Spectrum:
 
 def window_weights(name: str, n: int) -> FloatArray:
     """The window of ``name`` (one of WINDOWS) with ``n`` points (symmetric=False, i.e. DFT-even)."""
-    w: FloatArray
     if name == "rect":
-        w = np.ones(n)
-    elif name == "hann":
-        w = sig_windows.hann(n, sym=False)
-    elif name == "flattop":
-        w = sig_windows.flattop(n, sym=False)
-    elif name == "blackmanharris":
-        w = sig_windows.blackmanharris(n, sym=False)
-    else:
+        return np.ones(n)
+    if name not in _COSINE_TERMS:
         raise InputArrayError(f"window must be one of {WINDOWS}, got {name!r}")
-    return w
+    if n <= 1:
+        return np.ones(n)
+    phase = np.linspace(-np.pi, np.pi, n + 1)  # n + 1 points, the last dropped: DFT-even
+    w = np.zeros(n + 1)
+    for k, a_k in enumerate(_COSINE_TERMS[name]):
+        w += a_k * np.cos(k * phase)
+    return w[:-1]
 
 
 def dtft_amplitude(t_s: FloatArray, x: FloatArray, w: FloatArray, frequency_hz: float) -> float:
