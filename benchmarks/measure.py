@@ -25,7 +25,10 @@ each one warm-up run, then for half and the whole of the videos the decode-only 
 --timing`` + report; printed per tree (medians): the whole-video ratio, the **marginal** ratio (the CPU
 one more second of video adds, half → whole, over the decode-only CPU it adds: what a long record costs),
 the fixed costs per run (report; the interpreter and imports of a fresh process), wall clock, the steps'
-CPU and the digest of the tables (identical trees' results give one digest).
+CPU and the digest of the tables (identical trees' results give one digest). ``--long 20`` writes 20-s
+videos (``--keep``: once) and adds the whole 20-s pair to each worker (a realistic record's ratio, printed
+next to the ``--seconds`` one, whose runs then stop decoding after ``--seconds``); without
+``--interleave`` the figures are those of the long pair.
 """
 
 from __future__ import annotations
@@ -135,21 +138,23 @@ def tables_digest(out: Path) -> str:
     return h.hexdigest()[:16]
 
 
-def worker(folder: Path, seconds: float) -> dict[str, Any]:
-    """One process of ``--interleave``: a warm-up run, then for half and the whole of the videos the
-    decode-only CPU and ``rig measure --timing`` + report (CPU, wall, steps, tables' digest)."""
+def worker(folder: Path, seconds: float, long_s: float | None = None) -> dict[str, Any]:
+    """One process of ``--interleave``: a warm-up run, then for half and the whole of ``seconds`` (and
+    ``long_s``, when given) the decode-only CPU and ``rig measure --timing`` + report (CPU, wall, steps,
+    tables' digest); lengths shorter than the videos in ``folder`` stop decoding after that length."""
     cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_ERROR)
     paths = folder / "left.mp4", folder / "right.mp4"
     calibration = folder / "calibration.json"
+    file_s = max(seconds, long_s or 0.0)
 
     def options(length_s: float) -> MeasureOptions:
-        stop = None if length_s >= seconds else length_s
+        stop = None if length_s >= file_s else length_s
         return MeasureOptions(window_s=(0.6, length_s - 0.1), extract=ExtractOptions(stop_s=stop))
 
     measure_once(folder, paths, calibration, options(seconds / 2))  # numba kernels, lazy imports
     runs: dict[str, Any] = {"import_cpu_s": IMPORT_CPU_S}
-    for length_s in (seconds / 2, seconds):
-        stop = None if length_s >= seconds else length_s
+    for length_s in (seconds / 2, seconds, *((long_s,) if long_s else ())):
+        stop = None if length_s >= file_s else length_s
         decode_cpu = cpu_both(partial(decode_until, stop_s=stop), paths)[0]
         cpu, wall, res = measure_once(folder, paths, calibration, options(length_s))
         runs[f"{length_s:g}"] = {
@@ -160,7 +165,7 @@ def worker(folder: Path, seconds: float) -> dict[str, Any]:
     return runs
 
 
-def interleave(base: Path, folder: Path, seconds: float, pairs: int) -> int:
+def interleave(base: Path, folder: Path, seconds: float, pairs: int, long_s: float | None = None) -> int:
     """Runs :func:`worker` in fresh processes alternately on ``base`` (an exported tree) and this tree and
     prints the medians: the load changes within minutes, so each figure is compared with its neighbours'."""
     trees = {"base": base.resolve(), "branch": ROOT}
@@ -172,19 +177,23 @@ def interleave(base: Path, folder: Path, seconds: float, pairs: int) -> int:
         for name, tree in trees.items():
             loads.append(os.getloadavg()[0])
             env = {**os.environ, "RIG_BENCH_TREE": str(tree), "PYTHONPATH": str(tree)}
+            long_args = ["--long", str(long_s)] if long_s else []
             done = subprocess.run([sys.executable, __file__, "--worker", "--keep", str(folder), "--seconds",
-                                   str(seconds)], env=env, capture_output=True, text=True, check=True)
+                                   str(seconds), *long_args], env=env, capture_output=True, text=True,
+                                  check=True)
             results[name].append(json.loads(done.stdout.strip().splitlines()[-1]))
     (folder / "interleave.json").write_text(json.dumps(results, indent=1))  # every run's figures
     print(f"interleaved: {len(results['base'])} pairs of processes (base, branch, …), load average "
           f"{min(loads):.1f}–{max(loads):.1f} on {os.cpu_count()} cores; medians; CPU per s of video")
     for name, runs in results.items():
-        print_interleaved(name, runs, seconds)
+        print_interleaved(name, runs, seconds, long_s)
     return 0
 
 
-def print_interleaved(name: str, runs: list[dict[str, Any]], seconds: float) -> None:
-    """One tree's medians: whole-video and marginal (half → whole) ratios to decode-only, fixed costs."""
+def print_interleaved(name: str, runs: list[dict[str, Any]], seconds: float, long_s: float | None = None
+                      ) -> None:
+    """One tree's medians: whole-video and marginal (half → whole) ratios to decode-only, fixed costs;
+    with ``long_s``, the whole-pair ratio and wall clock of the long pair too."""
     def med(fn: Callable[[dict[str, Any]], float]) -> float:
         return float(statistics.median(fn(r) for r in runs))
 
@@ -198,7 +207,8 @@ def print_interleaved(name: str, runs: list[dict[str, Any]], seconds: float) -> 
     marginal = added_measure / added_decode
     fixed = med(lambda r: r[whole]["measure_cpu_s"]) - marginal * med(lambda r: r[whole]["decode_cpu_s"])
     # the same from every run of both lengths: least squares of CPU = fixed + rate × decode-only CPU
-    points = [(r[k]["decode_cpu_s"], r[k]["measure_cpu_s"]) for r in runs for k in (part, whole)]
+    lengths = (part, whole, *((f"{long_s:g}",) if long_s else ()))
+    points = [(r[k]["decode_cpu_s"], r[k]["measure_cpu_s"]) for r in runs for k in lengths]
     design = np.array([[1.0, d] for d, _ in points])
     fit_fixed, fit_rate = np.linalg.lstsq(design, np.array([m for _, m in points]), rcond=None)[0]
     report = med(lambda r: r[whole]["steps_cpu_s"]["report"])
@@ -224,6 +234,14 @@ def print_interleaved(name: str, runs: list[dict[str, Any]], seconds: float) -> 
                  - statistics.median(r[part]["steps_cpu_s"][k] for r in runs)) / added_decode for k in steps}
     print("          per added second, each step over the decode-only CPU: "
           + ", ".join(f"{k} {v:.2f}" for k, v in added.items()))
+    if long_s:
+        key = f"{long_s:g}"
+        each_long = ", ".join(f"{r[key]['measure_cpu_s'] / r[key]['decode_cpu_s']:.2f}" for r in runs)
+        wall_long = med(lambda r: r[key]["wall_s"])
+        print(f"          {long_s:g}-s pair: rig measure + report "
+              f"{med(lambda r: r[key]['measure_cpu_s']) / (2 * long_s):.3f} CPU-s per s of video = "
+              f"{med(lambda r: r[key]['measure_cpu_s'] / r[key]['decode_cpu_s']):.2f} × the decode-only CPU "
+              f"(runs {each_long}); wall {wall_long:.2f} s = {2 * long_s / wall_long:.2f} × real time")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -237,17 +255,20 @@ def main(argv: list[str] | None = None) -> int:
                          "fresh processes alternately on BASE and this tree, on the videos in --keep")
     ap.add_argument("--pairs", type=int, default=4,
                     help="--interleave: pairs of processes (0: print the last ones, from interleave.json)")
+    ap.add_argument("--long", type=float, metavar="SECONDS",
+                    help="also a longer pair (e.g. 20): the videos written are this long, and --interleave "
+                         "measures it after half and the whole of --seconds (which stop decoding early)")
     ap.add_argument("--worker", action="store_true", help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
     folder = args.keep or Path(tempfile.mkdtemp(prefix="bench-measure-"))
     folder.mkdir(parents=True, exist_ok=True)
     if args.worker:
-        print(json.dumps(worker(folder, args.seconds)))
+        print(json.dumps(worker(folder, args.seconds, args.long)))
         return 0
     if args.interleave:
         if not all((folder / f).is_file() for f in ("left.mp4", "right.mp4", "calibration.json")):
             ap.error("--interleave needs the videos and calibration in --keep (run once with --keep first)")
-        return interleave(args.interleave, folder, args.seconds, args.pairs)
+        return interleave(args.interleave, folder, args.seconds, args.pairs, args.long)
 
     t0 = time.perf_counter()
     world = mt.measurement_world()
@@ -255,10 +276,11 @@ def main(argv: list[str] | None = None) -> int:
     paths = folder / "left.mp4", folder / "right.mp4"
     calibration = folder / "calibration.json"
     if not (args.reuse and calibration.is_file() and all(p.is_file() for p in paths)):
-        write_videos(folder, args.seconds)
+        write_videos(folder, max(args.seconds, args.long or 0.0))
     print(f"twin videos ready in {time.perf_counter() - t0:.1f} s ({folder})")
     (folder / "timing.json").write_text(json.dumps(mt.truth_timing(left, right, 0.0, 0.15)))
-    return run(folder, paths, calibration, args.seconds, left=left, right=right, repeat=args.repeat)
+    return run(folder, paths, calibration, max(args.seconds, args.long or 0.0), left=left, right=right,
+               repeat=args.repeat)
 
 
 def write_videos(folder: Path, seconds: float) -> None:
