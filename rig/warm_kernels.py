@@ -28,9 +28,8 @@ def warm_all() -> float:
     disc = np.where((xx - 48.0) ** 2 + (yy - 160.0) ** 2 <= 64.0, 220, 30).astype(np.uint8)
     detect_markers(disc, threads=2)  # two row bands: the disc straddles their edge
     image = np.zeros((16, 16), np.uint8)
-    half = change_kernel.half_only(image)
-    change_kernel.half_and_change(image, half)  # the change map and its statistics
-    change_kernel.block_change(half, half)  # the duplicate test's map across a frame
+    change_kernel.half_change_stats(image, change_kernel.half_only(image))  # every block's change map
+    change_kernel.sampled_stats(image, change_kernel.sampled_half(image))  # the duplicate test's per frame
     return time.process_time() - start_s
 
 

@@ -199,6 +199,8 @@ def test_noise_free_background_loses_no_genuine_frame(tmp_path: Path, crank_mm: 
     for d in rep.duplicated:  # the evidence is in the report, with the numbers compared
         assert d["image_repeated"] and "unchanged where the markers move" in d["evidence"]
         assert d["identity_ratio"] <= 0.25 and d["across_ratio"] >= 0.75
+        motion_dn = min(d["change_before_dn"], d["change_after_dn"])  # in the markers' region
+        assert d["region_blocks"] > 0 and motion_dn >= 4.0 and d["change_dn"] <= 0.25 * motion_dn
     if crank_mm >= 4.0:  # a few px per frame: the image evidence finds the copies off the turning points
         assert len(found) >= len(DUPS) - 2, sorted(found)
 

@@ -1,11 +1,12 @@
-"""The duplicate test's per-frame images in one compiled pass (numba): the half-size image and the 8×8-block
-change map to the previous frame's half-size image.
+"""The duplicate test's change maps, compiled (numba): per frame, on every 4th 8×8 block (a 16-px grid);
+over every block where a frame needs it (a still frame's largest change).
 
-Bit for bit what :mod:`drivers.camera.video_file`'s OpenCV path gives (``cv2.resize`` ``INTER_AREA`` by 2
-rounds each 2×2 mean as ``(sum + 2) >> 2``; the block change is the exact sum of the 4×4 half-size absolute
-differences / 16), in one read of the frame instead of six array passes (resize, absdiff, two casts, two
-reductions): about a third of the duplicate test's cost. Only for frames whose sides are multiples of 8
-(every common video size); the caller keeps OpenCV for the others.
+Bit for bit what OpenCV gives (``cv2.resize`` ``INTER_AREA`` by 2 rounds each 2×2 mean as
+``(sum + 2) >> 2``; a block's change is the exact sum of its 4×4 half-size absolute differences / 16;
+tests/test_camera_change_kernel.py): :func:`sampled_stats` reads a frame's sampled blocks as 64-bit words
+(four half-size values at once) in one pass with the map's largest value and median, about half the time
+of the whole map (:func:`half_change_stats`). Only for frames whose sides are multiples of 8 (the caller
+crops the others).
 
 Imported lazily by :mod:`drivers.camera.video_file` (numba's import is paid by the first frame, not by
 importing the driver). Compiled code is cached on disk next to this file when that location is writable;
@@ -14,6 +15,7 @@ otherwise it is compiled once per process (a warning).
 
 from __future__ import annotations
 
+import sys
 import warnings
 from collections.abc import Callable
 from typing import Any, TypeVar, cast
@@ -22,7 +24,7 @@ import numba
 import numpy as np
 from numpy.typing import NDArray
 
-__all__ = ["block_change", "half_and_change", "half_change_stats", "half_only"]
+__all__ = ["half_change_stats", "half_only", "sampled_half", "sampled_stats"]
 
 _LEVELS = 16 * 255 + 1  # a block's change × 16 is an integer sum of 16 absolute differences: 0 … 4080
 
@@ -83,6 +85,56 @@ def _half_change_kernel(image: np.ndarray, prev_half: np.ndarray, half: np.ndarr
     return largest
 
 
+_LANES = np.uint64(0x00FF00FF00FF00FF)  # the low byte of each 16-bit lane of a 64-bit word
+
+
+@_jit
+def _sampled_kernel(image64: np.ndarray, prev32: np.ndarray, sampled32: np.ndarray, change: np.ndarray,
+                    counts: np.ndarray) -> int:
+    """``sampled32[r, j]`` ← the 4 half-size values of sampled row ``r`` in block (2·(r // 4), 2j) (every
+    4th 8×8 block: even block rows and columns; 4 bytes, leftmost first), rounded as :func:`_half_rows`;
+    unless ``change`` is empty, ``change[i, j]`` ← block (2i, 2j)'s mean |change| to ``prev32`` (the previous
+    frame's ``sampled32``) and ``counts`` ← how many blocks have each change × 16; returns the largest
+    change × 16 (0 without). ``image64``: the frame's rows as little-endian 64-bit words (8 pixels each).
+
+    Four half-size values at once in a 64-bit word (16-bit lanes: sums of 4 pixels ≤ 1020 never carry
+    into the next lane): a sampled block row reads one word from each of two image rows."""
+    lanes, one, eight, sixteen = _LANES, np.uint64(1), np.uint64(8), np.uint64(16)
+    rounding, offset = np.uint64(0x0002000200020002), np.uint64(0x0100010001000100)
+    low9, low16 = np.uint64(0x1FF), np.uint64(0xFFFF)
+    with_change = change.size > 0
+    blocks_wide = sampled32.shape[1]
+    column = np.zeros(blocks_wide, np.int32)
+    counts[:] = 0
+    largest = 0
+    for r in range(sampled32.shape[0]):
+        top = 2 * (r + 4 * (r >> 2))  # sampled row r is half row 8·(r // 4) + r % 4
+        for j in range(blocks_wide):
+            a, b = image64[top, 2 * j], image64[top + 1, 2 * j]  # image columns 16j … 16j+7
+            pairs = (a & lanes) + (b & lanes) + ((a >> eight) & lanes) + ((b >> eight) & lanes)
+            half = ((pairs + rounding) >> (one + one)) & lanes  # lane i: half column 8j + i
+            packed = half | (half >> eight)
+            high = (packed >> (sixteen + sixteen)) & low16
+            sampled32[r, j] = np.uint32((packed & low16) | (high << sixteen))
+            if with_change:
+                p = np.uint64(prev32[r, j])
+                spread = ((p & np.uint64(0xFF)) | ((p & np.uint64(0xFF00)) << eight)
+                          | ((p & np.uint64(0xFF0000)) << sixteen)
+                          | ((p & np.uint64(0xFF000000)) << np.uint64(24)))
+                d = (half + offset) - spread  # lane i: 256 + half − previous, within [1, 511]: no borrow
+                column[j] += (abs(np.int32(d & low9) - 256) + abs(np.int32((d >> sixteen) & low9) - 256)
+                              + abs(np.int32((d >> np.uint64(32)) & low9) - 256)
+                              + abs(np.int32((d >> np.uint64(48)) & low9) - 256))
+        if with_change and r % 4 == 3:
+            for j in range(blocks_wide):
+                total = column[j]
+                change[r >> 2, j] = np.float32(total) * np.float32(0.0625)
+                largest = max(largest, total)
+                counts[total] += 1
+            column[:] = 0
+    return largest
+
+
 @_jit
 def _median_of_counts(counts: np.ndarray) -> float:
     """The median (× 16) of the values whose occurrences ``counts`` holds (mean of the middle two when
@@ -100,27 +152,51 @@ def _median_of_counts(counts: np.ndarray) -> float:
     return 0.0
 
 
-@_jit
-def _block_change_kernel(a_half: np.ndarray, b_half: np.ndarray, change: np.ndarray) -> None:
-    """``change`` ← mean |a_half − b_half| per 4×4 block."""
-    width = a_half.shape[1]
-    column = np.zeros(width, np.int32)
-    for r in range(a_half.shape[0]):
-        for q in range(width):
-            column[q] += abs(np.int32(a_half[r, q]) - np.int32(b_half[r, q]))
-        if r % 4 == 3:
-            for j in range(change.shape[1]):
-                change[r >> 2, j] = np.float32(column[4 * j] + column[4 * j + 1] + column[4 * j + 2]
-                                               + column[4 * j + 3]) * np.float32(0.0625)
-            column[:] = 0
-
-
 def half_only(image: NDArray[np.uint8]) -> NDArray[np.uint8]:
     """The half-size image (uint8) of ``image`` (sides multiples of 8)."""
     h, w = image.shape
     half = np.empty((h // 2, w // 2), np.uint8)
     _half_kernel(np.ascontiguousarray(image), half)
     return half
+
+
+def _sampled_arrays(image: NDArray[np.uint8]) -> tuple[NDArray[np.uint64], NDArray[np.uint8]]:
+    """(the frame's rows as 64-bit words, an empty packed sampled image) for :func:`_sampled_kernel`."""
+    h, w = image.shape
+    if h % 8 or w % 8:
+        raise ValueError(f"an image of {(h, w)} px; the sampled blocks need sides multiples of 8")
+    if sys.byteorder != "little":  # the kernel reads 8 pixels as one little-endian word
+        raise NotImplementedError("the sampled change kernel needs a little-endian machine")
+    words = np.ascontiguousarray(image).view(np.uint64)
+    return words, np.empty((4 * ((h // 8 + 1) // 2), 4 * ((w // 8 + 1) // 2)), np.uint8)
+
+
+def sampled_half(image: NDArray[np.uint8]) -> NDArray[np.uint8]:
+    """The half-size image on every 4th 8×8 block of ``image`` (sides multiples of 8), packed as
+    :func:`sampled_stats` gives it."""
+    words, sampled = _sampled_arrays(image)
+    _sampled_kernel(words, sampled.view(np.uint32), sampled.view(np.uint32), np.empty((0, 0), np.float32),
+                    np.empty(1, np.int64))
+    return sampled
+
+
+def sampled_stats(image: NDArray[np.uint8], prev_sampled: NDArray[np.uint8],
+                  ) -> tuple[NDArray[np.uint8], NDArray[np.float32], float, float]:
+    """(the half-size image on every 4th 8×8 block — even block rows and columns, the blocks
+    ``change[::2, ::2]`` of :func:`half_change_stats` — packed: block (2i, 2j) at rows 4i … 4i+3, columns
+    4j … 4j+3; those blocks' change map to ``prev_sampled``, DN; its largest value; its median) of
+    ``image`` (sides multiples of 8): ``change[::2, ::2]``, its maximum and the noise floor of
+    :func:`half_change_stats` bit for bit, from half the frame's rows and a quarter of its pixels (about
+    half the time of the whole map)."""
+    words, sampled = _sampled_arrays(image)
+    if prev_sampled.shape != sampled.shape:
+        raise ValueError(f"prev_sampled has shape {prev_sampled.shape}; expected {sampled.shape} for a frame "
+                         f"of {image.shape}")
+    change = np.empty((sampled.shape[0] // 4, sampled.shape[1] // 4), np.float32)
+    counts = np.empty(_LEVELS, np.int64)
+    largest = _sampled_kernel(words, np.ascontiguousarray(prev_sampled).view(np.uint32),
+                              sampled.view(np.uint32), change, counts)
+    return sampled, change, largest / 16, _median_of_counts(counts) / 16
 
 
 def half_change_stats(image: NDArray[np.uint8], prev_half: NDArray[np.uint8],
@@ -138,21 +214,3 @@ def half_change_stats(image: NDArray[np.uint8], prev_half: NDArray[np.uint8],
     largest = _half_change_kernel(np.ascontiguousarray(image), np.ascontiguousarray(prev_half), half, change,
                                   counts)
     return half, change, largest / 16, _median_of_counts(counts) / 16
-
-
-def half_and_change(image: NDArray[np.uint8], prev_half: NDArray[np.uint8],
-                    ) -> tuple[NDArray[np.uint8], NDArray[np.float32]]:
-    """(half-size image, 8×8-block change map in DN to ``prev_half``, the previous frame's half-size image)
-    of ``image`` (sides multiples of 8)."""
-    half, change, _, _ = half_change_stats(image, prev_half)
-    return half, change
-
-
-def block_change(a_half: NDArray[np.uint8], b_half: NDArray[np.uint8]) -> NDArray[np.float32]:
-    """Mean |a_half − b_half| per 4×4 block of two half-size images (sides multiples of 4), DN."""
-    if a_half.shape != b_half.shape or a_half.shape[0] % 4 or a_half.shape[1] % 4:
-        raise ValueError(f"half-size images of shapes {a_half.shape} and {b_half.shape}; expected one shape "
-                         "with sides multiples of 4")
-    change = np.empty((a_half.shape[0] // 4, a_half.shape[1] // 4), np.float32)
-    _block_change_kernel(np.ascontiguousarray(a_half), np.ascontiguousarray(b_half), change)
-    return change

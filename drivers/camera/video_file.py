@@ -8,15 +8,16 @@ tools). :class:`VideoFile` therefore
   and gives each frame the container's presentation time stamp (``CAP_PROP_POS_MSEC``, converted to seconds);
 - detects **duplicated frames** only on evidence (see :class:`DuplicateJudge`): a repeated presentation time
   stamp; or, with advancing stamps (a constant-frame-rate container), an image that is the previous one
-  again — its sensor noise not renewed (the median 8×8-block difference to the previous frame below
-  ``duplicate_ratio`` × the video's typical one, when the video carries sensor noise), or, in a video
-  without usable noise, unchanged where the markers move: its block-maximum change below 0.15 × the changes
-  of the frames before and after it (both showing motion) while the change across it (frame k−2 → k+1)
-  shows the motion continuing — a genuine frame at a turning point of an oscillation can repeat its
-  predecessor's image, but then the frames either side mirror each other. A frame that repeats its
-  predecessor with no such evidence (a still scene) is not counted: it is listed as ``undecided``. Each
-  duplicate carries its evidence (the numbers compared) in the report. Deciding needs the next frame, so
-  frames are delivered one decode behind;
+  again — its sensor noise not renewed (the median 8×8-block difference to the previous frame, over every
+  4th block, below ``duplicate_ratio`` × the video's typical one, when the video carries sensor noise), or,
+  in a video without usable noise, unchanged where the markers move: the frames that every 4th block cannot
+  tell from a copy are judged at full resolution in the region where the markers moved — its change there
+  at most 0.25 × the changes of the frames before and after it (both showing motion) while the change
+  across it (frame k−2 → k+1) shows the motion continuing (a genuine frame at a turning point of an
+  oscillation can repeat its predecessor's image, but then the frames either side mirror each other). A
+  frame that repeats its predecessor with no such evidence (a still scene) is not counted: it is listed as
+  ``undecided``. Each duplicate carries its evidence (the numbers compared) in the report. Deciding needs
+  the next frame, so frames are delivered one decode behind;
 - detects **dropped frames**: a gap between consecutive time stamps longer than (1 + ``gap_tolerance``)
   frame periods (``round(gap / period) − 1`` frames missing);
 - reports all of them in a :class:`FrameTimeReport` (``.report``), and never shifts a time silently. A
@@ -93,8 +94,10 @@ class FrameTimeReport:
 
     ``duplicated``: frames repeating the previous image and/or its time stamp, each as
     ``{"index", "pts_s", "pts_repeated", "image_repeated", "evidence", "change_dn", "noise_floor_dn",
-    "typical_noise_dn", "change_before_dn", "change_after_dn", "change_across_dn"}`` (block-mean absolute
-    differences in DN, see :class:`DuplicateJudge`; None where not computed); ``undecided``: indices of
+    "typical_noise_dn", "change_before_dn", "change_after_dn", "change_across_dn", "identity_ratio",
+    "across_ratio", "region_blocks"}`` (block-mean absolute differences in DN, see :class:`DuplicateJudge`:
+    the largest changes over the ``region_blocks`` 8×8 blocks where the markers moved when the image was
+    compared there, else over every 4th block; None where not computed); ``undecided``: indices of
     frames that repeat their predecessor's image with no evidence of a duplicate (a still scene; counted as
     genuine frames); ``dropped``: gaps as
     ``{"after_index", "gap_s", "missing_frames"}``; ``corrections``: ``{"from_index", "shift_s"}`` applied
@@ -176,39 +179,92 @@ class _Decoded:
     index: int
     pts_s: float
     image: NDArray[np.uint8]
-    half: NDArray[np.uint8]  # the image averaged over 2×2 pixels (the change maps are computed on it)
-    change: _Change | None = None  # to the previous image (None for the first frame)
+    tested: NDArray[np.uint8]  # the image the duplicate test reads: cropped to sides multiples of 8
+    sampled: NDArray[np.uint8] | None  # its half-size image on every 4th 8×8 block (None: too small to test)
+    change: _Sampled | None = None  # to the previous image (None for the first frame)
 
 
 @dataclass(frozen=True)
-class _Change:
-    """The 8×8-block mean |image − previous image| (DN) and the duplicate test's two statistics of it."""
+class _Sampled:
+    """The 8×8-block mean |image − previous image| (DN) on every 4th block (even block rows and columns:
+    a 16-px grid of 8×8 blocks), its largest value and its median (the noise floor)."""
 
     map: NDArray[np.float32]
-    max_dn: float  # the largest block change
-    floor_dn: float  # the median over every 4th block (:func:`_noise_floor`)
-
-    @classmethod
-    def of(cls, change: NDArray[np.float32]) -> _Change:
-        return cls(change, float(change.max()), _noise_floor(change))
+    max_dn: float
+    floor_dn: float
 
 
-def _ratio_where_moved(change: NDArray[np.float32], motion: _Change) -> float:
+def _tested(image: NDArray[np.uint8]) -> NDArray[np.uint8]:
+    """The image cropped to sides multiples of 8 (the last < 8 rows and columns are not tested; every
+    common video size is whole)."""
+    h, w = image.shape
+    if h % 8 == 0 and w % 8 == 0:
+        return image
+    return np.ascontiguousarray(image[:h - h % 8, :w - w % 8])
+
+
+def _sample(tested: NDArray[np.uint8], prev: NDArray[np.uint8] | None,
+            ) -> tuple[NDArray[np.uint8] | None, _Sampled | None]:
+    """(the sampled half-size image, its change to the previous frame's ``prev`` or None for the first
+    frame), in one compiled pass (:func:`drivers.camera.change_kernel.sampled_stats`); (None, None) for an
+    image smaller than one 8×8 block."""
+    if tested.size == 0:
+        return None, None
+    from drivers.camera import change_kernel  # numba: loaded by the first frame, not by the import
+
+    if prev is None:
+        return change_kernel.sampled_half(tested), None
+    sampled, change, max_dn, floor_dn = change_kernel.sampled_stats(tested, prev)
+    return sampled, _Sampled(change, max_dn, floor_dn)
+
+
+def _largest_change(tested: NDArray[np.uint8], prev_tested: NDArray[np.uint8]) -> float:
+    """The largest 8×8-block change over every block of the frame (DN)."""
+    from drivers.camera import change_kernel
+
+    return change_kernel.half_change_stats(tested, change_kernel.half_only(prev_tested))[2]
+
+
+def _motion_region(before: _Sampled, after: _Sampled, shape: tuple[int, int],
+                   ) -> tuple[NDArray[np.intp], NDArray[np.intp]]:
+    """(block rows, block columns) where the markers moved: the sampled blocks whose change before or
+    after reaches a quarter of that side's largest (and ``MIN_MOTION_DN`` / 2), with their 8 neighbours
+    (the blocks between the sampled ones). ``shape``: the frame's blocks (rows, columns)."""
+    moved = ((before.map >= max(0.25 * before.max_dn, 0.5 * DuplicateJudge.MIN_MOTION_DN))
+             | (after.map >= max(0.25 * after.max_dn, 0.5 * DuplicateJudge.MIN_MOTION_DN)))
+    rows, cols = np.nonzero(moved)
+    grid = np.zeros(shape, bool)
+    for dr in (-1, 0, 1):
+        for dc in (-1, 0, 1):
+            r, c = 2 * rows + dr, 2 * cols + dc
+            ok = (r >= 0) & (r < shape[0]) & (c >= 0) & (c < shape[1])
+            grid[r[ok], c[ok]] = True
+    region_rows, region_cols = np.nonzero(grid)
+    return region_rows, region_cols
+
+
+def _region_halves(tested: NDArray[np.uint8], rows: NDArray[np.intp], cols: NDArray[np.intp],
+                   ) -> NDArray[np.int16]:
+    """The half-size 4×4 values of the 8×8 blocks (``rows[i]``, ``cols[i]``), shape (n, 4, 4): the 2×2
+    means rounded as the kernels (and OpenCV's INTER_AREA) round them."""
+    h, w = tested.shape
+    blocks = tested.reshape(h // 8, 8, w // 8, 8)[rows, :, cols, :].astype(np.int16)  # (n, 8, 8)
+    return (blocks[:, 0::2, 0::2] + blocks[:, 1::2, 0::2] + blocks[:, 0::2, 1::2] + blocks[:, 1::2, 1::2]
+            + 2) >> 2
+
+
+def _region_change(a: NDArray[np.int16], b: NDArray[np.int16]) -> NDArray[np.float32]:
+    """Mean |a − b| per block of two :func:`_region_halves` (DN, float32: the kernels' numbers)."""
+    change: NDArray[np.float32] = np.abs(a - b).sum(axis=(1, 2)).astype(np.float32)
+    change *= np.float32(0.0625)
+    return change
+
+
+def _ratio_where_moved(change: NDArray[np.float32], motion: NDArray[np.float32]) -> float:
     """Mean of ``change`` over the blocks where ``motion`` reaches half its largest value, relative to the
     mean of ``motion`` there: ≈ 0 when the image did not change where the neighbour's markers moved."""
-    where = motion.map >= 0.5 * motion.max_dn
-    return float(change[where].mean() / max(float(motion.map[where].mean()), 1e-9))
-
-
-def _noise_floor(change: NDArray[np.float32]) -> float:
-    """Median block change over every 4th block (plenty for a median), DN: the sensor noise renewed
-    between two exposures. ``np.partition`` on the 1-D copy: half the cost of ``np.median``."""
-    x = change[::2, ::2].ravel()
-    k = x.size // 2
-    if x.size % 2:
-        return float(np.partition(x, k)[k])
-    part = np.partition(x, (k - 1, k))
-    return 0.5 * (float(part[k - 1]) + float(part[k]))
+    where = motion >= 0.5 * float(motion.max())
+    return float(change[where].mean() / max(float(motion[where].mean()), 1e-9))
 
 
 @dataclass
@@ -219,64 +275,23 @@ class _Stamps:
     shift_s: float = 0.0
 
 
-def _half(image: NDArray[np.uint8]) -> NDArray[np.uint8]:
-    """The image averaged over 2×2 pixels (uint8): a quarter of the pixels for the change maps."""
-    h, w = image.shape
-    # cv2.resize keeps the dtype (OpenCV's stubs type every result as MatLike)
-    return cast("NDArray[np.uint8]", cv2.resize(image, (max(1, w // 2), max(1, h // 2)),
-                                              interpolation=cv2.INTER_AREA))
-
-
-def _half_and_change(image: NDArray[np.uint8], prev_half: NDArray[np.uint8] | None,
-                     ) -> tuple[NDArray[np.uint8], _Change | None]:
-    """(half-size image, 8×8-block change to ``prev_half`` or None for the first frame): in one compiled
-    pass with its statistics (:mod:`drivers.camera.change_kernel`, the same numbers) when the sides are
-    multiples of 8, else by OpenCV and numpy."""
-    if image.shape[0] % 8 == 0 and image.shape[1] % 8 == 0:
-        from drivers.camera import change_kernel  # numba: loaded by the first frame, not by the import
-
-        if prev_half is None:
-            return change_kernel.half_only(image), None
-        half, change, max_dn, floor_dn = change_kernel.half_change_stats(image, prev_half)
-        return half, _Change(change, max_dn, floor_dn)
-    half = _half(image)
-    return half, _Change.of(_block_change(half, prev_half)) if prev_half is not None else None
-
-
-def _across_change(a_half: NDArray[np.uint8], b_half: NDArray[np.uint8]) -> NDArray[np.float32]:
-    """:func:`_block_change` of two frames apart, compiled when the half-size sides are multiples of 4."""
-    if a_half.shape[0] % 4 == 0 and a_half.shape[1] % 4 == 0:
-        from drivers.camera import change_kernel
-
-        return change_kernel.block_change(a_half, b_half)
-    return _block_change(a_half, b_half)
-
-
-def _block_change(a_half: NDArray[np.uint8], b_half: NDArray[np.uint8]) -> NDArray[np.float32]:
-    """Mean absolute difference per 8×8 block of the full image (float32 DN, to 1/16 DN) from the two
-    half-size images: two exact 2× area reductions of 16 × |a − b| (fast paths, no rounding loss)."""
-    d = cv2.absdiff(a_half, b_half).astype(np.uint16)
-    d <<= 4
-    for _ in range(2):
-        h, w = d.shape
-        d = cast("NDArray[np.uint16]", cv2.resize(d, (max(1, w // 2), max(1, h // 2)),
-                                                interpolation=cv2.INTER_AREA))
-    change = d.astype(np.float32)
-    change *= np.float32(1 / 16)
-    return change
-
-
 class DuplicateJudge:
     """Decides, on evidence, whether a decoded frame repeats its predecessor (module docstring).
 
-    Per frame k (DN = 8-bit levels, statistics of the 8×8-block mean absolute differences):
+    Per frame k (DN = 8-bit levels, statistics of the 8×8-block mean absolute differences), computed on
+    every 4th block (even block rows and columns: a 16-px grid of 8×8 blocks, half the frame's rows read):
     ``change`` s_k = largest block change from frame k−1; ``noise_floor`` f_k = median block change (the
     sensor noise renewed between two exposures); ``typical_noise`` F = running median of f over recent
     genuine frames. Evidence of a duplicate, either of:
 
     - *noise not renewed* (videos with F ≥ ``MIN_FLOOR_DN``): f_k < ``noise_ratio`` · F;
-    - *identical where the markers move*: the neighbours show motion well above what a codec swallows
-      (s_{k−1}, s_{k+1} ≥ ``MIN_MOTION_DN``); frame k's change is at most ``IDENTICAL_RATIO`` × each
+    - *identical where the markers move*: a candidate is a frame whose neighbours show motion
+      (s_{k−1}, s_{k+1} ≥ ``MIN_MOTION_DN`` / ``CANDIDATE_MARGIN``) and whose change is at most
+      ``CANDIDATE_MARGIN`` · ``IDENTICAL_RATIO`` × each neighbour's (the sampled blocks may miss a marker's
+      largest change: the margin leaves those frames to the next test). A candidate is then judged at full
+      resolution in the region where the markers moved (every block near a sampled block whose change
+      before or after is large: :func:`_motion_region`): the neighbours' motion there is well above what a
+      codec swallows (≥ ``MIN_MOTION_DN``); its change there is at most ``IDENTICAL_RATIO`` × each
       neighbour's, both as largest block changes and as means over the blocks where the neighbour's change
       reaches half its largest; and the change across, frame k−2 → k+1, is at least ``ACROSS_RATIO`` × the
       neighbours' in the same two ways (the motion goes on: at a turning point of an oscillation
@@ -284,6 +299,7 @@ class DuplicateJudge:
 
     Both ways are required because a codec (MPEG-4 part 2 at its default quality) swallows sub-pixel changes
     and renews the picture at each key frame, which can make a genuine frame look like a copy in one of them.
+    A marker whose motion touches no sampled block (smaller than 8 px and moving between them) is not seen.
     """
 
     IDENTICAL_RATIO = 0.25
@@ -291,6 +307,7 @@ class DuplicateJudge:
     MIN_MOTION_DN = 4.0
     MIN_FLOOR_DN = 0.5
     UNDECIDED_DN = 1.5  # a frame whose largest block change is at most this repeats its predecessor (DN)
+    CANDIDATE_MARGIN = 2.0  # the sampled blocks' gate is this much looser than the region's test
 
     def __init__(self, noise_ratio: float) -> None:
         self.noise_ratio = float(noise_ratio)
@@ -307,27 +324,44 @@ class DuplicateJudge:
         out = {"change_dn": s_k, "noise_floor_dn": floor, "typical_noise_dn": typical,
                "change_before_dn": prev.change.max_dn if prev.change is not None else None,
                "change_after_dn": nxt.change.max_dn if nxt is not None and nxt.change is not None else None,
-               "change_across_dn": None, "identity_ratio": None, "across_ratio": None}
+               "change_across_dn": None, "identity_ratio": None, "across_ratio": None, "region_blocks": None}
         if typical is not None and typical >= self.MIN_FLOOR_DN and floor < self.noise_ratio * typical:
             return {**out, "evidence": f"sensor noise not renewed: median block change {floor:.1f} DN < "
                                        f"{self.noise_ratio:g} × typical {typical:.1f} DN"}
         self._floors.append(floor)
         before, after = out["change_before_dn"], out["change_after_dn"]
-        if before is None or after is None or before2 is None or nxt is None or nxt.change is None:
+        if before is None or after is None or before2 is None or nxt is None:
             return None
-        assert prev.change is not None
+        # the sampled blocks decide a moving frame at once; the others are judged in the markers' region
+        margin, motion = self.CANDIDATE_MARGIN, min(before, after)
+        if motion < self.MIN_MOTION_DN / margin or s_k > margin * self.IDENTICAL_RATIO * motion:
+            return None
+        return self._judge_region(before2, prev, cur, nxt, out)
+
+    def _judge_region(self, before2: _Decoded, prev: _Decoded, cur: _Decoded, nxt: _Decoded,
+                      out: dict[str, Any]) -> dict[str, Any] | None:
+        """A candidate's evidence from every block where the markers moved (see the class docstring)."""
+        assert prev.change is not None and nxt.change is not None
+        h, w = cur.tested.shape
+        rows, cols = _motion_region(prev.change, nxt.change, (h // 8, w // 8))
+        halves = [_region_halves(f.tested, rows, cols) for f in (before2, prev, cur, nxt)]
+        moved_before, moved_after = _region_change(halves[1], halves[0]), _region_change(halves[3], halves[2])
+        change = _region_change(halves[2], halves[1])
+        before, after = float(moved_before.max()), float(moved_after.max())
+        out.update(change_dn=float(change.max()), change_before_dn=before, change_after_dn=after,
+                   region_blocks=len(rows))
         if min(before, after) < self.MIN_MOTION_DN:
             return None
-        ratio = s_k / min(before, after)
-        if ratio > self.IDENTICAL_RATIO:  # the cheap part of the maximum decides a moving frame at once
+        ratio = float(change.max()) / min(before, after)
+        if ratio > self.IDENTICAL_RATIO:
             return None
-        ratio = max(ratio, _ratio_where_moved(cur.change.map, prev.change),
-                    _ratio_where_moved(cur.change.map, nxt.change))
+        ratio = max(ratio, _ratio_where_moved(change, moved_before), _ratio_where_moved(change, moved_after))
         out["identity_ratio"] = ratio
         if ratio > self.IDENTICAL_RATIO:
             return None
-        across_map = _across_change(nxt.half, before2.half)
-        across = min(_ratio_where_moved(across_map, prev.change), _ratio_where_moved(across_map, nxt.change),
+        across_map = _region_change(halves[3], halves[0])
+        across = min(_ratio_where_moved(across_map, moved_before),
+                     _ratio_where_moved(across_map, moved_after),
                      float(across_map.max()) / max(before, after))
         out["change_across_dn"], out["across_ratio"] = float(across_map.max()), across
         if across < self.ACROSS_RATIO:
@@ -558,7 +592,7 @@ class VideoFile(Camera):
     def _grab(self, cap: cv2.VideoCapture, rep: FrameTimeReport,
               first: tuple[float, NDArray[np.uint8]] | None) -> Iterator[_Decoded]:
         """Decoded frames in order with their time stamps and block change to the previous frame."""
-        prev: NDArray[np.uint8] | None = None  # half-size previous image
+        prev: NDArray[np.uint8] | None = None  # the previous image's sampled half-size image
         index, self._start_index = self._start_index, 0  # after a seek, the frame it landed on
         if index:
             rep.first_pts_s = self._first_pts_s
@@ -569,9 +603,10 @@ class VideoFile(Camera):
                     break
                 if index == 0:
                     self._first_pts_s = rep.first_pts_s = pts
-                half, change = _half_and_change(img, prev)
-                yield _Decoded(index, pts, img, half, change)
-                prev = half
+                tested = _tested(img)
+                sampled, change = _sample(tested, prev)
+                yield _Decoded(index, pts, img, tested, sampled, change)
+                prev = sampled
                 index += 1
         finally:
             cap.release()
@@ -602,9 +637,10 @@ class VideoFile(Camera):
             rep.non_monotonic.append(index)
             repeated = False
         evidence = judge.judge(frames) if cur.change is not None and frames[1] is not None else None
-        if repeated and cur.change is not None:
+        if repeated:
             evidence = evidence or {"evidence": "time stamp repeated"}
-            judge.forget(cur.change.floor_dn)
+            if cur.change is not None:
+                judge.forget(cur.change.floor_dn)
         if evidence is not None:
             self.duplicate_indices.add(index)
             rep.duplicated.append({"index": index, "pts_s": pts, "pts_repeated": bool(repeated),
@@ -614,8 +650,10 @@ class VideoFile(Camera):
                 rep.corrections.append({"from_index": index + 1, "shift_s": state.shift_s})
             stamp = pts + state.shift_s if not repeated else prev_pts
         else:
-            if cur.change is not None and cur.change.max_dn <= judge.UNDECIDED_DN:
-                rep.undecided.append(index)
+            prev = frames[1]
+            if (cur.change is not None and prev is not None and cur.change.max_dn <= judge.UNDECIDED_DN
+                    and _largest_change(cur.tested, prev.tested) <= judge.UNDECIDED_DN):
+                rep.undecided.append(index)  # unchanged on the sampled blocks, then on every block
             if prev_pts > -math.inf and not repeated:
                 gap = pts - prev_pts
                 if gap > (1.0 + self.gap_tolerance) * period:
