@@ -57,12 +57,10 @@ TREE = Path(os.environ.get("RIG_BENCH_TREE", ROOT))
 sys.path.insert(0, str(TREE))
 sys.path.insert(0, str(TREE / "tests"))
 
-import measure_twin as mt  # noqa: E402
-
+# what `rig measure` imports (the twin, for writing the videos, and calibration are imported where used)
 from drivers.camera.video_file import VideoFile  # noqa: E402
 from reports.measurement import write_measurement_report  # noqa: E402
 from rig.deploy.measure import MeasureOptions, MeasureResult, measure_videos  # noqa: E402
-from rig.deploy.onsite_calibration import calibrate_from_videos, write_calibration  # noqa: E402
 from rig.deploy.video_markers import ExtractOptions, extract_video  # noqa: E402
 
 IMPORT_CPU_S = time.process_time()  # the interpreter and the imports above: a fixed cost of every run
@@ -270,6 +268,8 @@ def main(argv: list[str] | None = None) -> int:
             ap.error("--interleave needs the videos and calibration in --keep (run once with --keep first)")
         return interleave(args.interleave, folder, args.seconds, args.pairs, args.long)
 
+    import measure_twin as mt
+
     t0 = time.perf_counter()
     world = mt.measurement_world()
     left, right = mt.camera_pair(world, scale=1.0)
@@ -285,6 +285,10 @@ def main(argv: list[str] | None = None) -> int:
 
 def write_videos(folder: Path, seconds: float) -> None:
     """Calibration videos → calibration.json, and the measurement videos (1080p60, MP4)."""
+    import measure_twin as mt
+
+    from rig.deploy.onsite_calibration import calibrate_from_videos, write_calibration
+
     world, truth, t_end = mt.calibration_world()
     left, right = mt.camera_pair(world, scale=1.0)
     left.write_video(folder / "cal_left.mp4", 0.0, t_end)
@@ -300,6 +304,8 @@ def write_videos(folder: Path, seconds: float) -> None:
 def run(folder: Path, paths: tuple[Path, Path], calibration: Path, seconds: float, *, left: object,
         right: object, repeat: int = 3) -> int:
     """Decode and measure; print the figures."""
+    import measure_twin as mt
+
     print("\ndecoding one 1080p video (frames/s, single thread)")
     for name, fn in (("naive BGR + cvtColor", decode_naive), ("luma plane (ours)", decode_ours)):
         n, dt = fn(paths[0])
