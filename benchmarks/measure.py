@@ -212,7 +212,7 @@ def print_interleaved(name: str, runs: list[dict[str, Any]], seconds: float, lon
     report = med(lambda r: r[whole]["steps_cpu_s"]["report"])
     steps = {k: float(statistics.median(r[whole]["steps_cpu_s"][k] for r in runs))
              for k in runs[0][whole]["steps_cpu_s"]}
-    digests = sorted({str(r[whole]["digest"]) for r in runs} | {str(r[part]["digest"]) for r in runs})
+    digests = sorted({str(r[k]["digest"]) for r in runs for k in lengths})
     each = ", ".join(f"{r[whole]['measure_cpu_s'] / r[whole]['decode_cpu_s']:.2f}" for r in runs)
     print(f"  {name:<7} decode-only {med(lambda r: r[whole]['decode_cpu_s']) / video_s:.3f}, rig measure + "
           f"report {med(lambda r: r[whole]['measure_cpu_s']) / video_s:.3f} = {ratio:.2f} × (each run / "
@@ -236,10 +236,15 @@ def print_interleaved(name: str, runs: list[dict[str, Any]], seconds: float, lon
         key = f"{long_s:g}"
         each_long = ", ".join(f"{r[key]['measure_cpu_s'] / r[key]['decode_cpu_s']:.2f}" for r in runs)
         wall_long = med(lambda r: r[key]["wall_s"])
+        added_long = (med(lambda r: r[key]["measure_cpu_s"]) - med(lambda r: r[whole]["measure_cpu_s"])) / (
+            med(lambda r: r[key]["decode_cpu_s"]) - med(lambda r: r[whole]["decode_cpu_s"]))
+        added_wall = med(lambda r: r[key]["wall_s"]) - med(lambda r: r[whole]["wall_s"])
         print(f"          {long_s:g}-s pair: rig measure + report "
               f"{med(lambda r: r[key]['measure_cpu_s']) / (2 * long_s):.3f} CPU-s per s of video = "
               f"{med(lambda r: r[key]['measure_cpu_s'] / r[key]['decode_cpu_s']):.2f} × the decode-only CPU "
-              f"(runs {each_long}); wall {wall_long:.2f} s = {2 * long_s / wall_long:.2f} × real time")
+              f"(runs {each_long}); wall {wall_long:.2f} s = {2 * long_s / wall_long:.2f} × real time; "
+              f"per added second ({whole} → {key} s): {added_long:.2f} × the decode-only CPU, "
+              f"{2 * (long_s - seconds) / added_wall:.2f} × real time")
 
 
 def main(argv: list[str] | None = None) -> int:
