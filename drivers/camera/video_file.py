@@ -182,6 +182,7 @@ class _Decoded:
     tested: NDArray[np.uint8]  # the image the duplicate test reads: cropped to sides multiples of 8
     sampled: NDArray[np.uint8] | None  # its half-size image on every 4th 8×8 block (None: too small to test)
     change: _Sampled | None = None  # to the previous image (None for the first frame)
+    half: NDArray[np.uint8] | None = None  # the whole half-size image, once a still frame needed it
 
 
 @dataclass(frozen=True)
@@ -218,11 +219,15 @@ def _sample(tested: NDArray[np.uint8], prev: NDArray[np.uint8] | None,
     return sampled, _Sampled(change, max_dn, floor_dn)
 
 
-def _largest_change(tested: NDArray[np.uint8], prev_tested: NDArray[np.uint8]) -> float:
-    """The largest 8×8-block change over every block of the frame (DN)."""
+def _largest_change(cur: _Decoded, prev: _Decoded) -> float:
+    """The largest 8×8-block change from ``prev`` to ``cur`` over every block of the frame (DN); the
+    half-size images are kept on the frames (a still scene needs them frame after frame)."""
     from drivers.camera import change_kernel
 
-    return change_kernel.half_change_stats(tested, change_kernel.half_only(prev_tested))[2]
+    if prev.half is None:
+        prev.half = change_kernel.half_only(prev.tested)
+    cur.half, _, largest_dn, _ = change_kernel.half_change_stats(cur.tested, prev.half)
+    return largest_dn
 
 
 def _motion_region(before: _Sampled, after: _Sampled, shape: tuple[int, int],
@@ -652,7 +657,7 @@ class VideoFile(Camera):
         else:
             prev = frames[1]
             if (cur.change is not None and prev is not None and cur.change.max_dn <= judge.UNDECIDED_DN
-                    and _largest_change(cur.tested, prev.tested) <= judge.UNDECIDED_DN):
+                    and _largest_change(cur, prev) <= judge.UNDECIDED_DN):
                 rep.undecided.append(index)  # unchanged on the sampled blocks, then on every block
             if prev_pts > -math.inf and not repeated:
                 gap = pts - prev_pts
