@@ -66,7 +66,7 @@ def test_fault_specs_parse_with_defaults_and_refuse_nonsense() -> None:
 def test_command_line_refuses_a_bad_fault(capsys: pytest.CaptureFixture[str]) -> None:
     with pytest.raises(SystemExit) as info:
         main(["--port", "0", "--fault", "melt"], prog="rig mock generator")
-    assert info.value.code == 2
+    assert info.value.code == 4  # bad input (rig's exit code; argparse's own is 2)
     assert "rig mock generator: error: argument --fault: --fault 'melt': KIND must be one of" in \
         capsys.readouterr().err
 
