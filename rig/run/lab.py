@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import copy
 import logging
 import math
 import sys
@@ -104,7 +105,7 @@ def client_table(served: dict[str, Any], endpoints: dict[str, str]) -> dict[str,
     """The ``rig.toml`` of a controller using the lab: ``served`` (see :func:`lab_table`) with every device at
     its lab endpoint, every camera an ``opencv`` camera at its stream, the station's virtual clock paced at
     real time as the lab's and the watchdogs of :data:`TOLERANT`."""
-    table: dict[str, Any] = _copy(served)
+    table: dict[str, Any] = copy.deepcopy(served)
     table["station"]["heartbeat_timeout_s"] = HEARTBEAT_TIMEOUT_S
     table["sim"]["rate"] = REAL_TIME
     table["sim"]["lab_url"] = endpoints["control"]  # procedures mount their targets in the lab's world
@@ -115,12 +116,6 @@ def client_table(served: dict[str, Any], endpoints: dict[str, str]) -> dict[str,
         cam["driver"], cam["source"] = "opencv", endpoints[f"cameras.{name}"]
     config_from_dict(table, "rig mock lab (client)")
     return table
-
-
-def _copy(value: Any) -> Any:
-    if isinstance(value, dict):
-        return {k: _copy(v) for k, v in value.items()}
-    return [_copy(v) for v in value] if isinstance(value, list) else value
 
 
 def _drop_none(value: Any) -> Any:
