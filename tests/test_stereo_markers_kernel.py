@@ -10,6 +10,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from rig.stereo import markers_kernel
 
@@ -54,7 +56,7 @@ def test_a_window_reaching_outside_the_frame_keeps_all_its_signal() -> None:
     raw[:] = 100
     valid[:] = True
     valid[0] = False  # the window's top row lies above the frame
-    markers_kernel._weigh(raw, valid, False, (20.0, 0.0, 0.0), np.float32(6.0), d, clipped, free)
+    markers_kernel._weigh(raw, 0, valid, False, (20.0, 0.0, 0.0), np.float32(6.0), d, clipped, free)
     pw = 2 * half + 3
     inner = (np.arange(pw * pw) // pw >= 2) & (np.arange(pw * pw) // pw <= 2 * half + 1) \
         & (np.arange(pw * pw) % pw >= 1) & (np.arange(pw * pw) % pw <= 2 * half + 1)
@@ -73,3 +75,44 @@ def test_a_marker_measured_in_a_window_reaching_outside_the_frame_is_measured_wh
     assert border["flags"] & FLAG_BORDER and not inside["flags"]
     assert abs(border["u_px"] - inside["u_px"]) < 0.01 and abs(border["v_px"] - inside["v_px"]) < 0.01
     assert border["area_px"] == pytest.approx(inside["area_px"], rel=0.01)
+
+
+def _window(seed: int, half: int, crossing: bool) -> np.ndarray:
+    """A noisy (W, W) uint8 window on a sloping background with a disc at its centre and, ``crossing``,
+    a bright bar across part of its ring (outliers: the robust fit)."""
+    rng = np.random.default_rng(seed)
+    w = 2 * half + 1
+    yy, xx = np.mgrid[0:w, 0:w] - half
+    win = 30 + rng.uniform(-2, 2) * xx + rng.uniform(-2, 2) * yy + rng.normal(0, rng.uniform(0.3, 4), (w, w))
+    win += np.where(xx**2 + yy**2 <= (0.6 * half) ** 2, rng.uniform(20, 240), 0)
+    if crossing:
+        win[: rng.integers(1, w), : rng.integers(1, 4)] += rng.uniform(40, 200)
+    return np.clip(np.rint(win), 0, 255).astype(np.uint8)
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.integers(0, 2**31), st.integers(3, 40), st.booleans(), st.booleans())
+def test_a_window_inside_the_image_is_weighed_in_place_as_its_copy(seed: int, half: int, crossing: bool,
+                                                                  dark: bool) -> None:
+    """The in-place path (ring and signal read from the image, dark as I ^ 255) gives the bytes of the
+    copied window's path: the same plane and σ, the same signal, clipped and support candidates."""
+    image = _window(seed, half, crossing)
+    scr = markers_kernel.scratch(half)
+    vals, ok, keep, ring_x, ring_y, raw, valid, d, free, clipped, *_, ri, ci, hist = scr
+    raw[:] = 255 - image if dark else image
+    ok[:] = True
+    vals[:] = raw[ri, ci]
+    copied = markers_kernel._ring_plane(vals, ok, True, ring_x, ring_y, keep, hist)
+    a, b, c, s, clean = markers_kernel._ring_inside(image, 255 if dark else 0, hist)
+    ring = np.sort(vals.astype(np.float64))  # 'lower' percentiles: is a ring value an outlier?
+    p16, p50, p84 = (ring[int(q * (len(ring) - 1))] for q in (0.16, 0.5, 0.84))
+    reach = markers_kernel.OUTLIER_SPREADS * max(min(p50 - p16, p84 - p50), 1.0)
+    assert clean == (max(ring[-1] - p50, p50 - ring[0]) <= reach)
+    if clean:  # else the caller fits the ring's values, as the copy's path does
+        assert (a, b, c, s) == copied
+    results = []
+    for src, flip in ((raw, 0), (image, 255 if dark else 0)):
+        d[:], free[:], clipped[:] = 0, 0, False
+        markers_kernel._weigh(src, flip, valid, True, copied[:3], np.float32(3 * copied[3]), d, clipped, free)
+        results.append((d.tobytes(), free.tobytes(), clipped.tobytes()))
+    assert results[0] == results[1]

@@ -110,6 +110,89 @@ def _weighted_plane(vals: np.ndarray, xs: np.ndarray, ys: np.ndarray, keep: np.n
 
 
 @_jit
+def _hist_levels(hist: np.ndarray, n: int) -> tuple[float, float, float, float, float]:
+    """'lower' percentiles p0, p16, p50, p84, p100 (DN) of ``n`` uint8 values from their histogram."""
+    ranks = (0, int(0.16 * (n - 1)), int(0.5 * (n - 1)), int(0.84 * (n - 1)), n - 1)
+    lo = p16 = p50 = p84 = hi = 0.0
+    seen, level, r = 0, 0, 0
+    while r < 5:
+        if seen + hist[level] > ranks[r]:
+            if r == 0:
+                lo = float(level)
+            elif r == 1:
+                p16 = float(level)
+            elif r == 2:
+                p50 = float(level)
+            elif r == 3:
+                p84 = float(level)
+            else:
+                hi = float(level)
+            r += 1
+        else:
+            seen += hist[level]
+            level += 1
+    return lo, p16, p50, p84, hi
+
+
+@_jit
+def _plain_fit(  # noqa: PLR0917 (numba: no keyword-only arguments)
+        i0: int, ix: int, iy: int, i2: int, ixx: int, iyy: int,
+        n_ring: int) -> tuple[float, float, float, float]:
+    """Plane (a, b, c) and σ of a whole ring from its integer sums of v, v·x, v·y, v², x², y² (the ring is
+    symmetric: the normal matrix is diagonal)."""
+    m0, mx, my, s2 = float(i0), float(ix), float(iy), float(i2)
+    a, b, c = m0 / n_ring, mx / float(ixx), my / float(iyy)
+    rss = s2 - (a * m0 + b * mx + c * my)
+    return a, b, c, max(np.sqrt(max(rss, 0.0) / (n_ring - 3.0)), MIN_SIGMA_DN)
+
+
+@_jit
+def _ring_inside(win: np.ndarray, flip: int, hist: np.ndarray) -> tuple[float, float, float, float, bool]:
+    """:func:`_ring_plane` of a window lying wholly inside the image, read in place: ``win`` (W, W) the
+    image's pixels, ``flip`` 255 for dark markers (polarity space: 255 − I = I ^ 255), else 0.
+
+    Returns (a, b, c, σ, clean); clean False: the ring has outliers, (a, b, c, σ) are not computed and the
+    caller fits the ring's values with :func:`_ring_plane` (the same histogram and sums, in any order:
+    integers)."""
+    w = win.shape[0]
+    half_px = w // 2
+    hist[:] = 0
+    i0 = ix = iy = i2 = ixx = iyy = 0
+    for i in range(w):
+        y = i - half_px
+        if i < RING_PX or i >= w - RING_PX:  # a whole row of the ring
+            row_sum = row_x = 0
+            for j in range(w):
+                v = int(win[i, j] ^ flip)
+                hist[v] += 1
+                row_sum += v
+                row_x += v * (j - half_px)
+                i2 += v * v
+                ixx += (j - half_px) * (j - half_px)
+            i0 += row_sum
+            ix += row_x
+            iy += y * row_sum
+            iyy += w * y * y
+        else:  # RING_PX pixels at each end of the row
+            for k in range(2 * RING_PX):
+                j = k if k < RING_PX else w - 2 * RING_PX + k
+                v = int(win[i, j] ^ flip)
+                hist[v] += 1
+                i0 += v
+                ix += v * (j - half_px)
+                iy += v * y
+                i2 += v * v
+                ixx += (j - half_px) * (j - half_px)
+                iyy += y * y
+    n_ring = w * w - (w - 2 * RING_PX) ** 2
+    lo, p16, p50, p84, hi = _hist_levels(hist, n_ring)
+    if max(hi - p50, p50 - lo) > OUTLIER_SPREADS * max(min(p50 - p16, p84 - p50), 1.0):
+        return 0.0, 0.0, 0.0, 0.0, False
+    a, b, c, sigma = _plain_fit(i0, ix, iy, i2, ixx, iyy, n_ring)
+    return a, b, c, sigma, True
+
+
+@_jit
 def _ring_plane(  # noqa: PLR0917 (numba: no keyword-only arguments)
         vals: np.ndarray, ok: np.ndarray, all_ok: bool, xs: np.ndarray, ys: np.ndarray,
                 keep: np.ndarray, hist: np.ndarray) -> tuple[float, float, float, float]:
@@ -126,25 +209,7 @@ def _ring_plane(  # noqa: PLR0917 (numba: no keyword-only arguments)
         hist[:] = 0
         for p in range(n_ring):
             hist[vals[p]] += 1
-        ranks = (0, int(0.16 * (n_ring - 1)), int(0.5 * (n_ring - 1)), int(0.84 * (n_ring - 1)), n_ring - 1)
-        lo = p16 = p50 = p84 = hi = 0.0
-        seen, level, r = 0, 0, 0
-        while r < 5:
-            if seen + hist[level] > ranks[r]:
-                if r == 0:
-                    lo = float(level)
-                elif r == 1:
-                    p16 = float(level)
-                elif r == 2:
-                    p50 = float(level)
-                elif r == 3:
-                    p84 = float(level)
-                else:
-                    hi = float(level)
-                r += 1
-            else:
-                seen += hist[level]
-                level += 1
+        lo, p16, p50, p84, hi = _hist_levels(hist, n_ring)
         reach = OUTLIER_SPREADS * max(min(p50 - p16, p84 - p50), 1.0)
         if max(hi - p50, p50 - lo) <= reach:  # no outlier: the plain fit from the ring's moments
             # integer sums (vectorized; exact, as the float64 sums of these integers were)
@@ -157,10 +222,7 @@ def _ring_plane(  # noqa: PLR0917 (numba: no keyword-only arguments)
                 i2 += v * v
                 ixx += x * x
                 iyy += y * y
-            m0, mx, my, s2 = float(i0), float(ix), float(iy), float(i2)
-            a, b, c = m0 / n_ring, mx / float(ixx), my / float(iyy)
-            rss = s2 - (a * m0 + b * mx + c * my)
-            return a, b, c, max(np.sqrt(max(rss, 0.0) / (n_ring - 3.0)), MIN_SIGMA_DN)
+            return _plain_fit(i0, ix, iy, i2, ixx, iyy, n_ring)
     else:
         good = np.sort(vals[ok])
         n_ok = len(good)
@@ -277,12 +339,13 @@ def _ring_values(  # noqa: PLR0917 (numba: no keyword-only arguments)
 
 @_jit
 def _weigh(  # noqa: PLR0917 (numba: no keyword-only arguments)
-        raw: np.ndarray, valid: np.ndarray, inside: bool, plane: tuple[float, float, float],
+        raw: np.ndarray, flip: int, valid: np.ndarray, inside: bool, plane: tuple[float, float, float],
         floor: np.float32, d: np.ndarray, clipped: np.ndarray, free: np.ndarray) -> None:
     """Signal above the background plane and the noise floor (float32, > 0 on the support) into the
     padded flat ``d`` ((W + 2)², its one-pixel frame left 0; 0 outside the image), and whether a pixel is
     clipped (255) into the padded flat ``clipped`` (bool), and ``free`` = d > 0 (uint8: candidates of the
-    support, cleared by :func:`_support` as it takes them)."""
+    support, cleared by :func:`_support` as it takes them). ``raw`` (W, W): the window in polarity space
+    after ``^ flip`` (0, or 255 for dark markers read in place from the image: 255 − I = I ^ 255)."""
     w = raw.shape[0]
     half_px, pw = w // 2, w + 2
     a = np.float32(plane[0]) + floor
@@ -294,9 +357,10 @@ def _weigh(  # noqa: PLR0917 (numba: no keyword-only arguments)
         cy = c * np.float32(i - half_px)
         row = (i + 1) * pw + 1
         for j in range(w):
-            value = np.float32(raw[i, j]) - (bx[j] + cy)
+            level = raw[i, j] ^ flip
+            value = np.float32(level) - (bx[j] + cy)
             d[row + j] = value
-            clipped[row + j] = raw[i, j] == 255
+            clipped[row + j] = level == 255
             free[row + j] = value > 0
     if not inside:  # out-of-image pixels: no signal
         # (d zeroed first, then free = d > 0 row by row: clearing both in one conditional loop was
@@ -486,13 +550,28 @@ def measure_one(  # noqa: PLR0917 (numba: no keyword-only arguments)
     into column ``n`` of ``out`` and ``flags`` (and ``signal[n]`` when ``signal`` has rows); ``scr``:
     :func:`scratch` of the same half size. See :func:`measure_range`."""
     vals, ok, keep, ring_x, ring_y, raw, valid, d, free, clipped, queue, stack, m, ri, ci, hist = scr
-    pw = 2 * half_px + 3
-    inside = _gather(image, row, col, half_px, dark, raw, valid)
-    _ring_values(raw, valid, inside, ri, ci, vals, ok)
-    a, b, c, s = _ring_plane(vals, ok, inside, ring_x, ring_y, keep, hist)
+    w, pw = 2 * half_px + 1, 2 * half_px + 3
+    height, width = image.shape
+    top, left = row - half_px, col - half_px
+    inside = top >= 0 and left >= 0 and top + w <= height and left + w <= width
+    if inside:  # the usual case: the window's pixels read in place, not copied
+        win = image[top:top + w, left:left + w]
+        flip = 255 if dark else 0
+        a, b, c, s, clean = _ring_inside(win, flip, hist)
+        if not clean:  # something crosses the ring: the robust fit of its values in ring order
+            for p in range(len(ri)):
+                vals[p] = win[ri[p], ci[p]] ^ flip
+            ok[:] = True
+            a, b, c, s = _ring_plane(vals, ok, True, ring_x, ring_y, keep, hist)
+        floor = np.float32(NOISE_FLOOR_K) * np.float32(s)
+        _weigh(win, flip, valid, True, (a, b, c), floor, d, clipped, free)
+    else:  # a copy with the edge pixels repeated and marked invalid
+        _gather(image, row, col, half_px, dark, raw, valid)
+        _ring_values(raw, valid, False, ri, ci, vals, ok)
+        a, b, c, s = _ring_plane(vals, ok, False, ring_x, ring_y, keep, hist)
+        floor = np.float32(NOISE_FLOOR_K) * np.float32(s)
+        _weigh(raw, 0, valid, False, (a, b, c), floor, d, clipped, free)
     sigma = np.float32(s)
-    floor = np.float32(NOISE_FLOOR_K) * sigma
-    _weigh(raw, valid, inside, (a, b, c), floor, d, clipped, free)
     n_support, peak_w, saturated, cramped = _support(d, half_px, free, clipped, queue, stack, m)
     pixels = queue[:n_support]
     du, dv, roundness, skew = _moment_shape(m)
