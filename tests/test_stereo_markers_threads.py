@@ -179,7 +179,7 @@ def test_tracking_copies_the_rows_its_helper_finished_and_measures_the_rest(met_
     img, pred, one = _meeting_scene()
     opt = _track_options(window_px=31, polarity="bright", min_area_px=20.0, max_area_px=20000.0,
                          min_roundness=0.5, min_contrast=20.0, centre="centroid", max_skewness=0.01,
-                         outline_check=False, max_edge_rms_px=0.15)
+                         outline_check=False, max_edge_rms_px=0.15, threads=1)
     claim = np.zeros(len(pred), np.uint8)
     claim[met_at:] = 3
     claim[met_at:met_at + 4] = 2  # started by the helper, not finished: measured by the caller
@@ -224,3 +224,19 @@ def test_tracking_on_two_threads_under_a_busy_helper_is_that_of_one_thread() -> 
     img, pred, one = _meeting_scene()
     for _ in range(200):
         assert track_markers(img, pred, window_px=31, threads=2).tobytes() == one.tobytes()
+
+
+def test_tracking_takes_any_frame_and_prediction_layout_alike() -> None:
+    """The fast path of a C-contiguous uint8 frame and float64 (K, 2) predictions gives the rows of any
+    other layout: a frame that is a view with strides, predictions as float32, a list, a Fortran array."""
+    img, pred, one = _meeting_scene()
+    wide = np.zeros((img.shape[0], 2 * img.shape[1]), np.uint8)
+    wide[:, ::2] = img
+    assert track_markers(wide[:, ::2], pred, window_px=31).tobytes() == one.tobytes()
+    assert track_markers(img, np.asfortranarray(pred), window_px=31).tobytes() == one.tobytes()
+    assert track_markers(img, pred.tolist(), window_px=31).tobytes() == one.tobytes()
+    single = pred.astype(np.float32)
+    assert track_markers(img, single, window_px=31).tobytes() \
+        == track_markers(img, single.astype(np.float64), window_px=31).tobytes()
+    with pytest.raises(InputArrayError, match=r"predicted_uv_px has shape \(4,\)"):
+        track_markers(img, [1.0, 2.0, 3.0, 4.0])

@@ -29,6 +29,7 @@ import functools
 import platform
 from collections.abc import Sequence
 from dataclasses import dataclass
+from types import ModuleType
 from typing import Any
 
 import numpy as np
@@ -62,6 +63,7 @@ _HALF_LADDER = np.array([6, 8, 10, 12, 14, 16, 20, 24, 28, 32, 40, 48, 56, 64, 8
                          160, 192, 224, 256])
 _CENTRES = ("centroid", "ellipse")
 _UINT8 = np.dtype(np.uint8)
+_FLOAT64 = np.dtype(np.float64)
 _POLARITIES = ("bright", "dark")
 _NO_CLAIM = np.zeros(0, dtype=np.uint8)  # track_frame on one thread
 # stores become visible to other threads in program order (track_frame's helper relies on it)
@@ -471,29 +473,53 @@ def track_markers(
     A prediction that is NaN, outside the frame, or whose window holds no marker passing the filters gives
     a row with u_px = v_px = NaN and FLAG_LOST (area, roundness, contrast keep what was measured, or NaN).
     """
-    gray = check_gray(gray)
-    options = _track_options(window_px=window_px, polarity=polarity, min_area_px=min_area_px,
+    # the usual call, as few Python operations as can be: after other work (e.g. a frame's decoding)
+    # each one costs microseconds — checking the options afresh cost ~70 µs a call after an OpenCV detector
+    if not (type(gray) is np.ndarray and gray.dtype is _UINT8 and gray.ndim == 2 and gray.shape[0] >= 8
+            and gray.shape[1] >= 8):
+        gray = check_gray(gray)
+    try:  # keyed by the types of window_px and threads too: threads=True (== 1) is refused
+        opt = _TRACK_OPTIONS[(window_px, type(window_px), polarity, min_area_px, max_area_px, min_roundness,
+                              min_contrast, centre, max_skewness, outline_check, max_edge_rms_px, threads,
+                              type(threads))]
+    except (KeyError, TypeError):  # new options (checked and remembered), or unhashable ones (refused)
+        opt = _track_options(window_px=window_px, polarity=polarity, min_area_px=min_area_px,
                              max_area_px=max_area_px, min_roundness=min_roundness, min_contrast=min_contrast,
                              centre=centre, max_skewness=max_skewness, outline_check=outline_check,
                              max_edge_rms_px=max_edge_rms_px, threads=threads)
-    pred = np.asarray(predicted_uv_px, dtype=np.float64)
-    if pred.ndim != 2 or pred.shape[1] != 2:
-        raise InputArrayError(f"predicted_uv_px has shape {pred.shape}; give a (K, 2) array of (u, v) in px")
-    return track_rows(gray, pred, options)
+    pred = predicted_uv_px
+    if not (type(pred) is np.ndarray and pred.dtype is _FLOAT64 and pred.ndim == 2 and pred.shape[1] == 2
+            and pred.flags.c_contiguous):
+        pred = np.ascontiguousarray(predicted_uv_px, dtype=np.float64)
+        if pred.ndim != 2 or pred.shape[1] != 2:
+            raise InputArrayError(
+                f"predicted_uv_px has shape {pred.shape}; give a (K, 2) array of (u, v) in px")
+    if not opt.fit and len(pred) and opt.half_px <= _fitting_half(gray.shape):
+        return _track_compiled(gray, pred, opt)
+    return track_rows(gray, pred, opt)
 
 
-def _track_options(**options: Any) -> TrackOptions:
-    """:meth:`TrackOptions.checked`, remembered for options seen before (a tracker passes the same ones
-    every frame: checking them again cost 5–7 µs a call)."""
-    try:  # keyed by the values' types too: True == 1 and 1.0 == 1, but threads=True is refused
-        return _remembered_track_options(tuple((key, type(value), value) for key, value in options.items()))
-    except TypeError:  # an unhashable option: checked (and refused) without the memory
-        return TrackOptions.checked(**options)
+_TRACK_OPTIONS: dict[tuple[Any, ...], TrackOptions] = {}  # checked options by track_markers' keywords
+_MAX_REMEMBERED = 64
 
 
-@functools.lru_cache(maxsize=64)
-def _remembered_track_options(options: tuple[tuple[str, type, Any], ...]) -> TrackOptions:
-    return TrackOptions.checked(**{key: value for key, _, value in options})
+def _track_options(*, window_px: Any, polarity: Any, min_area_px: Any, max_area_px: Any, min_roundness: Any,
+                   min_contrast: Any, centre: Any, max_skewness: Any, outline_check: Any,
+                   max_edge_rms_px: Any, threads: Any) -> TrackOptions:
+    """:meth:`TrackOptions.checked`, remembered (up to _MAX_REMEMBERED sets) for :func:`track_markers`."""
+    opt = TrackOptions.checked(window_px=window_px, polarity=polarity, min_area_px=min_area_px,
+                               max_area_px=max_area_px, min_roundness=min_roundness,
+                               min_contrast=min_contrast, centre=centre, max_skewness=max_skewness,
+                               outline_check=outline_check, max_edge_rms_px=max_edge_rms_px, threads=threads)
+    key = (window_px, type(window_px), polarity, min_area_px, max_area_px, min_roundness, min_contrast,
+           centre, max_skewness, outline_check, max_edge_rms_px, threads, type(threads))
+    try:
+        if len(_TRACK_OPTIONS) >= _MAX_REMEMBERED:
+            _TRACK_OPTIONS.clear()
+        _TRACK_OPTIONS[key] = opt
+    except TypeError:  # an unhashable option that passed the checks: used, not remembered
+        pass
+    return opt
 
 
 @dataclass(frozen=True)
@@ -511,6 +537,11 @@ class TrackOptions:
     max_skewness: float
     max_edge_rms_px: float
     threads: int = 1  # threads one frame's windows are split over (without an outline fit)
+
+    @functools.cached_property
+    def track_args(self) -> tuple[int, bool, np.ndarray, np.ndarray, int]:
+        """Half size, dark, limits, the size ladder and the retries, as track_frame takes them."""
+        return self.half_px, self.dark, self.limits, _HALF_LADDER, 2
 
     @functools.cached_property
     def limits(self) -> np.ndarray:
@@ -537,6 +568,12 @@ class TrackOptions:
                    threads=check_threads(threads))
 
 
+def _fitting_half(shape: tuple[int, ...]) -> int:
+    """The largest tracking window's half size for a frame of ``shape``: a window much larger than the
+    frame has its background ring outside it (at most one pixel larger)."""
+    return max(3, min(shape[0], shape[1]) // 2)
+
+
 def track_rows(gray: np.ndarray, pred: np.ndarray, opt: TrackOptions) -> np.ndarray:
     """:func:`track_markers` of the predictions ``pred`` (N, 2) float64 in the checked frame ``gray``: one
     row per prediction. Without an outline fit, one compiled call per thread
@@ -545,8 +582,7 @@ def track_rows(gray: np.ndarray, pred: np.ndarray, opt: TrackOptions) -> np.ndar
     if len(pred) == 0:
         return np.empty(0, dtype=MARKER_DTYPE)
     height, width = gray.shape
-    # a window much larger than the frame has its background ring outside it: at most one pixel larger
-    fitting = max(3, min(height, width) // 2)
+    fitting = _fitting_half(gray.shape)
     if opt.half_px > fitting:
         opt = dataclasses.replace(opt, half_px=fitting)
     if not opt.fit:
@@ -588,11 +624,10 @@ def _track_compiled(gray: np.ndarray, pred: np.ndarray, opt: TrackOptions) -> np
     (:func:`rig.stereo.markers_kernel.track_frame`). On two threads (x86-64) this thread works through
     the predictions from the front and a helper from the back, and this thread never waits for the
     helper; otherwise each thread takes a part."""
-    from rig.stereo.markers_kernel import track_frame  # numba: loaded by the first measurement
-
+    track_frame = _kernel().track_frame
     rec = np.empty(len(pred), dtype=MARKER_DTYPE)
-    image = np.ascontiguousarray(gray, dtype=np.uint8)
-    args = (opt.half_px, opt.dark, opt.limits, _HALF_LADDER, 2)
+    image = gray if gray.flags.c_contiguous else np.ascontiguousarray(gray)
+    args = opt.track_args
     if opt.threads == 1 or len(pred) < 2 * WINDOWS_PER_THREAD:  # the usual case, without the split's µs
         track_frame(image, pred, *args, rec, _NO_CLAIM, rec, False)
     elif opt.threads == 2 and _ORDERED_STORES:
@@ -604,3 +639,11 @@ def _track_compiled(gray: np.ndarray, pred: np.ndarray, opt: TrackOptions) -> np
         run_parts(track_frame, [(image, pred[lo:hi], *args, rec[lo:hi], _NO_CLAIM, rec, False)
                                 for lo, hi in split(len(pred), opt.threads, WINDOWS_PER_THREAD)])
     return rec
+
+
+@functools.cache
+def _kernel() -> ModuleType:
+    """:mod:`rig.stereo.markers_kernel`, imported by the first measurement (numba and the compiled code)."""
+    from rig.stereo import markers_kernel
+
+    return markers_kernel
