@@ -40,18 +40,24 @@ Run: .venv/bin/python benchmarks/markers.py [--rounds N] [--frames N] [--clock b
 Both clocks on a quiet machine (under 3 minutes; check that no case says "NOT a quiet machine"):
   PYTHONPATH=. .venv/bin/python benchmarks/markers.py --rounds 3 --frames 20
 
-Figures: README.md ("Marker extraction"). Quiet machine, 2026-12-02 (two runs, other processes ≤ 0.01
-core): CPU on one thread, 30 markers, full frame 11.3–11.5× sbd/default, tracking 31.7–32.9× sbd/tuned
-(9.7–9.9× and 29.0–29.1× in the previous session's quiet run of the code before this branch; paired A/B
-at 1 core of load: full frame +6 %, tracking unchanged); wall, interleaved, ours on one thread: full frame
-11.1–11.6× sbd/default, tracking 25.5–27.4× sbd/tuned; on two threads full frame 9.4–10.2× (slower than
-one), tracking 27.0–30.7× — two threads pay in --order blocked (full frame 0.48 against 0.61 ms).
-What limits them now (warm, per stage): a tracking window ≈ 4.6 µs (the support's flood fill 2.4, the
-ring's values and fit 0.85, the signal map 0.56, centroid and plateau 0.64), a call ≈ 8–10 µs fixed; the
-full frame's binarization (rig/stereo/markers_label.py) ≈ 170–190 µs of ≈ 0.6–0.8 ms.
+Figures: README.md ("Marker extraction"). Quiet machine, 2026-12-02 morning (two runs, other processes
+≤ 0.01 core, before the changes below): CPU on one thread, 30 markers, full frame 11.3–11.5× sbd/default,
+tracking 31.7–32.9× sbd/tuned; wall, interleaved, ours on one thread: full frame 11.1–11.6× sbd/default,
+tracking 25.5–27.4× sbd/tuned (not met); on two threads (then a static split) tracking 27.0–30.7×.
+Since: a window inside the frame is read in place; tracking's Python-level wrapper is a few operations
+(after SBD, caches cold, it cost ≈ 130 µs of a 30-marker call, now ≈ 50); tracking on two threads has the
+caller work from the front and a helper from the back, never waiting for it (under load the static split
+waited for a preempted part: 2.4 ms against 0.4 ms on one thread). Measured only on a loaded machine
+(load 11–13, other processes 1.4–1.6 cores): CPU one thread, 30 markers, full frame 10.8–10.9×
+sbd/default, tracking 31.3–34.9× sbd/tuned, RMS 0.0065–0.0072 px; its wall figures are not the reference.
+What limits tracking now: after other work has flushed the caches, a call costs ≈ 0.1 ms more than warm
+(the compiled call's dispatch and work arrays ≈ 35 µs, the windows' pixels ≈ 20 µs, the Python wrapper
+≈ 50 µs) — Python-level operations each cost microseconds then, not the ≈ 50 ns of a warm loop.
 Tried and measured before, not kept: cv2.adaptiveThreshold for blur + offset + compare (2× slower); the
 local mean on a further-reduced frame; cv2.resize INTER_NEAREST_EXACT for the subsample; speculative
-tracking of many frames in one call (1.1–3× slower than one call per frame).
+tracking of many frames in one call (1.1–3× slower than one call per frame); the kernel's work arrays
+kept per thread and passed to the compiled call (dispatching a tuple of 16 arrays costs ≈ 4 µs warm,
+more than allocating them in the call).
 """
 
 from __future__ import annotations
