@@ -47,7 +47,9 @@ tracking 25.5–27.4× sbd/tuned (not met); on two threads (then a static split)
 Since: a window inside the frame is read in place; tracking's Python-level wrapper is a few operations
 (after SBD, caches cold, it cost ≈ 130 µs of a 30-marker call, now ≈ 50); tracking on two threads has the
 caller work from the front and a helper from the back, never waiting for it (under load the static split
-waited for a preempted part: 2.4 ms against 0.4 ms on one thread). Measured only on a loaded machine
+waited for a preempted part: up to 2.4 ms against 0.4 ms on one thread; in this benchmark at load 9–13
+both were alike, slower than one thread). A/B of base and branch at the same load (cpu, 30 markers):
+tracking 27.3–29.2× → 35.2–39.6× sbd/tuned, full frame unchanged. Measured only on a loaded machine
 (load 11–13, other processes 1.4–1.6 cores): CPU one thread, 30 markers, full frame 10.8–10.9×
 sbd/default, tracking 31.3–34.9× sbd/tuned, RMS 0.0065–0.0072 px; its wall figures are not the reference.
 What limits tracking now: after other work has flushed the caches, a call costs ≈ 0.1 ms more than warm

@@ -9,10 +9,10 @@ The pool's threads are daemons waiting on a lock each (a hand-over costs ≈ 11 
 against ≈ 40 µs through ``concurrent.futures``); a call takes idle ones (starting new ones when
 none is idle: calls from several threads at once each get their own) and gives them back when its parts
 have finished. :func:`run_helped` is the other way, for tracking on two threads: the caller does not
-wait for its helper, whose thread avoids the caller's CPU (a busy machine: a static split waited for a
-preempted part — 2.4 ms against 0.4 ms on one thread, load 5 — the helper costs ≈ 0.1 ms when no core
-is free, and takes about half the windows when one is). A forked child forgets its parent's threads
-(it has none).
+wait for its helper, whose thread avoids the caller's CPU (on a busy machine a static split waits for a
+preempted part: up to 2.4 ms a frame against 0.4 ms on one thread at load 5; the helper costs ≈ 0.1 ms
+when no core is free, and takes about half the windows when one is). A forked child forgets its
+parent's threads (it has none).
 :func:`check_threads` is the option's check; 1 (the default everywhere) uses no pool: the right choice
 where each camera already has a core (``rig measure`` reduces the two cameras' frames in parallel).
 """
