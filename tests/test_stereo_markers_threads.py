@@ -239,4 +239,4 @@ def test_tracking_takes_any_frame_and_prediction_layout_alike() -> None:
     assert track_markers(img, single, window_px=31).tobytes() \
         == track_markers(img, single.astype(np.float64), window_px=31).tobytes()
     with pytest.raises(InputArrayError, match=r"predicted_uv_px has shape \(4,\)"):
-        track_markers(img, [1.0, 2.0, 3.0, 4.0])
+        track_markers(img, [1.0, 2.0, 3.0, 4.0])  # type: ignore[arg-type]
