@@ -45,10 +45,10 @@ Figures: README.md ("Marker extraction"). Quiet machine, 2026-12-02 morning (two
 tracking 31.7–32.9× sbd/tuned; wall, interleaved, ours on one thread: full frame 11.1–11.6× sbd/default,
 tracking 25.5–27.4× sbd/tuned (not met); on two threads (then a static split) tracking 27.0–30.7×.
 Since: a window inside the frame is read in place; tracking's Python-level wrapper is a few operations
-(after SBD, caches cold, it cost ≈ 130 µs of a 30-marker call, now ≈ 50); tracking on two threads has the
-caller work from the front and a helper from the back, never waiting for it (under load the static split
-waited for a preempted part: up to 2.4 ms against 0.4 ms on one thread; in this benchmark at load 9–13
-both were alike, slower than one thread). A/B of base and branch at the same load (cpu, 30 markers):
+(after SBD, caches cold, it cost ≈ 130 µs of a 30-marker call, now ≈ 50); a helper thread
+working from the back, never waited for, was tried and not kept (its hand-over relied on x86 store
+order without atomics; at load 9–13 it and the static split were alike, slower than one thread).
+A/B of base and branch at the same load (cpu, 30 markers):
 tracking 27.3–29.2× → 35.2–39.6× sbd/tuned, full frame unchanged. Measured only on a loaded machine
 (load 11–13, other processes 1.4–1.6 cores): CPU one thread, 30 markers, full frame 10.8–10.9×
 sbd/default, tracking 31.3–34.9× sbd/tuned, RMS 0.0065–0.0072 px; its wall figures are not the reference.

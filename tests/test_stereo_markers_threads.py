@@ -15,10 +15,9 @@ from hypothesis import strategies as st
 from marker_images import Disc, render
 
 from rig.stereo import InputArrayError, detect_markers, track_markers
-from rig.stereo.markers import _HALF_LADDER, MARKER_DTYPE, _track_options
 from rig.stereo.markers_binarize import BAND_ROWS
 from rig.stereo.markers_label import reduced_shape
-from rig.stereo.markers_threads import run_helped, run_parts, split
+from rig.stereo.markers_threads import run_parts, split
 
 SHAPE = (512, 640)
 
@@ -168,62 +167,6 @@ def _meeting_scene() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     pred[5] = np.nan
     one = track_markers(img, pred, window_px=31)
     return img, pred, one
-
-
-@pytest.mark.parametrize("met_at", [0, 9, 23, 24])
-def test_tracking_copies_the_rows_its_helper_finished_and_measures_the_rest(met_at: int) -> None:
-    """track_frame's caller, meeting its helper at ``met_at``: rows the helper finished (3) are copied
-    from the helper's rows, rows it only started (2) are measured again, the rest as on one thread."""
-    from rig.stereo.markers_kernel import track_frame
-
-    img, pred, one = _meeting_scene()
-    opt = _track_options(window_px=31, polarity="bright", min_area_px=20.0, max_area_px=20000.0,
-                         min_roundness=0.5, min_contrast=20.0, centre="centroid", max_skewness=0.01,
-                         outline_check=False, max_edge_rms_px=0.15, threads=1)
-    claim = np.zeros(len(pred), np.uint8)
-    claim[met_at:] = 3
-    claim[met_at:met_at + 4] = 2  # started by the helper, not finished: measured by the caller
-    helper_rec = one.copy()
-    helper_rec["area_px"][claim == 3] = -1.0  # marks rows that were copied, not measured
-    rec = np.zeros(len(pred), MARKER_DTYPE)
-    track_frame(img, pred, opt.half_px, opt.dark, opt.limits, _HALF_LADDER, 2, rec, claim, helper_rec, False)
-    assert rec.tobytes() == helper_rec.tobytes()
-    assert np.array_equal(claim[:met_at], np.ones(met_at))  # the caller marked what it measured
-    # the helper measures from the back into its own rows, marking them 3, and stops at a marked one
-    claim[:] = 0
-    claim[:met_at] = 1
-    mine = np.zeros(len(pred), MARKER_DTYPE)
-    track_frame(img, pred, opt.half_px, opt.dark, opt.limits, _HALF_LADDER, 2, rec, claim, mine, True)
-    assert np.array_equal(claim[met_at:], np.full(len(pred) - met_at, 3))
-    assert mine[met_at:].tobytes() == one[met_at:].tobytes()
-    assert not mine[:met_at].tobytes().strip(b"\0")  # nothing written before the meeting point
-
-
-def test_run_helped_returns_without_waiting_for_a_helper() -> None:
-    """A helper part that has not run (or is still running) when the caller's part returns is not waited
-    for; the helper runs on another thread, and its exception does not reach the caller."""
-    release, ran = threading.Event(), threading.Event()
-    seen: list[int] = []
-
-    def part(k: int) -> None:
-        if k == 1:
-            seen.append(threading.get_ident())
-            ran.set()
-            assert release.wait(60)
-            raise ValueError("helper")
-
-    run_helped(part, (0,), [(1,)])  # returns although the helper is blocked
-    assert ran.wait(60) and seen[0] != threading.get_ident()
-    release.set()
-    run_helped(part, (0,), [])
-
-
-def test_tracking_on_two_threads_under_a_busy_helper_is_that_of_one_thread() -> None:
-    """Many frames in a row on two threads (the helper starting late, early, or not at all): each
-    frame's rows are one thread's, bit for bit."""
-    img, pred, one = _meeting_scene()
-    for _ in range(200):
-        assert track_markers(img, pred, window_px=31, threads=2).tobytes() == one.tobytes()
 
 
 def test_tracking_takes_any_frame_and_prediction_layout_alike() -> None:

@@ -11,8 +11,7 @@ the same pixels and weights; they differ only through the
 background plane fitted to the ring of their (differently placed) windows — by less than the
 centroid's own noise (tests/test_stereo_markers.py). Both take ``threads``: one frame's work split over
 that many threads (:mod:`rig.stereo.markers_threads`: the binarization in row bands, the windows in
-parts; tracking's two threads from the two ends of the windows, the caller never waiting for its
-helper), with the result of one thread bit for bit; 1 (default) where each camera already has a core.
+parts), with the result of one thread bit for bit; 1 (default) where each camera already has a core.
 
 Results are structured arrays of :data:`MARKER_DTYPE`, one row per marker: ``u_px`` (column) and
 ``v_px`` (row) with the centre of the top-left pixel at (0, 0); ``area_px`` (px², integrated signal
@@ -26,7 +25,6 @@ from __future__ import annotations
 
 import dataclasses
 import functools
-import platform
 from collections.abc import Sequence
 from dataclasses import dataclass
 from types import ModuleType
@@ -38,7 +36,7 @@ from rig.stereo.errors import InputArrayError, NoMarkersError
 from rig.stereo.markers_binarize import find_candidates
 from rig.stereo.markers_refine import Measured, measure_windows
 from rig.stereo.markers_roi import inside_any, parse_roi, roi_bounds
-from rig.stereo.markers_threads import check_threads, run_helped, run_parts, split
+from rig.stereo.markers_threads import check_threads, run_parts, split
 
 MARKER_DTYPE = np.dtype([("u_px", "f8"), ("v_px", "f8"), ("area_px", "f8"), ("roundness", "f8"),
                          ("contrast", "f8"), ("flags", "u1")])
@@ -65,9 +63,6 @@ _CENTRES = ("centroid", "ellipse")
 _UINT8 = np.dtype(np.uint8)
 _FLOAT64 = np.dtype(np.float64)
 _POLARITIES = ("bright", "dark")
-_NO_CLAIM = np.zeros(0, dtype=np.uint8)  # track_frame on one thread
-# stores become visible to other threads in program order (track_frame's helper relies on it)
-_ORDERED_STORES = platform.machine().lower() in {"x86_64", "amd64"}
 
 
 def check_gray(gray: object, name: str = "gray") -> np.ndarray:
@@ -621,22 +616,15 @@ def track_rows(gray: np.ndarray, pred: np.ndarray, opt: TrackOptions) -> np.ndar
 
 def _track_compiled(gray: np.ndarray, pred: np.ndarray, opt: TrackOptions) -> np.ndarray:
     """:func:`track_rows` without an outline fit: one compiled call per thread
-    (:func:`rig.stereo.markers_kernel.track_frame`). On two threads (x86-64) this thread works through
-    the predictions from the front and a helper from the back, and this thread never waits for the
-    helper; otherwise each thread takes a part."""
+    (:func:`rig.stereo.markers_kernel.track_frame`), each thread taking a part of the predictions."""
     track_frame = _kernel().track_frame
     rec = np.empty(len(pred), dtype=MARKER_DTYPE)
     image = gray if gray.flags.c_contiguous else np.ascontiguousarray(gray)
     args = opt.track_args
     if opt.threads == 1 or len(pred) < 2 * WINDOWS_PER_THREAD:  # the usual case, without the split's µs
-        track_frame(image, pred, *args, rec, _NO_CLAIM, rec, False)
-    elif opt.threads == 2 and _ORDERED_STORES:
-        claim = np.zeros(len(pred), dtype=np.uint8)
-        helper_rec = np.empty_like(rec)
-        run_helped(track_frame, (image, pred, *args, rec, claim, helper_rec, False),
-                   [(image, pred, *args, rec, claim, helper_rec, True)])
+        track_frame(image, pred, *args, rec)
     else:
-        run_parts(track_frame, [(image, pred[lo:hi], *args, rec[lo:hi], _NO_CLAIM, rec, False)
+        run_parts(track_frame, [(image, pred[lo:hi], *args, rec[lo:hi])
                                 for lo, hi in split(len(pred), opt.threads, WINDOWS_PER_THREAD)])
     return rec
 

@@ -657,36 +657,9 @@ def measure_rows(  # noqa: PLR0917 (numba: no keyword-only arguments)
 
 
 @_jit
-def _track_one(  # noqa: PLR0917 (numba: no keyword-only arguments)
-        image: np.ndarray, pred: np.ndarray, k: int, rows: np.ndarray, cols: np.ndarray, half_px: int,
-        dark: bool, limits: np.ndarray, ladder: np.ndarray, retries: int, scr: tuple[np.ndarray, ...],
-        out: np.ndarray, flags: np.ndarray, row: Any) -> None:
-    """Prediction ``k`` of :func:`track_frame` into the output row ``row``."""
-    height, width = image.shape
-    u, v = pred[k, 0], pred[k, 1]
-    if not (u > -0.5 and u < width - 0.5 and v > -0.5 and v < height - 0.5):
-        row.u_px, row.v_px, row.area_px = np.nan, np.nan, np.nan
-        row.roundness, row.contrast = np.nan, np.nan
-        row.flags = LOST_FLAG
-        return
-    _measure_retrying(image, rows[k], cols[k], half_px, dark, scr, ladder, retries, out, flags)
-    if not _finish_row(out, flags, 0, limits, row):
-        row.u_px, row.v_px = np.nan, np.nan
-        row.flags |= LOST_FLAG
-
-
-@_jit
-def _copy_row(src: Any, dst: Any) -> None:
-    """Output row (markers.MARKER_DTYPE) ``src`` into ``dst``."""
-    dst.u_px, dst.v_px, dst.area_px = src.u_px, src.v_px, src.area_px
-    dst.roundness, dst.contrast, dst.flags = src.roundness, src.contrast, src.flags
-
-
-@_jit
 def track_frame(  # noqa: PLR0917 (numba: no keyword-only arguments)
         image: np.ndarray, pred: np.ndarray, half_px: int, dark: bool, limits: np.ndarray,
-        ladder: np.ndarray, retries: int, rec: np.ndarray, claim: np.ndarray, helper_rec: np.ndarray,
-        helper: bool) -> None:
+        ladder: np.ndarray, retries: int, rec: np.ndarray) -> None:
     """Tracking in one frame, one call: a row of ``rec`` (markers.MARKER_DTYPE, N) per prediction
     ``pred`` (N, 2) (u, v px).
 
@@ -694,54 +667,29 @@ def track_frame(  # noqa: PLR0917 (numba: no keyword-only arguments)
     rounded position (retried larger as :func:`_measure_retrying`). Rows that fail the filters
     (``limits`` as in :func:`finish_rows`) get u, v NaN and LOST_FLAG added; a prediction that is NaN or
     outside the frame gives a row of NaN with only that flag.
-
-    ``claim``: empty for one thread measuring every prediction into ``rec``. Else (N,) uint8, zero at the
-    start, shared with a helper thread (``helper`` True) that measures from the other end, N − 1, N − 2,
-    … into its own rows ``helper_rec`` (never into ``rec``): it marks a prediction 2 before measuring it
-    and 3 once its row is written, and stops at the first one marked before. The caller (``helper``
-    False) marks 1 and measures 0, 1, … until it meets a marked one; from there on it copies the rows the
-    helper has finished and measures the others itself (the same bytes), so it never waits for the helper
-    — one that starts late or is preempted just does less, and writes nothing the caller still reads.
-    (Its row is read after seeing 3: x86-64 keeps stores in order, the caller checks the platform.)
     """
+    height, width = image.shape
     out = np.empty((N_OUT, 1))
     flags = np.empty((3, 1), np.bool_)
     scr = scratch(half_px)
-    n = len(pred)
-    rows = np.empty(n, np.int64)
-    cols = np.empty(n, np.int64)
-    for k in range(n):
+    rows = np.empty(len(pred), np.int64)
+    cols = np.empty(len(pred), np.int64)
+    for k in range(len(pred)):
         rows[k] = int(np.rint(pred[k, 1])) if np.isfinite(pred[k, 1]) else 0
         cols[k] = int(np.rint(pred[k, 0])) if np.isfinite(pred[k, 0]) else 0
-    if len(claim) == 0:
-        _touch(image, rows, cols, half_px, scr[12])
-        for k in range(n):
-            _track_one(image, pred, k, rows, cols, half_px, dark, limits, ladder, retries, scr, out, flags,
-                       rec[k])
-        return
-    if helper:  # the far half's windows into this core's caches first
-        _touch(image, rows[n // 2:], cols[n // 2:], half_px, scr[12])
-        for k in range(n - 1, -1, -1):
-            if claim[k]:
-                return
-            claim[k] = 2
-            _track_one(image, pred, k, rows, cols, half_px, dark, limits, ladder, retries, scr, out, flags,
-                       helper_rec[k])
-            claim[k] = 3
-        return
-    _touch(image, rows[:n // 2], cols[:n // 2], half_px, scr[12])
-    for k in range(n):
-        if claim[k]:  # met the helper: its rows from here on, finished or not
-            for j in range(k, n):
-                if claim[j] == 3:
-                    _copy_row(helper_rec[j], rec[j])
-                else:
-                    _track_one(image, pred, j, rows, cols, half_px, dark, limits, ladder, retries, scr, out,
-                               flags, rec[j])
-            return
-        claim[k] = 1
-        _track_one(image, pred, k, rows, cols, half_px, dark, limits, ladder, retries, scr, out, flags,
-                       rec[k])
+    _touch(image, rows, cols, half_px, scr[12])
+    for k in range(len(pred)):
+        u, v = pred[k, 0], pred[k, 1]
+        row = rec[k]
+        if not (u > -0.5 and u < width - 0.5 and v > -0.5 and v < height - 0.5):
+            row.u_px, row.v_px, row.area_px = np.nan, np.nan, np.nan
+            row.roundness, row.contrast = np.nan, np.nan
+            row.flags = LOST_FLAG
+            continue
+        _measure_retrying(image, rows[k], cols[k], half_px, dark, scr, ladder, retries, out, flags)
+        if not _finish_row(out, flags, 0, limits, row):
+            row.u_px, row.v_px = np.nan, np.nan
+            row.flags |= LOST_FLAG
 
 
 @_jit
