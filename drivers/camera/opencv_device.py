@@ -2,20 +2,42 @@
 
 :class:`OpenCVCamera` implements ``FrameSource``. :meth:`~OpenCVCamera.start` opens the device and starts
 **one grabbing thread per camera**: it calls ``grab()`` back to back (the device's own pace), stamps each
-frame with the **host clock** right after ``grab()`` returns (``time.monotonic`` by default, injectable),
-decodes it to grey and puts it in a **bounded queue**. The thread never blocks on the queue: when the
-consumer falls behind, the oldest queued frame is discarded and counted (``stats.overflow``), so the device
-buffer never overruns silently.
+frame, decodes it to grey and puts it in a **bounded queue**. The thread never blocks on the queue: when
+the consumer falls behind, the oldest queued frame is discarded and counted (``stats.overflow``), so the
+device buffer never overruns silently.
 
-**Dropped frames** are detected from the time-stamp gaps: a gap longer than (1 + ``gap_tolerance``) nominal
-frame periods means ``round(gap / period) − 1`` frames the device did not deliver (``stats.dropped``, with
-the index after which they are missing). Indices count delivered frames (``Frame.index``), so a consumer
-sees both kinds of loss as index or time gaps, never as a silent shift.
+**Time stamps** (``timestamps``, rig.toml ``cameras.<name>.timestamps``):
 
-:meth:`~OpenCVCamera.stop` ends the thread (at most one ``grab()`` later), joins it and releases the device;
-:meth:`~OpenCVCamera.frames` yields the queued frames, waiting for new ones while recording, and ends when
-the camera is stopped and the queue is empty. Errors of the grabbing thread (device unplugged) end the
-stream and are raised by :meth:`frames` as :class:`CameraDeviceError`.
+- ``"stream"``: the source's presentation time stamp (``CAP_PROP_POS_MSEC`` after ``grab()``; FFmpeg gives
+  it to the µs): the **camera's own clock**, as a time-stamping network camera (Matroska, RTSP/RTP) sends
+  it. FFmpeg reports it relative to the connection's first frame, so the connection (and with it the
+  camera's clock) is **kept from the first** :meth:`start` **to** :meth:`close`: between recordings the
+  thread grabs and discards (no decoding to grey), and a recording holds the frames grabbed between
+  :meth:`start` and :meth:`stop`. A stream without stamps is refused when it shows: FFmpeg makes up 25 fps
+  stamps for an MJPEG stream (its first :data:`MADE_UP_CHECK` intervals all exactly 40 ms, while the camera
+  is configured otherwise). A stamp that goes backwards ends the stream with an error, a repeated one is a
+  duplicate (delivered, its index in ``stats.duplicated``). A reconnection (after an error) starts a new
+  clock: ``stats.connections`` counts them. The network source is opened by the grabbing thread, so that two
+  cameras started one after the other start streaming together (their first frames, the offset guess of the
+  sync, at one instant).
+- ``"host"``: the **host clock** right after ``grab()`` returns (``time.monotonic`` by default,
+  injectable): for a source whose frames carry no time stamp (MJPEG IP cameras); the arrival jitters with
+  the host's load. The device is opened by :meth:`start` and released by :meth:`stop`.
+- ``"auto"`` (default): ``"stream"`` for a network source in a time-stamping form (an ``rtsp://`` or
+  ``rtsps://`` URL, or a URL to a Matroska/WebM stream: ``….mkv``, ``….webm``), ``"host"`` otherwise
+  (MJPEG URLs, devices, files). FFmpeg gives no reliable sign whether a stream's stamps are its own
+  (``CAP_PROP_PTS`` is unset on some connections of the same Matroska stream), so the form decides.
+
+**Dropped frames** are detected from the time-stamp gaps within a recording: a gap longer than
+(1 + ``gap_tolerance``) nominal frame periods means ``round(gap / period) − 1`` frames the device did not
+deliver (``stats.dropped``, with the index after which they are missing). Indices count delivered frames
+(``Frame.index``; with stream stamps, every frame grabbed on the connection), so a consumer sees both kinds
+of loss as index or time gaps, never as a silent shift.
+
+:meth:`~OpenCVCamera.stop` ends the recording (at most one ``grab()`` later); :meth:`~OpenCVCamera.frames`
+yields the queued frames, waiting for new ones while recording, and ends when the camera is stopped and the
+queue is empty. Errors of the grabbing thread (device unplugged) end the stream and are raised by
+:meth:`frames` as :class:`CameraDeviceError`.
 """
 
 from __future__ import annotations
@@ -37,7 +59,23 @@ if TYPE_CHECKING:
 from drivers.camera.base import Frame, FrameGap
 from drivers.roles import Camera
 
-__all__ = ["CameraDeviceError", "Capture", "CaptureStats", "OpenCVCamera", "open_capture", "parse_source"]
+__all__ = ["TIMESTAMPS", "CameraDeviceError", "Capture", "CaptureStats", "OpenCVCamera", "open_capture",
+           "parse_source", "stamps_itself"]
+
+TIMESTAMPS = ("auto", "stream", "host")
+STAMPED_SCHEMES = ("rtsp", "rtsps")
+STAMPED_SUFFIXES = (".mkv", ".webm")
+MADE_UP_CHECK = 5  # intervals of a new connection compared with FFmpeg's made-up MJPEG stamps
+MADE_UP_PERIOD_S = 0.040  # FFmpeg's default 25 fps for a stream without stamps
+
+
+def stamps_itself(source: str | int) -> bool:
+    """True for a source in a form whose frames carry their camera's time stamps (``"auto"``'s choice)."""
+    if not isinstance(source, str) or "://" not in source:
+        return False
+    scheme, rest = source.split("://", 1)
+    path = rest.split("?", 1)[0].split("#", 1)[0].lower()
+    return scheme.lower() in STAMPED_SCHEMES or path.endswith(STAMPED_SUFFIXES)
 
 
 class Capture(Protocol):
@@ -75,13 +113,21 @@ def parse_source(source: str | int) -> int | str:
 
 @dataclass
 class CaptureStats:
-    """What the grabbing thread saw: frames delivered, device drops (gaps), queue overflows (slow reader)."""
+    """What the grabbing thread saw in one recording: frames delivered, device drops (gaps), queue
+    overflows (slow reader), repeated stream stamps (``duplicated``: indices delivered with the previous
+    frame's stamp), host arrival times (s, diagnostic: first and last, and the largest arrival interval
+    ``max_arrival_gap_s``); ``connections``: how many times the source was opened (each a clock origin)."""
 
     delivered: int = 0
     dropped: list[FrameGap] = field(default_factory=list)
     overflow: list[int] = field(default_factory=list)  # indices discarded because the queue was full
+    duplicated: list[int] = field(default_factory=list)
     first_timestamp_s: float | None = None
     last_timestamp_s: float | None = None
+    first_arrival_s: float | None = None
+    last_arrival_s: float | None = None
+    max_arrival_gap_s: float = 0.0
+    connections: int = 0
     error: str | None = None
 
     @property
@@ -94,8 +140,9 @@ class OpenCVCamera(Camera):
 
     ``source``: device index, path or URL. ``fps``, ``width_px``, ``height_px``: requested from the device
     (what it grants is read back). ``queue_frames``: queue bound (frames held in memory; 2 MB each at
-    1080p). ``clock``: host clock in seconds (monotonic). ``capture_factory``: builds the capture object
-    from (source, api) — ``cv2.VideoCapture`` by default.
+    1080p). ``timestamps``: ``"auto"``, ``"stream"`` or ``"host"`` (module docstring). ``clock``: host clock
+    in seconds (monotonic). ``capture_factory``: builds the capture object from (source, api) —
+    ``cv2.VideoCapture`` by default.
 
     ``live = True``: frames stream while recording and must be consumed then (the queue is bounded);
     consumers such as ``rig.run.acquire.Acquirer`` read a live source during the recording.
@@ -105,7 +152,8 @@ class OpenCVCamera(Camera):
 
     def __init__(self, name: str, source: str | int, *, fps: float = 60.0, width_px: int = 1920,
                  height_px: int = 1080, queue_frames: int = 120, gap_tolerance: float = 0.5,
-                 clock: Callable[[], float] = time.monotonic, api: int = cv2.CAP_ANY,
+                 timestamps: str = "auto", clock: Callable[[], float] = time.monotonic,
+                 api: int = cv2.CAP_ANY,
                  capture_factory: Callable[[str | int, int], Capture | None] = open_capture) -> None:
         if not (math.isfinite(fps) and 0 < fps <= 10000):
             raise ValueError(f"fps={fps!r}; allowed: within (0, 10000] Hz")
@@ -115,43 +163,78 @@ class OpenCVCamera(Camera):
             raise ValueError(f"queue_frames={queue_frames!r}; allowed: ≥ 1")
         if not 0.0 < gap_tolerance < 1.0:
             raise ValueError(f"gap_tolerance={gap_tolerance!r}; allowed: within (0, 1) frame periods")
+        if timestamps not in TIMESTAMPS:
+            raise ValueError(f"timestamps={timestamps!r}; allowed: {', '.join(map(repr, TIMESTAMPS))}")
         self.name, self.source = str(name), parse_source(source)
         self.fps, self.width_px, self.height_px = float(fps), int(width_px), int(height_px)
         self.gap_tolerance, self._clock, self._api = float(gap_tolerance), clock, api
+        self.timestamps = timestamps
+        self.stamping = timestamps if timestamps != "auto" else (
+            "stream" if stamps_itself(self.source) else "host")  # the stamping in use
         self._factory = capture_factory
         self._queue: queue.Queue[Frame] = queue.Queue(maxsize=int(queue_frames))
-        self._stop = threading.Event()
+        self._lock = threading.Lock()  # the recording flag and what is queued under it
+        self._recording = False
+        self._stop = threading.Event()  # ends the grabbing thread
         self._thread: threading.Thread | None = None
         self.stats = CaptureStats()
 
     @property
     def streamed(self) -> bool:
         """True for a network stream (a URL such as an IP camera's ``http://…/video.mjpg``): it cannot be
-        asked for a frame rate and reports none of its own; its rate shows in the arrival times."""
+        asked for a frame rate and reports none of its own; its rate shows in its stamps or arrival times."""
         return isinstance(self.source, str) and "://" in self.source
 
     @property
-    def recording(self) -> bool:
+    def _connected(self) -> bool:
         return self._thread is not None and self._thread.is_alive()
+
+    @property
+    def recording(self) -> bool:
+        return self._recording and self._connected
 
     def safe_state(self) -> None:
         """Stop a recording in progress (the runner's make-safe; nothing to do otherwise)."""
-        if self.recording and not self._stop.is_set():
+        if self.recording:
             self.stop()
 
     def read_back(self) -> dict[str, Any]:
-        return {"recording": self.recording, "delivered": self.stats.delivered, "error": self.stats.error}
+        return {"recording": self.recording, "delivered": self.stats.delivered, "error": self.stats.error,
+                "stamping": self.stamping, "duplicated": len(self.stats.duplicated),
+                "connections": self.stats.connections}
 
     def heartbeat(self, *, wait: bool = False) -> bool:
         return True  # a camera's loss shows in its frames (stats.error), not in a link to probe
 
     def snapshot(self) -> dict[str, Any]:
-        return {"driver": "opencv", "fps": self.fps, "resolution_px": [self.width_px, self.height_px]}
+        return {"driver": "opencv", "fps": self.fps, "resolution_px": [self.width_px, self.height_px],
+                "timestamps": self.timestamps, "stamping": self.stamping}
 
     def start(self) -> None:
-        """Open the device, apply the requested mode, start the grabbing thread."""
+        """Begin a recording: open the device (unless a stream-stamped connection is open) and grab."""
         if self.recording:
             raise CameraDeviceError(f"camera {self.name!r} is already recording (call stop first)")
+        connections = self.stats.connections
+        self.stats = CaptureStats(connections=connections)
+        while not self._queue.empty():
+            self._queue.get_nowait()
+        with self._lock:
+            self._recording = True
+        if self._connected:
+            return  # a kept connection: its clock goes on
+        if self.stamping == "host" or not self.streamed:  # errors raised here, by start()
+            self._launch(self._open())
+        else:  # a network stream is opened by the thread: cameras started in turn stream together
+            self._launch(None)
+
+    def _launch(self, cap: Capture | None) -> None:
+        self._stop.clear()
+        self._thread = threading.Thread(target=self._grab_loop, args=(cap,), name=f"grab-{self.name}",
+                                        daemon=True)
+        self._thread.start()
+
+    def _open(self) -> Capture:
+        """Open the source and check the granted mode (CameraDeviceError naming the mismatch)."""
         cap = self._factory(self.source, self._api)
         if cap is None or not cap.isOpened():
             raise CameraDeviceError(f"camera {self.name!r}: cannot open device {self.source!r} (not "
@@ -172,13 +255,8 @@ class OpenCVCamera(Camera):
             cap.release()
             raise CameraDeviceError(f"camera {self.name!r}: requested {self.fps:g} fps, the device gives "
                                     f"{granted_fps:g}; configure fps to match")
-        self.stats = CaptureStats()
-        self._stop.clear()
-        while not self._queue.empty():
-            self._queue.get_nowait()
-        self._thread = threading.Thread(target=self._grab_loop, args=(cap,), name=f"grab-{self.name}",
-                                        daemon=True)
-        self._thread.start()
+        self.stats.connections += 1
+        return cap
 
     def _put(self, frame: Frame) -> None:
         while True:
@@ -192,39 +270,105 @@ class OpenCVCamera(Camera):
                 except queue.Empty:
                     pass
 
-    def _grab_loop(self, cap: Capture) -> None:
+    def _check_made_up(self, intervals_s: list[float]) -> None:
+        """CameraDeviceError when a new connection's first intervals are FFmpeg's made-up 25 fps."""
+        if abs(self.fps - 1.0 / MADE_UP_PERIOD_S) <= 0.01 * self.fps:
+            return  # a 25 fps camera's own stamps look the same
+        if all(abs(dt - MADE_UP_PERIOD_S) < 1e-6 for dt in intervals_s):
+            raise CameraDeviceError(
+                f"camera {self.name!r}: source {self.source!r} carries no time stamps (FFmpeg made up 25 fps "
+                f"ones: an MJPEG stream?); set cameras.{self.name}.timestamps = \"host\" to stamp frames on "
+                "arrival, or serve a time-stamped stream (Matroska, RTSP)")
+
+    def _grab_loop(self, cap: Capture | None) -> None:
         period = 1.0 / self.fps
-        index, prev = 0, None
+        index = 0
+        prev_stamp: float | None = None  # the previous frame's stamp on this connection
+        prev_recorded: tuple[float, float] | None = None  # (stamp, arrival) of the previous recorded frame
         try:
+            if cap is None:
+                cap = self._open()
+            intervals_s: list[float] = []  # the connection's first ones (made-up stamps?)
             while not self._stop.is_set():
                 if not cap.grab():
                     if not self._stop.is_set():
                         self.stats.error = f"device {self.source!r} stopped delivering frames after {index}"
                     break
-                t = float(self._clock())
+                arrival_s = float(self._clock())
+                stamp = arrival_s if self.stamping == "host" else float(cap.get(cv2.CAP_PROP_POS_MSEC)) / 1e3
+                if self.stamping == "stream" and prev_stamp is not None and stamp < prev_stamp:
+                    self.stats.error = (f"the stream's time stamps went backwards at frame {index}: "
+                                        f"{stamp:.6f} s after {prev_stamp:.6f} s")
+                    break
+                repeated = prev_stamp is not None and stamp == prev_stamp
+                if self.stamping == "stream" and prev_stamp is not None and len(intervals_s) < MADE_UP_CHECK:
+                    intervals_s.append(stamp - prev_stamp)
+                    if len(intervals_s) == MADE_UP_CHECK:
+                        self._check_made_up(intervals_s)
+                prev_stamp = stamp
+                with self._lock:
+                    recording = self._recording
+                if not recording:
+                    prev_recorded = None
+                    if self.stamping == "host":
+                        break  # a host-stamped connection is not kept between recordings
+                    index += 1
+                    continue
                 ok, img = cap.retrieve()
                 if not ok or img is None:
                     self.stats.error = f"frame {index} could not be decoded"
                     break
                 gray = img if img.ndim == 2 else cv2.cvtColor(img, cv2.COLOR_BGR2GRAY)
-                if prev is not None and t - prev > (1.0 + self.gap_tolerance) * period:
-                    self.stats.dropped.append({"after_index": index - 1, "gap_s": t - prev,
-                                               "missing_frames": max(1, round((t - prev) / period) - 1)})
-                if self.stats.first_timestamp_s is None:
-                    self.stats.first_timestamp_s = t
-                self.stats.last_timestamp_s, prev = t, t
-                self._put(Frame(index=index, timestamp_s=t, image=np.ascontiguousarray(gray, dtype=np.uint8)))
+                self._account(index, stamp, arrival_s, prev_recorded, repeated=repeated, period=period)
+                prev_recorded = (stamp, arrival_s)
+                with self._lock:
+                    if self._recording:
+                        self._put(Frame(index=index, timestamp_s=stamp,
+                                        image=np.ascontiguousarray(gray, dtype=np.uint8)))
+                        self.stats.delivered += 1
                 index += 1
-                self.stats.delivered = index
+        except CameraDeviceError as exc:
+            self.stats.error = str(exc).removeprefix(f"camera {self.name!r}: ")
         except Exception as exc:  # a device error ends the stream; frames() reports it
             self.stats.error = f"{type(exc).__name__}: {exc}"
         finally:
-            cap.release()
+            if cap is not None:
+                cap.release()
+
+    def _account(self, index: int, stamp: float, arrival_s: float, prev: tuple[float, float] | None, *,
+                 repeated: bool, period: float) -> None:
+        """Statistics of a recorded frame: gaps (drops), repeats (duplicates), arrival times."""
+        stats = self.stats
+        if repeated and prev is not None:
+            stats.duplicated.append(index)
+        if prev is not None and stamp - prev[0] > (1.0 + self.gap_tolerance) * period:
+            stats.dropped.append({"after_index": index - 1, "gap_s": stamp - prev[0],
+                                  "missing_frames": max(1, round((stamp - prev[0]) / period) - 1)})
+        if prev is not None:
+            stats.max_arrival_gap_s = max(stats.max_arrival_gap_s, arrival_s - prev[1])
+        if stats.first_timestamp_s is None:
+            stats.first_timestamp_s, stats.first_arrival_s = stamp, arrival_s
+        stats.last_timestamp_s, stats.last_arrival_s = stamp, arrival_s
 
     def stop(self) -> None:
-        """Stop grabbing (after at most one more frame), join the thread, release the device."""
+        """End the recording. A host-stamped device is released (its thread joined, at most one ``grab()``
+        later); a stream-stamped connection is kept (:meth:`close` ends it)."""
         if self._thread is None:
             raise CameraDeviceError(f"camera {self.name!r} is not recording (call start first)")
+        with self._lock:
+            self._recording = False
+        if self.stamping != "stream":
+            self._join()
+
+    def close(self) -> None:
+        """End the recording and the connection (its thread joined; the device released)."""
+        with self._lock:
+            self._recording = False
+        if self._thread is not None:
+            self._join()
+
+    def _join(self) -> None:
+        assert self._thread is not None
         self._stop.set()
         self._thread.join(timeout=max(2.0, 10.0 / self.fps))
         if self._thread.is_alive():
@@ -241,7 +385,7 @@ class OpenCVCamera(Camera):
                 continue
             except queue.Empty:
                 pass
-            if not self._thread.is_alive() and self._queue.empty():
+            if not self.recording and self._queue.empty():
                 break
-        if self.stats.error and not self._stop.is_set():
+        if self.stats.error and self._recording:
             raise CameraDeviceError(f"camera {self.name!r}: {self.stats.error}")

@@ -1,18 +1,23 @@
-"""A simulated camera served as an IP camera: MJPEG over HTTP (``multipart/x-mixed-replace``, one JPEG per
-part), the protocol of most network cameras, which ``cv2.VideoCapture("http://…")`` (FFmpeg) opens.
+"""A simulated camera served as an IP camera over HTTP, in two forms ``cv2.VideoCapture("http://…")`` (FFmpeg)
+opens: MJPEG (``/<name>.mjpg``: ``multipart/x-mixed-replace``, one JPEG per part, the protocol of most
+network cameras; no time stamps) and Matroska (``/<name>.mkv``: a live ``video/x-matroska`` stream of the
+same JPEGs, :mod:`drivers.mock.mkv_stream`, each stamped with the camera's own clock).
 
 :class:`MjpegCameraServer` renders a :class:`drivers.sim.camera.SimCamera` (rolling shutter, noise, the
 world's LEDs, as the twin renders it) at the camera's frame rate, paced to the world clock: frame ``i`` is
 rendered once its last row has been exposed (world time ``frame_start_true_s(i) + readout_s``) and sent at
-once to every connected client at ``http://127.0.0.1:PORT/<name>.mjpg``. Frames carry no time stamp (like
-most IP cameras): the client stamps them on arrival.
+once to every connected client. In MJPEG, frames carry no time stamp (like most IP cameras): the client
+stamps them on arrival. In Matroska, frame ``i`` carries :meth:`SimCamera.frame_timestamp_s` ``(i)``: the
+simulated camera's clock (its ppm drift and origin) at the start of the frame's exposure (row 0), what a
+camera that stamps its frames (RTSP/RTP, a streaming muxer) sends; FFmpeg reports it relative to the first
+frame of the connection, so a client keeps its connection to keep one clock.
 
 A real IP camera drops frames when the host or the network is slow; so does this one: a frame whose
 successor is already fully exposed when its turn comes (rendering fell behind) is skipped, never sent late
-as if on time — the client's driver sees the gap in its arrival times (``stats.skipped`` counts them). The
-frame sent is always the newest one exposed when its rendering began: its latency is one render + encode
-(like a camera's encoder), never a queue of older frames. A
-client that reads slowly gets the newest frame when it asks again (the older ones are gone for it).
+as if on time — the client's driver sees the gap in its arrival times or in the stream's stamps
+(``stats.skipped`` counts them). The frame sent is always the newest one exposed when its rendering began:
+its latency is one render + encode (like a camera's encoder), never a queue of older frames. A client that
+reads slowly gets the newest frame when it asks again (the older ones are gone for it).
 Frames are rendered only while a client is connected (an idle camera costs no CPU).
 
 Binds a loopback address only (:func:`drivers.mock._serve.require_loopback`).
@@ -25,7 +30,8 @@ import logging
 import math
 import threading
 import time
-from dataclasses import dataclass
+from collections.abc import Callable
+from dataclasses import dataclass, field
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from io import BufferedIOBase
 from typing import Any
@@ -33,10 +39,13 @@ from typing import Any
 import cv2
 import numpy as np
 
+from drivers.mock import mkv_stream
 from drivers.mock._serve import require_loopback
 from drivers.sim.camera import SimCamera
 
 __all__ = ["BOUNDARY", "MjpegCameraServer", "StreamStats"]
+
+Part = Callable[[int, bytes], bytes]  # (frame index, JPEG) → the bytes that carry it
 
 log = logging.getLogger("drivers.mock.mjpeg")
 BOUNDARY = "rigframe"
@@ -46,11 +55,13 @@ _POLL_S = 0.1  # (wall s) how often waiting threads look at the stop flag
 @dataclass
 class StreamStats:
     """What the camera did: frames rendered and published, frames skipped because rendering fell behind,
-    render + encode CPU time (thread CPU seconds)."""
+    render + encode CPU time (thread CPU seconds); ``first_frames``: per Matroska connection, the index of
+    its first frame (the origin of the client's clock: FFmpeg stamps relative to it)."""
 
     published: int = 0
     skipped: int = 0
     render_cpu_s: float = 0.0
+    first_frames: list[int] = field(default_factory=list)
 
 
 class _Server(ThreadingHTTPServer):
@@ -67,21 +78,28 @@ class _Handler(BaseHTTPRequestHandler):
 
     def do_GET(self) -> None:
         cam = self.server.camera_server
-        if self.path.split("?", 1)[0] != cam.path:
-            self.send_error(404, f"no such stream; this camera serves {cam.path}")
+        path = self.path.split("?", 1)[0]
+        if path not in (cam.path, cam.mkv_path):
+            self.send_error(404, f"no such stream; this camera serves {cam.path} and {cam.mkv_path}")
             return
+        matroska = path == cam.mkv_path
         self.send_response(200)
-        self.send_header("Content-Type", f"multipart/x-mixed-replace; boundary={BOUNDARY}")
+        self.send_header("Content-Type", mkv_stream.CONTENT_TYPE if matroska
+                         else f"multipart/x-mixed-replace; boundary={BOUNDARY}")
         self.send_header("Cache-Control", "no-cache, no-store")
         self.send_header("Connection", "close")
         self.end_headers()
         with contextlib.suppress(OSError):  # the client hung up
-            cam.stream_to(self.wfile)
+            if matroska:
+                cam.stream_matroska_to(self.wfile)
+            else:
+                cam.stream_to(self.wfile)
 
 
 class MjpegCameraServer:
     """Serve ``camera`` (see the module docstring) on ``host:port`` (loopback only; port 0 = any free port)
-    at path ``/<camera.name>.mjpg``. ``jpeg_quality``: 1..100."""
+    at paths ``/<camera.name>.mjpg`` (:attr:`url`) and ``/<camera.name>.mkv`` (:attr:`mkv_url`).
+    ``jpeg_quality``: 1..100."""
 
     def __init__(self, camera: SimCamera, *, host: str = "127.0.0.1", port: int = 0,
                  jpeg_quality: int = 90) -> None:
@@ -91,6 +109,7 @@ class MjpegCameraServer:
         self.clock = camera.world.clock
         self.host = require_loopback(host)
         self.path = f"/{camera.name}.mjpg"
+        self.mkv_path = f"/{camera.name}.mkv"
         self.jpeg_quality = int(jpeg_quality)
         self.stats = StreamStats()
         self._httpd = _Server((self.host, int(port)), _Handler, bind_and_activate=True)
@@ -106,13 +125,18 @@ class MjpegCameraServer:
     def url(self) -> str:
         return f"http://{self.host}:{self.port}{self.path}"
 
+    @property
+    def mkv_url(self) -> str:
+        return f"http://{self.host}:{self.port}{self.mkv_path}"
+
     def start(self) -> MjpegCameraServer:
         for target, name in ((self._httpd.serve_forever, "http"), (self._produce, "render")):
             thread = threading.Thread(target=target, name=f"mjpeg-{self.camera.name}-{name}", daemon=True)
             thread.start()
             self._threads.append(thread)
-        log.info("camera %s: MJPEG over HTTP at %s (%d×%d px, %g fps)", self.camera.name, self.url,
-                 self.camera.width_px, self.camera.height_px, self.camera.fps)
+        log.info("camera %s: MJPEG over HTTP at %s, time-stamped Matroska at %s (%d×%d px, %g fps)",
+                 self.camera.name, self.url, self.mkv_url, self.camera.width_px, self.camera.height_px,
+                 self.camera.fps)
         return self
 
     def stop(self) -> None:
@@ -192,6 +216,28 @@ class MjpegCameraServer:
     def stream_to(self, out: BufferedIOBase) -> None:
         """Write every frame published from now on to ``out`` (a binary file) as multipart parts, until the
         server stops or the client hangs up (``OSError``)."""
+        self._follow(out, lambda _index, jpeg: (
+            f"--{BOUNDARY}\r\nContent-Type: image/jpeg\r\nContent-Length: {len(jpeg)}\r\n\r\n"
+            .encode("ascii") + jpeg + b"\r\n"))
+
+    def stream_matroska_to(self, out: BufferedIOBase) -> None:
+        """As :meth:`stream_to`, as a live Matroska stream: its header, then one cluster per frame stamped
+        with the camera's clock (:meth:`SimCamera.frame_timestamp_s`)."""
+        out.write(mkv_stream.stream_header(self.camera.width_px, self.camera.height_px))
+        first = True
+
+        def cluster(index: int, jpeg: bytes) -> bytes:
+            nonlocal first
+            if first:
+                self.stats.first_frames.append(index)
+                first = False
+            return mkv_stream.frame_cluster(self.camera.frame_timestamp_s(index), jpeg)
+
+        self._follow(out, cluster)
+
+    def _follow(self, out: BufferedIOBase, part: Part) -> None:
+        """Write ``part(index, jpeg)`` of every frame published from now on to ``out``, until the server
+        stops or the client hangs up (``OSError``)."""
         with self._cond:
             self._clients += 1
             sent = self._latest[0] if self._latest is not None else -1
@@ -204,10 +250,8 @@ class MjpegCameraServer:
                     if self._stopped.is_set() or self._latest is None:
                         return
                     sent, jpeg = self._latest
-                out.write(f"--{BOUNDARY}\r\nContent-Type: image/jpeg\r\nContent-Length: {len(jpeg)}\r\n\r\n"
-                          .encode("ascii") + jpeg + b"\r\n")
+                out.write(part(sent, jpeg))
                 out.flush()
         finally:
             with self._cond:
                 self._clients -= 1
-

@@ -16,7 +16,8 @@ complete, commented example):
   ``register_map`` (a name, e.g. ``"delta"``) or an inline ``[devices.exciter.registers]`` table,
   ``gear_ratio`` (motor Hz per mechanical Hz), ``crank_radius_mm`` (exciter: its fixed amplitude).
 - ``[devices.generator]`` ``driver = "scpi-generator"``, ``address``, ``sensitivity_mm_per_v`` table.
-- ``[cameras.<name>]`` ``driver = "sim" | "opencv" | "file"``, ``fps``, ``resolution_px``, ``source``.
+- ``[cameras.<name>]`` ``driver = "sim" | "opencv" | "file"``, ``fps``, ``resolution_px``, ``source``,
+  ``timestamps`` (opencv: ``"auto" | "stream" | "host"``, whose clock stamps the frames).
 - ``[targets.*]`` marker geometry (mm): calibration plate, single marker, marker frame, sweep column,
   plate, rotor, reference markers.
 - ``[limits.robot]`` envelope and speed; ``[limits.exciter|rotor|generator]`` frequency, displacement,
@@ -130,6 +131,10 @@ def _cross_check(cfg: RigConfig) -> None:
         if cam.driver == "sim" and (cfg.sim is None or name not in cfg.sim.cameras):
             raise ConfigError(f"cameras.{name}.driver", f"'sim' needs a [sim.cameras.{name}] table "
                                                        "describing the simulated camera")
+        if cam.driver != "opencv" and cam.timestamps != "auto":
+            raise ConfigError(f"cameras.{name}.timestamps",
+                              f"{cam.timestamps!r} is for driver \"opencv\"; a {cam.driver!r} camera's "
+                              "frames carry their own (leave it out)")
         if cam.driver in ("opencv", "file") and not cam.source:
             raise ConfigError(f"cameras.{name}.source", f"'' is empty; driver {cam.driver!r} needs a device "
                                                        "index/path or a video file")

@@ -1,22 +1,25 @@
 """``rig mock lab``: one simulated lab — every device a configuration names and both cameras — in one
 process, on one simulated world, each on its own loopback endpoint, so that a ``rig.toml`` pointing at it
-drives and films the same bench, as a lab's controller does (the sub-frame sync does not pass yet: the IP
-cameras' frames are stamped on arrival, see the README's "The whole lab on mocks").
+drives and films the same bench, as a lab's controller does (see the README's "The whole lab on mocks").
 
 The world (:class:`drivers.sim.world.World`) is built from the configuration as the station builds its twin
-(:func:`rig.run.station.world_layout`, the fiducial LED) on a virtual clock paced at real time (the client
-stamps the cameras' frames with its host clock). On it run the mock servers the station starts for
+(:func:`rig.run.station.world_layout`, the fiducial LED) on a virtual clock paced at real time (a controller
+drives it live). On it run the mock servers the station starts for
 ``mock://`` addresses (b-CAP controller, exciter and rotor VFDs on Modbus TCP, SCPI generator; built by
 :func:`rig.run.station.mock_robot_server`, :func:`~rig.run.station.mock_drive`,
 :func:`~rig.run.station.mock_generator`) and one IP camera per ``[sim.cameras.*]``
-(:class:`drivers.mock.mjpeg_camera.MjpegCameraServer`, MJPEG over HTTP) rendering the
-same world, so what the arm and the drives do is what the cameras film.
+(:class:`drivers.mock.mjpeg_camera.MjpegCameraServer`) rendering the same world, so what the arm and the
+drives do is what the cameras film. Each camera streams over HTTP as time-stamped Matroska (``--stream
+matroska``, the default: every frame carries the simulated camera's own clock, its drift and origin, which
+the sub-frame sync needs) or as MJPEG (``--stream mjpeg``: no stamps, the client stamps frames on arrival,
+as with most plain IP cameras; the sync then sees the host's arrival jitter).
 
 Rendering two 60 fps cameras at 1920×1080 costs more than a shared 2-core host has next to ``rig``; the lab
 serves the configured cameras scaled by ``--scale`` (default 0.5: 960×540), with intrinsics and fiducial
 regions scaled consistently (pixel centres at integers: x' = (x + ½)·s − ½). The ``rig.toml`` it prints (or
 writes with ``--write-config``) is the configuration the lab serves, with every device at its endpoint and
-``[cameras.*] driver = "opencv"`` at its stream; the watchdogs are raised for a host that may stall (b-CAP
+``[cameras.*] driver = "opencv"`` at its stream (``timestamps = "stream"`` for Matroska, ``"host"`` for
+MJPEG); the watchdogs are raised for a host that may stall (b-CAP
 WDT 2 s, heartbeat 6 s, drive communication time-out 5 s), as between any two processes on a loaded machine.
 
 Targets: a procedure mounts one (``station.mount``); the lab's ``rig.toml`` names the lab's control endpoint
@@ -56,7 +59,8 @@ __all__ = ["Lab", "client_table", "lab_table", "main", "open_lab"]
 log = logging.getLogger("rig.run.lab")
 DEVICE_ORDER = ("robot", "exciter", "rotor", "generator")  # --port-base N: robot N, exciter N+1, …, cameras
 TOLERANT = {"robot": {"wdt_ms": 2000}, "exciter": {"comm_timeout_s": 5.0}, "rotor": {"comm_timeout_s": 5.0}}
-REAL_TIME = 1.0  # virtual s per wall s: the cameras' frames are stamped by the client's host clock
+REAL_TIME = 1.0  # virtual s per wall s: a controller drives the lab live
+STREAMS = ("matroska", "mjpeg")  # the cameras' stream forms (--stream)
 HEARTBEAT_TIMEOUT_S = 6.0  # above the 2 s WDT; drives probed every 1.5 s, their 5 s time-out above 2 probes
 
 
@@ -113,7 +117,9 @@ def client_table(served: dict[str, Any], endpoints: dict[str, str]) -> dict[str,
         device["address"] = endpoints[name]
         device.update(TOLERANT.get(name, {}))
     for name, cam in table["cameras"].items():
-        cam["driver"], cam["source"] = "opencv", endpoints[f"cameras.{name}"]
+        source = endpoints[f"cameras.{name}"]
+        cam["driver"], cam["source"] = "opencv", source
+        cam["timestamps"] = "stream" if source.endswith(".mkv") else "host"  # Matroska carries its stamps
     config_from_dict(table, "rig mock lab (client)")
     return table
 
@@ -231,7 +237,7 @@ def _serve_control(lab: Lab, world: World, *, host: str, port: int) -> None:
 
 
 def _serve_cameras(lab: Lab, config: RigConfig, world: World, *, host: str, port_base: int,
-                   jpeg_quality: int) -> None:
+                   jpeg_quality: int, stream: str) -> None:
     from drivers.mock.mjpeg_camera import MjpegCameraServer
     from drivers.sim.stereo_rig import make_camera
     from rig.run.station import camera_specs
@@ -243,19 +249,22 @@ def _serve_cameras(lab: Lab, config: RigConfig, world: World, *, host: str, port
                                    jpeg_quality=jpeg_quality).start()
         lab._closers.append((f"camera {spec.name}", server.stop))
         lab.cameras[spec.name] = server
-        lab.endpoints[f"cameras.{spec.name}"] = server.url
+        lab.endpoints[f"cameras.{spec.name}"] = server.mkv_url if stream == "matroska" else server.url
 
 
 @contextlib.contextmanager
 def open_lab(config: RigConfig, *, scale: float = 0.5, port_base: int = 0,
              host: str = "127.0.0.1", scene: str | None = None, fps: float | None = None,
-             jpeg_quality: int = 90) -> Iterator[Lab]:
+             jpeg_quality: int = 90, stream: str = "matroska") -> Iterator[Lab]:
     """Serve the lab of ``config`` (see the module docstring) until the context ends; every server is
-    stopped on the way out. ``port_base`` 0: any free ports; else robot N, exciter N+1, rotor N+2,
+    stopped on the way out. ``stream``: the cameras' endpoints, ``"matroska"`` or ``"mjpeg"``.
+    ``port_base`` 0: any free ports; else robot N, exciter N+1, rotor N+2,
     generator N+3, cameras N+4, N+5, …, then the control endpoint."""
     from drivers.sim.clock import VirtualClock
     from rig.run.station import add_fiducial_led, world_layout
 
+    if stream not in STREAMS:
+        raise ConfigError("--stream", f"{stream!r}; allowed: {', '.join(STREAMS)}")
     served = lab_table(config, scale, scene, fps)
     lab_config = config_from_dict(served, "rig mock lab")
     assert lab_config.sim is not None  # lab_table requires [sim]
@@ -266,7 +275,8 @@ def open_lab(config: RigConfig, *, scale: float = 0.5, port_base: int = 0,
         control_port = _port(port_base, len(DEVICE_ORDER) + len(lab_config.cameras))
         _serve_control(lab, world, host=host, port=control_port)
         _serve_devices(lab, lab_config, world, host, port_base)
-        _serve_cameras(lab, lab_config, world, host=host, port_base=port_base, jpeg_quality=jpeg_quality)
+        _serve_cameras(lab, lab_config, world, host=host, port_base=port_base, jpeg_quality=jpeg_quality,
+                       stream=stream)
         yield lab
     finally:
         lab.close()
@@ -284,9 +294,9 @@ class _Parser(argparse.ArgumentParser):
 def _parser(prog: str | None) -> argparse.ArgumentParser:
     parser = _Parser(
         prog=prog or "python -m rig.run.lab",
-        description="One simulated lab: every device of the configuration and one MJPEG-over-HTTP camera "
-                    "per camera, on one simulated world, each on its own 127.0.0.1 endpoint. Prints the "
-                    "endpoints and a rig.toml that uses them.")
+        description="One simulated lab: every device of the configuration and one HTTP camera (time-stamped "
+                    "Matroska, or MJPEG) per camera, on one simulated world, each on its own 127.0.0.1 "
+                    "endpoint. Prints the endpoints and a rig.toml that uses them.")
     parser.add_argument("--config", default=None, help="the rig.toml to simulate (default: the built-in rig)")
     parser.add_argument("--port-base", type=int, default=0,
                         help="first TCP port: robot N, exciter N+1, rotor N+2, generator N+3, cameras "
@@ -298,6 +308,10 @@ def _parser(prog: str | None) -> argparse.ArgumentParser:
     parser.add_argument("--fps", type=float, default=None,
                         help="camera frame rate (default: the configuration's; each 60 fps camera at 960×540 "
                              "costs ≈ 0.4 CPU-s per second of streaming)")
+    parser.add_argument("--stream", choices=STREAMS, default="matroska",
+                        help="what the cameras' endpoints in the rig.toml serve: matroska (default: every "
+                             "frame stamped with the simulated camera's clock) or mjpeg (no stamps: the "
+                             "controller stamps frames on arrival, like plain IP cameras); both are served")
     parser.add_argument("--jpeg-quality", type=int, default=90, help="JPEG quality of the streams (1..100)")
     parser.add_argument("--scene", choices=SCENES, default=None,
                         help="target mounted in the lab (default: the configuration's [sim] initial_scene)")
@@ -316,7 +330,7 @@ def main(argv: list[str] | None = None, prog: str | None = None) -> int:
             config = load_config(args.config)
             lab = stack.enter_context(open_lab(config, scale=args.scale, port_base=args.port_base,
                                                host=args.host, scene=args.scene, fps=args.fps,
-                                               jpeg_quality=args.jpeg_quality))
+                                               jpeg_quality=args.jpeg_quality, stream=args.stream))
         except (ConfigError, ValueError) as exc:
             parser.error(str(exc))
         except OSError as exc:  # a port in use

@@ -439,8 +439,10 @@ def _build_cameras(st: Station, cfg: RigConfig) -> None:
             from drivers.camera.opencv_device import OpenCVCamera
 
             width, height = cam.resolution_px
-            st.add_camera(name, OpenCVCamera(name, cam.source, fps=cam.fps, width_px=width,
-                                             height_px=height))
+            live = OpenCVCamera(name, cam.source, fps=cam.fps, width_px=width, height_px=height,
+                                timestamps=cam.timestamps)
+            st._closers.append((f"camera {name}", live.close))  # a stream-stamped connection is kept
+            st.add_camera(name, live)
         elif cam.driver == "file":
             from drivers.camera.video_file import VideoFile, VideoFileError
 
