@@ -17,9 +17,11 @@ device buffer never overruns silently.
   stamps for an MJPEG stream (its first :data:`MADE_UP_CHECK` intervals all exactly 40 ms, while the camera
   is configured otherwise). A stamp that goes backwards ends the stream with an error, a repeated one is a
   duplicate (delivered, its index in ``stats.duplicated``). A reconnection (after an error) starts a new
-  clock: ``stats.connections`` counts them. The network source is opened by the grabbing thread, so that two
-  cameras started one after the other start streaming together (their first frames, the offset guess of the
-  sync, at one instant).
+  clock: ``stats.connections`` counts them. The network source is opened by the grabbing thread:
+  :meth:`connect` (the station calls it when it builds the camera, so that every camera streams before the
+  first recording) returns at once, and :meth:`start` waits (``connect_timeout_s``) for the first frame —
+  so that two cameras started one after the other record from one instant (their first frames are the
+  sync's offset guess) and a short first recording is not lost to FFmpeg's probing (≈ 0.5 s).
 - ``"host"``: the **host clock** right after ``grab()`` returns (``time.monotonic`` by default,
   injectable): for a source whose frames carry no time stamp (MJPEG IP cameras); the arrival jitters with
   the host's load. The device is opened by :meth:`start` and released by :meth:`stop`.
@@ -140,9 +142,10 @@ class OpenCVCamera(Camera):
 
     ``source``: device index, path or URL. ``fps``, ``width_px``, ``height_px``: requested from the device
     (what it grants is read back). ``queue_frames``: queue bound (frames held in memory; 2 MB each at
-    1080p). ``timestamps``: ``"auto"``, ``"stream"`` or ``"host"`` (module docstring). ``clock``: host clock
-    in seconds (monotonic). ``capture_factory``: builds the capture object from (source, api) —
-    ``cv2.VideoCapture`` by default.
+    1080p). ``timestamps``: ``"auto"``, ``"stream"`` or ``"host"`` (module docstring);
+    ``connect_timeout_s``: how long :meth:`start` waits for a stream-stamped source's first frame.
+    ``clock``: host clock in seconds (monotonic). ``capture_factory``: builds the capture object from
+    (source, api) — ``cv2.VideoCapture`` by default.
 
     ``live = True``: frames stream while recording and must be consumed then (the queue is bounded);
     consumers such as ``rig.run.acquire.Acquirer`` read a live source during the recording.
@@ -152,7 +155,8 @@ class OpenCVCamera(Camera):
 
     def __init__(self, name: str, source: str | int, *, fps: float = 60.0, width_px: int = 1920,
                  height_px: int = 1080, queue_frames: int = 120, gap_tolerance: float = 0.5,
-                 timestamps: str = "auto", clock: Callable[[], float] = time.monotonic,
+                 timestamps: str = "auto", connect_timeout_s: float = 30.0,
+                 clock: Callable[[], float] = time.monotonic,
                  api: int = cv2.CAP_ANY,
                  capture_factory: Callable[[str | int, int], Capture | None] = open_capture) -> None:
         if not (math.isfinite(fps) and 0 < fps <= 10000):
@@ -163,12 +167,15 @@ class OpenCVCamera(Camera):
             raise ValueError(f"queue_frames={queue_frames!r}; allowed: ≥ 1")
         if not 0.0 < gap_tolerance < 1.0:
             raise ValueError(f"gap_tolerance={gap_tolerance!r}; allowed: within (0, 1) frame periods")
+        if not (math.isfinite(connect_timeout_s) and connect_timeout_s > 0):
+            raise ValueError(f"connect_timeout_s={connect_timeout_s!r}; allowed: > 0 s")
         if timestamps not in TIMESTAMPS:
             raise ValueError(f"timestamps={timestamps!r}; allowed: {', '.join(map(repr, TIMESTAMPS))}")
         self.name, self.source = str(name), parse_source(source)
         self.fps, self.width_px, self.height_px = float(fps), int(width_px), int(height_px)
         self.gap_tolerance, self._clock, self._api = float(gap_tolerance), clock, api
-        self.timestamps = timestamps
+        self.timestamps, self.connect_timeout_s = timestamps, float(connect_timeout_s)
+        self._streaming = threading.Event()  # the connection delivered its first frame
         self.stamping = timestamps if timestamps != "auto" else (
             "stream" if stamps_itself(self.source) else "host")  # the stamping in use
         self._factory = capture_factory
@@ -218,17 +225,35 @@ class OpenCVCamera(Camera):
         self.stats = CaptureStats(connections=connections)
         while not self._queue.empty():
             self._queue.get_nowait()
+        if self.stamping == "host" or not self.streamed:  # errors raised here, by start()
+            cap = self._open()
+            with self._lock:
+                self._recording = True
+            self._launch(cap)
+            return
+        if not self._connected:  # a new connection: recorded from its first frame
+            with self._lock:
+                self._recording = True
+            self.connect()
+        deadline_s = time.monotonic() + self.connect_timeout_s
+        while not self._streaming.wait(0.05) and self._connected and time.monotonic() < deadline_s:
+            pass
+        if not (self._streaming.is_set() and self._connected):
+            self.close()
+            reason = self.stats.error or f"no frame within {self.connect_timeout_s:g} s"
+            raise CameraDeviceError(f"camera {self.name!r}: {self.source!r} is not streaming: {reason}")
         with self._lock:
             self._recording = True
-        if self._connected:
-            return  # a kept connection: its clock goes on
-        if self.stamping == "host" or not self.streamed:  # errors raised here, by start()
-            self._launch(self._open())
-        else:  # a network stream is opened by the thread: cameras started in turn stream together
+
+    def connect(self) -> None:
+        """Open a stream-stamped source now (in the grabbing thread; returns at once) and keep it: its clock
+        runs from its first frame. Nothing to do for host stamps or a connection already open."""
+        if self.stamping == "stream" and self.streamed and not self._connected:
             self._launch(None)
 
     def _launch(self, cap: Capture | None) -> None:
         self._stop.clear()
+        self._streaming.clear()
         self._thread = threading.Thread(target=self._grab_loop, args=(cap,), name=f"grab-{self.name}",
                                         daemon=True)
         self._thread.start()
@@ -295,6 +320,7 @@ class OpenCVCamera(Camera):
                         self.stats.error = f"device {self.source!r} stopped delivering frames after {index}"
                     break
                 arrival_s = float(self._clock())
+                self._streaming.set()
                 stamp = arrival_s if self.stamping == "host" else float(cap.get(cv2.CAP_PROP_POS_MSEC)) / 1e3
                 if self.stamping == "stream" and prev_stamp is not None and stamp < prev_stamp:
                     self.stats.error = (f"the stream's time stamps went backwards at frame {index}: "

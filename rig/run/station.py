@@ -442,6 +442,7 @@ def _build_cameras(st: Station, cfg: RigConfig) -> None:
             live = OpenCVCamera(name, cam.source, fps=cam.fps, width_px=width, height_px=height,
                                 timestamps=cam.timestamps)
             st._closers.append((f"camera {name}", live.close))  # a stream-stamped connection is kept
+            live.connect()  # a stream-stamped camera streams (its clock runs) before the first recording
             st.add_camera(name, live)
         elif cam.driver == "file":
             from drivers.camera.video_file import VideoFile, VideoFileError
