@@ -19,9 +19,13 @@ device buffer never overruns silently.
   duplicate (delivered, its index in ``stats.duplicated``). A reconnection (after an error) starts a new
   clock: ``stats.connections`` counts them. The network source is opened by the grabbing thread:
   :meth:`connect` (the station calls it when it builds the camera, so that every camera streams before the
-  first recording) returns at once, and :meth:`start` waits (``connect_timeout_s``) for the first frame —
-  so that two cameras started one after the other record from one instant (their first frames are the
-  sync's offset guess) and a short first recording is not lost to FFmpeg's probing (≈ 0.5 s).
+  first recording) returns at once, and :meth:`start` waits (``connect_timeout_s``) for the first frame, so
+  that a short first recording is not lost to FFmpeg's probing (≈ 0.5 s). Two connections' clocks start
+  at different instants (each its first frame), so a recording on a kept connection starts by exposure,
+  not by arrival: with the camera's clock mapped onto the host's by the lowest arrival latency of the last
+  :data:`LAG_WINDOW` frames (``arrival − stamp``), it holds the frames exposed at or after :meth:`start`'s
+  host instant — late by at most that lowest latency (the camera's readout, encoding and transport), as
+  the cameras' start events and the sync's offset guess (the first frames of both at one instant) need.
 - ``"host"``: the **host clock** right after ``grab()`` returns (``time.monotonic`` by default,
   injectable): for a source whose frames carry no time stamp (MJPEG IP cameras); the arrival jitters with
   the host's load. The device is opened by :meth:`start` and released by :meth:`stop`.
@@ -44,6 +48,7 @@ queue is empty. Errors of the grabbing thread (device unplugged) end the stream 
 
 from __future__ import annotations
 
+import collections
 import math
 import queue
 import threading
@@ -69,6 +74,7 @@ STAMPED_SCHEMES = ("rtsp", "rtsps")
 STAMPED_SUFFIXES = (".mkv", ".webm")
 MADE_UP_CHECK = 5  # intervals of a new connection compared with FFmpeg's made-up MJPEG stamps
 MADE_UP_PERIOD_S = 0.040  # FFmpeg's default 25 fps for a stream without stamps
+LAG_WINDOW = 240  # frames over which the lowest arrival latency maps the camera's clock onto the host's
 
 
 def stamps_itself(source: str | int) -> bool:
@@ -176,6 +182,7 @@ class OpenCVCamera(Camera):
         self.gap_tolerance, self._clock, self._api = float(gap_tolerance), clock, api
         self.timestamps, self.connect_timeout_s = timestamps, float(connect_timeout_s)
         self._streaming = threading.Event()  # the connection delivered its first frame
+        self._record_from_s = -math.inf  # host instant of start(): a recording's first exposure
         self.stamping = timestamps if timestamps != "auto" else (
             "stream" if stamps_itself(self.source) else "host")  # the stamping in use
         self._factory = capture_factory
@@ -223,6 +230,7 @@ class OpenCVCamera(Camera):
             raise CameraDeviceError(f"camera {self.name!r} is already recording (call stop first)")
         connections = self.stats.connections
         self.stats = CaptureStats(connections=connections)
+        self._record_from_s = -math.inf
         while not self._queue.empty():
             self._queue.get_nowait()
         if self.stamping == "host" or not self.streamed:  # errors raised here, by start()
@@ -231,7 +239,9 @@ class OpenCVCamera(Camera):
                 self._recording = True
             self._launch(cap)
             return
-        if not self._connected:  # a new connection: recorded from its first frame
+        if self._connected:
+            self._record_from_s = float(self._clock())  # host instant: frames exposed from then on
+        else:  # a new connection: recorded from its first frame
             with self._lock:
                 self._recording = True
             self.connect()
@@ -314,6 +324,7 @@ class OpenCVCamera(Camera):
             if cap is None:
                 cap = self._open()
             intervals_s: list[float] = []  # the connection's first ones (made-up stamps?)
+            lags_s: collections.deque[float] = collections.deque(maxlen=LAG_WINDOW)  # arrival − stamp
             while not self._stop.is_set():
                 if not cap.grab():
                     if not self._stop.is_set():
@@ -332,8 +343,9 @@ class OpenCVCamera(Camera):
                     if len(intervals_s) == MADE_UP_CHECK:
                         self._check_made_up(intervals_s)
                 prev_stamp = stamp
-                with self._lock:
-                    recording = self._recording
+                lags_s.append(arrival_s - stamp)
+                with self._lock:  # a kept connection's frame exposed before start() is not recorded
+                    recording = self._recording and stamp + min(lags_s) >= self._record_from_s
                 if not recording:
                     prev_recorded = None
                     if self.stamping == "host":
