@@ -12,12 +12,17 @@ simulated camera's clock (its ppm drift and origin) at the start of the frame's 
 camera that stamps its frames (RTSP/RTP, a streaming muxer) sends; FFmpeg reports it relative to the first
 frame of the connection, so a client keeps its connection to keep one clock.
 
-A real IP camera drops frames when the host or the network is slow; so does this one: a frame whose
-successor is already fully exposed when its turn comes (rendering fell behind) is skipped, never sent late
-as if on time — the client's driver sees the gap in its arrival times or in the stream's stamps
-(``stats.skipped`` counts them). The frame sent is always the newest one exposed when its rendering began:
-its latency is one render + encode (like a camera's encoder), never a queue of older frames. A client that
-reads slowly gets the newest frame when it asks again (the older ones are gone for it).
+A real IP camera drops frames when the host or the network is slow; so does this one: with ``catch_up_s``
+0 (default, for clients that stamp frames on arrival), a frame whose successor is already fully exposed
+when its turn comes (rendering fell behind) is skipped, never sent late as if on time — the client's driver
+sees the gap in its arrival times or in the stream's stamps (``stats.skipped`` counts them); the frame sent
+is always the newest one exposed when its rendering began: its latency is one render + encode (like a
+camera's encoder), never a queue of older frames. A time-stamped stream's frames may arrive late without
+harm (their stamps say when they were exposed), as from a camera whose network buffers: with
+``catch_up_s`` > 0, rendering that fell behind catches up (every frame is sent, late) unless it is more
+than ``catch_up_s`` behind, and only then skips to the newest frame (a starved renderer is the simulation's
+limit, not the simulated camera's). A client that reads slowly gets the newest frame when it asks again
+(the older ones are gone for it).
 Frames are rendered only while a client is connected (an idle camera costs no CPU).
 
 Binds a loopback address only (:func:`drivers.mock._serve.require_loopback`).
@@ -25,6 +30,7 @@ Binds a loopback address only (:func:`drivers.mock._serve.require_loopback`).
 
 from __future__ import annotations
 
+import collections
 import contextlib
 import logging
 import math
@@ -99,12 +105,16 @@ class _Handler(BaseHTTPRequestHandler):
 class MjpegCameraServer:
     """Serve ``camera`` (see the module docstring) on ``host:port`` (loopback only; port 0 = any free port)
     at paths ``/<camera.name>.mjpg`` (:attr:`url`) and ``/<camera.name>.mkv`` (:attr:`mkv_url`).
-    ``jpeg_quality``: 1..100."""
+    ``jpeg_quality``: 1..100; ``catch_up_s``: how far behind rendering may fall before frames are skipped
+    (module docstring; 0: always the newest frame)."""
 
     def __init__(self, camera: SimCamera, *, host: str = "127.0.0.1", port: int = 0,
-                 jpeg_quality: int = 90) -> None:
+                 jpeg_quality: int = 90, catch_up_s: float = 0.0) -> None:
         if not 1 <= int(jpeg_quality) <= 100:
             raise ValueError(f"jpeg_quality={jpeg_quality!r}; allowed: 1..100")
+        if not (math.isfinite(catch_up_s) and 0.0 <= catch_up_s <= 10.0):
+            raise ValueError(f"catch_up_s={catch_up_s!r}; allowed: 0..10 s")
+        self.catch_up_frames = math.floor(catch_up_s * camera.fps)
         self.camera = camera
         self.clock = camera.world.clock
         self.host = require_loopback(host)
@@ -117,6 +127,9 @@ class MjpegCameraServer:
         self.port: int = self._httpd.server_address[1]
         self._cond = threading.Condition()
         self._latest: tuple[int, bytes] | None = None  # (frame index, JPEG) last published
+        # the frames published lately, sent in order to a client that fell behind (catch_up_s > 0)
+        self._recent: collections.deque[tuple[int, bytes]] = collections.deque(
+            maxlen=self.catch_up_frames + 2)
         self._clients = 0
         self._stopped = threading.Event()
         self._threads: list[threading.Thread] = []
@@ -190,7 +203,7 @@ class MjpegCameraServer:
             if not self._wait_world(self._ready_s(index)):
                 return
             newest = self._latest_ready(self.clock.now_s())
-            if newest > index:  # fell behind: the frames before the newest exposed one are dropped
+            if newest > index + self.catch_up_frames:  # too far behind: the frames before the newest dropped
                 self.stats.skipped += newest - index
                 index = newest
             cpu0_s = time.thread_time()
@@ -209,6 +222,7 @@ class MjpegCameraServer:
     def _publish(self, index: int, jpeg: bytes) -> None:
         with self._cond:
             self._latest = (index, jpeg)
+            self._recent.append(self._latest)
             self.stats.published += 1
             self._cond.notify_all()
 
@@ -249,8 +263,11 @@ class MjpegCameraServer:
                         self._cond.wait(_POLL_S)
                     if self._stopped.is_set() or self._latest is None:
                         return
-                    sent, jpeg = self._latest
-                out.write(part(sent, jpeg))
+                    batch = ([f for f in self._recent if f[0] > sent] if self.catch_up_frames
+                             else [self._latest])
+                    sent = batch[-1][0]
+                for index, jpeg in batch:
+                    out.write(part(index, jpeg))
                 out.flush()
         finally:
             with self._cond:

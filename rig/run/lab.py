@@ -61,6 +61,7 @@ DEVICE_ORDER = ("robot", "exciter", "rotor", "generator")  # --port-base N: robo
 TOLERANT = {"robot": {"wdt_ms": 2000}, "exciter": {"comm_timeout_s": 5.0}, "rotor": {"comm_timeout_s": 5.0}}
 REAL_TIME = 1.0  # virtual s per wall s: a controller drives the lab live
 STREAMS = ("matroska", "mjpeg")  # the cameras' stream forms (--stream)
+CATCH_UP_S = 1.0  # a stamped stream's late frames keep their stamps: rendering catches up ≤ 1 s, not skips
 HEARTBEAT_TIMEOUT_S = 6.0  # above the 2 s WDT; drives probed every 1.5 s, their 5 s time-out above 2 probes
 
 
@@ -246,7 +247,8 @@ def _serve_cameras(lab: Lab, config: RigConfig, world: World, *, host: str, port
         width, height = config.cameras[spec.name].resolution_px
         camera = make_camera(spec, world, width_px=width, height_px=height)
         server = MjpegCameraServer(camera, host=host, port=_port(port_base, len(DEVICE_ORDER) + k),
-                                   jpeg_quality=jpeg_quality).start()
+                                   jpeg_quality=jpeg_quality,
+                                   catch_up_s=CATCH_UP_S if stream == "matroska" else 0.0).start()
         lab._closers.append((f"camera {spec.name}", server.stop))
         lab.cameras[spec.name] = server
         lab.endpoints[f"cameras.{spec.name}"] = server.mkv_url if stream == "matroska" else server.url
@@ -354,8 +356,10 @@ def main(argv: list[str] | None = None, prog: str | None = None) -> int:
         print("lab ready (Ctrl-C or SIGTERM stops it)", flush=True)
         wait_for_interrupt()
     for name, cam in lab.cameras.items():
+        origins = [(index, cam.camera.frame_timestamp_s(index)) for index in cam.stats.first_frames]
         print(f"lab camera {name}: {cam.stats.published} frames sent, {cam.stats.skipped} skipped, "
-              f"render + encode {cam.stats.render_cpu_s:.1f} CPU-s", flush=True)
+              f"render + encode {cam.stats.render_cpu_s:.1f} CPU-s; Matroska connections' first frames "
+              f"(index, camera clock s): {origins}", flush=True)
     return 0
 
 
