@@ -25,7 +25,9 @@ device buffer never overruns silently.
   not by arrival: with the camera's clock mapped onto the host's by the lowest arrival latency of the last
   :data:`LAG_WINDOW` frames (``arrival − stamp``), it holds the frames exposed at or after :meth:`start`'s
   host instant — late by at most that lowest latency (the camera's readout, encoding and transport), as
-  the cameras' start events and the sync's offset guess (the first frames of both at one instant) need.
+  the cameras' start events and the sync's offset guess (the first frames of both at one instant) need —
+  and ends alike: after :meth:`stop`, :meth:`frames` goes on yielding the frames exposed before it that
+  arrive late, until the first frame exposed after it arrives (or :data:`DRAIN_S` passes).
 - ``"host"``: the **host clock** right after ``grab()`` returns (``time.monotonic`` by default,
   injectable): for a source whose frames carry no time stamp (MJPEG IP cameras); the arrival jitters with
   the host's load. The device is opened by :meth:`start` and released by :meth:`stop`.
@@ -75,6 +77,7 @@ STAMPED_SUFFIXES = (".mkv", ".webm")
 MADE_UP_CHECK = 5  # intervals of a new connection compared with FFmpeg's made-up MJPEG stamps
 MADE_UP_PERIOD_S = 0.040  # FFmpeg's default 25 fps for a stream without stamps
 LAG_WINDOW = 240  # frames over which the lowest arrival latency maps the camera's clock onto the host's
+DRAIN_S = 10.0  # (host s) how long frames() waits after stop() for the frames exposed before it
 
 
 def stamps_itself(source: str | int) -> bool:
@@ -188,7 +191,11 @@ class OpenCVCamera(Camera):
         self._factory = capture_factory
         self._queue: queue.Queue[Frame] = queue.Queue(maxsize=int(queue_frames))
         self._lock = threading.Lock()  # the recording flag and what is queued under it
-        self._recording = False
+        self._recording = False  # between start() and stop()
+        # the thread's recording window: open from start(); closed by the first frame exposed after stop()
+        self._capturing = False
+        self._record_until_s = math.inf  # host instant of stop()
+        self._drain_deadline_s = math.inf
         self._stop = threading.Event()  # ends the grabbing thread
         self._thread: threading.Thread | None = None
         self.stats = CaptureStats()
@@ -236,14 +243,16 @@ class OpenCVCamera(Camera):
         if self.stamping == "host" or not self.streamed:  # errors raised here, by start()
             cap = self._open()
             with self._lock:
-                self._recording = True
+                self._recording = self._capturing = True
+                self._record_until_s = math.inf
             self._launch(cap)
             return
         if self._connected:
             self._record_from_s = float(self._clock())  # host instant: frames exposed from then on
         else:  # a new connection: recorded from its first frame
             with self._lock:
-                self._recording = True
+                self._recording = self._capturing = True
+                self._record_until_s = math.inf
             self.connect()
         deadline_s = time.monotonic() + self.connect_timeout_s
         while not self._streaming.wait(0.05) and self._connected and time.monotonic() < deadline_s:
@@ -253,7 +262,8 @@ class OpenCVCamera(Camera):
             reason = self.stats.error or f"no frame within {self.connect_timeout_s:g} s"
             raise CameraDeviceError(f"camera {self.name!r}: {self.source!r} is not streaming: {reason}")
         with self._lock:
-            self._recording = True
+            self._recording = self._capturing = True
+            self._record_until_s = math.inf
 
     def connect(self) -> None:
         """Open a stream-stamped source now (in the grabbing thread; returns at once) and keep it: its clock
@@ -344,8 +354,11 @@ class OpenCVCamera(Camera):
                         self._check_made_up(intervals_s)
                 prev_stamp = stamp
                 lags_s.append(arrival_s - stamp)
-                with self._lock:  # a kept connection's frame exposed before start() is not recorded
-                    recording = self._recording and stamp + min(lags_s) >= self._record_from_s
+                exposed_s = stamp + min(lags_s)  # on the host's clock, late by the lowest latency
+                with self._lock:  # a kept connection records the frames exposed between start() and stop()
+                    if self._capturing and exposed_s >= self._record_until_s:
+                        self._capturing = False
+                    recording = self._capturing and exposed_s >= self._record_from_s
                 if not recording:
                     prev_recorded = None
                     if self.stamping == "host":
@@ -360,7 +373,7 @@ class OpenCVCamera(Camera):
                 self._account(index, stamp, arrival_s, prev_recorded, repeated=repeated, period=period)
                 prev_recorded = (stamp, arrival_s)
                 with self._lock:
-                    if self._recording:
+                    if self._capturing:
                         self._put(Frame(index=index, timestamp_s=stamp,
                                         image=np.ascontiguousarray(gray, dtype=np.uint8)))
                         self.stats.delivered += 1
@@ -395,13 +408,18 @@ class OpenCVCamera(Camera):
             raise CameraDeviceError(f"camera {self.name!r} is not recording (call start first)")
         with self._lock:
             self._recording = False
+            if self.stamping == "stream":
+                self._record_until_s = float(self._clock())
+                self._drain_deadline_s = time.monotonic() + DRAIN_S
+            else:
+                self._capturing = False
         if self.stamping != "stream":
             self._join()
 
     def close(self) -> None:
         """End the recording and the connection (its thread joined; the device released)."""
         with self._lock:
-            self._recording = False
+            self._recording = self._capturing = False
         if self._thread is not None:
             self._join()
 
@@ -423,7 +441,10 @@ class OpenCVCamera(Camera):
                 continue
             except queue.Empty:
                 pass
-            if not self.recording and self._queue.empty():
+            if not self._recording and time.monotonic() > self._drain_deadline_s:
+                with self._lock:
+                    self._capturing = False  # the frames exposed before stop() did not all come
+            if (not self._capturing or not self._connected) and self._queue.empty():
                 break
-        if self.stats.error and self._recording:
+        if self.stats.error and (self._recording or self.stamping == "stream"):
             raise CameraDeviceError(f"camera {self.name!r}: {self.stats.error}")
