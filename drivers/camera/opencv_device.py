@@ -257,7 +257,7 @@ class OpenCVCamera(Camera):
         deadline_s = time.monotonic() + self.connect_timeout_s
         while not self._streaming.wait(0.05) and self._connected and time.monotonic() < deadline_s:
             pass
-        if not (self._streaming.is_set() and self._connected):
+        if not self._streaming.is_set():  # (a stream that ended after its first frame: frames() says so)
             self.close()
             reason = self.stats.error or f"no frame within {self.connect_timeout_s:g} s"
             raise CameraDeviceError(f"camera {self.name!r}: {self.source!r} is not streaming: {reason}")
