@@ -283,3 +283,10 @@ def test_the_sources_auto_trusts_and_the_option_validated() -> None:
     table["cameras"]["left"].update(driver="opencv", source="http://127.0.0.1:1/left.mkv", timestamps="clock")
     with pytest.raises(ConfigError, match=r"cameras\.left\.timestamps"):
         config_from_dict(table)
+
+
+def test_a_stamped_source_that_cannot_be_opened_is_refused_by_start() -> None:
+    camera = OpenCVCamera("left", "http://127.0.0.1:9/left.mkv", fps=60, width_px=W, height_px=H)
+    with pytest.raises(CameraDeviceError, match=r"is not streaming: .*cannot open device"):
+        camera.start()
+    assert not camera.recording
