@@ -2,7 +2,8 @@
 
 For each setting (frame rate, scale) a `rig mock lab` subprocess is started; its CPU time (utime + stime
 from /proc) is read over ``--seconds`` with no client (the baseline: the idle lab, the same run), then over
-``--seconds`` with one OpenCV/FFmpeg client per camera reading the MJPEG stream in this process. Printed per
+``--seconds`` with one OpenCV/FFmpeg client per camera reading the stream the lab names (time-stamped
+Matroska by default) in this process. Printed per
 setting: the lab's CPU-s per second idle and streaming, their ratio, the frames each client received per
 second (of the camera's fps) and the frames the lab skipped because rendering fell behind.
 
