@@ -94,13 +94,7 @@ def test_rig_calibrates_against_the_lab(lab: RunningLab, tmp_path: Path) -> None
     calibration = json.loads(path.read_text())
     rms = {name: cam["residuals_rms_px"] for name, cam in calibration["cameras"].items()}
     print("calibration residuals (px rms):", rms)
-    assert result.returncode in (0, 1), (result.stdout[-2000:], result.stderr[-2000:])
-    (certificate_path,) = runs.glob("*/certificate.json")
-    status = {c["id"]: c["status"] for c in json.loads(certificate_path.read_text())["criteria"]}
-    print("certificate criteria:", status)
-    measured = ("calibration_rms_px", "sync_uncertainty_ms", "amplitude_error_pct", "frequency_error_pct",
-                "radius_error_mm", "min_usable_frequency_hz")
-    assert all(status[criterion] == "PASS" for criterion in measured), status
+    assert result.returncode == 0, (result.stdout[-2000:], result.stderr[-2000:])
     assert set(rms) == {"left", "right"}
     # the lab's camera served the plate the arm moved: the fit is the criterion's (calibration_rms_px)
     assert all(value <= 0.5 for value in rms.values()), rms

@@ -12,22 +12,23 @@ device buffer never overruns silently.
   it to the µs): the **camera's own clock**, as a time-stamping network camera (Matroska, RTSP/RTP) sends
   it. FFmpeg reports it relative to the connection's first frame, so the connection (and with it the
   camera's clock) is **kept from the first** :meth:`start` **to** :meth:`close`: between recordings the
-  thread grabs and discards (no decoding to grey), and a recording holds the frames grabbed between
-  :meth:`start` and :meth:`stop`. A stream without stamps is refused when it shows: FFmpeg makes up 25 fps
+  thread grabs and discards (an MJPEG stream's packets are not even decoded: :meth:`_raw_jpeg`), and a
+  recording holds the frames grabbed between :meth:`start` and :meth:`stop` (on a kept connection, once it
+  has streamed :data:`SETTLE_S`). A stream without stamps is refused when it shows: FFmpeg makes up 25 fps
   stamps for an MJPEG stream (its first :data:`MADE_UP_CHECK` intervals all exactly 40 ms, while the camera
   is configured otherwise). A stamp that goes backwards ends the stream with an error, a repeated one is a
   duplicate (delivered, its index in ``stats.duplicated``). A reconnection (after an error) starts a new
   clock: ``stats.connections`` counts them. The network source is opened by the grabbing thread:
   :meth:`connect` (the station calls it when it builds the camera, so that every camera streams before the
   first recording) returns at once, and :meth:`start` waits (``connect_timeout_s``) for the first frame, so
-  that a short first recording is not lost to FFmpeg's probing (≈ 0.5 s). Two connections' clocks start
-  at different instants (each its first frame), so a recording on a kept connection starts by exposure,
-  not by arrival: with the camera's clock mapped onto the host's by the lowest arrival latency of the last
+  that a short first recording is not lost to FFmpeg's probing (≈ 0.5 s). Two connections' clocks start at
+  different instants (each its first frame), so a recording on a kept connection starts by exposure, not by
+  arrival: with the camera's clock mapped onto the host's by the lowest arrival latency of the last
   :data:`LAG_WINDOW` frames (``arrival − stamp``), it holds the frames exposed at or after :meth:`start`'s
-  host instant — late by at most that lowest latency (the camera's readout, encoding and transport), as
-  the cameras' start events and the sync's offset guess (the first frames of both at one instant) need —
-  and ends alike: after :meth:`stop`, :meth:`frames` goes on yielding the frames exposed before it that
-  arrive late, until the first frame exposed after it arrives (or :data:`DRAIN_S` passes).
+  host instant — late by at most that lowest latency (the camera's readout, encoding and transport), as the
+  cameras' start events and the sync's offset guess (the first frames of both at one instant) need — and
+  ends alike: after :meth:`stop`, :meth:`frames` goes on yielding the frames exposed before it that arrive
+  late, until the first frame exposed after it arrives (or :data:`DRAIN_S` passes).
 - ``"host"``: the **host clock** right after ``grab()`` returns (``time.monotonic`` by default,
   injectable): for a source whose frames carry no time stamp (MJPEG IP cameras); the arrival jitters with
   the host's load. The device is opened by :meth:`start` and released by :meth:`stop`.
@@ -78,6 +79,8 @@ MADE_UP_CHECK = 5  # intervals of a new connection compared with FFmpeg's made-u
 MADE_UP_PERIOD_S = 0.040  # FFmpeg's default 25 fps for a stream without stamps
 LAG_WINDOW = 240  # frames over which the lowest arrival latency maps the camera's clock onto the host's
 DRAIN_S = 10.0  # (host s) how long frames() waits after stop() for the frames exposed before it
+SETTLE_S = 2.0  # (camera s) a kept connection's frames before a recording on it starts: FFmpeg's probing
+#                 delivers the first ones in a late burst, whose latencies would map the clock late
 
 
 def stamps_itself(source: str | int) -> bool:
@@ -185,6 +188,7 @@ class OpenCVCamera(Camera):
         self.gap_tolerance, self._clock, self._api = float(gap_tolerance), clock, api
         self.timestamps, self.connect_timeout_s = timestamps, float(connect_timeout_s)
         self._streaming = threading.Event()  # the connection delivered its first frame
+        self._settled = threading.Event()  # … and SETTLE_S of frames: its arrival latencies tell its clock
         self._record_from_s = -math.inf  # host instant of start(): a recording's first exposure
         self.stamping = timestamps if timestamps != "auto" else (
             "stream" if stamps_itself(self.source) else "host")  # the stamping in use
@@ -247,8 +251,11 @@ class OpenCVCamera(Camera):
                 self._record_until_s = math.inf
             self._launch(cap)
             return
-        if self._connected:
-            self._record_from_s = float(self._clock())  # host instant: frames exposed from then on
+        if self._connected:  # a kept connection: once its clock is mapped onto the host's (settled) …
+            deadline_s = time.monotonic() + self.connect_timeout_s
+            while not self._settled.wait(0.05) and self._connected and time.monotonic() < deadline_s:
+                pass
+            self._record_from_s = float(self._clock())  # … the frames exposed from now on
         else:  # a new connection: recorded from its first frame
             with self._lock:
                 self._recording = self._capturing = True
@@ -274,6 +281,7 @@ class OpenCVCamera(Camera):
     def _launch(self, cap: Capture | None) -> None:
         self._stop.clear()
         self._streaming.clear()
+        self._settled.clear()
         self._thread = threading.Thread(target=self._grab_loop, args=(cap,), name=f"grab-{self.name}",
                                         daemon=True)
         self._thread.start()
@@ -315,6 +323,15 @@ class OpenCVCamera(Camera):
                 except queue.Empty:
                     pass
 
+    def _raw_jpeg(self, cap: Capture) -> bool:
+        """Ask a stream-stamped MJPEG source for its packets undecoded (True when granted): a kept
+        connection's frames between recordings are then never decoded, and recorded ones are decoded
+        straight to grey (``cv2.imdecode``) — what keeps a kept connection cheap."""
+        if self.stamping != "stream" or not self.streamed:
+            return False
+        fourcc = int(cap.get(cv2.CAP_PROP_FOURCC)) & 0xFFFFFFFF
+        return fourcc.to_bytes(4, "little") == b"MJPG" and bool(cap.set(cv2.CAP_PROP_FORMAT, -1))
+
     def _check_made_up(self, intervals_s: list[float]) -> None:
         """CameraDeviceError when a new connection's first intervals are FFmpeg's made-up 25 fps."""
         if abs(self.fps - 1.0 / MADE_UP_PERIOD_S) <= 0.01 * self.fps:
@@ -333,6 +350,7 @@ class OpenCVCamera(Camera):
         try:
             if cap is None:
                 cap = self._open()
+            raw = self._raw_jpeg(cap)
             intervals_s: list[float] = []  # the connection's first ones (made-up stamps?)
             lags_s: collections.deque[float] = collections.deque(maxlen=LAG_WINDOW)  # arrival − stamp
             while not self._stop.is_set():
@@ -343,6 +361,8 @@ class OpenCVCamera(Camera):
                 arrival_s = float(self._clock())
                 self._streaming.set()
                 stamp = arrival_s if self.stamping == "host" else float(cap.get(cv2.CAP_PROP_POS_MSEC)) / 1e3
+                if stamp >= SETTLE_S:  # (a stream's stamps count from its first frame)
+                    self._settled.set()
                 if self.stamping == "stream" and prev_stamp is not None and stamp < prev_stamp:
                     self.stats.error = (f"the stream's time stamps went backwards at frame {index}: "
                                         f"{stamp:.6f} s after {prev_stamp:.6f} s")
@@ -366,6 +386,8 @@ class OpenCVCamera(Camera):
                     index += 1
                     continue
                 ok, img = cap.retrieve()
+                if ok and img is not None and raw:  # the frame's JPEG, decoded straight to grey
+                    img = cv2.imdecode(np.asarray(img, dtype=np.uint8).ravel(), cv2.IMREAD_GRAYSCALE)
                 if not ok or img is None:
                     self.stats.error = f"frame {index} could not be decoded"
                     break
