@@ -24,11 +24,11 @@ device buffer never overruns silently.
   that a short first recording is not lost to FFmpeg's probing (≈ 0.5 s). Two connections' clocks start at
   different instants (each its first frame), so a recording on a kept connection starts by exposure, not by
   arrival: with the camera's clock mapped onto the host's by the lowest arrival latency of the last
-  :data:`LAG_WINDOW` frames (``arrival − stamp``), it holds the frames exposed at or after :meth:`start`'s
-  host instant — late by at most that lowest latency (the camera's readout, encoding and transport), as the
-  cameras' start events and the sync's offset guess (the first frames of both at one instant) need — and
-  ends alike: after :meth:`stop`, :meth:`frames` goes on yielding the frames exposed before it that arrive
-  late, until the first frame exposed after it arrives (or :data:`DRAIN_S` passes).
+  :data:`LAG_WINDOW_S` of frames (``arrival − stamp``), it holds the frames exposed at or after
+  :meth:`start`'s host instant — late by at most that lowest latency (the camera's readout, encoding and
+  transport), as the cameras' start events and the sync's offset guess (the first frames of both at one
+  instant) need — and ends alike: after :meth:`stop`, :meth:`frames` goes on yielding the frames exposed
+  before it that arrive late, until the first frame exposed after it arrives (or :data:`DRAIN_S` passes).
 - ``"host"``: the **host clock** right after ``grab()`` returns (``time.monotonic`` by default,
   injectable): for a source whose frames carry no time stamp (MJPEG IP cameras); the arrival jitters with
   the host's load. The device is opened by :meth:`start` and released by :meth:`stop`.
@@ -77,7 +77,9 @@ STAMPED_SCHEMES = ("rtsp", "rtsps")
 STAMPED_SUFFIXES = (".mkv", ".webm")
 MADE_UP_CHECK = 5  # intervals of a new connection compared with FFmpeg's made-up MJPEG stamps
 MADE_UP_PERIOD_S = 0.040  # FFmpeg's default 25 fps for a stream without stamps
-LAG_WINDOW = 240  # frames over which the lowest arrival latency maps the camera's clock onto the host's
+# (s of frames) over which the lowest arrival latency maps the camera's clock onto the host's: long enough
+# to hold a promptly read frame on a loaded host, short enough for a 200-ppm clock to drift ≤ 4 ms
+LAG_WINDOW_S = 20.0
 DRAIN_S = 10.0  # (host s) how long frames() waits after stop() for the frames exposed before it
 SETTLE_S = 2.0  # (camera s) a kept connection's frames before a recording on it starts: FFmpeg's probing
 #                 delivers the first ones in a late burst, whose latencies would map the clock late
@@ -352,7 +354,8 @@ class OpenCVCamera(Camera):
                 cap = self._open()
             raw = self._raw_jpeg(cap)
             intervals_s: list[float] = []  # the connection's first ones (made-up stamps?)
-            lags_s: collections.deque[float] = collections.deque(maxlen=LAG_WINDOW)  # arrival − stamp
+            lags_s: collections.deque[float] = collections.deque(  # arrival − stamp
+                maxlen=round(LAG_WINDOW_S * self.fps))
             while not self._stop.is_set():
                 if not cap.grab():
                     if not self._stop.is_set():
