@@ -254,9 +254,7 @@ class OpenCVCamera(Camera):
             self._launch(cap)
             return
         if self._connected:  # a kept connection: once its clock is mapped onto the host's (settled) …
-            deadline_s = time.monotonic() + self.connect_timeout_s
-            while not self._settled.wait(0.05) and self._connected and time.monotonic() < deadline_s:
-                pass
+            self.wait_settled()
             self._record_from_s = float(self._clock())  # … the frames exposed from now on
         else:  # a new connection: recorded from its first frame
             with self._lock:
@@ -273,6 +271,14 @@ class OpenCVCamera(Camera):
         with self._lock:
             self._recording = self._capturing = True
             self._record_until_s = math.inf
+
+    def wait_settled(self) -> bool:
+        """Wait (at most ``connect_timeout_s``) until a kept connection has streamed :data:`SETTLE_S`; True
+        when it has (the station waits for it, so that a first recording starts when asked)."""
+        deadline_s = time.monotonic() + self.connect_timeout_s
+        while not self._settled.wait(0.05) and self._connected and time.monotonic() < deadline_s:
+            pass
+        return self._settled.is_set()
 
     def connect(self) -> None:
         """Open a stream-stamped source now (in the grabbing thread; returns at once) and keep it: its clock

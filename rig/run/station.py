@@ -434,6 +434,7 @@ def _build_generator(st: Station, cfg: RigConfig) -> None:
 
 
 def _build_cameras(st: Station, cfg: RigConfig) -> None:
+    kept = []  # stream-stamped cameras: connected now, settled before the first recording
     for name, cam in cfg.cameras.items():
         if cam.driver == "opencv":
             from drivers.camera.opencv_device import OpenCVCamera
@@ -443,6 +444,7 @@ def _build_cameras(st: Station, cfg: RigConfig) -> None:
                                 timestamps=cam.timestamps)
             st._closers.append((f"camera {name}", live.close))  # a stream-stamped connection is kept
             live.connect()  # a stream-stamped camera streams (its clock runs) before the first recording
+            kept.append(live)
             st.add_camera(name, live)
         elif cam.driver == "file":
             from drivers.camera.video_file import VideoFile, VideoFileError
@@ -451,6 +453,8 @@ def _build_cameras(st: Station, cfg: RigConfig) -> None:
                 st.add_camera(name, VideoFile(cam.source, name=name, fps=cam.fps))
             except VideoFileError as exc:
                 raise StationError(f"cameras.{name}.source: {exc}") from exc
+    for live in kept:  # all connected at once; each clock mapped before a recording starts on it
+        live.wait_settled()
     if st.world is None:
         return
     from drivers.sim.source import SimFrameSource
