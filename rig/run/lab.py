@@ -61,7 +61,7 @@ DEVICE_ORDER = ("robot", "exciter", "rotor", "generator")  # --port-base N: robo
 TOLERANT = {"robot": {"wdt_ms": 2000}, "exciter": {"comm_timeout_s": 5.0}, "rotor": {"comm_timeout_s": 5.0}}
 REAL_TIME = 1.0  # virtual s per wall s: a controller drives the lab live
 STREAMS = ("matroska", "mjpeg")  # the cameras' stream forms (--stream)
-CATCH_UP_S = 0.1  # a stamped stream catches up short stalls (late frames keep their stamps), not a deficit
+CATCH_UP_S = 0.5  # a stamped stream catches up stalls (its late frames keep their stamps), not a deficit
 HEARTBEAT_TIMEOUT_S = 6.0  # above the 2 s WDT; drives probed every 1.5 s, their 5 s time-out above 2 probes
 
 
