@@ -32,12 +32,13 @@ from pathlib import Path
 
 import pytest
 from pymodbus.client import ModbusTcpClient
+from spin_procedure import END_REPORT
 
 from drivers.denso.client import BcapClient
 from drivers.transport import open_transport
 
 ROOT = Path(__file__).resolve().parents[1]
-SPIN = ROOT / "tests" / "spin_procedure.py"
+SPIN_PROCEDURE = ROOT / "tests" / "spin_procedure.py"
 FAULT, FREQ_OUT = 0x2100, 0x2103  # docs/exciter.md register map (wire addresses)
 UNIT = {"exciter": 1, "rotor": 2}  # sim.toml and the stand-alone mocks' defaults
 FAULT_COMM_TIMEOUT = 0x42  # the mock drive's CE10
@@ -47,6 +48,10 @@ COMM_TIMEOUT_S = 5.0  # devices.<name>.comm_timeout_s (default 2): above 2 × th
 STALL_S = 3.0  # a stall every watchdog above tolerates: the drives' 5 s less a probe interval, at least
 TRIP = re.compile(r"drive fault 0x42 at t = ([\d.]+) s \(last request t = ([\d.]+) s\): output ([\d.]+) Hz "
                   r"ramps to 0 at ([\d.]+) Hz/s, at rest by t = ([\d.]+) s")  # the mock drive's log
+# the spin (spin_procedure's exciter_hz, rotor_hz) and each drive's ramp (Hz/s: the exciter's drive default,
+# the rotor's sim.toml ramp_rate_hz_per_s): ≈ 1 s of real-time ramp up and down each, not the
+# procedure's default 3 and 5 Hz (2.5–3 s each way, per test); what is checked is rest after a stop
+SPIN = {"exciter": (1.0, 1.0), "rotor": (2.0, 2.0)}
 WAIT_S = 120.0  # generous bound for waits on a loaded machine; each ends as soon as its event is seen
 
 
@@ -72,12 +77,17 @@ class StandaloneRig:
     mocks: dict[str, Mock]
 
 
-def _start_mock(tmp_path: Path, name: str) -> Mock:
+def _spawn_mock(tmp_path: Path, name: str) -> tuple[subprocess.Popen[str], Path]:
     log_path = tmp_path / f"mock-{name}.log"
     with open(log_path, "w") as log:  # the child keeps its own descriptor
         proc = subprocess.Popen([sys.executable, "-m", "rig.cli", "mock", name, "--port", "0"], cwd=tmp_path,
                                 env=_env(), stdout=subprocess.PIPE, stderr=log, text=True)
-    line = proc.stdout.readline()
+    return proc, log_path
+
+
+def _serving(name: str, proc: subprocess.Popen[str], log_path: Path) -> Mock:
+    """The mock once it serves: its first stdout line names its port."""
+    line = proc.stdout.readline()  # type: ignore[union-attr]
     found = re.search(r"tcp://127\.0\.0\.1:(\d+)", line)
     assert found, (line, log_path.read_text())
     return Mock(name, proc, int(found.group(1)), log_path)
@@ -107,29 +117,31 @@ def _config(tmp_path: Path, ports: dict[str, int]) -> Path:
 
 @pytest.fixture
 def standalone(tmp_path: Path) -> Iterator[StandaloneRig]:
-    mocks: dict[str, Mock] = {}
+    # the three start together (each imports the twin: ≈ 1–2 CPU-s), then each is awaited on its port line
+    spawned: dict[str, tuple[subprocess.Popen[str], Path]] = {}
     try:
         for name in ("exciter", "rotor", "robot"):
-            mocks[name] = _start_mock(tmp_path, name)
+            spawned[name] = _spawn_mock(tmp_path, name)
+        mocks = {name: _serving(name, *started) for name, started in spawned.items()}
         ports = {n: m.port for n, m in mocks.items()}
         yield StandaloneRig(_config(tmp_path, ports), tmp_path / "runs", mocks)
     finally:
-        for mock in mocks.values():
-            if mock.proc.poll() is None:
-                mock.proc.send_signal(signal.SIGTERM)
-        for mock in mocks.values():
+        for proc, _ in spawned.values():
+            if proc.poll() is None:
+                proc.send_signal(signal.SIGTERM)
+        for proc, _ in spawned.values():
             try:
-                mock.proc.wait(timeout=30)
+                proc.wait(timeout=30)
             except subprocess.TimeoutExpired:
-                mock.proc.kill()
-                mock.proc.wait()
-            mock.proc.stdout.close()  # type: ignore[union-attr]
+                proc.kill()
+                proc.wait()
+            proc.stdout.close()  # type: ignore[union-attr]
 
 
 def _start_rig(rig: StandaloneRig, *settings: str) -> tuple[subprocess.Popen[str], Path]:
-    argv = [sys.executable, "-m", "rig.cli", "run", str(SPIN), "--config", str(rig.config),
+    argv = [sys.executable, "-m", "rig.cli", "run", str(SPIN_PROCEDURE), "--config", str(rig.config),
             "--runs-dir", str(rig.runs), "--no-dashboard"]
-    for s in settings:
+    for s in (*(f"{name}_hz={hz:g}" for name, (hz, _) in SPIN.items()), *settings):
         argv += ["--set", s]
     with open(rig.config.parent / "rig.stderr", "w") as err:  # a file the tests watch while rig runs
         proc = subprocess.Popen(argv, cwd=rig.config.parent, env=_env(), stdout=subprocess.PIPE, stderr=err,
@@ -194,8 +206,9 @@ def _documents(run_dir: Path) -> list[dict]:
 
 def _signal_and_check(rig: StandaloneRig, phase: str, signals: list[signal.Signals], *,
                       stall: bool = False) -> None:
-    # one signal in the report step (no checkpoint) takes effect when the step ends: keep it short then
-    settings = (f"report_s={600 if len(signals) > 1 else 8}",) if phase == "report" else ()
+    # one signal in the report step (no checkpoint) takes effect when the step ends: the test ends the
+    # step (spin_procedure's END_REPORT file) once rig has handled the signal
+    settings = ("report_s=600",) if phase == "report" else ()
     proc, run_dir = _start_rig(rig, "hold_s=0" if phase == "report" else "hold_s=600", *settings)
     _wait_for(run_dir, proc, '"stream":"report_tick"' if phase == "report" else '"stream":"hold"')
     if stall:  # the whole rig process stopped, as a starved one is, then carrying on
@@ -207,6 +220,9 @@ def _signal_and_check(rig: StandaloneRig, phase: str, signals: list[signal.Signa
         if i:  # only once rig handled the first: two signals sent before that are one (POSIX)
             _wait_for_file(rig.config.parent / "rig.stderr", proc, "abort requested; stopping at the next")
         proc.send_signal(sig)
+    if phase == "report" and len(signals) == 1:
+        _wait_for_file(rig.config.parent / "rig.stderr", proc, "abort requested; stopping at the next")
+        (rig.config.parent / END_REPORT).touch()
     out, _ = proc.communicate(timeout=WAIT_S)
     err = (rig.config.parent / "rig.stderr").read_text()
     assert proc.returncode == 2, (out, err)
@@ -249,7 +265,7 @@ def test_sigkill_mid_run_the_drives_stop_themselves_within_the_bound(standalone:
     proc.kill()
     proc.communicate(timeout=WAIT_S)
     assert not [d for d in _documents(run_dir) if d["type"] == "stop"]  # no cleanup ran
-    for device, spin_hz, ramp_hz_per_s in (("exciter", 3.0, 1.0), ("rotor", 5.0, 2.0)):
+    for device, (spin_hz, ramp_hz_per_s) in SPIN.items():
         mock = standalone.mocks[device]
         deadline = time.monotonic() + WAIT_S
         trip = None
