@@ -3,8 +3,10 @@
 PYTHON ?= $(shell command -v python3.11 || command -v python3)
 VENV := .venv
 STAMP := $(VENV)/.installed
-# pytest-xdist: one worker per core, each test file whole on one worker (module fixtures built once), in
-# tests/conftest.py's order (files with slow cases first) rather than xdist's (most tests first)
+# pytest-xdist: 1.5 workers per core (tests/conftest.py's pytest_xdist_auto_num_workers: a third of the
+# suite's worker time is waiting, which another worker's CPU fills; 3 workers on CI's 2 cores), each test
+# file whole on one worker (module fixtures built once), in tests/conftest.py's order (the costliest first)
+# rather than xdist's (most tests first)
 PYTEST_PARALLEL ?= -n auto --dist loadfile --no-loadscope-reorder
 # the test files to run (default: all); e.g. make test-load TESTS="tests/test_bcap_recovery.py"
 TESTS ?=

@@ -100,6 +100,22 @@ def pytest_runtest_protocol(item: pytest.Item, nextitem: pytest.Item | None) -> 
             out.write(line)
 
 
+# ----------------------------------------------------------------------------- workers (xdist: -n auto)
+# `-n auto` (make test) starts WORKERS_PER_CORE workers per core, not one: a third of the suite's worker time
+# is waiting, not computing (real-time mocks, watchdog and time-out bounds, subprocesses starting), and a
+# worker that waits leaves its core to another. PYTEST_XDIST_AUTO_NUM_WORKERS=N, or -n N, sets N.
+WORKERS_PER_CORE = 1.5
+
+
+def pytest_xdist_auto_num_workers(config: pytest.Config) -> int | None:
+    """``-n auto``: ``WORKERS_PER_CORE`` × the cores this process may run on (at least 1); None (xdist's own
+    count) when ``PYTEST_XDIST_AUTO_NUM_WORKERS`` is set."""
+    if os.environ.get("PYTEST_XDIST_AUTO_NUM_WORKERS"):
+        return None
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+    return max(1, round(WORKERS_PER_CORE * cores))
+
+
 # ----------------------------------------------------------------------------- order (xdist: longest first)
 # tests/file_costs.tsv: per test file, the CPU seconds (the worker's and its children's) and the wall seconds
 # of one `make test-times` run (RIG_TEST_TIMES summed per file). A file's cost to its worker is its CPU plus
