@@ -237,14 +237,13 @@ def _motion_region(before: _Sampled, after: _Sampled, shape: tuple[int, int],
     (the blocks between the sampled ones). ``shape``: the frame's blocks (rows, columns)."""
     moved = ((before.map >= max(0.25 * before.max_dn, 0.5 * DuplicateJudge.MIN_MOTION_DN))
              | (after.map >= max(0.25 * after.max_dn, 0.5 * DuplicateJudge.MIN_MOTION_DN)))
-    rows, cols = np.nonzero(moved)
-    grid = np.zeros(shape, bool)
-    for dr in (-1, 0, 1):
-        for dc in (-1, 0, 1):
-            r, c = 2 * rows + dr, 2 * cols + dc
-            ok = (r >= 0) & (r < shape[0]) & (c >= 0) & (c < shape[1])
-            grid[r[ok], c[ok]] = True
-    region_rows, region_cols = np.nonzero(grid)
+    # np.nonzero of a 2-D array costs 20× the flat one here (110 against 5 µs for 1080p's 32,400 blocks)
+    moved_rows, moved_cols = np.divmod(np.flatnonzero(moved), moved.shape[1])
+    step = np.array([-1, 0, 1])
+    rows, cols = np.broadcast_arrays((2 * moved_rows)[:, None, None] + step[None, :, None],
+                                     (2 * moved_cols)[:, None, None] + step[None, None, :])
+    inside = (rows >= 0) & (rows < shape[0]) & (cols >= 0) & (cols < shape[1])
+    region_rows, region_cols = np.divmod(np.unique(rows[inside] * shape[1] + cols[inside]), shape[1])
     return region_rows, region_cols
 
 
