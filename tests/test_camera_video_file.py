@@ -14,9 +14,12 @@ from hypothesis import strategies as st
 
 from drivers.camera.base import FrameSource
 from drivers.camera.video_file import (
+    DuplicateJudge,
     VideoFile,
     VideoOpenError,
     VideoTruncatedError,
+    _motion_region,
+    _Sampled,
     declared_frames,
     find_gaps,
 )
@@ -227,3 +230,22 @@ def test_noise_free_duplicates_with_repeated_time_stamps_are_all_found(tmp_path:
     list(video.frames())
     assert video.report.duplicate_indices == injected
     assert all(d["pts_repeated"] for d in video.report.duplicated)
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.integers(1, 40), st.integers(1, 40), st.integers(0, 2**32 - 1))
+def test_the_motion_region_is_every_block_next_to_a_sampled_block_that_moved(rows: int, cols: int,
+                                                                             seed: int) -> None:
+    """Blocks (r, c) of a rows × cols-block frame within one block of a sampled block (2i, 2j) whose change
+    before or after reaches a quarter of that side's largest (and half ``MIN_MOTION_DN``), row-major."""
+    rng = np.random.default_rng(seed)
+    shape = ((rows + 1) // 2, (cols + 1) // 2)
+    maps = [(rng.random(shape) * 20 * (rng.random(shape) < 0.15)).astype(np.float32) for _ in range(2)]
+    before, after = (_Sampled(m, float(m.max()), 0.0) for m in maps)
+    limit = [max(0.25 * s.max_dn, 0.5 * DuplicateJudge.MIN_MOTION_DN) for s in (before, after)]
+    expected = [(r, c) for r in range(rows) for c in range(cols)
+                if any(before.map[i, j] >= limit[0] or after.map[i, j] >= limit[1]
+                       for i in range(shape[0]) for j in range(shape[1])
+                       if abs(2 * i - r) <= 1 and abs(2 * j - c) <= 1)]
+    got_rows, got_cols = _motion_region(before, after, (rows, cols))
+    assert list(zip(got_rows.tolist(), got_cols.tolist(), strict=True)) == expected
