@@ -12,7 +12,7 @@ from camera_mkv import write_mkv
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from drivers.camera.base import FrameSource
+from drivers.camera.base import Frame, FrameSource
 from drivers.camera.video_file import (
     DuplicateJudge,
     VideoFile,
@@ -128,7 +128,7 @@ def test_truncated_avi_keeps_frames_read_and_raises_clearly(tmp_path: Path) -> N
     data = (tmp_path / "l.avi").read_bytes()
     (tmp_path / "cut.avi").write_bytes(data[: len(data) // 2])
     video = VideoFile(tmp_path / "cut.avi")
-    got = []
+    got: list[Frame] = []
     with pytest.raises(VideoTruncatedError, match=r"truncated or corrupt: decoding stopped after \d+ of "
                        r"the 30 frames the container declares \(the last frame read is frame \d+, ending at "
                        r"\d\.\d{3} s\)") as info:
