@@ -211,7 +211,8 @@ def _track_group(obs: pd.DataFrame, gate: float, max_gap: int, min_length: int,
         prev_stamp = now
         s_now = now / period
         alive = [i for i in range(len(ids)) if s_now - slots[i][-1] <= max_gap + 1.5]
-        ids, slots, hist = [ids[i] for i in alive], [slots[i] for i in alive], [hist[i] for i in alive]
+        if len(alive) < len(ids):  # a track ended (most frames: none)
+            ids, slots, hist = [ids[i] for i in alive], [slots[i] for i in alive], [hist[i] for i in alive]
         det = uv[rows]
         assigned = np.full(len(rows), -1)
         if ids:
@@ -233,23 +234,23 @@ def _track_group(obs: pd.DataFrame, gate: float, max_gap: int, min_length: int,
             if feasible.any():
                 big = float(np.max(np.where(feasible, cost, 0.0))) ** 2 * (min(cost.shape) + 1.0) + 1.0
                 r, c = linear_sum_assignment(np.where(feasible, cost**2, big))
-                for ti, di in zip(r, c, strict=True):
-                    if feasible[ti, di]:
-                        assigned[di] = ti
+                ok = feasible[r, c]
+                assigned[c[ok]] = r[ok]
             if acquire_gate > gate:
                 _acquire(assigned, det, hist, acquire_gate)
-            for di in np.flatnonzero(assigned >= 0):
-                ti = assigned[di]
-                slots[ti] = [*slots[ti][-HISTORY + 1:], s_now]
-                hist[ti] = [*hist[ti][-HISTORY + 1:], det[di]]
-        for di in range(len(rows)):
-            if assigned[di] < 0:
+            for di, ti in enumerate(assigned.tolist()):
+                if ti >= 0:
+                    slots[ti] = [*slots[ti][-HISTORY + 1:], s_now]
+                    hist[ti] = [*hist[ti][-HISTORY + 1:], det[di]]
+        taken = assigned.tolist()
+        for di, ti in enumerate(taken):
+            if ti < 0:
                 ids.append(n_ids)
                 slots.append([s_now])
                 hist.append([det[di]])
-                assigned[di] = len(ids) - 1
+                taken[di] = len(ids) - 1
                 n_ids += 1
-            labels[rows[di]] = ids[assigned[di]]
+        labels[rows] = [ids[ti] for ti in taken]
     # drop short tracks, renumber by first appearance
     tracked = labels >= 0
     uniq, counts = np.unique(labels[tracked], return_counts=True)
