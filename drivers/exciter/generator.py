@@ -430,6 +430,20 @@ class ScpiGenerator:
         """``SOURn:PHAS:SYNC``: the waveform (and its sync edges) restarts at phase 0 when executed."""
         self.write(f"{self.source}:PHAS:SYNC")
 
+    def synchronize_phase_bracketed(self, now_s: Callable[[], float]) -> tuple[float, float]:
+        """``SOURn:PHAS:SYNC;*OPC?`` in one message: the restart happens between ``now_s()`` read just before
+        the exchange and ``now_s()`` read as its reply arrives — one round trip, the error queue read after
+        it. Returns (t_sent_s, t_confirmed_s) on that clock."""
+        confirmed: list[float] = []
+
+        def stamp(reply: str) -> bool:
+            confirmed.append(now_s())
+            return _parse_one(reply)
+
+        t_sent = now_s()
+        self._transact(f"{self.source}:PHAS:SYNC;*OPC?", stamp)
+        return t_sent, confirmed[-1]
+
     def set_sweep(self, on: bool) -> None:
         self.write(f"{self.source}:SWE:STAT", "ON" if on else "OFF")
 

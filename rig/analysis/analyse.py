@@ -90,6 +90,9 @@ from rig.stereo.timing import TimingResult
 # bound (ppm, rectangular) of a camera clock's rate error against the controller when the start events
 # cannot resolve it (consumer camera crystals: ±50 ppm); enters the offset's uncertainty away from t_mid
 UNRESOLVED_DRIFT_PPM = 50.0
+# how late (frames) a camera's start events may be: a stream-stamped camera's clock is mapped onto the host's
+# by its frames' lowest arrival latency, ≥ its readout (≤ 1 frame) plus encoding and transport
+START_EVENT_LATE_FRAMES = 2.0
 
 __all__ = ["SYNC_METHODS", "TRACK_COLUMNS", "Analysis", "analyse", "controller_offsets", "pairing_volume"]
 
@@ -413,12 +416,16 @@ def _fiducial_clock(run_dir: Path, events: pd.DataFrame | None, segment: str, se
                     timing: TimingResult, exposure_s: float, offset_s: float, u_offset_s: float,
                     period_s: float) -> tuple[FiducialClock | None, str]:
     """The reference camera's clock from the timing fiducial (:mod:`rig.analysis.fiducial`), its edges told
-    apart by the start events' interval (the offset ± √3 u, at least ±½ frame); (None, why) without one."""
+    apart by the start events' interval (the offset ± √3 u, at least ±½ frame), extended earlier by
+    :data:`START_EVENT_LATE_FRAMES` frames: a camera stamping its own frames is mapped onto the host's clock
+    by their lowest arrival latency (readout, encoding, transport), so its start events may be late by that
+    much (20.5 ms, 1.2 frames, on `rig mock lab`); (None, why) without one."""
     ref = timing.reference_camera
     return segment_clock(run_dir, events, segment, session, ref,
                          row_start_s=lambda ts, row: timing.times(ref, ts, row), exposure_s=exposure_s,
                          prior_offset_s=offset_s - 0.5 * exposure_s,
-                         prior_half_width_s=max(math.sqrt(3.0) * u_offset_s, 0.51 * period_s))
+                         prior_half_width_s=max(math.sqrt(3.0) * u_offset_s, 0.51 * period_s),
+                         late_s=START_EVENT_LATE_FRAMES * period_s)
 
 
 def _checked_inputs(folder: RunFolder) -> tuple[Calibration, TimingResult, dict[str, DLTCamera]]:

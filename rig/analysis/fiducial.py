@@ -103,9 +103,13 @@ def _edges(recordings: list[tuple[FiducialStart, np.ndarray]], prior_offset_s: f
 
 def camera_clock(recordings: list[tuple[FiducialStart, pd.DataFrame]], *, row_start_s: Any,
                  exposure_s: float, prior_offset_s: float, prior_half_width_s: float,
-                 rise_time_s: float) -> FiducialClock:
+                 rise_time_s: float, late_s: float = 0.0) -> FiducialClock:
     """Fit controller − camera clock from one camera's LED rows (``ROW_COLUMNS``) of one or more
     recordings, each with the fiducial start it was recorded under.
+
+    The edges are searched within ``prior_offset_s`` ± ``prior_half_width_s``, extended earlier by
+    ``late_s`` (≥ 0: how late the prior may be) and on both sides by the restarts' brackets, as far as the
+    pattern stays unambiguous.
 
     ``row_start_s(timestamp_s, row_px)`` → the rows' exposure starts on the camera's (or the timing
     model's) clock, e.g. ``timestamp + row · line time``. Raises AnalysisError naming what is missing,
@@ -126,16 +130,20 @@ def camera_clock(recordings: list[tuple[FiducialStart, pd.DataFrame]], *, row_st
     order = np.argsort(s, kind="stable")
     samples = RowSamples(s[order], b[order], exposure_s, np.concatenate(rows_px)[order])
     try:
-        edges = _edges(spans, prior_offset_s, prior_half_width_s + exposure_s + 0.05)
-        return fit_fiducial_clock(samples, edges, prior_offset_s=prior_offset_s,
-                                  prior_half_width_s=prior_half_width_s, rise_time_s=rise_time_s)
+        edges = _edges(spans, prior_offset_s, prior_half_width_s + late_s + exposure_s + 0.05)
+        # the edges are known within their restart's bracket (±√3 u), and the prior may be late by late_s
+        half_width_s = prior_half_width_s + 0.5 * late_s + math.sqrt(3.0) * edges.u_s
+        if late_s or edges.u_s:  # widened only while the pattern stays unambiguous (±0.45 of its repeat)
+            half_width_s = max(prior_half_width_s, min(half_width_s, 0.45 * edges.repeat_s()))
+        return fit_fiducial_clock(samples, edges, prior_offset_s=prior_offset_s - 0.5 * late_s,
+                                  prior_half_width_s=half_width_s, rise_time_s=rise_time_s)
     except StereoError as exc:
         raise AnalysisError(f"fiducial: {exc}") from exc
 
 
 def segment_clock(run_dir: Path, events: pd.DataFrame | None, segment: str, session: int, camera: str, *,
                   row_start_s: Any, exposure_s: float, prior_offset_s: float,
-                  prior_half_width_s: float) -> tuple[FiducialClock | None, str]:
+                  prior_half_width_s: float, late_s: float = 0.0) -> tuple[FiducialClock | None, str]:
     """The fiducial's clock of ``camera`` over one segment's recordings, from the record's ``fiducial``
     events (``start`` then ``rows`` per recording; ``unavailable``/``invalid`` ones are skipped) and the
     row files; (None, why) when the segment has none usable — the caller keeps the start events."""
@@ -160,7 +168,7 @@ def segment_clock(run_dir: Path, events: pd.DataFrame | None, segment: str, sess
     try:
         fit = camera_clock(recordings, row_start_s=row_start_s, exposure_s=exposure_s,
                            prior_offset_s=prior_offset_s, prior_half_width_s=prior_half_width_s,
-                           rise_time_s=float(rise) if isinstance(rise, int | float) else 1e-5)
+                           rise_time_s=float(rise) if isinstance(rise, int | float) else 1e-5, late_s=late_s)
     except AnalysisError as exc:
         return None, f"timing fiducial not used: {exc}"
     if not fit.line_time_fitted:  # the offset holds at the LED's rows only; the markers' are elsewhere

@@ -3,13 +3,14 @@
 Used by :class:`rig.run.acquire.Acquirer` when ``[fiducial]`` is configured. Before the cameras start,
 :meth:`FiducialRecording.start` sets the fiducial channel's frequency with that channel's output OFF
 (only the Sync connector, and with it the LED, follows its oscillator), points the Sync connector at that
-channel (two-channel generator), switches sync on and restarts the phase with ``PHASe:SYNChronize``,
-bracketed by the controller's clock before the command and after ``*OPC?``; a ``fiducial`` event (action
-``start``) records the bracket, the frequency and — when the shaker's channel is another one and its output
-is on — the shaker's CW frequency, whose phase restarted at the same instant (the shaker's phase
-reference, :mod:`reports.phase`). A fiducial channel whose output is on drives the shaker: its sync follows
-the shaker's frequency, so the fiducial is not used for that recording (action ``unavailable``, with the
-reason) and the start-event method remains. After the
+channel (two-channel generator), switches sync on and restarts the phase with ``PHASe:SYNChronize;*OPC?``
+(one round trip), bracketed by the controller's clock before the message and as its reply arrives and
+retried while that bracket is wider than :data:`BRACKET_TARGET_S`; a ``fiducial`` event (action ``start``)
+records the last bracket, the number of tries, the frequency and — when the shaker's channel is another one
+and its output is on — the shaker's CW frequency, whose phase restarted at the same instant (the shaker's
+phase reference, :mod:`reports.phase`). A fiducial channel whose output is on drives the shaker: its sync
+follows the shaker's frequency, so the fiducial is not used for that recording (action ``unavailable``, with
+the reason) and the start-event method remains. After the
 recording, :meth:`FiducialRecording.finish` checks that the generator still runs the fiducial's
 frequency with its output off (else the edges the controller predicts are wrong: action ``invalid``) and
 writes the LED's rows of every camera to ``fiducial/<camera>/<segment>.<n>.parquet`` (atomically;
@@ -30,7 +31,13 @@ from rig.config.fiducial import FiducialConfig
 from rig.record.atomic import atomic_path
 from rig.run.procedure import Context
 
-__all__ = ["FiducialRecording"]
+__all__ = ["BRACKET_TARGET_S", "SYNC_TRIES", "FiducialRecording"]
+
+# The restart's bracket (one round trip, ``PHAS:SYNC;*OPC?``) bounds the edges' date: its width/√12 is the
+# controller clock's uncertainty floor. A bracket wider than the target (a host or link that stalled for that
+# exchange) is retried, up to SYNC_TRIES restarts; the last one is recorded, whatever its width.
+BRACKET_TARGET_S = 1e-4
+SYNC_TRIES = 20
 
 
 class FiducialRecording:
@@ -63,12 +70,15 @@ class FiducialRecording:
         if self.two_channel:
             gen.set_sync_source(cfg.channel)
         gen.set_sync(True)
-        t_sent = clock.now_s()
-        gen.synchronize_phase()
-        gen.wait_complete()
-        t_confirmed = clock.now_s()
+        tries = 0
+        while True:  # the last restart counts: retried while its bracket is wide
+            tries += 1
+            t_sent, t_confirmed = gen.synchronize_phase_bracketed(clock.now_s)
+            if t_confirmed - t_sent <= BRACKET_TARGET_S or tries >= SYNC_TRIES:
+                break
         self.ctx.event("fiducial", {"action": "start", "segment": segment, "t_sent_s": t_sent,
-                                    "t_confirmed_s": t_confirmed, "frequency_hz": cfg.frequency_hz,
+                                    "t_confirmed_s": t_confirmed, "tries": tries,
+                                    "frequency_hz": cfg.frequency_hz,
                                     "channel": cfg.channel, "rise_time_s": cfg.rise_time_s,
                                     "shaker_channel": self.shaker_channel,
                                     "shaker_frequency_hz": self._shaker_frequency_hz()})

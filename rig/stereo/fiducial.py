@@ -48,6 +48,9 @@ MIN_RATE_SPAN_S = 2.0
 MIN_LINE_TIME_SPAN_PX = 50.0
 # rows lit part-way (at the fitted offset) that a fit needs: fewer date no edge
 MIN_TRANSITION_ROWS = 3
+# bound on the fitted line-time correction (ns per row): a sync's line time of a 540-row frame was 1.34 µs/row
+# short on `rig mock lab` (27.78 µs true), beyond the former 1 µs bound
+MAX_LINE_TIME_ERROR_NS = 5e3
 # bound on the LED's rise time (s): an LED rises in ns–µs; 1 ms would be a wrong configuration
 MAX_RISE_TIME_S = 1e-3
 _F = NDArray[np.float64]
@@ -330,7 +333,7 @@ def fit_fiducial_clock(rows: RowSamples, edges: DriveEdges, *, prior_offset_s: f
         level = mean_levels(s_rel + shift, used.exposure_s, edges_rel, rise0)
         return _affine(level, used.brightness_dn)[2]
 
-    upper = np.array([prior_half_width_s / scale + 1.0, 1e3, 1e3])
+    upper = np.array([prior_half_width_s / scale + 1.0, 1e3, MAX_LINE_TIME_ERROR_NS])
     sol = least_squares(residuals, np.zeros(3), bounds=(-upper, upper), x_scale=np.array([0.1, 10.0, 1.0]),
                         diff_step=1e-4)
     return _result(used, edges, sol.x, sol.jac, sol.fun, off0=off0, scale=scale, t_ref=t_ref,
