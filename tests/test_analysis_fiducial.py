@@ -93,3 +93,24 @@ def test_bad_records_are_refused_with_the_reason() -> None:
     with pytest.raises(AnalysisError, match="repeats every"):  # 100 Hz repeats within a ±½-frame prior
         camera_clock([(FiducialStart(0.0, 0.0, 100.0), rows)], row_start_s=np.add, exposure_s=1e-4,
                      prior_offset_s=0.0, prior_half_width_s=0.0085, rise_time_s=1e-5)
+
+
+@pytest.mark.slow
+def test_edges_are_found_within_a_wide_restart_bracket_and_a_late_prior() -> None:
+    """As on `rig mock lab` (worse): the restart happened 23 ms after its bracket's midpoint (a 52-ms round
+    trip on a loaded host) and the start events are 1.5 frames late (a stream-stamped camera's arrival
+    latency). The search covers both (the bracket, ``late_s``); neither alone would; the u is the bracket's."""
+    world = World(VirtualClock(), seed=7, layout=WorldLayout(initial_scene="none"))
+    led = world.add_led(SyncLed("fiducial", (400.0, -200.0, 300.0), (0.0, 5.0, 0.0), (0.0, 0.0, 75.0)))
+    true_start = start_fiducial(world, led, at_s=0.25)
+    start = FiducialStart(true_start.t_sent_s - 0.049, true_start.t_confirmed_s + 0.003, FIDUCIAL_HZ)
+    cam = default_stereo_pair(world)[0]
+    rows = recorded_rows(cam, (636, 421, 648, 655), 0.5, 3.5)
+    stamp = float(rows["timestamp_s"].median())
+    truth = cam.start_offset_s + (stamp - cam.timestamp_origin_s) * cam.fps * cam.frame_period_true_s - stamp
+    fit = camera_clock([(start, rows)], row_start_s=lambda ts, r: ts + r * cam.line_time_s,
+                       exposure_s=cam.exposure_s, prior_offset_s=truth + 1.5 / cam.fps,
+                       prior_half_width_s=0.51 / cam.fps, rise_time_s=1.1e-5, late_s=2.0 / cam.fps)
+    at_stamp = fit.offset_s + fit.rate * (stamp - fit.t_ref_s)
+    assert fit.u_offset_s == pytest.approx(start.u_origin_s, rel=0.01)
+    assert abs(at_stamp - (truth + start.origin_s - true_start.origin_s)) <= 3.0 * fit.u_fit_s + 2e-6

@@ -168,3 +168,18 @@ def test_command_formatting_rejects_bad_input() -> None:
         format_command("SOUR1:FREQ", float("nan"))
     with pytest.raises(ValueError, match="without ; , or newline"):
         format_command("SOUR1:FUNC", "SIN;*RST")
+
+
+def test_phase_restart_is_bracketed_by_one_round_trip() -> None:
+    """``PHAS:SYNC;*OPC?`` goes as one message; the bracket's end is read as its reply arrives, before the
+    error queue is read."""
+    reads: list[str] = []
+    ticks = iter([1.0, 2.0])
+
+    def now_s() -> float:
+        reads.append("clock")
+        return next(ticks)
+
+    bracket = run([(b"SOUR2:PHAS:SYNC;*OPC?\n", b"1\n"), OK],
+                  lambda g: g.synchronize_phase_bracketed(now_s), channel=2)
+    assert bracket == (1.0, 2.0) and reads == ["clock", "clock"]
