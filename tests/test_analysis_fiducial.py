@@ -99,7 +99,7 @@ def test_bad_records_are_refused_with_the_reason() -> None:
 def test_edges_are_found_within_a_wide_restart_bracket_and_a_late_prior() -> None:
     """As on `rig mock lab` (worse): the restart happened 23 ms after its bracket's midpoint (a 52-ms round
     trip on a loaded host) and the start events are 1.5 frames late (a stream-stamped camera's arrival
-    latency). The search covers both (the bracket, ``late_s``); neither alone would; the u is the bracket's."""
+    latency). The search covers both (the bracket, ``late_s``); neither alone would; u is the bracket's."""
     world = World(VirtualClock(), seed=7, layout=WorldLayout(initial_scene="none"))
     led = world.add_led(SyncLed("fiducial", (400.0, -200.0, 300.0), (0.0, 5.0, 0.0), (0.0, 0.0, 75.0)))
     true_start = start_fiducial(world, led, at_s=0.25)
