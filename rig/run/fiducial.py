@@ -35,12 +35,12 @@ __all__ = ["BRACKET_TARGET_S", "SYNC_BUDGET_S", "SYNC_TRIES", "FiducialRecording
 
 # The restart's bracket (one round trip, ``PHAS:SYNC;*OPC?``) bounds the edges' date: its width/√12 is the
 # controller clock's uncertainty floor. A bracket wider than the target (a host or link that stalled for that
-# exchange: on `rig mock lab`, a loaded 2-core host, 20 tries never gave ≤ 0.1 ms) is retried, up to
-# SYNC_TRIES restarts within SYNC_BUDGET_S, and only while no shaker runs on the other channel (each restart
-# jumps its phase too); the last one is recorded, whatever its width.
+# exchange) is retried, up to SYNC_TRIES restarts within SYNC_BUDGET_S (400 tries on `rig mock lab` never
+# reached 0.1 ms, and that run's sync failed on unevenly spaced frames), and only while no shaker runs on the
+# other channel (each restart jumps its phase too); the last one is recorded, whatever its width.
 BRACKET_TARGET_S = 1e-4
-SYNC_TRIES = 400
-SYNC_BUDGET_S = 2.0
+SYNC_TRIES = 20
+SYNC_BUDGET_S = 0.5
 
 
 class FiducialRecording:
