@@ -38,7 +38,7 @@ __all__ = ["BRACKET_TARGET_S", "SYNC_BUDGET_S", "SYNC_TRIES", "FiducialRecording
 # exchange) is retried, up to SYNC_TRIES restarts within SYNC_BUDGET_S (400 tries on `rig mock lab` never
 # reached 0.1 ms, and that run's sync failed on unevenly spaced frames), and only while no shaker runs on the
 # other channel (each restart jumps its phase too); the last one is recorded, whatever its width.
-BRACKET_TARGET_S = 1e-4
+BRACKET_TARGET_S = 1.5e-4  # u 43 µs; from an idle process the mock's bracket was 0.12–3.9 ms, median 0.27
 SYNC_TRIES = 20
 SYNC_BUDGET_S = 0.5
 
