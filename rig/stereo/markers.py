@@ -632,6 +632,6 @@ def _track_compiled(gray: np.ndarray, pred: np.ndarray, opt: TrackOptions) -> np
 @functools.cache
 def _kernel() -> ModuleType:
     """:mod:`rig.stereo.markers_kernel`, imported by the first measurement (numba and the compiled code)."""
-    from rig.stereo import markers_kernel
+    import rig.stereo.markers_kernel
 
-    return markers_kernel
+    return rig.stereo.markers_kernel
