@@ -39,6 +39,10 @@ from rig.run.procedure import Context, ParameterError
 from rig.stereo import calibrate_dlt
 
 
+class StillFramesError(RuntimeError):
+    """A still recording of the plate holds too few frames to average (a fault of the acquisition: exit 3)."""
+
+
 def plate_poses(plate: CalibrationPlateTarget, slides_mm: tuple[float, ...]) -> list[list[float]]:
     """Flange poses of the slid positions: ``start_pose`` moved by each slide along tool z (mm)."""
     start = np.asarray(plate.start_pose, dtype=float)
@@ -48,7 +52,18 @@ def plate_poses(plate: CalibrationPlateTarget, slides_mm: tuple[float, ...]) -> 
 
 def _control_points(positions: list[dict[str, Any]], camera: str, plate: CalibrationPlateTarget,
                     min_frames: int) -> tuple[np.ndarray, np.ndarray, list[float]]:
-    """(xyz_mm, uv_px, grid residual per position) of one camera over all positions."""
+    """(xyz_mm, uv_px, grid residual per position) of one camera over all positions; StillFramesError when
+    a position has some but fewer than ``min_frames`` frames with markers (frames dropped: its markers'
+    means would be dropped and the grid fitted to the wrong points, "found 39 plate markers")."""
+    for i, pos in enumerate(positions):
+        n_frames = int(pos["observations"][camera]["frame_index"].nunique())
+        if 0 < n_frames < min_frames:  # (none at all: no marker in view, the grid's error says so)
+            raise StillFramesError(
+                f"camera {camera!r}, plate position {i} (slide {pos['slide_mm']:g} mm): {n_frames} frames "
+                f"with markers recorded, at least {min_frames} needed (calibrate.frames_per_position // 2): "
+                "frames dropped by a loaded host, network or camera (see its stop event's n_frames), or "
+                "markers lost in some frames; reduce the load or raise "
+                "calibrate.frames_per_position")
     means = [mean_positions(p["observations"][camera], min_frames=min_frames) for p in positions]
     uv_sets = [m[["u_px", "v_px"]].to_numpy(float) for m in means]
     moving = moving_points(uv_sets)

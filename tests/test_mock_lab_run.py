@@ -189,6 +189,8 @@ def test_rig_syncs_and_sweeps_against_the_lab_on_the_cameras_clocks(tmp_path: Pa
         print(result.stdout[-3000:], result.stderr[-3000:])
         lab.proc.send_signal(signal.SIGTERM)
         out, _ = lab.proc.communicate(timeout=60)
+    if result.returncode not in (0, 1):
+        _skip_if_the_lab_fell_behind(out)
     assert result.returncode in (0, 1), (result.stdout[-2000:], result.stderr[-2000:])
     (certificate_path,) = runs.glob("*/certificate.json")
     status = {c["id"]: c["status"] for c in json.loads(certificate_path.read_text())["criteria"]}
@@ -222,6 +224,22 @@ def test_rig_syncs_and_sweeps_against_the_lab_on_the_cameras_clocks(tmp_path: Pa
     assert abs(offset_s - truth_s) <= 5 * u["offset_s"][other]
     assert abs(drift_ppm - drift_truth_ppm) <= 5 * u["drift_ppm"][other]
     assert abs(line_s - line_truth_s) <= 5 * u["line_time_s"][other]
+
+
+# the share of frames a lab camera may skip (rendering behind real time) for a run's failure to be rig's
+LAB_SKIPPED_BOUND = 0.2
+
+
+def _skip_if_the_lab_fell_behind(lab_output: str) -> None:
+    """Skip (stating the figures) when the lab could not render its cameras in real time on this machine: a
+    run whose still recordings lost that many frames measures the host's load, not rig (in CI 14, three test
+    workers on 2 cores, the lab skipped 41 % and 38 % of its frames and calibrate had 3 frames to average)."""
+    counts = re.findall(r"lab camera (\w+): (\d+) frames sent, (\d+) skipped", lab_output)
+    behind = {name: int(skipped) / (int(sent) + int(skipped)) for name, sent, skipped in counts
+              if int(sent) + int(skipped) > 0}
+    if behind and max(behind.values()) > LAB_SKIPPED_BOUND:
+        pytest.skip("the lab could not render in real time on this loaded machine (frames skipped: "
+                    + ", ".join(f"{name} {share:.0%}" for name, share in behind.items()) + ")")
 
 
 def _check_fiducial_dating(run_dir: Path, config: dict[str, Any]) -> None:

@@ -77,3 +77,25 @@ def test_moving_points_separate_the_plate_from_the_references() -> None:
         assert np.array_equal(idx, np.arange(3, 38))
     with pytest.raises(GridError, match="needs ≥ 2"):
         moving_points(positions[:1])
+
+
+def test_a_plate_position_with_too_few_frames_is_named_not_fitted() -> None:
+    """A still recording that lost frames (a loaded host dropping them) names the camera, the position and
+    the counts, instead of averaging what is left and fitting the grid to the wrong points."""
+    import pandas as pd
+
+    from procedures.calibrate import StillFramesError, _control_points
+    from rig.config.rig_config import default_config
+
+    plate = default_config().targets.calibration_plate
+    assert plate is not None
+
+    def seen(frames: int) -> pd.DataFrame:
+        return pd.DataFrame({"frame_index": np.repeat(np.arange(frames), 3),
+                             "track_2d": np.tile([0, 1, 2], frames), "u_px": 1.0, "v_px": 2.0})
+
+    positions = [{"observations": {"right": seen(frames)}, "slide_mm": slide, "points": {}}
+                 for frames, slide in ((12, -120.0), (3, 0.0))]
+    message = r"camera 'right', plate position 1 \(slide 0 mm\): 3 frames with markers recorded, at least 6"
+    with pytest.raises(StillFramesError, match=message):
+        _control_points(positions, "right", plate, 6)
