@@ -11,7 +11,7 @@ PYTEST_PARALLEL ?= -n auto --dist loadfile --no-loadscope-reorder
 # the test files to run (default: all); e.g. make test-load TESTS="tests/test_bcap_recovery.py"
 TESTS ?=
 
-.PHONY: certify test test-load test-times lint bench browser
+.PHONY: certify test test-load test-lab test-times lint bench browser
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -31,6 +31,10 @@ test: $(STAMP) browser
 # the same suite with a busy loop on every core (tests/conftest.py): timing must not depend on an idle machine
 test-load: $(STAMP) browser
 	RIG_TEST_LOAD=1 $(VENV)/bin/python -m pytest -q $(PYTEST_PARALLEL) $(TESTS)
+
+# the cases that need the machine to themselves (the lab's full sweep: tests marked quiet_machine), one at a time
+test-lab: $(STAMP)
+	RIG_TEST_QUIET=1 $(VENV)/bin/python -m pytest -q -m quiet_machine tests/
 
 # the suite once with per-test CPU recorded (tests/conftest.py, RIG_TEST_TIMES), summed per file into
 # tests/file_costs.tsv: the order in which the xdist workers take the files (costliest first)
