@@ -66,30 +66,3 @@ def test_a_rotor_is_followed_in_its_window_not_searched_whole_every_frame() -> N
     assert all(len(i) == 2 for i in ids)
     assert len({tuple(sorted(i.tolist())) for i in ids[3:]}) == 1  # the same two numbers from frame 3
     assert reducer.whole_frame_searches <= 3  # the first frame and the two before the circle is known
-
-
-def test_reduce_many_equals_reduce_frame_by_frame() -> None:
-    # still markers (tracked in runs), one vanishing (lost → whole-frame search), one reappearing, one
-    # that starts moving fast in a run and a fast new one (≥ a quarter window per frame: reduce's motion
-    # prediction, frame by frame)
-    rng = np.random.default_rng(5)
-    frames = []
-    for f in range(40):
-        centres = [(60.0 + 0.05 * np.sin(f), 60.0 + 9.0 * max(f - 26, 0)),
-                   (250.0, 180.0 + 0.2 * np.cos(f / 3))]
-        if not 12 <= f < 15:
-            centres.append((150.0 + rng.uniform(-0.3, 0.3), 120.0))
-        if f >= 25:
-            centres.append((40.0 + 9.0 * (f - 25), 200.0))
-        frames.append(_frame(centres, seed=f))
-    options = ReduceOptions(mode="track", window_px=31, redetect_every=10)
-    one, many = MarkerReducer(options), MarkerReducer(options)
-    want = [one.reduce(frame) for frame in frames]
-    got = many.reduce_many(frames[:7]) + many.reduce_many(frames[7:])
-    assert len(got) == len(want)
-    for (rows_got, ids_got), (rows_want, ids_want) in zip(got, want, strict=True):
-        np.testing.assert_array_equal(ids_got, ids_want)
-        np.testing.assert_array_equal(rows_got["flags"], rows_want["flags"])
-        np.testing.assert_allclose(rows_got["u_px"], rows_want["u_px"], rtol=0, atol=2e-5)
-        np.testing.assert_allclose(rows_got["v_px"], rows_want["v_px"], rtol=0, atol=2e-5)
-    assert many.whole_frame_searches == one.whole_frame_searches and many.next_id == one.next_id

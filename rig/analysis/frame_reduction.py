@@ -159,13 +159,6 @@ class MarkerReducer:
                       for k, uv in zip(links, self._uv, strict=True)]
         return found, ids
 
-    def reduce_many(self, images: list[np.ndarray]) -> list[tuple[np.ndarray, np.ndarray]]:
-        """:meth:`reduce` of each frame in order. (Tracking runs of frames in one call, each marker's
-        windows speculated from its last position, was 1.1–2.2× slower than frame by frame on the 5–30
-        still or drifting markers of benchmarks/markers.py: one compiled call per frame already measures
-        all its windows.)"""
-        return [self.reduce(image) for image in images]
-
 
 def warm_up(options: ReduceOptions) -> None:
     """Load (or compile) the marker kernels before a camera runs: reduce two frames of a synthetic bright

@@ -120,8 +120,8 @@ def extract_video(path: str | Path, camera: str | None = None,
     t_all = time.perf_counter()
     frames = video.frames(opts.start_s)  # a verified seek to the window, when it has a start
     try:
-        # each frame reduced as it comes (MarkerReducer.reduce_many is frame by frame anyway; a batch of 16
-        # held 33 MB of 1080p frames, and its gain or loss is below what benchmarks/measure.py resolves)
+        # each frame reduced as it comes (one compiled call measures all its windows; tracking runs of
+        # frames in one call was slower, benchmarks/markers.py)
         for frame in frames:
             if opts.start_s is not None and frame.timestamp_s < opts.start_s:
                 continue
