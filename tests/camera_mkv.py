@@ -14,28 +14,12 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from drivers.mock.mkv_stream import _element as _el  # the EBML writing is the lab stream's
+from drivers.mock.mkv_stream import _text as _str
+from drivers.mock.mkv_stream import _uint
+
 _SCALE_NS = 10_000  # TimestampScale: 10 µs per tick
 _CLUSTER_TICKS = 30_000  # a new cluster every 0.3 s keeps relative times within int16
-
-
-def _vint_size(n: int) -> bytes:
-    for length in range(1, 9):
-        if n < (1 << (7 * length)) - 1:
-            return (n | (1 << (7 * length))).to_bytes(length, "big")
-    raise ValueError(f"element too large: {n} bytes")
-
-
-def _el(element_id: int, payload: bytes) -> bytes:
-    eid = element_id.to_bytes((element_id.bit_length() + 7) // 8, "big")
-    return eid + _vint_size(len(payload)) + payload
-
-
-def _uint(element_id: int, value: int) -> bytes:
-    return _el(element_id, value.to_bytes(max(1, (value.bit_length() + 7) // 8), "big"))
-
-
-def _str(element_id: int, value: str) -> bytes:
-    return _el(element_id, value.encode("ascii"))
 
 
 def write_mkv(path: str | Path, images: Iterable[np.ndarray], timestamps_s: Iterable[float],
