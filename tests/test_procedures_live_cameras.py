@@ -23,7 +23,8 @@ import pytest
 from drivers.camera.opencv_device import OpenCVCamera
 from drivers.clock import WallClock
 from rig.record.events import Event
-from rig.run.acquire import Acquirer, ReduceOptions
+from rig.run.acquire import Acquirer, CameraStalledError, ReduceOptions
+from rig.run.procedure import Abort
 
 FPS = 100.0
 WIDTH_PX, HEIGHT_PX = 160, 120
@@ -87,7 +88,8 @@ class Ctx:
 
     def __init__(self, cameras: dict[str, Any]) -> None:
         self.station = SimpleNamespace(cameras=cameras)
-        self.config = SimpleNamespace(fiducial=None)  # no timing fiducial configured
+        # no timing fiducial configured; the heartbeat timeout bounds a reader's wait for a frame
+        self.config = SimpleNamespace(fiducial=None, station=SimpleNamespace(heartbeat_timeout_s=2.0))
         self.clock = WallClock()
         self.log = logging.getLogger("test")
         self.events: list[dict[str, Any]] = []
@@ -216,3 +218,113 @@ def test_the_reduction_after_the_motion_is_reported_as_frames_reduced_of_those_e
     assert first.done < 6 and first.total == max(expected, first.done)
     assert str(first) == f"sweep: reducing frames {first.done:,}/≈{first.total:,}"
     assert ctx.progress_reports[-1] == (None, "sweep: 6 frames reduced")
+
+
+class HungCamera(GatedCamera):
+    """A live camera whose driver blocks in its read after frame 0 until ``release`` is set (the test sets it
+    at its end, so the reader thread ends): a device that stopped delivering."""
+
+    live = True
+
+    def __init__(self, name: str, release: threading.Event) -> None:
+        super().__init__(name, release)
+
+    def frames(self) -> Any:
+        from drivers.camera.base import Frame
+
+        yield Frame(0, 0.0, np.full((HEIGHT_PX, WIDTH_PX), 30, np.uint8))
+        self.gate.wait()  # no time limit: the driver is hung
+        yield Frame(1, 1 / FPS, np.full((HEIGHT_PX, WIDTH_PX), 30, np.uint8))
+
+
+class SteppedClock:
+    """An injected monotonic clock: each reading is ``step_s`` after the previous one."""
+
+    def __init__(self, step_s: float) -> None:
+        self.t_s, self.step_s, self.readings = 0.0, step_s, 0
+
+    def __call__(self) -> float:
+        self.t_s += self.step_s
+        self.readings += 1
+        return self.t_s
+
+
+def test_a_hung_camera_reader_is_a_named_fault_after_its_bound_and_nothing_is_written() -> None:
+    release = threading.Event()
+    cams = {"left": HungCamera("left", release), "right": GatedCamera("right", threading.Event())}
+    cams["right"].gate.set()  # right delivers its 3 frames
+    ctx = Ctx(cams)
+    clock = SteppedClock(0.25)
+    try:
+        with Acquirer(ctx, ReduceOptions(), monotonic_s=clock) as acq, \
+                pytest.raises(CameraStalledError) as err:
+            acq.record("sweep", 0.01)
+        bound_s = 1 / FPS + 2.0  # one frame period + station.heartbeat_timeout_s
+        message = str(err.value)
+        assert "camera 'left'" in message and f"bound {bound_s:g} s" in message
+        assert "after 1 frame(s) of segment 'sweep'" in message
+        stalled_for_s = float(message.split("no frame for ")[1].split(" s", maxsplit=1)[0])
+        assert bound_s < stalled_for_s <= bound_s + 2 * clock.step_s  # given up at its bound, not later
+        assert all(not w.appended for w in ctx.writers.values()) and ctx.events == []
+        # the hung reader is left behind (blocked in its driver), the other one ended
+        assert [t.name for t in threading.enumerate() if t.name.startswith("acquire-")] == ["acquire-left"]
+    finally:
+        release.set()
+
+
+class SlowSource(GatedCamera):
+    """A source that is not live (rendered by this process) taking ``per_frame_readings`` readings of the
+    injected clock per frame: seconds per frame, as the twin's rendering on a loaded machine."""
+
+    def __init__(self, name: str, clock: SteppedClock, per_frame_readings: int) -> None:
+        super().__init__(name, threading.Event())
+        self.clock, self.per_frame_readings = clock, per_frame_readings
+
+    def frames(self) -> Any:
+        from drivers.camera.base import Frame
+
+        for index in range(3):
+            start = self.clock.readings
+            while self.clock.readings < start + self.per_frame_readings:
+                time.sleep(0.01)
+            yield Frame(index, index / FPS, np.full((HEIGHT_PX, WIDTH_PX), 30, np.uint8))
+
+
+def test_a_source_that_is_not_live_may_take_longer_than_the_bound_per_frame() -> None:
+    clock = SteppedClock(0.25)
+    # 3 s of the injected clock per frame: over the live bound of 2.01 s
+    cams = {name: SlowSource(name, clock, per_frame_readings=12) for name in ("left", "right")}
+    ctx = Ctx(cams)
+    with Acquirer(ctx, ReduceOptions(), monotonic_s=clock) as acq:
+        acq.record("sweep", 0.01)
+    assert [e["n_frames"] for e in ctx.events if e["action"] == "stop"] == [3, 3]
+    assert clock.t_s >= 3 * 3.0  # each reader waited 3 s of the clock (12 readings) for each frame
+
+
+def test_an_abort_while_a_reader_is_hung_is_not_held_up_by_it() -> None:
+    release = threading.Event()
+    cams = {name: HungCamera(name, release) for name in ("left", "right")}
+    ctx = Ctx(cams)
+    clock = SteppedClock(0.25)
+
+    def abort_once_reducing() -> None:
+        from rig.run.progress import Processing
+
+        if any(isinstance(m, Processing) for _, m in ctx.progress_reports):
+            raise Abort("operator abort")
+
+    ctx.on_checkpoint.append(abort_once_reducing)
+    logged: list[str] = []
+    handler = logging.Handler()
+    handler.emit = lambda record: logged.append(record.getMessage())  # type: ignore[method-assign]
+    ctx.log.addHandler(handler)
+    try:
+        with Acquirer(ctx, ReduceOptions(), monotonic_s=clock) as acq, pytest.raises(Abort, match="operator"):
+            acq.record("sweep", 0.01)
+        # each hung reader waited for up to its bound on the injected clock, then left behind and logged
+        left_behind = sorted(m.split(":")[0] for m in logged if "left behind" in m)
+        assert left_behind == ["camera left", "camera right"]
+        assert all(not w.appended for w in ctx.writers.values()) and ctx.events == []
+    finally:
+        ctx.log.removeHandler(handler)
+        release.set()

@@ -29,7 +29,12 @@ When a camera is read depends on the source (:attr:`drivers.roles.Camera.live`):
 While the readers finish after ``stop()``, the procedure's checkpoint is polled (every 0.2 s) and the frames
 reduced are reported as progress (:class:`rig.run.progress.Processing`, "sweep: reducing frames 1,234/≈2,880":
 the plan does not time this work); an abort, or an error of any reader, stops all of them (frames not yet
-reduced are dropped, nothing is written).
+reduced are dropped, nothing is written). A live camera's reader that delivers no frame for one frame period
+plus ``station.heartbeat_timeout_s`` (wall time: how long a device may stay silent before the watchdog trips)
+is a hung camera: :class:`CameraStalledError` names it and the run's safe stop proceeds (its daemon thread is
+left behind, blocked in the driver). A source that is not live (rendered or decoded by this process) delivers
+at the host's speed, seconds per frame on a loaded machine: no bound there, its wait stays abortable. Readers
+stopped by an abort or an error get the same bound to end, each.
 
 Rows go to the run folder's observations (``segment`` = the name given to ``record``) with an extra
 column ``track_2d`` (int: the same marker in consecutive frames of one camera and segment keeps its
@@ -41,6 +46,7 @@ rig time ``t_s`` of ``start()``, the first frame's index and camera time stamp; 
 from __future__ import annotations
 
 import threading
+import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, Generic, TypeVar, overload
@@ -59,10 +65,17 @@ from rig.run.progress import Processing
 from rig.stereo import FLAG_LOST
 from rig.stereo.fiducial import row_profile
 
-__all__ = ["Acquirer", "MarkerReducer", "Recording", "ReduceOptions"]
+__all__ = ["Acquirer", "CameraStalledError", "MarkerReducer", "Recording", "ReduceOptions"]
 
 T = TypeVar("T")
 _FIELDS = ("u_px", "v_px", "area_px", "roundness", "contrast")
+
+
+_POLL_S = 0.2  # (wall s) how often the wait for the readers checkpoints and reports progress
+
+
+class CameraStalledError(RuntimeError):
+    """A camera's reader delivered no frame within its bound (the driver is blocked in a read): a fault."""
 
 
 @dataclass
@@ -95,8 +108,10 @@ def _rows_frame(parts: list[tuple[int, float, np.ndarray, np.ndarray]]) -> pd.Da
 class Acquirer:
     """Camera recordings of one procedure step (see the module docstring)."""
 
-    def __init__(self, ctx: Context, options: ReduceOptions | None = None) -> None:
+    def __init__(self, ctx: Context, options: ReduceOptions | None = None, *,
+                 monotonic_s: Callable[[], float] = time.monotonic) -> None:
         self.ctx = ctx
+        self._monotonic_s = monotonic_s  # wall clock of the readers' stall bound (injected by tests)
         self.options = options or ReduceOptions()
         self.cameras: dict[str, Camera] = dict(ctx.station.cameras)
         if len(self.cameras) < 2:
@@ -128,12 +143,21 @@ class Acquirer:
         reader.thread.start()
         return reader
 
+    def _stall_bound_s(self, name: str) -> float:
+        """(wall s) How long camera ``name``'s reader may go without a frame before it counts as hung (a live
+        camera) or is left behind when cancelled: one frame period plus the station's heartbeat timeout
+        (how long any device may stay silent)."""
+        return 1.0 / self.cameras[name].fps + self.ctx.config.station.heartbeat_timeout_s
+
     def _finish(self, readers: dict[str, _Reader], cancel: threading.Event, segment: str,
                 recorded_s: float) -> None:
         """Wait for the readers, checkpointing and reporting the frames reduced of those expected (fps ×
-        ``recorded_s`` per camera: an estimate); a reader's error or an abort stops all of them and raises."""
+        ``recorded_s`` per camera: an estimate); a reader's error, a live camera's stalled reader
+        (:meth:`_stall_bound_s`) or an abort stops all of them and raises."""
         expected = sum(round(cam.fps * recorded_s) for cam in self.cameras.values())
         reported = -1
+        now_s = self._monotonic_s()
+        last_frame = {name: (len(r.parts), now_s) for name, r in readers.items()}  # (frames, when counted)
         try:
             while True:
                 for reader in readers.values():
@@ -148,13 +172,43 @@ class Acquirer:
                     reported = done
                     self.ctx.progress(None, Processing(f"{segment}: reducing frames", done,
                                                        max(expected, done), approximate=True))
-                alive[0].thread.join(timeout=0.2)
+                self._check_stalls(readers, last_frame)
+                alive[0].thread.join(timeout=_POLL_S)
                 self.ctx.checkpoint()
         except BaseException:
             cancel.set()
-            for reader in readers.values():
-                reader.thread.join(timeout=2.0)
+            self._join(readers)
             raise
+
+    def _check_stalls(self, readers: dict[str, _Reader], last_frame: dict[str, tuple[int, float]]) -> None:
+        """Raise :class:`CameraStalledError` for a running reader of a live camera without a new frame within
+        its bound."""
+        now_s = self._monotonic_s()
+        for name, reader in readers.items():
+            n, since_s = last_frame[name]
+            if len(reader.parts) != n:
+                last_frame[name] = (len(reader.parts), now_s)
+            elif (reader.camera.live and reader.thread.is_alive()
+                  and now_s - since_s > self._stall_bound_s(name)):
+                reader.stalled = True
+                raise CameraStalledError(
+                    f"camera {name!r}: no frame for {now_s - since_s:.1f} s after {n} frame(s) of segment "
+                    f"{reader.segment!r} (bound {self._stall_bound_s(name):g} s = one frame period + "
+                    "station.heartbeat_timeout_s): the camera's driver is blocked in a read; its reader is "
+                    "abandoned")
+
+    def _join(self, readers: dict[str, _Reader]) -> None:
+        """Wait for cancelled readers to end, each at most its stall bound (a stalled one not at all): a
+        reader blocked in its driver is left behind (a daemon thread) and logged."""
+        for name, reader in readers.items():
+            if reader.stalled:
+                continue
+            deadline_s = self._monotonic_s() + self._stall_bound_s(name)
+            while reader.thread.is_alive() and self._monotonic_s() < deadline_s:
+                reader.thread.join(timeout=_POLL_S)
+            if reader.thread.is_alive():
+                self.ctx.log.warning("camera %s: its reader did not end within %g s of the cancel (blocked "
+                                     "in the driver); left behind", name, self._stall_bound_s(name))
 
     @overload
     def record(self, segment: str, motion: float) -> Recording[None]: ...
@@ -196,8 +250,7 @@ class Acquirer:
                     ctx.log.warning("stopping camera %s failed: %s", cam.name, exc)
             if not completed:
                 cancel.set()
-                for reader in readers.values():
-                    reader.thread.join(timeout=2.0)
+                self._join(readers)
         for name in self.cameras:
             if name not in readers:
                 readers[name] = self._reader(name, segment, cancel)
@@ -230,6 +283,7 @@ class _Reader:
         self.led_region = led_region  # the timing fiducial's rows are kept (rig.run.fiducial)
         self.led_rows: list[tuple[int, float, np.ndarray, np.ndarray]] = []
         self.error: BaseException | None = None
+        self.stalled = False  # set by the Acquirer when it gave up on this reader (no frame within its bound)
         self.thread = threading.Thread(target=self._run, name=f"acquire-{camera.name}", daemon=True)
 
     def _run(self) -> None:
