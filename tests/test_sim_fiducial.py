@@ -13,6 +13,8 @@ from collections.abc import Iterator
 import numpy as np
 import pytest
 from fiducial_support import led_rows
+from hypothesis import given
+from hypothesis import strategies as st
 
 from drivers.exciter.generator import ScpiGenerator
 from drivers.mock.generator_instrument import GeneratorInstrument
@@ -107,6 +109,55 @@ def test_a_frame_shows_the_edge_part_way_down_the_bar() -> None:
     split = [f for f in lit if f.min() < 0.1 and f.max() > 0.9]  # dark rows and lit rows in one frame
     assert split, "no frame caught an edge within the bar's rows"
     assert any(np.any((f > 0.15) & (f < 0.85)) for f in split)  # rows lit part-way through the exposure
+
+
+def retried_restarts(led: SyncLed, gaps_s: list[float], switch_every: int = 0) -> float:
+    """The generator blinking at FIDUCIAL_HZ, its phase restarted after each gap (a retried ``PHAS:SYNC``
+    is a gap of a few ms) and, every ``switch_every`` restarts, its sync output switched; the last time."""
+    led.waveform.set_frequency(0.0, FIDUCIAL_HZ)
+    led.set_enabled(0.0, True)
+    t = 0.05
+    for i, gap in enumerate(gaps_s):
+        t += gap
+        led.restart_phase(t)
+        if switch_every and i % switch_every == switch_every - 1:
+            led.set_enabled(t + 0.5 * gap, bool(i % 2))
+    return t
+
+
+@given(gaps=st.lists(st.floats(1e-4, 0.2), min_size=1, max_size=60), max_changes=st.integers(2, 8),
+       seed=st.integers(0, 2**16))
+def test_bounded_restarts_render_what_all_of_them_render_from_the_history_start(
+        gaps: list[float], max_changes: int, seed: int) -> None:
+    every = SyncLed("f", (0, 0, 0), (0, 1, 0), (0, 0, 1), max_changes=10_000)
+    kept = SyncLed("f", (0, 0, 0), (0, 1, 0), (0, 0, 1), max_changes=max_changes)
+    t_end_s = retried_restarts(every, gaps, switch_every=3)
+    assert retried_restarts(kept, gaps, switch_every=3) == t_end_s
+    assert len(kept._phases.starts_s) <= max_changes and len(kept._enabled.starts_s) <= max_changes
+    start_s = max(kept._phases.history_start_s, kept._enabled.history_start_s)
+    if start_s > -np.inf:  # rows exposed before the kept history are refused, not rendered from a guess
+        with pytest.raises(SimCommandError, match="before the kept history"):
+            kept.mean_levels(np.array([start_s - 1e-3]), 1e-4)
+    settled_s = 40 * kept.time_constant_s  # a render looks back that far for edges still settling
+    lo_s = max(start_s + settled_s, 0.0)
+    windows = np.random.default_rng(seed).uniform(lo_s, t_end_s + 0.3, 200)  # in no particular order
+    assert np.array_equal(kept.mean_levels(windows, 1e-3), every.mean_levels(windows, 1e-3))
+
+
+def test_twenty_retried_phase_restarts_render_the_same_frames_and_keep_the_history_bounded() -> None:
+    frames = []
+    for max_changes in (10_000, 25):  # 25: the last burst and the end of the one before
+        world = World(seed=3)
+        led = world.add_led(SyncLed("fiducial", (400.0, -200.0, 300.0), (0.0, 5.0, 0.0), (0.0, 0.0, 75.0),
+                                    max_changes=max_changes))
+        gaps = [0.3 if i % 20 == 0 else 0.004 for i in range(100)]  # 5 syncs, each retried 20×
+        t_end_s = retried_restarts(led, gaps)
+        assert len(led._phases.starts_s) == min(101, max_changes)
+        cam = default_stereo_pair(world)[0]
+        indices = list(cam.frame_indices_between(t_end_s - 0.1, t_end_s + 0.2))
+        frames.append([cam.render(i) for i in reversed(indices)])  # rendered last to first
+    assert len(frames[0]) > 10
+    assert all(np.array_equal(a, b) for a, b in zip(*frames, strict=True))
 
 
 @pytest.mark.slow

@@ -12,25 +12,64 @@ The LED is a flat rectangle in the world (centre, two half-side vectors, mm) tha
 light follows the drive through a first-order response with ``time_constant_s`` (a real LED + driver;
 the 10–90 % rise is 2.2 time constants), so a camera row exposed over [a, a + E] sees the closed form
 :meth:`SyncLed.mean_levels`: the light's mean over the exposure, 0 (dark) … 1 (fully lit).
+
+The history is bounded as the oscillator's is: at most ``max_changes`` phase restarts and as many sync
+switches are kept (a generator retrying ``PHAS:SYNC`` restarts the phase each time); the oldest kept one
+starts the history, and asking about a time before it raises :class:`SimCommandError` instead of answering
+from a history that is gone. Lookups bisect the kept changes, so a render costs the same however many
+restarts came before it.
 """
 
 from __future__ import annotations
 
+import bisect
 import itertools
 import math
 import threading
 from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Generic, TypeVar
 
 import numpy as np
 from numpy.typing import NDArray
 
 from drivers.sim.errors import SimCommandError, _finite
-from drivers.sim.oscillator import OscillatorBody
+from drivers.sim.oscillator import DEFAULT_MAX_SEGMENTS, OscillatorBody
 
 __all__ = ["SyncLed"]
 
 _F = NDArray[np.float64]
 _SETTLED_TIME_CONSTANTS = 40.0  # after 40 τ the response to an edge is complete (e^-40 ≈ 4e-18)
+V = TypeVar("V")
+
+
+@dataclass(frozen=True)
+class _Changes(Generic[V]):
+    """A value that changes at increasing times (world s): the first start may be −inf (always so before)."""
+
+    starts_s: tuple[float, ...]
+    values: tuple[V, ...]
+    truncated: bool = False  # older changes were dropped: times before starts_s[0] are gone
+
+    def at(self, t_s: float) -> V:
+        """The value at ``t_s`` (from the newest change at or before it; ``t_s`` ≥ the history's start)."""
+        return self.values[bisect.bisect_right(self.starts_s, t_s) - 1]
+
+    def inside(self, t0_s: float, t1_s: float) -> tuple[float, ...]:
+        """Change times strictly inside (t0_s, t1_s)."""
+        return self.starts_s[bisect.bisect_right(self.starts_s, t0_s):bisect.bisect_left(self.starts_s, t1_s)]
+
+    def changed(self, t_s: float, value: V, max_kept: int) -> _Changes[V]:
+        """Changed to ``value`` at ``t_s``: replaces the changes at or after ``t_s``; keeps the newest
+        ``max_kept`` (older ones can no longer decide a value at or after the oldest kept change)."""
+        k = bisect.bisect_left(self.starts_s, t_s)
+        starts, values = (*self.starts_s[:k], t_s), (*self.values[:k], value)
+        drop = max(0, len(starts) - max_kept)
+        return _Changes(starts[drop:], values[drop:], self.truncated or drop > 0)
+
+    @property
+    def history_start_s(self) -> float:
+        return self.starts_s[0] if self.truncated else -math.inf
 
 
 class SyncLed:
@@ -38,12 +77,13 @@ class SyncLed:
 
     ``centre_mm``, ``half_u_mm``, ``half_v_mm``: the rectangle's centre and half-side vectors (base frame,
     mm). ``time_constant_s`` (> 0) of the light's first-order response; ``contrast_dn`` the brightness it
-    adds to a pixel fully covered when fully lit (8-bit DN).
+    adds to a pixel fully covered when fully lit (8-bit DN). ``max_changes`` (≥ 2) bounds the kept phase
+    restarts and sync switches each.
     """
 
     def __init__(self, name: str, centre_mm: Sequence[float], half_u_mm: Sequence[float],
                  half_v_mm: Sequence[float], *, time_constant_s: float = 5e-6, contrast_dn: float = 180.0,
-                 t_origin_s: float = 0.0) -> None:
+                 t_origin_s: float = 0.0, max_changes: int = DEFAULT_MAX_SEGMENTS) -> None:
         self.name = str(name)
         self.centre_mm = np.asarray(centre_mm, dtype=float).reshape(3)
         self.half_u_mm = np.asarray(half_u_mm, dtype=float).reshape(3)
@@ -56,31 +96,34 @@ class SyncLed:
             raise SimCommandError("half_u_mm and half_v_mm must span a rectangle (not parallel, not zero)")
         self.time_constant_s = _finite(time_constant_s, "time_constant_s", positive=True)
         self.contrast_dn = _finite(contrast_dn, "contrast_dn", positive=True)
+        if int(max_changes) < 2:
+            raise SimCommandError(f"max_changes must be >= 2, got {max_changes!r}")
+        self.max_changes = int(max_changes)
         self._lock = threading.Lock()
-        # (start time, oscillator): a phase restart begins a new oscillator at phase 0
-        self._phases: tuple[tuple[float, OscillatorBody], ...] = (
-            (-math.inf, OscillatorBody(f"{name}-waveform", t_origin_s=t_origin_s)),)
-        self._enabled: tuple[tuple[float, bool], ...] = ((-math.inf, False),)
+        # the oscillator from each start time: a phase restart begins a new oscillator at phase 0
+        self._phases: _Changes[OscillatorBody] = _Changes(
+            (-math.inf,), (OscillatorBody(f"{name}-waveform", t_origin_s=t_origin_s),))
+        self._enabled: _Changes[bool] = _Changes((-math.inf,), (False,))
 
     # -- commands (the generator mock) -----------------------------------------------------------------
     @property
     def waveform(self) -> OscillatorBody:
         """The generator's oscillator now (the mock sets its frequency or sweep)."""
-        return self._phases[-1][1]
+        return self._phases.values[-1]
 
     def restart_phase(self, t_s: float) -> None:
         """The oscillator restarts at phase 0 at ``t_s`` with its frequency then (``PHASe:SYNChronize``)."""
         t = _finite(t_s, "t_s")
         with self._lock:
-            f = float(self._phases[-1][1].frequency_hz(t))
+            f = float(self._phases.values[-1].frequency_hz(t))
             body = OscillatorBody(f"{self.name}-waveform", initial_hz=f, t_origin_s=t)
-            self._phases = (*(p for p in self._phases if p[0] < t), (t, body))
+            self._phases = self._phases.changed(t, body, self.max_changes)
 
     def set_enabled(self, t_s: float, enabled: bool) -> None:
         """Switch the sync output (and with it the LED's drive) on or off from ``t_s``."""
         t = _finite(t_s, "t_s")
         with self._lock:
-            self._enabled = (*(e for e in self._enabled if e[0] < t), (t, bool(enabled)))
+            self._enabled = self._enabled.changed(t, bool(enabled), self.max_changes)
 
     # -- the drive ---------------------------------------------------------------------------------------
     def corners_mm(self) -> _F:
@@ -90,14 +133,13 @@ class SyncLed:
 
     def _pieces(self, t0: float, t1: float) -> list[tuple[float, float, OscillatorBody, bool]]:
         """[a, b) pieces of [t0, t1) with one oscillator and one sync state each."""
-        cuts = sorted({t0, t1, *(p[0] for p in self._phases if t0 < p[0] < t1),
-                       *(e[0] for e in self._enabled if t0 < e[0] < t1)})
-        out = []
-        for a, b in itertools.pairwise(cuts):
-            body = next(p[1] for p in reversed(self._phases) if p[0] <= a)
-            on = next(e[1] for e in reversed(self._enabled) if e[0] <= a)
-            out.append((a, b, body, on))
-        return out
+        history_start_s = max(self._phases.history_start_s, self._enabled.history_start_s)
+        if t0 < history_start_s:
+            raise SimCommandError(f"{self.name}: t_s={t0!r} is before the kept history (from "
+                                  f"{history_start_s!r} s; at most {self.max_changes} phase restarts and "
+                                  "as many sync switches)")
+        cuts = sorted({t0, t1, *self._phases.inside(t0, t1), *self._enabled.inside(t0, t1)})
+        return [(a, b, self._phases.at(a), self._enabled.at(a)) for a, b in itertools.pairwise(cuts)]
 
     @staticmethod
     def _half_cycles(body: OscillatorBody, t: _F) -> _F:
