@@ -29,7 +29,7 @@ from __future__ import annotations
 
 import warnings
 from collections.abc import Callable
-from typing import Any, TypeVar, cast
+from typing import Any, Literal, TypeVar, cast
 
 import numba
 import numpy as np
@@ -52,15 +52,20 @@ FLAG_ROW_BORDER, FLAG_ROW_SATURATED, FLAG_ROW_CRAMPED = range(3)
 LOST_FLAG = np.uint8(8)  # markers.FLAG_LOST (the kernel does not import rig.stereo.markers)
 
 
-def _jit(fn: _F) -> _F:
+def _jit(fn: _F, inline: Literal["never", "always"] = "never") -> _F:
     """numba.njit with the on-disk cache when a cache location is writable, else without (a warning)."""
     # error_model="numpy": x/0 gives inf/NaN as in numpy, no exception
     try:
-        return cast(_F, numba.njit(cache=True, nogil=True, error_model="numpy")(fn))
+        return cast(_F, numba.njit(cache=True, nogil=True, error_model="numpy", inline=inline)(fn))
     except RuntimeError as exc:  # numba: "cannot cache function ...: no locator available"
         warnings.warn(f"marker kernel not cached on disk ({exc}); compiling it in this process",
                       RuntimeWarning, stacklevel=2)
-        return cast(_F, numba.njit(nogil=True, error_model="numpy")(fn))
+        return cast(_F, numba.njit(nogil=True, error_model="numpy", inline=inline)(fn))
+
+
+def _stage(fn: _F) -> _F:
+    """A named stage of a kernel, compiled into its caller (numba ``inline="always"``: no call cost)."""
+    return _jit(fn, inline="always")
 
 
 @_jit
@@ -375,6 +380,97 @@ def _weigh(  # noqa: PLR0917 (numba: no keyword-only arguments)
                 free[row + j] = d[row + j] > 0
 
 
+@_stage
+def _seed(d: np.ndarray, half_px: int, free: np.ndarray) -> int:
+    """Where the support grows from (flat padded index): the centre pixel when it is on ``d > 0``, else the
+    strong pixel nearest the centre among those at least half as strong as the window's strongest (so a
+    noise speck is never chosen; ties: the first in row-major order); −1 when no pixel is on ``d > 0``."""
+    w = 2 * half_px + 1
+    pw = w + 2
+    seed = (half_px + 1) * pw + half_px + 1
+    if free[seed]:
+        return seed
+    peak = np.float32(-np.inf)
+    for i in range(w):
+        for j in range(w):
+            peak = max(peak, d[(i + 1) * pw + j + 1])
+    half_peak = np.float32(0.5) * peak
+    best, seed = np.inf, -1
+    for i in range(w):
+        for j in range(w):
+            q = (i + 1) * pw + j + 1
+            if d[q] > 0 and d[q] >= half_peak:
+                dist2 = float((i - half_px) ** 2 + (j - half_px) ** 2)
+                if dist2 < best:
+                    best, seed = dist2, q
+    return seed
+
+
+@_stage
+def _run_ends(free: np.ndarray, q: int) -> tuple[int, int]:
+    """First and last flat index of the run of ``free`` pixels holding ``q`` (the padding frame is 0: a
+    run never leaves its row)."""
+    left, right = q, q
+    while free[left - 1]:
+        left -= 1
+    while free[right + 1]:
+        right += 1
+    return left, right
+
+
+@_stage
+def _take_run(  # noqa: PLR0917 (numba: no keyword-only arguments)
+        d: np.ndarray, free: np.ndarray, clipped: np.ndarray, pixels: np.ndarray, n: int, left: int,
+        right: int, x0: int) -> tuple[int, float, float, float, float, float, bool]:
+    """Take the run ``left..right`` into the support: cleared in ``free``, its pixels into ``pixels[n:]``.
+    Returns (new n, the run's sums of v, v·x, v·x², v·x³ with x = index − ``x0``, its peak v, whether a
+    pixel is ``clipped``)."""
+    s0 = s1 = s2 = s3 = 0.0
+    peak_w, saturated = 0.0, False
+    for x in range(left, right + 1):
+        free[x] = 0
+        pixels[n] = x
+        n += 1
+        v, xo = float(d[x]), float(x - x0)
+        vx = v * xo
+        s0 += v
+        s1 += vx
+        s2 += vx * xo
+        s3 += vx * xo * xo
+        peak_w = max(peak_w, v)
+        saturated |= clipped[x]
+    return n, s0, s1, s2, s3, peak_w, saturated
+
+
+@_stage
+def _reaches(iy: int, lo_x: int, hi_x: int, edge: int) -> bool:
+    """Whether the run of row offset ``iy`` over column offsets ``lo_x..hi_x`` holds a pixel with
+    max(|x|, |y|) == ``edge``."""
+    if abs(iy) == edge:  # |x| ≤ edge on this row
+        return lo_x <= edge and hi_x >= -edge
+    if abs(iy) < edge:  # … or x = ±edge
+        return (lo_x <= -edge <= hi_x) or (lo_x <= edge <= hi_x)
+    return False
+
+
+@_stage
+def _push_spans(  # noqa: PLR0917 (numba: no keyword-only arguments)
+        free: np.ndarray, stack: np.ndarray, top: int, left: int, right: int, pw: int) -> int:
+    """Push one seed per run of ``free`` pixels among the 8-neighbours of the run ``left..right`` in the
+    rows above and below (row length ``pw``) onto ``stack[top:]``; returns the new top."""
+    for shift in (-pw, pw):
+        new_run = True
+        for x in range(left - 1 + shift, right + 2 + shift):
+            if free[x]:
+                if new_run:
+                    stack[top] = x
+                    top += 1
+                new_run = False
+            else:
+                new_run = True
+    return top
+
+
 @_jit
 def _support(  # noqa: PLR0917 (numba: no keyword-only arguments)
         d: np.ndarray, half_px: int, free: np.ndarray, clipped: np.ndarray, pixels: np.ndarray,
@@ -386,36 +482,17 @@ def _support(  # noqa: PLR0917 (numba: no keyword-only arguments)
     ring's inner edge, RING_PX − 1 pixels from the window's border: the window is too small).
     ``stack``: scratch, 4·(W + 2)² int64 (a pixel is pushed at most once from each of the runs beside it).
 
-    The marker is the region of the centre pixel; when that pixel is background, the region of the
-    strong pixel nearest the centre among those at least half as strong as the window's strongest (so a
-    noise speck is never chosen; ties: the first in row-major order).
-
-    One function, not named stages (seed choice, run-wise flood fill, moment sums): it is compiled by numba
-    and called per marker per frame, where a call between stages costs more than a stage, and the fill and
-    the moment sums share the same scratch arrays run by run.
+    The marker is the region of the seed (:func:`_seed`), filled scanline by scanline: each popped seed
+    grows into its row's run (:func:`_run_ends`, :func:`_take_run`), whose 8-neighbour spans in the rows
+    above and below seed their own runs (:func:`_push_spans`). The stages are compiled into this function
+    (``inline="always"``): it is called per marker per frame, where a call between stages would cost more
+    than a stage.
     """
-    w = 2 * half_px + 1
-    pw = w + 2
-    seed = (half_px + 1) * pw + half_px + 1
-    if not free[seed]:
-        peak = np.float32(-np.inf)
-        for i in range(w):
-            for j in range(w):
-                peak = max(peak, d[(i + 1) * pw + j + 1])
-        half_peak = np.float32(0.5) * peak
-        best, seed = np.inf, -1
-        for i in range(w):
-            for j in range(w):
-                q = (i + 1) * pw + j + 1
-                if d[q] > 0 and d[q] >= half_peak:
-                    dist2 = float((i - half_px) ** 2 + (j - half_px) ** 2)
-                    if dist2 < best:
-                        best, seed = dist2, q
-        if seed < 0:
-            m[:] = 0.0
-            return 0, 0.0, False, False
-    # scanline fill: each popped seed grows into its row's run, whose 8-neighbour spans in the rows above
-    # and below seed their own runs (the padding frame is 0: runs and spans never leave the window)
+    seed = _seed(d, half_px, free)
+    if seed < 0:
+        m[:] = 0.0
+        return 0, 0.0, False, False
+    pw = 2 * half_px + 3
     stack[0] = seed
     top, n = 1, 0
     m0 = m1 = m2 = m3 = m4 = m5 = m6 = m7 = m8 = m9 = 0.0  # scalars: kept in registers
@@ -426,26 +503,12 @@ def _support(  # noqa: PLR0917 (numba: no keyword-only arguments)
         q = stack[top]
         if not free[q]:
             continue
-        left, right = q, q
-        while free[left - 1]:
-            left -= 1
-        while free[right + 1]:
-            right += 1
+        left, right = _run_ends(free, q)
         row = left // pw
         iy, x0 = row - 1 - half_px, row * pw + 1 + half_px
-        s0 = s1 = s2 = s3 = 0.0  # the run's sums of v, v·x, v·x², v·x³
-        for x in range(left, right + 1):
-            free[x] = 0
-            pixels[n] = x
-            n += 1
-            v, xo = float(d[x]), float(x - x0)
-            vx = v * xo
-            s0 += v
-            s1 += vx
-            s2 += vx * xo
-            s3 += vx * xo * xo
-            peak_w = max(peak_w, v)
-            saturated |= clipped[x]
+        n, s0, s1, s2, s3, run_peak, run_saturated = _take_run(d, free, clipped, pixels, n, left, right, x0)
+        peak_w = max(peak_w, run_peak)
+        saturated |= run_saturated
         y = float(iy)
         m0 += s0
         m1 += s1
@@ -457,21 +520,8 @@ def _support(  # noqa: PLR0917 (numba: no keyword-only arguments)
         m7 += y * s2
         m8 += y * y * s1
         m9 += y * y * y * s0
-        lo_x, hi_x = left - x0, right - x0
-        if abs(iy) == edge:  # a pixel with max(|x|, |y|) == edge: |x| ≤ edge on this row
-            cramped |= lo_x <= edge and hi_x >= -edge
-        elif abs(iy) < edge:  # … or x = ±edge
-            cramped |= (lo_x <= -edge <= hi_x) or (lo_x <= edge <= hi_x)
-        for shift in (-pw, pw):
-            new_run = True
-            for x in range(left - 1 + shift, right + 2 + shift):
-                if free[x]:
-                    if new_run:
-                        stack[top] = x
-                        top += 1
-                    new_run = False
-                else:
-                    new_run = True
+        cramped |= _reaches(iy, left - x0, right - x0, edge)
+        top = _push_spans(free, stack, top, left, right, pw)
     m[0], m[1], m[2], m[3], m[4], m[5], m[6], m[7], m[8], m[9] = m0, m1, m2, m3, m4, m5, m6, m7, m8, m9
     return n, peak_w, saturated, cramped
 
