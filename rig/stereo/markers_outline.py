@@ -13,13 +13,19 @@ import cv2
 import numpy as np
 
 
+def _nonzero(mask: np.ndarray) -> tuple[np.ndarray, ...]:
+    """``np.nonzero(mask)`` of an n-D ``mask`` through its flat indices: the same indices in the same
+    (row-major) order; numpy 2.4's n-D ``nonzero`` is many times slower than ``flatnonzero``."""
+    return np.unravel_index(np.flatnonzero(mask), mask.shape)
+
+
 def edge_points(d: np.ndarray, level: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Sub-pixel crossings of ``d`` (K, W, W) through ``level`` (K,): (window index, x, y) in window px."""
     a = d - level[:, None, None]
     below = a < 0
-    kh, ih, jh = np.nonzero(below[:, :, :-1] != below[:, :, 1:])
+    kh, ih, jh = _nonzero(below[:, :, :-1] != below[:, :, 1:])
     a0, a1 = a[kh, ih, jh], a[kh, ih, jh + 1]
-    kv, iv, jv = np.nonzero(below[:, :-1, :] != below[:, 1:, :])
+    kv, iv, jv = _nonzero(below[:, :-1, :] != below[:, 1:, :])
     b0, b1 = a[kv, iv, jv], a[kv, iv + 1, jv]
     k_all = np.concatenate([kh, kv])
     x_all = np.concatenate([jh + a0 / (a0 - a1), jv.astype(np.float32)])
