@@ -23,6 +23,7 @@ from rig.stereo.timing import TimingResult
 
 
 def projection(cam) -> np.ndarray:
+    """The 3×4 matrix K[R|t] (mm → px) of a :class:`drivers.sim.camera.SimCamera`."""
     return cam.camera_matrix @ np.column_stack([cam.rotation, cam.tvec])
 
 

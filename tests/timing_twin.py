@@ -16,6 +16,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from analysis_twin import projection
 
 from drivers.sim.stereo_rig import default_camera_specs, make_camera
 from drivers.sim.world import World
@@ -86,10 +87,6 @@ def offset_floor_s(rec: TwinRecord, sigma_px: float, *, line_time: bool = True, 
         cols.append(g * (rec.t_left - rec.t_left.mean()) * 1e-6)
     J = np.column_stack(cols)
     return float(sigma_px * np.sqrt(np.linalg.inv(J.T @ J)[0, 0]))
-
-
-def projection(cam) -> np.ndarray:
-    return cam.camera_matrix @ np.column_stack([cam.rotation, cam.tvec])
 
 
 def twin_record(
