@@ -26,7 +26,7 @@ if TYPE_CHECKING:
     import numpy as np
     from numpy.typing import NDArray
 
-    from drivers.camera.base import Frame
+    from drivers.camera.base import ClockMapping, Frame
 
 __all__ = ["SHUTDOWN_ORDER", "Arm", "Assignment", "Camera", "Device", "Generator", "Role", "VibrationSource",
            "shutdown_rank"]
@@ -124,6 +124,11 @@ class Camera(Device, Protocol):
     def stop(self) -> None: ...
 
     def frames(self) -> Iterator[Frame]: ...
+
+    def clock_mapping(self) -> ClockMapping | None:
+        """How the last recording's camera clock was mapped onto the host's (a camera stamping its own
+        frames on a kept connection); None when the frames carry no such mapping (the default)."""
+        return None
 
 
 @dataclass(frozen=True)

@@ -4,8 +4,14 @@ The rotor marker crosses the epipolar lines fast (≈ 3.8 m/s at 60 mm and 10 Hz
 the two unsynchronized cameras shows clearly. The primary estimate is the joint method (offset, rolling
 shutter line time and clock drift together, :func:`rig.stereo.estimate_offset` ``method="joint"``); the
 paper's rotating-marker method (``method="rotor"``) is computed beside it for comparison and stored under
-``comparison`` in ``timing.json``. The search starts from the offset implied by the recordings' ``camera``
-events (both cameras started at the same rig instant), ± ``search_frames`` frame periods.
+``comparison`` in ``timing.json``. The search starts from the offset implied by the recording's ``camera``
+start events, ± ``search_frames`` frame periods: the difference of the cameras' clock mappings when both
+stamp their own frames and map their clocks onto the host's (their lowest arrival latencies: exact to the
+difference of the cameras' latencies, whatever frames either skipped), else of their first frames (both
+started at the same rig instant: good to about a frame, unless frames were skipped at the start).
+When the joint method finds too little motion to use and the cameras lost frames in the recording (the
+joint method leaves out the instants near every gap of a track), the error names each camera's frames
+missing, their share and the gaps, not only the overlap left.
 
 Truth events: ``rotor`` (polled actual frequency) and ``rotation`` (the steady rotation recorded, for the
 radius and frequency checks of the report). Needs ``calibration.json`` (the calibrate step) first.
@@ -39,6 +45,7 @@ from rig.run.acquire import Acquirer, Recording, ReduceOptions
 from rig.run.plan import Plan, PlanStep, Vibration
 from rig.run.procedure import Context
 from rig.stereo import DLTCamera, TimingError
+from rig.stereo.errors import NoCommonMotionError, TooFewSamplesError
 from rig.stereo.timing import estimate_offset
 
 
@@ -71,11 +78,53 @@ def moving_marker(obs: pd.DataFrame, still_px: float = 3.0) -> tuple[np.ndarray,
     return one["timestamp_s"].to_numpy(float), one[["u_px", "v_px"]].to_numpy(float)
 
 
+def _mapped(event: dict[str, Any]) -> bool:
+    return isinstance(event.get("host_minus_camera_s"), int | float)
+
+
 def offset_guess_s(events: list[dict[str, Any]], reference: str, other: str) -> float:
-    """Offset of ``other``'s clock onto ``reference``'s implied by one recording's ``camera`` start events
-    (both cameras started at the same rig instant; good to about one frame period)."""
-    first = {e["camera"]: e["first_timestamp_s"] for e in events if e["action"] == "start"}
-    return float(first[reference] - first[other])
+    """Offset of ``other``'s clock onto ``reference``'s implied by one recording's ``camera`` start events:
+    the difference of their clock mappings (``host_minus_camera_s``) when both carry one, else of their
+    first frames' stamps (both cameras started at the same rig instant; good to about one frame period)."""
+    start = {e["camera"]: e for e in events if e["action"] == "start"}
+    ref, oth = start[reference], start[other]
+    if _mapped(ref) and _mapped(oth):
+        return float(oth["host_minus_camera_s"] - ref["host_minus_camera_s"])
+    return float(ref["first_timestamp_s"] - oth["first_timestamp_s"])
+
+
+def guess_source(events: list[dict[str, Any]], reference: str, other: str) -> dict[str, Any]:
+    """How :func:`offset_guess_s` was formed, for ``timing.json``'s ``search``: the source, and with clock
+    mappings each camera's latency spread (s: median − lowest arrival latency when its recording began)."""
+    start = {e["camera"]: e for e in events if e["action"] == "start"}
+    if _mapped(start[reference]) and _mapped(start[other]):
+        return {"source": "camera start events: the cameras' clock mappings (lowest arrival latencies)",
+                "lag_spread_s": {n: start[n].get("lag_spread_s") for n in (reference, other)}}
+    return {"source": "camera start events: the cameras' first frames"}
+
+
+def frame_loss(timestamps_s: np.ndarray, fps: float) -> tuple[int, int, int]:
+    """(frames delivered, frames missing between them, gaps) of one recording from its frames' stamps (s,
+    camera clock; a gap is an interval longer than 1.5 nominal frame periods)."""
+    stamps = np.unique(np.asarray(timestamps_s, dtype=float))
+    steps_frames = np.round(np.diff(stamps) * fps)
+    gaps = np.diff(stamps) > 1.5 / fps
+    return int(stamps.size), int(np.sum(steps_frames[gaps] - 1)), int(np.count_nonzero(gaps))
+
+
+def lost_frames_error(rec: Recording[Any], fps: float, cause: TimingError) -> TooFewSamplesError | None:
+    """The error naming each camera's lost frames when ``rec`` lost any (None when it lost none): the
+    joint method cannot reconstruct a track across a gap, so lost frames can leave it too little overlap."""
+    losses = {n: frame_loss(o["timestamp_s"].to_numpy(float), fps) for n, o in rec.observations.items()}
+    if not any(missing for _, missing, _ in losses.values()):
+        return None
+    shares = "; ".join(f"camera {n!r}: {missing} of {delivered + missing} frames missing "
+                       f"({missing / max(delivered + missing, 1):.0%}) in {gaps} gap(s)"
+                       for n, (delivered, missing, gaps) in losses.items())
+    return TooFewSamplesError(
+        f"the {rec.t_stop_s - rec.t_start_s:.1f}-s rotor recording lost frames ({shares}): the cameras (or a "
+        f"host too loaded to read or render them) skipped frames, and the joint method leaves out every "
+        f"instant near a gap; record again (sync.record_s longer) on a host that keeps up. ({cause})")
 
 
 def estimate_timing(calibration: dict[str, Any], rec: Recording[Any], camera_events: list[dict[str, Any]],
@@ -96,11 +145,18 @@ def estimate_timing(calibration: dict[str, Any], rec: Recording[Any], camera_eve
         rows[n] = uv[ok, 1]
     guess = offset_guess_s(camera_events, ref, other)
     half = params.search_frames / fps
-    joint = estimate_offset(cams[ref], cams[other], (*series[ref], rows[ref]), (*series[other], rows[other]),
-                            method="joint", names=(ref, other), offset_guess_s=guess,
-                            search_half_width_s=half)
+    try:
+        joint = estimate_offset(cams[ref], cams[other], (*series[ref], rows[ref]),
+                                (*series[other], rows[other]), method="joint", names=(ref, other),
+                                offset_guess_s=guess, search_half_width_s=half)
+    except (NoCommonMotionError, TooFewSamplesError) as exc:
+        lost = lost_frames_error(rec, fps, exc)
+        if lost is None:
+            raise
+        raise lost from exc
     timing = joint.to_dict()
-    timing["search"] = {"offset_guess_s": guess, "half_width_s": half, "source": "camera start events"}
+    timing["search"] = {"offset_guess_s": guess, "half_width_s": half,
+                        **guess_source(camera_events, ref, other)}
     if params.compare_rotor_method:
         try:
             paper = estimate_offset(cams[ref], cams[other], series[ref], series[other], method="rotor",
@@ -142,7 +198,9 @@ def spin_and_record(ctx: Context, acq: Acquirer, segment: str, planned: Vibratio
         radius_mm=rotor_cfg.radius_mm, centre_mm=list(rotor_cfg.centre_mm), axis=list(rotor_cfg.axis),
         marker_ids=["rotor"], segment=segment))
     stop_polled(ctx, rotor, "rotor")
-    events = [{"camera": n, "action": "start", "first_timestamp_s": float(o["timestamp_s"].min())}
+    events = [{"camera": n, "action": "start", "first_timestamp_s": float(o["timestamp_s"].min()),
+               **({"host_minus_camera_s": rec.clock_mappings[n].host_minus_camera_s,
+                   "lag_spread_s": rec.clock_mappings[n].lag_spread_s} if n in rec.clock_mappings else {})}
               for n, o in rec.observations.items() if len(o)]
     return rec, events
 

@@ -13,7 +13,7 @@ from typing import Protocol, TypedDict, runtime_checkable
 import numpy as np
 from numpy.typing import NDArray
 
-__all__ = ["Frame", "FrameGap", "FrameSource"]
+__all__ = ["ClockMapping", "Frame", "FrameGap", "FrameSource"]
 
 
 class FrameGap(TypedDict):
@@ -23,6 +23,21 @@ class FrameGap(TypedDict):
     after_index: int
     gap_s: float
     missing_frames: int
+
+
+@dataclass(frozen=True)
+class ClockMapping:
+    """How a camera that stamps its own frames had its clock mapped onto the host's when a recording began:
+    host time = camera time + ``host_minus_camera_s``, the lowest arrival latency (arrival − stamp, s) over
+    the last ``window_frames`` frames. The mapping is late by the camera's own lowest latency (readout,
+    encoding, transport: ≥ 0, which the stream does not reveal) — the same for two like cameras, so the
+    difference of two cameras' mappings relates their clocks whatever frames either skipped.
+    ``lag_spread_s``: median − lowest latency of that window (≥ 0: how far frames queued on the way; a
+    catch-up burst raises it, never the mapping)."""
+
+    host_minus_camera_s: float
+    lag_spread_s: float
+    window_frames: int
 
 
 @dataclass(frozen=True)

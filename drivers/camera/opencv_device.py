@@ -26,9 +26,14 @@ device buffer never overruns silently.
   arrival: with the camera's clock mapped onto the host's by the lowest arrival latency of the last
   :data:`LAG_WINDOW_S` of frames (``arrival − stamp``), it holds the frames exposed at or after
   :meth:`start`'s host instant — late by at most that lowest latency (the camera's readout, encoding and
-  transport), as the cameras' start events and the sync's offset guess (the first frames of both at one
-  instant) need — and ends alike: after :meth:`stop`, :meth:`frames` goes on yielding the frames exposed
+  transport), and ends alike: after :meth:`stop`, :meth:`frames` goes on yielding the frames exposed
   before it that arrive late, until the first frame exposed after it arrives (or :data:`DRAIN_S` passes).
+  The mapping in use when a recording's first frame came is kept (:meth:`~OpenCVCamera.clock_mapping`,
+  :func:`clock_mapping_of`): the cameras' start events carry it, and the sync's offset guess is the
+  difference of two cameras' mappings — exact to their latencies' difference whatever frames either skipped
+  at the start (a first frame would date it only to a frame, and a skipped burst of frames would shift it).
+  Frames that arrive late (a host or camera catching up) raise the window's median latency
+  (``lag_spread_s``), never its lowest.
 - ``"host"``: the **host clock** right after ``grab()`` returns (``time.monotonic`` by default,
   injectable): for a source whose frames carry no time stamp (MJPEG IP cameras); the arrival jitters with
   the host's load. The device is opened by :meth:`start` and released by :meth:`stop`.
@@ -56,7 +61,7 @@ import math
 import queue
 import threading
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, Protocol
 
@@ -66,11 +71,11 @@ import numpy as np
 if TYPE_CHECKING:
     from cv2.typing import MatLike
 
-from drivers.camera.base import Frame, FrameGap
+from drivers.camera.base import ClockMapping, Frame, FrameGap
 from drivers.roles import Camera
 
-__all__ = ["TIMESTAMPS", "CameraDeviceError", "Capture", "CaptureStats", "OpenCVCamera", "open_capture",
-           "parse_source", "stamps_itself"]
+__all__ = ["TIMESTAMPS", "CameraDeviceError", "Capture", "CaptureStats", "OpenCVCamera", "clock_mapping_of",
+           "open_capture", "parse_source", "stamps_itself"]
 
 TIMESTAMPS = ("auto", "stream", "host")
 STAMPED_SCHEMES = ("rtsp", "rtsps")
@@ -92,6 +97,16 @@ def stamps_itself(source: str | int) -> bool:
     scheme, rest = source.split("://", 1)
     path = rest.split("?", 1)[0].split("#", 1)[0].lower()
     return scheme.lower() in STAMPED_SCHEMES or path.endswith(STAMPED_SUFFIXES)
+
+
+def clock_mapping_of(lags_s: Iterable[float]) -> ClockMapping:
+    """The clock mapping of a window of arrival latencies (arrival − stamp, s; at least one): its lowest,
+    and the median's excess over it."""
+    lags = np.fromiter(lags_s, dtype=float)
+    if lags.size == 0 or not np.all(np.isfinite(lags)):
+        raise ValueError(f"lags_s: {lags.size} values; need at least one, all finite")
+    lowest_s = float(lags.min())
+    return ClockMapping(lowest_s, float(np.median(lags)) - lowest_s, int(lags.size))
 
 
 class Capture(Protocol):
@@ -132,7 +147,8 @@ class CaptureStats:
     """What the grabbing thread saw in one recording: frames delivered, device drops (gaps), queue
     overflows (slow reader), repeated stream stamps (``duplicated``: indices delivered with the previous
     frame's stamp), host arrival times (s, diagnostic: first and last, and the largest arrival interval
-    ``max_arrival_gap_s``); ``connections``: how many times the source was opened (each a clock origin)."""
+    ``max_arrival_gap_s``); ``connections``: how many times the source was opened (each a clock origin);
+    ``clock``: the camera clock's mapping onto the host's at its first recorded frame (stream stamps)."""
 
     delivered: int = 0
     dropped: list[FrameGap] = field(default_factory=list)
@@ -145,6 +161,7 @@ class CaptureStats:
     max_arrival_gap_s: float = 0.0
     connections: int = 0
     error: str | None = None
+    clock: ClockMapping | None = None
 
     @property
     def missing_frames(self) -> int:
@@ -236,6 +253,10 @@ class OpenCVCamera(Camera):
     def snapshot(self) -> dict[str, Any]:
         return {"driver": "opencv", "fps": self.fps, "resolution_px": [self.width_px, self.height_px],
                 "timestamps": self.timestamps, "stamping": self.stamping}
+
+    def clock_mapping(self) -> ClockMapping | None:
+        """The last recording's clock mapping (module docstring); None with host stamps or before a frame."""
+        return self.stats.clock
 
     def start(self) -> None:
         """Begin a recording: open the device (unless a stream-stamped connection is open) and grab."""
@@ -401,6 +422,8 @@ class OpenCVCamera(Camera):
                     self.stats.error = f"frame {index} could not be decoded"
                     break
                 gray = img if img.ndim == 2 else cv2.cvtColor(img, cv2.COLOR_BGR2GRAY)
+                if self.stamping == "stream" and self.stats.clock is None:  # the mapping that dated start()
+                    self.stats.clock = clock_mapping_of(lags_s)
                 self._account(index, stamp, arrival_s, prev_recorded, repeated=repeated, period=period)
                 prev_recorded = (stamp, arrival_s)
                 with self._lock:

@@ -246,7 +246,11 @@ class ArmEvent(Event):
 @dataclass(frozen=True)
 class CameraEvent(Event):
     """A camera's recording of a segment starts or stops. ``start``: controller time ``t_s`` and the camera
-    time stamp of the first frame recorded after it (what relates the two clocks); ``stop``: the last."""
+    time stamp of the first frame recorded after it (what relates the two clocks); ``stop``: the last. A
+    camera that stamps its own frames also gives, at ``start``, its clock's mapping onto the host's
+    (:class:`drivers.camera.base.ClockMapping`): ``host_minus_camera_s`` (the driver's host clock minus the
+    camera's: the lowest arrival latency of its last frames, late by the camera's own lowest latency) and
+    ``lag_spread_s`` (median − lowest latency: how far its frames queued)."""
 
     KIND: ClassVar[str] = "camera"
     STREAM: ClassVar[str] = "camera"
@@ -259,6 +263,8 @@ class CameraEvent(Event):
     last_index: int | None = None
     last_timestamp_s: float | None = None
     n_frames: int | None = None
+    host_minus_camera_s: float | None = None
+    lag_spread_s: float | None = None
 
 
 EVENT_TYPES: dict[str, type[Event]] = {

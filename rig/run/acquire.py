@@ -40,7 +40,9 @@ Rows go to the run folder's observations (``segment`` = the name given to ``reco
 column ``track_2d`` (int: the same marker in consecutive frames of one camera and segment keeps its
 number). Each recording writes two ``camera`` events per camera relating the clocks: ``start`` with the
 rig time ``t_s`` of ``start()``, the first frame's index and camera time stamp; ``stop`` with ``t_s`` of
-``stop()``, the last frame's index and time stamp and the number of frames.
+``stop()``, the last frame's index and time stamp and the number of frames; a camera that maps its own
+clock onto the host's (:meth:`drivers.roles.Camera.clock_mapping`) adds that mapping to its ``start`` event
+(and to :attr:`Recording.clock_mappings`).
 """
 
 from __future__ import annotations
@@ -48,12 +50,13 @@ from __future__ import annotations
 import threading
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any, Generic, TypeVar, overload
 
 import numpy as np
 import pandas as pd
 
+from drivers.camera.base import ClockMapping
 from drivers.roles import Camera
 from rig.analysis.frame_reduction import MarkerReducer, ReduceOptions, warm_up
 from rig.record.events import CameraEvent
@@ -80,13 +83,15 @@ class CameraStalledError(RuntimeError):
 
 @dataclass
 class Recording(Generic[T]):
-    """One recording: the motion's return value, rig-clock start/stop of the cameras, the rows written."""
+    """One recording: the motion's return value, rig-clock start/stop of the cameras, the rows written, and
+    the clock mappings of the cameras that gave one (:meth:`drivers.roles.Camera.clock_mapping`)."""
 
     segment: str
     result: T
     t_start_s: float
     t_stop_s: float
     observations: dict[str, pd.DataFrame]
+    clock_mappings: dict[str, ClockMapping] = field(default_factory=dict)
 
 
 def _rows_frame(parts: list[tuple[int, float, np.ndarray, np.ndarray]]) -> pd.DataFrame:
@@ -255,8 +260,8 @@ class Acquirer:
             if name not in readers:
                 readers[name] = self._reader(name, segment, cancel)
         self._finish(readers, cancel, segment, t_stop - t_start)
-        observations = {}
-        for name in self.cameras:
+        observations, mappings = {}, {}
+        for name, cam in self.cameras.items():
             parts = readers[name].parts
             self._next_ids[(name, segment)] = readers[name].reducer.next_id
             frame = _rows_frame(parts)
@@ -264,13 +269,19 @@ class Acquirer:
             observations[name] = frame.assign(segment=segment)
             self.frames_processed += len(parts)
             first, last = (parts[0], parts[-1]) if parts else ((None, None), (None, None))
-            ctx.event("camera", CameraEvent(name, "start", segment, t_start, first_index=first[0],
-                                            first_timestamp_s=first[1]))
+            mapping = cam.clock_mapping() if parts else None
+            if mapping is not None:
+                mappings[name] = mapping
+            ctx.event("camera", CameraEvent(
+                name, "start", segment, t_start, first_index=first[0], first_timestamp_s=first[1],
+                host_minus_camera_s=None if mapping is None else mapping.host_minus_camera_s,
+                lag_spread_s=None if mapping is None else mapping.lag_spread_s))
             ctx.event("camera", CameraEvent(name, "stop", segment, t_stop, last_index=last[0],
                                             last_timestamp_s=last[1], n_frames=len(parts)))
         if fiducial_on and self.fiducial is not None:
             self.fiducial.finish(segment, {name: readers[name].led_rows for name in self._regions})
-        return Recording(segment, result, t_start, t_stop, observations)  # result: None for a duration
+        # result: None for a duration
+        return Recording(segment, result, t_start, t_stop, observations, mappings)
 
 
 class _Reader:

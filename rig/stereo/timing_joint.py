@@ -168,6 +168,8 @@ class _Residuals:
         self.line_a, self.line_b = line_a, line_b  # None → the common estimated line time
         self.data: list[TrackPair] = []
         self.n_near_gaps = 0
+        self.gaps_b = 0  # gaps in B's tracks (dropped or skipped frames, or frames without the marker)
+        self.missing_b = 0  # B's frames missing in them
         for ta, ua, ra, tb, ub, rb in tracks:
             lo = tb[0] + guess_s + half_width_s + margin_s
             hi = tb[-1] + guess_s - half_width_s - margin_s
@@ -177,6 +179,8 @@ class _Residuals:
             steps = np.diff(tb)
             period = float(np.median(steps))
             for k in np.flatnonzero(steps > 1.5 * period):
+                self.gaps_b += 1
+                self.missing_b += max(1, round(float(steps[k]) / period) - 1)
                 near = (ta >= tb[k] + guess_s - half_width_s - GAP_GUARD * period) & (
                     ta <= tb[k + 1] + guess_s + half_width_s + GAP_GUARD * period
                 )
@@ -284,10 +288,14 @@ class JointTiming:
                               margin_s=margin, guess_s=self.guess_s, half_width_s=half, line_a=self.fixed[0],
                               line_b=self.fixed[1])
         if self.res.n < MIN_OBSERVATIONS:
+            gaps = self.res.gaps_b
+            why = ("the records do not overlap enough (or are too short)" if not self.res.n_near_gaps else
+                   f"{self.res.n_near_gaps} more were left out within {GAP_GUARD} frames of the {gaps} "
+                   f"gap(s) in camera B's track ({self.res.missing_b} frames missing: dropped, skipped or "
+                   "without the marker), across which B's motion cannot be reconstructed")
             raise NoCommonMotionError(
                 f"only {self.res.n} observations of camera A fall inside camera B's record for offsets "
-                f"{self.guess_s:+.4f} ± {half:.4f} s (need {MIN_OBSERVATIONS}); "
-                "the records do not overlap enough (or are too short)")
+                f"{self.guess_s:+.4f} ± {half:.4f} s (need {MIN_OBSERVATIONS}); {why}")
         v_span = max(float(np.ptp(np.concatenate([tr.rows_a, tr.rows_b]))) for tr in self.tracks)
         # the row-time spread must stay below half a frame for the band-limited reconstruction
         self.line_max_s = 0.4 * self.period_b / max(v_span, 1.0)
