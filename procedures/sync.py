@@ -11,7 +11,9 @@ difference of the cameras' latencies, whatever frames either skipped), else of t
 started at the same rig instant: good to about a frame, unless frames were skipped at the start).
 When the joint method finds too little motion to use and the cameras lost frames in the recording (the
 joint method leaves out the instants near every gap of a track), the error names each camera's frames
-missing, their share and the gaps, not only the overlap left.
+missing, their share and the gaps (:class:`LostFramesError`), not only the overlap left; the step then
+records again, up to ``attempts`` recordings (segments ``sync``, ``sync-2``, …: each a spin-up, the
+recording and the stop, so each further attempt adds the planned step's time), and raises the last error.
 
 Truth events: ``rotor`` (polled actual frequency) and ``rotation`` (the steady rotation recorded, for the
 radius and frequency checks of the report). Needs ``calibration.json`` (the calibrate step) first.
@@ -112,7 +114,11 @@ def frame_loss(timestamps_s: np.ndarray, fps: float) -> tuple[int, int, int]:
     return int(stamps.size), int(np.sum(steps_frames[gaps] - 1)), int(np.count_nonzero(gaps))
 
 
-def lost_frames_error(rec: Recording[Any], fps: float, cause: TimingError) -> TooFewSamplesError | None:
+class LostFramesError(TooFewSamplesError):
+    """The rotor recording lost frames and the joint method found too little left to use."""
+
+
+def lost_frames_error(rec: Recording[Any], fps: float, cause: TimingError) -> LostFramesError | None:
     """The error naming each camera's lost frames when ``rec`` lost any (None when it lost none): the
     joint method cannot reconstruct a track across a gap, so lost frames can leave it too little overlap."""
     losses = {n: frame_loss(o["timestamp_s"].to_numpy(float), fps) for n, o in rec.observations.items()}
@@ -121,7 +127,7 @@ def lost_frames_error(rec: Recording[Any], fps: float, cause: TimingError) -> To
     shares = "; ".join(f"camera {n!r}: {missing} of {delivered + missing} frames missing "
                        f"({missing / max(delivered + missing, 1):.0%}) in {gaps} gap(s)"
                        for n, (delivered, missing, gaps) in losses.items())
-    return TooFewSamplesError(
+    return LostFramesError(
         f"the {rec.t_stop_s - rec.t_start_s:.1f}-s rotor recording lost frames ({shares}): the cameras (or a "
         f"host too loaded to read or render them) skipped frames, and the joint method leaves out every "
         f"instant near a gap; record again (sync.record_s longer) on a host that keeps up. ({cause})")
@@ -211,6 +217,28 @@ def plan(params: Parameters, config: RigConfig) -> Plan:
                                   source="sync.rotation_hz"),))
 
 
+def record_and_estimate(ctx: Context, params: Parameters, calibration: dict[str, Any], planned: Vibration,
+                        fps: float) -> dict[str, Any]:
+    """The rotor recorded and the timing estimated, recording again (segment ``sync-<n>``) while the
+    recording lost frames the estimate cannot do without, up to ``params.attempts`` recordings."""
+    rotor = required(ctx.config.targets.rotor, "targets.rotor")
+    with Acquirer(ctx, ReduceOptions(mode="detect")) as acq:
+        attempt = 1
+        while True:
+            rec, events = spin_and_record(ctx, acq, "sync" if attempt == 1 else f"sync-{attempt}", planned,
+                                          poll_interval_s=params.poll_interval_s)
+            try:
+                timing = estimate_timing(calibration, rec, events, params=params, rotor=rotor, fps=fps)
+            except LostFramesError as exc:
+                if attempt >= params.attempts:
+                    raise
+                attempt += 1
+                ctx.log.warning("sync: %s; recording again (%d of %d)", exc, attempt, params.attempts)
+                continue
+            timing["search"]["attempt"] = attempt
+            return timing
+
+
 def run_step(ctx: Context, params: Parameters) -> dict[str, Any]:
     """The ``sync`` step (skipped on --resume when done); returns the timing."""
     with ctx.step("sync") as step:
@@ -218,11 +246,7 @@ def run_step(ctx: Context, params: Parameters) -> dict[str, Any]:
             calibration = load_calibration(ctx)
             fps = fastest_fps(ctx.config)
             planned = plan(params, ctx.config).vibration("sync")
-            with Acquirer(ctx, ReduceOptions(mode="detect")) as acq:
-                rec, events = spin_and_record(ctx, acq, "sync", planned,
-                                              poll_interval_s=params.poll_interval_s)
-            timing = estimate_timing(calibration, rec, events, params=params,
-                                     rotor=required(ctx.config.targets.rotor, "targets.rotor"), fps=fps)
+            timing = record_and_estimate(ctx, params, calibration, planned, fps)
             step.output(ctx.write_json("timing.json", timing))
     recorded: dict[str, Any] = read_run_json(ctx, "timing.json")
     return recorded
