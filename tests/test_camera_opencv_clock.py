@@ -90,6 +90,9 @@ def test_a_burst_skipped_at_the_start_shifts_the_first_frame_not_the_clock_mappi
     assert map_b.host_minus_camera_s == pytest.approx(host_b_s + FLOOR_S, abs=2e-6)
     spread_s = float(np.median([_latency_s(k) for k in range(START_FRAME + 1)])) - FLOOR_S
     assert map_a.lag_spread_s == pytest.approx(spread_s, abs=2e-6) and spread_s > 0.004
+    # the start on each camera's clock: sub-frame, whatever was skipped (the first frame: a burst later)
+    assert map_a.start_camera_s == pytest.approx(start_s - host_a_s - FLOOR_S, abs=2e-6)
+    assert map_b.start_camera_s == pytest.approx(start_s - host_b_s - FLOOR_S, abs=2e-6)
     # A's recording starts at the frame exposed at the start; B's first frames were skipped: its stamps date
     # the gap (32 frames dropped after the start) — B's first recorded frame is a burst later
     first_a = round(frames_a[0].timestamp_s / PERIOD_S)

@@ -33,11 +33,15 @@ class ClockMapping:
     encoding, transport: ≥ 0, which the stream does not reveal) — the same for two like cameras, so the
     difference of two cameras' mappings relates their clocks whatever frames either skipped.
     ``lag_spread_s``: median − lowest latency of that window (≥ 0: how far frames queued on the way; a
-    catch-up burst raises it, never the mapping)."""
+    catch-up burst raises it, never the mapping). ``start_camera_s``: the recording's start instant on the
+    camera's clock by this mapping (early by that same lowest latency; None when the recording began with
+    the connection's first frame): what the first frame's stamp is to be compared with — a sub-frame dating
+    of the start, where the first frame dates it only to a frame, or later by the frames skipped."""
 
     host_minus_camera_s: float
     lag_spread_s: float
     window_frames: int
+    start_camera_s: float | None = None
 
 
 @dataclass(frozen=True)

@@ -99,14 +99,15 @@ def stamps_itself(source: str | int) -> bool:
     return scheme.lower() in STAMPED_SCHEMES or path.endswith(STAMPED_SUFFIXES)
 
 
-def clock_mapping_of(lags_s: Iterable[float]) -> ClockMapping:
+def clock_mapping_of(lags_s: Iterable[float], start_host_s: float | None = None) -> ClockMapping:
     """The clock mapping of a window of arrival latencies (arrival − stamp, s; at least one): its lowest,
-    and the median's excess over it."""
+    the median's excess over it, and ``start_host_s`` (a recording's start, host s) on the camera's clock."""
     lags = np.fromiter(lags_s, dtype=float)
     if lags.size == 0 or not np.all(np.isfinite(lags)):
         raise ValueError(f"lags_s: {lags.size} values; need at least one, all finite")
     lowest_s = float(lags.min())
-    return ClockMapping(lowest_s, float(np.median(lags)) - lowest_s, int(lags.size))
+    start_camera_s = None if start_host_s is None else float(start_host_s) - lowest_s
+    return ClockMapping(lowest_s, float(np.median(lags)) - lowest_s, int(lags.size), start_camera_s)
 
 
 class Capture(Protocol):
@@ -423,7 +424,8 @@ class OpenCVCamera(Camera):
                     break
                 gray = img if img.ndim == 2 else cv2.cvtColor(img, cv2.COLOR_BGR2GRAY)
                 if self.stamping == "stream" and self.stats.clock is None:  # the mapping that dated start()
-                    self.stats.clock = clock_mapping_of(lags_s)
+                    self.stats.clock = clock_mapping_of(
+                        lags_s, self._record_from_s if math.isfinite(self._record_from_s) else None)
                 self._account(index, stamp, arrival_s, prev_recorded, repeated=repeated, period=period)
                 prev_recorded = (stamp, arrival_s)
                 with self._lock:

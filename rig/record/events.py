@@ -250,7 +250,9 @@ class CameraEvent(Event):
     camera that stamps its own frames also gives, at ``start``, its clock's mapping onto the host's
     (:class:`drivers.camera.base.ClockMapping`): ``host_minus_camera_s`` (the driver's host clock minus the
     camera's: the lowest arrival latency of its last frames, late by the camera's own lowest latency) and
-    ``lag_spread_s`` (median − lowest latency: how far its frames queued)."""
+    ``lag_spread_s`` (median − lowest latency: how far its frames queued) and ``start_camera_s`` (``t_s``'s
+    instant on the camera's clock by that mapping: the first frame is exposed at or after it; both are
+    early by the camera's own lowest latency, which the stream does not reveal)."""
 
     KIND: ClassVar[str] = "camera"
     STREAM: ClassVar[str] = "camera"
@@ -265,6 +267,7 @@ class CameraEvent(Event):
     n_frames: int | None = None
     host_minus_camera_s: float | None = None
     lag_spread_s: float | None = None
+    start_camera_s: float | None = None
 
 
 EVENT_TYPES: dict[str, type[Event]] = {

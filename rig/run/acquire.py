@@ -275,7 +275,8 @@ class Acquirer:
             ctx.event("camera", CameraEvent(
                 name, "start", segment, t_start, first_index=first[0], first_timestamp_s=first[1],
                 host_minus_camera_s=None if mapping is None else mapping.host_minus_camera_s,
-                lag_spread_s=None if mapping is None else mapping.lag_spread_s))
+                lag_spread_s=None if mapping is None else mapping.lag_spread_s,
+                start_camera_s=None if mapping is None else mapping.start_camera_s))
             ctx.event("camera", CameraEvent(name, "stop", segment, t_stop, last_index=last[0],
                                             last_timestamp_s=last[1], n_frames=len(parts)))
         if fiducial_on and self.fiducial is not None:
