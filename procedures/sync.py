@@ -13,7 +13,8 @@ When the joint method finds too little motion to use and the cameras lost frames
 joint method leaves out the instants near every gap of a track), the error names each camera's frames
 missing, their share and the gaps (:class:`LostFramesError`), not only the overlap left; the step then
 records again, up to ``attempts`` recordings (segments ``sync``, ``sync-2``, …: each a spin-up, the
-recording and the stop, so each further attempt adds the planned step's time), and raises the last error.
+recording and the stop at the planned speed; recording n lasts n × ``record_s``, as a longer recording keeps
+longer stretches between a host's skipped bursts), and raises the last error.
 
 Truth events: ``rotor`` (polled actual frequency) and ``rotation`` (the steady rotation recorded, for the
 radius and frequency checks of the report). Needs ``calibration.json`` (the calibrate step) first.
@@ -21,6 +22,7 @@ radius and frequency checks of the report). Needs ``calibration.json`` (the cali
 
 from __future__ import annotations
 
+import dataclasses
 from typing import Any
 
 import numpy as np
@@ -47,7 +49,7 @@ from rig.run.acquire import Acquirer, Recording, ReduceOptions
 from rig.run.plan import Plan, PlanStep, Vibration
 from rig.run.procedure import Context
 from rig.stereo import DLTCamera, TimingError
-from rig.stereo.errors import NoCommonMotionError, TooFewSamplesError
+from rig.stereo.errors import NoCommonMotionError, NonUniformSamplingError, TooFewSamplesError
 from rig.stereo.timing import estimate_offset
 
 
@@ -155,7 +157,8 @@ def estimate_timing(calibration: dict[str, Any], rec: Recording[Any], camera_eve
         joint = estimate_offset(cams[ref], cams[other], (*series[ref], rows[ref]),
                                 (*series[other], rows[other]), method="joint", names=(ref, other),
                                 offset_guess_s=guess, search_half_width_s=half)
-    except (NoCommonMotionError, TooFewSamplesError) as exc:
+    except (NoCommonMotionError, TooFewSamplesError, NonUniformSamplingError) as exc:  # (the last: a fit on
+        # the few instants left runs the line time to its bound, B's row-corrected instants off their grid)
         lost = lost_frames_error(rec, fps, exc)
         if lost is None:
             raise
@@ -219,13 +222,17 @@ def plan(params: Parameters, config: RigConfig) -> Plan:
 
 def record_and_estimate(ctx: Context, params: Parameters, calibration: dict[str, Any], planned: Vibration,
                         fps: float) -> dict[str, Any]:
-    """The rotor recorded and the timing estimated, recording again (segment ``sync-<n>``) while the
-    recording lost frames the estimate cannot do without, up to ``params.attempts`` recordings."""
+    """The rotor recorded and the timing estimated, recording again (segment ``sync-<n>``, n × the planned
+    recording time) while the recording lost frames the estimate cannot do without, up to
+    ``params.attempts`` recordings."""
     rotor = required(ctx.config.targets.rotor, "targets.rotor")
     with Acquirer(ctx, ReduceOptions(mode="detect")) as acq:
         attempt = 1
         while True:
-            rec, events = spin_and_record(ctx, acq, "sync" if attempt == 1 else f"sync-{attempt}", planned,
+            (_, rotation_hz), (record_s, _) = planned.profile[0], planned.profile[-1]
+            longer = dataclasses.replace(planned, profile=((0.0, rotation_hz),
+                                                           (attempt * record_s, rotation_hz)))
+            rec, events = spin_and_record(ctx, acq, "sync" if attempt == 1 else f"sync-{attempt}", longer,
                                           poll_interval_s=params.poll_interval_s)
             try:
                 timing = estimate_timing(calibration, rec, events, params=params, rotor=rotor, fps=fps)

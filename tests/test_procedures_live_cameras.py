@@ -187,6 +187,9 @@ class GatedCamera:
     def start(self) -> None:
         pass
 
+    def clock_mapping(self) -> None:
+        return None
+
     def stop(self) -> None:
         pass
 

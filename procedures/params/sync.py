@@ -20,5 +20,5 @@ class Parameters:
     search_frames: float = field(default=2.0, metadata=param(lo=0.5, hi=30.0,
                                                              doc="offset search half-width, frame periods"))
     attempts: int = field(default=3, metadata=param(lo=1, hi=10, doc="rotor recordings tried while frames "
-                                                               "are lost (each repeats the step)"))
+                                                               "are lost (the n-th: n × record_s)"))
     compare_rotor_method: bool = field(default=True, metadata=param(doc="also run the paper's method"))
