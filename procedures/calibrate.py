@@ -53,11 +53,12 @@ def plate_poses(plate: CalibrationPlateTarget, slides_mm: tuple[float, ...]) -> 
 def _control_points(positions: list[dict[str, Any]], camera: str, plate: CalibrationPlateTarget,
                     min_frames: int) -> tuple[np.ndarray, np.ndarray, list[float]]:
     """(xyz_mm, uv_px, grid residual per position) of one camera over all positions; StillFramesError when
-    a position has some but fewer than ``min_frames`` frames with markers (frames dropped: its markers'
-    means would be dropped and the grid fitted to the wrong points, "found 39 plate markers")."""
-    for i, pos in enumerate(positions):
-        n_frames = int(pos["observations"][camera]["frame_index"].nunique())
-        if 0 < n_frames < min_frames:  # (none at all: no marker in view, the grid's error says so)
+    a position has fewer than ``min_frames`` frames with markers — none at all too, when other positions have
+    some (frames dropped: its markers' means would be dropped, the static references then look moved and
+    the grid of another position is fitted to the wrong points, "found 39 plate markers")."""
+    counts = [int(pos["observations"][camera]["frame_index"].nunique()) for pos in positions]
+    for i, (pos, n_frames) in enumerate(zip(positions, counts, strict=True)):
+        if n_frames < min_frames and any(counts):  # (none anywhere: no marker in view: the grid error)
             raise StillFramesError(
                 f"camera {camera!r}, plate position {i} (slide {pos['slide_mm']:g} mm): {n_frames} frames "
                 f"with markers recorded, at least {min_frames} needed (calibrate.frames_per_position // 2): "

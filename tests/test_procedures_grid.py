@@ -99,3 +99,8 @@ def test_a_plate_position_with_too_few_frames_is_named_not_fitted() -> None:
     message = r"camera 'right', plate position 1 \(slide 0 mm\): 3 frames with markers recorded, at least 6"
     with pytest.raises(StillFramesError, match=message):
         _control_points(positions, "right", plate, 6)
+    # a still recording that fell wholly into a skipped burst (the lab at load 9: 0 frames) is named too, not
+    # left to make the references look moved in the other positions ("found 39 plate markers" at position 0)
+    positions[1]["observations"]["right"] = seen(0)
+    with pytest.raises(StillFramesError, match=r"plate position 1 \(slide 0 mm\): 0 frames with markers"):
+        _control_points(positions, "right", plate, 6)
