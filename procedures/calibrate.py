@@ -7,7 +7,10 @@ positions, the references do not) and ordered on the grid (:mod:`rig.deploy.plat
 positions follow from the commanded pose and the plate geometry of the configuration. One DLT per camera
 (:func:`rig.stereo.calibrate_dlt`; refined, with radial distortion ``k1`` by default — with a small plate
 ``k1`` extrapolates best over the measurement volume, docs/stereo_core.md) → ``calibration.json`` with the
-residuals. Truth events: ``arm`` per move and ``calibration_position`` per position.
+residuals. A still recording in which a camera has fewer than half the frames with markers (frames dropped
+by the camera or a loaded host: a skipped burst can swallow a whole 0.16-s recording) is recorded again at
+the same pose, up to :data:`STILL_ATTEMPTS` recordings (logged); the last one is used. Truth events: ``arm``
+per move and ``calibration_position`` per position.
 """
 
 from __future__ import annotations
@@ -38,6 +41,7 @@ from rig.run.plan import ArmMoves, Plan
 from rig.run.procedure import Context, ParameterError
 from rig.stereo import calibrate_dlt
 
+STILL_ATTEMPTS = 3  # still recordings tried per plate position while a camera has too few frames
 
 class StillFramesError(RuntimeError):
     """A still recording of the plate holds too few frames to average (a fault of the acquisition: exit 3)."""
@@ -115,18 +119,26 @@ def calibrate_cameras(ctx: Context, params: Parameters) -> dict[str, Any]:
     mount(ctx, "calibration_plate")
     offsets = plate_offsets_tool_mm(plate)
     positions = []
+    min_frames = max(1, params.frames_per_position // 2)
     with Acquirer(ctx, ReduceOptions(mode="track", window_px=31)) as acq:
         for i, pose in enumerate(poses):
             ctx.progress(i / len(poses), f"calibrate: plate position {i + 1}/{len(poses)}")
             rec = record_still(ctx, acq, arm, pose, "calibrate", frames=params.frames_per_position,
                                settle_s=params.settle_s, speed_mm_s=params.speed_mm_s)
+            for attempt in range(2, STILL_ATTEMPTS + 1):
+                seen = {n: int(o["frame_index"].nunique()) for n, o in rec.observations.items()}
+                if min(seen.values(), default=0) >= min_frames:
+                    break
+                ctx.log.warning("calibrate: plate position %d: frames with markers %s, fewer than %d (frames "
+                                "dropped); recording again (%d of %d)", i, seen, min_frames, attempt,
+                                STILL_ATTEMPTS)
+                rec = acq.record("calibrate", (params.frames_per_position + 1.5) / fastest_fps(ctx.config))
             points = arm_marker_positions(pose, offsets)
             ctx.event("calibration_position", CalibrationPositionEvent(
                 index=i, t_start_s=rec.t_start_s, t_stop_s=rec.t_stop_s, pose=list(pose),
                 slide_mm=slides[i], points=points))
             positions.append({"points": points, "observations": rec.observations, "slide_mm": slides[i]})
     cameras, grid = {}, {}
-    min_frames = max(1, params.frames_per_position // 2)
     for name in ctx.cameras:
         xyz, uv, resid = _control_points(positions, name, plate, min_frames)
         width_px, height_px = ctx.config.cameras[name].resolution_px
