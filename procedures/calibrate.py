@@ -9,7 +9,8 @@ positions follow from the commanded pose and the plate geometry of the configura
 ``k1`` extrapolates best over the measurement volume, docs/stereo_core.md) → ``calibration.json`` with the
 residuals. A still recording in which a camera has fewer than half the frames with markers (frames dropped
 by the camera or a loaded host: a skipped burst can swallow a whole 0.16-s recording) is recorded again at
-the same pose, up to :data:`STILL_ATTEMPTS` recordings (logged); the last one is used. Truth events: ``arm``
+the same pose, the n-th n times as long, up to :data:`STILL_ATTEMPTS` recordings (logged); the last one is
+used. Truth events: ``arm``
 per move and ``calibration_position`` per position.
 """
 
@@ -132,7 +133,8 @@ def calibrate_cameras(ctx: Context, params: Parameters) -> dict[str, Any]:
                 ctx.log.warning("calibrate: plate position %d: frames with markers %s, fewer than %d (frames "
                                 "dropped); recording again (%d of %d)", i, seen, min_frames, attempt,
                                 STILL_ATTEMPTS)
-                rec = acq.record("calibrate", (params.frames_per_position + 1.5) / fastest_fps(ctx.config))
+                rec = acq.record("calibrate",
+                                 attempt * (params.frames_per_position + 1.5) / fastest_fps(ctx.config))
             points = arm_marker_positions(pose, offsets)
             ctx.event("calibration_position", CalibrationPositionEvent(
                 index=i, t_start_s=rec.t_start_s, t_stop_s=rec.t_stop_s, pose=list(pose),

@@ -61,7 +61,10 @@ DEVICE_ORDER = ("robot", "exciter", "rotor", "generator")  # --port-base N: robo
 TOLERANT = {"robot": {"wdt_ms": 2000}, "exciter": {"comm_timeout_s": 5.0}, "rotor": {"comm_timeout_s": 5.0}}
 REAL_TIME = 1.0  # virtual s per wall s: a controller drives the lab live
 STREAMS = ("matroska", "mjpeg")  # the cameras' stream forms (--stream)
-CATCH_UP_S = 0.5  # a stamped stream catches up stalls (its late frames keep their stamps), not a deficit
+# a stamped stream catches up stalls (its late frames keep their stamps), not a lasting deficit: 2 s, as
+# rig's reading of a recording (decoding and reducing every frame) starves a loaded host's lab for seconds,
+# and a burst skipped at 0.5 s behind swallowed whole 0.16-s still recordings
+CATCH_UP_S = 2.0
 HEARTBEAT_TIMEOUT_S = 6.0  # above the 2 s WDT; drives probed every 1.5 s, their 5 s time-out above 2 probes
 
 
