@@ -23,6 +23,7 @@ radius and frequency checks of the report). Needs ``calibration.json`` (the cali
 from __future__ import annotations
 
 import dataclasses
+import math
 from typing import Any
 
 import numpy as np
@@ -107,13 +108,17 @@ def guess_source(events: list[dict[str, Any]], reference: str, other: str) -> di
     return {"source": "camera start events: the cameras' first frames"}
 
 
-def frame_loss(timestamps_s: np.ndarray, fps: float) -> tuple[int, int, int]:
-    """(frames delivered, frames missing between them, gaps) of one recording from its frames' stamps (s,
-    camera clock; a gap is an interval longer than 1.5 nominal frame periods)."""
+def frame_loss(timestamps_s: np.ndarray, fps: float, duration_s: float) -> tuple[int, int, int, int]:
+    """(frames delivered, frames missing between them, gaps, frames missing at the ends) of one recording of
+    ``duration_s`` from its frames' stamps (s, camera clock; a gap is an interval longer than 1.5 nominal
+    frame periods; at the ends: fewer frames than the recording's ``duration_s`` × ``fps`` − 1 — a stream
+    that skipped ahead past the stop, or started late)."""
     stamps = np.unique(np.asarray(timestamps_s, dtype=float))
     steps_frames = np.round(np.diff(stamps) * fps)
     gaps = np.diff(stamps) > 1.5 / fps
-    return int(stamps.size), int(np.sum(steps_frames[gaps] - 1)), int(np.count_nonzero(gaps))
+    inside = int(np.sum(steps_frames[gaps] - 1))
+    ends = max(0, math.floor(duration_s * fps) - 1 - stamps.size - inside)
+    return int(stamps.size), inside, int(np.count_nonzero(gaps)), ends
 
 
 class LostFramesError(TooFewSamplesError):
@@ -123,14 +128,16 @@ class LostFramesError(TooFewSamplesError):
 def lost_frames_error(rec: Recording[Any], fps: float, cause: TimingError) -> LostFramesError | None:
     """The error naming each camera's lost frames when ``rec`` lost any (None when it lost none): the
     joint method cannot reconstruct a track across a gap, so lost frames can leave it too little overlap."""
-    losses = {n: frame_loss(o["timestamp_s"].to_numpy(float), fps) for n, o in rec.observations.items()}
-    if not any(missing for _, missing, _ in losses.values()):
+    duration_s = rec.t_stop_s - rec.t_start_s
+    losses = {n: frame_loss(o["timestamp_s"].to_numpy(float), fps, duration_s)
+              for n, o in rec.observations.items()}
+    if not any(inside + ends for _, inside, _, ends in losses.values()):
         return None
-    shares = "; ".join(f"camera {n!r}: {missing} of {delivered + missing} frames missing "
-                       f"({missing / max(delivered + missing, 1):.0%}) in {gaps} gap(s)"
-                       for n, (delivered, missing, gaps) in losses.items())
+    shares = "; ".join(f"camera {n!r}: {inside + ends} of {got + inside + ends} frames missing "
+                       f"({(inside + ends) / max(got + inside + ends, 1):.0%}): {inside} in {gaps} gap(s), "
+                       f"{ends} at the ends" for n, (got, inside, gaps, ends) in losses.items())
     return LostFramesError(
-        f"the {rec.t_stop_s - rec.t_start_s:.1f}-s rotor recording lost frames ({shares}): the cameras (or a "
+        f"the {duration_s:.1f}-s rotor recording lost frames ({shares}): the cameras (or a "
         f"host too loaded to read or render them) skipped frames, and the joint method leaves out every "
         f"instant near a gap; record again (sync.record_s longer) on a host that keeps up. ({cause})")
 

@@ -46,8 +46,10 @@ def _observations(stamps_s: np.ndarray) -> pd.DataFrame:
 def test_frame_loss_counts_the_missing_frames_from_the_stamps() -> None:
     stamps = np.arange(180) / FS_HZ
     kept = np.delete(stamps, np.r_[70:80, 120:124])
-    assert sync.frame_loss(stamps, FS_HZ) == (180, 0, 0)
-    assert sync.frame_loss(np.repeat(kept, 3), FS_HZ) == (166, 14, 2)  # one row per marker: stamps repeat
+    assert sync.frame_loss(stamps, FS_HZ, 3.0) == (180, 0, 0, 0)
+    assert sync.frame_loss(np.repeat(kept, 3), FS_HZ, 3.0) == (166, 14, 2, 0)  # rows per marker: stamps repeat
+    # a stream that skipped ahead past the stop: its last 58 frames never came (no gap between the others)
+    assert sync.frame_loss(stamps[:122], FS_HZ, 3.0) == (122, 0, 0, 57)
 
 
 def test_a_sync_that_lost_frames_names_each_cameras_share() -> None:
@@ -58,8 +60,8 @@ def test_a_sync_that_lost_frames_names_each_cameras_share() -> None:
     error = sync.lost_frames_error(rec, FS_HZ, cause)
     assert error is not None
     text = str(error)
-    assert "camera 'left': 0 of 180 frames missing (0%) in 0 gap(s)" in text
-    assert "camera 'right': 36 of 180 frames missing (20%) in 1 gap(s)" in text
+    assert "camera 'left': 0 of 180 frames missing (0%): 0 in 0 gap(s), 0 at the ends" in text
+    assert "camera 'right': 36 of 180 frames missing (20%): 36 in 1 gap(s), 0 at the ends" in text
     assert "3.0-s rotor recording lost frames" in text and "only 0 observations" in text
     whole = Recording("sync", None, 10.0, 13.0, {name: _observations(stamps) for name in ("left", "right")})
     assert sync.lost_frames_error(whole, FS_HZ, cause) is None  # nothing lost: the original error stands
