@@ -47,8 +47,8 @@ def test_frame_loss_counts_the_missing_frames_from_the_stamps() -> None:
     stamps = np.arange(180) / FS_HZ
     kept = np.delete(stamps, np.r_[70:80, 120:124])
     assert sync.frame_loss(stamps, FS_HZ, 3.0) == (180, 0, 0, 0)
-    assert sync.frame_loss(np.repeat(kept, 3), FS_HZ, 3.0) == (166, 14, 2, 0)  # rows per marker: stamps repeat
-    # a stream that skipped ahead past the stop: its last 58 frames never came (no gap between the others)
+    assert sync.frame_loss(np.repeat(kept, 3), FS_HZ, 3.0) == (166, 14, 2, 0)  # (a row per marker)
+    # a stream that skipped ahead past the stop: its last 58 frames never came (57 beyond the ±1 of the window) (no gap between the others)
     assert sync.frame_loss(stamps[:122], FS_HZ, 3.0) == (122, 0, 0, 57)
 
 
