@@ -48,7 +48,7 @@ def test_frame_loss_counts_the_missing_frames_from_the_stamps() -> None:
     kept = np.delete(stamps, np.r_[70:80, 120:124])
     assert sync.frame_loss(stamps, FS_HZ, 3.0) == (180, 0, 0, 0)
     assert sync.frame_loss(np.repeat(kept, 3), FS_HZ, 3.0) == (166, 14, 2, 0)  # (a row per marker)
-    # a stream that skipped ahead past the stop: its last 58 frames never came (57 beyond the ±1 of the window) (no gap between the others)
+    # a stream that skipped ahead past the stop: its last 58 frames never came (57 beyond ±1 frame)
     assert sync.frame_loss(stamps[:122], FS_HZ, 3.0) == (122, 0, 0, 57)
 
 
