@@ -169,7 +169,7 @@ def _truth_offset_s(config: dict[str, object], origins: dict[str, float], ref: s
 
 
 @pytest.mark.slow
-@pytest.mark.quiet_machine  # at load 10–18 after the sync's lost-frame retries: 1 pass, 1 skip (lab 38 % behind)
+@pytest.mark.quiet_machine  # at load 10–18 with the lost-frame retries: 1 pass, 1 skip (lab 38 % behind)
 def test_rig_syncs_and_sweeps_against_the_lab_on_the_cameras_clocks(tmp_path: Path) -> None:
     """``rig run sweep`` (calibrate, sync, sweep, report) against the lab at 60 fps runs to its certificate;
     the sync's offset and drift between the two cameras' own clocks match the lab world's within 5 standard
