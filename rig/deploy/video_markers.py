@@ -2,11 +2,10 @@
 
 Frames are decoded in order by :class:`drivers.camera.video_file.VideoFile` (container time stamps,
 duplicated and dropped frames reported, never shifted silently; the luma planes decoded into a ring of
-five images, not a fresh array each). Each frame is reduced at once to marker rows and its image dropped, by :class:`rig.analysis.frame_reduction.MarkerReducer` (the reduction the rig's
-own
-recordings use): the first frame is searched whole (:func:`rig.stereo.detect_markers`), later frames only
-in a window around each marker's last position (:func:`rig.stereo.track_markers`), with a whole-frame
-search again when a marker is lost and every ``redetect_every`` frames (markers entering the view).
+five images, not a fresh array each). Each frame is reduced at once to marker rows and its image dropped,
+by :class:`rig.analysis.frame_reduction.MarkerReducer` (the reduction the rig's own recordings use): the
+first frame is searched whole (:func:`rig.stereo.detect_markers`), later frames only in a window around
+each marker's last position (:func:`rig.stereo.track_markers`), with a whole-frame search again when a marker is lost and every ``redetect_every`` frames (markers entering the view).
 ``mode="detect"`` searches every frame whole.
 
 Duplicated frames carry no new instant: their rows are kept with ``duplicate = True`` so that what was
