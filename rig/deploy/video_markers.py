@@ -5,8 +5,9 @@ duplicated and dropped frames reported, never shifted silently; the luma planes 
 five images, not a fresh array each). Each frame is reduced at once to marker rows and its image dropped,
 by :class:`rig.analysis.frame_reduction.MarkerReducer` (the reduction the rig's own recordings use): the
 first frame is searched whole (:func:`rig.stereo.detect_markers`), later frames only in a window around
-each marker's last position (:func:`rig.stereo.track_markers`), with a whole-frame search again when a marker is lost and every ``redetect_every`` frames (markers entering the view).
-``mode="detect"`` searches every frame whole.
+each marker's last position (:func:`rig.stereo.track_markers`), with a whole-frame search again when a
+marker is lost and every ``redetect_every`` frames (markers entering the view). ``mode="detect"`` searches
+every frame whole.
 
 Duplicated frames carry no new instant: their rows are kept with ``duplicate = True`` so that what was
 seen stays inspectable, and the analysis leaves them out. Columns (contracts.md, run-folder observations):
