@@ -87,7 +87,11 @@ class MarkerReducer:
         self._ids = np.empty(0, dtype=np.int64)
         self._next_id = int(first_id)
         self._since_detect = 0
-        self._hist: list[list[np.ndarray]] = []  # last three positions of each marker row of ``_uv``
+        # the last three positions of each marker row of ``_uv`` (oldest first, (n, 3, 2) px), of which the
+        # last ``_depth`` are known: arrays, not lists of rows (a frame's Python is microseconds per marker)
+        self._hist = np.zeros((0, 3, 2))
+        self._depth = np.zeros(0, dtype=np.int64)
+        self._bounds: tuple[tuple[int, ...], np.ndarray] = ((), np.zeros(2))  # frame shape, clip limits
         self.whole_frame_searches = 0  # frames searched whole (the costly path), for diagnostics
 
     @property
@@ -100,13 +104,17 @@ class MarkerReducer:
         than a quarter window in the last frame (a rotor, ≈ 100 px per frame at 10 Hz) — the circle through
         its last three positions turned on by the same angle (constant velocity if they are collinear)."""
         out = self._uv.copy()
-        for j, h in enumerate(self._hist):
-            if len(h) < 2 or np.linalg.norm(h[-1] - h[-2]) <= self.options.window_px / 4:
-                continue
-            p = circle_prediction([0.0, 1.0, 2.0], h, 3.0) if len(h) == 3 else None
-            out[j] = p if p is not None else 2 * h[-1] - h[-2]
-        out[:, 0] = np.clip(out[:, 0], 0, shape[1] - 1)
-        out[:, 1] = np.clip(out[:, 1], 0, shape[0] - 1)
+        if len(out):
+            h = self._hist
+            step = h[:, 2] - h[:, 1]
+            moved = np.sqrt(step[:, 0] * step[:, 0] + step[:, 1] * step[:, 1])
+            # a NaN step counts as a fast one, as ``not norm <= limit`` did
+            for j in np.flatnonzero((self._depth >= 2) & ~(moved <= self.options.window_px / 4)).tolist():
+                p = circle_prediction([0.0, 1.0, 2.0], list(h[j]), 3.0) if self._depth[j] == 3 else None
+                out[j] = p if p is not None else 2 * h[j, 2] - h[j, 1]
+        if self._bounds[0] != shape:
+            self._bounds = (shape, np.array([shape[1] - 1, shape[0] - 1], dtype=float))
+        np.clip(out, 0, self._bounds[1], out=out)
         return out
 
     def _associate(self, found: np.ndarray, predicted: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -153,10 +161,15 @@ class MarkerReducer:
             ids, links = self._associate(found, predicted)
             self._since_detect = 1
         assert ids is not None
-        self._uv = np.c_[found["u_px"], found["v_px"]]
-        self._ids = ids
-        self._hist = [[*(self._hist[k][-2:] if k >= 0 else []), uv]
-                      for k, uv in zip(links, self._uv, strict=True)]
+        uv = np.empty((len(found), 2))
+        uv[:, 0], uv[:, 1] = found["u_px"], found["v_px"]
+        hist = np.zeros((len(uv), 3, 2))
+        depth = np.ones(len(uv), dtype=np.int64)
+        kept = links >= 0  # rows continuing a marker of the last frame keep its two last positions
+        hist[kept, :2] = self._hist[links[kept], 1:]
+        depth[kept] = np.minimum(self._depth[links[kept]] + 1, 3)
+        hist[:, 2] = uv
+        self._uv, self._ids, self._hist, self._depth = uv, ids, hist, depth
         return found, ids
 
 
