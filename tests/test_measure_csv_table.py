@@ -19,7 +19,8 @@ def frames(draw: st.DrawFn) -> pd.DataFrame:
     rows = draw(st.integers(0, 12))
     out: dict[str, object] = {}
     for i in range(draw(st.integers(1, 5))):
-        kind = draw(st.sampled_from(["float", "bits", "int", "uint8", "bool", "str", "object", "float32"]))
+        kind = draw(st.sampled_from(["float", "bits", "runs", "int", "uint8", "bool", "str", "object",
+                                     "float32"]))
         if kind == "float":
             out[f"c{i}_mm"] = np.array(draw(st.lists(st.floats(allow_nan=True, allow_infinity=True),
                                                      min_size=rows, max_size=rows)), dtype=np.float64)
@@ -27,6 +28,10 @@ def frames(draw: st.DrawFn) -> pd.DataFrame:
             seed = draw(st.integers(0, 2**32 - 1))
             bits = np.random.default_rng(seed).integers(0, 2**63, rows, dtype=np.uint64)
             out[f"c{i}"] = bits.view(np.float64)
+        elif kind == "runs":  # values repeated on consecutive rows (formatted once): ±0, NaN, inf among them
+            pool = np.array([0.0, -0.0, np.nan, np.inf, -np.inf, 1.5, 1e-5, 0.1, 1e16])
+            picks = draw(st.lists(st.integers(0, len(pool) - 1), min_size=rows, max_size=rows))
+            out[f"c{i}_s"] = pool[np.sort(np.array(picks, dtype=np.int64))]
         elif kind == "int":
             out[f"c{i}"] = np.array(draw(st.lists(st.integers(-2**62, 2**62), min_size=rows, max_size=rows)),
                                     dtype=np.int64)

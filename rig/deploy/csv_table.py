@@ -25,8 +25,15 @@ __all__ = ["csv_text", "write_csv"]
 
 
 def _float_cells(values: np.ndarray) -> list[str]:
-    """float64 values as pandas writes them: ``repr``, NaN empty (±inf as ``inf``/``-inf``)."""
-    return [repr(x) if not math.isnan(x) else "" for x in values.tolist()]
+    """float64 values as pandas writes them: ``repr``, NaN empty (±inf as ``inf``/``-inf``). A value
+    repeated on consecutive rows (bit for bit: −0.0 is not 0.0), e.g. a frame's time stamp on each of its
+    markers' rows, is formatted once."""
+    bits = values.view(np.int64)
+    starts = np.flatnonzero(np.r_[True, bits[1:] != bits[:-1]])
+    if 2 * len(starts) > len(values):  # mostly distinct: one repr each
+        return [repr(x) if not math.isnan(x) else "" for x in values.tolist()]
+    text = [repr(x) if not math.isnan(x) else "" for x in values[starts].tolist()]
+    return [text[i] for i in np.repeat(np.arange(len(starts)), np.diff(np.r_[starts, len(values)])).tolist()]
 
 
 def _csv_cell(text: str) -> str:
@@ -39,7 +46,8 @@ def _csv_cell(text: str) -> str:
 def _quoted(cells: list[str]) -> list[str]:
     """Text cells as :mod:`csv` writes them: those holding a delimiter, quote or line-break character (which
     ones csv quotes depends on the Python version and the line terminator) formatted by csv itself."""
-    return [_csv_cell(x) if any(c in x for c in ',"\r\n') else x for x in cells]
+    special = {x: _csv_cell(x) for x in set(cells) if any(c in x for c in ',"\r\n')}  # each value once
+    return [special.get(x, x) for x in cells] if special else cells
 
 
 def _cells(column: pd.Series) -> list[str] | None:
