@@ -112,23 +112,15 @@ def decode_ours(path: Path) -> tuple[int, float]:
     return n, time.perf_counter() - t0
 
 
-def decode_until(path: Path, stop_s: float | None = None, ring: int = 0) -> int:
+def decode_until(path: Path, stop_s: float | None = None) -> int:
     """The decode-only baseline: every frame's luma plane grabbed and retrieved, nothing else, up to the
     first frame stamped after ``stop_s`` (s; None: to the end), as
-    :func:`rig.deploy.video_markers.extract_video` with ``ExtractOptions(stop_s=…)`` decodes. ``ring``: the
-    planes retrieved into that many images in turn, as ``VideoFile.frames(reuse_images=True)`` does (0: a
-    new image each, OpenCV's default: the baseline of the target)."""
+    :func:`rig.deploy.video_markers.extract_video` with ``ExtractOptions(stop_s=…)`` decodes."""
     cap = cv2.VideoCapture(str(path), cv2.CAP_FFMPEG)
     cap.set(cv2.CAP_PROP_CONVERT_RGB, 0)
     n = 0
-    images: list[Any] = []
     while cap.grab():
-        if not ring:
-            cap.retrieve()
-        elif len(images) < ring:
-            images.append(cap.retrieve()[1])
-        else:
-            cap.retrieve(images[n % ring])
+        cap.retrieve()
         n += 1
         if stop_s is not None and cap.get(cv2.CAP_PROP_POS_MSEC) / 1000.0 > stop_s:
             break
@@ -163,12 +155,8 @@ def worker(folder: Path, seconds: float, long_s: float | None = None) -> dict[st
         stop = None if length_s >= file_s else length_s
         decode_cpu = cpu_both(partial(decode_until, stop_s=stop), paths)[0]
         cpu, wall, res = measure_once(folder, paths, calibration, options(length_s))
-        # the same decoding into reused images (what rig measure's reader does since thru14e), long pair only
-        ring_cpu = None
-        if length_s == long_s:
-            ring_cpu = cpu_both(partial(decode_until, stop_s=stop, ring=5), paths)[0]
         runs[f"{length_s:g}"] = {
-            "decode_cpu_s": decode_cpu, "decode_ring_cpu_s": ring_cpu, "measure_cpu_s": cpu, "wall_s": wall,
+            "decode_cpu_s": decode_cpu, "measure_cpu_s": cpu, "wall_s": wall,
             "steps_cpu_s": {k[9:]: v for k, v in res.timings_s.items() if k.startswith("cpu_step_")},
             "frames": sum(res.timings_s[f"{c}_frames"] for c in ("left", "right")),
             "digest": tables_digest(folder / "out")}
@@ -257,12 +245,6 @@ def print_interleaved(name: str, runs: list[dict[str, Any]], seconds: float, lon
               f"(runs {each_long}); wall {wall_long:.2f} s = {2 * long_s / wall_long:.2f} × real time; "
               f"per added second ({whole} → {key} s): {added_long:.2f} × the decode-only CPU, "
               f"{2 * (long_s - seconds) / added_wall:.2f} × real time")
-        if all(r[key].get("decode_ring_cpu_s") for r in runs):
-            ring = med(lambda r: r[key]["decode_ring_cpu_s"])
-            print(f"          {long_s:g}-s pair against decoding into 5 reused images (after rig measure): "
-                  f"{ring / (2 * long_s):.3f} CPU-s per s of video = "
-                  f"{ring / med(lambda r: r[key]['decode_cpu_s']):.2f} × the decode-only CPU; rig measure "
-                  f"{med(lambda r: r[key]['measure_cpu_s'] / r[key]['decode_ring_cpu_s']):.2f} × it")
 
 
 def main(argv: list[str] | None = None) -> int:

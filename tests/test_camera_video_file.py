@@ -14,7 +14,6 @@ from hypothesis import strategies as st
 
 from drivers.camera.base import Frame, FrameSource
 from drivers.camera.video_file import (
-    IMAGE_RING,
     DuplicateJudge,
     VideoFile,
     VideoOpenError,
@@ -250,24 +249,3 @@ def test_the_motion_region_is_every_block_next_to_a_sampled_block_that_moved(row
                        if abs(2 * i - r) <= 1 and abs(2 * j - c) <= 1)]
     got_rows, got_cols = _motion_region(before, after, (rows, cols))
     assert list(zip(got_rows.tolist(), got_cols.tolist(), strict=True)) == expected
-
-
-def test_images_decoded_into_a_ring_are_the_same_frames_and_judgements(tmp_path: Path) -> None:
-    """``frames(reuse_images=True)`` (what ``rig measure`` reads with): each image, while it is delivered, is
-    the image decoded into a fresh array; the duplicate judge, which compares frames k−2 … k+1 at full
-    resolution in this scene, finds the same duplicates with the same evidence; the planes live in
-    IMAGE_RING arrays (and the first frame's, decoded with the luma check)."""
-    _, path, n, _ = _column(tmp_path, 4.0, "mp4v")
-    fresh_video, ring_video = VideoFile(path), VideoFile(path)
-    fresh = [(f.index, f.timestamp_s, f.image) for f in fresh_video.frames()]
-    ring, buffers = [], set()
-    for f in ring_video.frames(reuse_images=True):
-        ring.append((f.index, f.timestamp_s, f.image.copy()))
-        buffers.add(f.image.__array_interface__["data"][0])
-    assert len(ring) == len(fresh) == n
-    for (i, t, image), (j, u, reused) in zip(fresh, ring, strict=True):
-        assert (i, t) == (j, u) and np.array_equal(image, reused)
-    assert ring_video.report.to_dict() == fresh_video.report.to_dict()
-    assert len(fresh_video.report.duplicated) >= 1  # judged at full resolution in the region
-    assert any(d["region_blocks"] for d in ring_video.report.duplicated)
-    assert len(buffers) == IMAGE_RING + 1

@@ -62,9 +62,6 @@ _SUB = 4  # subsampling of the luma-plane check
 # frames(start_s=…) starts this many frames early: the duplicate judge's history (31 noise floors) and its
 # k−2 … k+1 neighbours are then those of a decode from the first frame when the wanted frames come
 SEEK_PREROLL_FRAMES = 40
-# frames(reuse_images=True): images decoded into in turn. While frame k+1 is decoded, frames k−3 … k are
-# still held (the duplicate judge's k−2 … k+1 window, frame k−1 delivered): five images are never aliased
-IMAGE_RING = 5
 
 
 class VideoFileError(RuntimeError):
@@ -459,7 +456,6 @@ class VideoFile(Camera):
         self.duplicate_indices: set[int] = set()
         self._first_pts_s = 0.0
         self._start_index = 0  # the frame a seek landed on (frames(start_s=…)), for the next decode
-        self._reuse_images = False  # frames(reuse_images=…)
 
     def _new_report(self) -> FrameTimeReport:
         return FrameTimeReport(str(self.path), frames_declared=self.frames_declared,
@@ -501,11 +497,10 @@ class VideoFile(Camera):
     def snapshot(self) -> dict[str, Any]:
         return {"driver": "file", "path": str(self.path)}
 
-    def _gray(self, cap: cv2.VideoCapture, out: NDArray[np.uint8] | None = None) -> NDArray[np.uint8] | None:
+    def _gray(self, cap: cv2.VideoCapture) -> NDArray[np.uint8] | None:
         """The decoded image as 2-D gray levels; OpenCV decodes 8-bit video to uint8 (its stubs say only
-        MatLike) and :class:`Frame` refuses any other dtype. ``out``: an image of the luma plane's size and
-        type for OpenCV to copy the plane into (else it allocates one)."""
-        ok, img = cap.retrieve() if out is None else cap.retrieve(out)
+        MatLike) and :class:`Frame` refuses any other dtype."""
+        ok, img = cap.retrieve()
         if not ok or img is None:
             return None
         if img.ndim == 2 and img.shape == (self.height_px, self.width_px):
@@ -541,19 +536,14 @@ class VideoFile(Camera):
             cap.release()
         return self._open(), False, None
 
-    def frames(self, start_s: float | None = None, *, reuse_images: bool = False) -> Iterator[Frame]:
+    def frames(self, start_s: float | None = None) -> Iterator[Frame]:
         """Every decodable frame in order (see the module docstring); ``.report`` is filled as they go.
 
         ``start_s``: begin at least :data:`SEEK_PREROLL_FRAMES` frames before the first frame stamped at or
         after it, reached by a verified frame-exact seek (:mod:`drivers.camera.seek`) with the default
         ``duplicate_policy`` ("replace": stamps are never shifted, so they do not depend on the frames
         skipped); the frames keep their indices and stamps, the report covers the frames decoded. Without a
-        verified seek (or with "insert"), every frame from the first.
-
-        ``reuse_images``: the luma planes are decoded into a ring of :data:`IMAGE_RING` images instead of a
-        new image each (no fresh 2 MB of pages per 1080p frame to fault in): a frame's image is then valid
-        only until the next frame is asked for — for a consumer that reduces each frame at once."""
-        self._reuse_images = reuse_images
+        verified seek (or with "insert"), every frame from the first."""
         rep = self.report = self._new_report()
         self.duplicate_indices = set()
         period = 1.0 / self.fps
@@ -600,14 +590,8 @@ class VideoFile(Camera):
         read) first."""
         if first is not None:
             yield first
-        ring: list[NDArray[np.uint8]] = []
-        if self._reuse_images and self.report.luma_plane:
-            ring = [np.empty((self.height_px, self.width_px), np.uint8) for _ in range(IMAGE_RING)]
-        n = 0
         while cap.grab():
-            out = ring[n % IMAGE_RING] if ring else None
-            n += 1
-            yield float(cap.get(cv2.CAP_PROP_POS_MSEC)) / 1000.0, self._gray(cap, out)
+            yield float(cap.get(cv2.CAP_PROP_POS_MSEC)) / 1000.0, self._gray(cap)
 
     def _grab(self, cap: cv2.VideoCapture, rep: FrameTimeReport,
               first: tuple[float, NDArray[np.uint8]] | None) -> Iterator[_Decoded]:

@@ -1,13 +1,13 @@
 """Video file → marker observations (one row per marker per frame), with the file's frame-time report.
 
 Frames are decoded in order by :class:`drivers.camera.video_file.VideoFile` (container time stamps,
-duplicated and dropped frames reported, never shifted silently; the luma planes decoded into a ring of
-five images, not a fresh array each). Each frame is reduced at once to marker rows and its image dropped,
-by :class:`rig.analysis.frame_reduction.MarkerReducer` (the reduction the rig's own recordings use): the
-first frame is searched whole (:func:`rig.stereo.detect_markers`), later frames only in a window around
-each marker's last position (:func:`rig.stereo.track_markers`), with a whole-frame search again when a
-marker is lost and every ``redetect_every`` frames (markers entering the view). ``mode="detect"`` searches
-every frame whole.
+duplicated and dropped frames reported, never shifted silently). Each frame is reduced at once to marker
+rows and its image dropped, by :class:`rig.analysis.frame_reduction.MarkerReducer` (the reduction the rig's
+own
+recordings use): the first frame is searched whole (:func:`rig.stereo.detect_markers`), later frames only
+in a window around each marker's last position (:func:`rig.stereo.track_markers`), with a whole-frame
+search again when a marker is lost and every ``redetect_every`` frames (markers entering the view).
+``mode="detect"`` searches every frame whole.
 
 Duplicated frames carry no new instant: their rows are kept with ``duplicate = True`` so that what was
 seen stays inspectable, and the analysis leaves them out. Columns (contracts.md, run-folder observations):
@@ -118,8 +118,7 @@ def extract_video(path: str | Path, camera: str | None = None,
     t_extract = 0.0
     error = None
     t_all = time.perf_counter()
-    # a verified seek to the window, when it has a start; each image is reduced before the next is decoded
-    frames = video.frames(opts.start_s, reuse_images=True)
+    frames = video.frames(opts.start_s)  # a verified seek to the window, when it has a start
     try:
         # each frame reduced as it comes (one compiled call measures all its windows; tracking runs of
         # frames in one call was slower, benchmarks/markers.py)
