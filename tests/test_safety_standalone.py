@@ -14,6 +14,11 @@ Every watchdog here is wall time between processes, so the ``rig.toml`` sets the
 6 s (idle devices probed every 1.5 s), drive communication time-out 5 s. A rig process stopped outright for
 ``STALL_S`` (SIGSTOP … SIGCONT) keeps every device: with DENSO's 400 ms WDT the mock ended the session
 after 1.6 s of silence.
+
+The three mocks serve the whole module, as a lab keeps its mock servers running between runs (each test its
+own ``rig.toml``, run folder and the mocks' log from its start on): every test begins with both drives at
+rest and without a fault, which is what the test before it left. Only the SIGKILL test, whose drives stop
+themselves with a latched communication fault, has mocks of its own.
 """
 
 from __future__ import annotations
@@ -65,9 +70,14 @@ class Mock:
     proc: subprocess.Popen[str]
     port: int
     log_path: Path
+    log_from: int = 0  # bytes of the log written before the current test
 
     def log(self) -> str:
-        return self.log_path.read_text()
+        """The mock's log since the current test began (:meth:`mark`)."""
+        return self.log_path.read_bytes()[self.log_from:].decode(errors="replace")
+
+    def mark(self) -> None:
+        self.log_from = self.log_path.stat().st_size
 
 
 @dataclass
@@ -115,16 +125,15 @@ def _config(tmp_path: Path, ports: dict[str, int]) -> Path:
     return path
 
 
-@pytest.fixture
-def standalone(tmp_path: Path) -> Iterator[StandaloneRig]:
+@contextlib.contextmanager
+def _serving_mocks(folder: Path) -> Iterator[dict[str, Mock]]:
+    """The three stand-alone mocks serving (their logs in ``folder``), stopped by SIGTERM at the end."""
     # the three start together (each imports the twin: ≈ 1–2 CPU-s), then each is awaited on its port line
     spawned: dict[str, tuple[subprocess.Popen[str], Path]] = {}
     try:
         for name in ("exciter", "rotor", "robot"):
-            spawned[name] = _spawn_mock(tmp_path, name)
-        mocks = {name: _serving(name, *started) for name, started in spawned.items()}
-        ports = {n: m.port for n, m in mocks.items()}
-        yield StandaloneRig(_config(tmp_path, ports), tmp_path / "runs", mocks)
+            spawned[name] = _spawn_mock(folder, name)
+        yield {name: _serving(name, *started) for name, started in spawned.items()}
     finally:
         for proc, _ in spawned.values():
             if proc.poll() is None:
@@ -136,6 +145,35 @@ def standalone(tmp_path: Path) -> Iterator[StandaloneRig]:
                 proc.kill()
                 proc.wait()
             proc.stdout.close()  # type: ignore[union-attr]
+
+
+@pytest.fixture(scope="module")
+def module_mocks(tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict[str, Mock]]:
+    with _serving_mocks(tmp_path_factory.mktemp("mocks")) as mocks:
+        yield mocks
+
+
+def _rig_on(tmp_path: Path, mocks: dict[str, Mock]) -> StandaloneRig:
+    return StandaloneRig(_config(tmp_path, {n: m.port for n, m in mocks.items()}), tmp_path / "runs", mocks)
+
+
+@pytest.fixture
+def standalone(module_mocks: dict[str, Mock], tmp_path: Path) -> StandaloneRig:
+    """The module's mocks, found as the previous test must leave them: serving, both drives at rest and
+    without a fault; each mock's log read from here on."""
+    for mock in module_mocks.values():
+        assert mock.proc.poll() is None, (mock.name, mock.log())
+        mock.mark()
+    for device in ("exciter", "rotor"):
+        assert (_read(module_mocks[device], FREQ_OUT), _read(module_mocks[device], FAULT)) == (0, 0), device
+    return _rig_on(tmp_path, module_mocks)
+
+
+@pytest.fixture
+def own_standalone(tmp_path: Path) -> Iterator[StandaloneRig]:
+    """Mocks of this test's own: for a test that leaves the drives faulted."""
+    with _serving_mocks(tmp_path) as mocks:
+        yield _rig_on(tmp_path, mocks)
 
 
 def _start_rig(rig: StandaloneRig, *settings: str) -> tuple[subprocess.Popen[str], Path]:
@@ -258,8 +296,9 @@ def test_a_stalled_rig_keeps_every_device_then_stops_them_safely(standalone: Sta
 
 
 @pytest.mark.slow
-def test_sigkill_mid_run_the_drives_stop_themselves_within_the_bound(standalone: StandaloneRig) -> None:
+def test_sigkill_mid_run_the_drives_stop_themselves_within_the_bound(own_standalone: StandaloneRig) -> None:
     """Nothing of ``rig`` runs after SIGKILL: the drives' own communication-loss stop must act."""
+    standalone = own_standalone
     proc, run_dir = _start_rig(standalone, "hold_s=600")
     _wait_for(run_dir, proc, '"stream":"hold"')
     proc.kill()
