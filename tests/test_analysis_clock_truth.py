@@ -15,10 +15,14 @@ T/2 and a T/√(12n) uncertainty would be far too small; the row-corrected times
 
 from __future__ import annotations
 
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
 import numpy as np
 import pytest
 
-from rig.analysis.analyse import analyse
+from rig.analysis.analyse import Analysis, analyse
 from rig.analysis.sync_tracks import row_corrected_times
 from rig.record.writer import read_observations
 from tests.analysis_twin import twin, write_run
@@ -38,11 +42,26 @@ def _run(tmp_path, exposure_s: float, starts_s: list[float] = STARTS_S):
     return tw, write_run(tmp_path / "runs", tw, segments, rig=rig)
 
 
+@pytest.fixture(scope="module")
+def analysed(tmp_path_factory: pytest.TempPathFactory) -> Callable[..., tuple[Any, Path, Analysis]]:
+    """``(exposure_s, starts_s)`` → (twin, run folder, its analysis), each written and analysed once for the
+    module: the tests only read them (the exposure test compares the irregular runs the first test checks)."""
+    made: dict[tuple[float, tuple[float, ...]], tuple[Any, Path, Analysis]] = {}
+
+    def get(exposure_s: float, starts_s: list[float] = STARTS_S) -> tuple[Any, Path, Analysis]:
+        key = (exposure_s, tuple(starts_s))
+        if key not in made:
+            tw, run_dir = _run(tmp_path_factory.mktemp("clock"), exposure_s, starts_s)
+            made[key] = (tw, run_dir, analyse(run_dir))
+        return made[key]
+
+    return get
+
+
 @pytest.mark.parametrize("starts_s", [STARTS_S, GRID_STARTS_S], ids=["irregular", "grid"])
 @pytest.mark.parametrize("exposure_s", [1 / 6000, 1 / 120])
-def test_observation_times_match_the_twin_within_the_stated_uncertainty(tmp_path, exposure_s, starts_s):
-    tw, run_dir = _run(tmp_path, exposure_s, starts_s)
-    a = analyse(run_dir)
+def test_observation_times_match_the_twin_within_the_stated_uncertainty(analysed, exposure_s, starts_s):
+    tw, run_dir, a = analysed(exposure_s, starts_s)
     assert len(a.clock) == len(starts_s)
     # the truth lies in the events' interval (half-width √3·u_interval) and off the constant by the
     # unresolved drift (≤ √3·u_drift): |bias| ≤ √3·(u_interval + u_drift) ≤ √6·u < 3u
@@ -65,11 +84,9 @@ def test_observation_times_match_the_twin_within_the_stated_uncertainty(tmp_path
         assert abs(bias) <= 3 * u, (seg, bias, u)
 
 
-def test_the_exposure_midpoint_enters_the_offset(tmp_path):
+def test_the_exposure_midpoint_enters_the_offset(analysed):
     """Long exposure, same start events: the offset moves by exactly half the exposure difference."""
-    _, short_dir = _run(tmp_path / "a", 1 / 6000)
-    _, long_dir = _run(tmp_path / "b", 1 / 120)
-    short, long_ = analyse(short_dir).clock, analyse(long_dir).clock
+    short, long_ = analysed(1 / 6000)[2].clock, analysed(1 / 120)[2].clock
     # the true timing (timing.json) refers to mid-exposure, so the twin's offsets differ by Δe/2 on the
     # reference clock; the events are identical (same frame grid): the estimate must follow that difference
     tw_s, tw_l = (twin("sweep_column", t_start_s=0.0, t_stop_s=0.0, sigma_px=0.0,
