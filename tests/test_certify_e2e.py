@@ -122,6 +122,7 @@ def test_certify_fast_preset_end_to_end(tmp_path: Path) -> None:
 
 
 @pytest.mark.slow
+@pytest.mark.timeout(1800)  # the whole certification: 301 s wall at load ≈ 16 (the suite's default: 300 s)
 def test_certify_full_preset_passes(tmp_path: Path) -> None:
     code, run_dir = _certify(tmp_path)
     assert code == 0, read_json(run_dir / "certificate.json")["criteria"]
