@@ -15,9 +15,20 @@ from rig.config.rig_config import load_config
 SIM_TOML = resources.files("rig").joinpath("data/sim.toml").read_text()
 
 
-def write_config(tmp_path: Path) -> Path:
-    """The built-in simulated rig with runs in ``tmp_path/runs``."""
+# (s) bounds of a patient station: for tests about something else than how long a device may stay silent,
+# whose healthy mocks a loaded machine leaves unanswered for 2 × 1 s (the defaults' heartbeat loss)
+PATIENT_HEARTBEAT_S, PATIENT_REPLY_S = 10.0, 3.0
+
+
+def write_config(tmp_path: Path, *, patient: bool = False) -> Path:
+    """The built-in simulated rig with runs in ``tmp_path/runs``; ``patient``: the station's heartbeat
+    timeout and the drives' and generator's reply timeouts raised (:data:`PATIENT_HEARTBEAT_S`, ...)."""
     text = re.sub(r'^runs_dir = .*$', f'runs_dir = "{(tmp_path / "runs").as_posix()}"', SIM_TOML, flags=re.M)
+    if patient:
+        text = re.sub(r'^\[station\]$', f"[station]\nheartbeat_timeout_s = {PATIENT_HEARTBEAT_S}", text,
+                      flags=re.M)
+        text = re.sub(r'^(\[devices\.(?:exciter|rotor|generator)\].*)$',
+                      rf"\1\ntimeout_s = {PATIENT_REPLY_S}", text, flags=re.M)
     path = tmp_path / "rig.toml"
     path.write_text(text)
     return path

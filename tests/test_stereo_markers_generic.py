@@ -47,6 +47,7 @@ def scene_outputs(n_scenes: int = 24) -> dict[str, np.ndarray]:
 
 
 @pytest.mark.slow
+@pytest.mark.timeout(1800)  # the generic compile in a subprocess: 42 CPU-s, over 300 s of wall at load ≈ 20
 def test_host_and_generic_code_give_the_same_bytes(tmp_path: Path) -> None:
     generic = tmp_path / "generic.npz"
     probe = ("import sys, numpy as np; sys.path.insert(0, 'tests'); "
