@@ -230,6 +230,18 @@ def test_random_drops_follow_the_probability() -> None:
     assert p_dup == pytest.approx(0.01, abs=5 * math.sqrt(0.01 * 0.99 / n))
 
 
+def test_random_drops_only_inside_the_drop_window() -> None:
+    # frames start at 0.5 s + k / 60 s: the window [10, 20) s holds sensor frames 570 … 1169
+    cam = SimCamera("c", World(), start_offset_s=0.5, drop_probability=0.2, drop_window_s=(10.0, 20.0),
+                    seed=4)
+    sensor = np.array([cam.sensor_frame(i) for i in range(2500)])
+    lost = np.setdiff1d(np.arange(sensor.max()), sensor)
+    assert lost.min() >= 570 and lost.max() <= 1169
+    assert lost.size == pytest.approx(0.2 * 600, abs=5 * math.sqrt(0.2 * 0.8 * 600))
+    with pytest.raises(ValueError, match="drop_window_s must be"):
+        SimCamera("c", World(), drop_probability=0.2, drop_window_s=(20.0, 10.0))
+
+
 def test_truth_observation_times_are_the_rows_exposure_midpoints() -> None:
     world = World()
     world.rotor.set_frequency(0.0, 10.0)

@@ -62,6 +62,8 @@ class SimCamera:
     Intrinsics in pixels, ``distortion`` = (k1, k2, p1, p2) (OpenCV model), pose ``rvec``/``tvec`` maps base
     coordinates (mm) to camera coordinates. ``line_time_s`` defaults to 0.9·(1/fps)/height (readout takes
     90 % of the frame period). ``seed`` (default: the world's) makes rendering deterministic per frame.
+    Sensor frames listed in ``dropped_frames`` are lost, and each other one with ``drop_probability``
+    (only those starting within ``drop_window_s`` = (start, stop) world s, when given).
     """
 
     def __init__(self, name: str, world: World, *, fx_px: float = 2400.0, fy_px: float | None = None,
@@ -73,7 +75,7 @@ class SimCamera:
                  exposure_s: float = 1 / 6000, noise: NoiseModel | None = None, psf_sigma_px: float = 0.6,
                  dropped_frames: Iterable[int] = (), duplicated_frames: Iterable[int] = (),
                  drop_probability: float = 0.0, duplicate_probability: float = 0.0,
-                 seed: int | None = None) -> None:
+                 drop_window_s: tuple[float, float] | None = None, seed: int | None = None) -> None:
         self.name, self.world = str(name), world
         fy = fx_px if fy_px is None else fy_px
         for label, v in (("fx_px", fx_px), ("fy_px", fy), ("fps", fps)):
@@ -115,6 +117,11 @@ class SimCamera:
         self._dropped = {int(k) for k in dropped_frames}
         self._duplicated = {int(k) for k in duplicated_frames}
         self._p_drop, self._p_dup = float(drop_probability), float(duplicate_probability)
+        window_ok = drop_window_s is None or (len(drop_window_s) == 2 and drop_window_s[0] < drop_window_s[1])
+        if not window_ok:
+            raise ValueError(f"drop_window_s must be (start_s, stop_s) with start_s < stop_s, "
+                             f"got {drop_window_s!r}")
+        self._drop_window_s = drop_window_s
         self._index_buffer = np.empty(2 * _CHUNK, dtype=np.int64)
         self._n_indexed = 0
         self._sensor_of_index = self._index_buffer[:0]  # delivered index → sensor frame
@@ -133,6 +140,10 @@ class SimCamera:
             rng = np.random.default_rng((self.seed, self._name_id, 1, self._chunks))
             ks = np.arange(self._chunks * _CHUNK, (self._chunks + 1) * _CHUNK)
             drop = rng.random(_CHUNK) < self._p_drop
+            if self._drop_window_s is not None:  # random drops only for frames starting inside the window
+                t0_s, t1_s = self._drop_window_s
+                starts_s = self.start_offset_s + ks * self.frame_period_true_s
+                drop &= (starts_s >= t0_s) & (starts_s < t1_s)
             dup = rng.random(_CHUNK) < self._p_dup
             drop |= np.isin(ks, list(self._dropped))
             dup |= np.isin(ks, list(self._duplicated))

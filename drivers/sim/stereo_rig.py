@@ -36,6 +36,8 @@ class CameraSpec:
     exposure_s: float = 1 / 6000
     psf_sigma_px: float = 0.6
     noise: NoiseModel = field(default_factory=NoiseModel)
+    drop_probability: float = 0.0  # share of sensor frames lost (SimCamera's drop_probability) ...
+    drop_window_s: tuple[float, float] | None = None  # ... in this world-time window only (None: always)
 
 
 def default_camera_specs() -> tuple[CameraSpec, CameraSpec]:
@@ -55,7 +57,8 @@ def make_camera(spec: CameraSpec, world: World, **overrides: object) -> SimCamer
         fx_px=spec.fx_px, fy_px=spec.fy_px, cx_px=spec.cx_px, cy_px=spec.cy_px, distortion=spec.distortion,
         rvec=rvec, tvec=tvec, fps=spec.fps, clock_ppm=spec.clock_ppm, start_offset_s=spec.start_offset_s,
         timestamp_origin_s=spec.timestamp_origin_s, line_time_s=spec.line_time_s, exposure_s=spec.exposure_s,
-        psf_sigma_px=spec.psf_sigma_px, noise=spec.noise)
+        psf_sigma_px=spec.psf_sigma_px, noise=spec.noise,
+        drop_probability=spec.drop_probability, drop_window_s=spec.drop_window_s)
     kwargs.update(overrides)
     return SimCamera(spec.name, world, **kwargs)  # type: ignore[arg-type]
 

@@ -19,12 +19,20 @@ class SimNoise:
     shot_noise_dn2_per_dn: float = field(default=0.05, metadata=spec(lo=0.0, hi=10.0))
 
 
+def _check_window(value: tuple[float, ...], path: str) -> None:
+    if value[0] >= value[1]:
+        raise ConfigError(path, f"{list(value)}; allowed: [start_s, stop_s] with start_s < stop_s")
+
+
 @dataclass(frozen=True)
 class SimCameraConfig:
     """A simulated camera's hidden truth (the twin's ``CameraSpec`` field for field): camera centre
     ``eye_mm`` looking at ``target_mm``, pinhole intrinsics (px), distortion (k1, k2, p1, p2), clock error
     (ppm), start offset and timestamp origin (s), rolling-shutter line time (s; absent = 90 % of the frame
-    period over the rows), blur and noise. fps, exposure and resolution come from ``[cameras.<name>]``."""
+    period over the rows), blur, noise and the share of sensor frames lost (``drop_probability``: a camera
+    or a loaded host skipping frames, drawn per frame from the seed; only those starting within
+    ``drop_window_s`` = [start, stop] world s when given). fps, exposure and resolution come from
+    ``[cameras.<name>]``."""
 
     eye_mm: tuple[float, ...] = field(metadata=VEC3_MM)
     target_mm: tuple[float, ...] = field(default=(420.0, 0.0, 300.0), metadata=VEC3_MM)
@@ -40,6 +48,9 @@ class SimCameraConfig:
     line_time_s: float | None = field(default=None, metadata=spec(lo=0.0, hi=1e-3))
     psf_sigma_px: float = field(default=0.6, metadata=spec(lo=0.0, hi=5.0))
     noise: SimNoise = field(default_factory=SimNoise)
+    drop_probability: float = field(default=0.0, metadata=spec(lo=0.0, hi=0.45))
+    drop_window_s: tuple[float, ...] | None = field(default=None, metadata=spec(
+        length=2, lo=0.0, hi=1e9, check=_check_window))
 
 
 def _check_lab_url(value: str, path: str) -> None:

@@ -1,0 +1,106 @@
+"""The sync step's retries when the rotor recording lost frames, end to end on the built-in simulated rig
+(``rig run sync``: calibrate → sync, through the real command).
+
+The twin's cameras lose frames by configuration (``[sim.cameras.<name>] drop_probability``, optionally only
+for sensor frames starting within ``drop_window_s`` of world time): each lost frame leaves a gap in the
+camera's time stamps, as a camera or a loaded host skipping frames does. On the instant virtual clock the
+run's world times are fixed by the plan (the first sync recording spans ≈ 9.4–12.4 s, the second — after
+the stop, a spin-up and the rotor's ramp — ≈ 22.5–28.5 s), so a window ending at 16 s loses frames in the
+first recording only, with seconds of margin either side.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+from pathlib import Path
+
+import pytest
+
+from rig.cli import main
+from rig.config.rig_config import load_config
+from rig.config.schema import ConfigError
+from rig.record.catalogue import run_folders
+from rig.record.writer import load_run
+from tests.certify_support import write_config
+
+DROP_PROBABILITY = 0.2  # ≈ 20 % of the frames, in ≈ 60 gaps per 6 s: the joint method keeps too few
+FIRST_ONLY_WINDOW_S = (0.0, 16.0)
+
+
+def _lossy_config(tmp_path: Path, window_s: tuple[float, float] | None) -> Path:
+    config = write_config(tmp_path)
+    loss = f"drop_probability = {DROP_PROBABILITY}"
+    if window_s is not None:
+        loss += f"\ndrop_window_s = [{window_s[0]}, {window_s[1]}]"
+    text, n = re.subn(r"^(\[sim\.cameras\.(?:left|right)\])$", rf"\1\n{loss}", config.read_text(), flags=re.M)
+    assert n == 2
+    config.write_text(text)
+    return config
+
+
+def _rotations(run_dir: Path) -> list[tuple[str, float]]:
+    rotation = load_run(run_dir).events["rotation"]
+    return [(str(s), float(b - a)) for s, a, b in rotation[["segment", "t_start_s", "t_stop_s"]].to_numpy()]
+
+
+def test_the_drop_window_is_checked_in_the_configuration(tmp_path: Path) -> None:
+    config = _lossy_config(tmp_path, (16.0, 2.0))
+    with pytest.raises(ConfigError, match=r"drop_window_s.*\[16.0, 2.0\]; allowed: \[start_s, stop_s\] with "
+                                          r"start_s < stop_s"):
+        load_config(config)
+
+
+@pytest.mark.slow  # runs the calibration first (≈ 13 CPU-s)
+def test_a_first_recording_that_lost_frames_is_followed_by_a_longer_one_that_passes(tmp_path: Path) -> None:
+    config = _lossy_config(tmp_path, FIRST_ONLY_WINDOW_S)
+    code = main(["run", "sync", "--config", str(config), "--set", "record_s=3.0"])
+    (run_dir,) = run_folders(tmp_path / "runs")
+    run = load_run(run_dir)
+    assert code == 0 and run.stop is not None and run.stop["exit_status"] == "success", run.stop
+    rotations = _rotations(run_dir)
+    assert [s for s, _ in rotations] == ["sync", "sync-2"], rotations
+    assert rotations[0][1] == pytest.approx(3.0, abs=0.1) and rotations[1][1] == pytest.approx(6.0, abs=0.1)
+    # the first recording lay inside the lossy window, the second after it
+    (first, second) = load_run(run_dir).events["rotation"][["t_start_s", "t_stop_s"]].to_numpy()
+    assert first[1] < FIRST_ONLY_WINDOW_S[1] <= second[0], (first, second)
+    warnings = [line for line in (run_dir / "rig.log").read_text().splitlines()
+                if "sync: the 3.0-s rotor recording lost frames" in line]
+    assert len(warnings) == 1 and warnings[0].endswith("; recording again (2 of 3)"), warnings
+    assert "camera 'left':" in warnings[0] and "camera 'right':" in warnings[0]
+    timing = json.loads((run_dir / "timing.json").read_text())
+    assert timing["search"]["attempt"] == 2
+    assert "sync" in run.steps_completed
+
+
+@pytest.mark.slow  # runs the calibration first (≈ 10–30 CPU-s)
+def test_every_attempt_losing_frames_ends_in_a_fault_naming_each_cameras_loss(tmp_path: Path) -> None:
+    config = _lossy_config(tmp_path, None)
+    code = main(["run", "sync", "--config", str(config), "--set", "record_s=1.5", "--set", "attempts=2"])
+    (run_dir,) = run_folders(tmp_path / "runs")
+    run = load_run(run_dir)
+    assert code == 3, run.stop
+    stop = run.stop
+    assert stop is not None
+    assert stop["exit_status"] == "fail" and stop["outcome"] == "fault", stop
+    reason = stop["reason"]
+    assert reason.startswith("LostFramesError: the 3.0-s rotor recording lost frames"), reason  # the last
+    for camera in ("left", "right"):
+        found = re.search(rf"camera '{camera}': (\d+) of (\d+) frames missing \((\d+)%\): (\d+) in (\d+) gap",
+                          reason)
+        assert found is not None, reason
+        missing, total, pct, inside, gaps = map(int, found.groups())
+        # ≈ 180 frames at 20 %: the binomial's 36 ± 5.4, within 4 σ
+        assert total == pytest.approx(180, abs=2) and abs(missing - DROP_PROBABILITY * total) <= 22, reason
+        assert inside <= missing and 0 < gaps <= inside and abs(pct - 100 * missing / total) <= 0.5
+    assert [s for s, _ in _rotations(run_dir)] == ["sync", "sync-2"]
+    assert not (run_dir / "timing.json").exists()
+    # every device safe, as read back over its protocol after the runner's safe-state actions
+    assert stop["safe_state_failures"] == []
+    state = stop["safe_state"]
+    for axis in ("exciter", "rotor"):
+        assert state[axis]["setpoint_hz"] == 0.0 and abs(state[axis]["frequency_hz"]) <= 0.02, state
+        assert state[axis]["status"] in ("stopped", "decelerating"), state
+    assert state["robot"]["moved_mm"] == 0.0, state
+    assert state["generator"] == {"output_on": False}, state
+    assert state["left"] == {"recording": False} and state["right"] == {"recording": False}, state
