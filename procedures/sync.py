@@ -222,9 +222,18 @@ def spin_and_record(ctx: Context, acq: Acquirer, segment: str, planned: Vibratio
 
 
 def plan(params: Parameters, config: RigConfig) -> Plan:
-    """Step ``sync``: the rotor at ``rotation_hz`` for ``record_s`` s; nothing is connected."""
-    return Plan(NAME, (rotor_step("sync", config, rotation_hz=params.rotation_hz, record_s=params.record_s,
-                                  source="sync.rotation_hz"),))
+    """Step ``sync``: the rotor at ``rotation_hz`` for ``record_s`` s (the duration: one recording), and
+    when its frames are lost up to ``attempts`` recordings, the n-th n × ``record_s`` (the longest total
+    stated); nothing is connected."""
+    step = rotor_step("sync", config, rotation_hz=params.rotation_hz, record_s=params.record_s,
+                      source="sync.rotation_hz")
+    if params.attempts > 1:
+        spin_s = step.duration_s - params.record_s  # the spin-up and the stop of every recording
+        longest_s = sum(n * params.record_s + spin_s for n in range(1, params.attempts + 1))
+        step = dataclasses.replace(step, may_repeat=(
+            f"if the cameras lose frames: up to {params.attempts} recordings (sync.attempts; the n-th "
+            f"n × {params.record_s:g} s), ≈ {longest_s:.0f} s at most"))
+    return Plan(NAME, (step,))
 
 
 def record_and_estimate(ctx: Context, params: Parameters, calibration: dict[str, Any], planned: Vibration,

@@ -104,3 +104,17 @@ def test_every_attempt_losing_frames_ends_in_a_fault_naming_each_cameras_loss(tm
     assert state["robot"]["moved_mm"] == 0.0, state
     assert state["generator"] == {"output_on": False}, state
     assert state["left"] == {"recording": False} and state["right"] == {"recording": False}, state
+
+
+def test_the_dry_run_plan_states_the_recordings_sync_may_repeat(tmp_path: Path,
+                                                                capsys: pytest.CaptureFixture[str]) -> None:
+    config = write_config(tmp_path)
+    assert main(["run", "sync", "--dry-run", "--config", str(config), "--set", "record_s=2.0",
+                 "--set", "attempts=4"]) == 0
+    (line,) = [x for x in capsys.readouterr().out.splitlines() if x.strip().startswith("sync ")]
+    # each recording spins up and stops at the rotor's ramp (2 × 10 Hz / 2 Hz/s = 10 s): 2+4+6+8 + 4 × 10
+    assert line.split()[1:3] == ["≈", "12"], line  # the duration stays one recording's
+    assert line.endswith("if the cameras lose frames: up to 4 recordings (sync.attempts; the n-th n × 2 s), "
+                         "≈ 60 s at most"), line
+    assert main(["run", "sync", "--dry-run", "--config", str(config), "--set", "attempts=1"]) == 0
+    assert "lose frames" not in capsys.readouterr().out  # one recording: nothing may repeat

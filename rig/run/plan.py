@@ -102,13 +102,15 @@ _Part = TypeVar("_Part", ArmMoves, Vibration)
 @dataclass(frozen=True)
 class PlanStep:
     """One recorded step: its name (the run's step and segment), what it moves, how long it lasts (s,
-    an estimate: motion, settling and recording; analysis not included)."""
+    an estimate: motion, settling and recording; analysis not included), and what may lengthen it
+    (``may_repeat``: e.g. the recordings tried again, with the longest the step may then take)."""
 
     name: str
     duration_s: float
     arm: ArmMoves | None = None
     vibration: Vibration | None = None
     what: str = ""  # what a step that moves nothing does (the report: analysis on the host, not timed here)
+    may_repeat: str = ""
 
 
 @dataclass(frozen=True)
@@ -426,7 +428,8 @@ def _step_text(step: PlanStep) -> str:
                      f"max acceleration {accel:.4g} m/s²")
     what = "; ".join(parts) or step.what or "no motion"
     timed = "not timed" if step.what and not step.duration_s else f"≈ {_duration_text(step.duration_s)}"
-    return f"  {step.name:<18s} {timed:>12s}  {what}"
+    repeat = f"; {step.may_repeat}" if step.may_repeat else ""
+    return f"  {step.name:<18s} {timed:>12s}  {what}{repeat}"
 
 
 def format_plan(plan: Plan, checks: list[PlanCheck]) -> str:
