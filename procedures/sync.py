@@ -29,6 +29,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from drivers.camera.video_file import find_gaps
 from drivers.exciter.sweep import FrequencySample
 from procedures._common import (
     amplitude_of,
@@ -114,11 +115,10 @@ def frame_loss(timestamps_s: np.ndarray, fps: float, duration_s: float) -> tuple
     frame periods; at the ends: fewer frames than the recording's ``duration_s`` × ``fps`` − 1 — a stream
     that skipped ahead past the stop, or started late)."""
     stamps = np.unique(np.asarray(timestamps_s, dtype=float))
-    steps_frames = np.round(np.diff(stamps) * fps)
-    gaps = np.diff(stamps) > 1.5 / fps
-    inside = int(np.sum(steps_frames[gaps] - 1))
+    gaps = find_gaps(stamps, 1.0 / fps)
+    inside = sum(gap["missing_frames"] for gap in gaps)
     ends = max(0, math.floor(duration_s * fps) - 1 - stamps.size - inside)
-    return int(stamps.size), inside, int(np.count_nonzero(gaps)), ends
+    return int(stamps.size), inside, len(gaps), ends
 
 
 class LostFramesError(TooFewSamplesError):
@@ -243,9 +243,9 @@ def record_and_estimate(ctx: Context, params: Parameters, calibration: dict[str,
     ``params.attempts`` recordings."""
     rotor = required(ctx.config.targets.rotor, "targets.rotor")
     with Acquirer(ctx, ReduceOptions(mode="detect")) as acq:
+        (_, rotation_hz), (record_s, _) = planned.profile[0], planned.profile[-1]
         attempt = 1
         while True:
-            (_, rotation_hz), (record_s, _) = planned.profile[0], planned.profile[-1]
             longer = dataclasses.replace(planned, profile=((0.0, rotation_hz),
                                                            (attempt * record_s, rotation_hz)))
             rec, events = spin_and_record(ctx, acq, "sync" if attempt == 1 else f"sync-{attempt}", longer,

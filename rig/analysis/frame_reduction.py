@@ -91,7 +91,6 @@ class MarkerReducer:
         # last ``_depth`` are known: arrays, not lists of rows (a frame's Python is microseconds per marker)
         self._hist = np.zeros((0, 3, 2))
         self._depth = np.zeros(0, dtype=np.int64)
-        self._bounds: tuple[tuple[int, ...], np.ndarray] = ((), np.zeros(2))  # frame shape, clip limits
         self.whole_frame_searches = 0  # frames searched whole (the costly path), for diagnostics
 
     @property
@@ -112,9 +111,7 @@ class MarkerReducer:
             for j in np.flatnonzero((self._depth >= 2) & ~(moved <= self.options.window_px / 4)).tolist():
                 p = circle_prediction([0.0, 1.0, 2.0], list(h[j]), 3.0) if self._depth[j] == 3 else None
                 out[j] = p if p is not None else 2 * h[j, 2] - h[j, 1]
-        if self._bounds[0] != shape:
-            self._bounds = (shape, np.array([shape[1] - 1, shape[0] - 1], dtype=float))
-        np.clip(out, 0, self._bounds[1], out=out)
+        np.clip(out, 0, (shape[1] - 1, shape[0] - 1), out=out)
         return out
 
     def _associate(self, found: np.ndarray, predicted: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
