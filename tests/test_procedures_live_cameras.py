@@ -152,8 +152,17 @@ class ReadAfterStop(OpenCVCamera):
 def test_control_reading_after_stop_overflows_the_queue() -> None:
     # the same device read only after stop(): the test above would fail on it
     cams = cameras(ReadAfterStop)
+
+    def until_overflowed() -> None:
+        # as long as the grabbing threads need on this machine (not a wall-clock second: on a loaded machine
+        # a starved grabber delivers fewer frames per second); bounded, so a queue that never overflows fails
+        deadline_s = time.monotonic() + 120.0
+        while any(len(cam.stats.overflow) <= 0.5 * FPS for cam in cams.values()):
+            assert time.monotonic() < deadline_s, "the queues never overflowed"
+            time.sleep(0.01)
+
     with Acquirer(Ctx(cams), ReduceOptions(mode="track", window_px=25)) as acq:
-        rec = acq.record("sweep", 1.0)
+        rec = acq.record("sweep", until_overflowed)
     for name, cam in cams.items():
         assert len(cam.stats.overflow) > 0.5 * FPS
         assert len(rec.observations[name]) == QUEUE_FRAMES
