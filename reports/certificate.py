@@ -192,6 +192,14 @@ def decide(value: float, expanded_u: float, limit: float, comparison: str, rule:
     return ("PASS" if accepted else "FAIL"), zone
 
 
+def beyond_resolution(expanded_u: float, limit: float, comparison: str, zone: str) -> bool:
+    """Whether a "≤ limit" criterion (a magnitude ≥ 0) cannot be decided at this uncertainty: U ≥ limit, so
+    no measured value could demonstrate conformance, and the value is not demonstrably over the limit either
+    (zone "non-conforming" stays FAIL). Such a criterion is stated but NOT EVALUATED, under either rule."""
+    return (comparison == "<=" and math.isfinite(expanded_u) and expanded_u >= limit
+            and zone != "non-conforming")
+
+
 def evaluate(measured: dict[str, Measured | None], acceptance: dict[str, Any]) -> list[dict[str, Any]]:
     """One row per criterion of :data:`CRITERIA` (in order) whose limit is set (a limit None: not required
     by this rig, no row); ``measured`` misses or None → NOT EVALUATED."""
@@ -208,8 +216,12 @@ def evaluate(measured: dict[str, Measured | None], acceptance: dict[str, Any]) -
         value = m.value if m is not None else float("nan")
         U = m.expanded if m is not None else float("nan")
         status, zone = decide(value, U, limit, spec.comparison, rule)
+        note = m.note if m is not None else "no data in this run"
         if m is not None and not m.decidable:
             status, zone = "NOT EVALUATED", "undecidable"
+        elif beyond_resolution(U, limit, spec.comparison, zone):
+            status, zone = "NOT EVALUATED", "undecidable"
+            note += f"; cannot be decided: U = {U:.3g} reaches the limit {limit:g}"
         rows.append(
             {
                 "id": spec.id,
@@ -222,7 +234,7 @@ def evaluate(measured: dict[str, Measured | None], acceptance: dict[str, Any]) -
                 "coverage_factor": m.k if m is not None else float("nan"),
                 "status": status,
                 "zone": zone,
-                "note": m.note if m is not None else "no data in this run",
+                "note": note,
                 "budget": [{"component": c[0], "type": c[1], "u": c[2]} for c in (m.budget if m else ())],
             }
         )

@@ -17,7 +17,8 @@ Uncertainty budget of τ (standard, ms):
   τ is propagated exactly through the line fit's weights (covariance min(t_i, t_j) between bins). A
   generator's frequency law (the shaker) is exact: no component.
 
-A delay whose expanded uncertainty reaches the limit cannot be decided (``decidable`` False): without the
+A delay whose expanded uncertainty reaches the limit cannot be decided (the certificate's rule for every upper
+limit, :func:`reports.certificate.beyond_resolution`): without the
 fiducial the start events leave the clock to ±½ frame (u ≈ 4.8 ms at 60 fps), and the criterion says so.
 """
 

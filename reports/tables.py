@@ -383,18 +383,18 @@ def measured_values(t: ReportTables, acceptance: dict[str, Any]) -> dict[str, Me
     sync = sync_uncertainty(t.timing, t.clock)
     if sync is not None:
         m["sync_uncertainty_ms"] = sync
-    m.update(_timing_values(t.phase, acceptance))
+    m.update(_timing_values(t.phase))
     m.update(band_phase.measured_values(t.extended))
     m.update(step_phase.measured_values(t.steps))
     return m
 
 
-def _timing_values(ph: phase.PhaseResult | None, acceptance: dict[str, Any]) -> dict[str, Measured]:
+def _timing_values(ph: phase.PhaseResult | None) -> dict[str, Measured]:
     """The sweep's delay against the excitation and the controller↔camera clock's uncertainty behind it.
 
-    Decided only when the expanded uncertainty leaves room under the limit (U < limit); otherwise the value
-    is stated and the criterion is not evaluated, with the reason: without the timing fiducial the start
-    events leave the clock to ±½ frame."""
+    Without the timing fiducial the start events leave the clock to ±½ frame: the delay's U then usually
+    reaches its limit, and the certificate states it without deciding
+    (:func:`reports.certificate.beyond_resolution`)."""
     if ph is None:
         return {}
     fiducial = ph.clock_source.startswith("timing fiducial")
@@ -409,18 +409,10 @@ def _timing_values(ph: phase.PhaseResult | None, acceptance: dict[str, Any]) -> 
              f"{p10:+.3g} ± {2 * u10:.2g}° at 10 Hz, {p25:+.3g} ± {2 * u25:.2g}° at 25 Hz (k = 2); clock: "
              f"{how}; reference: {ph.reference.source}")
     clock = Measured(clock_u_ms, 0.0, note=f"sweep segment, {how}: {ph.clock_source}")
-    out = {"phase_delay_ms": _decidable(delay, float(acceptance["phase_delay_ms"])),
+    out = {"phase_delay_ms": delay,
            "controller_clock_u_ms": clock if fiducial else dataclasses.replace(
                clock, decidable=False, note=clock.note + "; the criterion is the timing fiducial's")}
     return out
-
-
-def _decidable(m: Measured, limit: float) -> Measured:
-    """``m`` not decidable (stated, not evaluated) when its expanded uncertainty reaches the limit."""
-    if m.expanded < limit:
-        return m
-    return dataclasses.replace(m, decidable=False, note=m.note + f"; cannot be decided: U = {m.expanded:.3g} "
-                                                                 f"reaches the limit {limit:g}")
 
 
 def _position_values(poses: pd.DataFrame, u_ref_mm: float) -> dict[str, Measured]:

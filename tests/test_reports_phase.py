@@ -13,7 +13,6 @@ from hypothesis import strategies as st
 
 from reports import phase
 from reports.certificate import Measured, acceptance_from_config, evaluate
-from reports.tables import _decidable
 
 
 def _bins(f_hz: np.ndarray, delay_s: float, *, intercept_deg: float = 17.0, tracks: int = 2) -> pd.DataFrame:
@@ -92,11 +91,28 @@ def test_the_read_back_step_is_found_in_the_polls() -> None:
 
 def test_an_uncertainty_reaching_the_limit_is_stated_but_not_decided() -> None:
     acceptance = acceptance_from_config(None)
-    decided = _decidable(Measured(0.1, 0.05), 0.5)
-    undecided = _decidable(Measured(0.1, 1.4), 0.5)  # the start events' ±½ frame
-    assert decided.decidable and not undecided.decidable and "cannot be decided" in undecided.note
-    rows = {r["id"]: r for r in evaluate({"phase_delay_ms": decided}, acceptance)}
+    limit = acceptance["phase_delay_ms"]
+    rows = {r["id"]: r for r in evaluate({"phase_delay_ms": Measured(0.1 * limit, 0.05 * limit)}, acceptance)}
     assert rows["phase_delay_ms"]["status"] == "PASS"
-    rows = {r["id"]: r for r in evaluate({"phase_delay_ms": undecided}, acceptance)}
-    assert rows["phase_delay_ms"]["status"] == "NOT EVALUATED"
-    assert rows["phase_delay_ms"]["zone"] == "undecidable" and rows["phase_delay_ms"]["value"] == 0.1
+    # the start events' ±½ frame: U = 2.8 × the limit, a small value cannot be shown to conform
+    rows = {r["id"]: r for r in evaluate({"phase_delay_ms": Measured(0.1 * limit, 1.4 * limit)}, acceptance)}
+    row = rows["phase_delay_ms"]
+    assert row["status"] == "NOT EVALUATED" and row["zone"] == "undecidable"
+    assert row["value"] == 0.1 * limit and "cannot be decided" in row["note"]
+    # a value over the limit even at value − U is decided, whatever U: FAIL
+    rows = {r["id"]: r for r in evaluate({"phase_delay_ms": Measured(4.0 * limit, 1.4 * limit)}, acceptance)}
+    assert rows["phase_delay_ms"]["status"] == "FAIL" and rows["phase_delay_ms"]["zone"] == "non-conforming"
+
+
+def test_one_rule_for_every_upper_limit_band_phase_as_phase_delay() -> None:
+    """The lab's certify: band_phase_deg 0.12° with U = 11.6° from the controller clock was FAIL while
+    phase_delay_ms in the same situation was NOT EVALUATED; both now follow the documented rule."""
+    acceptance = acceptance_from_config({"criteria": {"band_phase_deg": 2.0, "phase_delay_ms": 0.5}})
+    measured = {"band_phase_deg": Measured(0.12, 5.8), "phase_delay_ms": Measured(0.01, 2.1)}
+    for rule in ("guarded", "simple"):
+        rows = {r["id"]: r for r in evaluate(measured, {**acceptance, "decision_rule": rule})}
+        assert [rows[c]["status"] for c in measured] == ["NOT EVALUATED"] * 2
+        assert [rows[c]["zone"] for c in measured] == ["undecidable"] * 2
+    # U just under the limit: decided (guarded: the interval straddles the limit → FAIL)
+    rows = {r["id"]: r for r in evaluate({"band_phase_deg": Measured(0.12, 0.99)}, acceptance)}
+    assert rows["band_phase_deg"]["status"] == "FAIL" and rows["band_phase_deg"]["zone"] == "indeterminate"
