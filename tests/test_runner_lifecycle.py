@@ -111,6 +111,21 @@ def test_procedure_exception_is_a_fault_exit_3_with_traceback_logged(tmp_path: P
     assert "exciter.safe_state" in _calls(calls)
 
 
+def test_a_procedures_warnings_are_in_the_record_not_only_in_rig_log(tmp_path: Path) -> None:
+    def body(ctx: Any, p: Any) -> None:
+        ctx.log.info("routine")
+        ctx.log.warning("sync: %d frames lost; recording again (2 of 3)", 36)
+
+    runner, _ = _runner(tmp_path, _module(body))
+    out = runner.run()
+    assert out.exit_code == 0
+    logs = load_run(out.run_dir).logs
+    mine = logs[logs["message"].str.startswith("procedures.custom: ")]
+    assert mine[["level", "message"]].values.tolist() == [
+        ["warning", "procedures.custom: sync: 36 frames lost; recording again (2 of 3)"]]
+    assert "recording again" in (out.run_dir / "rig.log").read_text()
+
+
 def test_missing_device_is_bad_input_exit_4(tmp_path: Path) -> None:
     runner, _ = _runner(tmp_path, _module(lambda ctx, p: ctx.device("generator")))
     out = runner.run()

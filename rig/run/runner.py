@@ -486,10 +486,28 @@ class _LogFile(logging.FileHandler):
             self.failed = str(sys.exc_info()[1])
 
 
+class _RecordLog(logging.Handler):
+    """The procedures' warnings and errors (logger ``procedures``) as the record's ``log`` documents: the
+    evidence itself, not only ``rig.log``, says what a run warned about (a sync recorded again, a calibrate
+    position re-recorded). A document that cannot be written is dropped here: the run's own I/O failures
+    are reported by the runner."""
+
+    def __init__(self, record: RunRecord) -> None:
+        super().__init__(logging.WARNING)
+        self.record = record
+
+    def emit(self, entry: logging.LogRecord) -> None:
+        self.record.log(entry.levelname.lower(), f"{entry.name}: {entry.getMessage()}")
+
+    def handleError(self, record: logging.LogRecord) -> None:  # noqa: N802 — logging's name
+        pass
+
+
 @contextlib.contextmanager
 def _run_log(record: RunRecord, level: int) -> Iterator[Callable[[str, BaseException | None], None]]:
-    """Log to ``<run_dir>/rig.log`` while the run lasts; yields ``file_only(message, exc)``, which writes
-    an error with its traceback to that file and not to the console."""
+    """Log to ``<run_dir>/rig.log`` while the run lasts, and the procedures' warnings into the record too;
+    yields ``file_only(message, exc)``, which writes an error with its traceback to that file and not to the
+    console."""
     handler = _LogFile(record.run_dir / "rig.log", encoding="utf-8")
     handler.setLevel(level)
     handler.setFormatter(logging.Formatter("%(asctime)s %(levelname)s %(name)s: %(message)s"))
@@ -497,6 +515,8 @@ def _run_log(record: RunRecord, level: int) -> Iterator[Callable[[str, BaseExcep
     old_level = root.level
     root.addHandler(handler)
     root.setLevel(min(old_level or logging.WARNING, level))
+    procedures, to_record = logging.getLogger("procedures"), _RecordLog(record)
+    procedures.addHandler(to_record)
 
     def file_only(message: str, exc: BaseException | None) -> None:
         exc_info = None if exc is None else (type(exc), exc, exc.__traceback__)
@@ -505,6 +525,7 @@ def _run_log(record: RunRecord, level: int) -> Iterator[Callable[[str, BaseExcep
     try:
         yield file_only
     finally:
+        procedures.removeHandler(to_record)
         root.removeHandler(handler)
         root.setLevel(old_level)
         handler.close()
