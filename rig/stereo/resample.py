@@ -28,6 +28,9 @@ from rig.stereo._series import as_times, as_values
 from rig.stereo.errors import InputArrayError, NonUniformSamplingError
 
 METHODS = ("linear", "cubic", "bandlimited")
+BAND_FRACTION = 0.4  # default band of bridged gaps: 24 Hz at 60 fps (a 10-Hz rotor and its 20-Hz harmonic)
+TRANSITION_FRACTION = 0.06  # the band penalty's filter passes to about the band and stops from band + this
+BAND_PENALTY = 1.0  # weight of a penalty row (the energy above the band near a bridged gap; a sample: 1)
 
 
 def kaiser_sinc(tau: FloatArray, half_width: float, beta: float) -> FloatArray:
@@ -70,6 +73,45 @@ def _kernel_matrix(tau_periods: FloatArray, n_cols: int, half: int, beta: float)
     return sparse.csr_matrix((vals[ok], (rows[ok], j[ok])), shape=(tau_periods.size, n_cols))
 
 
+def _missing_slots(m: IntArray, bridge_max_samples: int) -> tuple[IntArray, IntArray]:
+    """Grid slots absent from ``m`` (sorted slot numbers), split into those of gaps of at most
+    ``bridge_max_samples`` missing slots (bridged) and those of longer gaps."""
+    steps = np.diff(m)
+    starts = m[:-1][steps > 1] + 1
+    lengths = steps[steps > 1] - 1
+    slots = [np.arange(a, a + n) for a, n in zip(starts, lengths, strict=True)]
+    short = [s for s in slots if s.size <= bridge_max_samples]
+    long_ = [s for s in slots if s.size > bridge_max_samples]
+    empty = np.zeros(0, dtype=np.int64)
+    return (np.concatenate(short) if short else empty), (np.concatenate(long_) if long_ else empty)
+
+
+def _band_penalty(slots: IntArray, avoid: IntArray, n_grid: int, *, half: int, beta: float,
+                  band_fraction: float) -> sparse.csr_matrix:
+    """λ·HᵀH: H's rows are the high-pass filter δ − (Kaiser-windowed low-pass, cut off half a transition
+    above ``band_fraction``) centred on every slot within ``half`` of one of ``slots`` (the bridged ones) with
+    its whole support on the grid and none on the slots ``avoid`` (long gaps, only guessed); λ = 1 weighs
+    a row as one sample (larger λ lets the filter's pass-band ripple, ≈ 3e-4, bias well-determined slots)."""
+    if not 0.0 < band_fraction < 0.5:
+        raise InputArrayError(f"band_fraction must lie in (0, 0.5), got {band_fraction!r}")
+    k = np.arange(-half, half + 1, dtype=float)
+    cutoff = band_fraction + 0.5 * TRANSITION_FRACTION  # cycles per sample
+    high_pass = -2.0 * cutoff * kaiser_sinc(2.0 * cutoff * k, 2.0 * cutoff * half, beta)
+    high_pass[half] += 1.0
+    centres = np.unique((slots[:, None] + np.arange(-half, half + 1)[None, :]).ravel())
+    centres = centres[(centres >= half) & (centres < n_grid - half)]
+    if avoid.size:  # a centre is clear of the long gaps when no avoided slot lies within ±half of it
+        nearest = np.searchsorted(avoid, centres)
+        below = np.abs(centres - avoid[np.clip(nearest - 1, 0, avoid.size - 1)])
+        above = np.abs(avoid[np.clip(nearest, 0, avoid.size - 1)] - centres)
+        centres = centres[np.minimum(below, above) > half]
+    rows = np.repeat(np.arange(centres.size), k.size)
+    cols = (centres[:, None] + np.arange(-half, half + 1)[None, :]).ravel()
+    H = sparse.csr_matrix((np.tile(high_pass, centres.size), (rows, cols)), shape=(centres.size, n_grid))
+    penalty: sparse.csr_matrix = (BAND_PENALTY * (H.T @ H)).tocsr()
+    return penalty
+
+
 @overload
 def bandlimited(
     t_src: FloatArray,
@@ -79,6 +121,8 @@ def bandlimited(
     half_width_samples: int = 32,
     beta: float = 5.65,
     noise_gain: Literal[False] = False,
+    bridge_max_samples: int = 0,
+    band_fraction: float = BAND_FRACTION,
 ) -> FloatArray: ...
 
 
@@ -91,6 +135,8 @@ def bandlimited(
     half_width_samples: int = 32,
     beta: float = 5.65,
     noise_gain: Literal[True],
+    bridge_max_samples: int = 0,
+    band_fraction: float = BAND_FRACTION,
 ) -> tuple[FloatArray, FloatArray]: ...
 
 
@@ -102,13 +148,24 @@ def bandlimited(
     half_width_samples: int = 32,
     beta: float = 5.65,
     noise_gain: bool = False,
+    bridge_max_samples: int = 0,
+    band_fraction: float = BAND_FRACTION,
 ) -> FloatArray | tuple[FloatArray, FloatArray]:
     """Windowed-sinc reconstruction of ``values`` (N, k) sampled at ``t_src`` evaluated at ``t_dst``.
 
     ``noise_gain=True`` also returns, per destination, Σ_j M_ij² where M is the linear map from source
     values to reconstructed values: the variance of the output for white source noise of unit variance
     (≈ 1; it depends on the irregularity of ``t_src`` and on the destination's position between samples;
-    near a gap, where the cubic prior enters, it is approximate).
+    near a long gap, where the cubic prior enters, it is approximate).
+
+    ``bridge_max_samples``: gaps of at most this many missing slots are *bridged* — their values follow from
+    the assumption that the signal is band-limited to ``band_fraction`` of the sample rate (0 < b < 0.5; the
+    energy above it, within the kernel's half-width of the gap, is penalised: :func:`_band_penalty`) — and
+    the noise gain includes them exactly; longer gaps take the cubic prior. Measured bound (tests): tones
+    ≤ 0.27·fs, ``band_fraction`` 0.3, gaps of 1–3 slots at least 12 apart, row jitter ±0.2 period: error
+    ≤ 0.2 % of the amplitude. Where missing slots cluster (or the band is wide: 0.35–0.4 with 20 % of the
+    slots lost at random) the problem is ill-conditioned: the noise gain reaches 10²–10⁵ and the error of a
+    noise-free signal grows with it — check the gain.
     """
     t0, period, m = _grid(t_src)
     n_grid = int(m[-1]) + 1
@@ -132,14 +189,18 @@ def bandlimited(
         rhs = np.asarray(S.T @ detrended)
         lam = 1e-8
         weights = np.full(n_grid, lam)
-        missing = np.setdiff1d(np.arange(n_grid), m)
-        if missing.size:
-            # A missing slot (dropped frame) is (nearly) undetermined: pull its value towards a cubic spline
-            # through the samples instead of towards zero; the other slots keep the data alone.
-            weights[missing] = 1.0
-            prior = CubicSpline(t_src, detrended, axis=0)(t0 + missing * period)
-            rhs[missing] += prior.reshape(rhs[missing].shape)
-        N = (S.T @ S + sparse.diags(weights)).tocsr()
+        short, long_ = _missing_slots(m, bridge_max_samples)
+        if long_.size:
+            # A slot of a long gap is (nearly) undetermined: pull its value towards a cubic spline through the
+            # samples instead of towards zero; the other slots keep the data alone.
+            weights[long_] = 1.0
+            prior = CubicSpline(t_src, detrended, axis=0)(t0 + long_ * period)
+            rhs[long_] += prior.reshape(rhs[long_].shape)
+        R = sparse.diags(weights).tocsr()
+        if short.size:
+            R = (R + _band_penalty(short, long_, n_grid, half=half_width_samples, beta=beta,
+                                      band_fraction=band_fraction)).tocsr()
+        N = (S.T @ S + R).tocsr()
         bands = np.zeros((2 * half_width_samples + 1, n_grid))  # lower banded form of the SPD matrix N
         for d in range(bands.shape[0]):
             diag = N.diagonal(-d)
@@ -147,10 +208,10 @@ def bandlimited(
         grid_vals = linalg.solveh_banded(bands, rhs, lower=True)
         out = np.asarray(K @ grid_vals) + B @ trend
         if noise_gain:
-            # M = K N⁻¹ Sᵀ and SᵀS = N − diag(w), so diag(M Mᵀ) = diag(K Z) − diag(Zᵀ diag(w) Z), Z = N⁻¹ Kᵀ
-            # (the cubic prior of missing slots is left out: approximate next to a dropped frame).
+            # M = K N⁻¹ Sᵀ and SᵀS = N − R, so diag(M Mᵀ) = diag(K Z) − diag(Zᵀ R Z), Z = N⁻¹ Kᵀ (exact for
+            # bridged gaps; the cubic prior of a long gap's slots is left out: approximate next to one).
             Z = linalg.solveh_banded(bands, K.T.toarray(), lower=True)
-            gain = np.asarray(K.multiply(Z.T).sum(axis=1)).ravel() - np.sum(weights[:, None] * Z * Z, axis=0)
+            gain = np.asarray(K.multiply(Z.T).sum(axis=1)).ravel() - np.sum(Z * np.asarray(R @ Z), axis=0)
     return (out, gain) if gain is not None else out
 
 
