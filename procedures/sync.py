@@ -10,7 +10,8 @@ stamp their own frames and map their clocks onto the host's (their lowest arriva
 difference of the cameras' latencies, whatever frames either skipped), else of their first frames (both
 started at the same rig instant: good to about a frame, unless frames were skipped at the start).
 When the joint method finds too little motion to use and the cameras lost frames in the recording (the
-joint method leaves out the instants near every gap of a track), the error names each camera's frames
+joint method bridges gaps of up to 3 frames of a track but leaves out the instants near longer ones — steady
+random loss of 20 % is bridged; heavier loss, or bursts, are not), the error names each camera's frames
 missing, their share and the gaps (:class:`LostFramesError`), not only the overlap left; the step then
 records again, up to ``attempts`` recordings (segments ``sync``, ``sync-2``, …: each a spin-up, the
 recording and the stop at the planned speed; recording n lasts n × ``record_s``, as a longer recording keeps
@@ -127,7 +128,8 @@ class LostFramesError(TooFewSamplesError):
 
 def lost_frames_error(rec: Recording[Any], fps: float, cause: TimingError) -> LostFramesError | None:
     """The error naming each camera's lost frames when ``rec`` lost any (None when it lost none): the
-    joint method cannot reconstruct a track across a gap, so lost frames can leave it too little overlap."""
+    joint method cannot reconstruct a track across a gap longer than a few frames, so lost frames can leave it
+    too little overlap."""
     duration_s = rec.t_stop_s - rec.t_start_s
     losses = {n: frame_loss(o["timestamp_s"].to_numpy(float), fps, duration_s)
               for n, o in rec.observations.items()}
@@ -139,7 +141,8 @@ def lost_frames_error(rec: Recording[Any], fps: float, cause: TimingError) -> Lo
     return LostFramesError(
         f"the {duration_s:.1f}-s rotor recording lost frames ({shares}): the cameras (or a "
         f"host too loaded to read or render them) skipped frames, and the joint method leaves out every "
-        f"instant near a gap; record again (sync.record_s longer) on a host that keeps up. ({cause})")
+        f"instant near a gap it cannot bridge;"
+        f" record again (sync.record_s longer) on a host that keeps up. ({cause})")
 
 
 def estimate_timing(calibration: dict[str, Any], rec: Recording[Any], camera_events: list[dict[str, Any]],
@@ -171,8 +174,14 @@ def estimate_timing(calibration: dict[str, Any], rec: Recording[Any], camera_eve
             raise
         raise lost from exc
     timing = joint.to_dict()
+    gaps = joint.details["gaps_b"]
     timing["search"] = {"offset_guess_s": guess, "half_width_s": half,
-                        **guess_source(camera_events, ref, other)}
+                        **guess_source(camera_events, ref, other),
+                        "frame_gaps": (f"camera {other!r}: {gaps['gaps']} gap(s), {gaps['frames_missing']} "
+                                       f"frame(s) missing; {gaps['bridged']} gap(s) bridged; instants of "
+                                       f"{ref!r} left out: {gaps['left_out_near_unbridged_gaps']} near "
+                                       f"longer gaps, {gaps['left_out_ill_conditioned']} where gaps cluster "
+                                       "(details.gaps_b)")}
     if params.compare_rotor_method:
         try:
             paper = estimate_offset(cams[ref], cams[other], series[ref], series[other], method="rotor",

@@ -1,6 +1,7 @@
 """A rotor recording that lost frames (a camera, or a host too loaded to render or read it, skipping bursts):
-the joint sync leaves out every instant of A within the kernel's reach of a gap in B's track, and when too
-few are left the error names the gaps and each camera's frames missing — not only a lack of overlap."""
+the joint sync bridges gaps of up to MAX_BRIDGED_GAP_FRAMES frames in B's track but leaves out every instant
+of A within the kernel's reach of a longer one, and when too few are left the error names the gaps and each
+camera's frames missing — not only a lack of overlap."""
 
 from __future__ import annotations
 
@@ -13,7 +14,7 @@ from procedures import sync
 from rig.run.acquire import Recording
 from rig.stereo.errors import NoCommonMotionError
 from rig.stereo.timing import estimate_offset
-from rig.stereo.timing_joint import GAP_GUARD
+from rig.stereo.timing_joint import GAP_GUARD, MAX_BRIDGED_GAP_FRAMES
 
 FS_HZ = 60.0
 
@@ -31,7 +32,10 @@ def test_gaps_in_b_that_leave_too_little_are_named_in_the_overlap_error() -> Non
         estimate_offset(cam_a, cam_b, (ta, ua), (tb[keep], ub[keep]), offset_guess_s=0.0043,
                         search_half_width_s=2 / FS_HZ)
     message = str(caught.value)
-    assert f"within {GAP_GUARD} frames of the 2 gap(s) in camera B's track (14 frames missing" in message
+    # both bursts are longer than the bridged gaps (MAX_BRIDGED_GAP_FRAMES): guarded, not bridged
+    assert (f"within {GAP_GUARD} frames of the 2 gap(s) in camera B's track that could not be bridged "
+            "(14 frames missing in 2 gap(s)") in message, message
+    assert f"0 gap(s) of at most {MAX_BRIDGED_GAP_FRAMES} frames bridged" in message
     # the same recording without the gaps overlaps (the error is the gaps')
     res = estimate_offset(cam_a, cam_b, (ta, ua), (tb, ub), offset_guess_s=0.0043,
                           search_half_width_s=2 / FS_HZ)

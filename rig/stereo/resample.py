@@ -25,12 +25,11 @@ from scipy.interpolate import CubicSpline
 
 from rig.stereo._arrays import FloatArray, IntArray
 from rig.stereo._series import as_times, as_values
-from rig.stereo.errors import InputArrayError, NonUniformSamplingError
+from rig.stereo.errors import InputArrayError, NonUniformSamplingError, TooFewSamplesError
 
 METHODS = ("linear", "cubic", "bandlimited")
 BAND_FRACTION = 0.4  # default band of bridged gaps: 24 Hz at 60 fps (a 10-Hz rotor and its 20-Hz harmonic)
 TRANSITION_FRACTION = 0.06  # the band penalty's filter passes to about the band and stops from band + this
-BAND_PENALTY = 1.0  # weight of a penalty row (the energy above the band near a bridged gap; a sample: 1)
 
 
 def kaiser_sinc(tau: FloatArray, half_width: float, beta: float) -> FloatArray:
@@ -86,30 +85,59 @@ def _missing_slots(m: IntArray, bridge_max_samples: int) -> tuple[IntArray, IntA
     return (np.concatenate(short) if short else empty), (np.concatenate(long_) if long_ else empty)
 
 
-def _band_penalty(slots: IntArray, avoid: IntArray, n_grid: int, *, half: int, beta: float,
-                  band_fraction: float) -> sparse.csr_matrix:
-    """λ·HᵀH: H's rows are the high-pass filter δ − (Kaiser-windowed low-pass, cut off half a transition
-    above ``band_fraction``) centred on every slot within ``half`` of one of ``slots`` (the bridged ones) with
-    its whole support on the grid and none on the slots ``avoid`` (long gaps, only guessed); λ = 1 weighs
-    a row as one sample (larger λ lets the filter's pass-band ripple, ≈ 3e-4, bias well-determined slots)."""
+def band_filter(band_fraction: float, *, half: int = 32, beta: float = 5.65) -> FloatArray:
+    """High-pass taps (2·half + 1) that remove a signal band-limited to ``band_fraction`` of the sample rate:
+    δ − a Kaiser-windowed low-pass cut off half a transition above it (pass-band leak ≈ 3e-4)."""
     if not 0.0 < band_fraction < 0.5:
         raise InputArrayError(f"band_fraction must lie in (0, 0.5), got {band_fraction!r}")
     k = np.arange(-half, half + 1, dtype=float)
     cutoff = band_fraction + 0.5 * TRANSITION_FRACTION  # cycles per sample
-    high_pass = -2.0 * cutoff * kaiser_sinc(2.0 * cutoff * k, 2.0 * cutoff * half, beta)
+    high_pass: FloatArray = -2.0 * cutoff * kaiser_sinc(2.0 * cutoff * k, 2.0 * cutoff * half, beta)
     high_pass[half] += 1.0
-    centres = np.unique((slots[:, None] + np.arange(-half, half + 1)[None, :]).ravel())
-    centres = centres[(centres >= half) & (centres < n_grid - half)]
-    if avoid.size:  # a centre is clear of the long gaps when no avoided slot lies within ±half of it
-        nearest = np.searchsorted(avoid, centres)
-        below = np.abs(centres - avoid[np.clip(nearest - 1, 0, avoid.size - 1)])
-        above = np.abs(avoid[np.clip(nearest, 0, avoid.size - 1)] - centres)
-        centres = centres[np.minimum(below, above) > half]
-    rows = np.repeat(np.arange(centres.size), k.size)
-    cols = (centres[:, None] + np.arange(-half, half + 1)[None, :]).ravel()
-    H = sparse.csr_matrix((np.tile(high_pass, centres.size), (rows, cols)), shape=(centres.size, n_grid))
-    penalty: sparse.csr_matrix = (BAND_PENALTY * (H.T @ H)).tocsr()
+    return high_pass
+
+
+def _filter_penalty(taps: FloatArray, slots: IntArray, avoid: IntArray, n_grid: int) -> sparse.csr_matrix:
+    """HᵀH: H's rows are ``taps`` (a filter that the signal passes as ≈ 0: the band's high-pass, or a
+    prediction-error filter) at every position whose support covers one of ``slots`` (the bridged ones),
+    lies on the grid and covers none of ``avoid`` (long gaps, only guessed). Weight 1 a row, as a sample."""
+    width = taps.size
+    starts = np.unique((slots[:, None] - np.arange(width)[None, :]).ravel())
+    starts = starts[(starts >= 0) & (starts + width <= n_grid)]
+    if avoid.size:  # clear of the long gaps: no avoided slot in start … start + width − 1
+        first_avoided = avoid[np.clip(np.searchsorted(avoid, starts), 0, avoid.size - 1)]
+        starts = starts[(first_avoided < starts) | (first_avoided >= starts + width)]
+    rows = np.repeat(np.arange(starts.size), width)
+    cols = (starts[:, None] + np.arange(width)[None, :]).ravel()
+    H = sparse.csr_matrix((np.tile(taps, starts.size), (rows, cols)), shape=(starts.size, n_grid))
+    penalty: sparse.csr_matrix = (H.T @ H).tocsr()
     return penalty
+
+
+def prediction_filter(t_src: FloatArray, values: FloatArray, order: int) -> tuple[FloatArray, float]:
+    """Prediction-error filter (1, a_1 … a_order) of a track sampled about once a period, fitted by least
+    squares over every run of order + 1 consecutive grid slots all present (gaps break runs), all columns of
+    ``values`` (N, k) together, after removing a straight line; and its prediction gain (power of the track
+    / power of the prediction error, ≥ 1; a line spectrum — a rotor, steady tones — gives 10³–10⁵, white
+    noise ≈ 1). The sample instants' jitter is ignored (a periodic jitter keeps a periodic track periodic).
+    Raises TooFewSamplesError when the complete runs give fewer than 3·order equations."""
+    _, _, m = _grid(t_src)
+    A = np.column_stack([np.ones_like(t_src), t_src - t_src[0]])
+    trend, *_ = np.linalg.lstsq(A, values, rcond=None)
+    x = (values - A @ trend).reshape(t_src.size, -1)
+    # run j ends at sample j and is complete when the slots m[j − order] … m[j] are consecutive
+    ends = np.flatnonzero(m[order:] - m[: m.size - order] == order) + order
+    if ends.size * x.shape[1] < 3 * order:
+        raise TooFewSamplesError(f"only {ends.size} runs of {order + 1} consecutive samples ({x.shape[1]} "
+                                 f"values each); need {3 * order} values to fit a prediction filter")
+    past = np.stack([x[ends - k] for k in range(1, order + 1)], axis=-1)  # (runs, k columns, order)
+    design = past.reshape(-1, order)
+    target = x[ends].reshape(-1)
+    coef, *_ = np.linalg.lstsq(design, -target, rcond=None)
+    error = target + design @ coef
+    gain = float(np.mean(target**2) / max(float(np.mean(error**2)), 1e-300))
+    taps: FloatArray = np.concatenate([[1.0], coef])[::-1]  # oldest first, as _filter_penalty applies them
+    return taps, gain
 
 
 @overload
@@ -123,6 +151,7 @@ def bandlimited(
     noise_gain: Literal[False] = False,
     bridge_max_samples: int = 0,
     band_fraction: float = BAND_FRACTION,
+    bridge_filter: FloatArray | None = None,
 ) -> FloatArray: ...
 
 
@@ -137,6 +166,7 @@ def bandlimited(
     noise_gain: Literal[True],
     bridge_max_samples: int = 0,
     band_fraction: float = BAND_FRACTION,
+    bridge_filter: FloatArray | None = None,
 ) -> tuple[FloatArray, FloatArray]: ...
 
 
@@ -150,6 +180,7 @@ def bandlimited(
     noise_gain: bool = False,
     bridge_max_samples: int = 0,
     band_fraction: float = BAND_FRACTION,
+    bridge_filter: FloatArray | None = None,
 ) -> FloatArray | tuple[FloatArray, FloatArray]:
     """Windowed-sinc reconstruction of ``values`` (N, k) sampled at ``t_src`` evaluated at ``t_dst``.
 
@@ -160,8 +191,10 @@ def bandlimited(
 
     ``bridge_max_samples``: gaps of at most this many missing slots are *bridged* — their values follow from
     the assumption that the signal is band-limited to ``band_fraction`` of the sample rate (0 < b < 0.5; the
-    energy above it, within the kernel's half-width of the gap, is penalised: :func:`_band_penalty`) — and
-    the noise gain includes them exactly; longer gaps take the cubic prior. Measured bound (tests): tones
+    energy above it, within the kernel's half-width of the gap, is penalised: :func:`band_filter`), or from
+    ``bridge_filter`` (taps the signal passes as ≈ 0, e.g. a prediction-error filter fitted to the track:
+    a line spectrum's filter is far better conditioned than a band) — and the noise gain includes them
+    exactly; longer gaps take the cubic prior. Measured bound (tests): tones
     ≤ 0.27·fs, ``band_fraction`` 0.3, gaps of 1–3 slots at least 12 apart, row jitter ±0.2 period: error
     ≤ 0.2 % of the amplitude. Where missing slots cluster (or the band is wide: 0.35–0.4 with 20 % of the
     slots lost at random) the problem is ill-conditioned: the noise gain reaches 10²–10⁵ and the error of a
@@ -198,8 +231,12 @@ def bandlimited(
             rhs[long_] += prior.reshape(rhs[long_].shape)
         R = sparse.diags(weights).tocsr()
         if short.size:
-            R = (R + _band_penalty(short, long_, n_grid, half=half_width_samples, beta=beta,
-                                      band_fraction=band_fraction)).tocsr()
+            taps = (band_filter(band_fraction, half=half_width_samples, beta=beta) if bridge_filter is None
+                    else np.asarray(bridge_filter, dtype=float))
+            if taps.size > 2 * half_width_samples + 1:
+                raise InputArrayError(f"bridge_filter has {taps.size} taps; "
+                                      f"at most {2 * half_width_samples + 1}")
+            R = (R + _filter_penalty(taps, short, long_, n_grid)).tocsr()
         N = (S.T @ S + R).tocsr()
         bands = np.zeros((2 * half_width_samples + 1, n_grid))  # lower banded form of the SPD matrix N
         for d in range(bands.shape[0]):
