@@ -6,7 +6,8 @@ for sensor frames starting within ``drop_window_s`` of world time): each lost fr
 camera's time stamps, as a camera or a loaded host skipping frames does. On the instant virtual clock the
 run's world times are fixed by the plan (the first sync recording spans ≈ 9.4–12.4 s, the second — after
 the stop, a spin-up and the rotor's ramp — ≈ 22.5–28.5 s), so a window ending at 16 s loses frames in the
-first recording only, with seconds of margin either side.
+first recording only, with seconds of margin either side. Steady loss of a fifth of the frames is bridged
+(short gaps); the retries are for heavier loss (45 %, the configuration's largest).
 """
 
 from __future__ import annotations
@@ -22,15 +23,17 @@ from rig.config.rig_config import load_config
 from rig.config.schema import ConfigError
 from rig.record.catalogue import run_folders
 from rig.record.writer import load_run
-from tests.certify_support import write_config
+from tests.certify_support import true_offset_s, twin_cameras, write_config
 
-DROP_PROBABILITY = 0.2  # ≈ 20 % of the frames, in ≈ 60 gaps per 6 s: the joint method keeps too few
+STEADY_LOSS = 0.2  # ≈ 20 % of the frames in short gaps: bridged, the sync passes on its first recording
+DROP_PROBABILITY = 0.45  # the configuration's largest: ≈ half the frames, too few runs left to bridge
 FIRST_ONLY_WINDOW_S = (0.0, 16.0)
 
 
-def _lossy_config(tmp_path: Path, window_s: tuple[float, float] | None) -> Path:
+def _lossy_config(tmp_path: Path, window_s: tuple[float, float] | None,
+                  probability: float = DROP_PROBABILITY) -> Path:
     config = write_config(tmp_path)
-    loss = f"drop_probability = {DROP_PROBABILITY}"
+    loss = f"drop_probability = {probability}"
     if window_s is not None:
         loss += f"\ndrop_window_s = [{window_s[0]}, {window_s[1]}]"
     text, n = re.subn(r"^(\[sim\.cameras\.(?:left|right)\])$", rf"\1\n{loss}", config.read_text(), flags=re.M)
@@ -90,8 +93,10 @@ def test_every_attempt_losing_frames_ends_in_a_fault_naming_each_cameras_loss(tm
                           reason)
         assert found is not None, reason
         missing, total, pct, inside, gaps = map(int, found.groups())
-        # ≈ 180 frames at 20 %: the binomial's 36 ± 5.4, within 4 σ
-        assert total == pytest.approx(180, abs=2) and abs(missing - DROP_PROBABILITY * total) <= 22, reason
+        # ≈ 180 frames at 45 %: the binomial's 81 ± 6.7, within 4 σ
+        binomial_sd = (total * DROP_PROBABILITY * (1 - DROP_PROBABILITY)) ** 0.5
+        assert total == pytest.approx(180, abs=2), reason
+        assert abs(missing - DROP_PROBABILITY * total) <= 4 * binomial_sd, reason
         assert inside <= missing and 0 < gaps <= inside and abs(pct - 100 * missing / total) <= 0.5
     assert [s for s, _ in _rotations(run_dir)] == ["sync", "sync-2"]
     assert not (run_dir / "timing.json").exists()
@@ -104,6 +109,33 @@ def test_every_attempt_losing_frames_ends_in_a_fault_naming_each_cameras_loss(tm
     assert state["robot"]["moved_mm"] == 0.0, state
     assert state["generator"] == {"output_on": False}, state
     assert state["left"] == {"recording": False} and state["right"] == {"recording": False}, state
+
+
+@pytest.mark.slow  # runs the calibration first (≈ 13 CPU-s)
+def test_steady_loss_of_a_fifth_of_the_frames_is_bridged_and_passes_on_the_first_recording(
+        tmp_path: Path) -> None:
+    """Both cameras lose 20 % of their frames at random in every recording: the joint sync bridges the short
+    gaps and passes on the first recording, its offset within the joint fit's k·u of the cameras' hidden
+    clocks (k = 10 + 1 µs as in the certify e2e test: the estimator's known row-distortion bias on this rig is
+    ≈ 5 u, with or without lost frames)."""
+    config = _lossy_config(tmp_path, None, STEADY_LOSS)
+    code = main(["run", "sync", "--config", str(config), "--set", "record_s=3.0"])
+    (run_dir,) = run_folders(tmp_path / "runs")
+    run = load_run(run_dir)
+    assert code == 0 and run.stop is not None and run.stop["exit_status"] == "success", run.stop
+    assert [s for s, _ in _rotations(run_dir)] == ["sync"]
+    timing = json.loads((run_dir / "timing.json").read_text())
+    assert timing["search"]["attempt"] == 1
+    gaps = timing["details"]["gaps_b"]
+    assert gaps["bridged"] >= 10 and gaps["frames_missing"] >= 20, gaps  # ≈ 36 frames lost of 180
+    search = timing["search"]
+    assert search["frame_gaps"].startswith(f"camera 'right': {gaps['gaps']} gap(s)"), search
+    cams = twin_cameras(config)
+    ref, other = timing["reference_camera"], "right" if timing["reference_camera"] == "left" else "left"
+    truth_s = true_offset_s(cams[ref], cams[other], timing["epoch_s"][other])
+    u_s = timing["uncertainty"]["offset_s"][other]
+    offset_s = timing["offset_s"][other]
+    assert abs(offset_s - truth_s) <= 10 * u_s + 1e-6, (offset_s, truth_s, u_s)
 
 
 def test_the_dry_run_plan_states_the_recordings_sync_may_repeat(tmp_path: Path,

@@ -140,6 +140,38 @@ def prediction_filter(t_src: FloatArray, values: FloatArray, order: int) -> tupl
     return taps, gain
 
 
+def bridging_filter(t_src: FloatArray, values: FloatArray, *, max_gap_samples: int,
+                    orders: tuple[int, ...] = (8, 6, 4)) -> tuple[FloatArray, float]:
+    """Prediction-error filter to bridge the gaps of at most ``max_gap_samples`` of a track (``t_src`` the
+    frames' stamps: uniform but for the gaps) and its prediction gain (:func:`prediction_filter`). With many
+    gaps the runs of consecutive samples are few: the highest of ``orders`` they fit bridges the short gaps
+    once, and the filter of order ``orders[0]`` is fitted again to the bridged track (every run complete but
+    across longer gaps). Measured (tests): a 3–12 Hz tone with a harmonic, ≈ 20 % of the frames lost in
+    gaps of 1–3, σ = 0.1 px: noise gain ≤ 3 and bridged errors of RMS 1.0–1.8 × σ·√gain over 30 tracks (the
+    excess is the filter's model error; 2.5 asserted) — a cubic spline prior is off by ≈ 130 × that.
+    Raises TooFewSamplesError when no order fits, NonUniformSamplingError."""
+    first: tuple[FloatArray, float] | None = None
+    for order in orders:
+        try:
+            first = prediction_filter(t_src, values, order)
+            break
+        except TooFewSamplesError:
+            continue
+    if first is None:
+        raise TooFewSamplesError(f"too few runs of consecutive samples for a prediction filter of order "
+                                 f"{orders[-1]} or more")
+    period = float(np.median(np.diff(t_src)))
+    steps = np.rint(np.diff(t_src) / period).astype(int)
+    short = np.flatnonzero((steps > 1) & (steps - 1 <= max_gap_samples))
+    if not short.size:
+        return first
+    missing = np.concatenate([t_src[k] + period * np.arange(1, steps[k]) for k in short])
+    filled = bandlimited(t_src, values, missing, bridge_max_samples=max_gap_samples, bridge_filter=first[0])
+    order_ = np.argsort(np.concatenate([t_src, missing]))
+    t_all = np.concatenate([t_src, missing])[order_]
+    return prediction_filter(t_all, np.concatenate([values, filled])[order_], orders[0])
+
+
 @overload
 def bandlimited(
     t_src: FloatArray,

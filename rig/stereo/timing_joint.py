@@ -70,7 +70,7 @@ from rig.stereo.errors import (
     TooFewSamplesError,
 )
 from rig.stereo.normalize import Camera
-from rig.stereo.resample import bandlimited, prediction_filter
+from rig.stereo.resample import bandlimited, bridging_filter
 from rig.stereo.timing_model import TimingResult
 
 MIN_OBSERVATIONS = 30
@@ -177,40 +177,16 @@ def as_tracks(observations_a: object, observations_b: object) -> list[TrackPair]
     return tracks
 
 
-def _first_prediction_filter(tau_b: FloatArray, uv_b: FloatArray) -> tuple[FloatArray, float] | None:
-    """The highest-order prediction-error filter of PREDICTION_ORDERS that B's complete runs can fit."""
-    for order in PREDICTION_ORDERS:
-        try:
-            return prediction_filter(tau_b, uv_b, order)
-        except TooFewSamplesError:
-            continue
-    return None
-
-
 def _bridge_of(tau_b: FloatArray, uv_b: FloatArray) -> tuple[dict[str, Any], float | None]:
     """Keyword arguments of :func:`bandlimited` for camera B's track — bridge its short gaps with its own
-    prediction-error filter when the track is predictable enough (a line spectrum), else none — and the
-    track's prediction gain (None: too few complete runs to fit the filter). With many gaps the first filter
-    comes from few runs; it bridges the short gaps once, and the filter of the highest order is fitted again
-    to the bridged track (its every run of frames complete but across longer gaps)."""
+    prediction-error filter (:func:`rig.stereo.resample.bridging_filter`) when the track is predictable
+    enough (a line spectrum), else none — and the track's prediction gain (None: too few runs to fit)."""
     try:
-        first = _first_prediction_filter(tau_b, uv_b)
-    except NonUniformSamplingError:
+        fitted = bridging_filter(tau_b, uv_b, max_gap_samples=MAX_BRIDGED_GAP_FRAMES,
+                                 orders=PREDICTION_ORDERS)
+    except (TooFewSamplesError, NonUniformSamplingError):
         return {"bridge_max_samples": 0}, None
-    if first is None:
-        return {"bridge_max_samples": 0}, None
-    period = float(np.median(np.diff(tau_b)))
-    steps = np.rint(np.diff(tau_b) / period).astype(int)
-    short = (steps > 1) & (steps - 1 <= MAX_BRIDGED_GAP_FRAMES)
-    missing = np.concatenate([tau_b[k] + period * np.arange(1, steps[k]) for k in np.flatnonzero(short)]
-                             + [np.zeros(0)])
-    if missing.size:
-        filled = bandlimited(tau_b, uv_b, missing, bridge_max_samples=MAX_BRIDGED_GAP_FRAMES,
-                             bridge_filter=first[0])
-        order = np.argsort(np.concatenate([tau_b, missing]))
-        t_all = np.concatenate([tau_b, missing])[order]
-        first = prediction_filter(t_all, np.concatenate([uv_b, filled])[order], PREDICTION_ORDERS[0])
-    taps, gain = first
+    taps, gain = fitted
     if gain < MIN_PREDICTION_GAIN:
         return {"bridge_max_samples": 0}, gain
     return {"bridge_max_samples": MAX_BRIDGED_GAP_FRAMES, "bridge_filter": taps}, gain
