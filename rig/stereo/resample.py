@@ -10,6 +10,10 @@
   reconstruction passes through the observations are solved for first (sparse least squares), then the
   reconstruction is evaluated at the destinations. Within ``half_width_samples`` of either end of the record
   the truncated kernel loses accuracy (ends of the record: ~1 % at 25 Hz); trim those instants if it matters.
+  Short gaps can be *bridged* with the track's own prediction-error filter (:func:`bridging_filter`): a
+  line spectrum (rotor, steady tones) constrains a missing sample far better than a band limit — a band of
+  0.35–0.4·fs (a 10-Hz rotor with its 20-Hz harmonic) with 20 % of the samples lost at random gave noise
+  gains of 10²–10⁵, the track's own filter ≤ 3.
 
 Destinations outside [t_src[0], t_src[-1]] give NaN (never extrapolated).
 Times in seconds; values in any unit.
@@ -28,8 +32,6 @@ from rig.stereo._series import as_times, as_values
 from rig.stereo.errors import InputArrayError, NonUniformSamplingError, TooFewSamplesError
 
 METHODS = ("linear", "cubic", "bandlimited")
-BAND_FRACTION = 0.4  # default band of bridged gaps: 24 Hz at 60 fps (a 10-Hz rotor and its 20-Hz harmonic)
-TRANSITION_FRACTION = 0.06  # the band penalty's filter passes to about the band and stops from band + this
 
 
 def kaiser_sinc(tau: FloatArray, half_width: float, beta: float) -> FloatArray:
@@ -85,22 +87,10 @@ def _missing_slots(m: IntArray, bridge_max_samples: int) -> tuple[IntArray, IntA
     return (np.concatenate(short) if short else empty), (np.concatenate(long_) if long_ else empty)
 
 
-def band_filter(band_fraction: float, *, half: int = 32, beta: float = 5.65) -> FloatArray:
-    """High-pass taps (2·half + 1) that remove a signal band-limited to ``band_fraction`` of the sample rate:
-    δ − a Kaiser-windowed low-pass cut off half a transition above it (pass-band leak ≈ 3e-4)."""
-    if not 0.0 < band_fraction < 0.5:
-        raise InputArrayError(f"band_fraction must lie in (0, 0.5), got {band_fraction!r}")
-    k = np.arange(-half, half + 1, dtype=float)
-    cutoff = band_fraction + 0.5 * TRANSITION_FRACTION  # cycles per sample
-    high_pass: FloatArray = -2.0 * cutoff * kaiser_sinc(2.0 * cutoff * k, 2.0 * cutoff * half, beta)
-    high_pass[half] += 1.0
-    return high_pass
-
-
 def _filter_penalty(taps: FloatArray, slots: IntArray, avoid: IntArray, n_grid: int) -> sparse.csr_matrix:
-    """HᵀH: H's rows are ``taps`` (a filter that the signal passes as ≈ 0: the band's high-pass, or a
-    prediction-error filter) at every position whose support covers one of ``slots`` (the bridged ones),
-    lies on the grid and covers none of ``avoid`` (long gaps, only guessed). Weight 1 a row, as a sample."""
+    """HᵀH: H's rows are ``taps`` (a filter that the signal passes as ≈ 0: its prediction-error filter) at
+    every position whose support covers one of ``slots`` (the bridged ones), lies on the grid and covers none
+    of ``avoid`` (long gaps, only guessed). Weight 1 a row, as a sample."""
     width = taps.size
     starts = np.unique((slots[:, None] - np.arange(width)[None, :]).ravel())
     starts = starts[(starts >= 0) & (starts + width <= n_grid)]
@@ -182,7 +172,6 @@ def bandlimited(
     beta: float = 5.65,
     noise_gain: Literal[False] = False,
     bridge_max_samples: int = 0,
-    band_fraction: float = BAND_FRACTION,
     bridge_filter: FloatArray | None = None,
 ) -> FloatArray: ...
 
@@ -197,7 +186,6 @@ def bandlimited(
     beta: float = 5.65,
     noise_gain: Literal[True],
     bridge_max_samples: int = 0,
-    band_fraction: float = BAND_FRACTION,
     bridge_filter: FloatArray | None = None,
 ) -> tuple[FloatArray, FloatArray]: ...
 
@@ -211,7 +199,6 @@ def bandlimited(
     beta: float = 5.65,
     noise_gain: bool = False,
     bridge_max_samples: int = 0,
-    band_fraction: float = BAND_FRACTION,
     bridge_filter: FloatArray | None = None,
 ) -> FloatArray | tuple[FloatArray, FloatArray]:
     """Windowed-sinc reconstruction of ``values`` (N, k) sampled at ``t_src`` evaluated at ``t_dst``.
@@ -221,16 +208,11 @@ def bandlimited(
     (≈ 1; it depends on the irregularity of ``t_src`` and on the destination's position between samples;
     near a long gap, where the cubic prior enters, it is approximate).
 
-    ``bridge_max_samples``: gaps of at most this many missing slots are *bridged* — their values follow from
-    the assumption that the signal is band-limited to ``band_fraction`` of the sample rate (0 < b < 0.5; the
-    energy above it, within the kernel's half-width of the gap, is penalised: :func:`band_filter`), or from
-    ``bridge_filter`` (taps the signal passes as ≈ 0, e.g. a prediction-error filter fitted to the track:
-    a line spectrum's filter is far better conditioned than a band) — and the noise gain includes them
-    exactly; longer gaps take the cubic prior. Measured bound (tests): tones
-    ≤ 0.27·fs, ``band_fraction`` 0.3, gaps of 1–3 slots at least 12 apart, row jitter ±0.2 period: error
-    ≤ 0.2 % of the amplitude. Where missing slots cluster (or the band is wide: 0.35–0.4 with 20 % of the
-    slots lost at random) the problem is ill-conditioned: the noise gain reaches 10²–10⁵ and the error of a
-    noise-free signal grows with it — check the gain.
+    ``bridge_max_samples``: gaps of at most this many missing slots are *bridged*: their values are those
+    ``bridge_filter`` — taps the signal passes as ≈ 0, a prediction-error filter of the track
+    (:func:`bridging_filter`) — allows, the filter's output energy being penalised wherever its support
+    covers a bridged slot (:func:`_filter_penalty`); the noise gain includes them exactly. Longer gaps take
+    the cubic prior.
     """
     t0, period, m = _grid(t_src)
     n_grid = int(m[-1]) + 1
@@ -263,8 +245,9 @@ def bandlimited(
             rhs[long_] += prior.reshape(rhs[long_].shape)
         R = sparse.diags(weights).tocsr()
         if short.size:
-            taps = (band_filter(band_fraction, half=half_width_samples, beta=beta) if bridge_filter is None
-                    else np.asarray(bridge_filter, dtype=float))
+            if bridge_filter is None:
+                raise InputArrayError("bridge_max_samples > 0 needs a bridge_filter")
+            taps = np.asarray(bridge_filter, dtype=float)
             if taps.size > 2 * half_width_samples + 1:
                 raise InputArrayError(f"bridge_filter has {taps.size} taps; "
                                       f"at most {2 * half_width_samples + 1}")

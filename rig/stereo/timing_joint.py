@@ -57,7 +57,7 @@ from typing import Any, NamedTuple
 import numpy as np
 from scipy import optimize
 
-from rig.stereo._arrays import FloatArray
+from rig.stereo._arrays import BoolArray, FloatArray
 from rig.stereo._series import as_times
 from rig.stereo.epipolar import fundamental_from_projections
 from rig.stereo.errors import (
@@ -207,39 +207,52 @@ class _Residuals:
         self.prediction_gains_all: list[float | None] = []  # of every track of B (None: not fitted)
         self.bridged_b = 0  # gaps of B short enough to be bridged (module doc), in the tracks that bridge
         self.n_ill_conditioned = 0  # A's instants left out where the bridging is ill-conditioned
-        for ta, ua, ra, tb, ub, rb in tracks:
-            bridge, prediction_gain = _bridge_of(tb, ub)
+        for track in tracks:
+            bridge, prediction_gain = _bridge_of(track.tau_b, track.uv_b)
             self.prediction_gains_all.append(prediction_gain)
-            lo = tb[0] + guess_s + half_width_s + margin_s
-            hi = tb[-1] + guess_s - half_width_s - margin_s
-            sel = (ta >= lo) & (ta <= hi)
-            # A dropped frame of B cannot be reconstructed; its error reaches the band-limited values through
-            # the sinc's 1/d tail, so A's instants within the kernel half-width of a gap are left out.
-            steps = np.diff(tb)
-            period = float(np.median(steps))
-            for k in np.flatnonzero(steps > 1.5 * period):
-                self.gaps_b += 1
-                missing = max(1, round(float(steps[k]) / period) - 1)
-                self.missing_b += missing
-                if bridge["bridge_max_samples"] and missing <= MAX_BRIDGED_GAP_FRAMES:
-                    self.bridged_b += 1  # B is reconstructed across it
-                    continue
-                near = (ta >= tb[k] + guess_s - half_width_s - GAP_GUARD * period) & (
-                    ta <= tb[k + 1] + guess_s + half_width_s + GAP_GUARD * period
-                )
-                self.n_near_gaps += int(np.count_nonzero(sel & near))
-                sel &= ~near
+            lo = track.tau_b[0] + guess_s + half_width_s + margin_s
+            hi = track.tau_b[-1] + guess_s - half_width_s - margin_s
+            sel = (track.tau_a >= lo) & (track.tau_a <= hi)
+            sel &= ~self._near_unbridged_gaps(track, sel, bridge, reach_s=(guess_s, half_width_s))
             if bridge["bridge_max_samples"] and np.count_nonzero(sel) >= 4:
                 # where gaps cluster the bridged reconstruction is ill-conditioned: its noise gain (at the
                 # guessed offset, no line time or drift) says so, and those instants are left out too
-                _, gain = bandlimited(tb + guess_s, ub, ta[sel], noise_gain=True, **bridge)
+                _, gain = bandlimited(track.tau_b + guess_s, track.uv_b, track.tau_a[sel], noise_gain=True,
+                                      **bridge)
                 poor = np.flatnonzero(sel)[gain > MAX_BRIDGE_GAIN]
                 self.n_ill_conditioned += poor.size
                 sel[poor] = False
             if np.count_nonzero(sel) >= 4:
+                ta, ua, ra, tb, ub, rb = track
                 self.data.append(TrackPair(ta[sel], ua[sel], ra[sel], tb, ub, rb))
                 self.bridges.append(bridge)
         self.n = sum(len(d.tau_a) for d in self.data)
+
+    def _near_unbridged_gaps(self, track: TrackPair, sel: BoolArray, bridge: dict[str, Any], *,
+                             reach_s: tuple[float, float]) -> BoolArray:
+        """A's instants (mask) near a gap of B that is not bridged, counting B's gaps on the way.
+
+        A dropped frame of B that is not bridged cannot be reconstructed; its error reaches the band-limited
+        values through the sinc's 1/d tail, so A's instants within the kernel half-width (+ GAP_GUARD frames)
+        of it are left out. ``reach_s``: the offset guess and the search half-width (s)."""
+        ta, tb = track.tau_a, track.tau_b
+        guess_s, half_width_s = reach_s
+        steps = np.diff(tb)
+        period = float(np.median(steps))
+        near_any = np.zeros(ta.size, dtype=bool)
+        for k in np.flatnonzero(steps > 1.5 * period):
+            self.gaps_b += 1
+            missing = max(1, round(float(steps[k]) / period) - 1)
+            self.missing_b += missing
+            if bridge["bridge_max_samples"] and missing <= MAX_BRIDGED_GAP_FRAMES:
+                self.bridged_b += 1  # B is reconstructed across it
+                continue
+            near = (ta >= tb[k] + guess_s - half_width_s - GAP_GUARD * period) & (
+                ta <= tb[k + 1] + guess_s + half_width_s + GAP_GUARD * period
+            )
+            self.n_near_gaps += int(np.count_nonzero(sel & near & ~near_any))
+            near_any |= near
+        return near_any
 
     def bridging_statement(self) -> str:
         """Whether B's tracks were bridged, and why not (their prediction gains)."""
