@@ -6,12 +6,18 @@ from __future__ import annotations
 
 import os
 import re
+import socket
 import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
+from drivers.sim.clock import VirtualClock
+from rig.config.rig_config import load_config
 from rig.record.catalogue import run_folders
 from rig.record.writer import load_run
+from rig.run.station import StationError, open_station
 from tests.certify_support import write_config
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -68,3 +74,25 @@ def test_certify_with_an_unreachable_robot_also_leaves_a_run_folder(tmp_path: Pa
     run = load_run(run_dir)
     assert run.start["procedure"] == "certify" and run.stop["exit_status"] == "fail"
     assert "robot at tcp://127.0.0.1:1" in run.stop["reason"]
+
+
+def test_cameras_are_built_before_any_device_is_connected(tmp_path: Path) -> None:
+    """A network camera can take seconds to connect and settle on a loaded host; a device connected before
+    it would be silent that long before the runner's heartbeats start (the lab's arm ended the session: its
+    b-CAP watchdog saw 10 s of silence). So the cameras come first, and one that fails is refused before any
+    device hears a byte."""
+    with socket.create_server(("127.0.0.1", 0)) as robot:
+        robot.settimeout(0.0)
+        config = write_config(tmp_path)
+        text = config.read_text()
+        text = re.sub(r'^(\[devices\.robot\]\n(?:.*\n)*?)address = .*$',
+                      rf'\1address = "tcp://127.0.0.1:{robot.getsockname()[1]}"', text, count=1, flags=re.M)
+        missing = (tmp_path / "missing.avi").as_posix()
+        text = text.replace('[cameras.left]\ndriver = "sim"',
+                            f'[cameras.left]\ndriver = "file"\nsource = "{missing}"')
+        config.write_text(text)
+        with pytest.raises(StationError, match=r"cameras\.left\.source"), \
+                open_station(load_config(config), VirtualClock()):
+            pass
+        with pytest.raises(BlockingIOError):
+            robot.accept()  # no connection was ever attempted

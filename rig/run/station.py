@@ -502,7 +502,8 @@ def _warn_if_cameras_film_another_world(config: RigConfig) -> None:
 
 @contextlib.contextmanager
 def open_station(config: RigConfig, clock: Clock, *, keep_going: bool = False) -> Iterator[Station]:
-    """Build every configured device (starting mock servers on a simulated station); always tear down.
+    """Build every configured device (starting mock servers on a simulated station) — the cameras first,
+    then the arm, the drives and the generator — and always tear down.
 
     A device that cannot be built or reached raises :class:`StationError`, unless ``keep_going`` (what
     ``rig check`` uses): then every device is tried independently, and those that failed are left out of
@@ -518,6 +519,15 @@ def open_station(config: RigConfig, clock: Clock, *, keep_going: bool = False) -
             seed = config.sim.seed if config.sim else 0
             station.world = World(clock, seed=seed, layout=world_layout(config))
             add_fiducial_led(station.world, config)
+        # cameras first: a network camera's connection and settling can take seconds on a loaded host, and
+        # a device built before them would be silent that long, before the runner's heartbeats start — long
+        # enough for its own communication-loss watchdog (b-CAP WDT, a drive's Modbus timeout) to stop it
+        try:
+            _build_cameras(station, config)
+        except StationError as exc:
+            if not keep_going:
+                raise
+            station.unreachable["cameras"] = str(exc)
         for name, address, build in _builders(station, config):
             try:
                 try:
@@ -531,12 +541,6 @@ def open_station(config: RigConfig, clock: Clock, *, keep_going: bool = False) -
                     raise
                 station.unreachable[name] = str(exc)
         _warn_if_cameras_film_another_world(config)
-        try:
-            _build_cameras(station, config)
-        except StationError as exc:
-            if not keep_going:
-                raise
-            station.unreachable["cameras"] = str(exc)
         yield station
     finally:
         station.close()
