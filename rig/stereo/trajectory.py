@@ -297,8 +297,7 @@ def fit_trajectory(
     spline_rows = [_spline_rows(d) for d in designs] if isinstance(basis, SplineBasis) else []
     if (isinstance(basis, SplineBasis) and 3 * basis.size > 4 * (_BAND + 1)
             and all(r is not None for r in spline_rows)):  # wide enough for banded Cholesky
-        C = _fit_banded(Ps, designs, [r for r in spline_rows if r is not None], uvs, basis,
-                        iterations=iterations)
+        C = _fit_banded(Ps, [r for r in spline_rows if r is not None], uvs, basis, iterations=iterations)
     else:
         C = _fit_general(Ps, ts, designs, uvs, basis, iterations=iterations)
     res = []
@@ -341,37 +340,109 @@ def _spline_rows(design: sparse.csr_matrix) -> tuple[FloatArray, IntArray] | Non
     return np.asarray(design.data, dtype=float).reshape(-1, 4), cols[:, 0]
 
 
-def _banded_normal(Ps: Sequence[FloatArray], designs: Sequence[sparse.csr_matrix],
-                   rows: Sequence[tuple[FloatArray, IntArray]], uvs: Sequence[FloatArray],
-                   C: FloatArray | None, *, n_cols: int) -> tuple[FloatArray, FloatArray, float]:
+# An equation's 12 coefficients are index 3p + k: basis function p (0–3) × coordinate k (0–2); the pairs
+# P ≤ Q of them are the upper band of the normal equations. Per observation the two equations (u, v) share
+# the basis values v_p, so their contribution to entry (3p + k, 3q + l) is v_p·v_q·G_kl with G = Σ_u,v g gᵀ.
+_COEF_P, _COEF_K = np.divmod(np.arange(12), 3)
+_PAIRS_10 = [(p, q) for p in range(4) for q in range(p, 4)]  # v_p·v_q, p ≤ q
+_SYM_6 = [(k, m) for k in range(3) for m in range(k, 3)]  # G_kl, k ≤ l
+_V_OF_PAIR = np.array([_PAIRS_10.index((min(a, b), max(a, b))) for a, b in
+                       zip(_COEF_P[_UPPER_P], _COEF_P[_UPPER_Q], strict=True)])
+_G_OF_PAIR = np.array([_SYM_6.index((min(a, b), max(a, b))) for a, b in
+                       zip(_COEF_K[_UPPER_P], _COEF_K[_UPPER_Q], strict=True)])
+_V_A, _V_B = np.array(_PAIRS_10).T
+_G_A, _G_B = np.array(_SYM_6).T
+
+
+@dataclass(frozen=True)
+class _SplineData:
+    """All cameras' observations of one spline fit, stacked: basis values (N, 4) and first basis index (N,)
+    per observation, the camera's projection matrix per observation (N, 3, 4), pixels (N, 2), and the
+    fixed parts of the band sums: each observation's 78 products v_p·v_q (N, 78), its flat positions in
+    the band storage (N, 78) and in the right-hand side (N, 12)."""
+
+    values: FloatArray
+    first: IntArray
+    P: FloatArray
+    uv: FloatArray
+    vv: FloatArray
+    band_at: IntArray
+    rhs_at: IntArray
+    n_cols: int
+
+
+def _spline_data(Ps: Sequence[FloatArray], rows: Sequence[tuple[FloatArray, IntArray]],
+                 uvs: Sequence[FloatArray], n_cols: int) -> _SplineData:
+    """Stack the cameras' observations and precompute what does not change over the iterations."""
+    values = np.concatenate([r[0] for r in rows])
+    first = np.concatenate([r[1] for r in rows])
+    P = np.concatenate([np.broadcast_to(P, (len(uv), 3, 4)) for P, uv in zip(Ps, uvs, strict=True)])
+    c0 = 3 * first[:, None]
+    band_at = (_BAND + _UPPER_P - _UPPER_Q) * n_cols + c0 + _UPPER_Q[None, :]
+    vv = (values[:, _V_A] * values[:, _V_B])[:, _V_OF_PAIR]
+    return _SplineData(values, first, P, np.concatenate(uvs), vv, band_at, c0 + np.arange(12), n_cols)
+
+
+def _spline_positions(data: _SplineData, C: FloatArray) -> FloatArray:
+    """X(t) (N, 3) at every observation: Σ_p v_p·C[first + p]."""
+    return np.asarray(np.einsum("np,npk->nk", data.values, C[data.first[:, None] + np.arange(4)]))
+
+
+def _banded_normal(data: _SplineData, C: FloatArray | None) -> tuple[FloatArray, FloatArray, float]:
     """The normal equations AᵀA x = Aᵀr of the spline equations at C in upper band storage (``solveh_banded``:
     ``bands[_BAND + i − j, j] = N[i, j]``, i ≤ j), Aᵀr, and the RMS row norm of A (the penalty's scale):
-    summed straight from each equation's 12 non-zero coefficients, no sparse matrix built."""
-    a_parts, first_parts, r_parts = [], [], []
-    for P, design, (values, first), uv in zip(Ps, designs, rows, uvs, strict=True):
-        for g, r in _jacobian(P, design, uv, C):
-            a_parts.append((values[:, :, None] * g[:, None, :]).reshape(len(uv), 12))
-            first_parts.append(3 * first)
-            r_parts.append(r)
-    a, c0, r = np.concatenate(a_parts), np.concatenate(first_parts), np.concatenate(r_parts)
-    at = (_BAND + _UPPER_P - _UPPER_Q) * n_cols + c0[:, None] + _UPPER_Q[None, :]
-    bands = np.bincount(at.ravel(), (a[:, _UPPER_P] * a[:, _UPPER_Q]).ravel(), minlength=(_BAND + 1) * n_cols)
-    rhs = np.bincount((c0[:, None] + np.arange(12)).ravel(), (a * r[:, None]).ravel(), minlength=n_cols)
-    rms_row = float(np.sqrt(np.sum(np.square(a))) / np.sqrt(max(len(r), 1)))
+    summed per observation from its basis values and the 3×3 G = Σ_u,v g gᵀ of its two equations
+    (g = (p_k − û·p₃)/w, the Jacobian in X; at C None the linear DLT-style rows, w = 1), no matrix built."""
+    P, uv = data.P, data.uv
+    p3 = P[:, 2, :3]
+    if C is None:
+        uhat, w = uv, np.ones(len(uv))
+        r = uv * P[:, 2, 3:4] - P[:, :2, 3]  # −(p_k4 − u_k·p_34)
+    else:
+        proj = np.einsum("nij,nj->ni", P[:, :, :3], _spline_positions(data, C)) + P[:, :, 3]
+        w = proj[:, 2]
+        uhat = proj[:, :2] / w[:, None]
+        r = uv - uhat
+    gu = (P[:, 0, :3] - uhat[:, :1] * p3) / w[:, None]
+    gv = (P[:, 1, :3] - uhat[:, 1:] * p3) / w[:, None]
+    G = gu[:, _G_A] * gu[:, _G_B] + gv[:, _G_A] * gv[:, _G_B]  # (N, 6)
+    n_cols = data.n_cols
+    bands = np.bincount(data.band_at.ravel(), (data.vv * G[:, _G_OF_PAIR]).ravel(),
+                        minlength=(_BAND + 1) * n_cols)
+    h = gu * r[:, :1] + gv * r[:, 1:]  # (N, 3): Σ_u,v g·r
+    rhs = np.bincount(data.rhs_at.ravel(), (data.values[:, :, None] * h[:, None, :]).ravel(),
+                      minlength=n_cols)
+    sum_sq = float(np.sum(np.sum(data.values**2, axis=1) * (G[:, 0] + G[:, 3] + G[:, 5])))
+    rms_row = float(np.sqrt(sum_sq / max(2 * len(uv), 1)))
     return np.asarray(bands, np.float64).reshape(_BAND + 1, n_cols), np.asarray(rhs, np.float64), rms_row
 
 
-def _penalty_bands(basis: SplineBasis, scale: float, n_cols: int) -> tuple[FloatArray, sparse.csr_matrix]:
-    """The P-spline penalty rows R (scaled) and RᵀR in the band storage of :func:`_banded_normal`."""
-    Areg = basis.regulariser()
-    assert Areg is not None
-    R3 = (sparse.kron(Areg, sparse.identity(3)) * scale).tocsr()
-    RtR = sparse.coo_matrix(R3.T @ R3)
-    RtR.sum_duplicates()
-    upper = RtR.row <= RtR.col
-    bands = np.zeros((_BAND + 1, n_cols))
-    bands[_BAND + RtR.row[upper] - RtR.col[upper], RtR.col[upper]] = RtR.data[upper]
-    return bands, R3
+def _second_differences(C: FloatArray) -> FloatArray:
+    """D·C: C[j] − 2·C[j+1] + C[j+2] for each coordinate, (n − 2, 3)."""
+    return np.asarray(C[:-2] - 2.0 * C[1:-1] + C[2:])
+
+
+def _penalty_gradient(C: FloatArray, weight: float) -> FloatArray:
+    """−weight·DᵀD·C (n, 3): the penalty's right-hand side at C (weight = penalty·scale²)."""
+    d = _second_differences(C)
+    out = np.zeros_like(C)
+    out[:-2] += d
+    out[1:-1] -= 2.0 * d
+    out[2:] += d
+    return -weight * out
+
+
+def _penalty_bands(weight: float, n_basis: int) -> FloatArray:
+    """weight·(DᵀD ⊗ I₃) in the band storage of :func:`_banded_normal` (D the second differences on n_basis
+    coefficients; a coefficient's coordinate k couples only to the same k, 3·offset columns away)."""
+    bands = np.zeros((_BAND + 1, 3 * n_basis))
+    stencil = (1.0, -2.0, 1.0)
+    for a in range(3):
+        for b in range(a, 3):  # row j of D touches coefficients j + a and j + b
+            diag = np.zeros(n_basis)
+            diag[b:b + n_basis - 2] = stencil[a] * stencil[b]
+            bands[_BAND - 3 * (b - a)] += weight * np.repeat(diag, 3)
+    return bands
 
 
 def _solve_bands(bands: FloatArray, rhs: FloatArray) -> FloatArray:
@@ -385,20 +456,20 @@ def _solve_bands(bands: FloatArray, rhs: FloatArray) -> FloatArray:
         return np.asarray(spsolve(sparse.csc_matrix(upper + sparse.triu(upper, 1).T), rhs))
 
 
-def _fit_banded(Ps: Sequence[FloatArray], designs: Sequence[sparse.csr_matrix],
-                rows: Sequence[tuple[FloatArray, IntArray]], uvs: Sequence[FloatArray], basis: SplineBasis,
-                *, iterations: int) -> FloatArray:
+def _fit_banded(Ps: Sequence[FloatArray], rows: Sequence[tuple[FloatArray, IntArray]],
+                uvs: Sequence[FloatArray], basis: SplineBasis, *, iterations: int) -> FloatArray:
     """:func:`_fit_general` for a cubic B-spline: the same steps (penalty on the updated coefficients, its
     weight from the design's RMS row norm), the normal equations summed in band form."""
-    n_cols = 3 * basis.size
-    bands, rhs, scale = _banded_normal(Ps, designs, rows, uvs, None, n_cols=n_cols)
-    penalty, R3 = _penalty_bands(basis, scale, n_cols)
-    C = _solve_bands(bands + penalty, rhs).reshape(-1, 3)
+    n_basis = basis.size
+    data = _spline_data(Ps, rows, uvs, 3 * n_basis)
+    bands, rhs, scale = _banded_normal(data, None)
+    C = _solve_bands(bands + _penalty_bands(basis.penalty * scale**2, n_basis), rhs).reshape(-1, 3)
     for it in range(iterations):
-        bands, rhs, rms_row = _banded_normal(Ps, designs, rows, uvs, C, n_cols=n_cols)
+        bands, rhs, rms_row = _banded_normal(data, C)
         if it == 0:  # penalty weight relative to the pixel-scaled equations
-            penalty, R3 = _penalty_bands(basis, rms_row, n_cols)
-        dC = _solve_bands(bands + penalty, rhs + R3.T @ -(R3 @ C.ravel())).reshape(-1, 3)
+            weight = basis.penalty * rms_row**2
+            penalty = _penalty_bands(weight, n_basis)
+        dC = _solve_bands(bands + penalty, rhs + _penalty_gradient(C, weight).ravel()).reshape(-1, 3)
         C = C + dC
         if np.max(np.abs(dC)) < 1e-10 * (1.0 + np.max(np.abs(C))):
             break
