@@ -84,29 +84,55 @@ def reference_tracks(tracks: pd.DataFrame, spec: Any, *, static_mm: float = 0.1,
     return ids, f"reference markers (given positions): tracks {ids}"
 
 
-def _series(tracks: pd.DataFrame, tid: int) -> tuple[np.ndarray, np.ndarray]:
-    tr = tracks[tracks["track_id"] == tid].sort_values("time_s").drop_duplicates("time_s")
-    return tr["time_s"].to_numpy(float), tr[XYZ].to_numpy(float)
+def _by_track(tracks: pd.DataFrame) -> dict[int, tuple[np.ndarray, np.ndarray]]:
+    """Track id → (time_s increasing, xyz (N, 3) mm); a repeated instant keeps its first row."""
+    ids = tracks["track_id"].to_numpy(np.int64)
+    t_all = tracks["time_s"].to_numpy(float)
+    order = np.lexsort((t_all, ids))
+    ids, t_all, xyz_all = ids[order], t_all[order], tracks[XYZ].to_numpy(float)[order]
+    keep = np.r_[True, (np.diff(ids) != 0) | (np.diff(t_all) != 0)]
+    ids, t_all, xyz_all = ids[keep], t_all[keep], xyz_all[keep]
+    cuts = np.flatnonzero(np.diff(ids)) + 1
+    return {int(ids[lo]): (t_all[lo:hi], xyz_all[lo:hi])
+            for lo, hi in zip(np.r_[0, cuts], np.r_[cuts, len(ids)], strict=True) if hi > lo}
+
+
+def _stabilised_targets(series: dict[int, tuple[np.ndarray, np.ndarray]], refs: list[int],
+                        targets: list[int]) -> dict[int, np.ndarray]:
+    """Each target's xyz (mm) mapped by the rigid transform that brings the reference markers (interpolated
+    linearly to its instants) back to their medians; NaN where no transform. One transform per instant
+    of any target (targets share the reference camera's instants)."""
+    home = np.array([np.median(series[r][1], axis=0) for r in refs])
+    instants = np.unique(np.concatenate([series[tid][0] for tid in targets]))
+    ref_at = np.stack([np.column_stack([np.interp(instants, tr, rx[:, k], left=np.nan, right=np.nan)
+                                        for k in range(3)]) for tr, rx in (series[r] for r in refs)], axis=1)
+    at = {tid: np.searchsorted(instants, series[tid][0]) for tid in targets}
+    tgt = np.full((len(instants), len(targets), 3), np.nan)
+    for m, tid in enumerate(targets):
+        tgt[at[tid], m] = series[tid][1]
+    st = stabilize(ref_at, home, tgt)
+    return {tid: np.where(st.valid[at[tid], None], st.targets_mm[at[tid], m], np.nan)
+            for m, tid in enumerate(targets)}
 
 
 def stabilised_displacement(tracks: pd.DataFrame, refs: list[int]) -> pd.DataFrame:
     """One row per track sample: time_s, track_id, role, x/y/z_mm (stabilised for targets), dx/dy/dz_mm."""
-    ref_series = [_series(tracks, r) for r in refs]
-    home = np.array([np.median(xyz, axis=0) for _, xyz in ref_series]) if refs else np.zeros((0, 3))
-    rows = []
-    for tid in sorted(int(t) for t in tracks["track_id"].unique()):
-        t, xyz = _series(tracks, tid)
-        role = "reference" if tid in refs else "target"
-        if refs and role == "target":
-            ref_at = np.stack([np.column_stack([np.interp(t, tr, rx[:, k], left=np.nan, right=np.nan)
-                                                for k in range(3)]) for tr, rx in ref_series], axis=1)
-            st = stabilize(ref_at, home, xyz[:, None, :])
-            xyz = np.where(st.valid[:, None], st.targets_mm[:, 0, :], np.nan)
-        d = xyz - np.nanmedian(xyz, axis=0)
-        rows.append(pd.DataFrame({"time_s": t, "track_id": tid, "role": role, "x_mm": xyz[:, 0],
-                                  "y_mm": xyz[:, 1], "z_mm": xyz[:, 2], "dx_mm": d[:, 0], "dy_mm": d[:, 1],
-                                  "dz_mm": d[:, 2]}))
-    return pd.concat(rows, ignore_index=True)
+    series = _by_track(tracks)
+    targets = [tid for tid in sorted(series) if tid not in refs]
+    moved = _stabilised_targets(series, refs, targets) if refs and targets else {}
+    ts, ids, roles, xyzs, ds = [], [], [], [], []
+    for tid in sorted(series):
+        t, xyz = series[tid]
+        xyz = moved.get(tid, xyz)
+        ts.append(t)
+        ids.append(np.full(len(t), tid, dtype=np.int64))
+        roles += ["reference" if tid in refs else "target"] * len(t)
+        xyzs.append(xyz)
+        ds.append(xyz - np.nanmedian(xyz, axis=0))
+    xyz_all, d_all = np.concatenate(xyzs), np.concatenate(ds)
+    return pd.DataFrame({"time_s": np.concatenate(ts), "track_id": np.concatenate(ids), "role": roles,
+                         "x_mm": xyz_all[:, 0], "y_mm": xyz_all[:, 1], "z_mm": xyz_all[:, 2],
+                         "dx_mm": d_all[:, 0], "dy_mm": d_all[:, 1], "dz_mm": d_all[:, 2]})
 
 
 def _uniform(t: np.ndarray, d: np.ndarray) -> tuple[np.ndarray, np.ndarray, int]:
