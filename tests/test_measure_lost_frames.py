@@ -72,6 +72,7 @@ def test_steady_tone_with_lost_frames_is_timed_across_the_bridged_gaps(site: dic
     gaps = res.timing["details"]["gaps_b"]
     # every used track of B has each lost frame as a one-frame gap, and each is bridged: nothing left out
     n_tracks = res.timing["details"]["pairs_used"]
+    assert gaps["tracks"] == n_tracks
     assert gaps["gaps"] == gaps["frames_missing"] == gaps["bridged"] == n_lost * n_tracks, gaps
     assert gaps["left_out_near_unbridged_gaps"] == 0, gaps
     assert min(gaps["prediction_gain"]) >= MIN_PREDICTION_GAIN, gaps
@@ -89,10 +90,11 @@ def test_chirp_with_lost_frames_is_refused_naming_the_unbridged_gaps(site: dict,
     with pytest.raises(MeasureError, match="estimating the timing from the videos") as info:
         measure_videos(paths, site["calibration"], tmp_path / "out", options=MeasureOptions())
     message = str(info.value)
-    found = re.search(r"\((\d+) frames missing in (\d+) gap\(s\)", message)
+    found = re.search(r"\((\d+) frames missing in (\d+) gap\(s\), counted in each of B's (\d+) track\(s\)",
+                      message)
     assert found is not None, message
-    missing, n_gaps = int(found[1]), int(found[2])
-    assert missing == n_gaps >= n_lost, message  # one-frame gaps, each counted in every track of B
+    missing, n_gaps, n_tracks = int(found[1]), int(found[2]), int(found[3])
+    assert missing == n_gaps == n_lost * n_tracks, message  # one-frame gaps, each in every track of B
     assert f"0 gap(s) of at most {MAX_BRIDGED_GAP_FRAMES} frames bridged" in message, message
     assert "could not be bridged" in message and "(not a line spectrum)" in message, message
     assert "give --timing timing.json" in message, message

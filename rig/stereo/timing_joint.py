@@ -44,7 +44,7 @@ with 20 % of both cameras' frames lost at random it stays ≤ 1.1, and the fitte
 noise's: what the filter misses shows in σ, which scales the stated uncertainties); A's instants where it
 exceeds MAX_BRIDGE_GAIN (clustered gaps) are left out. Around longer gaps A's instants within GAP_GUARD frames
 (+ the kernel half-width) are left out, as B's motion cannot be reconstructed there. ``details["gaps_b"]``
-counts both.
+counts both, in every track of B (a frame lost from the video is a gap in each).
 
 Units: seconds, pixels; drift in ppm (1e-6 s/s) of camera B's clock relative to camera A's.
 """
@@ -203,6 +203,7 @@ class _Residuals:
         self.n_near_gaps = 0
         self.gaps_b = 0  # gaps in B's tracks (dropped or skipped frames, or frames without the marker)
         self.missing_b = 0  # B's frames missing in them
+        self.n_tracks_b = len(tracks)  # a frame lost from B's video is a gap in each of them
         self.bridges: list[dict[str, Any]] = []  # per track of B kept: its prediction filter, or none
         self.prediction_gains_all: list[float | None] = []  # of every track of B (None: not fitted)
         self.bridged_b = 0  # gaps of B short enough to be bridged (module doc), in the tracks that bridge
@@ -267,7 +268,8 @@ class _Residuals:
 
     def gap_notes(self) -> dict[str, Any]:
         """For ``details["gaps_b"]``: the gaps of B's tracks, those bridged and A's instants left out."""
-        return {"gaps": self.gaps_b, "frames_missing": self.missing_b, "bridged": self.bridged_b,
+        return {"gaps": self.gaps_b, "frames_missing": self.missing_b, "tracks": self.n_tracks_b,
+                "bridged": self.bridged_b,
                 "max_bridged_gap_frames": MAX_BRIDGED_GAP_FRAMES,
                 "left_out_near_unbridged_gaps": self.n_near_gaps,
                 "left_out_ill_conditioned": self.n_ill_conditioned,
@@ -376,7 +378,8 @@ class JointTiming:
             why = ("the records do not overlap enough (or are too short)" if not left_out else
                    f"{left_out} more were left out within {GAP_GUARD} frames of the {gaps} gap(s) in camera "
                    f"B's track that could not be bridged ({self.res.missing_b} frames missing in "
-                   f"{self.res.gaps_b} gap(s): dropped, skipped or without the marker; "
+                   f"{self.res.gaps_b} gap(s), counted in each of B's {self.res.n_tracks_b} track(s): "
+                   "dropped, skipped or without the marker; "
                    f"{self.res.bridged_b} gap(s) of at most {MAX_BRIDGED_GAP_FRAMES} frames bridged, "
                    f"{self.res.n_ill_conditioned} instants left out where they cluster; "
                    f"{self.res.bridging_statement()})")
