@@ -13,10 +13,13 @@ The step issues the run's certificate once: a run resumed after its certificate 
 
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from rig.run.plan import PlanStep
 from rig.run.procedure import Context
+
+if TYPE_CHECKING:
+    from reports.scope import Scope
 
 __all__ = ["REPORT_STEP", "evaluated_summary", "report_step", "verdict_of"]
 
@@ -47,10 +50,10 @@ def evaluated_summary(result: dict[str, Any]) -> str:
     return f"report {result['report']}; " + (", ".join(done) if done else "no acceptance criterion evaluated")
 
 
-def report_step(ctx: Context, *, make_figures: bool = True,
-                compare: tuple[str, ...] = ("linear",)) -> dict[str, Any]:
+def report_step(ctx: Context, scope: Scope | None = None) -> dict[str, Any]:
     """Build the report as step ``report``; return the verdict dict (``passed``, ``summary``, paths).
-    ``compare``: sync methods analysed beside the primary one (default: the paper's ``linear``)."""
+    ``scope``: the comparison methods and figures (default: the rig's ``[report]``, as the run recorded
+    it)."""
     from reports.build import build_report, issued_certificate
 
     with ctx.step(REPORT_STEP.name) as step:
@@ -58,8 +61,7 @@ def report_step(ctx: Context, *, make_figures: bool = True,
         if certificate is None:
             ctx.progress(None, "report: analysis, tables, figures, certificate")
             # an abort requested during the analysis ends the step before the certificate is issued
-            result = build_report(ctx.run_dir, make_figures=make_figures, compare=compare, in_run=True,
-                                  before_issue=ctx.checkpoint)
+            result = build_report(ctx.run_dir, scope=scope, in_run=True, before_issue=ctx.checkpoint)
             certificate = result.certificate
         # else: issued before this session (a resumed run): the certificate is issued once, never rebuilt
         if not step.skipped:

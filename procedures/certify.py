@@ -11,10 +11,11 @@ The verdict: passed when every acceptance criterion of the certificate is evalua
 exit 1.
 
 ``preset = "full"`` is the certification (grid 3³, 10 ISO 9283 cycles, 4 marker-frame poses, sweep 1 → 30 Hz
-in 24 s, band 27 → 50 Hz in 9 s on the shaker, the paper's linear sync analysed beside ours); ``"fast"`` is a
-short check of the whole chain (grid 2³, 3 cycles, 2 frame poses, sweep 2 → 12 Hz in 8 s, no band step — its
-plan says so —, no comparison analysis). The ``sweep_*``, ``band*``, ``accuracy_*``, ``calibrate_*`` and
-``compare_paper_sync`` parameters override the preset.
+in 24 s, band 27 → 50 Hz in 9 s on the shaker, the comparison analyses of ``[report]``: by default the
+paper's linear sync beside ours); ``"fast"`` is a short check of the whole chain (grid 2³, 3 cycles, 2 frame
+poses, sweep 2 → 12 Hz in 8 s, no band step — its plan says so —, no comparison analysis). The ``sweep_*``,
+``band*``, ``accuracy_*``, ``calibrate_*`` and ``compare_paper_sync`` parameters override the preset;
+``figures`` and ``compare_paper_sync`` override ``[report]`` (:func:`report_scope`).
 """
 
 from __future__ import annotations
@@ -26,6 +27,7 @@ from typing import Any, TypedDict, TypeVar
 from procedures import _band, accuracy, calibrate, sweep, sync
 from procedures._report import REPORT_STEP, report_step
 from procedures.params.certify import DESCRIPTION, NAME, PRESETS, Parameters  # noqa: F401 (its declaration)
+from reports.scope import Scope
 from rig.config.rig_config import RigConfig
 from rig.run.plan import Plan
 from rig.run.procedure import Context, ParameterError
@@ -87,6 +89,23 @@ def plan(params: Parameters, config: RigConfig) -> Plan:
     return Plan(NAME, steps).renamed(PARAMETER_NAMES)
 
 
+def report_scope(params: Parameters, config: RigConfig) -> Scope:
+    """The report's scope: the rig's ``[report]``, with certify's ``figures`` and ``compare_paper_sync`` when
+    given, and no comparison on the fast preset unless ``compare_paper_sync`` asks for it."""
+    scope = Scope.of_config(config.report)
+    if params.figures is not None:
+        scope = dataclasses.replace(scope, figures=params.figures,
+                                    figures_why=f"certify figures = {str(params.figures).lower()}")
+    if params.compare_paper_sync is not None:
+        scope = dataclasses.replace(scope, comparison=("linear",) if params.compare_paper_sync else (),
+                                    comparison_why=f"certify compare_paper_sync = "
+                                                   f"{str(params.compare_paper_sync).lower()}")
+    elif params.preset != "full":
+        scope = dataclasses.replace(scope, comparison=(),
+                                    comparison_why=f"certify preset = {params.preset!r}")
+    return scope
+
+
 def run(ctx: Context, params: Parameters) -> dict[str, Any]:
     sub = sub_parameters(params)  # their whole plan (:func:`plan`) was checked before the station opened
     ctx.log.info("certify (%s): %s", params.preset,
@@ -100,8 +119,7 @@ def run(ctx: Context, params: Parameters) -> dict[str, Any]:
     accuracy.run_steps(ctx, sub["accuracy"])
     sweep.run_step(ctx, sub["sweep"])
     _band.run_step(ctx, sub["band"])
-    compare = params.preset == "full" if params.compare_paper_sync is None else params.compare_paper_sync
-    result = report_step(ctx, make_figures=params.figures, compare=("linear",) if compare else ())
+    result = report_step(ctx, report_scope(params, ctx.config))
     return {"passed": result["passed"], "summary": result["summary"], "report": result["report"],
             "certificate": result["certificate"], "certificate_result": result["certificate_result"],
             "preset": params.preset, "criteria": result["criteria"]}

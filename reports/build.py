@@ -6,7 +6,8 @@ outputs plus ``changes.json``), built in a hidden staging folder and renamed int
 is written atomically (:mod:`rig.record.atomic`).
 
 A thin layer: load the run folder once (:mod:`reports.load`), run the analysis on it once per sync
-method (the primary one, then ``"linear"``, the paper's, for comparison), compute the tables
+method (the primary one, then those of ``[report] comparison``: by default ``"linear"``, the paper's;
+:mod:`reports.scope`), compute the tables
 (:mod:`reports.tables`), write them. Outputs are deterministic: the same run folder gives byte-identical
 CSV, JSON, PNG and HTML (floats written to 9 significant digits in CSV and 10 in JSON; PNG without a
 software/date stamp; the only date is the run's own start time).
@@ -34,6 +35,7 @@ from reports.certificate import acceptance_from_config, build_certificate, evalu
 from reports.errors import AnalysisFailedError, ReportError
 from reports.load import RunData, load_record
 from reports.phase import phase_section
+from reports.scope import Scope
 from reports.tables import ReportTables, compute_tables, controller_clock, measured_values
 from rig.record.atomic import atomic_path, fsync_dir, write_json, write_text
 from rig.record.folder import RunFolder
@@ -41,7 +43,6 @@ from rig.record.folder import RunFolder
 DEFAULT_SYNC = "trajectory"
 CERTIFICATE_NAME = "certificate.json"
 REVISIONS_DIR = "revisions"
-COMPARISON_SYNC = "linear"
 
 
 class AnalysisResult(Protocol):
@@ -74,12 +75,14 @@ class Analyses:
 
 @dataclass(frozen=True)
 class Report:
-    """What a report writes: the certificate, the tables and their CSV frames by name."""
+    """What a report writes: the certificate, the tables and their CSV frames by name, and its scope (the
+    figures or not)."""
 
     certificate: dict[str, Any]
     tables: ReportTables
     frames: dict[str, pd.DataFrame]
     acceptance: dict[str, Any]
+    scope: Scope
 
 
 @dataclass(frozen=True)
@@ -170,9 +173,8 @@ def build_report(
     run_dir: str | Path,
     *,
     sync: str | None = None,
-    compare: tuple[str, ...] = (COMPARISON_SYNC,),
+    scope: Scope | None = None,
     analysis: Analyse | None = None,
-    make_figures: bool = True,
     in_run: bool = False,
     before_issue: Callable[[], None] | None = None,
 ) -> ReportResult:
@@ -184,11 +186,11 @@ def build_report(
     (with ``changes.json``: what differs from the issued certificate), see :attr:`ReportResult.revision`.
 
     ``sync`` is the primary synchronization method (default: ``rig.analysis.analyse.sync`` of the snapshot,
-    else
-    ``"trajectory"``); ``compare`` adds methods shown beside it. ``analysis`` replaces
-    ``rig.analysis.analyse.analyse``.
+    else ``"trajectory"``). ``scope``: the comparison methods analysed beside it (each a whole second
+    analysis) and whether figures are drawn (≈ 3 s of matplotlib); default: the run's ``[report]``
+    (:meth:`Scope.of_snapshot`). What it leaves out is said in the notes, and report.html says when no
+    figure was drawn; no criterion depends on either. ``analysis`` replaces ``rig.analysis.analyse.analyse``.
     A failing comparison method is reported as a note; a failing primary method raises.
-    ``make_figures=False`` skips the figures (≈ 3 s of matplotlib) for a quick table/certificate rebuild.
     ``in_run=True``: built by the run's own last step (the procedures' ``report`` step), which is
     finishing normally — the conditions then say so (``exit_status`` "success", the stop document follows)
     instead of a missing stop document (a killed run).
@@ -202,22 +204,32 @@ def build_report(
     run = load_record(run_dir)
     _check_writable(Path(run_dir))
     acceptance = acceptance_from_config(run.rig)
+    scope = scope or _recorded_scope(run.rig)
     primary = sync or _configured_sync(run.rig)
-    analyses = _analyse_all(run.folder, [primary, *[m for m in compare if m != primary]],
+    analyses = _analyse_all(run.folder, [primary, *[m for m in scope.comparison if m != primary]],
                             analysis or _default_analyse())
     t = _tables(run, analyses, acceptance)
     revision = _next_revision(run.run_dir, primary)  # None: this report issues the certificate
-    notes = analyses.notes + _notes(run, t, in_run=in_run) + ([revision.note] if revision else [])
-    report = _certify(run, t, analyses, acceptance, notes, in_run=in_run)
+    notes = (analyses.notes + _notes(run, t, in_run=in_run) + scope.notes()
+             + ([revision.note] if revision else []))
+    report = _certify(run, t, analyses, acceptance, notes, scope=scope, in_run=in_run)
     cert = report.certificate
     if revision is None:
-        written = _write_outputs(run.run_dir, report, make_figures=make_figures,
-                                 before_certificate=before_issue)
+        written = _write_outputs(run.run_dir, report, before_certificate=before_issue)
         return ReportResult(run.run_dir, cert["result"], cert, notes=notes, **written.fields())
     changes = certificate_changes(revision.issued, cert, revision=revision.number, sync=primary)
-    written = _write_revision(run.run_dir, revision, report, changes, make_figures=make_figures)
+    written = _write_revision(run.run_dir, revision, report, changes)
     return ReportResult(run.run_dir, cert["result"], cert, notes=notes, changes=changes,
                         revision=revision.folder(run.run_dir), **written.fields())
+
+
+def _recorded_scope(rig: dict[str, Any]) -> Scope:
+    """The run's ``[report]`` (:meth:`Scope.of_snapshot`); a snapshot edited out of range is a
+    :class:`ReportError` naming the field."""
+    try:
+        return Scope.of_snapshot(rig)
+    except ValueError as exc:  # ConfigError
+        raise ReportError(f"the run's rig snapshot: {exc}") from exc
 
 
 def _configured_sync(rig: dict[str, Any]) -> str:
@@ -276,12 +288,12 @@ def _notes(run: RunData, t: ReportTables, *, in_run: bool) -> list[str]:
 
 
 def _certify(run: RunData, t: ReportTables, analyses: Analyses, acceptance: dict[str, Any], notes: list[str],
-             *, in_run: bool) -> Report:
+             *, scope: Scope, in_run: bool) -> Report:
     """The measured values, the certificate deciding on them and the CSV tables."""
     measured = measured_values(t, acceptance)
     conditions = _conditions(run, t, analyses, notes, in_run=in_run)
     cert = _clean(build_certificate(measured, acceptance, conditions, _extra(t, analyses.primary)))
-    return Report(cert, t, _table_frames(t, measured, acceptance), acceptance)
+    return Report(cert, t, _table_frames(t, measured, acceptance), acceptance, scope)
 
 
 def _conditions(run: RunData, t: ReportTables, analyses: Analyses, notes: list[str], *,
@@ -382,27 +394,19 @@ POSE_COLUMNS = ["index", "cycle", "target", "marker_id", "x_cmd_mm", "y_cmd_mm",
                 "ey_mm", "ez_mm", "error_mm", "u_error_mm", "n_samples", "distance_mm", "off_axis_mm"]
 
 
-def _write_outputs(out_dir: Path, report: Report, *, make_figures: bool,
+def _write_outputs(out_dir: Path, report: Report,
                    before_certificate: Callable[[], None] | None = None) -> Written:
-    """Write tables, figures, report.html and — last, after ``before_certificate()`` — certificate.json into
-    ``out_dir`` (each file atomically)."""
+    """Write tables, figures (when the scope draws them), report.html and — last, after
+    ``before_certificate()`` — certificate.json into ``out_dir`` (each file atomically)."""
     cert, t, frames, acceptance = report.certificate, report.tables, report.frames, report.acceptance
-    tables_dir, figures_dir = out_dir / "tables", out_dir / "figures"
+    tables_dir = out_dir / "tables"
     tables_dir.mkdir(exist_ok=True)
-    figures_dir.mkdir(exist_ok=True)
     table_paths = {}
     for name, df in frames.items():
         table_paths[name] = tables_dir / f"{name}.csv"
         write_csv(df, table_paths[name])
-    tol = float(acceptance["amplitude_error_pct"])
-    pngs: dict[str, bytes] = {}
-    figure_paths = {}
-    for name, fig in (
-        figures.all_figures(t, tol, float(acceptance["position_max_mm"])) if make_figures else {}
-    ).items():
-        figure_paths[name] = figures_dir / f"{name}.png"
-        figures.save_png(fig, figure_paths[name])
-        pngs[name] = figure_paths[name].read_bytes()
+    figure_paths = _write_figures(out_dir / "figures", t, acceptance) if report.scope.figures else {}
+    pngs = {name: path.read_bytes() for name, path in figure_paths.items()}
     html_tables = {
         "iso9283": t.iso9283[t.iso9283["n_cycles"] >= 2].drop(columns=["x_cmd_mm", "y_cmd_mm", "z_cmd_mm"]),
         "length_summary": frames["length_summary"],
@@ -413,11 +417,23 @@ def _write_outputs(out_dir: Path, report: Report, *, make_figures: bool,
         "calibration": t.calibration,
         "timing": frames["timing"],
     }
-    html_path = write_text(out_dir / "report.html", html.render(cert, t, pngs, acceptance, html_tables))
+    html_path = write_text(out_dir / "report.html", html.render(cert, t, pngs, acceptance, html_tables,
+                                                                figures_note=report.scope.figures_note))
     if before_certificate is not None:
         before_certificate()
     cert_path = write_json(out_dir / CERTIFICATE_NAME, cert, indent=2, sort_keys=True, ensure_ascii=False)
     return Written(html_path, cert_path, table_paths, figure_paths)
+
+
+def _write_figures(figures_dir: Path, t: ReportTables, acceptance: dict[str, Any]) -> dict[str, Path]:
+    """Draw every figure of the tables into ``figures_dir`` as PNG; their paths by name."""
+    figures_dir.mkdir(exist_ok=True)
+    paths = {}
+    for name, fig in figures.all_figures(t, float(acceptance["amplitude_error_pct"]),
+                                         float(acceptance["position_max_mm"])).items():
+        paths[name] = figures_dir / f"{name}.png"
+        figures.save_png(fig, paths[name])
+    return paths
 
 
 # ------------------------------------------------------------------------------------------ revisions
@@ -469,15 +485,14 @@ def _next_revision(run_dir: Path, sync: str) -> Revision | None:
     return Revision(number, f"{number}-{sync}", sync, issued)
 
 
-def _write_revision(run_dir: Path, revision: Revision, report: Report, changes: dict[str, Any], *,
-                    make_figures: bool) -> Written:
+def _write_revision(run_dir: Path, revision: Revision, report: Report, changes: dict[str, Any]) -> Written:
     """Write a revision's outputs and ``changes.json`` into a hidden staging folder, then rename it into
     place whole as ``revisions/<n>-<sync>/``; nothing is left behind on failure."""
     staging = run_dir / REVISIONS_DIR / f".staging-{revision.name}-{os.getpid()}"
     final = revision.folder(run_dir)
     try:
         staging.mkdir(parents=True)
-        written = _write_outputs(staging, report, make_figures=make_figures)
+        written = _write_outputs(staging, report)
         write_json(staging / "changes.json", changes, indent=2, sort_keys=True, ensure_ascii=False)
         if final.exists():
             raise ReportError(f"{final} appeared while this revision was built (another `rig report` of "

@@ -240,14 +240,18 @@ def render(
     pngs: dict[str, bytes],
     acceptance: dict[str, Any],
     tables_html: dict[str, pd.DataFrame],
+    *,
+    figures_note: str | None = None,
 ) -> str:
-    """The whole page as a string (deterministic for the same inputs)."""
+    """The whole page as a string (deterministic for the same inputs). ``figures_note``: why the page has no
+    figure (e.g. "figures not drawn: [report] figures = false"), said under the verdict."""
     simulated = bool(cert.get("simulated"))
     parts = [
         _header(cert, t, simulated=simulated),
         NAV,
         _simulated_banner(cert) if simulated else "",
         _verdict(cert, t, float(acceptance["amplitude_error_pct"])),
+        f"<p class='note'>{html.escape(figures_note)}</p>" if figures_note else "",
         "<section>" + _cards(cert) + "</section>",
         _certificate_section(cert),
         _position_section(t, pngs, tables_html),

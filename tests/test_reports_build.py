@@ -14,6 +14,9 @@ import reports_synth as synth
 
 from reports.build import build_report
 from reports.errors import CriteriaError, RunFolderError
+from reports.scope import Scope
+
+NO_FIGURES = Scope(figures=False)  # the figures' own tests draw them
 
 
 @pytest.fixture(scope="module")
@@ -150,11 +153,11 @@ def test_rebuild_writes_a_byte_identical_revision_and_never_touches_the_issued_r
 
 def test_a_later_report_with_another_sync_is_a_revision_saying_what_changed(tmp_path: Path) -> None:
     run = synth.write_run(tmp_path / "run_revised")
-    issued = build_report(run, analysis=synth.fake_analyse, make_figures=False)
+    issued = build_report(run, analysis=synth.fake_analyse, scope=NO_FIGURES)
     assert issued.result == "PASS" and issued.revision is None and issued.changes is None
     cert_bytes = (run / "certificate.json").read_bytes()
-    first = build_report(run, sync="linear", analysis=synth.fake_analyse, make_figures=False)
-    second = build_report(run, sync="linear", analysis=synth.fake_analyse, make_figures=False)
+    first = build_report(run, sync="linear", analysis=synth.fake_analyse, scope=NO_FIGURES)
+    second = build_report(run, sync="linear", analysis=synth.fake_analyse, scope=NO_FIGURES)
     assert (run / "certificate.json").read_bytes() == cert_bytes  # PASS stays the issued result
     assert first.revision == run / "revisions" / "1-linear"
     assert second.revision == run / "revisions" / "2-linear"
@@ -180,7 +183,7 @@ def test_a_revision_that_cannot_be_finished_leaves_nothing(tmp_path: Path, monke
     from reports import build as build_module
 
     run = synth.write_run(tmp_path / "run_full")
-    build_report(run, analysis=synth.fake_analyse, make_figures=False)
+    build_report(run, analysis=synth.fake_analyse, scope=NO_FIGURES)
     issued = {p: p.read_bytes() for p in run.rglob("*") if p.is_file()}
 
     def full_disk(path, text, encoding="utf-8"):
@@ -188,7 +191,7 @@ def test_a_revision_that_cannot_be_finished_leaves_nothing(tmp_path: Path, monke
 
     monkeypatch.setattr(build_module, "write_text", full_disk)
     with pytest.raises(OSError, match="No space left"):
-        build_report(run, sync="linear", analysis=synth.fake_analyse, make_figures=False)
+        build_report(run, sync="linear", analysis=synth.fake_analyse, scope=NO_FIGURES)
     assert list((run / "revisions").iterdir()) == []
     assert {p: p.read_bytes() for p in run.rglob("*") if p.is_file()} == issued
 
@@ -198,7 +201,7 @@ def test_the_first_report_of_a_run_killed_before_its_report_issues_the_certifica
     (run / "tables").mkdir()
     (run / "tables" / "criteria.csv").write_text("half a table")  # what a kill mid-report may leave
     (run / "report.html").write_text("<html>cut")
-    res = build_report(run, analysis=synth.fake_analyse, make_figures=False)
+    res = build_report(run, analysis=synth.fake_analyse, scope=NO_FIGURES)
     assert res.revision is None and res.certificate_json == run / "certificate.json"
     assert "half a table" not in (run / "tables" / "criteria.csv").read_text()
     assert res.report_html.read_text().startswith("<!DOCTYPE html>")
@@ -218,7 +221,7 @@ def test_report_is_self_contained(built) -> None:
 
 def test_sync_option_changes_the_primary_method(tmp_path: Path) -> None:
     run = synth.write_run(tmp_path / "run_linear")
-    res = build_report(run, sync="linear", analysis=synth.fake_analyse, make_figures=False)
+    res = build_report(run, sync="linear", analysis=synth.fake_analyse, scope=NO_FIGURES)
     rows = {r["id"]: r for r in res.certificate["criteria"]}
     # the paper's method loses 5 % at 7.9 Hz: it cannot be trusted up to the required 15 Hz
     assert rows["min_usable_frequency_hz"]["status"] == "FAIL"
@@ -229,7 +232,7 @@ def test_sync_option_changes_the_primary_method(tmp_path: Path) -> None:
 
 def test_a_simulated_run_is_labelled_in_the_certificate_and_the_report(tmp_path: Path, built) -> None:
     run = synth.write_run(tmp_path / "run_sim", rig={**synth.RIG, "station": {"simulated": True}})
-    res = build_report(run, analysis=synth.fake_analyse, make_figures=False)
+    res = build_report(run, analysis=synth.fake_analyse, scope=NO_FIGURES)
     assert res.certificate["simulated"] is True
     page = res.report_html.read_text()
     assert "id='simulated'" in page and "not a certificate of hardware" in page
@@ -247,7 +250,7 @@ def test_failing_comparison_method_is_a_visible_note(tmp_path: Path) -> None:
             raise RuntimeError("not implemented here")
         return synth.fake_analyse(run_dir, sync=sync)
 
-    res = build_report(run, analysis=analyse, make_figures=False)
+    res = build_report(run, analysis=analyse, scope=NO_FIGURES)
     assert any("linear" in n and "not implemented here" in n for n in res.notes)
     assert "not implemented here" in res.report_html.read_text()
 
@@ -294,7 +297,7 @@ def test_failing_primary_analysis_raises_a_report_error(tmp_path: Path) -> None:
         raise FileNotFoundError("calibration.json missing: run `rig run calibrate` first")
 
     with pytest.raises(AnalysisFailedError, match=r"sync 'trajectory'.*calibration\.json missing"):
-        build_report(run, analysis=analyse, make_figures=False)
+        build_report(run, analysis=analyse, scope=NO_FIGURES)
 
 
 def test_report_built_before_the_stop_document_follows_the_criteria(tmp_path: Path) -> None:
@@ -302,7 +305,7 @@ def test_report_built_before_the_stop_document_follows_the_criteria(tmp_path: Pa
     run = synth.write_run(tmp_path / "run_inprogress")
     lines = (run / "record.jsonl").read_text().splitlines()
     (run / "record.jsonl").write_text("\n".join(ln for ln in lines if '"type": "stop"' not in ln) + "\n")
-    res = build_report(run, analysis=synth.fake_analyse, make_figures=False)
+    res = build_report(run, analysis=synth.fake_analyse, scope=NO_FIGURES)
     assert res.result == "PASS"
     assert any("no stop document" in n for n in res.notes)
 
@@ -361,7 +364,7 @@ def test_the_report_step_issues_the_certificate_once(tmp_path: Path, monkeypatch
     run = synth.write_run(tmp_path / "run_step")
     ctx = _StepContext(run)
     monkeypatch.setattr(build_module, "_default_analyse", lambda: synth.fake_analyse)
-    first = _report.report_step(ctx, make_figures=False)
+    first = _report.report_step(ctx, NO_FIGURES)
     issued = (run / "certificate.json").read_bytes()
     assert first["passed"] and ctx.steps == [("report", ["report.html", "certificate.json"])]
 
@@ -369,6 +372,6 @@ def test_the_report_step_issues_the_certificate_once(tmp_path: Path, monkeypatch
         raise AssertionError("the issued certificate was rebuilt")
 
     monkeypatch.setattr(build_module, "build_report", no_rebuild)
-    again = _report.report_step(ctx, make_figures=False)
+    again = _report.report_step(ctx, NO_FIGURES)
     assert again == first and (run / "certificate.json").read_bytes() == issued
     assert not (run / "revisions").exists()

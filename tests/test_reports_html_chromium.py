@@ -15,6 +15,9 @@ import pytest
 import reports_synth as synth
 
 from reports.build import build_report
+from reports.scope import Scope
+
+NO_FIGURES = Scope(figures=False)  # the figures' own tests draw them
 
 pytestmark = pytest.mark.chromium
 
@@ -85,7 +88,7 @@ def test_report_renders_with_the_verdict_on_top(chromium: str, tmp_path: Path) -
 
 def test_a_failing_setup_shows_a_red_banner(chromium: str, tmp_path: Path) -> None:
     run = synth.write_run(tmp_path / "run_fail")
-    res = build_report(run, sync="linear", analysis=synth.fake_analyse, make_figures=False)
+    res = build_report(run, sync="linear", analysis=synth.fake_analyse, scope=NO_FIGURES)
     assert res.result == "FAIL"
     image, _ = _screenshot(chromium, res.report_html, tmp_path)
     banner = np.all(np.abs(image.astype(int) - [30, 38, 179]) <= 6, axis=2)  # #b3261e

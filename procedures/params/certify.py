@@ -50,6 +50,8 @@ class Parameters:
                                                                      doc="accuracy: ISO 9283 cycles"))
     calibrate_slide_positions_mm: tuple[float, ...] = field(default=(), metadata=param(
         length=(0, 100), lo=-2000.0, hi=2000.0, doc="calibrate: plate slides, mm (empty: the rig's)"))
-    figures: bool = field(default=True, metadata=param(doc="draw the report's figures"))
+    figures: bool | None = field(default=None, metadata=param(
+        doc="draw the report's figures (default: the rig's [report] figures)"))
     compare_paper_sync: bool | None = field(default=None, metadata=param(
-        doc="also analyse with the paper's linear interpolation (default: full yes, fast no)"))
+        doc="analyse with the paper's linear interpolation beside ours (default: full the rig's [report] "
+            "comparison, fast no)"))

@@ -26,6 +26,9 @@ complete, commented example):
 - ``[fiducial]`` the timing fiducial LED (generator sync output, its image region per camera):
   :mod:`rig.config.fiducial`; absent = the start-event method relates the clocks.
 - ``[analysis]`` ``sync`` method of the analysis (``trajectory`` default; ``linear`` = the paper's).
+- ``[report]`` what a report computes beyond the certificate: ``comparison`` (sync methods analysed beside
+  the primary one; default ``["linear"]``, ``[]`` none) and ``figures`` (default ``true``):
+  :mod:`rig.config.report`. Neither changes a criterion.
 - ``[sim]`` the twin's hidden truth (only for a simulated station): camera intrinsics, distortion,
   poses, clock errors, rolling-shutter line time, noise, seed.
 
@@ -48,6 +51,7 @@ from rig.config.criteria import CriteriaConfig
 from rig.config.devices import DEVICE_NAMES, DevicesConfig, VfdConfig
 from rig.config.fiducial import FiducialConfig, check_fiducial
 from rig.config.limits import LimitsConfig
+from rig.config.report import ReportConfig
 from rig.config.schema import ConfigError, build, to_dict
 from rig.config.sim import SimConfig
 from rig.config.station import StationConfig
@@ -65,6 +69,7 @@ class RigConfig:
     limits: LimitsConfig
     criteria: CriteriaConfig = field(default_factory=CriteriaConfig)
     analysis: AnalysisConfig = field(default_factory=AnalysisConfig)
+    report: ReportConfig = field(default_factory=ReportConfig)
     fiducial: FiducialConfig | None = None
     sim: SimConfig | None = None
     source: str = field(default="", init=False, compare=False)
