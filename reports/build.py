@@ -30,7 +30,7 @@ from typing import Any, Protocol
 import numpy as np
 import pandas as pd
 
-from reports import band_phase, figures, html, step_phase, summaries
+from reports import band_phase, html, step_phase, summaries
 from reports.certificate import acceptance_from_config, build_certificate, evaluate
 from reports.errors import AnalysisFailedError, ReportError
 from reports.load import RunData, load_record
@@ -427,6 +427,8 @@ def _write_outputs(out_dir: Path, report: Report,
 
 def _write_figures(figures_dir: Path, t: ReportTables, acceptance: dict[str, Any]) -> dict[str, Path]:
     """Draw every figure of the tables into ``figures_dir`` as PNG; their paths by name."""
+    from reports import figures  # matplotlib: ≈ 1.5 CPU-s to import, only for a report that draws
+
     figures_dir.mkdir(exist_ok=True)
     paths = {}
     for name, fig in figures.all_figures(t, float(acceptance["amplitude_error_pct"]),
