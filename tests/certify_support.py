@@ -20,10 +20,14 @@ SIM_TOML = resources.files("rig").joinpath("data/sim.toml").read_text()
 PATIENT_HEARTBEAT_S, PATIENT_REPLY_S = 10.0, 3.0
 
 
-def write_config(tmp_path: Path, *, patient: bool = False) -> Path:
+def write_config(tmp_path: Path, *, patient: bool = False, comparison: tuple[str, ...] = (),
+                 figures: bool = False) -> Path:
     """The built-in simulated rig with runs in ``tmp_path/runs``; ``patient``: the station's heartbeat
-    timeout and the drives' and generator's reply timeouts raised (:data:`PATIENT_HEARTBEAT_S`, ...)."""
+    timeout and the drives' and generator's reply timeouts raised (:data:`PATIENT_HEARTBEAT_S`, ...).
+    ``comparison``, ``figures``: its ``[report]`` — by default the certificate only (no second analysis, no
+    figure; the tests of those outputs and the full certification ask for them)."""
     text = re.sub(r'^runs_dir = .*$', f'runs_dir = "{(tmp_path / "runs").as_posix()}"', SIM_TOML, flags=re.M)
+    text = with_report(text, comparison=comparison, figures=figures)
     if patient:
         text = re.sub(r'^\[station\]$', f"[station]\nheartbeat_timeout_s = {PATIENT_HEARTBEAT_S}", text,
                       flags=re.M)
@@ -32,6 +36,17 @@ def write_config(tmp_path: Path, *, patient: bool = False) -> Path:
     path = tmp_path / "rig.toml"
     path.write_text(text)
     return path
+
+
+def with_report(rig_toml: str, *, comparison: tuple[str, ...] = (), figures: bool = False) -> str:
+    """``rig_toml`` (text with a two-line ``[report]`` table, as sim.toml) with that table's ``comparison``
+    and ``figures`` (the defaults: the certificate only, no second analysis, no figure)."""
+    methods = ", ".join(f'"{m}"' for m in comparison)
+    text, n = re.subn(r'^\[report\]\ncomparison = .*\nfigures = .*$',
+                      f"[report]\ncomparison = [{methods}]\nfigures = {str(figures).lower()}", rig_toml,
+                      flags=re.M)
+    assert n == 1, "the configuration has no [report] table of two lines"
+    return text
 
 
 def twin_cameras(config_path: Path) -> dict[str, Any]:

@@ -31,7 +31,7 @@ def _rig(tmp_path: Path, *args: str, timeout_s: float = 900) -> subprocess.Compl
 
 
 def _shaker_config(tmp_path: Path) -> Path:
-    path = write_config(tmp_path)
+    path = write_config(tmp_path, comparison=("linear",))  # the band of the paper's method too
     text, n = re.subn(r'(\[targets\.sweep_column\]\nbody = )"exciter"', r'\1"shaker"', path.read_text())
     assert n == 1
     path.write_text(text)

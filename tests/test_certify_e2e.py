@@ -31,8 +31,11 @@ from tests.certify_support import (
 VOLUME_CENTRE_MM = (420.0, 0.0, 300.0)
 
 
-def _certify(tmp_path: Path, *extra: str) -> tuple[int, Path]:
-    config = write_config(tmp_path)
+def _certify(tmp_path: Path, *extra: str, full_report: bool = False) -> tuple[int, Path]:
+    """``rig certify`` on the simulated rig; ``full_report``: the built-in rig's ``[report]`` (the linear
+    comparison and the figures), else the certificate only."""
+    config = write_config(tmp_path, comparison=("linear",), figures=True) if full_report else \
+        write_config(tmp_path)
     code = main(["certify", "--config", str(config), *extra])
     runs = run_folders(tmp_path / "runs")
     assert len(runs) == 1
@@ -124,9 +127,11 @@ def test_certify_fast_preset_end_to_end(tmp_path: Path) -> None:
 @pytest.mark.slow
 @pytest.mark.timeout(1800)  # the whole certification: 301 s wall at load ≈ 16 (the suite's default: 300 s)
 def test_certify_full_preset_passes(tmp_path: Path) -> None:
-    code, run_dir = _certify(tmp_path)
+    code, run_dir = _certify(tmp_path, full_report=True)  # everything the certification computes
     assert code == 0, read_json(run_dir / "certificate.json")["criteria"]
     assert (run_dir / "figures").is_dir() and any((run_dir / "figures").iterdir())
+    cert = read_json(run_dir / "certificate.json")
+    assert cert["conditions"]["compared_sync_methods"] == ["linear"] and "linear" in cert["usable_frequency"]
     _check_against_truth(run_dir, tmp_path / "rig.toml")
     sweep = load_run(run_dir).events["sweep"]
     assert np.isclose(max(f for _, f in sweep["profile"].iloc[0]), 30.0)

@@ -16,6 +16,8 @@ from pathlib import Path
 
 import pytest
 
+from tests.certify_support import write_config
+
 ROOT = Path(__file__).resolve().parents[1]
 WAIT_S = 300.0  # generous bound on a loaded machine; each wait ends as soon as the phase is reached
 # the test's own bound: the phase, then the safe stop (WAIT_S each), above the suite's 300 s default
@@ -35,8 +37,10 @@ def _documents(run_dir: Path) -> list[dict]:
 
 def _run_until(tmp_path: Path, needle: str,
                settings: tuple[str, ...] = ()) -> tuple[subprocess.Popen[str], Path]:
-    argv = [sys.executable, "-m", "rig.cli", "run", "sweep", "--runs-dir", str(tmp_path / "runs"),
-            "--set", "hold_s=0"]
+    # the built-in rig, its report the certificate only (certify_support.write_config: [report] no comparison,
+    # no figure — the report phase is about the stop, not about what the report draws)
+    argv = [sys.executable, "-m", "rig.cli", "run", "sweep", "--config", str(write_config(tmp_path)),
+            "--runs-dir", str(tmp_path / "runs"), "--set", "hold_s=0"]
     for setting in settings:
         argv += ["--set", setting]
     with open(tmp_path / "rig.stderr", "w") as err:  # a file the test watches while the run goes on
