@@ -187,7 +187,7 @@ def build_report(
 
     ``sync`` is the primary synchronization method (default: ``rig.analysis.analyse.sync`` of the snapshot,
     else ``"trajectory"``). ``scope``: the comparison methods analysed beside it (each a whole second
-    analysis) and whether figures are drawn (≈ 3 s of matplotlib); default: the run's ``[report]``
+    analysis) and whether figures are drawn (≈ 1 s of matplotlib); default: the run's ``[report]``
     (:meth:`Scope.of_snapshot`). What it leaves out is said in the notes, and report.html says when no
     figure was drawn; no criterion depends on either. ``analysis`` replaces ``rig.analysis.analyse.analyse``.
     A failing comparison method is reported as a note; a failing primary method raises.
