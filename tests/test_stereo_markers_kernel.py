@@ -116,3 +116,34 @@ def test_a_window_inside_the_image_is_weighed_in_place_as_its_copy(seed: int, ha
         markers_kernel._weigh(src, flip, valid, True, copied[:3], np.float32(3 * copied[3]), d, clipped, free)
         results.append((d.tobytes(), free.tobytes(), clipped.tobytes()))
     assert results[0] == results[1]
+
+
+@settings(max_examples=150, deadline=None)
+@given(st.integers(0, 2**31), st.sampled_from([3, 4, 8, 16, 20, 31]), st.floats(-1.5, 1.0))
+def test_the_support_through_row_masks_is_the_flood_filled_one(seed: int, half: int, level: float) -> None:
+    """Windows of up to 64 columns take their support through 64-bit row masks (:func:`_support_bits`):
+    the same 8-connected region as the scanline flood fill (:func:`_support`) — noise masks of 7–84 %
+    density, so regions of every shape — the same peak, saturation and cramped flags, plateau and moments
+    (summed in another order: equal to 1e-12)."""
+    rng = np.random.default_rng(seed)
+    w, pw = 2 * half + 1, 2 * half + 3
+    scr = markers_kernel.scratch(half)
+    d, free, clipped, pixels, stack = scr[7], scr[8], scr[9], scr[10], scr[11]
+    masks, region = scr[13], scr[14]
+    d[:] = 0.0
+    d.reshape(pw, pw)[1:-1, 1:-1] = rng.normal(level, 1.0, (w, w)).astype(np.float32)
+    free[:] = d > 0
+    clipped[:] = rng.random(len(clipped)) < 0.02
+    m_fill, m_bits = np.empty(10), np.empty(10)
+    n, peak, saturated, cramped = markers_kernel._support(d, half, free, clipped, pixels, stack, m_fill)
+    filled = np.sort(pixels[:n])
+    plateau = markers_kernel._plateau(d, filled, peak)
+    *same, first, last = markers_kernel._support_bits(d, half, clipped, masks, region, m_bits)
+    n_bits = markers_kernel._region_pixels(region, first, last, half, pixels)
+    assert same == [n, peak, saturated, cramped]
+    assert np.array_equal(pixels[:n_bits], filled)
+    if n:
+        assert (first, last) == (filled[0] // pw - 1, filled[-1] // pw - 1)
+    assert np.allclose(m_bits, m_fill, rtol=1e-12, atol=1e-9)
+    plateau_bits = markers_kernel._plateau_bits(d, half, region, first, last, peak)
+    assert plateau_bits == pytest.approx(plateau, rel=1e-12)

@@ -33,8 +33,13 @@ from typing import Any, Literal, TypeVar, cast
 
 import numba
 import numpy as np
+from numba.cpython.unsafe.numbers import leading_zeros as _leading_zeros
+from numba.cpython.unsafe.numbers import trailing_zeros as _trailing_zeros
 
 _F = TypeVar("_F", bound=Callable[..., Any])
+# numba intrinsics (count of zero bits below the lowest / above the highest set bit), typed for mypy
+trailing_zeros = cast(Callable[[np.uint64], np.uint64], _trailing_zeros)
+leading_zeros = cast(Callable[[np.uint64], np.uint64], _leading_zeros)
 
 RING_PX = 2  # width of the background ring at the window's edge
 MIN_SIGMA_DN = 0.5  # floor of σ: a flat 8-bit background has zero spread but ±0.5 DN quantization
@@ -151,7 +156,7 @@ def _plain_fit(  # noqa: PLR0917 (numba: no keyword-only arguments)
     return a, b, c, max(np.sqrt(max(rss, 0.0) / (n_ring - 3.0)), MIN_SIGMA_DN)
 
 
-@_jit
+@_stage
 def _ring_inside(win: np.ndarray, flip: int, hist: np.ndarray) -> tuple[float, float, float, float, bool]:
     """:func:`_ring_plane` of a window lying wholly inside the image, read in place: ``win`` (W, W) the
     image's pixels, ``flip`` 255 for dark markers (polarity space: 255 − I = I ^ 255), else 0.
@@ -342,7 +347,7 @@ def _ring_values(  # noqa: PLR0917 (numba: no keyword-only arguments)
         ok[p] = inside or valid[ri[p], ci[p]]
 
 
-@_jit
+@_stage
 def _weigh(  # noqa: PLR0917 (numba: no keyword-only arguments)
         raw: np.ndarray, flip: int, valid: np.ndarray, inside: bool, plane: tuple[float, float, float],
         floor: np.float32, d: np.ndarray, clipped: np.ndarray, free: np.ndarray) -> None:
@@ -382,14 +387,20 @@ def _weigh(  # noqa: PLR0917 (numba: no keyword-only arguments)
 
 @_stage
 def _seed(d: np.ndarray, half_px: int, free: np.ndarray) -> int:
-    """Where the support grows from (flat padded index): the centre pixel when it is on ``d > 0``, else the
-    strong pixel nearest the centre among those at least half as strong as the window's strongest (so a
-    noise speck is never chosen; ties: the first in row-major order); −1 when no pixel is on ``d > 0``."""
+    """Where the support grows from (flat padded index): the centre pixel when it is on ``d > 0``, else
+    :func:`_strongest_near_centre`."""
+    pw = 2 * half_px + 3
+    seed = (half_px + 1) * pw + half_px + 1
+    return seed if free[seed] else _strongest_near_centre(d, half_px)
+
+
+@_stage
+def _strongest_near_centre(d: np.ndarray, half_px: int) -> int:
+    """The strong pixel nearest the centre among those at least half as strong as the window's strongest
+    (so a noise speck is never chosen; ties: the first in row-major order) (flat padded index); −1 when no
+    pixel is on ``d > 0``."""
     w = 2 * half_px + 1
     pw = w + 2
-    seed = (half_px + 1) * pw + half_px + 1
-    if free[seed]:
-        return seed
     peak = np.float32(-np.inf)
     for i in range(w):
         for j in range(w):
@@ -526,7 +537,185 @@ def _support(  # noqa: PLR0917 (numba: no keyword-only arguments)
     return n, peak_w, saturated, cramped
 
 
-@_jit
+MASK_BITS = 64  # windows of at most this many columns take their support through 64-bit row masks
+_ONE = np.uint64(1)
+
+
+@_stage
+def _row_masks(d: np.ndarray, w: int, masks: np.ndarray) -> None:
+    """Row j of the window's ``d > 0`` (padded flat ``d`` of a (W, W) window, W ≤ MASK_BITS) as bits
+    (bit j = column j) into ``masks[i]`` (uint64)."""
+    pw = w + 2
+    for i in range(w):
+        row = (i + 1) * pw + 1
+        bits = np.uint64(0)
+        for j in range(w):
+            bits |= np.uint64(d[row + j] > 0) << np.uint64(j)
+        masks[i] = bits
+
+
+@_stage
+def _fill_runs(seeds: np.uint64, mask: np.uint64) -> np.uint64:
+    """The runs of set bits of ``mask`` holding a bit of ``seeds`` (a subset of ``mask``): upward by the
+    carry of mask + seeds, downward by doubling shifts (Kogge–Stone)."""
+    up = (mask & ~(mask + seeds)) | seeds
+    down, pass_ = seeds, mask
+    for shift in (1, 2, 4, 8, 16, 32):
+        down |= pass_ & (down >> np.uint64(shift))
+        pass_ &= pass_ >> np.uint64(shift)
+    return np.uint64(up | down)
+
+
+@_stage
+def _spread(bits: np.uint64) -> np.uint64:
+    """``bits`` and their left and right neighbours (8-connectivity between rows)."""
+    return bits | (bits << _ONE) | (bits >> _ONE)
+
+
+@_stage
+def _grow_row(masks: np.ndarray, region: np.ndarray, i: int, w: int) -> np.uint64:
+    """Row i of the region grown by the runs of ``masks[i]`` touching the region's rows above and below;
+    returns its new bits (also written to ``region[i]``)."""
+    near = np.uint64(0)
+    if i > 0:
+        near |= _spread(region[i - 1])
+    if i < w - 1:
+        near |= _spread(region[i + 1])
+    grown = region[i] | _fill_runs(near & masks[i], masks[i])
+    added: np.uint64 = grown & ~region[i]
+    region[i] = grown
+    return added
+
+
+@_stage
+def _region(masks: np.ndarray, w: int, seed_row: int, seed_col: int, region: np.ndarray) -> tuple[int, int]:
+    """The 8-connected region of the set bits of ``masks`` (W uint64 rows) holding (seed_row, seed_col),
+    into ``region`` (W uint64 rows, bits outside the region 0); returns its first and last row.
+
+    Sweeps down and up the rows, each row taking the runs that touch the region in the rows beside it,
+    until a sweep finds that no row it grew reaches back into the row it came from (a region that is
+    convex down the rows: two sweeps)."""
+    region[:w] = 0
+    region[seed_row] = _fill_runs(_ONE << np.uint64(seed_col), masks[seed_row])
+    first = last = seed_row
+    step, i, sweeps, again = 1, seed_row + 1, 0, False
+    while True:
+        if 0 <= i < w and first - 1 <= i <= last + 1:
+            added = _grow_row(masks, region, i, w)
+            if added:
+                first, last = min(first, i), max(last, i)
+                back = i - step
+                if 0 <= back < w and _spread(added) & masks[back] & ~region[back]:
+                    again = True
+            i += step
+            continue
+        sweeps += 1
+        if sweeps >= 2 and not again:
+            return first, last
+        again = False
+        step = -step
+        i = min(last + 1, w - 1) if step < 0 else max(first - 1, 0)
+
+
+@_stage
+def _support_bits(  # noqa: PLR0917 (numba: no keyword-only arguments)
+        d: np.ndarray, half_px: int, clipped: np.ndarray, masks: np.ndarray, region: np.ndarray,
+        m: np.ndarray) -> tuple[int, float, bool, bool, int, int]:
+    """:func:`_support` of a window of at most MASK_BITS columns through 64-bit row masks: the region's
+    rows as bits into ``region`` (``masks``, ``region``: W uint64, scratch), its moments summed row by row
+    (equal to :func:`_support`'s to the last bits of float64: the terms are the same, their order is not).
+    Returns (n, peak weight, saturated, cramped, first and last row of the region: empty, 0 and −1,
+    when no pixel is on ``d > 0``)."""
+    w = 2 * half_px + 1
+    pw = w + 2
+    _row_masks(d, w, masks)
+    centre = (half_px + 1) * pw + half_px + 1
+    seed = centre if masks[half_px] >> np.uint64(half_px) & _ONE else _strongest_near_centre(d, half_px)
+    if seed < 0:
+        m[:] = 0.0
+        return 0, 0.0, False, False, 0, -1
+    first, last = _region(masks, w, seed // pw - 1, seed % pw - 1, region)
+    n = 0
+    m0 = m1 = m2 = m3 = m4 = m5 = m6 = m7 = m8 = m9 = 0.0
+    peak_w, saturated, cramped = 0.0, False, False
+    edge = half_px - RING_PX + 1
+    inner = ((_ONE << np.uint64(w - 1)) - _ONE) & ~_ONE  # columns 1 … W − 2: |x| ≤ edge
+    sides = (_ONE << np.uint64(1)) | (_ONE << np.uint64(w - 2))  # x = ±edge
+    for i in range(first, last + 1):
+        bits = region[i]
+        if not bits:
+            continue
+        iy = i - half_px
+        cramped |= bool(bits & (inner if abs(iy) == edge else sides if abs(iy) < edge else np.uint64(0)))
+        lo, hi = np.int64(trailing_zeros(bits)), 63 - np.int64(leading_zeros(bits))
+        start = (i + 1) * pw + 1 + lo
+        run, run_clipped = d[start:start + hi - lo + 1], clipped[start:start + hi - lo + 1]
+        on = bits >> np.uint64(lo)  # bit k: column lo + k is in the region (a gap's weight counts 0)
+        s0 = s1 = s2 = s3 = 0.0
+        xo = float(lo - half_px)
+        for k in range(len(run)):
+            take = np.int64(on >> np.uint64(k) & _ONE)
+            v = float(run[k]) if take else 0.0
+            vx = v * xo
+            s0 += v
+            s1 += vx
+            s2 += vx * xo
+            s3 += vx * xo * xo
+            peak_w = max(peak_w, v)
+            saturated |= run_clipped[k] & (take == 1)
+            n += int(take)
+            xo += 1.0
+        y = float(iy)
+        m0 += s0
+        m1 += s1
+        m2 += y * s0
+        m3 += s2
+        m4 += y * s1
+        m5 += y * y * s0
+        m6 += s3
+        m7 += y * s2
+        m8 += y * y * s1
+        m9 += y * y * y * s0
+    m[0], m[1], m[2], m[3], m[4], m[5], m[6], m[7], m[8], m[9] = m0, m1, m2, m3, m4, m5, m6, m7, m8, m9
+    return n, peak_w, saturated, cramped, first, last
+
+
+@_stage
+def _plateau_bits(  # noqa: PLR0917 (numba: no keyword-only arguments)
+        d: np.ndarray, half_px: int, region: np.ndarray, first: int, last: int, peak: float) -> float:
+    """:func:`_plateau` of the region's rows ``first..last`` as bits (:func:`_support_bits`)."""
+    pw = 2 * half_px + 3
+    level = np.float32(PLATEAU_LEVEL) * np.float32(peak)
+    total, count = 0.0, 0
+    for i in range(first, last + 1):
+        bits = region[i]
+        if not bits:
+            continue
+        lo, hi = np.int64(trailing_zeros(bits)), 63 - np.int64(leading_zeros(bits))
+        start = (i + 1) * pw + 1 + lo
+        run = d[start:start + hi - lo + 1]
+        on = bits >> np.uint64(lo)
+        for k in range(len(run)):
+            if run[k] >= level and on >> np.uint64(k) & _ONE:
+                total += float(run[k])
+                count += 1
+    return total / count if count else 0.0
+
+
+@_stage
+def _region_pixels(region: np.ndarray, first: int, last: int, half_px: int, pixels: np.ndarray) -> int:
+    """The region's pixels (flat padded indices, row-major) into ``pixels``; returns their number."""
+    pw = 2 * half_px + 3
+    n = 0
+    for i in range(first, last + 1):
+        for j in range(2 * half_px + 1):
+            if region[i] >> np.uint64(j) & _ONE:
+                pixels[n] = (i + 1) * pw + 1 + j
+                n += 1
+    return n
+
+
+@_stage
 def _moment_shape(m: np.ndarray) -> tuple[float, float, float, float]:
     """Centroid offsets, roundness and skewness from the raw moments (1, x, y, xx, xy, yy, xxx, ...).
 
@@ -550,7 +739,7 @@ def _moment_shape(m: np.ndarray) -> tuple[float, float, float, float]:
     return mx, my, roundness, skew
 
 
-@_jit
+@_stage
 def _plateau(d: np.ndarray, pixels: np.ndarray, peak: float) -> float:
     """Mean weight of the support ``pixels`` at or above PLATEAU_LEVEL of the peak weight (0 for none)."""
     level = np.float32(PLATEAU_LEVEL) * np.float32(peak)
@@ -588,8 +777,8 @@ def scratch(half_px: int) -> tuple[np.ndarray, ...]:
     return (np.empty(n_ring, np.uint8), np.ones(n_ring, np.bool_), np.empty(n_ring, np.bool_),
             ring_x, ring_y, np.empty((w, w), np.uint8), np.ones((w, w), np.bool_),
             np.zeros(pw * pw, np.float32), np.zeros(pw * pw, np.uint8), np.zeros(pw * pw, np.bool_),
-            np.empty(w * w, np.int64), np.empty(4 * pw * pw, np.int64), np.empty(10), ri, ci,
-            np.empty(256, np.int64))
+            np.empty(w * w, np.int64), np.empty(4 * pw * pw, np.int64), np.empty(10),
+            np.empty(w, np.uint64), np.empty(w, np.uint64), ri, ci, np.empty(256, np.int64))
 
 
 @_jit
@@ -599,7 +788,8 @@ def measure_one(  # noqa: PLR0917 (numba: no keyword-only arguments)
     """Measure the window of half size ``half_px`` centred on the integer pixel (row, col) of ``image``
     into column ``n`` of ``out`` and ``flags`` (and ``signal[n]`` when ``signal`` has rows); ``scr``:
     :func:`scratch` of the same half size. See :func:`measure_range`."""
-    vals, ok, keep, ring_x, ring_y, raw, valid, d, free, clipped, queue, stack, m, ri, ci, hist = scr
+    vals, ok, keep, ring_x, ring_y, raw, valid, d, free, clipped, queue, stack, m = scr[:13]
+    masks, region, ri, ci, hist = scr[13:]
     w, pw = 2 * half_px + 1, 2 * half_px + 3
     height, width = image.shape
     top, left = row - half_px, col - half_px
@@ -622,10 +812,17 @@ def measure_one(  # noqa: PLR0917 (numba: no keyword-only arguments)
         floor = np.float32(NOISE_FLOOR_K) * np.float32(s)
         _weigh(raw, 0, valid, False, (a, b, c), floor, d, clipped, free)
     sigma = np.float32(s)
-    n_support, peak_w, saturated, cramped = _support(d, half_px, free, clipped, queue, stack, m)
+    if w <= MASK_BITS:  # rows as bits; the pixels listed only for the signal
+        n_support, peak_w, saturated, cramped, first, last = _support_bits(d, half_px, clipped, masks, region,
+                                                                           m)
+        plateau = _plateau_bits(d, half_px, region, first, last, peak_w)
+        if signal.shape[0]:
+            n_support = _region_pixels(region, first, last, half_px, queue)
+    else:
+        n_support, peak_w, saturated, cramped = _support(d, half_px, free, clipped, queue, stack, m)
+        plateau = _plateau(d, queue[:n_support], peak_w)
     pixels = queue[:n_support]
     du, dv, roundness, skew = _moment_shape(m)
-    plateau = _plateau(d, pixels, peak_w)
     contrast = plateau + float(floor) if m[0] > 0 else np.nan
     area = m[0] / plateau
     out[OUT_U, n], out[OUT_V, n] = col + du, row + dv
