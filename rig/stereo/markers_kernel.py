@@ -781,7 +781,7 @@ def scratch(half_px: int) -> tuple[np.ndarray, ...]:
             np.empty(w, np.uint64), np.empty(w, np.uint64), ri, ci, np.empty(256, np.int64))
 
 
-@_jit
+@_stage
 def measure_one(  # noqa: PLR0917 (numba: no keyword-only arguments)
         image: np.ndarray, row: int, col: int, half_px: int, dark: bool, scr: tuple[np.ndarray, ...],
         out: np.ndarray, flags: np.ndarray, n: int, signal: np.ndarray) -> None:
@@ -868,13 +868,13 @@ def _finish_row(out: np.ndarray, flags: np.ndarray, n: int, limits: np.ndarray, 
                 and row.roundness >= limits[4] and row.contrast >= limits[5])
 
 
-@_jit
+@_stage
 def _measure_retrying(  # noqa: PLR0917 (numba: no keyword-only arguments)
         image: np.ndarray, row: int, col: int, half_px: int, dark: bool, scr: tuple[np.ndarray, ...],
-        ladder: np.ndarray, retries: int, out: np.ndarray, flags: np.ndarray) -> None:
+        ladder: np.ndarray, retries: int, out: np.ndarray, flags: np.ndarray, no_signal: np.ndarray) -> None:
     """:func:`measure_one` into column 0 of ``out`` and ``flags``; a window whose marker reaches the ring
-    is measured again one step larger on ``ladder`` (ascending half sizes), up to ``retries`` times."""
-    no_signal = np.empty((0, 1, 1), np.float32)
+    is measured again one step larger on ``ladder`` (ascending half sizes), up to ``retries`` times.
+    ``no_signal``: an empty (0, 1, 1) float32 array (allocated once by the caller)."""
     measure_one(image, row, col, half_px, dark, scr, out, flags, 0, no_signal)
     size, tries = half_px, 0
     while flags[FLAG_ROW_CRAMPED, 0] and tries < retries and size < ladder[-1]:
@@ -893,13 +893,15 @@ def measure_rows(  # noqa: PLR0917 (numba: no keyword-only arguments)
     :func:`finish_rows`)."""
     out = np.empty((N_OUT, 1))
     flags = np.empty((3, 1), np.bool_)
+    no_signal = np.empty((0, 1, 1), np.float32)
     half_px = -1
     scr = scratch(1)
     for k in range(len(rows)):
         if halves[k] != half_px:
             half_px = halves[k]
             scr = scratch(half_px)
-        _measure_retrying(image, rows[k], cols[k], half_px, dark, scr, ladder, retries, out, flags)
+        _measure_retrying(image, rows[k], cols[k], half_px, dark, scr, ladder, retries, out, flags,
+                          no_signal)
         passed[k] = _finish_row(out, flags, 0, limits, rec[k])
 
 
@@ -918,6 +920,7 @@ def track_frame(  # noqa: PLR0917 (numba: no keyword-only arguments)
     height, width = image.shape
     out = np.empty((N_OUT, 1))
     flags = np.empty((3, 1), np.bool_)
+    no_signal = np.empty((0, 1, 1), np.float32)
     scr = scratch(half_px)
     rows = np.empty(len(pred), np.int64)
     cols = np.empty(len(pred), np.int64)
@@ -933,7 +936,8 @@ def track_frame(  # noqa: PLR0917 (numba: no keyword-only arguments)
             row.roundness, row.contrast = np.nan, np.nan
             row.flags = LOST_FLAG
             continue
-        _measure_retrying(image, rows[k], cols[k], half_px, dark, scr, ladder, retries, out, flags)
+        _measure_retrying(image, rows[k], cols[k], half_px, dark, scr, ladder, retries, out, flags,
+                          no_signal)
         if not _finish_row(out, flags, 0, limits, row):
             row.u_px, row.v_px = np.nan, np.nan
             row.flags |= LOST_FLAG
