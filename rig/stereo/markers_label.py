@@ -27,7 +27,7 @@ import sys
 
 import numpy as np
 
-from rig.stereo.markers_kernel import _jit
+from rig.stereo.markers_kernel import _jit, _stage
 
 _LITTLE_ENDIAN = sys.byteorder == "little"  # the 32-bit-word subsample reads byte 2 of a word
 
@@ -60,7 +60,7 @@ def subsample_sigma(gray: np.ndarray, factor: int) -> float:
     return max(1.4826 * median / float(np.sqrt(2.0)), 0.5)
 
 
-@_jit
+@_stage
 def _subsample_rows(gray: np.ndarray, factor: int, dark: bool, r0: int, low: np.ndarray) -> None:
     """Reduced rows r0 … r0 + len(low) − 1 of ``gray`` (C-contiguous): ``gray[s::factor, s::factor]``
     (s = factor // 2; 255 − value when ``dark``) into ``low``."""
@@ -81,7 +81,7 @@ def _subsample_rows(gray: np.ndarray, factor: int, dark: bool, r0: int, low: np.
                 dst[j] = 255 - dst[j]
 
 
-@_jit
+@_stage
 def _find(parent: np.ndarray, k: int) -> int:
     while parent[k] != k:
         parent[k] = parent[parent[k]]
@@ -97,7 +97,7 @@ def _grown(a: np.ndarray, size: int) -> np.ndarray:
     return out
 
 
-@_jit
+@_stage
 def _row_runs(  # noqa: PLR0917 (numba: no keyword-only arguments)
         fg: np.ndarray, y: int, runs: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray], n_runs: int,
         prev_lo: int, prev_hi: int) -> int:
@@ -130,7 +130,7 @@ def _row_runs(  # noqa: PLR0917 (numba: no keyword-only arguments)
     return n_runs
 
 
-@_jit
+@_stage
 def _least_level(least_twice_sum: int, offset: int, area: int) -> int:
     """The smallest pixel value p (capped at 256: none) with v = p − offset ≥ 1 and (2v − 1)·area above
     ``least_twice_sum`` (≥ 0): a pixel below it is background whatever its box sum (the test is monotone
@@ -138,7 +138,7 @@ def _least_level(least_twice_sum: int, offset: int, area: int) -> int:
     return min(offset + max(1, (least_twice_sum // area + 3) // 2), 256)
 
 
-@_jit
+@_stage
 def _box_sum(col: np.ndarray, x: int, r: int) -> int:
     """Sum of the column sums ``col[x − r … x + r]``, edges replicated."""
     w = len(col)
@@ -152,7 +152,7 @@ def _box_sum(col: np.ndarray, x: int, r: int) -> int:
     return total
 
 
-@_jit
+@_stage
 def _foreground(  # noqa: PLR0917 (numba: no keyword-only arguments)
         row: np.ndarray, col: np.ndarray, r: int, offset: int, area: int, prefix: np.ndarray,
         fg: np.ndarray) -> int:
@@ -167,11 +167,14 @@ def _foreground(  # noqa: PLR0917 (numba: no keyword-only arguments)
     sums (``prefix``: scratch, w + 2r + 2)."""
     w = len(row)
     block = 2 * r + 1
-    level = _least_level(2 * block * int(col.min()), offset, area)
-    top = 0
-    for x in range(w):  # vectorized
-        top = max(top, int(row[x]))
-    if top < level:
+    least = col[0]
+    for x in range(w):  # vectorized (a third of col.min()'s time)
+        least = min(least, col[x])
+    level = _least_level(2 * block * int(least), offset, area)
+    top = np.uint8(0)
+    for x in range(w):  # vectorized in uint8 (a fifth of the time in int64)
+        top = max(top, row[x])
+    if int(top) < level:
         return 0
     low = np.uint8(level)
     count = 0
