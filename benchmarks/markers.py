@@ -55,6 +55,18 @@ sbd/default, tracking 31.3–34.9× sbd/tuned, RMS 0.0065–0.0072 px; its wall 
 What limits tracking now: after other work has flushed the caches, a call costs ≈ 0.1 ms more than warm
 (the compiled call's dispatch and work arrays ≈ 35 µs, the windows' pixels ≈ 20 µs, the Python wrapper
 ≈ 50 µs) — Python-level operations each cost microseconds then, not the ≈ 50 ns of a warm loop.
+Branch markers16 (2026-12-02 evening; a loaded machine, load 10–13, other processes 1.4–1.7 cores: not the
+quiet reference): the support of a window of ≤ 64 columns through 64-bit row masks, the per-window stages
+and measure_one compiled into their callers, band_runs' per-row stages inlined with two bounds vectorized.
+Base and branch alternated twice, --clock cpu --markers 30 --rounds 3 --frames 20 (drift, vibration): full
+frame 12.0–12.9× → 13.8–14.5× sbd/default, tracking 36.2–40.0× → 42.3–47.1× sbd/tuned (medians: 12 % and
+15 % less CPU per frame relative to SBD in the same run), RMS unchanged (0.0067, 0.0065 px; rows byte-equal on
+the benchmark's frames). Per window (warm, one 33-px window, CPU): the support 1.8 µs → masks 0.25 + region
+0.3 + moments 0.9; a 30-marker track_frame call 0.88 of the base kernel (interleaved in one process). What
+still costs in a window: the moments of the support (float64 sums, four serial chains, ≈ 3 ns a support
+pixel), the ring histogram (≈ 0.5 µs), the signal above the plane (≈ 0.4 µs), the plateau (≈ 0.4). Tried,
+not kept: two interleaved ring histograms (slower: 0.75 against 0.49 µs); moments by column accumulators
+(vectorized, but slower over the whole window than the row runs: 1.33 against 1.0 µs).
 Tried and measured before, not kept: cv2.adaptiveThreshold for blur + offset + compare (2× slower); the
 local mean on a further-reduced frame; cv2.resize INTER_NEAREST_EXACT for the subsample; speculative
 tracking of many frames in one call (1.1–3× slower than one call per frame); the kernel's work arrays

@@ -6,7 +6,10 @@ pixels, compiled by numba, so a call
 costs a few microseconds of dispatch plus the pixels' own work instead of ~150 numpy calls on (K, W, W)
 stacks. The arithmetic follows the numpy formulation it replaced: float32 for the background plane and
 the signal (so a pixel is on the support exactly when it was), float64 for the sums (more exact than
-the float32 matrix products were: centroids agree to ~1e-6 px).
+the float32 matrix products were: centroids agree to ~1e-6 px). The support of a window of up to 64
+columns is found through 64-bit row masks (:func:`_support_bits`: a row at a time by bit operations,
+no branch per pixel), that of a larger one by a scanline flood fill (:func:`_support`):
+the same region.
 
 Background plane and noise of a window, fitted to its outer ring of ``RING_PX`` pixels (offsets in px
 from the window's centre pixel): a plane ``a + b·x + c·y`` (DN, polarity space) and the noise ``σ`` (DN),
@@ -543,7 +546,7 @@ _ONE = np.uint64(1)
 
 @_stage
 def _row_masks(d: np.ndarray, w: int, masks: np.ndarray) -> None:
-    """Row j of the window's ``d > 0`` (padded flat ``d`` of a (W, W) window, W ≤ MASK_BITS) as bits
+    """Each row i of the window's ``d > 0`` (padded flat ``d`` of a (W, W) window, W ≤ MASK_BITS) as bits
     (bit j = column j) into ``masks[i]`` (uint64)."""
     pw = w + 2
     for i in range(w):
