@@ -57,7 +57,10 @@ What limits tracking now: after other work has flushed the caches, a call costs 
 ≈ 50 µs) — Python-level operations each cost microseconds then, not the ≈ 50 ns of a warm loop.
 Branch markers16 (2026-12-02 evening; a loaded machine, load 10–13, other processes 1.4–1.7 cores: not the
 quiet reference): the support of a window of ≤ 64 columns through 64-bit row masks, the per-window stages
-and measure_one compiled into their callers, band_runs' per-row stages inlined with two bounds vectorized.
+and measure_one compiled into their callers, band_runs' per-row stages inlined with two bounds vectorized
+(measure_one and _measure_retrying were then compiled separately again: inlined into every caller they took
+rig.warm_kernels' compile from 41 to 132 CPU-s for 2–5 % of a tracking call; 47 CPU-s after; quiet figures
+after that in README.md).
 Base and branch alternated twice, --clock cpu --markers 30 --rounds 3 --frames 20 (drift, vibration): full
 frame 12.0–12.9× → 13.8–14.5× sbd/default, tracking 36.2–40.0× → 42.3–47.1× sbd/tuned (medians: 12 % and
 15 % less CPU per frame relative to SBD in the same run), RMS unchanged (0.0067, 0.0065 px; rows byte-equal on

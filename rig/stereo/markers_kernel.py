@@ -784,7 +784,7 @@ def scratch(half_px: int) -> tuple[np.ndarray, ...]:
             np.empty(w, np.uint64), np.empty(w, np.uint64), ri, ci, np.empty(256, np.int64))
 
 
-@_stage
+@_jit
 def measure_one(  # noqa: PLR0917 (numba: no keyword-only arguments)
         image: np.ndarray, row: int, col: int, half_px: int, dark: bool, scr: tuple[np.ndarray, ...],
         out: np.ndarray, flags: np.ndarray, n: int, signal: np.ndarray) -> None:
@@ -871,7 +871,7 @@ def _finish_row(out: np.ndarray, flags: np.ndarray, n: int, limits: np.ndarray, 
                 and row.roundness >= limits[4] and row.contrast >= limits[5])
 
 
-@_stage
+@_jit
 def _measure_retrying(  # noqa: PLR0917 (numba: no keyword-only arguments)
         image: np.ndarray, row: int, col: int, half_px: int, dark: bool, scr: tuple[np.ndarray, ...],
         ladder: np.ndarray, retries: int, out: np.ndarray, flags: np.ndarray, no_signal: np.ndarray) -> None:
