@@ -195,8 +195,9 @@ def decide(value: float, expanded_u: float, limit: float, comparison: str, rule:
 def beyond_resolution(expanded_u: float, limit: float, comparison: str, zone: str) -> bool:
     """Whether a "≤ limit" criterion (a magnitude ≥ 0) cannot be decided at this uncertainty: U ≥ limit, so
     no measured value could demonstrate conformance, and the value is not demonstrably over the limit either
-    (zone "non-conforming" stays FAIL). Such a criterion is stated but NOT EVALUATED, under either rule."""
-    return (comparison == "<=" and math.isfinite(expanded_u) and expanded_u >= limit
+    (zone "non-conforming" stays FAIL); an exact value (U = 0) is always decided. Such a criterion is stated
+    but NOT EVALUATED, under either rule."""
+    return (comparison == "<=" and math.isfinite(expanded_u) and expanded_u > 0.0 and expanded_u >= limit
             and zone != "non-conforming")
 
 

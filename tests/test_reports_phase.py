@@ -113,6 +113,10 @@ def test_one_rule_for_every_upper_limit_band_phase_as_phase_delay() -> None:
         rows = {r["id"]: r for r in evaluate(measured, {**acceptance, "decision_rule": rule})}
         assert [rows[c]["status"] for c in measured] == ["NOT EVALUATED"] * 2
         assert [rows[c]["zone"] for c in measured] == ["undecidable"] * 2
+    # an exact value is decided even against a limit of 0 (U = 0 reaches it, but nothing is uncertain)
+    exact = acceptance_from_config({"criteria": {"band_phase_deg": 0.0}})
+    rows = {r["id"]: r for r in evaluate({"band_phase_deg": Measured(0.0, 0.0)}, exact)}
+    assert rows["band_phase_deg"]["status"] == "PASS"
     # U just under the limit: decided (guarded: the interval straddles the limit → FAIL)
     rows = {r["id"]: r for r in evaluate({"band_phase_deg": Measured(0.12, 0.99)}, acceptance)}
     assert rows["band_phase_deg"]["status"] == "FAIL" and rows["band_phase_deg"]["zone"] == "indeterminate"
