@@ -485,6 +485,16 @@ def _push_spans(  # noqa: PLR0917 (numba: no keyword-only arguments)
     return top
 
 
+@_stage
+def _add_row_moments(  # noqa: PLR0917 (numba: no keyword-only arguments)
+        ms: tuple[float, ...], y: float, s0: float, s1: float, s2: float,
+        s3: float) -> tuple[float, ...]:
+    """The support's ten moment sums (Σw, Σwx, Σwy, Σwx², Σwxy, Σwy², Σwx³, Σwx²y, Σwxy², Σwy³) with one row's
+    run added: ``s0..s3`` its Σw, Σwx, Σwx², Σwx³ at row offset ``y``."""
+    return (ms[0] + s0, ms[1] + s1, ms[2] + y * s0, ms[3] + s2, ms[4] + y * s1, ms[5] + y * y * s0,
+            ms[6] + s3, ms[7] + y * s2, ms[8] + y * y * s1, ms[9] + y * y * y * s0)
+
+
 @_jit
 def _support(  # noqa: PLR0917 (numba: no keyword-only arguments)
         d: np.ndarray, half_px: int, free: np.ndarray, clipped: np.ndarray, pixels: np.ndarray,
@@ -509,7 +519,7 @@ def _support(  # noqa: PLR0917 (numba: no keyword-only arguments)
     pw = 2 * half_px + 3
     stack[0] = seed
     top, n = 1, 0
-    m0 = m1 = m2 = m3 = m4 = m5 = m6 = m7 = m8 = m9 = 0.0  # scalars: kept in registers
+    ms: tuple[float, ...] = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)  # scalars: kept in registers
     peak_w, saturated, cramped = 0.0, False, False
     edge = half_px - RING_PX + 1
     while top:
@@ -523,20 +533,11 @@ def _support(  # noqa: PLR0917 (numba: no keyword-only arguments)
         n, s0, s1, s2, s3, run_peak, run_saturated = _take_run(d, free, clipped, pixels, n, left, right, x0)
         peak_w = max(peak_w, run_peak)
         saturated |= run_saturated
-        y = float(iy)
-        m0 += s0
-        m1 += s1
-        m2 += y * s0
-        m3 += s2
-        m4 += y * s1
-        m5 += y * y * s0
-        m6 += s3
-        m7 += y * s2
-        m8 += y * y * s1
-        m9 += y * y * y * s0
+        ms = _add_row_moments(ms, float(iy), s0, s1, s2, s3)
         cramped |= _reaches(iy, left - x0, right - x0, edge)
         top = _push_spans(free, stack, top, left, right, pw)
-    m[0], m[1], m[2], m[3], m[4], m[5], m[6], m[7], m[8], m[9] = m0, m1, m2, m3, m4, m5, m6, m7, m8, m9
+    for j in range(10):
+        m[j] = ms[j]
     return n, peak_w, saturated, cramped
 
 
@@ -639,7 +640,7 @@ def _support_bits(  # noqa: PLR0917 (numba: no keyword-only arguments)
         return 0, 0.0, False, False, 0, -1
     first, last = _region(masks, w, seed // pw - 1, seed % pw - 1, region)
     n = 0
-    m0 = m1 = m2 = m3 = m4 = m5 = m6 = m7 = m8 = m9 = 0.0
+    ms: tuple[float, ...] = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
     peak_w, saturated, cramped = 0.0, False, False
     edge = half_px - RING_PX + 1
     inner = ((_ONE << np.uint64(w - 1)) - _ONE) & ~_ONE  # columns 1 … W − 2: |x| ≤ edge
@@ -668,18 +669,9 @@ def _support_bits(  # noqa: PLR0917 (numba: no keyword-only arguments)
             saturated |= run_clipped[k] & (take == 1)
             n += int(take)
             xo += 1.0
-        y = float(iy)
-        m0 += s0
-        m1 += s1
-        m2 += y * s0
-        m3 += s2
-        m4 += y * s1
-        m5 += y * y * s0
-        m6 += s3
-        m7 += y * s2
-        m8 += y * y * s1
-        m9 += y * y * y * s0
-    m[0], m[1], m[2], m[3], m[4], m[5], m[6], m[7], m[8], m[9] = m0, m1, m2, m3, m4, m5, m6, m7, m8, m9
+        ms = _add_row_moments(ms, float(iy), s0, s1, s2, s3)
+    for j in range(10):
+        m[j] = ms[j]
     return n, peak_w, saturated, cramped, first, last
 
 
