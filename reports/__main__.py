@@ -7,13 +7,10 @@ Exit status: 0 PASS, 1 FAIL, 2 INCOMPLETE, 3 the report could not be built (the 
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import sys
-from pathlib import Path
 
 from reports.build import build_report
 from reports.errors import ReportError
-from reports.scope import Scope
 from rig.config.analysis import SYNC_METHODS
 
 EXIT_CODES = {"PASS": 0, "FAIL": 1, "INCOMPLETE": 2}
@@ -38,22 +35,11 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def _without_figures(run_dir: Path) -> Scope:
-    """The run's recorded ``[report]`` scope, figures left out by ``--no-figures``."""
-    from rig.record.reader import parse_record
-
-    docs = parse_record(run_dir / "record.jsonl").documents
-    start = next((d for d in docs if d.get("type") == "start"), {})
-    rig = start.get("rig")
-    return dataclasses.replace(Scope.of_snapshot(rig if isinstance(rig, dict) else {}), figures=False,
-                               figures_why="--no-figures")
-
-
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     try:
-        res = build_report(args.run, sync=args.sync, scope=_without_figures(Path(args.run)) if args.no_figures
-                           else None)
+        res = build_report(args.run, sync=args.sync,
+                           no_figures_why="--no-figures" if args.no_figures else None)
     except (ReportError, OSError) as exc:  # OSError: a full disk, a read-only run folder
         print(f"rig report: {exc}", file=sys.stderr)
         return 3

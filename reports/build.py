@@ -15,6 +15,7 @@ software/date stamp; the only date is the run's own start time).
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import os
@@ -174,6 +175,7 @@ def build_report(
     *,
     sync: str | None = None,
     scope: Scope | None = None,
+    no_figures_why: str | None = None,
     analysis: Analyse | None = None,
     in_run: bool = False,
     before_issue: Callable[[], None] | None = None,
@@ -189,7 +191,8 @@ def build_report(
     else ``"trajectory"``). ``scope``: the comparison methods analysed beside it (each a whole second
     analysis) and whether figures are drawn (≈ 1 s of matplotlib); default: the run's ``[report]``
     (:meth:`Scope.of_snapshot`). What it leaves out is said in the notes, and report.html says when no
-    figure was drawn; no criterion depends on either. ``analysis`` replaces ``rig.analysis.analyse.analyse``.
+    figure was drawn; no criterion depends on either. ``no_figures_why`` (e.g. ``"--no-figures"``): draw none
+    whatever the scope, the notes giving that reason. ``analysis`` replaces ``rig.analysis.analyse.analyse``.
     A failing comparison method is reported as a note; a failing primary method raises.
     ``in_run=True``: built by the run's own last step (the procedures' ``report`` step), which is
     finishing normally — the conditions then say so (``exit_status`` "success", the stop document follows)
@@ -205,6 +208,8 @@ def build_report(
     _check_writable(Path(run_dir))
     acceptance = acceptance_from_config(run.rig)
     scope = scope or _recorded_scope(run.rig)
+    if no_figures_why:
+        scope = dataclasses.replace(scope, figures=False, figures_why=no_figures_why)
     primary = sync or _configured_sync(run.rig)
     analyses = _analyse_all(run.folder, [primary, *[m for m in scope.comparison if m != primary]],
                             analysis or _default_analyse())

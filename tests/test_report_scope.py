@@ -50,6 +50,13 @@ def test_figures_false_writes_no_png_and_says_so(tmp_path: Path) -> None:
     assert "figures not drawn: [report] figures = false" in res.certificate["conditions"]["notes"]
 
 
+def test_no_figures_overrides_a_run_that_draws_them_and_says_why(tmp_path: Path) -> None:
+    res = build_report(_run(tmp_path, "run_cli_nofig", figures=True), analysis=synth.fake_analyse,
+                       no_figures_why="--no-figures")
+    assert res.figures == {} and not list(res.run_dir.rglob("*.png"))
+    assert "figures not drawn: --no-figures" in res.certificate["conditions"]["notes"]
+
+
 def test_no_comparison_leaves_the_criteria_as_they_are_with_it(tmp_path: Path) -> None:
     analyse = synth.fake_analyse  # its linear tracks differ from its trajectory tracks (synth.SWEEP_COEFFS)
     full = build_report(_run(tmp_path, "run_full", figures=False), analysis=analyse)
