@@ -1,6 +1,6 @@
 """The compiled change maps of the duplicate test give OpenCV's numbers bit for bit; the sampled per-frame
-pass gives every 4th block of the whole map, its largest value and its median; the region's numpy maps
-(:mod:`drivers.camera.video_file`) give the kernels' numbers."""
+pass gives every 4th block of the whole map, its largest value and its median; the region's maps (the
+candidates' judging: :func:`drivers.camera.change_kernel.region_changes`) give the whole map's numbers."""
 
 from __future__ import annotations
 
@@ -10,8 +10,14 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from drivers.camera.change_kernel import half_change_stats, half_only, sampled_half, sampled_stats
-from drivers.camera.video_file import _region_change, _region_halves, _tested
+from drivers.camera.change_kernel import (
+    half_change_stats,
+    half_only,
+    region_changes,
+    sampled_half,
+    sampled_stats,
+)
+from drivers.camera.video_file import _tested
 
 
 def _half(image: np.ndarray) -> np.ndarray:
@@ -84,9 +90,11 @@ def test_the_region_maps_are_the_kernels_numbers(pair: tuple[np.ndarray, np.ndar
     change = half_change_stats(a, _half(b))[1]
     chosen = np.random.default_rng(seed).random(change.shape) < 0.5
     rows, cols = np.nonzero(chosen)
-    region = _region_change(_region_halves(a, rows, cols), _region_halves(b, rows, cols))
+    region = region_changes((b, a), rows, cols, np.array([[0, 1], [1, 0], [0, 0]]))
     assert region.dtype == np.float32
-    np.testing.assert_array_equal(region, change[rows, cols])
+    np.testing.assert_array_equal(region[0], change[rows, cols])
+    np.testing.assert_array_equal(region[1], change[rows, cols])  # |a − b| both ways round
+    assert not region[2].any()
 
 
 def test_the_extremes_a_non_contiguous_frame_and_a_cropped_size() -> None:

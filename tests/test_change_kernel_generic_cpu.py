@@ -51,9 +51,13 @@ def kernel_outputs() -> dict[str, np.ndarray]:
     for i, (a, b) in enumerate(_frames(np.random.default_rng(20261202))):
         half, change, max_dn, floor_dn = change_kernel.half_change_stats(a, change_kernel.half_only(b))
         sampled, sampled_map, s_max, s_floor = change_kernel.sampled_stats(a, change_kernel.sampled_half(b))
+        rows, cols = np.divmod(np.flatnonzero(change >= np.median(change)), change.shape[1])
+        region = change_kernel.region_changes((a, b), rows, cols, np.array([[0, 1], [1, 0]]))
+        moved = change_kernel.motion_region(sampled_map, sampled_map[::-1], s_max / 4, s_floor, change.shape)
         out.update({f"{i}_half": half, f"{i}_change": change, f"{i}_stats": np.array([max_dn, floor_dn]),
                     f"{i}_sampled": sampled, f"{i}_sampled_map": sampled_map,
-                    f"{i}_sampled_stats": np.array([s_max, s_floor])})
+                    f"{i}_sampled_stats": np.array([s_max, s_floor]), f"{i}_region": region,
+                    f"{i}_motion_region": np.stack(moved)})
     return out
 
 

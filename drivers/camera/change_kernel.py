@@ -24,7 +24,8 @@ import numba
 import numpy as np
 from numpy.typing import NDArray
 
-__all__ = ["half_change_stats", "half_only", "sampled_half", "sampled_stats"]
+__all__ = ["half_change_stats", "half_only", "motion_region", "region_changes", "sampled_half",
+           "sampled_stats", "sampled_words"]
 
 _LEVELS = 16 * 255 + 1  # a block's change × 16 is an integer sum of 16 absolute differences: 0 … 4080
 
@@ -160,24 +161,51 @@ def half_only(image: NDArray[np.uint8]) -> NDArray[np.uint8]:
     return half
 
 
-def _sampled_arrays(image: NDArray[np.uint8]) -> tuple[NDArray[np.uint64], NDArray[np.uint8]]:
-    """(the frame's rows as 64-bit words, an empty packed sampled image) for :func:`_sampled_kernel`."""
+def _check_sampled(image: NDArray[np.uint8]) -> None:
     h, w = image.shape
     if h % 8 or w % 8:
         raise ValueError(f"an image of {(h, w)} px; the sampled blocks need sides multiples of 8")
     if sys.byteorder != "little":  # the kernel reads 8 pixels as one little-endian word
         raise NotImplementedError("the sampled change kernel needs a little-endian machine")
-    words = np.ascontiguousarray(image).view(np.uint64)
-    return words, np.empty((4 * ((h // 8 + 1) // 2), 4 * ((w // 8 + 1) // 2)), np.uint8)
+
+
+@_jit
+def _sampled_pass(image: np.ndarray, prev32: np.ndarray, with_change: bool,
+                  ) -> tuple[np.ndarray, np.ndarray, int, float]:
+    """(the packed sampled image as 32-bit words (4 half-size values each), its change map to ``prev32``
+    (a previous frame's), the map's largest value × 16, its median × 16) of a C-contiguous ``image``
+    (sides multiples of 8), in one call: a frame's Python is tens of microseconds per numpy call after its
+    decoding; without ``with_change`` the sampled image only (an empty map, 0, 0)."""
+    h, w = image.shape
+    sampled32 = np.empty((4 * ((h // 8 + 1) // 2), (w // 8 + 1) // 2), np.uint32)
+    if not with_change:
+        _sampled_kernel(image.view(np.uint64), sampled32, sampled32, np.empty((0, 0), np.float32),
+                        np.empty(1, np.int64))
+        return sampled32, np.empty((0, 0), np.float32), 0, 0.0
+    change = np.empty((sampled32.shape[0] // 4, sampled32.shape[1]), np.float32)
+    counts = np.empty(_LEVELS, np.int64)
+    largest = _sampled_kernel(image.view(np.uint64), prev32, sampled32, change, counts)
+    return sampled32, change, largest, _median_of_counts(counts)
+
+
+def sampled_words(image: NDArray[np.uint8], prev_words: NDArray[np.uint32] | None,
+                  ) -> tuple[NDArray[np.uint32], NDArray[np.float32], float, float]:
+    """:func:`sampled_stats` (or :func:`sampled_half` when ``prev_words`` is None: an empty map, 0, 0) for a
+    C-contiguous ``image`` (sides multiples of 8, unchecked: the video reader's per-frame call), the sampled
+    image as 32-bit words — ``sampled.view(np.uint32)`` —, which the next frame's call takes as
+    ``prev_words``."""
+    if prev_words is None:
+        return _sampled_pass(image, np.empty((0, 0), np.uint32), False)
+    sampled32, change, largest, median = _sampled_pass(image, prev_words, True)
+    return sampled32, change, largest / 16, median / 16
 
 
 def sampled_half(image: NDArray[np.uint8]) -> NDArray[np.uint8]:
     """The half-size image on every 4th 8×8 block of ``image`` (sides multiples of 8), packed as
     :func:`sampled_stats` gives it."""
-    words, sampled = _sampled_arrays(image)
-    _sampled_kernel(words, sampled.view(np.uint32), sampled.view(np.uint32), np.empty((0, 0), np.float32),
-                    np.empty(1, np.int64))
-    return sampled
+    _check_sampled(image)
+    sampled32: NDArray[np.uint32] = sampled_words(np.ascontiguousarray(image), None)[0]
+    return sampled32.view(np.uint8)
 
 
 def sampled_stats(image: NDArray[np.uint8], prev_sampled: NDArray[np.uint8],
@@ -188,15 +216,15 @@ def sampled_stats(image: NDArray[np.uint8], prev_sampled: NDArray[np.uint8],
     ``image`` (sides multiples of 8): ``change[::2, ::2]``, its maximum and the noise floor of
     :func:`half_change_stats` bit for bit, from half the frame's rows and a quarter of its pixels (about
     half the time of the whole map)."""
-    words, sampled = _sampled_arrays(image)
-    if prev_sampled.shape != sampled.shape:
-        raise ValueError(f"prev_sampled has shape {prev_sampled.shape}; expected {sampled.shape} for a frame "
+    _check_sampled(image)
+    h, w = image.shape
+    expected = (4 * ((h // 8 + 1) // 2), 4 * ((w // 8 + 1) // 2))
+    if prev_sampled.shape != expected:
+        raise ValueError(f"prev_sampled has shape {prev_sampled.shape}; expected {expected} for a frame "
                          f"of {image.shape}")
-    change = np.empty((sampled.shape[0] // 4, sampled.shape[1] // 4), np.float32)
-    counts = np.empty(_LEVELS, np.int64)
-    largest = _sampled_kernel(words, np.ascontiguousarray(prev_sampled).view(np.uint32),
-                              sampled.view(np.uint32), change, counts)
-    return sampled, change, largest / 16, _median_of_counts(counts) / 16
+    sampled32, change, largest_dn, floor_dn = sampled_words(
+        np.ascontiguousarray(image), np.ascontiguousarray(prev_sampled).view(np.uint32))
+    return sampled32.view(np.uint8), change, largest_dn, floor_dn
 
 
 def half_change_stats(image: NDArray[np.uint8], prev_half: NDArray[np.uint8],
@@ -214,3 +242,80 @@ def half_change_stats(image: NDArray[np.uint8], prev_half: NDArray[np.uint8],
     largest = _half_change_kernel(np.ascontiguousarray(image), np.ascontiguousarray(prev_half), half, change,
                                   counts)
     return half, change, largest / 16, _median_of_counts(counts) / 16
+
+
+@_jit
+def _motion_region_kernel(before: np.ndarray, after: np.ndarray, before_limit: np.float32,
+                          after_limit: np.float32, marked: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(block rows, block columns), row-major, of the blocks of a frame (``marked``: False, its blocks'
+    shape) within one block of a sampled block (2i, 2j) with ``before[i, j] >= before_limit`` or
+    ``after[i, j] >= after_limit``."""
+    rows, cols = marked.shape
+    count = 0
+    for i in range(before.shape[0]):
+        for j in range(before.shape[1]):
+            if before[i, j] >= before_limit or after[i, j] >= after_limit:
+                for r in range(max(2 * i - 1, 0), min(2 * i + 2, rows)):
+                    for c in range(max(2 * j - 1, 0), min(2 * j + 2, cols)):
+                        if not marked[r, c]:
+                            marked[r, c] = True
+                            count += 1
+    out_rows = np.empty(count, np.intp)
+    out_cols = np.empty(count, np.intp)
+    k = 0
+    for r in range(rows):
+        for c in range(cols):
+            if marked[r, c]:
+                out_rows[k], out_cols[k] = r, c
+                k += 1
+    return out_rows, out_cols
+
+
+@_jit
+def _region_changes_kernel(images: tuple[np.ndarray, ...], rows: np.ndarray, cols: np.ndarray,
+                           pairs: np.ndarray, out: np.ndarray) -> None:
+    """``out[p, b]`` ← mean |half(images[pairs[p, 1]]) − half(images[pairs[p, 0]])| over 8×8 block
+    (``rows[b]``, ``cols[b]``) (the half-size values rounded as :func:`_half_rows`)."""
+    halves = np.empty((len(images), 16), np.int32)
+    for b in range(rows.shape[0]):
+        top, left = 8 * rows[b], 8 * cols[b]
+        for k in range(len(images)):  # a literal_unroll is not needed: the images share one type
+            image = images[k]
+            for y in range(4):
+                for x in range(4):
+                    r, c = top + 2 * y, left + 2 * x
+                    pixels = (np.int32(image[r, c]) + np.int32(image[r + 1, c]) + np.int32(image[r, c + 1])
+                              + np.int32(image[r + 1, c + 1]))
+                    halves[k, 4 * y + x] = (pixels + 2) >> 2
+        for p in range(pairs.shape[0]):
+            total = 0
+            for v in range(16):
+                total += abs(halves[pairs[p, 1], v] - halves[pairs[p, 0], v])
+            out[p, b] = np.float32(total) * np.float32(0.0625)
+
+
+def motion_region(before: NDArray[np.float32], after: NDArray[np.float32], before_limit: float,
+                  after_limit: float, shape: tuple[int, int]) -> tuple[NDArray[np.intp], NDArray[np.intp]]:
+    """(block rows, block columns), row-major, of the blocks of a frame of ``shape`` blocks (rows, columns)
+    within one block of a sampled block (2i, 2j) — ``before`` and ``after``: every 4th block's change maps
+    (DN, :func:`sampled_stats`) — whose change before reaches ``before_limit`` or after ``after_limit`` (DN,
+    compared in float32 as numpy compares a float32 map with a Python float)."""
+    return _motion_region_kernel(np.ascontiguousarray(before, np.float32),
+                                 np.ascontiguousarray(after, np.float32), np.float32(before_limit),
+                                 np.float32(after_limit), np.zeros(shape, np.bool_))
+
+
+def region_changes(images: tuple[NDArray[np.uint8], ...], rows: NDArray[np.intp], cols: NDArray[np.intp],
+                   pairs: NDArray[np.int64]) -> NDArray[np.float32]:
+    """Block change maps (DN, float32) over the 8×8 blocks (``rows[b]``, ``cols[b]``) of same-sized
+    ``images`` (sides multiples of 8): row p is mean |half(images[pairs[p, 1]]) − half(images[pairs[p,
+    0]])| per block, the numbers of :func:`half_change_stats`' map there, in one pass."""
+    shape = images[0].shape
+    if any(image.shape != shape for image in images) or shape[0] % 8 or shape[1] % 8:
+        raise ValueError(f"images of shapes {[image.shape for image in images]}; the region's blocks need "
+                         "one size, sides multiples of 8")
+    out = np.empty((len(pairs), len(rows)), np.float32)
+    _region_changes_kernel(tuple(np.ascontiguousarray(image) for image in images),
+                           np.ascontiguousarray(rows, np.intp), np.ascontiguousarray(cols, np.intp),
+                           np.ascontiguousarray(pairs, np.int64), out)
+    return out

@@ -36,11 +36,11 @@ OpenCV's colour → grey conversion; about twice as fast), else the BGR image co
 
 from __future__ import annotations
 
+import functools
 import math
-import statistics
 import threading
 from collections import deque
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any, TypedDict, cast
@@ -180,7 +180,8 @@ class _Decoded:
     pts_s: float
     image: NDArray[np.uint8]
     tested: NDArray[np.uint8]  # the image the duplicate test reads: cropped to sides multiples of 8
-    sampled: NDArray[np.uint8] | None  # its half-size image on every 4th 8×8 block (None: too small to test)
+    sampled: NDArray[np.uint32] | None  # its half-size image on every 4th 8×8 block, packed in 32-bit words
+    # (change_kernel.sampled_words; None: too small to test)
     change: _Sampled | None = None  # to the previous image (None for the first frame)
     half: NDArray[np.uint8] | None = None  # the whole half-size image, once a still frame needed it
 
@@ -204,19 +205,25 @@ def _tested(image: NDArray[np.uint8]) -> NDArray[np.uint8]:
     return np.ascontiguousarray(image[:h - h % 8, :w - w % 8])
 
 
-def _sample(tested: NDArray[np.uint8], prev: NDArray[np.uint8] | None,
-            ) -> tuple[NDArray[np.uint8] | None, _Sampled | None]:
+@functools.cache
+def _sampled_words() -> Callable[[NDArray[np.uint8], NDArray[np.uint32] | None],
+                                 tuple[NDArray[np.uint32], NDArray[np.float32], float, float]]:
+    """:func:`drivers.camera.change_kernel.sampled_words` (numba: loaded by the first frame, not by the
+    import; a cached call, not an import statement in each frame's path)."""
+    from drivers.camera.change_kernel import sampled_words
+
+    return sampled_words
+
+
+def _sample(tested: NDArray[np.uint8], prev: NDArray[np.uint32] | None,
+            ) -> tuple[NDArray[np.uint32] | None, _Sampled | None]:
     """(the sampled half-size image, its change to the previous frame's ``prev`` or None for the first
-    frame), in one compiled pass (:func:`drivers.camera.change_kernel.sampled_stats`); (None, None) for an
+    frame), in one compiled pass (:func:`drivers.camera.change_kernel.sampled_words`); (None, None) for an
     image smaller than one 8×8 block."""
     if tested.size == 0:
         return None, None
-    from drivers.camera import change_kernel  # numba: loaded by the first frame, not by the import
-
-    if prev is None:
-        return change_kernel.sampled_half(tested), None
-    sampled, change, max_dn, floor_dn = change_kernel.sampled_stats(tested, prev)
-    return sampled, _Sampled(change, max_dn, floor_dn)
+    sampled, change, max_dn, floor_dn = _sampled_words()(tested, prev)
+    return sampled, (_Sampled(change, max_dn, floor_dn) if prev is not None else None)
 
 
 def _largest_change(cur: _Decoded, prev: _Decoded) -> float:
@@ -232,36 +239,19 @@ def _largest_change(cur: _Decoded, prev: _Decoded) -> float:
 
 def _motion_region(before: _Sampled, after: _Sampled, shape: tuple[int, int],
                    ) -> tuple[NDArray[np.intp], NDArray[np.intp]]:
-    """(block rows, block columns) where the markers moved: the sampled blocks whose change before or
-    after reaches a quarter of that side's largest (and ``MIN_MOTION_DN`` / 2), with their 8 neighbours
-    (the blocks between the sampled ones). ``shape``: the frame's blocks (rows, columns)."""
-    moved = ((before.map >= max(0.25 * before.max_dn, 0.5 * DuplicateJudge.MIN_MOTION_DN))
-             | (after.map >= max(0.25 * after.max_dn, 0.5 * DuplicateJudge.MIN_MOTION_DN)))
-    # np.nonzero of a 2-D array costs 20× the flat one here (110 against 5 µs for 1080p's 32,400 blocks)
-    moved_rows, moved_cols = np.divmod(np.flatnonzero(moved), moved.shape[1])
-    step = np.array([-1, 0, 1])
-    rows, cols = np.broadcast_arrays((2 * moved_rows)[:, None, None] + step[None, :, None],
-                                     (2 * moved_cols)[:, None, None] + step[None, None, :])
-    inside = (rows >= 0) & (rows < shape[0]) & (cols >= 0) & (cols < shape[1])
-    region_rows, region_cols = np.divmod(np.unique(rows[inside] * shape[1] + cols[inside]), shape[1])
-    return region_rows, region_cols
+    """(block rows, block columns), row-major, where the markers moved: the sampled blocks whose change
+    before or after reaches a quarter of that side's largest (and ``MIN_MOTION_DN`` / 2), with their 8
+    neighbours (the blocks between the sampled ones). ``shape``: the frame's blocks (rows, columns)."""
+    from drivers.camera import change_kernel
+
+    return change_kernel.motion_region(
+        before.map, after.map, max(0.25 * before.max_dn, 0.5 * DuplicateJudge.MIN_MOTION_DN),
+        max(0.25 * after.max_dn, 0.5 * DuplicateJudge.MIN_MOTION_DN), shape)
 
 
-def _region_halves(tested: NDArray[np.uint8], rows: NDArray[np.intp], cols: NDArray[np.intp],
-                   ) -> NDArray[np.int16]:
-    """The half-size 4×4 values of the 8×8 blocks (``rows[i]``, ``cols[i]``), shape (n, 4, 4): the 2×2
-    means rounded as the kernels (and OpenCV's INTER_AREA) round them."""
-    h, w = tested.shape
-    blocks = tested.reshape(h // 8, 8, w // 8, 8)[rows, :, cols, :].astype(np.int16)  # (n, 8, 8)
-    return (blocks[:, 0::2, 0::2] + blocks[:, 1::2, 0::2] + blocks[:, 0::2, 1::2] + blocks[:, 1::2, 1::2]
-            + 2) >> 2
-
-
-def _region_change(a: NDArray[np.int16], b: NDArray[np.int16]) -> NDArray[np.float32]:
-    """Mean |a − b| per block of two :func:`_region_halves` (DN, float32: the kernels' numbers)."""
-    change: NDArray[np.float32] = np.abs(a - b).sum(axis=(1, 2)).astype(np.float32)
-    change *= np.float32(0.0625)
-    return change
+# the region's change maps, for frames [k−2, k−1, k, k+1]: before (k−2 → k−1), after (k → k+1), the
+# candidate's own change (k−1 → k) and the change across it (k−2 → k+1)
+_REGION_PAIRS = np.array([[0, 1], [2, 3], [1, 2], [0, 3]], np.int64)
 
 
 def _ratio_where_moved(change: NDArray[np.float32], motion: NDArray[np.float32]) -> float:
@@ -269,6 +259,13 @@ def _ratio_where_moved(change: NDArray[np.float32], motion: NDArray[np.float32])
     mean of ``motion`` there: ≈ 0 when the image did not change where the neighbour's markers moved."""
     where = motion >= 0.5 * float(motion.max())
     return float(change[where].mean() / max(float(motion[where].mean()), 1e-9))
+
+
+def _median(values: deque[float]) -> float:
+    """``statistics.median`` of a few values (a frame's call: without the module's generality)."""
+    ordered = sorted(values)
+    middle = len(ordered) // 2
+    return ordered[middle] if len(ordered) % 2 else (ordered[middle - 1] + ordered[middle]) / 2
 
 
 @dataclass
@@ -324,7 +321,7 @@ class DuplicateJudge:
         assert prev is not None and cur is not None and cur.change is not None
         s_k = cur.change.max_dn
         floor = cur.change.floor_dn
-        typical = statistics.median(self._floors) if len(self._floors) >= 3 else None
+        typical = _median(self._floors) if len(self._floors) >= 3 else None
         out = {"change_dn": s_k, "noise_floor_dn": floor, "typical_noise_dn": typical,
                "change_before_dn": prev.change.max_dn if prev.change is not None else None,
                "change_after_dn": nxt.change.max_dn if nxt is not None and nxt.change is not None else None,
@@ -348,9 +345,10 @@ class DuplicateJudge:
         assert prev.change is not None and nxt.change is not None
         h, w = cur.tested.shape
         rows, cols = _motion_region(prev.change, nxt.change, (h // 8, w // 8))
-        halves = [_region_halves(f.tested, rows, cols) for f in (before2, prev, cur, nxt)]
-        moved_before, moved_after = _region_change(halves[1], halves[0]), _region_change(halves[3], halves[2])
-        change = _region_change(halves[2], halves[1])
+        from drivers.camera import change_kernel
+
+        moved_before, moved_after, change, across_map = change_kernel.region_changes(
+            (before2.tested, prev.tested, cur.tested, nxt.tested), rows, cols, _REGION_PAIRS)
         before, after = float(moved_before.max()), float(moved_after.max())
         out.update(change_dn=float(change.max()), change_before_dn=before, change_after_dn=after,
                    region_blocks=len(rows))
@@ -363,7 +361,6 @@ class DuplicateJudge:
         out["identity_ratio"] = ratio
         if ratio > self.IDENTICAL_RATIO:
             return None
-        across_map = _region_change(halves[3], halves[0])
         across = min(_ratio_where_moved(across_map, moved_before),
                      _ratio_where_moved(across_map, moved_after),
                      float(across_map.max()) / max(before, after))
@@ -596,7 +593,7 @@ class VideoFile(Camera):
     def _grab(self, cap: cv2.VideoCapture, rep: FrameTimeReport,
               first: tuple[float, NDArray[np.uint8]] | None) -> Iterator[_Decoded]:
         """Decoded frames in order with their time stamps and block change to the previous frame."""
-        prev: NDArray[np.uint8] | None = None  # the previous image's sampled half-size image
+        prev: NDArray[np.uint32] | None = None  # the previous image's sampled half-size image
         index, self._start_index = self._start_index, 0  # after a seek, the frame it landed on
         if index:
             rep.first_pts_s = self._first_pts_s
