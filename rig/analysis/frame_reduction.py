@@ -19,9 +19,13 @@ Used by :mod:`rig.run.acquire` (cameras of the rig, reduced while recording) and
 
 from __future__ import annotations
 
+import math
+import warnings
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, TypeVar, cast
 
+import numba
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
@@ -37,6 +41,54 @@ TRACK_KEYS = ("polarity", "min_area_px", "max_area_px", "min_roundness", "min_co
               "max_skewness", "outline_check", "max_edge_rms_px")
 #: keyword options of :func:`detect_markers` only (whole-frame search); not passed to the tracker
 DETECT_ONLY_KEYS = ("threshold", "roi", "downsample", "require")
+
+
+_F = TypeVar("_F", bound=Callable[..., Any])
+
+
+def _jit(fn: _F) -> _F:
+    """numba.njit with the on-disk cache where writable (a frame's bookkeeping in one compiled call: each
+    numpy call costs tens of microseconds after a frame's decoding has emptied the caches)."""
+    try:
+        return cast(_F, numba.njit(cache=True, nogil=True)(fn))
+    except RuntimeError as exc:  # numba: "cannot cache function ...: no locator available"
+        warnings.warn(f"frame-reduction kernel not cached on disk ({exc}); compiling it in this process",
+                      RuntimeWarning, stacklevel=2)
+        return cast(_F, numba.njit(nogil=True)(fn))
+
+
+@_jit
+def _last_positions(hist: np.ndarray, depth: np.ndarray, quarter_window_px: float,
+                    max_uv_px: tuple[float, float], out: np.ndarray) -> int:
+    """``out`` ← each marker's last position ``hist[:, 2]`` clipped to [0, ``max_uv_px``] px (as ``np.clip``);
+    returns how many of them moved more than ``quarter_window_px`` in the last frame (a NaN step counts) with
+    two positions known or more: those need their motion model (:meth:`MarkerReducer._predicted`)."""
+    fast = 0
+    max_u_px, max_v_px = max_uv_px
+    for j in range(hist.shape[0]):
+        du, dv = hist[j, 2, 0] - hist[j, 1, 0], hist[j, 2, 1] - hist[j, 1, 1]
+        if depth[j] >= 2 and not math.sqrt(du * du + dv * dv) <= quarter_window_px:
+            fast += 1
+        u, v = hist[j, 2, 0], hist[j, 2, 1]
+        out[j, 0] = max_u_px if u > max_u_px else (0.0 if u <= 0.0 else u)  # NaN stays NaN
+        out[j, 1] = max_v_px if v > max_v_px else (0.0 if v <= 0.0 else v)
+    return fast
+
+
+@_jit
+def _follow(hist: np.ndarray, depth: np.ndarray, tracked: np.ndarray, lost_flag: int) -> bool:
+    """When no row of ``tracked`` (``MARKER_DTYPE``, one per marker, in order) has ``lost_flag``: each
+    marker's history moves on by one in place (``hist`` (n, 3, 2) px, ``depth`` ≤ 3 positions known) and
+    True; else False, nothing changed."""
+    for j in range(tracked.shape[0]):
+        if tracked[j].flags & lost_flag:
+            return False
+    for j in range(tracked.shape[0]):
+        hist[j, 0, 0], hist[j, 0, 1] = hist[j, 1, 0], hist[j, 1, 1]
+        hist[j, 1, 0], hist[j, 1, 1] = hist[j, 2, 0], hist[j, 2, 1]
+        hist[j, 2, 0], hist[j, 2, 1] = tracked[j].u_px, tracked[j].v_px
+        depth[j] = min(depth[j] + 1, 3)
+    return True
 
 
 def track_options(detect: dict[str, Any]) -> dict[str, Any]:
@@ -83,12 +135,12 @@ class MarkerReducer:
     def __init__(self, options: ReduceOptions, first_id: int = 0) -> None:
         self.options = options
         self._track_kw = track_options(options.detect)
-        self._uv = np.empty((0, 2))
         self._ids = np.empty(0, dtype=np.int64)
         self._next_id = int(first_id)
         self._since_detect = 0
-        # the last three positions of each marker row of ``_uv`` (oldest first, (n, 3, 2) px), of which the
-        # last ``_depth`` are known: arrays, not lists of rows (a frame's Python is microseconds per marker)
+        # the last three positions of each marker of the last frame (oldest first, (n, 3, 2) px; the last
+        # frame's positions are ``_hist[:, 2]``), of which the last ``_depth`` are known: arrays, not lists of
+        # rows (a frame's Python is microseconds per marker, tens after a frame's decoding)
         self._hist = np.zeros((0, 3, 2))
         self._depth = np.zeros(0, dtype=np.int64)
         self.whole_frame_searches = 0  # frames searched whole (the costly path), for diagnostics
@@ -102,16 +154,16 @@ class MarkerReducer:
         """Where each followed marker should be in this frame: its last position, or — when it moved more
         than a quarter window in the last frame (a rotor, ≈ 100 px per frame at 10 Hz) — the circle through
         its last three positions turned on by the same angle (constant velocity if they are collinear)."""
-        out = self._uv.copy()
-        if len(out):
-            h = self._hist
+        out = np.empty((len(self._hist), 2))
+        limits = (float(shape[1] - 1), float(shape[0] - 1))
+        if _last_positions(self._hist, self._depth, self.options.window_px / 4, limits, out):
+            h = self._hist  # markers that moved fast (a rotor): their motion model, in Python
             step = h[:, 2] - h[:, 1]
             moved = np.sqrt(step[:, 0] * step[:, 0] + step[:, 1] * step[:, 1])
-            # a NaN step counts as a fast one, as ``not norm <= limit`` did
             for j in np.flatnonzero((self._depth >= 2) & ~(moved <= self.options.window_px / 4)).tolist():
                 p = circle_prediction([0.0, 1.0, 2.0], list(h[j]), 3.0) if self._depth[j] == 3 else None
                 out[j] = p if p is not None else 2 * h[j, 2] - h[j, 1]
-        np.clip(out, 0, (shape[1] - 1, shape[0] - 1), out=out)
+            np.clip(out, 0, limits, out=out)
         return out
 
     def _associate(self, found: np.ndarray, predicted: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -143,31 +195,29 @@ class MarkerReducer:
     def reduce(self, image: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Marker rows of one 2-D uint8 frame (in stream order) and their ``track_2d`` numbers (int64)."""
         opts = self.options
-        found: np.ndarray | None = None
-        ids: np.ndarray | None = None
         predicted = self._predicted(image.shape)
-        links = np.arange(len(self._uv))
-        if opts.mode == "track" and len(self._uv) and self._since_detect < opts.redetect_every:
+        if opts.mode == "track" and len(predicted) and self._since_detect < opts.redetect_every:
             tracked = track_markers(image, predicted, window_px=opts.window_px, **self._track_kw)
-            if not np.any(tracked["flags"] & FLAG_LOST):
-                found, ids = tracked, self._ids
+            if _follow(self._hist, self._depth, tracked, FLAG_LOST):  # every marker followed
                 self._since_detect += 1
-        if found is None:
-            found = detect_markers(image, **opts.detect)
-            self.whole_frame_searches += 1
-            ids, links = self._associate(found, predicted)
-            self._since_detect = 1
-        assert ids is not None
-        uv = np.empty((len(found), 2))
-        uv[:, 0], uv[:, 1] = found["u_px"], found["v_px"]
-        hist = np.zeros((len(uv), 3, 2))
-        depth = np.ones(len(uv), dtype=np.int64)
-        kept = links >= 0  # rows continuing a marker of the last frame keep its two last positions
+                return tracked, self._ids
+        found = detect_markers(image, **opts.detect)
+        self.whole_frame_searches += 1
+        ids, links = self._associate(found, predicted)
+        self._since_detect = 1
+        self._restart(found, ids, links)
+        return found, ids
+
+    def _restart(self, found: np.ndarray, ids: np.ndarray, links: np.ndarray) -> None:
+        """After a whole-frame search: the history of the detections that continue a marker of the last frame
+        (``links`` ≥ 0: its row) goes on, the others start one."""
+        hist = np.zeros((len(found), 3, 2))
+        depth = np.ones(len(found), dtype=np.int64)
+        kept = links >= 0
         hist[kept, :2] = self._hist[links[kept], 1:]
         depth[kept] = np.minimum(self._depth[links[kept]] + 1, 3)
-        hist[:, 2] = uv
-        self._uv, self._ids, self._hist, self._depth = uv, ids, hist, depth
-        return found, ids
+        hist[:, 2, 0], hist[:, 2, 1] = found["u_px"], found["v_px"]
+        self._ids, self._hist, self._depth = ids, hist, depth
 
 
 def warm_up(options: ReduceOptions) -> None:
