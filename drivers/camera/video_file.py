@@ -254,11 +254,18 @@ def _motion_region(before: _Sampled, after: _Sampled, shape: tuple[int, int],
 _REGION_PAIRS = np.array([[0, 1], [2, 3], [1, 2], [0, 3]], np.int64)
 
 
-def _ratio_where_moved(change: NDArray[np.float32], motion: NDArray[np.float32]) -> float:
-    """Mean of ``change`` over the blocks where ``motion`` reaches half its largest value, relative to the
-    mean of ``motion`` there: ≈ 0 when the image did not change where the neighbour's markers moved."""
-    where = motion >= 0.5 * float(motion.max())
-    return float(change[where].mean() / max(float(motion[where].mean()), 1e-9))
+def _where_moved(motion: NDArray[np.float32], largest_dn: float) -> tuple[NDArray[np.bool_], float]:
+    """The blocks where ``motion`` reaches half its largest value ``largest_dn`` (DN) and its mean there
+    (DN, at least 1e-9): computed once per neighbour for the two ratios that use it."""
+    where = motion >= 0.5 * largest_dn
+    return where, max(float(motion[where].mean()), 1e-9)
+
+
+def _ratio_where_moved(change: NDArray[np.float32], moved: tuple[NDArray[np.bool_], float]) -> float:
+    """Mean of ``change`` over the blocks where a neighbour's markers moved (``moved``: :func:`_where_moved`)
+    relative to the neighbour's mean there: ≈ 0 when the image did not change where its markers moved."""
+    where, motion_mean_dn = moved
+    return float(change[where].mean() / motion_mean_dn)
 
 
 def _median(values: deque[float]) -> float:
@@ -357,12 +364,12 @@ class DuplicateJudge:
         ratio = float(change.max()) / min(before, after)
         if ratio > self.IDENTICAL_RATIO:
             return None
-        ratio = max(ratio, _ratio_where_moved(change, moved_before), _ratio_where_moved(change, moved_after))
+        moved_b, moved_a = _where_moved(moved_before, before), _where_moved(moved_after, after)
+        ratio = max(ratio, _ratio_where_moved(change, moved_b), _ratio_where_moved(change, moved_a))
         out["identity_ratio"] = ratio
         if ratio > self.IDENTICAL_RATIO:
             return None
-        across = min(_ratio_where_moved(across_map, moved_before),
-                     _ratio_where_moved(across_map, moved_after),
+        across = min(_ratio_where_moved(across_map, moved_b), _ratio_where_moved(across_map, moved_a),
                      float(across_map.max()) / max(before, after))
         out["change_across_dn"], out["across_ratio"] = float(across_map.max()), across
         if across < self.ACROSS_RATIO:
