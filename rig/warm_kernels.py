@@ -19,7 +19,7 @@ from rig.stereo import detect_markers
 
 def warm_all() -> float:
     """Load or compile every kernel (markers: detection and tracking, and the joining of row bands a
-    detection on several threads uses; video: the change map).
+    detection on several threads uses; video: the change map and a duplicate candidate's region kernels).
 
     Returns the CPU seconds spent."""
     start_s = time.process_time()
@@ -30,6 +30,11 @@ def warm_all() -> float:
     image = np.zeros((16, 16), np.uint8)
     change_kernel.half_change_stats(image, change_kernel.half_only(image))  # every block's change map
     change_kernel.sampled_stats(image, change_kernel.sampled_half(image))  # the duplicate test's per frame
+    # a duplicate candidate's region: where the markers moved, and its four change maps
+    zero_map = np.zeros((1, 1), np.float32)
+    rows, cols = change_kernel.motion_region(zero_map, zero_map, 0.0, 0.0, (2, 2))
+    pairs = np.array([[0, 1], [2, 3], [1, 2], [0, 3]], np.int64)
+    change_kernel.region_changes((image,) * 4, rows, cols, pairs)
     return time.process_time() - start_s
 
 
