@@ -16,6 +16,7 @@ from drivers.camera.change_kernel import (
     region_changes,
     sampled_half,
     sampled_stats,
+    sampled_words,
 )
 from drivers.camera.video_file import _tested
 
@@ -110,6 +111,13 @@ def test_the_extremes_a_non_contiguous_frame_and_a_cropped_size() -> None:
     np.testing.assert_array_equal(sampled_stats(view, sampled_half(black))[1], reference[::2, ::2])
     odd = np.random.default_rng(4).integers(0, 256, (36, 50), dtype=np.uint8)  # not multiples of 8
     np.testing.assert_array_equal(_tested(odd), odd[:32, :48])
+    # the reader's per-frame call (sampled_words) takes the tested image unchecked: a strided frame of a
+    # whole size must come out C-contiguous, equal, and give the kernel's numbers
+    tested = _tested(view)
+    assert tested.flags.c_contiguous
+    np.testing.assert_array_equal(tested, view)
+    prev_words = sampled_words(np.ascontiguousarray(black), None)[0]
+    np.testing.assert_array_equal(sampled_words(tested, prev_words)[1], reference[::2, ::2])
 
 
 def test_a_wrong_previous_image_or_size_is_refused() -> None:

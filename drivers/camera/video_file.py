@@ -198,9 +198,9 @@ class _Sampled:
 
 def _tested(image: NDArray[np.uint8]) -> NDArray[np.uint8]:
     """The image cropped to sides multiples of 8 (the last < 8 rows and columns are not tested; every
-    common video size is whole)."""
+    common video size is whole), C-contiguous: the change kernel reads its rows as 64-bit words."""
     h, w = image.shape
-    if h % 8 == 0 and w % 8 == 0:
+    if h % 8 == 0 and w % 8 == 0 and image.flags.c_contiguous:
         return image
     return np.ascontiguousarray(image[:h - h % 8, :w - w % 8])
 
