@@ -23,7 +23,7 @@ def test_a_function_without_a_cache_location_is_compiled_in_the_process() -> Non
     namespace: dict[str, object] = {}
     exec("def twice(x):\n    return 2 * x\n", namespace)
     with pytest.warns(RuntimeWarning, match="not cached on disk"):
-        twice = markers_kernel._jit(namespace["twice"])
+        twice = markers_kernel.jit_kernel(namespace["twice"])
     assert twice(21) == 42
     assert twice(np.float32(1.5)) == 3.0
 

@@ -20,17 +20,15 @@ Used by :mod:`rig.run.acquire` (cameras of the rig, reduced while recording) and
 from __future__ import annotations
 
 import math
-import warnings
-from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any, TypeVar, cast
+from typing import Any
 
-import numba
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
 from rig.analysis.tracks2d import circle_prediction
 from rig.stereo import FLAG_LOST, detect_markers, track_markers
+from rig.stereo.markers_kernel import jit_kernel
 
 __all__ = ["DETECT_ONLY_KEYS", "TRACK_KEYS", "MarkerReducer", "ReduceOptions", "track_options", "warm_up"]
 
@@ -43,21 +41,7 @@ TRACK_KEYS = ("polarity", "min_area_px", "max_area_px", "min_roundness", "min_co
 DETECT_ONLY_KEYS = ("threshold", "roi", "downsample", "require")
 
 
-_F = TypeVar("_F", bound=Callable[..., Any])
-
-
-def _jit(fn: _F) -> _F:
-    """numba.njit with the on-disk cache where writable (a frame's bookkeeping in one compiled call: each
-    numpy call costs tens of microseconds after a frame's decoding has emptied the caches)."""
-    try:
-        return cast(_F, numba.njit(cache=True, nogil=True)(fn))
-    except RuntimeError as exc:  # numba: "cannot cache function ...: no locator available"
-        warnings.warn(f"frame-reduction kernel not cached on disk ({exc}); compiling it in this process",
-                      RuntimeWarning, stacklevel=2)
-        return cast(_F, numba.njit(nogil=True)(fn))
-
-
-@_jit
+@jit_kernel  # one compiled call per frame: each numpy call costs tens of µs after a frame's decoding
 def _last_positions(hist: np.ndarray, depth: np.ndarray, quarter_window_px: float,
                     max_uv_px: tuple[float, float], out: np.ndarray) -> int:
     """``out`` ← each marker's last position ``hist[:, 2]`` clipped to [0, ``max_uv_px``] px (as ``np.clip``);
@@ -75,7 +59,7 @@ def _last_positions(hist: np.ndarray, depth: np.ndarray, quarter_window_px: floa
     return fast
 
 
-@_jit
+@jit_kernel
 def _follow(hist: np.ndarray, depth: np.ndarray, tracked: np.ndarray, lost_flag: int) -> bool:
     """When no row of ``tracked`` (``MARKER_DTYPE``, one per marker, in order) has ``lost_flag``: each
     marker's history moves on by one in place (``hist`` (n, 3, 2) px, ``depth`` ≤ 3 positions known) and

@@ -60,23 +60,23 @@ FLAG_ROW_BORDER, FLAG_ROW_SATURATED, FLAG_ROW_CRAMPED = range(3)
 LOST_FLAG = np.uint8(8)  # markers.FLAG_LOST (the kernel does not import rig.stereo.markers)
 
 
-def _jit(fn: _F, inline: Literal["never", "always"] = "never") -> _F:
+def jit_kernel(fn: _F, inline: Literal["never", "always"] = "never") -> _F:
     """numba.njit with the on-disk cache when a cache location is writable, else without (a warning)."""
     # error_model="numpy": x/0 gives inf/NaN as in numpy, no exception
     try:
         return cast(_F, numba.njit(cache=True, nogil=True, error_model="numpy", inline=inline)(fn))
     except RuntimeError as exc:  # numba: "cannot cache function ...: no locator available"
-        warnings.warn(f"marker kernel not cached on disk ({exc}); compiling it in this process",
+        warnings.warn(f"numba kernel not cached on disk ({exc}); compiling it in this process",
                       RuntimeWarning, stacklevel=2)
         return cast(_F, numba.njit(nogil=True, error_model="numpy", inline=inline)(fn))
 
 
 def _stage(fn: _F) -> _F:
     """A named stage of a kernel, compiled into its caller (numba ``inline="always"``: no call cost)."""
-    return _jit(fn, inline="always")
+    return jit_kernel(fn, inline="always")
 
 
-@_jit
+@jit_kernel
 def _weighted_plane(vals: np.ndarray, xs: np.ndarray, ys: np.ndarray, keep: np.ndarray,
                     ) -> tuple[float, float, float, float]:
     """Plane a + b·x + c·y fitted by least squares to the ``keep`` ring values; (a, b, c, σ) float64.
@@ -122,7 +122,7 @@ def _weighted_plane(vals: np.ndarray, xs: np.ndarray, ys: np.ndarray, keep: np.n
     return a, b, c, sigma
 
 
-@_jit
+@jit_kernel
 def _hist_levels(hist: np.ndarray, n: int) -> tuple[float, float, float, float, float]:
     """'lower' percentiles p0, p16, p50, p84, p100 (DN) of ``n`` uint8 values from their histogram."""
     ranks = (0, int(0.16 * (n - 1)), int(0.5 * (n - 1)), int(0.84 * (n - 1)), n - 1)
@@ -147,7 +147,7 @@ def _hist_levels(hist: np.ndarray, n: int) -> tuple[float, float, float, float, 
     return lo, p16, p50, p84, hi
 
 
-@_jit
+@jit_kernel
 def _plain_fit(  # noqa: PLR0917 (numba: no keyword-only arguments)
         i0: int, ix: int, iy: int, i2: int, ixx: int, iyy: int,
         n_ring: int) -> tuple[float, float, float, float]:
@@ -205,7 +205,7 @@ def _ring_inside(win: np.ndarray, flip: int, hist: np.ndarray) -> tuple[float, f
     return a, b, c, sigma, True
 
 
-@_jit
+@jit_kernel
 def _ring_plane(  # noqa: PLR0917 (numba: no keyword-only arguments)
         vals: np.ndarray, ok: np.ndarray, all_ok: bool, xs: np.ndarray, ys: np.ndarray,
                 keep: np.ndarray, hist: np.ndarray) -> tuple[float, float, float, float]:
@@ -250,7 +250,7 @@ def _ring_plane(  # noqa: PLR0917 (numba: no keyword-only arguments)
     return _weighted_plane(vals, xs, ys, keep)
 
 
-@_jit
+@jit_kernel
 def ring_offsets(half_px: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Ring pixels of a window of half size ``half_px``, in row-major order: (row, column) indices in the
     window (int64) and their offsets (x, y) from the centre pixel (float64)."""
@@ -267,7 +267,7 @@ def ring_offsets(half_px: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.n
     return ri, ci, xs, ys
 
 
-@_jit
+@jit_kernel
 def ring_fit(flat: np.ndarray, valid: np.ndarray, half_px: int, coef: np.ndarray, sigma: np.ndarray) -> None:
     """Background plane of each window (K, W²) uint8 into ``coef`` (K, 3) and ``sigma`` (K,) float32.
 
@@ -306,7 +306,7 @@ def ring_background(flat: np.ndarray, valid: np.ndarray | None,
     return coef, sigma
 
 
-@_jit
+@jit_kernel
 def _gather(  # noqa: PLR0917 (numba: no keyword-only arguments)
         image: np.ndarray, row: int, col: int, half_px: int, dark: bool, raw: np.ndarray,
         valid: np.ndarray) -> bool:
@@ -339,7 +339,7 @@ def _gather(  # noqa: PLR0917 (numba: no keyword-only arguments)
     return False
 
 
-@_jit
+@jit_kernel
 def _ring_values(  # noqa: PLR0917 (numba: no keyword-only arguments)
         raw: np.ndarray, valid: np.ndarray, inside: bool, ri: np.ndarray, ci: np.ndarray, vals: np.ndarray,
         ok: np.ndarray) -> None:
@@ -495,7 +495,7 @@ def _add_row_moments(  # noqa: PLR0917 (numba: no keyword-only arguments)
             ms[6] + s3, ms[7] + y * s2, ms[8] + y * y * s1, ms[9] + y * y * y * s0)
 
 
-@_jit
+@jit_kernel
 def _support(  # noqa: PLR0917 (numba: no keyword-only arguments)
         d: np.ndarray, half_px: int, free: np.ndarray, clipped: np.ndarray, pixels: np.ndarray,
         stack: np.ndarray, m: np.ndarray) -> tuple[int, float, bool, bool]:
@@ -746,7 +746,7 @@ def _plateau(d: np.ndarray, pixels: np.ndarray, peak: float) -> float:
     return total / count if count else 0.0
 
 
-@_jit
+@jit_kernel
 def _touch(image: np.ndarray, rows: np.ndarray, cols: np.ndarray, half_px: int, sink: np.ndarray) -> None:
     """Read the first and last pixel of every row of every window before measuring any: independent
     loads, so the memory system fetches the windows' cache lines in parallel (a window read row by row
@@ -761,7 +761,7 @@ def _touch(image: np.ndarray, rows: np.ndarray, cols: np.ndarray, half_px: int, 
     sink[0] = total
 
 
-@_jit
+@jit_kernel
 def scratch(half_px: int) -> tuple[np.ndarray, ...]:
     """Work arrays of :func:`measure_one` for windows of half size ``half_px`` (reused from window to
     window)."""
@@ -776,7 +776,7 @@ def scratch(half_px: int) -> tuple[np.ndarray, ...]:
             np.empty(w, np.uint64), np.empty(w, np.uint64), ri, ci, np.empty(256, np.int64))
 
 
-@_jit
+@jit_kernel
 def measure_one(  # noqa: PLR0917 (numba: no keyword-only arguments)
         image: np.ndarray, row: int, col: int, half_px: int, dark: bool, scr: tuple[np.ndarray, ...],
         out: np.ndarray, flags: np.ndarray, n: int, signal: np.ndarray) -> None:
@@ -832,7 +832,7 @@ def measure_one(  # noqa: PLR0917 (numba: no keyword-only arguments)
             signal[n, q // pw - 1, q % pw - 1] = d[q] + floor
 
 
-@_jit
+@jit_kernel
 def measure_range(  # noqa: PLR0917 (numba: no keyword-only arguments)
         image: np.ndarray, rows: np.ndarray, cols: np.ndarray, lo: int, hi: int, half_px: int,
         dark: bool, out: np.ndarray, flags: np.ndarray, signal: np.ndarray) -> None:
@@ -850,7 +850,7 @@ def measure_range(  # noqa: PLR0917 (numba: no keyword-only arguments)
         measure_one(image, rows[n], cols[n], half_px, dark, scr, out, flags, n, signal)
 
 
-@_jit
+@jit_kernel
 def _finish_row(out: np.ndarray, flags: np.ndarray, n: int, limits: np.ndarray, row: Any) -> bool:
     """Output row ``row`` (markers.MARKER_DTYPE) from column ``n`` of ``out`` and ``flags``; whether it
     passes the filters. ``limits`` as in :func:`finish_rows`."""
@@ -863,7 +863,7 @@ def _finish_row(out: np.ndarray, flags: np.ndarray, n: int, limits: np.ndarray, 
                 and row.roundness >= limits[4] and row.contrast >= limits[5])
 
 
-@_jit
+@jit_kernel
 def _measure_retrying(  # noqa: PLR0917 (numba: no keyword-only arguments)
         image: np.ndarray, row: int, col: int, half_px: int, dark: bool, scr: tuple[np.ndarray, ...],
         ladder: np.ndarray, retries: int, out: np.ndarray, flags: np.ndarray, no_signal: np.ndarray) -> None:
@@ -878,7 +878,7 @@ def _measure_retrying(  # noqa: PLR0917 (numba: no keyword-only arguments)
         tries += 1
 
 
-@_jit
+@jit_kernel
 def measure_rows(  # noqa: PLR0917 (numba: no keyword-only arguments)
         image: np.ndarray, rows: np.ndarray, cols: np.ndarray, halves: np.ndarray, dark: bool,
         limits: np.ndarray, ladder: np.ndarray, retries: int, rec: np.ndarray, passed: np.ndarray) -> None:
@@ -900,7 +900,7 @@ def measure_rows(  # noqa: PLR0917 (numba: no keyword-only arguments)
         passed[k] = _finish_row(out, flags, 0, limits, rec[k])
 
 
-@_jit
+@jit_kernel
 def track_frame(  # noqa: PLR0917 (numba: no keyword-only arguments)
         image: np.ndarray, pred: np.ndarray, half_px: int, dark: bool, limits: np.ndarray,
         ladder: np.ndarray, retries: int, rec: np.ndarray) -> None:
@@ -938,7 +938,7 @@ def track_frame(  # noqa: PLR0917 (numba: no keyword-only arguments)
             row.flags |= LOST_FLAG
 
 
-@_jit
+@jit_kernel
 def finish_rows(  # noqa: PLR0917 (numba: no keyword-only arguments)
         uv: tuple[np.ndarray, np.ndarray], shape: tuple[np.ndarray, np.ndarray, np.ndarray],
         skew: tuple[np.ndarray, np.ndarray], bits: tuple[np.ndarray, np.ndarray], limits: np.ndarray,

@@ -27,7 +27,7 @@ import sys
 
 import numpy as np
 
-from rig.stereo.markers_kernel import _jit, _stage
+from rig.stereo.markers_kernel import _stage, jit_kernel
 
 _LITTLE_ENDIAN = sys.byteorder == "little"  # the 32-bit-word subsample reads byte 2 of a word
 
@@ -38,7 +38,7 @@ def reduced_shape(shape: tuple[int, ...], factor: int) -> tuple[int, int]:
     return (shape[0] - start + factor - 1) // factor, (shape[1] - start + factor - 1) // factor
 
 
-@_jit
+@jit_kernel
 def subsample_sigma(gray: np.ndarray, factor: int) -> float:
     """Noise σ (DN) of ``gray[s::factor, s::factor]`` (s = factor // 2), read from ``gray`` itself:
     1.4826 · median |horizontal difference| / √2 over every 32nd reduced row, at least 0.5 (as
@@ -89,7 +89,7 @@ def _find(parent: np.ndarray, k: int) -> int:
     return k
 
 
-@_jit
+@jit_kernel
 def _grown(a: np.ndarray, size: int) -> np.ndarray:
     """``a`` (1-D int64) copied into the start of a new array of ``size``."""
     out = np.empty(size, np.int64)
@@ -216,7 +216,7 @@ def _foreground(  # noqa: PLR0917 (numba: no keyword-only arguments)
     return count
 
 
-@_jit
+@jit_kernel
 def band_runs(  # noqa: PLR0917 (numba: no keyword-only arguments)
         gray: np.ndarray, factor: int, dark: bool, y0: int, y1: int, block: int,
         offset: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -267,7 +267,7 @@ def band_runs(  # noqa: PLR0917 (numba: no keyword-only arguments)
     return run_y[:n_runs], run_a[:n_runs], run_b[:n_runs], parent[:n_runs]
 
 
-@_jit
+@jit_kernel
 def _joined(runs: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray],
             below: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray],
             edge_y: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -290,7 +290,7 @@ def _joined(runs: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray],
     return run_y, run_a, run_b, parent
 
 
-@_jit
+@jit_kernel
 def _boxes(runs: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]) -> np.ndarray:
     """Bounding boxes (B, 4) int64 (x0, y0, width, height) of the blobs of ``runs`` (row-major order;
     :func:`band_runs`), in the order of each blob's first run."""
