@@ -212,59 +212,98 @@ def bandlimited(
     ``bridge_filter`` — taps the signal passes as ≈ 0, a prediction-error filter of the track
     (:func:`bridging_filter`) — allows, the filter's output energy being penalised wherever its support
     covers a bridged slot (:func:`_filter_penalty`); the noise gain includes them exactly. Longer gaps take
-    the cubic prior.
+    the cubic prior. :class:`Bandlimited` solves once for several sets of destinations.
     """
-    t0, period, m = _grid(t_src)
-    n_grid = int(m[-1]) + 1
-    # Remove a straight line first: the kernel's pass-band ripple would otherwise act on large offsets
-    # (pixel coordinates ~1000 px) and the truncated sum would ring at the record ends.
-    A = np.column_stack([np.ones_like(t_src), t_src - t_src[0]])
-    trend, *_ = np.linalg.lstsq(A, values, rcond=None)
-    detrended = values - A @ trend
-    tau_src = (t_src - t0) / period
-    tau_dst = (t_dst - t0) / period
-    K = _kernel_matrix(tau_dst, n_grid, half_width_samples, beta)
-    B = np.column_stack([np.ones_like(t_dst), t_dst - t_src[0]])
-    out: FloatArray
-    gain: FloatArray | None = None
-    if np.allclose(tau_src, m, atol=1e-9, rtol=0) and n_grid == t_src.size:
-        out = np.asarray(K @ detrended) + B @ trend
-        if noise_gain:
-            gain = np.asarray(K.multiply(K).sum(axis=1)).ravel()
-    else:
-        S = _kernel_matrix(tau_src, n_grid, half_width_samples, beta)
+    fit = Bandlimited(t_src, values, half_width_samples=half_width_samples, beta=beta,
+                      bridge_max_samples=bridge_max_samples, bridge_filter=bridge_filter)
+    K = fit.kernel(t_dst)
+    out = fit.values_at(K, t_dst)
+    return (out, fit.noise_gain(K)) if noise_gain else out
+
+
+def _lower_bands(N: sparse.csr_matrix, n_bands: int) -> FloatArray:
+    """The lower banded form of the symmetric matrix ``N`` (``n_bands`` diagonals, the main one first), as
+    :func:`scipy.linalg.solveh_banded` takes it: row d holds N[i + d, i] at column i."""
+    coo = N.tocoo()
+    d = coo.row - coo.col
+    keep = (d >= 0) & (d < n_bands)
+    bands = np.zeros((n_bands, N.shape[0]))
+    bands[d[keep], coo.col[keep]] = coo.data[keep]
+    return bands
+
+
+class Bandlimited:
+    """The band-limited reconstruction of ``values`` (N, k) sampled at ``t_src`` (s), solved once: evaluate
+    it at any instants (:meth:`kernel`, then :meth:`values_at` and :meth:`noise_gain`). Options and
+    raises as :func:`bandlimited`."""
+
+    def __init__(self, t_src: FloatArray, values: FloatArray, *, half_width_samples: int = 32,
+                 beta: float = 5.65, bridge_max_samples: int = 0,
+                 bridge_filter: FloatArray | None = None) -> None:
+        self.t0, self.period, m = _grid(t_src)
+        self.n_grid = int(m[-1]) + 1
+        self.half, self.beta, self.t_first = half_width_samples, beta, float(t_src[0])
+        # Remove a straight line first: the kernel's pass-band ripple would otherwise act on large offsets
+        # (pixel coordinates ~1000 px) and the truncated sum would ring at the record ends.
+        A = np.column_stack([np.ones_like(t_src), t_src - t_src[0]])
+        self.trend, *_ = np.linalg.lstsq(A, values, rcond=None)
+        detrended = values - A @ self.trend
+        tau_src = (t_src - self.t0) / self.period
+        self.bands: FloatArray | None = None  # the normal matrix's lower bands; None: a regular grid
+        self.R: sparse.csr_matrix | None = None
+        if np.allclose(tau_src, m, atol=1e-9, rtol=0) and self.n_grid == t_src.size:
+            self.grid_values: FloatArray = detrended
+        else:
+            self._solve(t_src, m, detrended, bridge_max_samples=bridge_max_samples,
+                        bridge_filter=bridge_filter)
+
+    def _solve(self, t_src: FloatArray, m: IntArray, detrended: FloatArray, *, bridge_max_samples: int,
+               bridge_filter: FloatArray | None) -> None:
+        """The grid values whose reconstruction passes through the observations (sparse least squares)."""
+        S = _kernel_matrix((t_src - self.t0) / self.period, self.n_grid, self.half, self.beta)
         rhs = np.asarray(S.T @ detrended)
         lam = 1e-8
-        weights = np.full(n_grid, lam)
+        weights = np.full(self.n_grid, lam)
         short, long_ = _missing_slots(m, bridge_max_samples)
         if long_.size:
             # A slot of a long gap is (nearly) undetermined: pull its value towards a cubic spline through the
             # samples instead of towards zero; the other slots keep the data alone.
             weights[long_] = 1.0
-            prior = CubicSpline(t_src, detrended, axis=0)(t0 + long_ * period)
+            prior = CubicSpline(t_src, detrended, axis=0)(self.t0 + long_ * self.period)
             rhs[long_] += prior.reshape(rhs[long_].shape)
         R = sparse.diags(weights).tocsr()
         if short.size:
             if bridge_filter is None:
                 raise InputArrayError("bridge_max_samples > 0 needs a bridge_filter")
             taps = np.asarray(bridge_filter, dtype=float)
-            if taps.size > 2 * half_width_samples + 1:
-                raise InputArrayError(f"bridge_filter has {taps.size} taps; "
-                                      f"at most {2 * half_width_samples + 1}")
-            R = (R + _filter_penalty(taps, short, long_, n_grid)).tocsr()
-        N = (S.T @ S + R).tocsr()
-        bands = np.zeros((2 * half_width_samples + 1, n_grid))  # lower banded form of the SPD matrix N
-        for d in range(bands.shape[0]):
-            diag = N.diagonal(-d)
-            bands[d, : diag.size] = diag
-        grid_vals = linalg.solveh_banded(bands, rhs, lower=True)
-        out = np.asarray(K @ grid_vals) + B @ trend
-        if noise_gain:
-            # M = K N⁻¹ Sᵀ and SᵀS = N − R, so diag(M Mᵀ) = diag(K Z) − diag(Zᵀ R Z), Z = N⁻¹ Kᵀ (exact for
-            # bridged gaps; the cubic prior of a long gap's slots is left out: approximate next to one).
-            Z = linalg.solveh_banded(bands, K.T.toarray(), lower=True)
-            gain = np.asarray(K.multiply(Z.T).sum(axis=1)).ravel() - np.sum(Z * np.asarray(R @ Z), axis=0)
-    return (out, gain) if gain is not None else out
+            if taps.size > 2 * self.half + 1:
+                raise InputArrayError(f"bridge_filter has {taps.size} taps; at most {2 * self.half + 1}")
+            R = (R + _filter_penalty(taps, short, long_, self.n_grid)).tocsr()
+        self.R = R
+        self.bands = _lower_bands((S.T @ S + R).tocsr(), 2 * self.half + 1)
+        self.grid_values = linalg.solveh_banded(self.bands, rhs, lower=True)
+
+    def kernel(self, t_dst: FloatArray) -> sparse.csr_matrix:
+        """The reconstruction kernel at the instants ``t_dst`` (s): one row each, one column a grid slot."""
+        return _kernel_matrix((t_dst - self.t0) / self.period, self.n_grid, self.half, self.beta)
+
+    def values_at(self, K: sparse.csr_matrix, t_dst: FloatArray) -> FloatArray:
+        """The reconstruction at ``t_dst`` (s), ``K`` its :meth:`kernel`."""
+        B = np.column_stack([np.ones_like(t_dst), t_dst - self.t_first])
+        out: FloatArray = np.asarray(K @ self.grid_values) + B @ self.trend
+        return out
+
+    def noise_gain(self, K: sparse.csr_matrix) -> FloatArray:
+        """Per row of the kernel ``K``: the output's variance for white source noise of unit variance
+        (:func:`bandlimited`'s ``noise_gain``)."""
+        if self.bands is None or self.R is None:
+            return np.asarray(K.multiply(K).sum(axis=1)).ravel()
+        # M = K N⁻¹ Sᵀ and SᵀS = N − R, so diag(M Mᵀ) = diag(K Z) − diag(Zᵀ R Z), Z = N⁻¹ Kᵀ (exact for
+        # bridged gaps; the cubic prior of a long gap's slots is left out: approximate next to one).
+        Z = linalg.solveh_banded(self.bands, K.T.toarray(), lower=True)
+        through_data = np.asarray(K.multiply(Z.T).sum(axis=1)).ravel()
+        gain: FloatArray = through_data - np.sum(Z * np.asarray(self.R @ Z), axis=0)
+        return gain
 
 
 def resample(

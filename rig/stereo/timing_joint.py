@@ -70,7 +70,7 @@ from rig.stereo.errors import (
     TooFewSamplesError,
 )
 from rig.stereo.normalize import Camera
-from rig.stereo.resample import bandlimited, bridging_filter
+from rig.stereo.resample import Bandlimited, bandlimited, bridging_filter
 from rig.stereo.timing_model import TimingResult
 
 MIN_OBSERVATIONS = 30
@@ -291,9 +291,12 @@ class _Residuals:
             # Weight by the interpolated noise's own variance: it depends on the parameters (the line time
             # changes how irregular B's instants are), and unweighted it would bias them by O(σ²).
             h = 1e-4  # s, for B's image velocity at A's instants
-            both = bandlimited(t_src, ub, np.concatenate([t_dst, t_dst + h]), **bridge)
-            uv_b_at, gain = bandlimited(t_src, ub, t_dst, noise_gain=True, **bridge)
-            vel_b = (both[t_dst.size :] - both[: t_dst.size]) / h
+            fit = Bandlimited(t_src, ub, **bridge)  # solved once for the values, the velocity and the gain
+            both_s = np.concatenate([t_dst, t_dst + h])
+            K = fit.kernel(both_s)
+            both = fit.values_at(K, both_s)
+            uv_b_at, gain = both[: t_dst.size], fit.noise_gain(K[: t_dst.size])
+            vel_b = (both[t_dst.size :] - uv_b_at) / h
             r = sampson_px(self.F, ua, uv_b_at, gain_b=gain, shift_a=la * vel_b, shift_b=lb * vel_b)
             out.append(r)
         return np.concatenate(out)
