@@ -70,8 +70,9 @@ def _kernel_matrix(tau_periods: FloatArray, n_cols: int, half: int, beta: float)
     j = base[:, None] + offsets[None, :]
     vals = kaiser_sinc(tau_periods[:, None] - j, float(half), beta)
     ok = (j >= 0) & (j < n_cols) & (vals != 0.0)
-    rows = np.broadcast_to(np.arange(tau_periods.size)[:, None], j.shape)
-    return sparse.csr_matrix((vals[ok], (rows[ok], j[ok])), shape=(tau_periods.size, n_cols))
+    # row by row, columns ascending: already the canonical CSR arrays (no COO sort)
+    indptr = np.concatenate([[0], np.cumsum(np.count_nonzero(ok, axis=1))])
+    return sparse.csr_matrix((vals[ok], j[ok], indptr), shape=(tau_periods.size, n_cols))
 
 
 def _missing_slots(m: IntArray, bridge_max_samples: int) -> tuple[IntArray, IntArray]:
