@@ -12,13 +12,15 @@ import pandas as pd
 import pytest
 from batch_archive import write_long_pair
 
-from rig.deploy.batch import plan, run_batch, windows
+from rig.deploy.batch import plan, run_batch, timing_continuity, windows
 from rig.deploy.batch_manifest import ManifestError, load_manifest
 from rig.deploy.measure import MeasureOptions, MeasureResult, measure_videos
 
-SECONDS = 6.0
-WINDOW_S = 2.0
-OVERLAP_S = 0.75
+# three windows (the first, a middle one overlapped at both ends, the last with the tail) of ≥ 1 s (the
+# manifest's least); the overlap longer than the band-limited kernel's half-width (32 frames, 0.53 s)
+SECONDS = 4.5
+WINDOW_S = 1.5
+OVERLAP_S = 0.6
 
 
 def _manifest(folder: Path, window_s: float = WINDOW_S, overlap_s: float = OVERLAP_S) -> Path:
@@ -51,6 +53,20 @@ def test_windows_cover_a_recording_once() -> None:
     assert windows(100.0, 0.0) == [(0.0, math.inf)]
 
 
+def test_continuity_reads_window_starts_at_fractions_of_a_second() -> None:
+    # windows of 1.5 s start at 12:00:00, 12:00:01.5, 12:00:03 (isoformat drops a zero fraction): every
+    # start is read, the steps are 1.5 s, and a drift of 50 ppm over them is no jump
+    timing = {"u_offset_s": 1e-5, "drift_ppm": 50.0, "u_drift_ppm": 1.0, "line_time_s": 0.0}
+    outcomes = [{"site": "s", "pair": "p", "task_id": f"w{k}",
+                 "start_utc": (pd.Timestamp("2026-12-01T12:00:00+00:00")
+                               + pd.Timedelta(seconds=1.5 * k)).isoformat(),
+                 "timing": {**timing, "offset_s": 0.004 + 50e-6 * 1.5 * k}} for k in range(3)]
+    assert outcomes[1]["start_utc"] == "2026-12-01T12:00:01.500000+00:00"
+    table = timing_continuity(outcomes)
+    assert table["task_id"].tolist() == ["w0", "w1", "w2"] and not table["jump"].any()
+    assert table["residual_s"].iloc[1:].to_numpy() == pytest.approx(0.0, abs=1e-12)
+
+
 @pytest.mark.parametrize(("fields", "field"), [("window_s = 0.5", "window_s"),
                                               ("window_s = 10.0\noverlap_s = 5.0", "overlap_s"),
                                               ("window_s = -1.0", "window_s")])
@@ -77,7 +93,7 @@ def test_windows_give_the_whole_file_measurement(long_pair: Path, whole: Measure
                                                  tmp_path: Path) -> None:
     manifest = load_manifest(_manifest(long_pair))
     tasks, _ = plan(manifest)
-    assert [t.core_s for t in tasks] == [(0.0, 2.0), (2.0, 4.0), (4.0, math.inf)]
+    assert [t.core_s for t in tasks] == [(0.0, 1.5), (1.5, 3.0), (3.0, math.inf)]
     # one LocalCluster worker: the windows' results do not depend on where they ran, and under xdist the
     # second worker only adds a process importing the stack (test_batch.py's local_batch runs two)
     report = run_batch(manifest, tmp_path / "out", n_workers=1, say=lambda text: None)
@@ -110,8 +126,8 @@ def test_windows_give_the_whole_file_measurement(long_pair: Path, whole: Measure
         row = whole.summary[whole.summary["track_id"] == tid].iloc[0]
         for task in tasks:
             mine = _nearest_track(summary[summary["task_id"] == task.task_id], rest).iloc[0]
-            # each window's sine fit (2 s) against the whole file's (6 s): within the deployment targets
-            # the segment tests hold (1 % amplitude, 1e-3 frequency; the twin's noise gives ≈ 0.5 % on 2 s)
+            # each window's sine fit (1.5 s) against the whole file's (4.5 s): within the deployment targets
+            # the segment tests hold (1 % amplitude, 1e-3 frequency; here at most ≈ 0.5 % and 4.5e-4)
             assert mine["amplitude_mm"] == pytest.approx(row["amplitude_mm"], rel=0.01), (tid, task.core_s)
             assert mine["frequency_hz"] == pytest.approx(row["frequency_hz"], rel=1e-3), (tid, task.core_s)
     continuity = pd.read_csv(tmp_path / "out" / "continuity.csv")

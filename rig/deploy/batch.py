@@ -445,7 +445,8 @@ def timing_continuity(outcomes: Iterable[dict[str, Any]], frame_period_s: float 
         weights = 1.0 / u_drift[ok] ** 2
         drift_ppm = float(np.sum(weights * drift[ok]) / weights.sum()) if ok.any() else 0.0
         u_drift_ppm = float(1.0 / np.sqrt(weights.sum())) if ok.any() else np.nan
-        starts = pd.to_datetime(g["start_utc"]).to_numpy()
+        # ISO 8601 as written: whole seconds for segments, fractions for windows of a fractional window_s
+        starts = pd.to_datetime(g["start_utc"], format="ISO8601").to_numpy()
         phase = np.mod(g["offset_s"].to_numpy(float), frame_period_s)
         u = g["u_offset_s"].to_numpy(float)
         for k in range(len(g)):
