@@ -10,6 +10,8 @@ reference camera's clock-rate error.
 from __future__ import annotations
 
 import json
+import shutil
+from collections.abc import Callable
 from pathlib import Path
 
 import measure_twin as mt
@@ -26,12 +28,30 @@ from rig.deploy.measure import MeasureError, MeasureOptions, measure_videos
 from rig.deploy.series import SeriesError, reference_tracks
 from rig.record.writer import RunRecord
 
+PairOf = Callable[[str, str], tuple[Path, Path]]  # (fourcc, extension) → (left, right) videos
 WINDOW = (0.6, 2.4)  # s on the left video's clock: the exciter runs from 0.4 s
 
 
 @pytest.fixture(scope="module")
 def site(calibrated_site: dict) -> dict:
     return calibrated_site  # built once per session (tests/conftest.py)
+
+
+@pytest.fixture(scope="module")
+def measurement_pair(tmp_path_factory: pytest.TempPathFactory) -> PairOf:
+    """``mt.write_pair`` of ``mt.measurement_world()``'s default intervals, rendered once per codec for the
+    module's tests (the twin renders the same frames for the same world: each test's own world and cameras
+    give the truth). Read-only: a test that alters a video copies it first."""
+    rendered: dict[tuple[str, str], tuple[Path, Path]] = {}
+
+    def pair(fourcc: str, ext: str) -> tuple[Path, Path]:
+        if (fourcc, ext) not in rendered:
+            left, right = mt.camera_pair(mt.measurement_world())
+            rendered[fourcc, ext] = mt.write_pair(left, right, tmp_path_factory.mktemp(fourcc), fourcc=fourcc,
+                                                  ext=ext)
+        return rendered[fourcc, ext]
+
+    return pair
 
 
 def _exciter_record(folder: Path) -> Path:
@@ -62,10 +82,11 @@ def _check_targets(summary: pd.DataFrame, clock_ppm: float, scale_floor: float) 
 
 @pytest.mark.parametrize(("fourcc", "ext"),
                          [("mp4v", "mp4"), pytest.param("MJPG", "avi", marks=pytest.mark.slow)])
-def test_calibrate_then_measure_matches_the_twin(site: dict, tmp_path: Path, fourcc: str, ext: str) -> None:
+def test_calibrate_then_measure_matches_the_twin(site: dict, tmp_path: Path, fourcc: str, ext: str,
+                                                 measurement_pair: PairOf) -> None:
     world = mt.measurement_world()
     left, right = mt.camera_pair(world)
-    paths = mt.write_pair(left, right, tmp_path, fourcc=fourcc, ext=ext)
+    paths = measurement_pair(fourcc, ext)
     timing = tmp_path / "timing.json"
     timing.write_text(json.dumps(mt.truth_timing(left, right, 0.0, 0.15)))
     out = tmp_path / "out"
@@ -99,10 +120,10 @@ def test_calibrate_then_measure_matches_the_twin(site: dict, tmp_path: Path, fou
 
 
 @pytest.mark.slow
-def test_estimated_timing_finds_the_offset_and_the_result(site: dict, tmp_path: Path) -> None:
-    world = mt.measurement_world()
-    left, right = mt.camera_pair(world)
-    paths = mt.write_pair(left, right, tmp_path)
+def test_estimated_timing_finds_the_offset_and_the_result(
+        site: dict, tmp_path: Path, measurement_pair: PairOf) -> None:
+    left, right = mt.camera_pair(mt.measurement_world())
+    paths = measurement_pair("mp4v", "mp4")
     res = measure_videos({"left": paths[0], "right": paths[1]}, site["calibration"], tmp_path / "out",
                          options=MeasureOptions(window_s=WINDOW))
     truth = mt.truth_timing(left, right, 0.0, 0.15)["offset_s"]["right"]
@@ -150,10 +171,10 @@ def test_duplicated_and_dropped_frames_are_reported_and_the_result_holds(site: d
     _check_targets(res.summary, left.clock_ppm, site["scale_floor"])
 
 
-def test_truncated_video_keeps_the_partial_result(site: dict, tmp_path: Path) -> None:
-    world = mt.measurement_world()
-    left, right = mt.camera_pair(world)
-    paths = mt.write_pair(left, right, tmp_path, fourcc="MJPG", ext="avi")
+def test_truncated_video_keeps_the_partial_result(
+        site: dict, tmp_path: Path, measurement_pair: PairOf) -> None:
+    left, right = mt.camera_pair(mt.measurement_world())
+    paths = tuple(Path(shutil.copy(p, tmp_path)) for p in measurement_pair("MJPG", "avi"))
     data = paths[1].read_bytes()
     paths[1].write_bytes(data[: int(len(data) * 0.7)])
     timing = tmp_path / "timing.json"
