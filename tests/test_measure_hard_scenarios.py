@@ -34,14 +34,20 @@ def site(calibrated_site: dict) -> dict:
     return calibrated_site  # built once per session (tests/conftest.py)
 
 
-def _measure(site: dict, folder: Path, world: World, *, duration_s: float = 2.5, right_start_s: float = 0.15,
-             sync: str = "trajectory", **cameras: dict) -> tuple[MeasureResult, dict]:
+def _render(folder: Path, world: World, *, duration_s: float = 2.5, right_start_s: float = 0.15,
+            **cameras: dict) -> tuple[dict[str, Path], dict]:
+    """The pair of ``world`` as MJPG AVIs in ``folder`` ({"left", "right"}) and the twin's true timing."""
     left, right = mt.camera_pair(world, **cameras)
     paths = mt.write_pair(left, right, folder, fourcc="MJPG", ext="avi", t_left_s=(0.0, duration_s),
                           t_right_s=(right_start_s, right_start_s + duration_s))
-    res = measure_videos({"left": paths[0], "right": paths[1]}, site["calibration"], folder / "out",
-                         options=MeasureOptions(sync=sync))
-    return res, mt.truth_timing(left, right, 0.0, right_start_s)
+    return {"left": paths[0], "right": paths[1]}, mt.truth_timing(left, right, 0.0, right_start_s)
+
+
+def _measure(site: dict, folder: Path, world: World, *, duration_s: float = 2.5, right_start_s: float = 0.15,
+             sync: str = "trajectory", **cameras: dict) -> tuple[MeasureResult, dict]:
+    videos, truth = _render(folder, world, duration_s=duration_s, right_start_s=right_start_s, **cameras)
+    res = measure_videos(videos, site["calibration"], folder / "out", options=MeasureOptions(sync=sync))
+    return res, truth
 
 
 def _offset_error_s(res: MeasureResult, truth: dict) -> float:
@@ -144,11 +150,22 @@ def test_container_start_times_resolve_the_periods_of_a_steady_vibration(site: d
     _check_amplitudes(res, mt.CRANK_MM, mt.FREQUENCY_HZ, site)
 
 
+ROTATION_HZ = 10.0
+
+
+@pytest.fixture(scope="module")
+def rotor_pair(tmp_path_factory: pytest.TempPathFactory) -> tuple[dict[str, Path], dict]:
+    """The rotor turning at ROTATION_HZ from before frame 0, rendered once for both sync methods."""
+    return _render(tmp_path_factory.mktemp("rotor"), mt.rotor_world(ROTATION_HZ))
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("sync", ["trajectory", "rotor"])
-def test_rotor_turning_from_frame_0_is_measured_without_timing(site: dict, tmp_path: Path, sync: str) -> None:
-    rotation_hz = 10.0
-    res, truth = _measure(site, tmp_path, mt.rotor_world(rotation_hz), sync=sync)
+def test_rotor_turning_from_frame_0_is_measured_without_timing(
+        site: dict, tmp_path: Path, sync: str, rotor_pair: tuple[dict[str, Path], dict]) -> None:
+    rotation_hz = ROTATION_HZ
+    videos, truth = rotor_pair
+    res = measure_videos(videos, site["calibration"], tmp_path / "out", options=MeasureOptions(sync=sync))
     assert res.timing["method"] == ("rotor" if sync == "rotor" else "joint")
     assert res.timing["details"]["offset_window"]["source"] == "default"  # the window searched, either way
     _check_offset(res, truth, period_s=1 / rotation_hz)
