@@ -295,8 +295,9 @@ def fit_trajectory(
         )
     designs = [basis.design(t) for t in ts]
     spline_rows = [_spline_rows(d) for d in designs] if isinstance(basis, SplineBasis) else []
-    if (isinstance(basis, SplineBasis) and 3 * basis.size > 4 * (_BAND + 1)
-            and all(r is not None for r in spline_rows)):  # wide enough for banded Cholesky
+    # any cubic B-spline (≥ 4 basis functions: ≥ 12 columns, the band's width) by its band sums: for a short
+    # track too (a still calibration position, ≈ 8 frames) the sparse design's steps cost ≈ 20× as much
+    if isinstance(basis, SplineBasis) and all(r is not None for r in spline_rows):
         C = _fit_banded(Ps, [r for r in spline_rows if r is not None], uvs, basis, iterations=iterations)
     else:
         C = _fit_general(Ps, ts, designs, uvs, basis, iterations=iterations)
