@@ -60,8 +60,9 @@ def report_step(ctx: Context, scope: Scope | None = None) -> dict[str, Any]:
         certificate = issued_certificate(ctx.run_dir)
         if certificate is None:
             ctx.progress(None, "report: analysis, tables, figures, certificate")
-            # an abort requested during the analysis ends the step before the certificate is issued
-            result = build_report(ctx.run_dir, scope=scope, in_run=True, before_issue=ctx.checkpoint)
+            # an abort requested during the report ends the step before the next analysis, else before the
+            # certificate is issued
+            result = build_report(ctx.run_dir, scope=scope, in_run=True, checkpoint=ctx.checkpoint)
             certificate = result.certificate
         # else: issued before this session (a resumed run): the certificate is issued once, never rebuilt
         if not step.skipped:

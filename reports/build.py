@@ -178,7 +178,7 @@ def build_report(
     no_figures_why: str | None = None,
     analysis: Analyse | None = None,
     in_run: bool = False,
-    before_issue: Callable[[], None] | None = None,
+    checkpoint: Callable[[], None] | None = None,
 ) -> ReportResult:
     """Build ``tables/``, ``figures/``, ``report.html`` and ``certificate.json`` of ``run_dir``.
 
@@ -197,10 +197,11 @@ def build_report(
     ``in_run=True``: built by the run's own last step (the procedures' ``report`` step), which is
     finishing normally — the conditions then say so (``exit_status`` "success", the stop document follows)
     instead of a missing stop document (a killed run).
-    ``before_issue``: called just before the certificate is issued (not for a revision); the run's report
-    step passes its checkpoint, so an abort requested while the report was built stops the step there and
-    no certificate saying "finishing normally" is issued for a run that ends aborted (a later
-    ``rig report RUN`` issues it from the record, stop document included).
+    ``checkpoint``: called before each analysis (the primary and every comparison: the report's CPU) and
+    just before the certificate is issued (not for a revision); the run's report step passes its checkpoint,
+    so an abort requested while the report was built stops the step at the next of them — without
+    analysing on — and no certificate saying "finishing normally" is issued for a run that ends aborted (a
+    later ``rig report RUN`` issues it from the record, stop document included).
     An ``OSError`` while writing (full disk, read-only folder) propagates; no output is left half-written.
     A folder that takes no new file (read-only) raises before the analysis, not after it.
     """
@@ -212,7 +213,7 @@ def build_report(
         scope = dataclasses.replace(scope, figures=False, figures_why=no_figures_why)
     primary = sync or _configured_sync(run.rig)
     analyses = _analyse_all(run.folder, [primary, *[m for m in scope.comparison if m != primary]],
-                            analysis or _default_analyse())
+                            analysis or _default_analyse(), checkpoint or _no_checkpoint)
     t = _tables(run, analyses, acceptance)
     revision = _next_revision(run.run_dir, primary)  # None: this report issues the certificate
     notes = (analyses.notes + _notes(run, t, in_run=in_run) + scope.notes()
@@ -220,7 +221,7 @@ def build_report(
     report = _certify(run, t, analyses, acceptance, notes, scope=scope, in_run=in_run)
     cert = report.certificate
     if revision is None:
-        written = _write_outputs(run.run_dir, report, before_certificate=before_issue)
+        written = _write_outputs(run.run_dir, report, before_certificate=checkpoint)
         return ReportResult(run.run_dir, cert["result"], cert, notes=notes, **written.fields())
     changes = certificate_changes(revision.issued, cert, revision=revision.number, sync=primary)
     written = _write_revision(run.run_dir, revision, report, changes)
@@ -244,12 +245,18 @@ def _configured_sync(rig: dict[str, Any]) -> str:
     return str(configured or DEFAULT_SYNC)
 
 
-def _analyse_all(folder: RunFolder, methods: list[str], analyse: Analyse) -> Analyses:
+def _no_checkpoint() -> None:
+    """No abort point (a report outside a run)."""
+
+
+def _analyse_all(folder: RunFolder, methods: list[str], analyse: Analyse,
+                 checkpoint: Callable[[], None]) -> Analyses:
     """The analysis of every method that worked (the first, primary, must), its notes and notes on the
-    rest."""
+    rest; ``checkpoint()`` before each (its exception, an abort, propagates)."""
     notes: list[str] = []
     results: dict[str, AnalysisResult] = {}
     for method in methods:
+        checkpoint()
         try:
             results[method] = analyse(folder, sync=method)
             if method == methods[0]:

@@ -375,3 +375,29 @@ def test_the_report_step_issues_the_certificate_once(tmp_path: Path, monkeypatch
     again = _report.report_step(ctx, NO_FIGURES)
     assert again == first and (run / "certificate.json").read_bytes() == issued
     assert not (run / "revisions").exists()
+
+
+def test_an_abort_at_the_reports_checkpoint_stops_it_before_any_analysis(tmp_path: Path) -> None:
+    """The run's report step passes its checkpoint: an abort requested during the report (a Ctrl-C) ends it
+    before the next analysis — the report's CPU, minutes on a long run — not only before the certificate."""
+    run = synth.write_run(tmp_path / "run_abort")
+    analysed: list[str] = []
+
+    def analyse(run_dir, *, sync):
+        analysed.append(sync)
+        return synth.fake_analyse(run_dir, sync=sync)
+
+    class AbortedError(Exception):
+        pass
+
+    def abort_requested() -> None:
+        raise AbortedError
+
+    with pytest.raises(AbortedError):
+        build_report(run, analysis=analyse, scope=Scope(comparison=("linear",), figures=False), in_run=True,
+                     checkpoint=abort_requested)
+    assert analysed == [] and not (run / "certificate.json").exists()
+    calls: list[int] = []  # a checkpoint before each analysis and the certificate: the primary, linear, issue
+    build_report(run, analysis=analyse, scope=Scope(comparison=("linear",), figures=False), in_run=True,
+                 checkpoint=lambda: calls.append(len(analysed)))
+    assert calls == [0, 1, 2] and (run / "certificate.json").is_file()

@@ -1,7 +1,8 @@
 """Stop signals on the built-in simulated rig, in the phases of a real procedure (``rig run sweep``):
-acquisition (the sync step films the spinning rotor), the sweep, and the report (no checkpoint). Each
-ends exit 2 with the stop document naming the signal, and the drives' own read-back (over Modbus, by the
-runner, before the in-process mocks end with the process) at 0 Hz. The stand-alone mock variant, read
+acquisition (the sync step films the spinning rotor), the sweep, and the report (its checkpoints: before
+each analysis and before the certificate). Each ends exit 2 with the stop document naming the signal, and
+the drives' own read-back (over Modbus, by the runner, before the in-process mocks end with the process) at
+0 Hz. The stand-alone mock variant, read
 back by a stock Modbus client afterwards, is ``test_safety_standalone.py``."""
 
 from __future__ import annotations

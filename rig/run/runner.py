@@ -16,8 +16,9 @@
    signal: ``abort``, exit 2), the traceback in ``rig.log`` only;
 4. run ``module.run(ctx, params)`` with a watchdog thread polling every device's ``heartbeat()`` and the
    station's interlock checks, and the stop signals handled alike (SIGINT, SIGTERM, SIGHUP, SIGQUIT;
-   first: abort at the next checkpoint — or, in a step without checkpoints such as the report, at its
-   end; second: :class:`rig.run.safety.Interrupted` at once); either way the run ends ``abort``, exit 2;
+   first: abort at the next checkpoint — or, in a step without checkpoints, at its end (the report step
+   checkpoints before each analysis and before it issues the certificate); second:
+   :class:`rig.run.safety.Interrupted` at once); either way the run ends ``abort``, exit 2;
 5. **always**, whatever happened: put every device in its safe state in the order of its role
    (:data:`drivers.roles.SHUTDOWN_ORDER`: generator, exciter and rotor, then the arm, then the cameras;
    each attempted; each failure recorded), read back what the devices then report
@@ -410,7 +411,7 @@ class Runner:
     def _finish(self, record: RunRecord, roster: list[Assignment], error: BaseException | None,
                 result: object) -> RunOutcome:
         # a late interlock (tripped after the procedure returned) still counts, and so does an abort
-        # requested during a step without checkpoints (the report): the run did not finish as asked
+        # requested during a step without checkpoints (or after the last): the run did not finish as asked
         if error is None and self._control.interlock is not None:
             error = InterlockTripped(*self._control.interlock)
         elif error is None and self._control.abort_reason is not None:
