@@ -164,10 +164,14 @@ def _default_analyse() -> Analyse:
 
 
 def _check_writable(run_dir: Path) -> None:
-    """``OSError`` (e.g. EROFS, EACCES) when ``run_dir`` takes no new file: every output of a report (issued
-    or a revision) is written under it, so a read-only run is refused before minutes of analysis."""
-    with tempfile.TemporaryFile(dir=run_dir, prefix=".write-probe-"):
-        pass
+    """``OSError`` (e.g. EROFS, EACCES, ENOSPC) when ``run_dir`` takes no new file or its disk has no room
+    for one byte: every output of a report (issued or a revision) is written under it, so a read-only run or
+    a full disk is refused before minutes of analysis (a disk with less room than the outputs still fails
+    when they are written, leaving nothing half-written)."""
+    with tempfile.TemporaryFile(dir=run_dir, prefix=".write-probe-") as probe:
+        probe.write(b"\0")
+        probe.flush()
+        os.fsync(probe.fileno())  # a filesystem that allocates late (ext4) allocates here
 
 
 def build_report(

@@ -239,12 +239,17 @@ def test_report_on_a_full_disk_exits_3_and_writes_nothing_half(real_run: Path, t
         capsys.readouterr()
         assert main(["report", str(run), "--sync", "linear"]) == 3
         _one_line_error(capsys.readouterr().err, "No space left on device")
+        analysed: list[object] = []  # refused before the analysis (minutes on a long run), not after it
+        with pytest.raises(OSError, match="No space left on device"):
+            build_report(run, analysis=lambda *args, **kwargs: analysed.append(args))
+        assert analysed == []
         after = tree(run)
         assert half_written(run) == []
         assert {k: v for k, v in after.items() if k in before} == before  # nothing rewritten
         if issued:
             assert set(after) == set(before)  # no revision folder, no staging left
-            assert sorted(p.name for p in (run / "revisions").iterdir()) == []
+            revisions = run / "revisions"  # refused before the analysis: not even created
+            assert not revisions.exists() or sorted(p.name for p in revisions.iterdir()) == []
         else:
             assert "certificate.json" not in after  # not issued: the next `rig report` issues it
             filler.unlink()
