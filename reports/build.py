@@ -158,7 +158,17 @@ def write_csv(df: pd.DataFrame, path: Path) -> None:
 
 
 def _default_analyse() -> Analyse:
-    from rig.analysis.analyse import analyse
+    """``rig.analysis.analyse`` for one report: the run folder prepared once (2-D tracks, pairs, clocks:
+    what no sync method changes), then triangulated with each method asked for."""
+    from rig.analysis.analyse import PreparedRun, analyse_prepared, prepare_run
+
+    prepared: dict[int, PreparedRun] = {}  # by the identity of the folder read: one report reads it once
+
+    def analyse(source: RunFolder, *, sync: str) -> AnalysisResult:
+        if id(source) not in prepared:
+            prepared.clear()
+            prepared[id(source)] = prepare_run(source)
+        return analyse_prepared(prepared[id(source)], sync=sync)
 
     return analyse
 

@@ -95,6 +95,26 @@ def test_analysis_is_deterministic_and_methods_differ(run):
     assert not np.allclose(linear.tracks["z_mm"], first.tracks["z_mm"])
 
 
+def test_a_run_prepared_once_gives_each_methods_analysis(run, monkeypatch):
+    """A report's analyses prepare the run once (2-D tracks, pairs, clocks: what no sync method changes) and
+    triangulate it per method: the same tracks, pairs, clock and notes as analysing the folder anew."""
+    from reports.build import _default_analyse
+    from rig.analysis import analyse as module
+    from rig.record.folder import load_folder
+
+    _, run_dir = run
+    prepared = []
+    prepare = module.prepare_run
+    monkeypatch.setattr(module, "prepare_run", lambda *a, **k: prepared.append(a) or prepare(*a, **k))
+    report_analyse, folder = _default_analyse(), load_folder(run_dir)
+    for sync in ("trajectory", "linear", "trajectory"):
+        shared, anew = report_analyse(folder, sync=sync), analyse(run_dir, sync=sync)
+        for field in ("tracks", "pairs", "clock"):
+            assert getattr(shared, field).equals(getattr(anew, field)), (sync, field)
+        assert shared.notes == anew.notes and shared.sync == sync
+    assert len(prepared) == 1 + 3  # the report's once, each fresh analyse() its own
+
+
 def test_pairing_volume_comes_from_the_snapshot():
     vol = pairing_volume(RIG, margin_mm=100.0)
     assert vol == ((50.0, 750.0), (-450.0, 450.0), (-50.0, 750.0))

@@ -94,7 +94,8 @@ UNRESOLVED_DRIFT_PPM = 50.0
 # by its frames' lowest arrival latency, ≥ its readout (≤ 1 frame) plus encoding and transport
 START_EVENT_LATE_FRAMES = 2.0
 
-__all__ = ["SYNC_METHODS", "TRACK_COLUMNS", "Analysis", "analyse", "controller_offsets", "pairing_volume"]
+__all__ = ["SYNC_METHODS", "TRACK_COLUMNS", "Analysis", "PreparedRun", "analyse", "analyse_prepared",
+           "controller_offsets", "pairing_volume", "prepare_run"]
 
 
 @dataclass
@@ -308,55 +309,81 @@ def redated(sel: dict[str, pd.DataFrame], timing: TimingResult,
 SegmentDating = Callable[[str, int, dict[str, pd.DataFrame]], SegmentClock]
 
 
-class _SegmentAnalysis:
-    """The segments of one analysis, added one (segment, session) at a time: pairs the cameras' tracks,
-    triangulates them and puts them on the controller clock; collects ``tracks``, ``pairs``, ``clock`` rows
-    (segment, session, offset_s, u_offset_s, source) and appends to ``notes``."""
+@dataclass(frozen=True)
+class _SegmentInputs:
+    """One recording (``segment`` of ``session``) up to its triangulation, which no sync method changes: its
+    pairs (with the ``session`` column), its notes (the pairing's, then the dating's or why it has no pairable
+    track), its controller clock and its observations dated on it (both None without a pairable track)."""
 
-    def __init__(self, obs: dict[str, pd.DataFrame], cameras: dict[str, DLTCamera], timing: TimingResult,
-                 date: SegmentDating, notes: list[str], *, sync: str, gate_px: float,
-                 volume_mm: tuple[tuple[float, float], ...] | None, knot_spacing_frames: float) -> None:
-        self.obs, self.cameras, self.timing, self.date, self.notes = obs, cameras, timing, date, notes
-        self.sync, self.gate_px, self.volume_mm = sync, gate_px, volume_mm
-        self.knot_spacing_frames = knot_spacing_frames
-        self.tracks: list[pd.DataFrame] = []
-        self.pairs: list[pd.DataFrame] = []
-        self.clock: list[tuple[str, int, float, float, str, float, float, float]] = []
-        self._next_id: dict[str, int] = {}  # sessions of a segment continue the track numbering
+    segment: str
+    session: int
+    pairs: pd.DataFrame
+    notes: tuple[str, ...]
+    clock: SegmentClock | None
+    dated: dict[str, pd.DataFrame] | None
 
-    def add(self, segment: str, session: int) -> None:
-        """Analyse one recording (``segment`` of ``session``); MissingObservationsError when a camera
-        recorded nothing in it while another did."""
-        ref = self.timing.reference_camera
-        sel = {c: o[(o["segment"] == segment) & (o["session"] == session)] for c, o in self.obs.items()}
-        empty = sorted(c for c, o in sel.items() if o.empty)
-        if empty:
-            raise MissingObservationsError(
-                f"segment {segment!r} (session {session}): camera(s) {empty} recorded no observations while "
-                f"{sorted(set(sel) - set(empty))} did; check the camera view and re-run that step")
-        p, more = pair_all(sel, self.cameras, ref, gate_px=self.gate_px, volume_mm=self.volume_mm)
-        p.insert(1, "session", session)
-        self.pairs.append(p)
-        self.notes += more
-        if p.empty or not (~p["ambiguous"].astype(bool)).any():
-            self.notes.append(f"segment {segment!r} (session {session}): no pairable tracks")
-            return
-        clock = self.date(segment, session, sel)
-        dated = own_dated(redated(sel, self.timing, clock.line_time_error_s), self.timing, clock)
-        t = triangulate_tracks(dated, self.cameras, self.timing,
-                               sync=self.sync, reference=ref, pairs=p,
-                               knot_spacing_frames=self.knot_spacing_frames)
-        self.notes += t.attrs.get("notes", [])
-        if t.empty:
-            return
-        self.clock.append((segment, session, clock.offset_s, clock.u_offset_s, clock.source, clock.rate,
-                           clock.t_ref_s, clock.line_time_error_s))
-        t = t.copy()
-        t["time_s"] = t["time_s"] + clock.offset_s + clock.rate * (t["time_s"] - clock.t_ref_s)
-        t["segment"] = segment
-        t["track_id"] = t["track_id"].astype(np.int64) + self._next_id.get(segment, 0)
-        self._next_id[segment] = int(t["track_id"].max()) + 1
-        self.tracks.append(t)
+
+def _segment_inputs(obs: dict[str, pd.DataFrame], cameras: dict[str, DLTCamera], timing: TimingResult,
+                    date: SegmentDating, date_notes: list[str], *, segment: str, session: int,
+                    gate_px: float, volume_mm: tuple[tuple[float, float], ...] | None) -> _SegmentInputs:
+    """Pair the cameras' tracks of one recording and date it on the controller clock (``date`` appends to
+    ``date_notes``); MissingObservationsError when a camera recorded nothing in it while another did."""
+    ref = timing.reference_camera
+    sel = {c: o[(o["segment"] == segment) & (o["session"] == session)] for c, o in obs.items()}
+    empty = sorted(c for c, o in sel.items() if o.empty)
+    if empty:
+        raise MissingObservationsError(
+            f"segment {segment!r} (session {session}): camera(s) {empty} recorded no observations while "
+            f"{sorted(set(sel) - set(empty))} did; check the camera view and re-run that step")
+    p, notes = pair_all(sel, cameras, ref, gate_px=gate_px, volume_mm=volume_mm)
+    p.insert(1, "session", session)
+    if p.empty or not (~p["ambiguous"].astype(bool)).any():
+        notes.append(f"segment {segment!r} (session {session}): no pairable tracks")
+        return _SegmentInputs(segment, session, p, tuple(notes), None, None)
+    first = len(date_notes)
+    clock = date(segment, session, sel)
+    notes += date_notes[first:]
+    dated = own_dated(redated(sel, timing, clock.line_time_error_s), timing, clock)
+    return _SegmentInputs(segment, session, p, tuple(notes), clock, dated)
+
+
+@dataclass(frozen=True)
+class PreparedRun:
+    """What a run's analysis computes before the sync method matters (:func:`prepare_run`): the checked
+    inputs, the observations with their 2-D tracks, every recording's pairs and controller clock, and the
+    notes so far. :func:`analyse_prepared` triangulates it with one sync method; a report analysing a run
+    with several methods prepares it once (the 2-D tracking, pairing and fiducial dating are most of an
+    analysis that is not the triangulation)."""
+
+    folder: RunFolder
+    calibration: Calibration
+    timing: TimingResult
+    cameras: dict[str, DLTCamera]
+    notes: tuple[str, ...]
+    segments: tuple[_SegmentInputs, ...]
+
+
+def prepare_run(source: str | Path | RunFolder, *, gate_px: float = 8.0, track_gate_px: float = 25.0,
+                volume_margin_mm: float = 150.0) -> PreparedRun:
+    """The sync-independent stages of :func:`analyse` (its arguments of the same names; its errors, but
+    for the sync method's)."""
+    folder = source if isinstance(source, RunFolder) else _load(Path(source))
+    run = folder.run
+    calibration, timing, cameras = _checked_inputs(folder)
+    rig = run.start.get("rig") or {}
+    periods = {c: _frame_period_s(rig, c, run.observations[c]) for c in cameras}
+    offsets = controller_offsets(run.events.get("camera"), timing, periods,
+                                 {c: _exposure_s(rig, c) for c in cameras})
+    volume = pairing_volume(rig, volume_margin_mm) if isinstance(rig, dict) else None
+    notes: list[str] = []
+    obs = _prepared_observations(run.observations, cameras, timing, track_gate_px, notes)
+    groups = sorted({(s, int(n)) for cam in cameras for s, n in zip(obs[cam]["segment"], obs[cam]["session"],
+                                                                     strict=True)})
+    date_notes: list[str] = []
+    date = _segment_dating(folder, timing, offsets, periods, date_notes)
+    segments = tuple(_segment_inputs(obs, cameras, timing, date, date_notes, segment=segment, session=session,
+                                     gate_px=gate_px, volume_mm=volume) for segment, session in groups)
+    return PreparedRun(folder, calibration, timing, cameras, tuple(notes), segments)
 
 
 def _offset_for(offsets: pd.DataFrame, segment: str, session: int) -> tuple[float, float, str]:
@@ -507,7 +534,8 @@ def analyse(
     volume_margin_mm: float = 150.0,
     knot_spacing_frames: float = 0.75,
 ) -> Analysis:
-    """Analyse a run folder (see the module docstring); deterministic, nothing cached.
+    """Analyse a run folder (see the module docstring); deterministic, nothing cached: :func:`prepare_run`,
+    then :func:`analyse_prepared` with ``sync``.
 
     ``source``: the folder's path, or the folder already read (:func:`rig.record.folder.load_folder`; the
     reports read it once and analyse it with several sync methods).
@@ -518,38 +546,58 @@ def analyse(
     segment), :class:`NoPairableTracksError`, :class:`ClockMappingError`, :class:`AnalysisError` for
     malformed files.
     """
+    _check_sync_method(sync)
+    prepared = prepare_run(source, gate_px=gate_px, track_gate_px=track_gate_px,
+                           volume_margin_mm=volume_margin_mm)
+    return analyse_prepared(prepared, sync=sync, knot_spacing_frames=knot_spacing_frames)
+
+
+def _check_sync_method(sync: str) -> None:
     if sync not in SYNC_METHODS:
         raise AnalysisError(f"sync={sync!r}: allowed are {SYNC_METHODS}")
-    folder = source if isinstance(source, RunFolder) else _load(Path(source))
-    run, run_dir = folder.run, folder.run_dir
-    calibration, timing, cameras = _checked_inputs(folder)
-    rig = run.start.get("rig") or {}
-    periods = {c: _frame_period_s(rig, c, run.observations[c]) for c in cameras}
-    offsets = controller_offsets(run.events.get("camera"), timing, periods,
-                                 {c: _exposure_s(rig, c) for c in cameras})
-    volume = pairing_volume(rig, volume_margin_mm) if isinstance(rig, dict) else None
-    notes: list[str] = []
-    obs = _prepared_observations(run.observations, cameras, timing, track_gate_px, notes)
-    ref = timing.reference_camera
-    groups = sorted({(s, int(n)) for cam in cameras for s, n in zip(obs[cam]["segment"], obs[cam]["session"],
-                                                                     strict=True)})
-    date = _segment_dating(folder, timing, offsets, periods, notes)
-    segments = _SegmentAnalysis(obs, cameras, timing, date, notes, sync=sync, gate_px=gate_px,
-                                volume_mm=volume, knot_spacing_frames=knot_spacing_frames)
-    for segment, session in groups:
-        segments.add(segment, session)
-    tracks, pairs, clock = segments.tracks, segments.pairs, segments.clock
+
+
+def analyse_prepared(prepared: PreparedRun, *, sync: str = "trajectory",
+                     knot_spacing_frames: float = 0.75) -> Analysis:
+    """:func:`analyse` of a run prepared by :func:`prepare_run`: every recording triangulated with ``sync``
+    and put on the controller clock (``prepared`` is not changed: analyse it with another method after)."""
+    _check_sync_method(sync)
+    timing, ref = prepared.timing, prepared.timing.reference_camera
+    notes = list(prepared.notes)
+    tracks: list[pd.DataFrame] = []
+    pairs: list[pd.DataFrame] = []
+    clock: list[tuple[str, int, float, float, str, float, float, float]] = []
+    next_id: dict[str, int] = {}  # sessions of a segment continue the track numbering
+    for seg in prepared.segments:
+        pairs.append(seg.pairs)
+        notes += seg.notes
+        if seg.clock is None or seg.dated is None:
+            continue
+        t = triangulate_tracks(seg.dated, prepared.cameras, timing, sync=sync, reference=ref, pairs=seg.pairs,
+                               knot_spacing_frames=knot_spacing_frames)
+        notes += t.attrs.get("notes", [])
+        if t.empty:
+            continue
+        c = seg.clock
+        clock.append((seg.segment, seg.session, c.offset_s, c.u_offset_s, c.source, c.rate, c.t_ref_s,
+                      c.line_time_error_s))
+        t = t.copy()
+        t["time_s"] = t["time_s"] + c.offset_s + c.rate * (t["time_s"] - c.t_ref_s)
+        t["segment"] = seg.segment
+        t["track_id"] = t["track_id"].astype(np.int64) + next_id.get(seg.segment, 0)
+        next_id[seg.segment] = int(t["track_id"].max()) + 1
+        tracks.append(t)
     if not tracks:
         raise NoPairableTracksError(
-            f"{run_dir}: no track of {ref!r} could be paired with another camera in any segment "
-            f"({', '.join(repr(s) for s, _ in groups)}); check that calibration.json and timing.json belong "
-            "to these cameras (`rig run calibrate`, `rig run sync`)")
+            f"{prepared.folder.run_dir}: no track of {ref!r} could be paired with another camera in any "
+            f"segment ({', '.join(repr(s.segment) for s in prepared.segments)}); check that calibration.json "
+            "and timing.json belong to these cameras (`rig run calibrate`, `rig run sync`)")
     out = pd.concat(tracks, ignore_index=True)
     out = out.sort_values(["segment", "time_s", "track_id"], kind="stable", ignore_index=True)
     return Analysis(
         tracks=out[TRACK_COLUMNS],
         timing=timing,
-        calibration=calibration,
+        calibration=prepared.calibration,
         sync=sync,
         pairs=pd.concat(pairs, ignore_index=True) if pairs else pd.DataFrame(),
         clock=pd.DataFrame(clock, columns=CLOCK_COLUMNS),
