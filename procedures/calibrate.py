@@ -19,6 +19,7 @@ from __future__ import annotations
 from typing import Any
 
 import numpy as np
+import pandas as pd
 
 from procedures._common import (
     arm_marker_positions,
@@ -37,7 +38,7 @@ from rig.config.targets import CalibrationPlateTarget
 from rig.deploy.choices import DISTORTION_MODELS
 from rig.deploy.plate_grid import GridError, moving_points, order_grid
 from rig.record.events import CalibrationPositionEvent
-from rig.run.acquire import Acquirer, ReduceOptions, mean_positions
+from rig.run.acquire import SETTLED_PX, Acquirer, ReduceOptions, mean_positions, settled_frames
 from rig.run.plan import ArmMoves, Plan
 from rig.run.procedure import Context, ParameterError
 from rig.stereo import calibrate_dlt
@@ -87,6 +88,19 @@ def _control_points(positions: list[dict[str, Any]], camera: str, plate: Calibra
     return np.concatenate(xyz), np.concatenate(uv), resid
 
 
+def _settled(ctx: Context, position: int, observations: dict[str, pd.DataFrame]) -> dict[str, pd.DataFrame]:
+    """Each camera's observations of a plate position from the frames in which the plate was at rest
+    (:func:`settled_frames`); the frames left out are logged (the run record keeps them all)."""
+    still = {name: settled_frames(obs) for name, obs in observations.items()}
+    moved = {name: int(obs["frame_index"].nunique() - still[name]["frame_index"].nunique())
+             for name, obs in observations.items()}
+    if any(moved.values()):
+        ctx.log.warning("calibrate: plate position %d: frames left out of the average, the plate not at rest "
+                        "(a marker over %g px from its position in the last frames): %s", position,
+                        SETTLED_PX, moved)
+    return still
+
+
 def slides_of(params: Parameters, plate: CalibrationPlateTarget) -> tuple[tuple[float, ...], str]:
     """The plate slides (mm along tool z) and what they come from (the parameter or the rig's)."""
     if params.slide_positions_mm:
@@ -126,20 +140,22 @@ def calibrate_cameras(ctx: Context, params: Parameters) -> dict[str, Any]:
             ctx.progress(i / len(poses), f"calibrate: plate position {i + 1}/{len(poses)}")
             rec = record_still(ctx, acq, arm, pose, "calibrate", frames=params.frames_per_position,
                                settle_s=params.settle_s, speed_mm_s=params.speed_mm_s)
+            still = _settled(ctx, i, rec.observations)
             for attempt in range(2, STILL_ATTEMPTS + 1):
-                seen = {n: int(o["frame_index"].nunique()) for n, o in rec.observations.items()}
+                seen = {n: int(o["frame_index"].nunique()) for n, o in still.items()}
                 if min(seen.values(), default=0) >= min_frames:
                     break
-                ctx.log.warning("calibrate: plate position %d: frames with markers %s, fewer than %d (frames "
-                                "dropped); recording again (%d of %d)", i, seen, min_frames, attempt,
-                                STILL_ATTEMPTS)
+                ctx.log.warning("calibrate: plate position %d: still frames with markers %s, fewer than %d "
+                                "(frames dropped, or the plate not at rest); recording again (%d of %d)", i,
+                                seen, min_frames, attempt, STILL_ATTEMPTS)
                 rec = acq.record("calibrate",
                                  attempt * (params.frames_per_position + 1.5) / fastest_fps(ctx.config))
+                still = _settled(ctx, i, rec.observations)
             points = arm_marker_positions(pose, offsets)
             ctx.event("calibration_position", CalibrationPositionEvent(
                 index=i, t_start_s=rec.t_start_s, t_stop_s=rec.t_stop_s, pose=list(pose),
                 slide_mm=slides[i], points=points))
-            positions.append({"points": points, "observations": rec.observations, "slide_mm": slides[i]})
+            positions.append({"points": points, "observations": still, "slide_mm": slides[i]})
     cameras, grid = {}, {}
     for name in ctx.cameras:
         xyz, uv, resid = _control_points(positions, name, plate, min_frames)

@@ -13,7 +13,7 @@ from procedures import accuracy, calibrate, certify, plate, sweep, sync
 from procedures._common import arm_marker_positions, plate_offsets_tool_mm
 from procedures._report import verdict_of
 from rig.config.rig_config import default_config
-from rig.run.acquire import MarkerReducer, ReduceOptions, mean_positions
+from rig.run.acquire import MarkerReducer, ReduceOptions, mean_positions, settled_frames
 from rig.run.procedure import ParameterError
 
 
@@ -52,6 +52,30 @@ def test_mean_positions_average_still_frames() -> None:
     obs = pd.DataFrame({"track_2d": [0, 0, 0, 1], "u_px": [1.0, 2.0, 3.0, 9.0], "v_px": [0.0, 0.0, 3.0, 9.0]})
     out = mean_positions(obs, min_frames=2)
     assert list(out["track_2d"]) == [0] and out["u_px"][0] == 2.0 and out["n"][0] == 3
+
+
+def test_settled_frames_leave_out_the_frames_before_the_plate_came_to_rest() -> None:
+    # two plate markers arriving (10 → 0.3 px from rest over frames 0–3), then still with 0.05 px noise, and a
+    # static reference; marker 1's track broke while it moved (ids 1 then 3): one marker, not two
+    rng = np.random.default_rng(3)
+    rows = []
+    for frame in range(12):
+        off_px = [10.0, 4.0, 1.6, 0.3][frame] if frame < 4 else 0.0
+        markers = ((0, (100.0, 50.0)), (1 if frame < 2 else 3, (140.0, 50.0)), (2, (400.0, 300.0)))
+        for track, (u, v) in markers:
+            moving = track != 2
+            rows.append({"frame_index": frame, "track_2d": track,
+                         "u_px": u + (off_px if moving else 0.0) + rng.normal(0, 0.05), "v_px": v})
+    obs = pd.DataFrame(rows)
+    still = settled_frames(obs)
+    assert sorted(still["frame_index"].unique()) == list(range(3, 12))  # frame 3 (0.3 px) is at rest
+    means = mean_positions(still, min_frames=6)
+    assert sorted(means["track_2d"]) == [0, 2, 3]
+    assert np.allclose(means.sort_values("track_2d")["u_px"], [100.0, 400.0, 140.0], atol=0.15)
+    # without the filter the average is biased by the arrival and marker 1 shows twice
+    biased = mean_positions(obs, min_frames=2)
+    assert sorted(biased["track_2d"]) == [0, 1, 2, 3] and biased["u_px"][0] > 101.0
+    assert settled_frames(obs.iloc[:0]).empty
 
 
 def test_sweep_profiles_rise_monotonically_to_the_peak() -> None:

@@ -317,6 +317,27 @@ class _Reader:
             self.error = exc
 
 
+SETTLED_PX = 1.0  # px: a still target's largest marker displacement from rest in a frame that is averaged
+
+
+def settled_frames(obs: pd.DataFrame, *, still_px: float = SETTLED_PX, rest_frames: int = 3) -> pd.DataFrame:
+    """The rows of ``obs`` (one recording of a target meant to be still) from the frames in which it was at
+    rest: every track the frame shares with the recording's last ``rest_frames`` frames lies within
+    ``still_px`` px of its rest position (its median over those frames); a frame sharing no track with them
+    is left out too. A frame exposed while the target still moved (a camera clock mapped late on a loaded
+    host, an arm still settling) would otherwise bias the average, or split a marker's track in two and
+    show one marker as two."""
+    if obs.empty:
+        return obs
+    frames = np.unique(obs["frame_index"].to_numpy())
+    rest = (obs[obs["frame_index"].isin(frames[-rest_frames:])]
+            .groupby("track_2d")[["u_px", "v_px"]].median().rename(columns=lambda c: f"rest_{c}"))
+    shared = obs.join(rest, on="track_2d", how="inner")
+    moved_px = np.hypot(shared["u_px"] - shared["rest_u_px"], shared["v_px"] - shared["rest_v_px"])
+    worst_px = moved_px.groupby(shared["frame_index"]).max()
+    return obs[obs["frame_index"].isin(worst_px.index[worst_px <= still_px])]
+
+
 def mean_positions(obs: pd.DataFrame, *, min_frames: int = 1) -> pd.DataFrame:
     """Per ``track_2d``: mean ``u_px``, ``v_px`` over the frames it was seen, and the frame count ``n``
     (still targets: the average over the still frames); tracks seen in fewer than ``min_frames`` dropped."""
