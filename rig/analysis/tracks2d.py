@@ -165,23 +165,115 @@ def circle_prediction(slots: list[float], pos: list[np.ndarray], s_now: float) -
     return centre + rot @ (c - centre)
 
 
-def _acquire(assigned: np.ndarray, det: np.ndarray, hist: list[list[np.ndarray]],
-             acquire_gate: float) -> None:
+def _acquire(assigned: np.ndarray, det: np.ndarray, last: np.ndarray, acquire_gate: float) -> None:
     """Tracks and detections the gated assignment left over: a track takes a detection within
-    ``acquire_gate`` of its last position when, among the leftovers, each is the other's only candidate
-    (a lone fast marker before its motion model has frames enough; the still markers around it were
-    taken by their own tracks first)."""
+    ``acquire_gate`` of its last position (``last``: each live track's, px) when, among the leftovers, each
+    is the other's only candidate (a lone fast marker before its motion model has frames enough; the still
+    markers around it were taken by their own tracks first)."""
     free_d = np.flatnonzero(assigned < 0)
-    if not len(free_d):  # every detection taken (the usual frame): nothing to acquire
-        return
-    free_t = np.setdiff1d(np.arange(len(hist)), assigned[assigned >= 0])
+    free_t = np.setdiff1d(np.arange(len(last)), assigned[assigned >= 0])
     if not len(free_t):
         return
-    last = np.array([hist[t][-1] for t in free_t])
-    near = np.linalg.norm(det[free_d][None, :, :] - last[:, None, :], axis=2) <= acquire_gate
+    near = _distances(det[free_d], last[free_t]) <= acquire_gate
     lone = near & (near.sum(axis=1) == 1)[:, None] & (near.sum(axis=0) == 1)[None, :]
     for ti, di in zip(*np.nonzero(lone), strict=True):
         assigned[free_d[di]] = free_t[ti]
+
+
+def _distances(points: np.ndarray, centres: np.ndarray) -> np.ndarray:
+    """(len(centres), len(points)) distances (px) of 2-D ``points`` from each of ``centres``: the numbers of
+    ``np.linalg.norm(points[None] - centres[:, None], axis=2)`` without its generality."""
+    d = points[None, :, :] - centres[:, None, :]
+    return np.sqrt(np.add.reduce(d * d, axis=2))
+
+
+class _LiveTracks:
+    """The live tracks of one segment: ids; the last ``HISTORY`` frame slots (time stamp / frame period) and
+    positions (px) of each, right-aligned (the last ``known`` of them are filled); and each track's last two
+    positions and slots (the second-last: the last again and one slot earlier for a new track)."""
+
+    def __init__(self) -> None:
+        self.ids = np.empty(0, np.int64)
+        self.recent_slots, self.recent_px = np.empty((0, HISTORY)), np.empty((0, HISTORY, 2))
+        self.known = np.empty(0, np.int64)
+        self.last, self.prev = np.empty((0, 2)), np.empty((0, 2))
+        self.s_last, self.s_prev = np.empty(0), np.empty(0)
+        self.next_id = 0
+
+    def _keep(self, rows: np.ndarray) -> None:
+        self.ids, self.known = self.ids[rows], self.known[rows]
+        self.last, self.prev = self.last[rows], self.prev[rows]
+        self.recent_slots, self.recent_px = self.recent_slots[rows], self.recent_px[rows]
+        self.s_last, self.s_prev = self.s_last[rows], self.s_prev[rows]
+
+    def end_lost(self, s_now: float, max_gap: int) -> None:
+        """Drop the tracks that missed more than ``max_gap`` frames (most frames: none)."""
+        alive = s_now - self.s_last <= max_gap + 1.5
+        if not alive.all():
+            self._keep(np.flatnonzero(alive))
+
+    def history(self, row: int) -> tuple[list[float], list[np.ndarray]]:
+        """Track ``row``'s known slots and positions, oldest first (the predictions' arguments)."""
+        first = HISTORY - int(self.known[row])
+        return self.recent_slots[row, first:].tolist(), list(self.recent_px[row, first:])
+
+    def assign(self, det: np.ndarray, s_now: float, gate: float, acquire_gate: float) -> np.ndarray:
+        """The live track (row) each detection of ``det`` (px) continues, −1 for none: the gated optimal
+        assignment on the distance to the nearest prediction, then :func:`_acquire`."""
+        assigned = np.full(len(det), -1)
+        if not len(self.ids):
+            return assigned
+        gap = s_now - self.s_last
+        velocity = (self.last - self.prev) / np.maximum(self.s_last - self.s_prev, 1e-9)[:, None]  # px/period
+        cost = np.minimum(_distances(det, self.last), _distances(det, self.last + velocity * gap[:, None]))
+        for ti in np.flatnonzero(cost.min(axis=1) > 0.2 * gate).tolist():  # simple predictions miss
+            for model in (_periodic_prediction, circle_prediction):
+                predicted = model(*self.history(ti), s_now)
+                if predicted is not None:
+                    cost[ti] = np.minimum(cost[ti], np.linalg.norm(det - predicted, axis=1))
+        feasible = cost <= gate * np.maximum(gap, 1.0)[:, None]  # the prediction error grows with the gap
+        if feasible.sum(axis=0).max() <= 1 and feasible.sum(axis=1).max() <= 1:
+            # each track and detection has at most one candidate (the usual frame): those pairs are what the
+            # assignment below chooses (it takes as many feasible pairs as it can, and there is one way)
+            r, c = np.nonzero(feasible)
+            assigned[c] = r
+        else:
+            big = float(np.max(np.where(feasible, cost, 0.0))) ** 2 * (min(cost.shape) + 1.0) + 1.0
+            r, c = linear_sum_assignment(np.where(feasible, cost**2, big))
+            ok = feasible[r, c]
+            assigned[c[ok]] = r[ok]
+        if acquire_gate > gate and (assigned < 0).any():
+            _acquire(assigned, det, self.last, acquire_gate)
+        return assigned
+
+    def advance(self, assigned: np.ndarray, det: np.ndarray, s_now: float) -> np.ndarray:
+        """The assigned tracks move on to their detections, the other detections start tracks; returns the
+        track id of each detection."""
+        taken = assigned >= 0
+        rows = assigned[taken]
+        self.recent_slots[rows, :-1] = self.recent_slots[rows, 1:]  # one frame older
+        self.recent_px[rows, :-1] = self.recent_px[rows, 1:]
+        self.recent_slots[rows, -1], self.recent_px[rows, -1] = s_now, det[taken]
+        self.known[rows] = np.minimum(self.known[rows] + 1, HISTORY)
+        self.prev[rows], self.s_prev[rows] = self.last[rows], self.s_last[rows]
+        self.last[rows], self.s_last[rows] = det[taken], s_now
+        if taken.all():
+            return self.ids[assigned]
+        new = ~taken
+        count = int(new.sum())
+        assigned = assigned.copy()
+        assigned[new] = np.arange(len(self.ids), len(self.ids) + count)
+        slots, px = np.zeros((count, HISTORY)), np.zeros((count, HISTORY, 2))
+        slots[:, -1], px[:, -1] = s_now, det[new]
+        self.recent_slots = np.concatenate([self.recent_slots, slots])
+        self.recent_px = np.concatenate([self.recent_px, px])
+        self.known = np.concatenate([self.known, np.ones(count, np.int64)])
+        self.ids = np.concatenate([self.ids, np.arange(self.next_id, self.next_id + count)])
+        self.next_id += count
+        self.last, self.prev = np.concatenate([self.last, det[new]]), np.concatenate([self.prev, det[new]])
+        self.s_last = np.concatenate([self.s_last, np.full(count, s_now)])
+        self.s_prev = np.concatenate([self.s_prev, np.full(count, s_now - 1.0)])
+        return self.ids[assigned]
 
 
 def _track_group(obs: pd.DataFrame, gate: float, max_gap: int, min_length: int,
@@ -197,11 +289,7 @@ def _track_group(obs: pd.DataFrame, gate: float, max_gap: int, min_length: int,
     steps = np.diff(frame_stamps)
     period = float(np.median(steps[steps > 0])) if np.any(steps > 0) else 1.0
     labels = np.full(len(frame), NOT_TRACKED, dtype=np.int64)
-    # live tracks: id, recent frame slots (time stamp / period) and positions
-    ids: list[int] = []
-    slots: list[list[float]] = []
-    hist: list[list[np.ndarray]] = []
-    n_ids = 0
+    live = _LiveTracks()
     prev_stamp = -np.inf
     for k in range(len(frames)):
         rows = order[bounds[k]:bounds[k + 1]]
@@ -210,54 +298,19 @@ def _track_group(obs: pd.DataFrame, gate: float, max_gap: int, min_length: int,
             continue
         prev_stamp = now
         s_now = now / period
-        alive = [i for i in range(len(ids)) if s_now - slots[i][-1] <= max_gap + 1.5]
-        if len(alive) < len(ids):  # a track ended (most frames: none)
-            ids, slots, hist = [ids[i] for i in alive], [slots[i] for i in alive], [hist[i] for i in alive]
+        live.end_lost(s_now, max_gap)
         det = uv[rows]
-        assigned = np.full(len(rows), -1)
-        if ids:
-            last = np.array([h[-1] for h in hist])
-            prev = np.array([h[-2] if len(h) > 1 else h[-1] for h in hist])
-            s_last = np.array([sl[-1] for sl in slots])
-            s_prev = np.array([sl[-2] if len(sl) > 1 else sl[-1] - 1.0 for sl in slots])
-            gap = s_now - s_last
-            velocity = (last - prev) / np.maximum(s_last - s_prev, 1e-9)[:, None]  # px per frame period
-            d_last = np.linalg.norm(det[None, :, :] - last[:, None, :], axis=2)
-            d_cv = np.linalg.norm(det[None, :, :] - (last + velocity * gap[:, None])[:, None, :], axis=2)
-            cost = np.minimum(d_last, d_cv)
-            for ti in np.flatnonzero(cost.min(axis=1) > 0.2 * gate):  # simple predictions miss: periodic?
-                for model in (_periodic_prediction, circle_prediction):
-                    predicted = model(slots[ti], hist[ti], s_now)
-                    if predicted is not None:
-                        cost[ti] = np.minimum(cost[ti], np.linalg.norm(det - predicted, axis=1))
-            feasible = cost <= gate * np.maximum(gap, 1.0)[:, None]  # the prediction error grows with the gap
-            if feasible.any():
-                big = float(np.max(np.where(feasible, cost, 0.0))) ** 2 * (min(cost.shape) + 1.0) + 1.0
-                r, c = linear_sum_assignment(np.where(feasible, cost**2, big))
-                ok = feasible[r, c]
-                assigned[c[ok]] = r[ok]
-            if acquire_gate > gate:
-                _acquire(assigned, det, hist, acquire_gate)
-            for di, ti in enumerate(assigned.tolist()):
-                if ti >= 0:
-                    slots[ti] = [*slots[ti][-HISTORY + 1:], s_now]
-                    hist[ti] = [*hist[ti][-HISTORY + 1:], det[di]]
-        taken = assigned.tolist()
-        for di, ti in enumerate(taken):
-            if ti < 0:
-                ids.append(n_ids)
-                slots.append([s_now])
-                hist.append([det[di]])
-                taken[di] = len(ids) - 1
-                n_ids += 1
-        labels[rows] = [ids[ti] for ti in taken]
-    # drop short tracks, renumber by first appearance
-    tracked = labels >= 0
-    uniq, counts = np.unique(labels[tracked], return_counts=True)
-    keep = set(uniq[counts >= min_length].tolist())
-    first_pos: dict[int, int] = {}
-    for pos in order:
-        lab = labels[pos]
-        if lab in keep and lab not in first_pos:
-            first_pos[lab] = len(first_pos)
-    return np.array([first_pos.get(int(lab), NOT_TRACKED) for lab in labels], dtype=np.int64), len(first_pos)
+        labels[rows] = live.advance(live.assign(det, s_now, gate, acquire_gate), det, s_now)
+    return _renumbered(labels, order, min_length)
+
+
+def _renumbered(labels: np.ndarray, order: np.ndarray, min_length: int) -> tuple[np.ndarray, int]:
+    """``labels`` with the tracks shorter than ``min_length`` dropped (−1) and the others numbered 0, 1, …
+    by first appearance in ``order``; and how many are left."""
+    ids, counts = np.unique(labels[labels >= 0], return_counts=True)
+    in_order = labels[order]
+    kept = in_order[np.isin(in_order, ids[counts >= min_length])]
+    first_ids, first_at = np.unique(kept, return_index=True)
+    number = np.full(int(labels.max(initial=NOT_TRACKED)) + 2, NOT_TRACKED, dtype=np.int64)  # [−1]: −1
+    number[first_ids[np.argsort(first_at)]] = np.arange(len(first_ids))
+    return number[labels], len(first_ids)
