@@ -162,13 +162,12 @@ def _default_analyse() -> Analyse:
     what no sync method changes), then triangulated with each method asked for."""
     from rig.analysis.analyse import PreparedRun, analyse_prepared, prepare_run
 
-    prepared: dict[int, PreparedRun] = {}  # by the identity of the folder read: one report reads it once
+    last: list[PreparedRun] = []  # the folder last prepared (one report reads it once)
 
     def analyse(source: RunFolder, *, sync: str) -> AnalysisResult:
-        if id(source) not in prepared:
-            prepared.clear()
-            prepared[id(source)] = prepare_run(source)
-        return analyse_prepared(prepared[id(source)], sync=sync)
+        if not last or last[0].folder is not source:
+            last[:] = [prepare_run(source)]
+        return analyse_prepared(last[0], sync=sync)
 
     return analyse
 
