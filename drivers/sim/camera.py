@@ -32,6 +32,7 @@ from drivers.sim.render import (
     exposure_samples,
     project_points,
 )
+from drivers.sim.render_kernel import add_patches
 from drivers.sim.world import World
 
 __all__ = ["SimCamera", "look_at"]
@@ -398,21 +399,10 @@ class SimCamera:
     def _blend(self, frame: NDArray[np.uint8], cov: NDArray[np.float32], r0: NDArray[np.int_],
                c0: NDArray[np.int_], rng: np.random.Generator) -> None:
         """Add marker signal (coverage × contrast) plus its extra shot noise onto the noisy background."""
-        sig = cov * np.float32(self.noise.marker_level_dn - self.noise.background_level_dn)
-        if self.noise.shot_noise_dn2_per_dn > 0:
-            extra = np.sqrt(np.maximum(sig, 0.0) * np.float32(self.noise.shot_noise_dn2_per_dn))
-            extra *= self._normals(sig.size, rng).reshape(sig.shape)
-            sig += extra
-        add = np.rint(sig).astype(np.int16)
-        h, w = frame.shape
-        hp, wp = add.shape[1:]
-        for j in range(len(add)):
-            ra, ca = max(int(r0[j]), 0), max(int(c0[j]), 0)
-            rb, cb = min(int(r0[j]) + hp, h), min(int(c0[j]) + wp, w)
-            if ra < rb and ca < cb:
-                region = frame[ra:rb, ca:cb]
-                cv2.add(region, add[j, ra - r0[j] : rb - r0[j], ca - c0[j] : cb - c0[j]], dst=region,
-                        dtype=cv2.CV_8U)
+        shot = np.float32(self.noise.shot_noise_dn2_per_dn)
+        normals = self._normals(cov.size, rng) if shot > 0 else np.zeros(0, np.float32)
+        add_patches(frame, cov, np.asarray(r0, np.int64), np.asarray(c0, np.int64),
+                    np.float32(self.noise.marker_level_dn - self.noise.background_level_dn), shot, normals)
 
     # ------------------------------------------------------------------ video
     def write_video(self, path: str | Path, t_start_s: float, t_stop_s: float, fourcc: str = "mp4v") -> int:

@@ -31,6 +31,8 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
+from drivers.sim.render_kernel import chord_coverage
+
 __all__ = [
     "NoiseModel", "conic_extents", "coverage_patches", "disc_conics", "exposure_samples", "project_points",
 ]
@@ -38,6 +40,7 @@ __all__ = [
 SUBSCANLINES = 4
 MAX_EXPOSURE_SAMPLES = 64
 SAMPLE_SPACING_PX = 0.2
+_SUBSCANLINE_OFFSETS_PX = ((np.arange(SUBSCANLINES) + 0.5) / SUBSCANLINES - 0.5).astype(np.float32)
 
 
 @dataclass(frozen=True)
@@ -147,22 +150,11 @@ def coverage_patches(conics: NDArray[np.float64], centres_px: NDArray[np.float64
     m, hp = centres_px.shape[:2]
     # work relative to each patch's corner, in float32 (patch coordinates are small numbers)
     rel = (centres_px - np.stack([col0, row0], axis=1)[:, None, None, :]).astype(np.float32)
-    ys = np.arange(hp, dtype=np.float32)[None, :, None, None]
-    sub = ((np.arange(SUBSCANLINES, dtype=np.float32) + 0.5) / SUBSCANLINES - 0.5)[None, None, :, None]
-    dy = (ys + sub) - rel[:, :, None, :, 1]  # (M, Hp, S, K)
     cf = conics.astype(np.float32)
-    a = cf[:, 0, 0][:, None, None, None]
-    b = (2 * cf[:, 0, 1])[:, None, None, None] * dy + (2 * cf[:, 0, 2])[:, None, None, None]
-    c = (cf[:, 1, 1][:, None, None, None] * dy + (2 * cf[:, 1, 2])[:, None, None, None]) * dy - 1.0
-    disc = b * b - 4 * a * c
-    root = np.sqrt(np.maximum(disc, 0.0))
-    half = np.where(disc > 0, root / (2 * a), np.float32(-1e6))  # no chord: empty interval
-    mid = rel[:, :, None, :, 0] - b / (2 * a)
-    xl, xr = (mid - half)[..., None], (mid + half)[..., None]
-    e = np.arange(width_px, dtype=np.float32) - np.float32(0.5)
-    cov = np.minimum(xr, e + 1.0) - np.maximum(xl, e)
-    np.maximum(cov, 0.0, out=cov)
-    out: NDArray[np.float32] = cov.sum(axis=(2, 3)) * np.float32(1.0 / (cov.shape[2] * cov.shape[3]))
+    coefficients = np.column_stack([cf[:, 0, 0], 2 * cf[:, 0, 1], 2 * cf[:, 0, 2], cf[:, 1, 1],
+                                    2 * cf[:, 1, 2]])
+    out = np.empty((m, hp, width_px), np.float32)
+    chord_coverage(coefficients, rel, _SUBSCANLINE_OFFSETS_PX, out)
     if psf_sigma_px > 0:  # patches have ≥ 3σ of empty border, so one separable pass over the stack is exact
         flat = cv2.GaussianBlur(out.reshape(m * hp, width_px), (0, 0), sigmaX=psf_sigma_px,
                                 sigmaY=psf_sigma_px, borderType=cv2.BORDER_CONSTANT)
