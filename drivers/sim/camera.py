@@ -39,6 +39,8 @@ __all__ = ["SimCamera", "look_at"]
 
 _CHUNK = 4096
 _NORMAL_POOL = 1 << 20
+_LedFootprint = tuple[int, int, NDArray[np.float32], NDArray[np.float64]]
+"""An LED's first image row and column, coverage (rows, cols) 0..1 and rows' starts after the frame's (s)."""
 
 
 def look_at(eye_mm: Iterable[float], target_mm: Iterable[float],
@@ -129,6 +131,7 @@ class SimCamera:
         self._chunks = 0
         self._pool: NDArray[np.uint8] | None = None
         self._normal_pool: NDArray[np.float32] | None = None
+        self._led_footprints: dict[SyncLed, _LedFootprint | None] = {}
         self._index_lock = threading.RLock()  # the frame map and the noise pools are built lazily
 
     # ------------------------------------------------------------------ clock and frame indices
@@ -305,25 +308,37 @@ class SimCamera:
             self._draw_led(frame, led, t0, rng)
         return frame
 
-    def _draw_led(self, frame: NDArray[np.uint8], led: SyncLed, t0: float, rng: np.random.Generator) -> None:
-        """Add a timing fiducial: its projected rectangle (area-covered at 1/16 px) lit per row by the mean
-        of its light over that row's exposure (rolling shutter: rows see the edges at their own times)."""
+    def _led_footprint(self, led: SyncLed) -> _LedFootprint | None:
+        """The :data:`_LedFootprint` of the LED's projected rectangle (area-covered at 1/16 px), or None when
+        it is not in view. The rectangle is fixed, so each camera computes it once per LED."""
+        if led in self._led_footprints:
+            return self._led_footprints[led]
+        footprint: _LedFootprint | None = None
         corners = led.corners_mm()
-        if np.any(self._depth(corners) <= 1.0):
-            return
         uv = self.project(corners)
         x_lo, y_lo = (int(max(math.floor(v), 0)) for v in uv.min(axis=0))
         x_hi, y_hi = int(min(math.ceil(uv[:, 0].max()), self.width_px - 1)), int(
             min(math.ceil(uv[:, 1].max()), self.height_px - 1))
-        if x_hi < x_lo or y_hi < y_lo:
+        if np.all(self._depth(corners) > 1.0) and x_hi >= x_lo and y_hi >= y_lo:
+            mask = np.zeros((y_hi - y_lo + 1, x_hi - x_lo + 1), dtype=np.uint8)
+            pts = np.rint((uv - [x_lo, y_lo]) * 16).astype(np.int32)
+            cv2.fillConvexPoly(mask, pts, 255, lineType=cv2.LINE_AA, shift=4)
+            coverage: NDArray[np.float32] = mask.astype(np.float32) / np.float32(255.0)
+            row_offsets_s = np.arange(y_lo, y_hi + 1, dtype=np.int64) * np.float64(self.line_time_s)
+            footprint = (y_lo, x_lo, coverage, row_offsets_s)
+        self._led_footprints[led] = footprint
+        return footprint
+
+    def _draw_led(self, frame: NDArray[np.uint8], led: SyncLed, t0: float, rng: np.random.Generator) -> None:
+        """Add a timing fiducial: its footprint lit per row by the mean of its light over that row's exposure
+        (rolling shutter: rows see the edges at their own times)."""
+        footprint = self._led_footprint(led)
+        if footprint is None:
             return
-        mask = np.zeros((y_hi - y_lo + 1, x_hi - x_lo + 1), dtype=np.uint8)
-        pts = np.rint((uv - [x_lo, y_lo]) * 16).astype(np.int32)
-        cv2.fillConvexPoly(mask, pts, 255, lineType=cv2.LINE_AA, shift=4)
-        rows = np.arange(y_lo, y_hi + 1)
-        level = led.mean_levels((t0 + rows * self.line_time_s).astype(np.float64), self.exposure_s)
+        y_lo, x_lo, coverage, row_offsets_s = footprint
+        level = led.mean_levels((t0 + row_offsets_s).astype(np.float64), self.exposure_s)
         scale = led.contrast_dn / max(self.noise.marker_level_dn - self.noise.background_level_dn, 1.0)
-        cov = (mask.astype(np.float32) / 255.0) * (level[:, None] * scale).astype(np.float32)
+        cov = coverage * (level[:, None] * scale).astype(np.float32)
         self._blend(frame, cov[None], np.array([y_lo]), np.array([x_lo]), rng)
 
     def _draw(self, frame: NDArray[np.uint8], ids: list[str], t0: float, rng: np.random.Generator) -> None:

@@ -154,8 +154,9 @@ class SyncLed:
             return np.zeros(0)
         t = a + (ks - psi_a) / (psi_b - psi_a) * (b - a)
         for _ in range(6):
-            f = np.maximum(np.asarray(body.frequency_hz(t), dtype=float), 1e-12)
-            t = np.clip(t - (cls._half_cycles(body, t) - ks) / (2.0 * f), a, b)
+            f_hz, phase_rad = body.frequency_and_phase(t)
+            f = np.maximum(np.asarray(f_hz, dtype=float), 1e-12)
+            t = np.clip(t - (np.asarray(phase_rad, dtype=float) / math.pi - ks) / (2.0 * f), a, b)
         return np.asarray(t, dtype=np.float64)
 
     def drive_edges(self, t0_s: float, t1_s: float) -> tuple[_F, NDArray[np.bool_], bool]:

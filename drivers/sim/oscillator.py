@@ -130,6 +130,11 @@ class OscillatorBody:
         f = self._eval(self._segs, t)[0]
         return float(f) if t.ndim == 0 else f
 
+    def frequency_and_phase(self, t_s: NDArray[np.float64]) -> tuple[NDArray[np.float64],
+                                                                     NDArray[np.float64]]:
+        """(f Hz, φ rad) at the times ``t_s`` (an array), from one evaluation."""
+        return self._eval(self._segs, np.asarray(t_s, dtype=float))
+
     def phase_rad(self, t_s: float | NDArray[np.float64]) -> float | NDArray[np.float64]:
         t = np.asarray(t_s, dtype=float)
         p = self._eval(self._segs, t)[1]

@@ -205,6 +205,14 @@ class World:
             self._plans[key] = plan
         return plan
 
+    def _flange_at(self, t_s: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """Flange position (..., 3) mm and rotation (..., 3, 3) at times ``t_s`` (any shape), each distinct
+        time computed once: the markers of a plate share the times of the rows they cross (the same
+        numbers per time as computing every entry)."""
+        unique_s, inverse = np.unique(t_s, return_inverse=True)
+        pos, rot = self.robot.transform_at(unique_s)
+        return pos[inverse].reshape((*t_s.shape, 3)), rot[inverse].reshape((*t_s.shape, 3, 3))
+
     def positions(self, marker_ids: list[str], t_s: NDArray[np.float64] | float) -> NDArray[np.float64]:
         """Centres (M, N, 3) mm of M markers at times ``t_s``: (N,) shared by all, or (M, N) each its own."""
         t = np.asarray(t_s, dtype=float)
@@ -217,9 +225,7 @@ class World:
             if kind == "fixed":
                 out[idx] = pts[:, None, :]
             elif kind == "flange":
-                pos, rot = self.robot.transform_at(ts.ravel())
-                pos = pos.reshape((*ts.shape, 3))
-                rot = rot.reshape((*ts.shape, 3, 3))
+                pos, rot = self._flange_at(ts)
                 out[idx] = pos + np.einsum("mnij,mj->mni", rot, pts)
             elif kind == "osc":
                 disp = np.asarray(self._bodies[body].displacement_mm(ts))
@@ -240,7 +246,7 @@ class World:
         out = np.broadcast_to(base.reshape((len(specs),) + (1,) * (t.ndim - 1) + (3,)), (*shape, 3)).copy()
         flange = [i for i, sp in enumerate(specs) if sp.kind == "flange"]
         if flange:
-            _, rot = self.robot.transform_at(t[flange].ravel())
+            _, rot = self._flange_at(t[flange].ravel())
             n = np.repeat(base[flange], t[flange].size // len(flange), axis=0)
             out[flange] = np.einsum("mij,mj->mi", rot, n).reshape(out[flange].shape)
         return out
