@@ -9,8 +9,9 @@ from __future__ import annotations
 
 import hashlib
 
+import numpy as np
 import pytest
-from sim_scenes import SCENE_NAMES, scene
+from sim_scenes import HOME, SCENE_NAMES, scene
 
 FRAMES = (0, 7, 13, 21, 30, 41)  # plate: at rest, moving, turning, arriving; sweep/rotor/led: phases
 DIGESTS = {
@@ -33,3 +34,18 @@ def _digest(name: str) -> str:
 @pytest.mark.parametrize("name", SCENE_NAMES)
 def test_rendered_frames_keep_their_recorded_bytes(name: str) -> None:
     assert _digest(name) == DIGESTS[name]
+
+
+def test_a_still_frame_after_a_late_command_is_drawn_from_the_new_plan() -> None:
+    """A camera reuses a still frame's marker patches for the next still frame; a move commanded afterwards
+    for an earlier time (the plate rests elsewhere by then) must not leave it drawing the old pose."""
+    (cam, _), indices = scene("sweep")  # a world whose arm has no move yet
+    cam.world.set_scene("calibration_plate", 0.0)
+    early, late = indices[40], indices[41]
+    before = cam.render(early)
+    cam.world.robot.move(0.05, (HOME[0] + 40.0, *HOME[1:]), 300.0, 2000.0)  # at rest again by 0.4 s
+    fresh, _ = scene("sweep")
+    fresh[0].world.set_scene("calibration_plate", 0.0)
+    fresh[0].world.robot.move(0.05, (HOME[0] + 40.0, *HOME[1:]), 300.0, 2000.0)
+    assert not np.array_equal(before, fresh[0].render(early))  # the plate did move
+    assert np.array_equal(cam.render(late), fresh[0].render(late))

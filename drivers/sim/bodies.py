@@ -199,6 +199,11 @@ class RobotBody:
         """True while a move (or the deceleration of a halt) is under way at ``t_s``."""
         return any(m.t_start_s <= t_s < m.t_end_s for m in reversed(self._moves))
 
+    def at_rest_between(self, t0_s: float, t1_s: float) -> bool:
+        """True when the flange rests in one pose over the whole of [t0_s, t1_s] (no move under way in it)."""
+        moves, idx = self._segments(np.array([t0_s, t1_s], dtype=float))
+        return bool(idx[0] == idx[1] and (idx[0] < 0 or t0_s >= moves[idx[0]].t_end_s))
+
     def t_end_s(self) -> float:
         """Time at which the last commanded move ends (−inf if none)."""
         moves = self._moves

@@ -16,6 +16,7 @@ import math
 import threading
 import zlib
 from collections.abc import Iterable
+from dataclasses import dataclass
 from pathlib import Path
 
 import cv2
@@ -57,6 +58,18 @@ def look_at(eye_mm: Iterable[float], target_mm: Iterable[float],
     rvec, _ = cv2.Rodrigues(rot)
     tvec: NDArray[np.float64] = -rot @ eye
     return np.asarray(rvec, dtype=np.float64).ravel(), tvec
+
+
+@dataclass(frozen=True)
+class _Patches:
+    """A frame's marker coverage: per exposure-sample count, (patches (M, Hp, Wp) 0..1, first image rows (M,),
+    first image columns (M,)), in drawing order; ``span_s``: the world times the positions were taken at,
+    as (earliest, latest) after the frame's start (s); ``pose_key``: the markers' positions and normals at
+    the frame's start, as bytes, when they were at rest over the span (else empty)."""
+
+    stacks: list[tuple[NDArray[np.float32], NDArray[np.int_], NDArray[np.int_]]]
+    span_s: tuple[float, float]
+    pose_key: bytes
 
 
 class SimCamera:
@@ -132,6 +145,7 @@ class SimCamera:
         self._pool: NDArray[np.uint8] | None = None
         self._normal_pool: NDArray[np.float32] | None = None
         self._led_footprints: dict[SyncLed, _LedFootprint | None] = {}
+        self._last_patches: tuple[tuple[str, ...], float, _Patches] | None = None  # ids, frame start, patches
         self._index_lock = threading.RLock()  # the frame map and the noise pools are built lazily
 
     # ------------------------------------------------------------------ clock and frame indices
@@ -342,6 +356,36 @@ class SimCamera:
         self._blend(frame, cov[None], np.array([y_lo]), np.array([x_lo]), rng)
 
     def _draw(self, frame: NDArray[np.uint8], ids: list[str], t0: float, rng: np.random.Generator) -> None:
+        """Add the markers ``ids`` of the frame starting at world time ``t0`` onto ``frame``: their coverage
+        patches (reused from the previous frame when nothing moved: the same numbers), then their signal."""
+        patches = self._still_patches(ids, t0)
+        if patches is None:
+            patches = self._patches(ids, t0)
+            self._last_patches = (tuple(ids), t0, patches)
+        for cov, row0, col0 in patches.stacks:
+            self._blend(frame, cov, row0, col0, rng)
+
+    def _still_patches(self, ids: list[str], t0: float) -> _Patches | None:
+        """The previous frame's patches if they are this frame's: the same markers, at rest over the times
+        both frames' patches were computed from, at the same positions with the same normals."""
+        if self._last_patches is None:
+            return None
+        last_ids, last_t0, patches = self._last_patches
+        if last_ids != tuple(ids) or not patches.pose_key:
+            return None
+        t_lo, t_hi = min(t0, last_t0) + patches.span_s[0], max(t0, last_t0) + patches.span_s[1]
+        if not self.world.at_rest_between(ids, t_lo - 1e-6, t_hi + 1e-6):
+            return None
+        return patches if self._pose_key(ids, t0) == patches.pose_key else None
+
+    def _pose_key(self, ids: list[str], t_s: float) -> bytes:
+        """The markers' positions and normals at ``t_s``, as bytes (the world's plan may have changed since
+        a frame was drawn: a command for a time before it)."""
+        return self.world.positions(ids, t_s).tobytes() + self.world.normals(ids, t_s).tobytes()
+
+    def _patches(self, ids: list[str], t0: float) -> _Patches:
+        """The markers' coverage patches of the frame starting at ``t0`` (each exposure-sample count's stack
+        of patches with its first rows and columns; world times queried span ``span_s`` from ``t0``)."""
         h, w, lt, te = self.height_px, self.width_px, self.line_time_s, self.exposure_s
         world = self.world
         # 1. motion around mid-readout → predicted row where each centre is seen (one Newton step of the
@@ -351,7 +395,7 @@ class SimCamera:
         pts = world.positions(ids, t0 + y_mid * lt + 0.5 * te + np.array([-dt, 0.0, dt]))
         keep = np.nonzero(self._depth(pts[:, 1]) > 1.0)[0]
         if keep.size == 0:
-            return
+            return _Patches([], (0.0, 0.0), b"")
         uv = self.project(pts[keep])
         vel = (uv[:, 2] - uv[:, 0]) / (2 * dt)  # px/s
         gain = np.clip(vel[:, 1] * lt, -0.75, 0.75)
@@ -364,11 +408,11 @@ class SimCamera:
         fov = 2.0 * np.array([w, h]) / np.diag(self.camera_matrix)[:2]
         ok = (cam[:, 2] > 1.0) & np.all(np.abs(q0) < fov, axis=1)
         if not ok.any():
-            return
+            return _Patches([], (0.0, 0.0), b"")
         normals = world.normals(kept_ids, t_c) @ self.rotation.T
         ok &= self._faces_camera(normals, cam)  # printed discs are one-sided
         if not ok.any():
-            return
+            return _Patches([], (0.0, 0.0), b"")
         t_c, cam, q0, vel, centre, normals = t_c[ok], cam[ok], q0[ok], vel[ok], centre[ok], normals[ok]
         kept_ids = [m for m, o in zip(kept_ids, ok, strict=True) if o]
         uc = self.project(centre)
@@ -400,6 +444,9 @@ class SimCamera:
         on = (y_hi >= 0) & (y_lo < h) & (x_hi >= 0) & (x_lo < w)
         y_lo, y_hi = np.clip(y_lo, -h, 2 * h), np.clip(y_hi, -h, 2 * h)
         x_lo, x_hi = np.clip(x_lo, -w, 2 * w), np.clip(x_hi, -w, 2 * w)
+        stacks: list[tuple[NDArray[np.float32], NDArray[np.int_], NDArray[np.int_]]] = []
+        t_mid = y_mid * lt + 0.5 * te
+        span_s = [float(t_c.min()) - t0 - 0.5 * te, float(t_c.max()) - t0 + 0.5 * te, t_mid - dt, t_mid + dt]
         for kk in np.unique(ksamp[on]):
             sel = np.nonzero(on & (ksamp == kk))[0]
             hp = int(np.max(y_hi[sel] - y_lo[sel])) + 1
@@ -409,7 +456,11 @@ class SimCamera:
             centres = self.project(world.positions([kept_ids[i] for i in sel], times.reshape(len(sel), -1)))
             cov = coverage_patches(conics[sel], centres.reshape(len(sel), hp, kk, 2), y_lo[sel], x_lo[sel],
                                    width_px=wp, psf_sigma_px=self.psf_sigma_px)
-            self._blend(frame, cov, y_lo[sel], x_lo[sel], rng)
+            stacks.append((cov, y_lo[sel], x_lo[sel]))
+            span_s += [float(times.min()) - t0, float(times.max()) - t0]
+        span = (min(span_s), max(span_s))
+        still = self.world.at_rest_between(ids, t0 + span[0] - 1e-6, t0 + span[1] + 1e-6)
+        return _Patches(stacks, span, self._pose_key(ids, t0) if still else b"")  # b"": never reused
 
     def _blend(self, frame: NDArray[np.uint8], cov: NDArray[np.float32], r0: NDArray[np.int_],
                c0: NDArray[np.int_], rng: np.random.Generator) -> None:

@@ -213,6 +213,15 @@ class World:
         pos, rot = self.robot.transform_at(unique_s)
         return pos[inverse].reshape((*t_s.shape, 3)), rot[inverse].reshape((*t_s.shape, 3, 3))
 
+    def at_rest_between(self, marker_ids: list[str], t0_s: float, t1_s: float) -> bool:
+        """True when every one of the markers keeps its position and normal over [t0_s, t1_s]: fixed ones,
+        and those on the flange while the robot rests; a marker on an oscillator or the rotor counts as moving
+        (not examined)."""
+        kinds = {kind for kind, *_ in self._plan(marker_ids)}
+        if not kinds <= {"fixed", "flange"}:
+            return False
+        return "flange" not in kinds or self.robot.at_rest_between(t0_s, t1_s)
+
     def positions(self, marker_ids: list[str], t_s: NDArray[np.float64] | float) -> NDArray[np.float64]:
         """Centres (M, N, 3) mm of M markers at times ``t_s``: (N,) shared by all, or (M, N) each its own."""
         t = np.asarray(t_s, dtype=float)
