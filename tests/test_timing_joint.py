@@ -15,7 +15,9 @@ from rig.stereo.errors import (
     NonMonotonicTimestampsError,
     TooFewSamplesError,
 )
+from rig.stereo.resample import bandlimited
 from rig.stereo.timing import estimate_offset
+from rig.stereo.timing_joint import JointTiming, sampson_px
 
 SIGMA_PX = 0.1
 FS_HZ = 60.0
@@ -228,3 +230,39 @@ def test_with_lens_distortion_the_observed_rows_set_the_rolling_shutter_instants
     assert with_rows.line_time_s["right"] == pytest.approx(rec.right.line_time_s, abs=5 * u_line_s)
     # Near the image centre the rows move little under distortion: undistorted rows are nearly as good here.
     assert abs(error_s(without)) <= 5 * without.uncertainty["offset_s"]["right"]
+
+
+def _costs_one_offset_at_a_time(prob: JointTiming, offsets_s: np.ndarray, line_s: float,
+                                drift_ppm: float) -> np.ndarray:
+    """The straightforward coarse cost: B's track reconstructed anew at each offset (the reference)."""
+    res = prob.res
+    costs = []
+    for d in offsets_s:
+        total = 0.0
+        for (ta, ua, ra, tb, ub, rb), bridge in zip(res.data, res.bridges, strict=True):
+            t_src = tb + d + drift_ppm * 1e-6 * (tb - res.epoch_b) + line_s * rb
+            uv_b_at = bandlimited(t_src, ub, ta + line_s * ra, **bridge)
+            total += float(np.sum(sampson_px(res.F, ua, uv_b_at) ** 2))
+        costs.append(total)
+    return np.array(costs)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_coarse_costs_over_all_offsets_equal_one_reconstruction_per_offset(seed: int) -> None:
+    rng = np.random.default_rng(seed)
+    traj, _, _ = rotor(frequency_hz=rng.uniform(2.0, 12.0), radius_mm=rng.uniform(20.0, 80.0))
+    ca, cb, (ta, ua), (tb, ub) = _synthetic(traj, n=240, offset_s=rng.uniform(-0.01, 0.01), seed=seed)
+    keep = np.ones(tb.size, dtype=bool)
+    keep[rng.choice(np.arange(40, 200), size=4, replace=False)] = False  # single lost frames: bridged
+    prob = JointTiming(ca, cb, (ta, ua), (tb[keep], ub[keep]))
+    assert prob.res.bridged_b > 0
+    offsets = prob.guess_s + np.linspace(-0.03, 0.03, 31)
+    for line_s, drift_ppm in ((0.0, 0.0), (rng.uniform(5e-6, 20e-6), rng.uniform(-100.0, 100.0))):
+        want = _costs_one_offset_at_a_time(prob, offsets, line_s, drift_ppm)
+        got = prob.res.offset_costs(offsets, line_s, drift_ppm)
+        # Float rounding only: the instants (≤ 4 s) move by ~1e-15 s between the two ways, B's image by
+        # ≤ 1e-11 px at ≤ 3e3 px/s, so each residual r by ~1e-11 px and the cost by ≤ 2·Σ|r|·1e-11 px²:
+        # 1e-9 of the cost (whose residuals are ≥ the 0.1-px noise) bounds it.
+        np.testing.assert_allclose(got, want, rtol=1e-9, atol=0.0)
+        assert np.argmin(got) == np.argmin(want)
+        assert prob.cost(float(offsets[7]), line_s, drift_ppm) == pytest.approx(want[7], rel=1e-9, abs=0.0)

@@ -228,6 +228,8 @@ class _Residuals:
                 self.data.append(TrackPair(ta[sel], ua[sel], ra[sel], tb, ub, rb))
                 self.bridges.append(bridge)
         self.n = sum(len(d.tau_a) for d in self.data)
+        self._fits_key: tuple[float, float] | None = None  # (line time s, drift ppm) of self._fits
+        self._fits: list[Bandlimited] = []
 
     def _near_unbridged_gaps(self, track: TrackPair, sel: BoolArray, bridge: dict[str, Any], *,
                              reach_s: tuple[float, float]) -> BoolArray:
@@ -275,19 +277,14 @@ class _Residuals:
                 "left_out_ill_conditioned": self.n_ill_conditioned,
                 "prediction_gain": self.prediction_gains_all, "statement": self.bridging_statement()}
 
-    def residuals(
-        self, delta_s: float, line_s: float, drift_ppm: float, *, weighted: bool = True
-    ) -> FloatArray:
-        """Sampson residuals; ``weighted=False`` skips the noise model (faster; for the coarse search)."""
+    def residuals(self, delta_s: float, line_s: float, drift_ppm: float) -> FloatArray:
+        """Sampson residuals, each weighted by its own noise model (module doc)."""
         la = line_s if self.line_a is None else self.line_a
         lb = line_s if self.line_b is None else self.line_b
         out = []
         for (ta, ua, ra, tb, ub, rb), bridge in zip(self.data, self.bridges, strict=True):
             t_dst = ta + la * ra
             t_src = tb + delta_s + drift_ppm * 1e-6 * (tb - self.epoch_b) + lb * rb
-            if not weighted:
-                out.append(sampson_px(self.F, ua, bandlimited(t_src, ub, t_dst, **bridge)))
-                continue
             # Weight by the interpolated noise's own variance: it depends on the parameters (the line time
             # changes how irregular B's instants are), and unweighted it would bias them by O(σ²).
             h = 1e-4  # s, for B's image velocity at A's instants
@@ -300,6 +297,29 @@ class _Residuals:
             r = sampson_px(self.F, ua, uv_b_at, gain_b=gain, shift_a=la * vel_b, shift_b=lb * vel_b)
             out.append(r)
         return np.concatenate(out)
+
+    def offset_costs(self, offsets_s: FloatArray, line_s: float, drift_ppm: float) -> FloatArray:
+        """Unweighted sum of squared Sampson residuals (px²) at each of ``offsets_s`` (s), for one line time
+        (s) and drift (ppm). An offset only shifts B's instants, so B's reconstruction is solved once per
+        track (at offset 0) and evaluated at A's instants moved back by each offset, all offsets at once."""
+        offsets = np.asarray(offsets_s, dtype=float)
+        la = line_s if self.line_a is None else self.line_a
+        costs = np.zeros(offsets.size)
+        for (ta, ua, ra, _, _, _), fit in zip(self.data, self._fits_at(line_s, drift_ppm), strict=True):
+            t_dst = ((ta + la * ra)[None, :] - offsets[:, None]).ravel()  # row-major: offset by offset
+            uv_b_at = fit.values_at(fit.kernel(t_dst), t_dst)
+            r = sampson_px(self.F, np.tile(ua, (offsets.size, 1)), uv_b_at)
+            costs += np.sum(r.reshape(offsets.size, ta.size) ** 2, axis=1)
+        return costs
+
+    def _fits_at(self, line_s: float, drift_ppm: float) -> list[Bandlimited]:
+        """B's reconstructions (one per track) at offset 0 for this line time and drift (the last kept)."""
+        if self._fits_key != (line_s, drift_ppm):
+            lb = line_s if self.line_b is None else self.line_b
+            self._fits = [Bandlimited(tb + drift_ppm * 1e-6 * (tb - self.epoch_b) + lb * rb, ub, **bridge)
+                          for (_, _, _, tb, ub, rb), bridge in zip(self.data, self.bridges, strict=True)]
+            self._fits_key = (line_s, drift_ppm)
+        return self._fits
 
 
 @dataclass
@@ -410,14 +430,14 @@ class JointTiming:
 
     def cost(self, offset_s: float, line_s: float, drift_ppm: float) -> float:
         """Unweighted sum of squared Sampson residuals (px²)."""
-        return float(np.sum(self.res.residuals(offset_s, line_s, drift_ppm, weighted=False) ** 2))
+        return float(self.res.offset_costs(np.array([offset_s]), line_s, drift_ppm)[0])
 
     def coarse_search(self) -> None:
         """Cost over the offset range (step ≤ a tenth of a frame); raises NoCommonMotionError when flat,
         DelayOutOfRangeError when the minimum is at the edge."""
         step = min(self.period_b / 10.0, self.half_s / 15.0)
         self.grid = self.guess_s + np.arange(-self.half_s, self.half_s + 0.5 * step, step)
-        self.costs = np.array([self.cost(d, self.line0, 0.0) for d in self.grid])
+        self.costs = self.res.offset_costs(self.grid, self.line0, 0.0)
         k = int(np.argmin(self.costs))
         # Identifiability in units of the noise level at the minimum. With no usable motion the curve still
         # fluctuates (different offsets interpolate different noise): about √(4n)·σ², hence the √n term.
