@@ -179,3 +179,53 @@ def test_a_camera_without_observations_gives_no_pairs_and_an_empty_tracks_frame(
     tracks = triangulate_tracks({"left": obs["left"], "right": none}, column.cameras, column.timing)
     assert tracks.empty and list(tracks.columns) == TRACK_COLUMNS
     assert tracks["track_id"].dtype == np.int64 and tracks["n_cameras"].dtype == np.int64
+
+
+def _median_distances_pair_by_pair(obs, cams) -> pd.DataFrame:
+    """The candidates' costs by the module docstring's definition, one pair at a time: B's track (a
+    not-a-knot cubic spline, linear under 4 samples) at A's instants inside B's span, the median of the
+    symmetric epipolar distances."""
+    from scipy.interpolate import CubicSpline
+
+    from rig.stereo.epipolar import epipolar_distance_px, fundamental_from_projections
+
+    def tracks(o, cam):
+        o = o[o["track_id"] >= 0].sort_values(["track_id", "time_s"], kind="stable")
+        uv = cam.undistort_px(o[["u_px", "v_px"]].to_numpy(float), strict=False)
+        return {int(k): (o["time_s"].to_numpy()[idx], uv[idx])
+                for k, idx in o.groupby("track_id").indices.items()}
+
+    F = fundamental_from_projections(*cams)
+    rows = []
+    for ia, (t_a, uv_a) in tracks(obs["left"], cams[0]).items():
+        for ib, (t_b, uv_b) in tracks(obs["right"], cams[1]).items():
+            inside = (t_a >= t_b[0]) & (t_a <= t_b[-1])
+            if inside.sum() < 2:
+                continue
+            at_a = (CubicSpline(t_b, uv_b, axis=0)(t_a[inside]) if t_b.size >= 4 else
+                    np.column_stack([np.interp(t_a[inside], t_b, uv_b[:, k]) for k in range(2)]))
+            dist = epipolar_distance_px(F, uv_a[inside], at_a, pairwise=False)
+            rows.append((ia, ib, float(np.median(dist)), int(inside.sum())))
+    return pd.DataFrame(rows, columns=["track_a", "track_b", "distance_px", "n_common"])
+
+
+def test_candidate_costs_are_the_pair_by_pair_medians_from_one_distance_call(monkeypatch):
+    """Every pair's distances come from one call over all pairs (not one per pair) and equal, to the bit,
+    the pair-by-pair definition; a broken track and an odd and even count of common instants included."""
+    from rig.analysis import pairing
+
+    tw = twin("sweep_column", setup=lambda w: w.exciter.set_frequency(0.0, 3.0), t_start_s=1.0,
+              t_stop_s=2.5, sigma_px=0.2, seed=4, right_overrides={"dropped_frames": tuple(range(90, 100))})
+    obs = _prepared(tw)
+    cams = tw.cameras["left"], tw.cameras["right"]
+    calls = []
+    real = pairing.epipolar_distance_px
+    monkeypatch.setattr(pairing, "epipolar_distance_px", lambda *a, **k: calls.append(1) or real(*a, **k))
+    res = pair_tracks(obs["left"], obs["right"], *cams)
+    assert len(calls) == 1
+    expected = _median_distances_pair_by_pair(obs, cams)
+    got = res.candidates[["track_a", "track_b", "distance_px", "n_common"]]
+    assert len(got) > 50 and set(got["n_common"] % 2) == {0, 1}
+    pd.testing.assert_frame_equal(got.sort_values(["track_a", "track_b"], ignore_index=True),
+                                  expected.sort_values(["track_a", "track_b"], ignore_index=True),
+                                  check_exact=True)

@@ -176,28 +176,14 @@ def pair_tracks(
         tr.angle = float(np.median(_ray_angles(ca, tr.uv, baseline)))
     for tr in tb.values():
         tr.angle = float(np.median(_ray_angles(cb, tr.uv, baseline)))
-    rows, probe = [], []
-    for ia, a in ta.items():
-        for ib, b in tb.items():
-            if a.t[-1] < b.t[0] or b.t[-1] < a.t[0]:
-                continue
-            inside = (a.t >= b.t[0]) & (a.t <= b.t[-1])
-            n = int(inside.sum())
-            if n < min_common:
-                continue
-            uva = a.uv[inside]
-            uvb = _interpolate(b, a.t[inside])
-            dist = epipolar_distance_px(F, uva, uvb, pairwise=False)
-            k = int(np.argsort(dist)[n // 2])  # the instant of the median distance
-            rows.append((ia, ib, float(dist[k]) if n % 2 else float(np.median(dist)), n))
-            probe.append((uva[k], uvb[k]))
+    rows, probe = _candidates(ta, tb, F, min_common)
     cand = pd.DataFrame(rows, columns=["track_a", "track_b", "distance_px", "n_common"])
     # where each candidate puts the marker (at its median instant): in front of both cameras, in the volume?
     in_front = np.zeros(len(rows), bool)
     in_vol = np.zeros(len(rows), bool)
     gated = np.flatnonzero(cand["distance_px"].to_numpy() <= gate) if rows else np.zeros(0, int)
     if gated.size:
-        xyz = linear_triangulation([ca.P, cb.P], np.array([probe[i] for i in gated]))
+        xyz = linear_triangulation([ca.P, cb.P], probe[gated])
         xyz_h = np.column_stack([xyz, np.ones(len(xyz))])
         ok = np.isfinite(xyz).all(axis=1)
         in_front[gated] = ok & (xyz_h @ ca.P[2] > 0) & (xyz_h @ cb.P[2] > 0)
@@ -215,6 +201,46 @@ def pair_tracks(
         sorted(set(ta) - used_a),
         sorted(set(tb) - used_b),
     )
+
+
+def _candidates(ta: dict[int, _Track], tb: dict[int, _Track], F: np.ndarray,
+                min_common: int) -> tuple[list[tuple[int, int, float, int]], np.ndarray]:
+    """Every pair (A before B, in the tracks' order) with ≥ ``min_common`` of A's instants inside B's span:
+    rows (track_a, track_b, median epipolar distance px, n_common) and the probe (n, 2, 2): A's and B's
+    undistorted pixels at the instant of the median distance. The spans are slices of A's increasing
+    times, B is interpolated once per track over all its pairs' instants, and the distances of all pairs
+    are one call (every step point by point: the values of a pair-by-pair loop)."""
+    ids_b = list(tb)
+    b_first = np.array([tb[ib].t[0] for ib in ids_b])
+    b_last = np.array([tb[ib].t[-1] for ib in ids_b])
+    spans = []  # (track_a, track_b, first, end): A's instants first:end inside B's span
+    for ia, a in ta.items():
+        firsts = np.searchsorted(a.t, b_first, side="left")
+        ends = np.searchsorted(a.t, b_last, side="right")
+        spans += [(ia, ids_b[j], int(firsts[j]), int(ends[j]))
+                  for j in np.flatnonzero(ends - firsts >= min_common)]
+    if not spans:
+        return [], np.zeros((0, 2, 2))
+    n = np.array([end - first for _, _, first, end in spans])
+    starts = np.r_[0, np.cumsum(n)[:-1]]
+    uva = np.concatenate([ta[ia].uv[first:end] for ia, _, first, end in spans])
+    uvb = np.empty_like(uva)
+    by_b: dict[int, list[int]] = {}
+    for i, (_, ib, _, _) in enumerate(spans):
+        by_b.setdefault(ib, []).append(i)
+    for ib, members in by_b.items():
+        at = np.concatenate([np.arange(starts[i], starts[i] + n[i]) for i in members])
+        uvb[at] = _interpolate(tb[ib], np.concatenate([ta[spans[i][0]].t[spans[i][2]:spans[i][3]]
+                                                       for i in members]))
+    dist = epipolar_distance_px(F, uva, uvb, pairwise=False)
+    pair_of = np.repeat(np.arange(len(spans)), n)
+    order = np.lexsort((dist, pair_of))  # by pair, then by distance (NaN last, as argsort)
+    upper = order[starts + n // 2]  # the instant of the median distance (the upper one of an even count)
+    lower = order[starts + np.maximum(n // 2 - 1, 0)]
+    has_nan = np.add.reduceat(np.isnan(dist), starts) > 0
+    median = np.where(n % 2 == 1, dist[upper], np.where(has_nan, np.nan, (dist[lower] + dist[upper]) / 2.0))
+    rows = [(ia, ib, float(m), int(k)) for (ia, ib, _, _), m, k in zip(spans, median, n, strict=True)]
+    return rows, np.stack([uva[upper], uvb[upper]], axis=1)
 
 
 def _assign(cand: pd.DataFrame, ta: dict[int, _Track], tb: dict[int, _Track], margin: float) -> pd.DataFrame:
