@@ -44,6 +44,7 @@ from rig.stereo.triangulate import as_camera, triangulate
 #: 22 Hz and ≈ 0.5 % at 26 Hz, and a still marker's noise is 2 % above that at 1e-3 (bias −1.8 % at 26 Hz).
 TRAJECTORY_PENALTY = 1e-4
 TRACK_COLUMNS = ["segment", "time_s", "track_id", "x_mm", "y_mm", "z_mm", "reprojection_px", "n_cameras"]
+Columns = dict[str, np.ndarray]  # a part of the tracks: column name → values, one row per instant
 
 
 def timing_result(timing: TimingResult | Mapping[str, Any]) -> TimingResult:
@@ -184,20 +185,19 @@ def triangulate_tracks(
     if missing:
         raise AnalysisError(f"pairs lack column(s) {missing}; pass the pairs of pair_all or pair_tracks")
     usable = pairs[~pairs["ambiguous"].astype(bool)] if "ambiguous" in pairs.columns else pairs
-    rows = []
+    parts: list[Columns] = []
+    labels: list[tuple[str, int]] = []  # (segment, component key) of each part
     arrays = {c: _track_arrays(o) for c, o in obs.items()}
     for key, (comp_seg, comp) in enumerate(_components(usable, obs[ref])):
         part, more = _triangulate_component(comp, arrays, cams, ref, sync=sync,
                                             knot_spacing_frames=knot_spacing_frames,
                                             penalty=trajectory_penalty)
         notes += more
-        if len(part):
-            part.insert(0, "segment", comp_seg)
-            part["component"] = key
-            rows.append(part)
-    if rows:
-        out = pd.concat(rows, ignore_index=True)
-        out = out.sort_values(["segment", "time_s"], kind="stable", ignore_index=True)
+        if part is not None and len(part["time_s"]):
+            parts.append(part)
+            labels.append((comp_seg, key))
+    if parts:
+        out = _frame(parts, labels).sort_values(["segment", "time_s"], kind="stable", ignore_index=True)
         out = _number_tracks(out)
     else:
         kinds = {"segment": "object", "track_id": "int64", "n_cameras": "int64"}
@@ -205,6 +205,15 @@ def triangulate_tracks(
     out = out[TRACK_COLUMNS]
     out.attrs["notes"] = notes
     return out
+
+
+def _frame(parts: list[Columns], labels: list[tuple[str, int]]) -> pd.DataFrame:
+    """One frame of the components' rows: segment, their columns, component (the temporary key)."""
+    n = [len(p["time_s"]) for p in parts]
+    columns: dict[str, np.ndarray] = {"segment": np.repeat(np.array([s for s, _ in labels], dtype=object), n)}
+    columns.update({c: np.concatenate([p[c] for p in parts]) for c in parts[0]})
+    columns["component"] = np.repeat(np.array([k for _, k in labels], dtype=np.int64), n)
+    return pd.DataFrame(columns)
 
 
 def _components(pairs: pd.DataFrame, ref_obs: pd.DataFrame) -> list[tuple[str, dict[str, set[int]]]]:
@@ -267,8 +276,8 @@ def _triangulate_component(comp, arrays, cams, ref, *, sync, knot_spacing_frames
         if part is not None:
             parts.append(part)
     if not parts:
-        return pd.DataFrame(), notes
-    return pd.concat(parts, ignore_index=True), notes
+        return None, notes
+    return {c: np.concatenate([p[c] for p in parts]) for c in parts[0]}, notes
 
 
 def _by_interpolation(t_a, uv_a, pieces, cams, *, ref, others, sync):
@@ -286,9 +295,8 @@ def _by_interpolation(t_a, uv_a, pieces, cams, *, ref, others, sync):
     if not seen.any():
         return None
     tri = triangulate([cams[ref]] + [cams[c] for c in others], [u[seen] for u in uvs], refine=True)
-    return pd.DataFrame({"time_s": t_a[seen], "x_mm": tri.xyz_mm[:, 0], "y_mm": tri.xyz_mm[:, 1],
-                         "z_mm": tri.xyz_mm[:, 2], "reprojection_px": tri.rms_px,
-                         "n_cameras": tri.n_views.astype(np.int64)})
+    return {"time_s": t_a[seen], "x_mm": tri.xyz_mm[:, 0], "y_mm": tri.xyz_mm[:, 1], "z_mm": tri.xyz_mm[:, 2],
+            "reprojection_px": tri.rms_px, "n_cameras": tri.n_views.astype(np.int64)}
 
 
 def _ideal(cam: DLTCamera, t: np.ndarray, uv: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -340,8 +348,8 @@ def _by_trajectory(t_a, uv_a, pieces, cams, *, ref, others, knot_spacing_frames,
     n_cams = 1 + covered[seen].sum(axis=1)
     with np.errstate(invalid="ignore"):
         rms = np.sqrt(np.nanmean(sq, axis=1))
-    return pd.DataFrame({"time_s": t_out, "x_mm": xyz[:, 0], "y_mm": xyz[:, 1], "z_mm": xyz[:, 2],
-                         "reprojection_px": rms, "n_cameras": n_cams.astype(np.int64)})
+    return {"time_s": t_out, "x_mm": xyz[:, 0], "y_mm": xyz[:, 1], "z_mm": xyz[:, 2],
+            "reprojection_px": rms, "n_cameras": n_cams.astype(np.int64)}
 
 
 def _number_tracks(out: pd.DataFrame) -> pd.DataFrame:
