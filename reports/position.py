@@ -38,42 +38,49 @@ def match_static(
         raise ReportError(f"gate_mm must be > 0, got {gate_mm!r}")
     _check_columns(tracks, ["time_s", "track_id", "x_mm", "y_mm", "z_mm"], "tracks")
     out = poses.copy()
-    for col in ("x_meas_mm", "y_meas_mm", "z_meas_mm", "u_x_mm", "u_y_mm", "u_z_mm"):
-        out[col] = np.nan
-    out["n_samples"] = 0
-    out["track_id"] = -1
+    meas = np.full((len(out), 3), np.nan)  # x, y, z_meas_mm
+    u = np.full((len(out), 3), np.nan)  # u_x, u_y, u_z_mm
+    n_samples = np.zeros(len(out), dtype=np.int64)
+    track_id = np.full(len(out), -1, dtype=np.int64)
     seg = tracks["segment"].astype(str) if "segment" in tracks.columns else pd.Series("", index=tracks.index)
-    key = seg + "#" + tracks["track_id"].astype(str)
+    key = (seg + "#" + tracks["track_id"].astype(str)).to_numpy()
+    seg_of_row = seg.to_numpy()
     times = tracks["time_s"].to_numpy(float)
     xyz_all = tracks[["x_mm", "y_mm", "z_mm"]].to_numpy(float)
-    if "segment" not in out.columns:
-        out["segment"] = ""
-    for (_index, t0, t1, segment), rows in out.groupby(
-        ["index", "t_start_s", "t_stop_s", "segment"], sort=True
-    ):
-        sel = (times >= t0) & (times <= t1) & np.all(np.isfinite(xyz_all), axis=1)
+    finite = np.all(np.isfinite(xyz_all), axis=1)
+    group_keys = ["index", "t_start_s", "t_stop_s", "segment"]
+    by = out.assign(segment="") if "segment" not in out.columns else out
+    for (_index, t0, t1, segment), at in by.groupby(group_keys, sort=True).indices.items():
+        sel = (times >= t0) & (times <= t1) & finite
         if segment and "segment" in tracks.columns:
-            sel &= (seg == segment).to_numpy()
+            sel &= seg_of_row == segment
         if not sel.any():
             continue
-        keys = key[sel].to_numpy()
+        keys = key[sel]
         xyz = xyz_all[sel]
         ids = np.unique(keys)
         medians = np.array([np.median(xyz[keys == k], axis=0) for k in ids])
-        cmd = rows[["x_cmd_mm", "y_cmd_mm", "z_cmd_mm"]].to_numpy(float)
+        cmd = by[["x_cmd_mm", "y_cmd_mm", "z_cmd_mm"]].to_numpy(float)[at]
         dist = np.linalg.norm(cmd[:, None, :] - medians[None, :, :], axis=2)
         r_idx, c_idx = linear_sum_assignment(dist)
         for r, c in zip(r_idx, c_idx, strict=True):
             if dist[r, c] > gate_mm:
                 continue
             pts = xyz[keys == ids[c]]
-            n = len(pts)
-            row_label = rows.index[r]
-            out.loc[row_label, ["x_meas_mm", "y_meas_mm", "z_meas_mm"]] = pts.mean(axis=0)
+            n, row = len(pts), at[r]
+            meas[row] = pts.mean(axis=0)
             if n > 1:
-                out.loc[row_label, ["u_x_mm", "u_y_mm", "u_z_mm"]] = pts.std(axis=0, ddof=1) / np.sqrt(n)
-            out.loc[row_label, "n_samples"] = n
-            out.loc[row_label, "track_id"] = int(str(ids[c]).rsplit("#", 1)[1])
+                u[row] = pts.std(axis=0, ddof=1) / np.sqrt(n)
+            n_samples[row] = n
+            track_id[row] = int(str(ids[c]).rsplit("#", 1)[1])
+    for k, col in enumerate(("x_meas_mm", "y_meas_mm", "z_meas_mm")):
+        out[col] = meas[:, k]
+    for k, col in enumerate(("u_x_mm", "u_y_mm", "u_z_mm")):
+        out[col] = u[:, k]
+    out["n_samples"] = n_samples
+    out["track_id"] = track_id
+    if "segment" not in out.columns:
+        out["segment"] = ""
     return out
 
 
