@@ -416,7 +416,8 @@ def _table_frames(t: ReportTables, measured: dict[str, Any],
 
 
 POSE_COLUMNS = ["index", "cycle", "target", "marker_id", "x_cmd_mm", "y_cmd_mm", "z_cmd_mm", "ex_mm",
-                "ey_mm", "ez_mm", "error_mm", "u_error_mm", "n_samples", "distance_mm", "off_axis_mm"]
+                "ey_mm", "ez_mm", "error_mm", "u_error_mm", "n_samples", "n_unsettled", "distance_mm",
+                "off_axis_mm"]
 
 
 def _write_outputs(out_dir: Path, report: Report,

@@ -4,8 +4,10 @@ Inputs are the analysis tracks (``segment``, ``time_s``, ``track_id``, ``x_mm``,
 and the commanded poses of :func:`reports.load.accuracy_poses`. A track is identified as a commanded
 marker when its median position in the pose's time window is the nearest one (unique assignment) and
 lies within ``gate_mm`` — a gate far larger than the errors it reports. The measured position is the
-mean of the track's samples in the window; its standard uncertainty per axis is the Type A standard
-error s/√n (samples taken as independent: a static marker's noise is white frame to frame).
+mean of the track's samples in the window taken at rest (:func:`settled_samples`: a frame exposed while the
+arm still arrived — a camera clock mapped late on a loaded host, an arm still settling — is left out and
+counted, not averaged in); its standard uncertainty per axis is the Type A standard error s/√n (samples
+taken as independent: a static marker's noise is white frame to frame).
 """
 
 from __future__ import annotations
@@ -18,6 +20,28 @@ from reports.errors import ReportError
 
 XYZ = ("x", "y", "z")
 DEFAULT_GATE_MM = 50.0
+# A sample is at rest within SETTLED_FACTOR × the median frame-to-frame step of its window from the rest
+# position. For white Gaussian noise of σ per axis a step's length has median 2.18 σ and a sample's distance
+# from the rest (the median of 3 samples) is Maxwell-distributed with scale 1.2 σ, so the bound is 9 scales:
+# a sample at rest exceeds it with probability < 1e-15, and < 2e-4 when a short window's median step comes
+# out half its true value. Steps from the arrival are few, so they do not move the median.
+SETTLED_FACTOR = 5.0
+REST_SAMPLES = 3  # the rest position: the median of the window's last samples (the arm has arrived by then)
+MIN_JUDGED = 2 * REST_SAMPLES  # fewer samples in a window: all kept (too few to tell rest from noise)
+
+
+def settled_samples(xyz_mm: np.ndarray) -> np.ndarray:
+    """Which of a static marker's samples (N, 3) mm, in time order, were taken at rest (bool (N,)): those
+    within ``SETTLED_FACTOR`` × the median length of the frame-to-frame steps (+ 1 nm, for noise-free data)
+    of the rest position, the median of the last ``REST_SAMPLES`` samples. Windows of fewer than
+    ``MIN_JUDGED`` samples are kept whole."""
+    n = len(xyz_mm)
+    if n < MIN_JUDGED:
+        return np.ones(n, dtype=bool)
+    rest = np.median(xyz_mm[-REST_SAMPLES:], axis=0)
+    step_mm = float(np.median(np.linalg.norm(np.diff(xyz_mm, axis=0), axis=1)))
+    settled: np.ndarray = np.linalg.norm(xyz_mm - rest, axis=1) <= SETTLED_FACTOR * step_mm + 1e-6
+    return settled
 
 
 def _check_columns(frame: pd.DataFrame, columns: list[str], what: str) -> None:
@@ -32,7 +56,8 @@ def match_static(
     """Measured position of every commanded marker of every pose (NaN where no track lies within the gate).
 
     Returns ``poses`` with ``x_meas_mm``, ``y_meas_mm``, ``z_meas_mm``, ``u_x_mm``, ``u_y_mm``, ``u_z_mm``
-    (standard errors of the means), ``n_samples`` and ``track_id`` (−1 when unmatched) added.
+    (standard errors of the means), ``n_samples`` (averaged), ``n_unsettled`` (left out: taken while the
+    marker still moved, :func:`settled_samples`) and ``track_id`` (−1 when unmatched) added.
     """
     if not gate_mm > 0:
         raise ReportError(f"gate_mm must be > 0, got {gate_mm!r}")
@@ -41,6 +66,7 @@ def match_static(
     meas = np.full((len(out), 3), np.nan)  # x, y, z_meas_mm
     u = np.full((len(out), 3), np.nan)  # u_x, u_y, u_z_mm
     n_samples = np.zeros(len(out), dtype=np.int64)
+    n_unsettled = np.zeros(len(out), dtype=np.int64)
     track_id = np.full(len(out), -1, dtype=np.int64)
     seg = tracks["segment"].astype(str) if "segment" in tracks.columns else pd.Series("", index=tracks.index)
     key = (seg + "#" + tracks["track_id"].astype(str)).to_numpy()
@@ -56,8 +82,9 @@ def match_static(
             sel &= seg_of_row == segment
         if not sel.any():
             continue
-        keys = key[sel]
-        xyz = xyz_all[sel]
+        order = np.argsort(times[sel], kind="stable")  # time order within each track, for settled_samples
+        keys = key[sel][order]
+        xyz = xyz_all[sel][order]
         ids = np.unique(keys)
         medians = np.array([np.median(xyz[keys == k], axis=0) for k in ids])
         cmd = by[["x_cmd_mm", "y_cmd_mm", "z_cmd_mm"]].to_numpy(float)[at]
@@ -66,18 +93,22 @@ def match_static(
         for r, c in zip(r_idx, c_idx, strict=True):
             if dist[r, c] > gate_mm:
                 continue
-            pts = xyz[keys == ids[c]]
+            samples = xyz[keys == ids[c]]
+            settled = settled_samples(samples)
+            pts = samples[settled]
             n, row = len(pts), at[r]
             meas[row] = pts.mean(axis=0)
             if n > 1:
                 u[row] = pts.std(axis=0, ddof=1) / np.sqrt(n)
             n_samples[row] = n
+            n_unsettled[row] = np.count_nonzero(~settled)
             track_id[row] = int(str(ids[c]).rsplit("#", 1)[1])
     for k, col in enumerate(("x_meas_mm", "y_meas_mm", "z_meas_mm")):
         out[col] = meas[:, k]
     for k, col in enumerate(("u_x_mm", "u_y_mm", "u_z_mm")):
         out[col] = u[:, k]
     out["n_samples"] = n_samples
+    out["n_unsettled"] = n_unsettled
     out["track_id"] = track_id
     if "segment" not in out.columns:
         out["segment"] = ""

@@ -415,6 +415,16 @@ def _timing_values(ph: phase.PhaseResult | None) -> dict[str, Measured]:
     return out
 
 
+def _unsettled_note(poses: pd.DataFrame) -> str:
+    """``, k samples left out …`` when some of ``poses``' samples were taken while a marker still moved (see
+    :func:`reports.position.settled_samples`), else ''."""
+    left_out = int(poses["n_unsettled"].sum())
+    if not left_out:
+        return ""
+    where = f" in {int((poses['n_unsettled'] > 0).sum())} of them" if len(poses) > 1 else ""
+    return f", {left_out} samples{where} left out: taken while the marker still moved"
+
+
 def _position_values(poses: pd.DataFrame, u_ref_mm: float) -> dict[str, Measured]:
     """Detection rate, largest and RMS position error of the static poses."""
     m: dict[str, Measured] = {}
@@ -430,7 +440,7 @@ def _position_values(poses: pd.DataFrame, u_ref_mm: float) -> dict[str, Measured
         float(e[i]),
         [("mean of the static samples", "A", float(u_a[i])), (*REFERENCE, u_ref_mm)],
         note=f"pose {p['index'].iloc[i]}, marker {p['marker_id'].iloc[i]} "
-        f"({int(p['n_samples'].iloc[i])} samples)",
+        f"({int(p['n_samples'].iloc[i])} samples{_unsettled_note(p.iloc[[i]])})",
     )
     rms = float(np.sqrt(np.mean(e**2)))
     w = e / (len(e) * rms) if rms > 0 else np.full(len(e), 1 / np.sqrt(len(e)))  # ∂rms/∂e_i
@@ -440,7 +450,7 @@ def _position_values(poses: pd.DataFrame, u_ref_mm: float) -> dict[str, Measured
             ("means of the static samples", "A", float(np.sqrt(np.sum((w * u_a) ** 2)))),
             (*REFERENCE, float(u_ref_mm * np.sqrt(np.sum(w**2)))),
         ],
-        note=f"{len(e)} marker poses",
+        note=f"{len(e)} marker poses{_unsettled_note(p)}",
     )
     return m
 

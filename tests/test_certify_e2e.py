@@ -58,6 +58,7 @@ def _check_against_truth(run_dir: Path, config: Path) -> None:
     pos = pd.read_csv(run_dir / "tables" / "position_errors.csv")
     assert len(pos) and pos["error_mm"].notna().all()
     assert pos["error_mm"].max() <= 20 * unit_mm, (pos["error_mm"].max(), unit_mm)
+    assert (pos["n_unsettled"] == 0).all(), pos  # the twin's arm is at rest in every frame of a pose's window
     assert rows["repeatability_mm"]["value"] <= 20 * unit_mm
     assert rows["length_error_mm"]["value"] <= 2 * 20 * unit_mm
     assert rows["calibration_rms_px"]["value"] <= 10 * sigma_px

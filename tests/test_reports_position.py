@@ -10,6 +10,7 @@ import reports_synth as synth
 from reports import position
 from reports.errors import ReportError
 from reports.load import accuracy_poses, camera_centres_mm
+from reports.tables import _unsettled_note
 from rig.record.folder import Calibration
 
 TOL = 1e-9  # exact data: only rounding
@@ -159,3 +160,46 @@ def test_a_track_of_another_segment_is_never_taken(poses: pd.DataFrame) -> None:
     errs = position.position_errors(position.match_static(pd.concat([tracks, decoy]), poses))
     row = errs[(errs["index"] == 0) & (errs["marker_id"] == "frame0")].iloc[0]
     assert row["ex_mm"] == pytest.approx(0.1, abs=TOL)  # the injected error, not the decoy's zero
+
+
+def test_a_static_marker_at_rest_keeps_all_its_samples() -> None:
+    """White noise alone is never taken for motion: 120,000 samples in windows of the fewest samples judged
+    (6; longer windows estimate the noise better). Bound: < 2e-4 per sample in the worst case (see
+    position.SETTLED_FACTOR); measured 1.2e-5."""
+    rng = np.random.default_rng(7)
+    left_out = sum(int(np.count_nonzero(~position.settled_samples(rng.normal(0.0, 0.01, (6, 3)))))
+                   for _ in range(20_000))
+    assert left_out <= 24, left_out  # 2e-4 × 120,000
+    assert position.settled_samples(np.zeros((5, 3))).all()  # too few to judge: all kept
+    assert position.settled_samples(np.ones((40, 3))).all()  # noise-free: all kept
+
+
+def test_samples_taken_while_the_arm_arrived_are_left_out_and_counted(poses: pd.DataFrame) -> None:
+    """The first 3 frames of a pose's window caught the markers still arriving (0.9, 0.6, 0.3 mm off in x:
+    an arm at ≈ 18 mm/s, or frames stamped late): averaged in, they would bias x by 0.058 mm (6 σ of the
+    mean); they are left out, counted in ``n_unsettled``, and the error is the injected one within the
+    noise."""
+    noise_mm = 0.01
+    tracks = synth.make_tracks("trajectory", position_noise_mm=noise_mm, seed=3)
+    pose = poses[poses["index"] == 0].iloc[0]
+    in_window = ((tracks["segment"] == pose["segment"]) & (tracks["time_s"] >= pose["t_start_s"])
+                 & (tracks["time_s"] <= pose["t_stop_s"]))
+    arriving = tracks[in_window].groupby("track_id", group_keys=False).apply(
+        lambda t: t.sort_values("time_s").head(3), include_groups=False).index
+    approach_mm = np.tile([0.9, 0.6, 0.3], len(arriving) // 3)
+    tracks.loc[arriving, "x_mm"] += approach_mm
+    errors = position.position_errors(position.match_static(tracks, poses))
+    first = errors[errors["index"] == 0]
+    assert len(first) == len(synth.FRAME_MARKERS_MM)
+    assert (first["n_unsettled"] == 3).all() and (first["n_samples"] == 28).all()
+    assert (errors[errors["index"] != 0]["n_unsettled"] == 0).all()
+    for _, row in first.iterrows():
+        got = row[["ex_mm", "ey_mm", "ez_mm"]].to_numpy(float)
+        u_mean_mm = noise_mm / np.sqrt(row["n_samples"])
+        np.testing.assert_allclose(got, _expected_error(row), atol=5 * u_mean_mm)
+    biased_mm = approach_mm[:3].sum() / 31  # what the plain mean of all 31 samples would have added to x
+    assert biased_mm > 5 * noise_mm / np.sqrt(31)
+    # the certificate's position values say so
+    assert _unsettled_note(errors) == (f", {3 * len(first)} samples in {len(first)} of them left out: taken "
+                                       "while the marker still moved")
+    assert _unsettled_note(errors[errors["index"] != 0]) == ""
