@@ -33,7 +33,8 @@ def brute_levels(start_s: np.ndarray, exposure_s: float, edges: DriveEdges, rise
     tau = start_s[:, None] + (np.arange(4000) + 0.5)[None, :] / 4000 * exposure_s
     level = np.full(tau.shape, edges.initial_level)
     for e, sign in zip(edges.times_s, edges.signs, strict=True):
-        ramp = np.clip((tau - e) / rise_s, 0, 1) if rise_s > 0 else (tau >= e).astype(float)
+        with np.errstate(over="ignore"):  # a subnormal rise divides to ±inf: clipped, the step it is
+            ramp = np.clip((tau - e) / rise_s, 0, 1) if rise_s > 0 else (tau >= e).astype(float)
         level += sign * ramp
     return level.mean(axis=1)
 
