@@ -16,30 +16,18 @@ otherwise it is compiled once per process (a warning).
 from __future__ import annotations
 
 import sys
-import warnings
-from collections.abc import Callable
-from typing import Any, TypeVar, cast
 
-import numba
 import numpy as np
 from numpy.typing import NDArray
+
+from drivers.numba_kernel import nogil_kernel
 
 __all__ = ["half_change_stats", "half_only", "motion_region", "region_changes", "sampled_half",
            "sampled_stats", "sampled_words"]
 
 _LEVELS = 16 * 255 + 1  # a block's change × 16 is an integer sum of 16 absolute differences: 0 … 4080
 
-_F = TypeVar("_F", bound=Callable[..., Any])
-
-
-def _jit(fn: _F) -> _F:
-    """numba.njit (no GIL: both videos' threads run it at once) with the on-disk cache where writable."""
-    try:
-        return cast(_F, numba.njit(cache=True, nogil=True)(fn))
-    except RuntimeError as exc:  # numba: "cannot cache function ...: no locator available"
-        warnings.warn(f"change-map kernel not cached on disk ({exc}); compiling it in this process",
-                      RuntimeWarning, stacklevel=2)
-        return cast(_F, numba.njit(nogil=True)(fn))
+_jit = nogil_kernel("change-map")
 
 
 @_jit

@@ -7,27 +7,14 @@ calls. Compiled code is cached on disk next to this file when that location is w
 
 from __future__ import annotations
 
-import warnings
-from collections.abc import Callable
-from typing import Any, TypeVar, cast
-
-import numba
 import numpy as np
 from numpy.typing import NDArray
 
+from drivers.numba_kernel import nogil_kernel
+
 __all__ = ["add_patches", "chord_coverage"]
 
-_F = TypeVar("_F", bound=Callable[..., Any])
-
-
-def _jit(fn: _F) -> _F:
-    """numba.njit (no GIL) with the on-disk cache where writable."""
-    try:
-        return cast(_F, numba.njit(cache=True, nogil=True)(fn))
-    except RuntimeError as exc:  # numba: "cannot cache function ...: no locator available"
-        warnings.warn(f"render kernel not cached on disk ({exc}); compiling it in this process",
-                      RuntimeWarning, stacklevel=2)
-        return cast(_F, numba.njit(nogil=True)(fn))
+_jit = nogil_kernel("render")
 
 
 @_jit
