@@ -223,14 +223,42 @@ def _fit_bin(t: np.ndarray, x: np.ndarray, phi: np.ndarray) -> tuple[float, floa
     return amp, u_amp, float(np.arctan2(a, b))
 
 
+def lomb_scargle_power(t_s: np.ndarray, y: np.ndarray, omega_rad_s: np.ndarray) -> np.ndarray:
+    """Lomb–Scargle periodogram of ``y`` (zero-mean; N samples at ``t_s``, s) at the angular frequencies
+    ``omega_rad_s`` (rad/s), in the legacy power units (A²·N/4) of ``scipy.signal.lombscargle`` with its
+    defaults (no weights, no floating mean): the same operations in the same order as SciPy ≥ 1.15 computes
+    them (tests/test_reports_lomb.py), here because importing scipy.signal costs ≈ 1 CPU-s in every process
+    that writes a report."""
+    n = y.shape[0]
+    weights = (np.ones_like(y, dtype=np.float64) * (1.0 / n)).reshape(-1, 1)  # they sum to 1
+    freqst = np.asarray(omega_rad_s, np.float64).reshape(1, -1) * np.asarray(t_s, np.float64).reshape(-1, 1)
+    weights_y = weights * np.asarray(y, np.float64).reshape(-1, 1)
+    coswt, sinwt = np.cos(freqst), np.sin(freqst)
+    cc = np.dot(weights.T, coswt * coswt)
+    ss = 1.0 - cc
+    cs = np.dot(weights.T, coswt * sinwt)
+    tau = 0.5 * np.arctan2(2.0 * cs, cc - ss)  # the phase that makes the cosine and sine terms orthogonal
+    freqst_tau = freqst - tau
+    coswt_tau, sinwt_tau = np.cos(freqst_tau), np.sin(freqst_tau)
+    yc = np.dot(weights_y.T, coswt_tau)
+    ys = np.dot(weights_y.T, sinwt_tau)
+    cc = np.dot(weights.T, coswt_tau * coswt_tau)
+    ss = 1.0 - cc
+    epsneg = np.finfo(np.float64).epsneg  # keeps a and b finite where a term vanishes
+    cc[cc < epsneg] = epsneg
+    ss[ss < epsneg] = epsneg
+    a, b = yc / cc, ys / ss
+    power: np.ndarray = np.squeeze(2.0 * (a * yc + b * ys))
+    power *= float(n) / 4.0
+    return power
+
+
 def _peak_frequency_hz(t: np.ndarray, x: np.ndarray, lo_hz: float, hi_hz: float) -> float:
     """Frequency of the Lomb–Scargle peak in [lo, hi] (0.005 Hz grid, parabolic refinement)."""
     freqs = np.arange(max(lo_hz, 0.05), hi_hz, 0.005)
     if len(freqs) < 3:
         return float("nan")
-    from scipy.signal import lombscargle  # scipy.signal costs ≈ 1 CPU-s to import: only where it is used
-
-    power = lombscargle(t - t[0], x - x.mean(), 2 * np.pi * freqs)
+    power = lomb_scargle_power(t - t[0], x - x.mean(), 2 * np.pi * freqs)
     k = int(np.argmax(power))
     if 0 < k < len(freqs) - 1:
         y0, y1, y2 = power[k - 1 : k + 2]

@@ -16,6 +16,7 @@ from scipy.optimize import linear_sum_assignment
 from reports.errors import ReportError
 from reports.frequency import _peak_frequency_hz, sweep_samples
 from reports.select import event_window
+from rig.stereo.spectrum import window_weights
 
 DEFAULT_ROTOR_GATE_MM = 50.0
 
@@ -278,9 +279,7 @@ def amplitude_spectrum(t_s: np.ndarray, x: np.ndarray) -> pd.DataFrame:
     grid = t[0] + dt * np.arange(int(np.floor((t[-1] - t[0]) / dt)) + 1)
     y = np.interp(grid, t, v)
     y = y - y.mean()
-    from scipy.signal.windows import flattop  # scipy.signal: ≈ 1 CPU-s to import, only where it is used
-
-    w = flattop(len(y), sym=False)
+    w = window_weights("flattop", len(y))  # scipy.signal.windows.flattop(n, sym=False), bit for bit
     spec = np.fft.rfft(y * w)
     amp = 2 * np.abs(spec) / w.sum()
     return pd.DataFrame({"frequency_hz": np.fft.rfftfreq(len(y), dt), "amplitude_mm": amp})
