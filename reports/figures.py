@@ -43,11 +43,14 @@ STYLE: dict[RcKeyType, Any] = {
 
 
 def new_figure(
-    nrows: int = 1, ncols: int = 1, size: tuple[float, float] = (7.5, 4.0), **kw
+    nrows: int = 1, ncols: int = 1, size: tuple[float, float] = (7.5, 4.0),
+    layout: str | None = "constrained", **kw
 ) -> tuple[Figure, np.ndarray]:
-    """A figure in the reports' style with an (nrows, ncols) array of axes; ``size`` in inches."""
+    """A figure in the reports' style with an (nrows, ncols) array of axes; ``size`` in inches. ``layout``:
+    matplotlib's layout engine, or None for axes placed by the caller (no layout engine: ``savefig`` then
+    draws the figure once, not a layout pass first)."""
     with plt.rc_context(STYLE):
-        fig = Figure(figsize=size, layout="constrained")
+        fig = Figure(figsize=size, layout=layout)
         axes = fig.subplots(nrows, ncols, squeeze=False, **kw)
         for ax in axes.ravel():
             ax.grid(True, alpha=0.3)

@@ -132,7 +132,7 @@ def fig_displacement(m: Measurement) -> Figure | None:
     targets = m.targets.dropna(subset=["direction_x"]) if "direction_x" in m.summary else m.targets.iloc[:0]
     if targets.empty:
         return None
-    fig, axes = figures.new_figure(size=(10.0, 4.0))
+    fig, axes = figures.new_figure(size=(10.0, 4.0), layout=None)
     ax = axes[0, 0]
     for r in targets.itertuples():
         g = m.displacement[m.displacement["track_id"] == r.track_id]
@@ -140,7 +140,7 @@ def fig_displacement(m: Measurement) -> Figure | None:
         ax.plot(g["time_s"], d, lw=0.9, label=f"track {r.track_id}")
     ax.set_xlabel("time (s, reference video clock)")
     ax.set_ylabel("displacement along its principal direction (mm)")
-    _legend_above(fig, ax)
+    _legend_above(ax)
     return fig
 
 
@@ -149,13 +149,13 @@ def fig_spectrum(m: Measurement) -> Figure | None:
     sel = m.spectra[m.spectra["track_id"].isin(set(m.targets["track_id"]))] if len(m.spectra) else m.spectra
     if sel.empty:
         return None
-    fig, axes = figures.new_figure(size=(10.0, 4.0))
+    fig, axes = figures.new_figure(size=(10.0, 4.0), layout=None)
     ax = axes[0, 0]
     for track_id, g in sel.groupby("track_id"):
         ax.plot(g["frequency_hz"], g["amplitude_mm"], lw=0.9, label=f"track {track_id}")
     ax.set_xlabel("frequency (Hz)")
     ax.set_ylabel("amplitude (mm)")
-    _legend_above(fig, ax)
+    _legend_above(ax)
     return fig
 
 
@@ -163,11 +163,10 @@ LEGEND_COLUMNS = 6
 LEGEND_ROW = 0.06  # height of a legend row, fraction of a 4-inch-high figure
 
 
-def _legend_above(fig: Figure, ax: Axes) -> None:
-    """The legend in a row above the axes and fixed margins: no search of a place among the data points and
-    no constrained-layout pass (together half the report's drawing time)."""
+def _legend_above(ax: Axes) -> None:
+    """The legend in a row above the axes and fixed margins (a figure without a layout engine): no search
+    of a place among the data points and no layout pass (together half the report's drawing time)."""
     rows = math.ceil(len(ax.get_lines()) / LEGEND_COLUMNS)
-    fig.set_layout_engine("none")
     top = 0.96 - LEGEND_ROW * max(rows, 1)
     ax.set_position((0.075, 0.12, 0.915, top - 0.12))  # figure fractions: left, bottom, width, height
     ax.legend(ncols=LEGEND_COLUMNS, loc="lower left", bbox_to_anchor=(0.0, 1.0), borderaxespad=0.2)

@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import pytest
+from matplotlib.figure import Figure
 
 from reports.errors import RunFolderError
 from reports.html import CSS
@@ -81,6 +82,22 @@ def test_the_report_is_deterministic(tmp_path: Path) -> None:
     for name in ("report.html", "figures/displacement.png", "figures/spectrum.png"):
         assert (a / name).read_bytes() == (b / name).read_bytes(), name
 
+
+def test_each_figure_is_drawn_once(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """The figures place their axes themselves: no layout engine, so ``savefig`` draws each figure once
+    (with one, even a placeholder left by turning constrained layout off, it draws a layout pass first)."""
+    out = _write_folder(tmp_path / "out")
+    drawn: list[Figure] = []
+    draw = Figure.draw
+
+    def counted(fig: Figure, renderer: object) -> None:
+        drawn.append(fig)
+        draw(fig, renderer)
+
+    monkeypatch.setattr(Figure, "draw", counted)
+    files = write_measurement_report(out)
+    assert len(drawn) == 2 == len([k for k in files if k.startswith("figure_")])
+    assert len(set(map(id, drawn))) == 2
 
 def test_input_problems_come_first_and_duplicates_are_capped(tmp_path: Path) -> None:
     out = _write_folder(tmp_path / "out", problems=("right.mkv: truncated after frame 147",), n_duplicates=45)
