@@ -36,6 +36,7 @@ from __future__ import annotations
 import argparse
 import hashlib
 import json
+import math
 import os
 import statistics
 import subprocess
@@ -283,8 +284,9 @@ def main(argv: list[str] | None = None) -> int:
     if not (args.reuse and calibration.is_file() and all(p.is_file() for p in paths)):
         write_videos(folder, max(args.seconds, args.long or 0.0))
     print(f"twin videos ready in {time.perf_counter() - t0:.1f} s ({folder})")
-    (folder / "timing.json").write_text(json.dumps(mt.truth_timing(left, right, 0.0, 0.15)))
-    return run(folder, paths, calibration, max(args.seconds, args.long or 0.0), left=left, right=right,
+    truth = mt.truth_timing(left, right, 0.0, 0.15)
+    (folder / "timing.json").write_text(json.dumps(truth))
+    return run(folder, paths, calibration, max(args.seconds, args.long or 0.0), truth=truth,
                repeat=args.repeat)
 
 
@@ -306,9 +308,9 @@ def write_videos(folder: Path, seconds: float) -> None:
     mt.write_pair(left, right, folder, t_left_s=(0.0, seconds), t_right_s=(0.15, 0.15 + seconds))
 
 
-def run(folder: Path, paths: tuple[Path, Path], calibration: Path, seconds: float, *, left: object,
-        right: object, repeat: int = 3) -> int:
-    """Decode and measure; print the figures."""
+def run(folder: Path, paths: tuple[Path, Path], calibration: Path, seconds: float, *, truth: dict[str, Any],
+        repeat: int = 3) -> int:
+    """Decode and measure; print the figures (``truth``: the twin's timing.json, for the estimate's)."""
     import measure_twin as mt
 
     print("\ndecoding one 1080p video (frames/s, single thread)")
@@ -367,9 +369,29 @@ def run(folder: Path, paths: tuple[Path, Path], calibration: Path, seconds: floa
                           options=MeasureOptions(window_s=opts.window_s), force=True)
     wall2 = time.perf_counter() - t0
     print(f"\nrig measure --estimate-timing: wall {wall2:.2f} s = {video_s / wall2:.2f} × real time; "
-          f"offset {res2.timing['offset_s']['right']:+.6f} s "
-          f"(truth {mt.truth_timing(left, right, 0.0, 0.15)['offset_s']['right']:+.6f} s)")
+          + offset_error(res2.timing, truth, "right"))
     return 0
+
+
+def offset_at_epoch_s(timing: dict[str, Any], camera: str, epoch_s: float) -> float:
+    """``camera``'s offset (s) stated at ``epoch_s`` (its clock, s) by a timing.json whose own epoch may
+    differ: the model t = τ + offset + drift·1e-6·(τ − epoch) (:mod:`rig.stereo.timing_model`) gives
+    the same mapping with offset + drift·1e-6·(epoch_s − its epoch)."""
+    drift_ppm = float(timing["drift_ppm"][camera])
+    return float(timing["offset_s"][camera]) + drift_ppm * 1e-6 * (epoch_s - float(timing["epoch_s"][camera]))
+
+
+def offset_error(estimate: dict[str, Any], truth: dict[str, Any], camera: str) -> str:
+    """The estimated offset next to the truth at the estimate's own epoch (with a drift, the offsets of two
+    epochs differ by drift × their distance: −47 ppm over 10 s is 0.47 ms), and their difference in ms and
+    in the stated standard uncertainty."""
+    epoch_s = float(estimate["epoch_s"][camera])
+    offset_s = float(estimate["offset_s"][camera])
+    error_ms = (offset_s - offset_at_epoch_s(truth, camera, epoch_s)) * 1e3
+    sigma_ms = float(estimate.get("uncertainty", {}).get("offset_s", {}).get(camera, math.nan)) * 1e3
+    return (f"offset {offset_s:+.6f} s at epoch {epoch_s:.3f} s (truth there "
+            f"{offset_at_epoch_s(truth, camera, epoch_s):+.6f} s): error {error_ms:+.4f} ms = "
+            f"{error_ms / sigma_ms:+.2f} σ (σ {sigma_ms:.4f} ms)")
 
 
 if __name__ == "__main__":

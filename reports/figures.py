@@ -7,7 +7,7 @@ byte-identical PNG files.
 from __future__ import annotations
 
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Literal
 
 import matplotlib
 
@@ -44,7 +44,7 @@ STYLE: dict[RcKeyType, Any] = {
 
 def new_figure(
     nrows: int = 1, ncols: int = 1, size: tuple[float, float] = (7.5, 4.0),
-    layout: str | None = "constrained", **kw
+    layout: Literal["constrained", "compressed", "tight"] | None = "constrained", **kw
 ) -> tuple[Figure, np.ndarray]:
     """A figure in the reports' style with an (nrows, ncols) array of axes; ``size`` in inches. ``layout``:
     matplotlib's layout engine, or None for axes placed by the caller (no layout engine: ``savefig`` then
