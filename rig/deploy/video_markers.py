@@ -91,8 +91,11 @@ class VideoObservations:
 
 
 def _frame(parts: list[tuple[int, float, bool, np.ndarray]]) -> pd.DataFrame:
+    """The rows of every frame's markers (``MARKER_DTYPE``) in one table. Their bytes are joined:
+    ``np.concatenate`` of a structured dtype promotes its fields array by array (≈ 20 µs a frame)."""
     counts = [len(p[3]) for p in parts]
-    rec = np.concatenate([p[3] for p in parts]) if parts else np.empty(0, MARKER_DTYPE)
+    rec = np.frombuffer(b"".join([p[3].astype(MARKER_DTYPE, copy=False).tobytes() for p in parts]),
+                        MARKER_DTYPE)
     out: dict[str, Any] = {
         "frame_index": np.repeat(np.array([p[0] for p in parts], dtype=np.int64), counts),
         "timestamp_s": np.repeat(np.array([p[1] for p in parts], dtype=float), counts),
