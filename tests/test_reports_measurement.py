@@ -11,6 +11,7 @@ import matplotlib.pyplot as plt
 import numpy as np
 import pandas as pd
 import pytest
+from matplotlib.backend_bases import RendererBase
 from matplotlib.figure import Figure
 
 from reports.errors import RunFolderError
@@ -93,7 +94,7 @@ def test_each_figure_is_drawn_once(tmp_path: Path, monkeypatch: pytest.MonkeyPat
     drawn: list[Figure] = []
     draw = Figure.draw
 
-    def counted(fig: Figure, renderer: object) -> None:
+    def counted(fig: Figure, renderer: RendererBase) -> None:
         drawn.append(fig)
         draw(fig, renderer)
 
