@@ -14,12 +14,13 @@ import numpy as np
 
 from drivers.camera import change_kernel
 from rig.analysis.frame_reduction import ReduceOptions, warm_up
-from rig.stereo import detect_markers
+from rig.stereo import detect_markers, resample
 
 
 def warm_all() -> float:
     """Load or compile every kernel (markers: detection and tracking, and the joining of row bands a
-    detection on several threads uses; video: the change map and a duplicate candidate's region kernels).
+    detection on several threads uses; video: the change map and a duplicate candidate's region kernels;
+    the band-limited reconstruction's kernel rows).
 
     Returns the CPU seconds spent."""
     start_s = time.process_time()
@@ -35,6 +36,8 @@ def warm_all() -> float:
     rows, cols = change_kernel.motion_region(zero_map, zero_map, 0.0, 0.0, (2, 2))
     pairs = np.array([[0, 1], [2, 3], [1, 2], [0, 3]], np.int64)
     change_kernel.region_changes((image,) * 4, rows, cols, pairs)
+    t_s = np.arange(80) / 60.0 + 0.002 * np.sin(np.arange(80))  # jittered instants: the sparse solve's rows
+    resample(t_s, np.sin(t_s), t_s[10:20] + 0.004, "bandlimited")
     return time.process_time() - start_s
 
 

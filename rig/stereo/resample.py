@@ -24,7 +24,7 @@ from __future__ import annotations
 from typing import Literal, overload
 
 import numpy as np
-from scipy import linalg, sparse, special
+from scipy import linalg, sparse
 from scipy.interpolate import CubicSpline
 
 from rig.stereo._arrays import FloatArray, IntArray
@@ -36,19 +36,21 @@ METHODS = ("linear", "cubic", "bandlimited")
 
 def kaiser_sinc(frac: FloatArray, half: int, beta: float) -> FloatArray:
     """Kaiser-windowed sinc at ``frac − o`` sample periods for each o = −half … half: (frac.size, 2·half + 1),
-    zero beyond ±half. ``frac`` (periods) past a grid sample, in [0, 1). One sine per row, sin π(f − o) =
-    (−1)ᵒ sin π·min(f, 1 − f) (exact arguments: accurate next to either sample), and scipy's compiled i0:
-    equal to numpy's sinc and i0 term by term within 2e-15 (tests/test_resample_kernel.py)."""
-    offsets = np.arange(-half, half + 1)
-    tau = frac[:, None] - offsets[None, :]
-    r = tau / half
-    inside = np.abs(r) < 1.0
-    win = np.where(inside, special.i0(beta * np.sqrt(np.where(inside, 1.0 - r**2, 0.0))), 0.0)
-    sine = np.sin(np.pi * np.minimum(frac, 1.0 - frac))[:, None] * np.where(offsets % 2 == 0, 1.0, -1.0)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        sinc = np.where(tau == 0.0, 1.0, sine / (np.pi * tau))
-    kernel: FloatArray = sinc * (win / special.i0(beta))
+    zero beyond ±half. ``frac`` (periods) past a grid sample, in [0, 1); 0 < ``beta`` ≤ 8. One sine per row,
+    sin π(f − o) = (−1)ᵒ sin π·min(f, 1 − f) (exact arguments: accurate next to either sample), and cephes'
+    i0 (scipy's): equal to numpy's sinc and i0 term by term within 2e-15, compiled
+    (:mod:`rig.stereo.resample_kernel`; tests/test_resample_kernel.py)."""
+    from rig.stereo.resample_kernel import kaiser_sinc_rows  # numba: loaded by the first reconstruction
+
+    _check_beta(beta)
+    kernel: FloatArray = kaiser_sinc_rows(np.ascontiguousarray(frac, dtype=float), int(half), float(beta))
     return kernel
+
+
+def _check_beta(beta: float) -> None:
+    """InputArrayError unless 0 < ``beta`` ≤ 8 (the compiled window's I0 series holds on [0, 8])."""
+    if not 0.0 < beta <= 8.0:
+        raise InputArrayError(f"the Kaiser window's beta must be in (0, 8], got {beta!r}")
 
 
 def _grid(t: FloatArray) -> tuple[float, float, IntArray]:
@@ -73,13 +75,11 @@ def _grid(t: FloatArray) -> tuple[float, float, IntArray]:
 
 def _kernel_matrix(tau_periods: FloatArray, n_cols: int, half: int, beta: float) -> sparse.csr_matrix:
     """Sparse matrix K[i, j] = h(tau_i − j) for grid columns within the kernel support of each row."""
-    base = np.floor(tau_periods)
-    j = base.astype(np.int64)[:, None] + np.arange(-half, half + 1)[None, :]
-    vals = kaiser_sinc(tau_periods - base, half, beta)  # tau − floor(tau) is exact
-    ok = (j >= 0) & (j < n_cols) & (vals != 0.0)
+    from rig.stereo.resample_kernel import kernel_csr  # numba: loaded by the first reconstruction
+
     # row by row, columns ascending: already the canonical CSR arrays (no COO sort)
-    indptr = np.concatenate([[0], np.cumsum(np.count_nonzero(ok, axis=1))])
-    return sparse.csr_matrix((vals[ok], j[ok], indptr), shape=(tau_periods.size, n_cols))
+    csr = kernel_csr(np.ascontiguousarray(tau_periods, dtype=float), int(n_cols), int(half), float(beta))
+    return sparse.csr_matrix(csr, shape=(tau_periods.size, n_cols))
 
 
 def _missing_slots(m: IntArray, bridge_max_samples: int) -> tuple[IntArray, IntArray]:
@@ -248,6 +248,7 @@ class Bandlimited:
     def __init__(self, t_src: FloatArray, values: FloatArray, *, half_width_samples: int = 32,
                  beta: float = 5.65, bridge_max_samples: int = 0,
                  bridge_filter: FloatArray | None = None) -> None:
+        _check_beta(beta)
         self.t0, self.period, m = _grid(t_src)
         self.n_grid = int(m[-1]) + 1
         self.half, self.beta, self.t_first = half_width_samples, beta, float(t_src[0])

@@ -1,0 +1,126 @@
+"""Compiled kernels of the band-limited reconstruction (:mod:`rig.stereo.resample`): the Kaiser-windowed sinc
+rows and the sums over them, each term computed with the same floating-point operations in the same order as
+the numpy and scipy.sparse expressions they replace (results equal to the bit: tests/test_resample_kernel.py).
+
+The window's I0 is cephes' Chebyshev series on [0, 8] (the one scipy.special.i0 and numpy.i0 evaluate there:
+the same coefficients, the same recurrence); its argument β·√(1 − r²) stays below β ≤ 8.
+
+Imported by :mod:`rig.stereo.resample` when a reconstruction is first built (numba and the compiled code are
+loaded then, not by ``import rig.stereo``); compiled once into numba's on-disk cache
+(:mod:`rig.warm_kernels`).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from rig.stereo.markers_kernel import jit_kernel
+
+MAX_BETA = 8.0  # the Chebyshev series below holds on [0, 8]
+
+# cephes i0.c, coefficients A for 0 ≤ x ≤ 8: exp(−x)·I0(x) = Σ A_k T_k(x/2 − 2) (Chebyshev)
+_I0_A = np.array([
+    -4.41534164647933937950E-18, 3.33079451882223809783E-17, -2.43127984654795469359E-16,
+    1.71539128555513303061E-15, -1.16853328779934516808E-14, 7.67618549860493561688E-14,
+    -4.85644678311192946090E-13, 2.95505266312963983461E-12, -1.72682629144155570723E-11,
+    9.67580903537323691224E-11, -5.18979560163526290666E-10, 2.65982372468238665035E-9,
+    -1.30002500998624804212E-8, 6.04699502254191894932E-8, -2.67079385394061173391E-7,
+    1.11738753912010371815E-6, -4.41673835845875056359E-6, 1.64484480707288970893E-5,
+    -5.75419501008210370398E-5, 1.88502885095841655729E-4, -5.76375574538582365885E-4,
+    1.63947561694133579842E-3, -4.32430999505057594430E-3, 1.05464603945949983183E-2,
+    -2.37374148058994688156E-2, 4.93052842396707084878E-2, -9.49010970480476444210E-2,
+    1.71620901522208775349E-1, -3.04682672343198398683E-1, 6.76795274409476084995E-1,
+])
+
+
+@jit_kernel
+def _chebyshev_i0(y: float) -> float:
+    """cephes' chbevl(y, A, 30): the Chebyshev series of exp(−x)·I0(x) at y = x/2 − 2."""
+    b0 = _I0_A[0]
+    b1 = 0.0
+    b2 = 0.0
+    for k in range(1, _I0_A.size):
+        b2 = b1
+        b1 = b0
+        b0 = y * b1 - b2 + _I0_A[k]
+    return float(0.5 * (b0 - b2))
+
+
+@jit_kernel
+def i0_small(x: np.ndarray) -> np.ndarray:
+    """Modified Bessel function I0 of each of ``x`` (all in [0, 8]) as cephes computes it: exp(x) × the
+    Chebyshev series (four independent recurrences interleaved: each is a chain of 29 dependent steps)."""
+    out = np.empty(x.size)
+    n4 = x.size - x.size % 4
+    for e in range(0, n4, 4):
+        y0, y1, y2, y3 = x[e] / 2.0 - 2.0, x[e + 1] / 2.0 - 2.0, x[e + 2] / 2.0 - 2.0, x[e + 3] / 2.0 - 2.0
+        a0 = b0 = c0 = d0 = _I0_A[0]
+        a1 = b1 = c1 = d1 = 0.0
+        a2 = b2 = c2 = d2 = 0.0
+        for k in range(1, _I0_A.size):
+            coef = _I0_A[k]
+            a2, b2, c2, d2 = a1, b1, c1, d1
+            a1, b1, c1, d1 = a0, b0, c0, d0
+            a0 = y0 * a1 - a2 + coef
+            b0 = y1 * b1 - b2 + coef
+            c0 = y2 * c1 - c2 + coef
+            d0 = y3 * d1 - d2 + coef
+        out[e] = np.exp(x[e]) * (0.5 * (a0 - a2))
+        out[e + 1] = np.exp(x[e + 1]) * (0.5 * (b0 - b2))
+        out[e + 2] = np.exp(x[e + 2]) * (0.5 * (c0 - c2))
+        out[e + 3] = np.exp(x[e + 3]) * (0.5 * (d0 - d2))
+    for e in range(n4, x.size):
+        out[e] = np.exp(x[e]) * _chebyshev_i0(x[e] / 2.0 - 2.0)
+    return out
+
+
+@jit_kernel
+def kaiser_sinc_rows(frac: np.ndarray, half: int, beta: float) -> np.ndarray:
+    """Kaiser-windowed sinc at ``frac − o`` periods, o = −half … half: (frac.size, 2·half + 1), zero beyond
+    ±half; ``frac`` in [0, 1), 0 < ``beta`` ≤ 8 (:func:`rig.stereo.resample.kaiser_sinc`)."""
+    width = 2 * half + 1
+    # the window's argument β·√(1 − r²) of every term inside ±half (r = (f − o)/half), 0 outside
+    arg = np.zeros(frac.size * width)
+    for i in range(frac.size):
+        for c in range(width):
+            r = (frac[i] - (c - half)) / half
+            if abs(r) < 1.0:
+                arg[i * width + c] = beta * np.sqrt(1.0 - r * r)
+    win = i0_small(arg)
+    i0_beta = i0_small(np.full(1, beta))[0]
+    out = np.zeros((frac.size, width))
+    for i in range(frac.size):
+        f = frac[i]
+        sine = np.sin(np.pi * min(f, 1.0 - f))  # sin π(f − o) = (−1)ᵒ sin π·min(f, 1 − f)
+        for c in range(width):
+            o = c - half
+            tau = f - o
+            if abs(tau / half) < 1.0:
+                signed = sine if o % 2 == 0 else -sine
+                sinc = 1.0 if tau == 0.0 else signed / (np.pi * tau)
+                out[i, c] = sinc * (win[i * width + c] / i0_beta)
+    return out
+
+
+@jit_kernel
+def kernel_csr(tau: np.ndarray, n_cols: int, half: int, beta: float
+               ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """CSR arrays (data, indices, indptr) of K[i, j] = h(tau_i − j) (``tau`` in grid periods): the nonzero
+    terms of each row's 2·half + 1 around floor(tau_i) that fall on columns 0 … n_cols − 1, ascending."""
+    base = np.floor(tau)
+    rows = kaiser_sinc_rows(tau - base, half, beta)  # tau − floor(tau) is exact
+    width = 2 * half + 1
+    data = np.empty(tau.size * width)
+    indices = np.empty(tau.size * width, dtype=np.int64)
+    indptr = np.zeros(tau.size + 1, dtype=np.int64)
+    n = 0
+    for i in range(tau.size):
+        first = int(base[i]) - half
+        for c in range(width):
+            j = first + c
+            if 0 <= j < n_cols and rows[i, c] != 0.0:
+                data[n] = rows[i, c]
+                indices[n] = j
+                n += 1
+        indptr[i + 1] = n
+    return data[:n], indices[:n], indptr
