@@ -21,7 +21,7 @@ Times in seconds; values in any unit.
 
 from __future__ import annotations
 
-from typing import Literal, overload
+from typing import Literal, NamedTuple, overload
 
 import numpy as np
 from scipy import linalg, sparse
@@ -73,13 +73,25 @@ def _grid(t: FloatArray) -> tuple[float, float, IntArray]:
     return float(t0), float(period), m
 
 
-def _kernel_matrix(tau_periods: FloatArray, n_cols: int, half: int, beta: float) -> sparse.csr_matrix:
-    """Sparse matrix K[i, j] = h(tau_i − j) for grid columns within the kernel support of each row."""
-    from rig.stereo.resample_kernel import kernel_csr  # numba: loaded by the first reconstruction
+class KernelRows(NamedTuple):
+    """The reconstruction kernel at some instants: row i holds K[i, first[i] + c] for c = 0 … 2·half (zero on
+    columns outside the grid)."""
 
-    # row by row, columns ascending: already the canonical CSR arrays (no COO sort)
-    csr = kernel_csr(np.ascontiguousarray(tau_periods, dtype=float), int(n_cols), int(half), float(beta))
-    return sparse.csr_matrix(csr, shape=(tau_periods.size, n_cols))
+    rows: FloatArray  # (n, 2·half + 1)
+    first: IntArray  # (n,) grid column of each row's first term
+
+    def head(self, n: int) -> KernelRows:
+        """The first ``n`` rows."""
+        return KernelRows(self.rows[:n], self.first[:n])
+
+
+def _kernel_rows(tau_periods: FloatArray, n_cols: int, half: int, beta: float) -> KernelRows:
+    """K[i, j] = h(tau_i − j) over each row's support (``tau_periods`` in grid periods, n_cols grid slots)."""
+    from rig.stereo.resample_kernel import kernel_rows  # numba: loaded by the first reconstruction
+
+    rows, first = kernel_rows(np.ascontiguousarray(tau_periods, dtype=float), int(n_cols), int(half),
+                              float(beta))
+    return KernelRows(rows, first)
 
 
 def _missing_slots(m: IntArray, bridge_max_samples: int) -> tuple[IntArray, IntArray]:
@@ -259,6 +271,7 @@ class Bandlimited:
         detrended = values - A @ self.trend
         tau_src = (t_src - self.t0) / self.period
         self.bands: FloatArray | None = None  # the normal matrix's lower bands; None: a regular grid
+        self.cholesky: FloatArray | None = None  # their Cholesky factor (lower banded form)
         self.R: sparse.csr_matrix | None = None
         if np.allclose(tau_src, m, atol=1e-9, rtol=0) and self.n_grid == t_src.size:
             self.grid_values: FloatArray = detrended
@@ -269,8 +282,13 @@ class Bandlimited:
     def _solve(self, t_src: FloatArray, m: IntArray, detrended: FloatArray, *, bridge_max_samples: int,
                bridge_filter: FloatArray | None) -> None:
         """The grid values whose reconstruction passes through the observations (sparse least squares)."""
-        S = _kernel_matrix((t_src - self.t0) / self.period, self.n_grid, self.half, self.beta)
-        rhs = np.asarray(S.T @ detrended)
+        from rig.stereo.resample_kernel import normal_equations
+
+        S = _kernel_rows((t_src - self.t0) / self.period, self.n_grid, self.half, self.beta)
+        # SᵀS's bands and Sᵀ·values, summed as scipy.sparse's S.T @ S and S.T @ values sum them
+        normal, rhs = normal_equations(S.rows, S.first, self.n_grid,
+                                       np.ascontiguousarray(detrended).reshape(t_src.size, -1))
+        rhs = rhs.reshape((self.n_grid, *detrended.shape[1:]))
         lam = 1e-8
         weights = np.full(self.n_grid, lam)
         short, long_ = _missing_slots(m, bridge_max_samples)
@@ -289,28 +307,38 @@ class Bandlimited:
                 raise InputArrayError(f"bridge_filter has {taps.size} taps; at most {2 * self.half + 1}")
             R = (R + _filter_penalty(taps, short, long_, self.n_grid)).tocsr()
         self.R = R
-        self.bands = _lower_bands((S.T @ S + R).tocsr(), 2 * self.half + 1)
-        self.grid_values = linalg.solveh_banded(self.bands, rhs, lower=True)
+        self.bands = normal + _lower_bands(R, 2 * self.half + 1)  # N = SᵀS + R
+        self.cholesky = linalg.cholesky_banded(self.bands, lower=True)  # solveh_banded's own factor (pbtrf)
+        self.grid_values = linalg.cho_solve_banded((self.cholesky, True), rhs)
 
-    def kernel(self, t_dst: FloatArray) -> sparse.csr_matrix:
-        """The reconstruction kernel at the instants ``t_dst`` (s): one row each, one column a grid slot."""
-        return _kernel_matrix((t_dst - self.t0) / self.period, self.n_grid, self.half, self.beta)
+    def kernel(self, t_dst: FloatArray) -> KernelRows:
+        """The reconstruction kernel at the instants ``t_dst`` (s): one row each, over the grid slots."""
+        return _kernel_rows((t_dst - self.t0) / self.period, self.n_grid, self.half, self.beta)
 
-    def values_at(self, K: sparse.csr_matrix, t_dst: FloatArray) -> FloatArray:
+    def values_at(self, K: KernelRows, t_dst: FloatArray) -> FloatArray:
         """The reconstruction at ``t_dst`` (s), ``K`` its :meth:`kernel`."""
+        from rig.stereo.resample_kernel import rows_times
+
         B = np.column_stack([np.ones_like(t_dst), t_dst - self.t_first])
-        out: FloatArray = np.asarray(K @ self.grid_values) + B @ self.trend
+        grid = np.ascontiguousarray(self.grid_values).reshape(self.n_grid, -1)
+        along: FloatArray = rows_times(K.rows, K.first, grid)
+        out: FloatArray = along.reshape((-1, *self.grid_values.shape[1:])) + B @ self.trend
         return out
 
-    def noise_gain(self, K: sparse.csr_matrix) -> FloatArray:
+    def noise_gain(self, K: KernelRows) -> FloatArray:
         """Per row of the kernel ``K``: the output's variance for white source noise of unit variance
         (:func:`bandlimited`'s ``noise_gain``)."""
-        if self.bands is None or self.R is None:
-            return np.asarray(K.multiply(K).sum(axis=1)).ravel()
+        from rig.stereo.resample_kernel import rows_dot_columns, rows_transposed
+
+        if self.R is None or self.cholesky is None:  # a regular grid: M = K; each row's nonzero squares
+            nonzero = K.rows != 0.0  # summed as scipy.sparse sums a CSR row (np.add.reduceat)
+            ends = np.cumsum(np.count_nonzero(nonzero, axis=1))
+            squares = np.add.reduceat(np.r_[K.rows[nonzero] ** 2, 0.0], np.r_[0, ends[:-1]])
+            return np.where(ends > np.r_[0, ends[:-1]], squares, 0.0)
         # M = K N⁻¹ Sᵀ and SᵀS = N − R, so diag(M Mᵀ) = diag(K Z) − diag(Zᵀ R Z), Z = N⁻¹ Kᵀ (exact for
         # bridged gaps; the cubic prior of a long gap's slots is left out: approximate next to one).
-        Z = linalg.solveh_banded(self.bands, K.T.toarray(), lower=True)
-        through_data = np.asarray(K.multiply(Z.T).sum(axis=1)).ravel()
+        Z = linalg.cho_solve_banded((self.cholesky, True), rows_transposed(K.rows, K.first, self.n_grid))
+        through_data = rows_dot_columns(K.rows, K.first, Z)
         gain: FloatArray = through_data - np.sum(Z * np.asarray(self.R @ Z), axis=0)
         return gain
 

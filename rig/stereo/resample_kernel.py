@@ -103,24 +103,76 @@ def kaiser_sinc_rows(frac: np.ndarray, half: int, beta: float) -> np.ndarray:
 
 
 @jit_kernel
-def kernel_csr(tau: np.ndarray, n_cols: int, half: int, beta: float
-               ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """CSR arrays (data, indices, indptr) of K[i, j] = h(tau_i − j) (``tau`` in grid periods): the nonzero
-    terms of each row's 2·half + 1 around floor(tau_i) that fall on columns 0 … n_cols − 1, ascending."""
+def kernel_rows(tau: np.ndarray, n_cols: int, half: int, beta: float) -> tuple[np.ndarray, np.ndarray]:
+    """The rows of K[i, j] = h(tau_i − j) (``tau`` in grid periods) over their support: (values
+    (n, 2·half + 1), first column (n,)); the terms on columns outside 0 … n_cols − 1 are zero."""
     base = np.floor(tau)
     rows = kaiser_sinc_rows(tau - base, half, beta)  # tau − floor(tau) is exact
-    width = 2 * half + 1
-    data = np.empty(tau.size * width)
-    indices = np.empty(tau.size * width, dtype=np.int64)
-    indptr = np.zeros(tau.size + 1, dtype=np.int64)
-    n = 0
+    first = np.empty(tau.size, dtype=np.int64)
     for i in range(tau.size):
-        first = int(base[i]) - half
-        for c in range(width):
-            j = first + c
-            if 0 <= j < n_cols and rows[i, c] != 0.0:
-                data[n] = rows[i, c]
-                indices[n] = j
-                n += 1
-        indptr[i + 1] = n
-    return data[:n], indices[:n], indptr
+        first[i] = int(base[i]) - half
+        for c in range(rows.shape[1]):
+            if not 0 <= first[i] + c < n_cols:
+                rows[i, c] = 0.0
+    return rows, first
+
+
+@jit_kernel
+def normal_equations(rows: np.ndarray, first: np.ndarray, n_cols: int, values: np.ndarray
+                     ) -> tuple[np.ndarray, np.ndarray]:
+    """SᵀS in the lower banded form of scipy.linalg.solveh_banded ((width, n_cols): row d holds N[i + d, i])
+    and Sᵀ·``values`` ((n_cols, k)), S the kernel ``rows``: each sum taken over S's rows in order, as
+    scipy.sparse's S.T @ S and S.T @ values take them."""
+    width = rows.shape[1]
+    bands = np.zeros((width, n_cols))
+    rhs = np.zeros((n_cols, values.shape[1]))
+    for k in range(rows.shape[0]):
+        for a in range(width):
+            va = rows[k, a]
+            if va == 0.0:
+                continue
+            ja = first[k] + a
+            for c in range(values.shape[1]):
+                rhs[ja, c] += va * values[k, c]
+            for b in range(a + 1):
+                vb = rows[k, b]
+                if vb != 0.0:
+                    bands[a - b, first[k] + b] += vb * va
+    return bands, rhs
+
+
+@jit_kernel
+def rows_times(rows: np.ndarray, first: np.ndarray, grid: np.ndarray) -> np.ndarray:
+    """K·``grid`` ((n_cols, k) → (n, k)), each row's terms summed in column order (as scipy.sparse's)."""
+    out = np.zeros((rows.shape[0], grid.shape[1]))
+    for i in range(rows.shape[0]):
+        for a in range(rows.shape[1]):
+            v = rows[i, a]
+            if v != 0.0:
+                for c in range(grid.shape[1]):
+                    out[i, c] += v * grid[first[i] + a, c]
+    return out
+
+
+@jit_kernel
+def rows_transposed(rows: np.ndarray, first: np.ndarray, n_cols: int) -> np.ndarray:
+    """Kᵀ as a dense (n_cols, n) array, F-ordered (LAPACK's layout for right-hand sides)."""
+    out = np.zeros((rows.shape[0], n_cols)).T
+    for i in range(rows.shape[0]):
+        for a in range(rows.shape[1]):
+            if rows[i, a] != 0.0:
+                out[first[i] + a, i] = rows[i, a]
+    return out
+
+
+@jit_kernel
+def rows_dot_columns(rows: np.ndarray, first: np.ndarray, z: np.ndarray) -> np.ndarray:
+    """Σ_j K[i, j]·z[j, i] for each row i (``z`` (n_cols, n)), terms in column order."""
+    out = np.zeros(rows.shape[0])
+    for i in range(rows.shape[0]):
+        for a in range(rows.shape[1]):
+            v = rows[i, a]
+            if v != 0.0:
+                out[i] += v * z[first[i] + a, i]
+    return out
+

@@ -292,7 +292,7 @@ class _Residuals:
             both_s = np.concatenate([t_dst, t_dst + h])
             K = fit.kernel(both_s)
             both = fit.values_at(K, both_s)
-            uv_b_at, gain = both[: t_dst.size], fit.noise_gain(K[: t_dst.size])
+            uv_b_at, gain = both[: t_dst.size], fit.noise_gain(K.head(t_dst.size))
             vel_b = (both[t_dst.size :] - uv_b_at) / h
             r = sampson_px(self.F, ua, uv_b_at, gain_b=gain, shift_a=la * vel_b, shift_b=lb * vel_b)
             out.append(r)
