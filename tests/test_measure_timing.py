@@ -9,7 +9,15 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from rig.deploy.video_timing import VideoTimingError, coarse_offset, line_time_precision
+from rig.deploy.video_timing import (
+    VideoTimingError,
+    _joint_tracks,
+    _Views,
+    _views,
+    coarse_offset,
+    line_time_precision,
+)
+from rig.stereo.dlt import DLTCamera
 from rig.stereo.timing import TimingResult
 
 FPS = 60.0
@@ -84,3 +92,52 @@ def test_an_observable_line_time_is_stated_with_what_it_rests_on() -> None:
     assert got["offset_uncertainty_from_line_time_s"] == pytest.approx(u_offset_s * 0.8)
     assert "20.00 ± 3.00 µs" in got["statement"] and "≈ 3.0× that variation" in got["statement"]
     assert "≈ 9× the 2.0 s used" in got["statement"] and "0.0320 ms from the line time" in got["statement"]
+
+
+def _joint_tracks_per_call(views: _Views, offset_s: float) -> tuple[list, list, list]:
+    """The joint estimate's tracks as selected before the series were kept: each track filtered, sorted and
+    deduplicated from the DataFrame on every call (the reference for :func:`_joint_tracks`)."""
+    t_b = views.tracked[views.other]["timestamp_s"].to_numpy(float)
+    t0, t1 = float(t_b.min()) + offset_s, float(t_b.max()) + offset_s
+    windows = [(t0, t1)] if t1 - t0 <= 2 * views.window_s else [(t0, t0 + views.window_s),
+                                                                 (t1 - views.window_s, t1)]
+    tracks_a: list = []
+    tracks_b: list = []
+    for a, b in zip(views.use["track_a"], views.use["track_b"], strict=True):
+        for lo, hi in windows:
+            for name, tid, dest, shift in ((views.reference, a, tracks_a, 0.0), (views.other, b, tracks_b,
+                                                                                   offset_s)):
+                tr = views.tracked[name]
+                tr = tr[tr["track_id"] == tid].sort_values("timestamp_s").drop_duplicates("timestamp_s")
+                t = tr["timestamp_s"].to_numpy(float)
+                sel = (t + shift >= lo) & (t + shift <= hi)
+                uv = tr[["u_px", "v_px"]].to_numpy(float)[sel]
+                dest.append((t[sel], views.cameras[name].undistort_px(uv), uv[:, 1]))
+    keep = [i for i, (ta, tb) in enumerate(zip(tracks_a, tracks_b, strict=True))
+            if len(ta[0]) >= 30 and len(tb[0]) >= 30]
+    return [tracks_a[i] for i in keep], [tracks_b[i] for i in keep], windows
+
+
+@pytest.mark.parametrize("window_s", [3.0, 20.0])
+def test_joint_tracks_from_the_kept_series_equal_the_per_call_selection(window_s: float) -> None:
+    # two markers per camera, frames shuffled and some stamped twice, a record long enough for two windows
+    # (window 3 s) or taken whole (20 s); three candidate offsets
+    rng = np.random.default_rng(3)
+    t = np.arange(0.0, 12.0, 1 / FPS)
+    frames = []
+    for tid, start in ((0, 1.0), (4, 1.3)):
+        obs = _obs(t, 5 * np.sin(2 * np.pi * 1.3 * t + tid), start, 0.1, tid).assign(track_id=tid)
+        frames.append(pd.concat([obs, obs.sample(15, random_state=tid)]))
+    both = pd.concat(frames).sample(frac=1.0, random_state=1).reset_index(drop=True)
+    P = np.hstack([np.eye(3), np.zeros((3, 1))])
+    cameras = {"left": DLTCamera(P=P), "right": DLTCamera(P=P)}
+    use = pd.DataFrame({"track_a": [0, 4], "track_b": [4, 0]})
+    tracked = {"left": both, "right": both.assign(timestamp_s=both["timestamp_s"] + rng.normal(0, 1e-4))}
+    views = _views(tracked, use, cameras, reference="left", other="right", window_s=window_s)
+    for offset_s in (-0.3, 0.0, 0.45):
+        got, want = _joint_tracks(views, offset_s), _joint_tracks_per_call(views, offset_s)
+        assert got[2] == want[2]
+        for mine, theirs in zip(got[0] + got[1], want[0] + want[1], strict=True):
+            for x, y in zip(mine, theirs, strict=True):
+                assert np.array_equal(x, y)
+        assert len(got[0]) == len(want[0]) >= 2

@@ -183,7 +183,8 @@ def coarse_offset(obs_a: pd.DataFrame, obs_b: pd.DataFrame, pairs: pd.DataFrame,
 
 @dataclass(frozen=True)
 class _Views:
-    """Both cameras' tracked observations, the pairs used for timing and how much of the record."""
+    """Both cameras' tracked observations, the pairs used for timing and how much of the record; ``series``:
+    each used track's time stamps (s, sorted, each once) and observed centres (px), by (camera, track id)."""
 
     tracked: dict[str, pd.DataFrame]
     use: pd.DataFrame
@@ -191,6 +192,21 @@ class _Views:
     reference: str
     other: str
     window_s: float
+    series: dict[tuple[str, int], tuple[np.ndarray, np.ndarray]]
+
+
+def _series(obs: pd.DataFrame, track: int) -> tuple[np.ndarray, np.ndarray]:
+    """One track's time stamps (s, sorted, duplicates left out) and its observed centres (N, 2) px."""
+    tr = obs[obs["track_id"] == track].sort_values("timestamp_s").drop_duplicates("timestamp_s")
+    return tr["timestamp_s"].to_numpy(float), tr[["u_px", "v_px"]].to_numpy(float)
+
+
+def _views(tracks: dict[str, pd.DataFrame], use: pd.DataFrame, cameras: dict[str, DLTCamera], *,
+           reference: str, other: str, window_s: float) -> _Views:
+    """The :class:`_Views` of the pairs ``use``, each used track's series taken out once."""
+    series = {(name, int(tid)): _series(tracks[name], int(tid))
+              for name, column in ((reference, "track_a"), (other, "track_b")) for tid in use[column]}
+    return _Views(tracks, use, cameras, reference, other, window_s, series)
 
 
 def _joint_tracks(views: _Views, offset_s: float
@@ -208,11 +224,9 @@ def _joint_tracks(views: _Views, offset_s: float
     for a, b in zip(use["track_a"], use["track_b"], strict=True):
         for lo, hi in windows:
             for name, tid, dest, shift in ((reference, a, tracks_a, 0.0), (other, b, tracks_b, offset_s)):
-                tr = by_camera[name]
-                tr = tr[tr["track_id"] == tid].sort_values("timestamp_s").drop_duplicates("timestamp_s")
-                t = tr["timestamp_s"].to_numpy(float)
+                t, uv_all = views.series[name, int(tid)]
                 sel = (t + shift >= lo) & (t + shift <= hi)
-                uv = tr[["u_px", "v_px"]].to_numpy(float)[sel]
+                uv = uv_all[sel]
                 # undistorted centres for the geometry, observed rows for the rolling-shutter instant
                 dest.append((t[sel], cameras[name].undistort_px(uv), uv[:, 1]))
     # a piece too short for the joint estimate in one camera is left out with its partner
@@ -312,7 +326,7 @@ def estimate_video_timing(obs: dict[str, pd.DataFrame], cameras: dict[str, DLTCa
     coarse = coarse_offset(tracks[reference], tracks[other], moving, 1.0 / fps[other],
                            max_offset_s=max_offset_s, prior_offset_s=prior_offset_s)
     use = _use_pairs(moving, max_pairs)
-    views = _Views(tracks, use, cameras, reference, other, window_s)
+    views = _views(tracks, use, cameras, reference=reference, other=other, window_s=window_s)
     candidates = score_candidates(views, coarse["peaks"], prior_offset_s=prior_offset_s)
     chosen = next((c["offset_s"] for c in candidates if "error" not in c), coarse["offset_s"])
     ambiguity = _ambiguity_note(candidates)
