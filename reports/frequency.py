@@ -19,6 +19,7 @@ amplitude, so e < 0 and grows quadratically in magnitude, notes §5).
 from __future__ import annotations
 
 import itertools
+from collections.abc import Iterator
 from typing import TypeGuard
 
 import numpy as np
@@ -268,6 +269,21 @@ def _peak_frequency_hz(t: np.ndarray, x: np.ndarray, lo_hz: float, hi_hz: float)
     return float(freqs[k])
 
 
+def fitted_bins(f_t_hz: np.ndarray, phi_rad: np.ndarray,
+                bin_hz: float = DEFAULT_BIN_HZ) -> Iterator[tuple[np.float64, np.float64, np.ndarray]]:
+    """The bins :func:`amplitude_by_bin` fits in one track, in frequency order: (lo Hz, hi Hz, mask of the
+    samples whose reference frequency ``f_t_hz`` lies in [lo, hi)), those with ≥ MIN_SAMPLES_PER_BIN samples
+    spanning ≥ MIN_CYCLES_PER_BIN cycles of the reference phase ``phi_rad`` (rad)."""
+    edges = np.arange(np.floor(f_t_hz.min() / bin_hz) * bin_hz, f_t_hz.max() + bin_hz, bin_hz)
+    for lo, hi in itertools.pairwise(edges):
+        m = (f_t_hz >= lo) & (f_t_hz < hi)
+        if int(m.sum()) < MIN_SAMPLES_PER_BIN:
+            continue
+        if (phi_rad[m].max() - phi_rad[m].min()) / (2 * np.pi) < MIN_CYCLES_PER_BIN:
+            continue
+        yield lo, hi, m
+
+
 def amplitude_by_bin(
     samples: pd.DataFrame, sweep: dict, *, sync_method: str, bin_hz: float = DEFAULT_BIN_HZ
 ) -> pd.DataFrame:
@@ -290,16 +306,9 @@ def amplitude_by_bin(
         x = g["displacement_mm"].to_numpy(float)
         f_t = profile_frequency_hz(sweep, t)
         phi = sweep_phase_rad(sweep, t)
-        edges = np.arange(np.floor(f_t.min() / bin_hz) * bin_hz, f_t.max() + bin_hz, bin_hz)
         first_phase = None
-        for lo, hi in itertools.pairwise(edges):
-            m = (f_t >= lo) & (f_t < hi)
+        for lo, hi, m in fitted_bins(f_t, phi, bin_hz):
             n = int(m.sum())
-            if n < MIN_SAMPLES_PER_BIN:
-                continue
-            cycles = (phi[m].max() - phi[m].min()) / (2 * np.pi)
-            if cycles < MIN_CYCLES_PER_BIN:
-                continue
             amp, u_amp, delta = _fit_bin(t[m], x[m], phi[m])
             u_amp = max(u_amp, 1e-9 * amp_ref)  # numerical floor: exact synthetic data give u ≈ 1e-16
             first_phase = delta if first_phase is None else first_phase

@@ -262,14 +262,13 @@ def _first_bin_phase_rad(samples: pd.DataFrame, reference: dict[str, Any]) -> di
     """Each track's absolute phase (rad) in its first frequency bin, as amplitude_by_bin selects it."""
     out = {}
     for track, g in samples.groupby("track", sort=True):
-        bins = frequency.amplitude_by_bin(g, reference, sync_method="")
-        if bins.empty:
-            continue
-        lo, hi = float(bins["frequency_lo_hz"].iloc[0]), float(bins["frequency_hi_hz"].iloc[0])
         t, x = g["time_s"].to_numpy(float), g["displacement_mm"].to_numpy(float)
-        f_t = frequency.profile_frequency_hz(reference, t)
-        m = (f_t >= lo) & (f_t < hi)
-        out[str(track)] = frequency._fit_bin(t[m], x[m], frequency.sweep_phase_rad(reference, t[m]))[2]
+        phi = frequency.sweep_phase_rad(reference, t)
+        first = next(frequency.fitted_bins(frequency.profile_frequency_hz(reference, t), phi), None)
+        if first is None:
+            continue
+        m = first[2]
+        out[str(track)] = frequency._fit_bin(t[m], x[m], phi[m])[2]
     return out
 
 

@@ -16,7 +16,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from drivers.sim.oscillator import OscillatorBody
-from reports import step_phase
+from reports import frequency, step_phase
 from reports.phase import ReferenceResolution
 
 FS_HZ = 60.0
@@ -146,3 +146,31 @@ def test_steady_steps_are_the_flat_stretches_minus_the_settle_time(
     got = np.array([(s.t_start_s, s.t_stop_s, s.frequency_hz) for s in steps]).reshape(-1, 3)
     assert got.shape == (len(expected), 3)
     assert np.allclose(got, np.array(expected).reshape(-1, 3))
+
+
+def test_each_tracks_first_bin_phase_is_amplitude_by_bins_without_fitting_the_other_bins(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """The steps' phase origin (each track's phase in its first frequency bin) is the phase
+    frequency.amplitude_by_bin fits in that bin, found without fitting the sweep's other bins (no
+    per-bin Lomb–Scargle frequency: that costs most of a staircase's report)."""
+    rng = np.random.default_rng(3)
+    sweep, body = _staircase(rng, [4.0, 8.0, 12.0], step_s=1.0, bracket_s=0.004)
+    tracks = _tracks(rng, body, sweep["t_stop_s"], delay_s=0.0, sigma_mm=0.01)
+    samples = frequency.sweep_samples(tracks, sweep)
+    bins = frequency.amplitude_by_bin(samples, sweep, sync_method="")
+    first = bins.groupby("track", sort=True).first()
+    expected = {}
+    for track, g in samples.groupby("track", sort=True):
+        t, x = g["time_s"].to_numpy(float), g["displacement_mm"].to_numpy(float)
+        m = (frequency.profile_frequency_hz(sweep, t) >= first.loc[track, "frequency_lo_hz"]) & \
+            (frequency.profile_frequency_hz(sweep, t) < first.loc[track, "frequency_hi_hz"])
+        expected[str(track)] = frequency._fit_bin(t[m], x[m], frequency.sweep_phase_rad(sweep, t[m]))[2]
+    peaks: list[tuple[object, ...]] = []
+
+    def peak_frequency_hz(*args: object) -> float:
+        peaks.append(args)
+        return float("nan")
+
+    monkeypatch.setattr(frequency, "_peak_frequency_hz", peak_frequency_hz)
+    assert step_phase._first_bin_phase_rad(samples, sweep) == expected
+    assert len(expected) == 3 and peaks == []
