@@ -149,3 +149,37 @@ def test_a_wrong_line_time_in_the_row_instants_is_measured_and_corrected() -> No
     assert abs(fit.line_time_error_s - 455e-9) <= 5.0 * fit.u_line_time_error_s
     offset_row0, u_row0 = fit.offset_at_row_s(0.0)  # the instant of row 0 needs the whole correction
     assert abs(offset_row0 - 0.003) <= 3.0 * u_row0 < 2e-5
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_the_coarse_search_picks_the_node_a_lstsq_per_node_picks_with_one_level_call_per_chunk(
+        seed: int, monkeypatch: pytest.MonkeyPatch) -> None:
+    """The grid search (fiducial._grid_offset_s) batches the levels of all offsets and ranks them in closed
+    form; its choice is the node of the least residual of an affine lstsq fit at every node (ties: the
+    first), with one mean_levels call per chunk of offsets × rows instead of one per node."""
+    from rig.stereo import fiducial
+
+    rng = np.random.default_rng(seed)
+    s = led_rows(2.0)
+    edges = square_edges(0.01 * seed, PULSE_PERIOD_S, 60)
+    offset = float(rng.uniform(-0.006, 0.006))
+    b = synthetic_brightness(s, edges, offset_s=offset, rate=0.0, t_ref_s=1.0, time_constant_s=5e-6,
+                             noise_dn=0.5 + seed, seed=seed)
+    rows = RowSamples(s, b, EXPOSURE_S)
+    grid = offset + float(rng.uniform(-1e-3, 1e-3)) + np.arange(-0.0085, 0.0085 + 5e-4, 1e-3)
+    sse = np.full(grid.size, np.inf)
+    for i, off in enumerate(grid):  # the oracle: a level and a lstsq fit per node
+        level = mean_levels(s + off, EXPOSURE_S, edges, 1e-5)
+        if np.ptp(level) > 0:
+            a = np.column_stack([np.ones_like(level), level])
+            sse[i] = float(np.sum((b - a @ np.linalg.lstsq(a, b, rcond=None)[0]) ** 2))
+    calls = []
+
+    def counted(*args: object, **kwargs: object) -> np.ndarray:
+        calls.append(1)
+        return mean_levels(*args, **kwargs)  # type: ignore[arg-type]
+
+    monkeypatch.setattr(fiducial, "mean_levels", counted)
+    assert fiducial._grid_offset_s(rows, edges, grid, 1e-5) == float(grid[int(np.argmin(sse))])
+    assert len(calls) == -(-grid.size * s.size // fiducial._GRID_CHUNK_VALUES)
+
