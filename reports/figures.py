@@ -58,17 +58,11 @@ def new_figure(
     return fig, axes
 
 
-# zlib level of the PNG files (PIL's default 6): the same pixels in ≈ 0.4 × the encoding time, ≈ 1.3 × the
-# bytes (the measurement report's two figures: 108 → 44 ms of encoding, 257 → 340 kB)
-PNG_COMPRESS_LEVEL = 1
-
-
 def save_png(fig: Figure, path: Path) -> None:
     """Write ``fig`` as PNG without a Software tag, so identical figures give identical bytes (atomically:
-    :func:`rig.record.atomic.atomic_path`); compressed at :data:`PNG_COMPRESS_LEVEL`."""
+    :func:`rig.record.atomic.atomic_path`)."""
     with atomic_path(path) as tmp:
-        fig.savefig(tmp, dpi=DPI, format="png", metadata={"Software": None},
-                    pil_kwargs={"compress_level": PNG_COMPRESS_LEVEL})
+        fig.savefig(tmp, dpi=DPI, format="png", metadata={"Software": None})
 
 
 def _method_color(method: str, primary: str) -> str:

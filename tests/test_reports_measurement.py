@@ -3,11 +3,9 @@
 from __future__ import annotations
 
 import html
-import io
 import json
 from pathlib import Path
 
-import matplotlib.pyplot as plt
 import numpy as np
 import pandas as pd
 import pytest
@@ -15,9 +13,8 @@ from matplotlib.backend_bases import RendererBase
 from matplotlib.figure import Figure
 
 from reports.errors import RunFolderError
-from reports.figures import DPI
 from reports.html import CSS
-from reports.measurement import fig_displacement, fig_spectrum, load_measurement, write_measurement_report
+from reports.measurement import load_measurement, write_measurement_report
 
 FREQUENCY_HZ = 5.0
 AMPLITUDE_MM = 4.0
@@ -102,25 +99,6 @@ def test_each_figure_is_drawn_once(tmp_path: Path, monkeypatch: pytest.MonkeyPat
     files = write_measurement_report(out)
     assert len(drawn) == 2 == len([k for k in files if k.startswith("figure_")])
     assert len(set(map(id, drawn))) == 2
-
-def _idat_flevel(png: bytes) -> int:
-    """The compression level class of a PNG's zlib stream (its header's FLEVEL: 0 fastest … 2 default)."""
-    at = png.index(b"IDAT") + 4
-    return png[at + 1] >> 6
-
-
-def test_figures_are_fast_compressed_with_the_same_pixels(tmp_path: Path) -> None:
-    out = _write_folder(tmp_path / "out")
-    files = write_measurement_report(out)
-    m = load_measurement(out)
-    for name, make in (("figure_displacement", fig_displacement), ("figure_spectrum", fig_spectrum)):
-        written = files[name].read_bytes()
-        default = io.BytesIO()
-        fig = make(m)
-        assert fig is not None
-        fig.savefig(default, dpi=DPI, format="png", metadata={"Software": None})  # PIL's zlib level 6
-        assert _idat_flevel(written) == 0 and _idat_flevel(default.getvalue()) == 2
-        assert np.array_equal(plt.imread(io.BytesIO(written)), plt.imread(io.BytesIO(default.getvalue())))
 
 def test_input_problems_come_first_and_duplicates_are_capped(tmp_path: Path) -> None:
     out = _write_folder(tmp_path / "out", problems=("right.mkv: truncated after frame 147",), n_duplicates=45)
