@@ -14,7 +14,8 @@ import numpy as np
 
 from drivers.camera import change_kernel
 from rig.analysis.frame_reduction import ReduceOptions, warm_up
-from rig.stereo import detect_markers, resample
+from rig.stereo import detect_markers
+from rig.stereo.resample import bandlimited
 
 
 def warm_all() -> float:
@@ -37,7 +38,7 @@ def warm_all() -> float:
     pairs = np.array([[0, 1], [2, 3], [1, 2], [0, 3]], np.int64)
     change_kernel.region_changes((image,) * 4, rows, cols, pairs)
     t_s = np.arange(80) / 60.0 + 0.002 * np.sin(np.arange(80))  # jittered instants: the sparse solve's rows
-    resample(t_s, np.sin(t_s), t_s[10:20] + 0.004, "bandlimited")
+    bandlimited(t_s, np.sin(t_s), t_s[10:20] + 0.004, noise_gain=True)  # and the noise gain's kernels
     return time.process_time() - start_s
 
 
