@@ -32,25 +32,13 @@ from rig.stereo._series import as_times, as_values
 from rig.stereo.errors import InputArrayError, NonUniformSamplingError, TooFewSamplesError
 
 METHODS = ("linear", "cubic", "bandlimited")
-
-
-def kaiser_sinc(frac: FloatArray, half: int, beta: float) -> FloatArray:
-    """Kaiser-windowed sinc at ``frac − o`` sample periods for each o = −half … half: (frac.size, 2·half + 1),
-    zero beyond ±half. ``frac`` (periods) past a grid sample, in [0, 1); 0 < ``beta`` ≤ 8. One sine per row,
-    sin π(f − o) = (−1)ᵒ sin π·min(f, 1 − f) (exact arguments: accurate next to either sample), and cephes'
-    i0 (scipy's): equal to numpy's sinc and i0 term by term within 2e-15, compiled
-    (:mod:`rig.stereo.resample_kernel`; tests/test_resample_kernel.py)."""
-    from rig.stereo.resample_kernel import kaiser_sinc_rows  # numba: loaded by the first reconstruction
-
-    _check_beta(beta)
-    kernel: FloatArray = kaiser_sinc_rows(np.ascontiguousarray(frac, dtype=float), int(half), float(beta))
-    return kernel
+MAX_BETA = 8.0  # the Kaiser window's largest beta: the compiled I0 series holds on [0, 8] (resample_kernel)
 
 
 def _check_beta(beta: float) -> None:
-    """InputArrayError unless 0 < ``beta`` ≤ 8 (the compiled window's I0 series holds on [0, 8])."""
-    if not 0.0 < beta <= 8.0:
-        raise InputArrayError(f"the Kaiser window's beta must be in (0, 8], got {beta!r}")
+    """InputArrayError unless 0 < ``beta`` ≤ MAX_BETA."""
+    if not 0.0 < beta <= MAX_BETA:
+        raise InputArrayError(f"the Kaiser window's beta must be in (0, {MAX_BETA:g}], got {beta!r}")
 
 
 def _grid(t: FloatArray) -> tuple[float, float, IntArray]:
