@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 import pytest
 from hypothesis import Phase, given, settings
@@ -183,3 +185,14 @@ def test_the_coarse_search_picks_the_node_a_lstsq_per_node_picks_with_one_level_
     assert fiducial._grid_offset_s(rows, edges, grid, 1e-5) == float(grid[int(np.argmin(sse))])
     assert len(calls) == -(-grid.size * s.size // fiducial._GRID_CHUNK_VALUES)
 
+
+
+def test_the_ramp_integral_of_a_subnormal_rise_time_is_exact_and_silent() -> None:
+    # np.where evaluates both branches: the quadratic of times far past a subnormal rise overflowed (a
+    # RuntimeWarning in make test's random examples), although its values were never selected
+    from rig.stereo.fiducial import _ramp_integral
+
+    x = np.array([-1.0, 0.0, 1e-330, 1.0, 1e300])
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert np.array_equal(_ramp_integral(x, 5e-324), [0.0, 0.0, 0.0, 1.0, 1e300])

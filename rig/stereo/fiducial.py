@@ -183,7 +183,8 @@ def _ramp_integral(x: _F, rise_s: float) -> _F:
     """∫_{-∞}^{x} clip(u/rise, 0, 1) du (s): the light of one rising edge at 0 accumulated up to x."""
     if rise_s <= 0:
         return np.maximum(x, 0.0)
-    return np.where(x <= 0, 0.0, np.where(x < rise_s, 0.5 * x * x / rise_s, x - 0.5 * rise_s))
+    rising = np.clip(x, 0.0, rise_s)  # the quadratic only where it applies: no overflow where it does not
+    return np.where(x <= 0, 0.0, np.where(x < rise_s, 0.5 * rising * rising / rise_s, x - 0.5 * rise_s))
 
 
 def mean_levels(window_start_s: ArrayLike, exposure_s: float, edges: DriveEdges, rise_time_s: float) -> _F:
