@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import cv2
@@ -21,6 +22,7 @@ from drivers.camera.video_file import (
     _motion_region,
     _Sampled,
     declared_frames,
+    decoder_threads_per_file,
     find_gaps,
 )
 from drivers.sim.clock import VirtualClock
@@ -108,6 +110,43 @@ def test_constant_rate_duplicates_found_by_image_and_policy_applied(tmp_path: Pa
     assert stamps[k1 + 1] == pytest.approx((k1 + 1 - 1) / 60)  # one period earlier after an insert
     assert stamps[k2 + 1] == pytest.approx((k2 + 1 - 2) / 60)
     assert [c["from_index"] for c in inserted.report.corrections] == [k1 + 1, k2 + 1]
+
+
+def test_the_decoders_thread_count_changes_no_frame_stamp_or_finding(tmp_path: Path) -> None:
+    """``rig measure`` decodes each of its two videos with its share of the cores (one FFmpeg thread each on
+    2 cores) instead of OpenCV's default: the same images, time stamps and duplicate findings."""
+    world = mt.measurement_world()
+    left, _ = mt.camera_pair(world, left={"duplicated_frames": (36, 47)})
+    path = tmp_path / "d.mp4"
+    left.write_video(path, 0.5, 0.9)
+    reads = {}
+    for threads in (None, 1, 3):
+        video = VideoFile(path, decoder_threads=threads)
+        frames = list(video.frames())
+        reads[threads] = ([f.image for f in frames], [f.timestamp_s for f in frames], video.report.to_dict())
+    images, stamps, report = reads[None]
+    assert len(report["duplicated"]) == 2
+    for threads in (1, 3):
+        assert all(np.array_equal(a, b) for a, b in zip(reads[threads][0], images, strict=True))
+        assert reads[threads][1] == stamps and reads[threads][2] == report
+
+
+@pytest.mark.parametrize("threads", [0, 65, True, 2.0])
+def test_a_decoder_thread_count_outside_1_to_64_is_refused(tmp_path: Path, threads: object) -> None:
+    path = tmp_path / "a.mkv"
+    write_mkv(path, _noise_frames(3), [k / 60 for k in range(3)])
+    with pytest.raises(ValueError, match=r"decoder_threads=.*integer from 1 to 64"):
+        VideoFile(path, decoder_threads=threads)  # type: ignore[arg-type]
+
+
+@pytest.mark.parametrize(("cores", "files", "expected"),
+                         [(2, 2, 1), (1, 2, 1), (8, 2, 4), (8, 3, 2), (2, 1, 2), (256, 1, 64)])
+def test_decoders_share_the_cores_of_the_process(monkeypatch: pytest.MonkeyPatch, cores: int, files: int,
+                                                 expected: int) -> None:
+    monkeypatch.setattr(os, "sched_getaffinity", lambda pid: set(range(cores)), raising=False)
+    assert decoder_threads_per_file(files) == expected
+    with pytest.raises(ValueError, match="files=0"):
+        decoder_threads_per_file(0)
 
 
 def test_luma_plane_used_when_it_matches_the_grey_conversion(tmp_path: Path) -> None:

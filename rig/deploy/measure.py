@@ -35,14 +35,14 @@ import json
 import math
 import time
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
 import pandas as pd
 
 from drivers.camera.container_times import ContainerError, ContainerTimes, read_container_times
-from drivers.camera.video_file import VideoFile
+from drivers.camera.video_file import VideoFile, decoder_threads_per_file
 from rig.analysis.analyse import load_cameras
 from rig.analysis.errors import AnalysisError
 from rig.analysis.sync_tracks import (
@@ -285,8 +285,11 @@ def measure_videos(videos: dict[str, str | Path], calibration: str | Path, out_d
     notes: list[str] = []
     problems: list[str] = []
     stamps = [_stamp("start")]
+    extract = opts.extract  # the two videos decoded at once: the cores shared between their decoders
+    if extract.decoder_threads is None:
+        extract = replace(extract, decoder_threads=decoder_threads_per_file(len(paths)))
     with ThreadPoolExecutor(max_workers=2, thread_name_prefix="measure-video") as pool:
-        futures = {n: pool.submit(extract_video, p, n, opts.extract) for n, p in paths.items()}
+        futures = {n: pool.submit(extract_video, p, n, extract) for n, p in paths.items()}
         vos = {n: f.result() for n, f in futures.items()}
     for n, vo in vos.items():
         notes.append(f"camera {n}: {vo.report.summary()}")

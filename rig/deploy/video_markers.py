@@ -43,7 +43,8 @@ class ExtractOptions:
     ``window_px``: tracking window side (px): marker diameter + 8 px + twice the largest motion per frame.
     ``redetect_every``: frames between whole-frame searches in "track" mode. ``detect``: keyword options of
     :func:`rig.stereo.detect_markers` (polarity, min_area_px, min_contrast, …; the tracker gets only those
-    it takes, see :class:`rig.analysis.frame_reduction.ReduceOptions`). ``duplicate_policy`` and ``fps`` go to
+    it takes, see :class:`rig.analysis.frame_reduction.ReduceOptions`). ``duplicate_policy``, ``fps`` and
+    ``decoder_threads`` (None: OpenCV's default; ``rig measure`` shares the cores among its two videos) go to
     :class:`VideoFile`.
     """
 
@@ -53,6 +54,7 @@ class ExtractOptions:
     detect: dict[str, Any] = field(default_factory=dict)
     duplicate_policy: str = "replace"
     fps: float | None = None
+    decoder_threads: int | None = None
     # only frames with start_s ≤ time stamp ≤ stop_s (the file's clock, s; None: from the start, to the end)
     # are reduced; decoding starts by a verified seek shortly before start_s (VideoFile.frames), stops after
     # stop_s
@@ -115,7 +117,8 @@ def extract_video(path: str | Path, camera: str | None = None,
     Raises :class:`drivers.camera.video_file.VideoOpenError` when the file cannot be opened at all.
     """
     opts = options or ExtractOptions()
-    video = VideoFile(path, name=camera, fps=opts.fps, duplicate_policy=opts.duplicate_policy)
+    video = VideoFile(path, name=camera, fps=opts.fps, duplicate_policy=opts.duplicate_policy,
+                      decoder_threads=opts.decoder_threads)
     reducer = MarkerReducer(opts.reduce_options())
     parts: list[tuple[int, float, bool, np.ndarray]] = []
     t_extract = 0.0
