@@ -6,9 +6,11 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
+import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from rig.deploy import csv_table
 from rig.deploy.csv_table import csv_text, write_csv
 
 _TEXT = st.text(alphabet=st.sampled_from(list('ab ,"\n\r;é0.-')), max_size=6)
@@ -67,3 +69,32 @@ def test_the_file_is_pandas_file_and_odd_frames_are_left_to_pandas(tmp_path: Pat
                 pd.DataFrame([[1, 2]], columns=["a", "a"]), pd.DataFrame({"n": pd.array([1, None], "Int64")}),
                 pd.DataFrame({"c": pd.Categorical(["x", None])})):
         assert csv_text(odd) == odd.to_csv(index=False)
+
+
+def _long_columns(seed: int) -> pd.DataFrame:
+    """Columns long enough for Arrow's cast: measurement-like values (px, mm, s, Hz) of every digit count,
+    with whole numbers, ±0, tiny and huge values, NaN and ±inf mixed in, and random bit patterns."""
+    rng = np.random.default_rng(seed)
+    n = 4000
+    scale = 10.0 ** rng.uniform(-6.0, 12.0, n)
+    decimals = np.round(rng.normal(size=n) * scale, rng.integers(0, 17))
+    specials = rng.choice(np.array([0.0, -0.0, np.nan, np.inf, -np.inf, 5.0, 1e-5, 1e9, 1e16, 1e-4, 12.0]), n)
+    mixed = np.where(rng.random(n) < 0.1, specials, decimals)
+    return pd.DataFrame({"u_px": rng.uniform(0, 1920, n), "x_mm": mixed,
+                         "bits": rng.integers(0, 2**63, n, dtype=np.uint64).view(np.float64),
+                         "time_s": np.repeat(np.arange(n // 4) / 60.0, 4)})  # runs: each formatted once
+
+
+@pytest.mark.parametrize("seed", range(8))
+def test_long_columns_through_arrow_are_still_pandas_text(seed: int) -> None:
+    frame = _long_columns(seed)
+    assert csv_table._arrow_cast() is not None  # the pinned pyarrow agrees with repr on the probe values
+    assert csv_text(frame) == frame.to_csv(index=False)
+
+
+def test_a_cast_that_writes_other_text_is_not_used() -> None:
+    """Arrow's text differs from repr outside the range (``0.00001``, ``5``): a cast writing any such style
+    inside it fails the check, and the values are then formatted by repr."""
+    assert csv_table.arrow_agrees(lambda values: [repr(x) for x in values.tolist()])
+    assert not csv_table.arrow_agrees(lambda values: [f"{x:.15g}" for x in values.tolist()])
+    assert not csv_table.arrow_agrees(lambda values: [*[repr(x) for x in values.tolist()][:-1], "0"])

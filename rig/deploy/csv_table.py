@@ -8,20 +8,76 @@ are joined directly with pandas' conventions: minimal quoting (only text cells c
 NaN and missing values as empty fields. Frames with a column of any other kind than float64, integer,
 boolean or text (all ``str`` or missing), or with a single column, are left to pandas, so the text never
 differs.
+
+Long float columns are formatted by Arrow's float → string cast, about 4× faster than ``repr`` and the same
+text wherever 1e-4 ≤ |x| < 1e9 and x is not a whole number (both print the shortest round-trip digits in
+positional notation there; outside, Arrow's exponent and integer styles differ: ``0.00001``, ``5``): those
+values keep ``repr``. The agreement is checked once per process on probe values (:func:`arrow_agrees`);
+a pyarrow whose text differs is not used.
 """
 
 from __future__ import annotations
 
 import csv
+import functools
 import io
 import math
 import os
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
-__all__ = ["csv_text", "write_csv"]
+__all__ = ["arrow_agrees", "csv_text", "float_texts", "write_csv"]
+
+
+ARROW_LOW, ARROW_HIGH = 1e-4, 1e9  # where Arrow's text of a non-integral float64 is repr's
+ARROW_MIN_VALUES = 64  # shorter columns: repr (Arrow's per-call cost is not repaid)
+
+
+def arrow_agrees(cast: Callable[[np.ndarray], list[str]]) -> bool:
+    """Whether ``cast`` writes ``repr``'s text for probe values spanning [ARROW_LOW, ARROW_HIGH): random bit
+    patterns there and decimals of 0–16 digits (the shortest-digit cases), both signs."""
+    rng = np.random.default_rng(20261203)
+    low_bits, high_bits = np.array([ARROW_LOW, ARROW_HIGH]).view(np.int64)
+    probe = np.concatenate([rng.integers(low_bits, high_bits, 2000).view(np.float64),
+                            *(np.round(rng.uniform(0.0, 1.0, 200) * 10.0 ** rng.uniform(-3.0, 9.0, 200), k)
+                              for k in range(17))])
+    probe = np.concatenate([probe, -probe])
+    probe = probe[(np.abs(probe) >= ARROW_LOW) & (np.abs(probe) < ARROW_HIGH) & (probe != np.floor(probe))]
+    return cast(probe) == [repr(x) for x in probe.tolist()]
+
+
+@functools.cache
+def _arrow_cast() -> Callable[[np.ndarray], list[str]] | None:
+    """Arrow's float64 → string cast when it agrees with ``repr`` (:func:`arrow_agrees`), else None."""
+    try:
+        import pyarrow as pa
+        import pyarrow.compute as pc
+    except ImportError:  # a dependency; without it, repr
+        return None
+
+    def cast(values: np.ndarray) -> list[str]:
+        return list(pc.cast(pa.array(np.ascontiguousarray(values, np.float64)), pa.string()).to_pylist())
+
+    return cast if arrow_agrees(cast) else None
+
+
+def float_texts(values: np.ndarray) -> list[str]:
+    """``repr`` of each float64, NaN as "" (±inf as ``inf``/``-inf``); through Arrow where its text is the
+    same (module docstring)."""
+    cast = _arrow_cast() if len(values) >= ARROW_MIN_VALUES else None
+    if cast is None:
+        return [repr(x) if not math.isnan(x) else "" for x in values.tolist()]
+    texts = cast(values)
+    magnitude = np.abs(values)
+    with np.errstate(invalid="ignore"):  # NaN compares False: left to repr (as "")
+        arrow = (magnitude >= ARROW_LOW) & (magnitude < ARROW_HIGH) & (values != np.floor(values))
+    for i in np.flatnonzero(~arrow).tolist():
+        x = float(values[i])
+        texts[i] = repr(x) if not math.isnan(x) else ""
+    return texts
 
 
 def _float_cells(values: np.ndarray) -> list[str]:
@@ -30,9 +86,9 @@ def _float_cells(values: np.ndarray) -> list[str]:
     markers' rows, is formatted once."""
     bits = values.view(np.int64)
     starts = np.flatnonzero(np.r_[True, bits[1:] != bits[:-1]])
-    if 2 * len(starts) > len(values):  # mostly distinct: one repr each
-        return [repr(x) if not math.isnan(x) else "" for x in values.tolist()]
-    text = [repr(x) if not math.isnan(x) else "" for x in values[starts].tolist()]
+    if 2 * len(starts) > len(values):  # mostly distinct: each formatted
+        return float_texts(values)
+    text = float_texts(values[starts])
     return [text[i] for i in np.repeat(np.arange(len(starts)), np.diff(np.r_[starts, len(values)])).tolist()]
 
 
