@@ -30,7 +30,7 @@ def _frame(centres: list[tuple[float, float]], seed: int = 0) -> np.ndarray:
 
 
 def test_procedures_and_video_files_share_one_reducer() -> None:
-    assert acquire.MarkerReducer is MarkerReducer and acquire.ReduceOptions is ReduceOptions
+    assert acquire.ReduceOptions is ReduceOptions  # one options class (rig.analysis.reduce_options)
     assert not hasattr(video_markers, "_track_options")
     assert video_markers.ExtractOptions(window_px=31).reduce_options() == ReduceOptions(
         window_px=31, redetect_every=60)

@@ -12,8 +12,9 @@ from drivers.mock import vp6242
 from procedures import accuracy, calibrate, certify, plate, sweep, sync
 from procedures._common import arm_marker_positions, plate_offsets_tool_mm
 from procedures._report import verdict_of
+from rig.analysis.frame_reduction import MarkerReducer, ReduceOptions
 from rig.config.rig_config import default_config
-from rig.run.acquire import MarkerReducer, ReduceOptions, mean_positions, settled_frames
+from rig.run.acquire import mean_positions, settled_frames
 from rig.run.procedure import ParameterError
 
 

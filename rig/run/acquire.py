@@ -51,14 +51,14 @@ import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any, Generic, TypeVar, overload
+from typing import TYPE_CHECKING, Any, Generic, TypeVar, overload
 
 import numpy as np
 import pandas as pd
 
 from drivers.camera.base import ClockMapping
 from drivers.roles import Camera
-from rig.analysis.frame_reduction import MarkerReducer, ReduceOptions, warm_up
+from rig.analysis.reduce_options import ReduceOptions
 from rig.record.events import CameraEvent
 from rig.record.observations import ObservationWriter
 from rig.run.fiducial import FiducialRecording
@@ -68,7 +68,10 @@ from rig.run.progress import Processing
 from rig.stereo import FLAG_LOST
 from rig.stereo.fiducial import row_profile
 
-__all__ = ["Acquirer", "CameraStalledError", "MarkerReducer", "Recording", "ReduceOptions"]
+if TYPE_CHECKING:
+    from rig.analysis.frame_reduction import MarkerReducer
+
+__all__ = ["Acquirer", "CameraStalledError", "Recording", "ReduceOptions"]
 
 T = TypeVar("T")
 _FIELDS = ("u_px", "v_px", "area_px", "roundness", "contrast")
@@ -128,6 +131,9 @@ class Acquirer:
         fiducial = ctx.config.fiducial
         self.fiducial = FiducialRecording(ctx, fiducial) if fiducial is not None else None
         self._regions: dict[str, tuple[int, int, int, int]] = {}  # of the recording in progress
+        # the reduction (SciPy, numba, OpenCV) is imported by a recording, not by a procedure's module
+        from rig.analysis.frame_reduction import warm_up
+
         warm_up(self.options)  # the kernels' first call must not happen while a camera fills its queue
 
     def close(self) -> None:
@@ -143,6 +149,8 @@ class Acquirer:
     def _reader(self, name: str, segment: str, cancel: threading.Event) -> _Reader:
         # track numbers continue over the recordings of one segment (a stopped camera may see a moved scene,
         # so every recording starts with a whole-frame detection)
+        from rig.analysis.frame_reduction import MarkerReducer
+
         reducer = MarkerReducer(self.options, self._next_ids.get((name, segment), 0))
         reader = _Reader(self.cameras[name], reducer, cancel, self._regions.get(name), segment)
         reader.thread.start()
