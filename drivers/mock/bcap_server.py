@@ -41,6 +41,7 @@ Run on its own (own world, paced clock at real time)::
 from __future__ import annotations
 
 import argparse
+import importlib
 import logging
 import socket
 import threading
@@ -366,6 +367,9 @@ class BcapMockServer:
     def __init__(self, robot: RobotBodyLike, clock: Clock, *, full_speed_mm_s: float = 1000.0,
                  full_accel_mm_s2: float = 5000.0, faults: Faults | None = None,
                  client_watchdog: bool = False) -> None:
+        # SciPy's Rotation turns the simulated arm (drivers.sim.bodies imports it at its first use): loaded
+        # here, not by the first Move, whose reply would wait for the import (≈ 0.5 CPU-s)
+        importlib.import_module("scipy.spatial.transform")
         self.clock = clock
         self.state = ControllerState(robot, clock, full_speed_mm_s=full_speed_mm_s,
                                      full_accel_mm_s2=full_accel_mm_s2)

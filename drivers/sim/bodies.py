@@ -20,20 +20,33 @@ from __future__ import annotations
 import math
 import threading
 from dataclasses import dataclass
+from functools import cached_property
+from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.spatial.transform import Rotation
 
 from drivers.sim.errors import SimCommandError, _finite
 from drivers.sim.oscillator import OscillatorBody  # re-exported: the bodies of the world live in two files
 
+if TYPE_CHECKING:
+    from scipy.spatial.transform import Rotation
+
 __all__ = ["OscillatorBody", "RobotBody", "SimCommandError", "euler_deg_to_matrix", "trapezoid_duration_s"]
+
+
+def _rotation() -> type[Rotation]:
+    """SciPy's ``Rotation``, imported by the first use of an orientation (≈ 0.5 CPU-s of imports): the mock
+    servers of the drives and the generator build the whole world but never turn the arm."""
+    from scipy.spatial.transform import Rotation
+
+    rotation: type[Rotation] = Rotation
+    return rotation
 
 
 def euler_deg_to_matrix(rxyz_deg: NDArray[np.float64]) -> NDArray[np.float64]:
     """Rotation matrix (…, 3, 3) of Denso angles rx, ry, rz in degrees: R = Rz·Ry·Rx (fixed axes)."""
-    rotation = Rotation.from_euler("xyz", np.asarray(rxyz_deg, float), degrees=True)
+    rotation = _rotation().from_euler("xyz", np.asarray(rxyz_deg, float), degrees=True)
     matrix: NDArray[np.float64] = rotation.as_matrix()
     return matrix
 
@@ -104,13 +117,17 @@ class RobotBody:
                  home_pose: NDArray[np.float64] | tuple[float, ...] = (350.0, 0.0, 300.0, 90.0, 0.0, 90.0),
                  *, rot_speed_deg_s: float = 120.0, rot_accel_deg_s2: float = 480.0) -> None:
         self._home = self._check_pose(home_pose, "home_pose")
-        self._home_rot = euler_deg_to_matrix(self._home[3:])
         self.rot_speed_deg_s = _finite(rot_speed_deg_s, "rot_speed_deg_s", positive=True)
         self.rot_accel_deg_s2 = _finite(rot_accel_deg_s2, "rot_accel_deg_s2", positive=True)
         self._moves: tuple[_Move, ...] = ()
         self._starts_cache: tuple[tuple[_Move, ...] | None, NDArray[np.float64]] = (None, np.zeros(0))
         self._last_command_s = -math.inf
         self._lock = threading.Lock()
+
+    @cached_property
+    def _home_rot(self) -> NDArray[np.float64]:
+        """(3, 3) rotation of the home pose (tool → base), computed at its first use."""
+        return euler_deg_to_matrix(self._home[3:])
 
     @staticmethod
     def _check_pose(pose: NDArray[np.float64] | tuple[float, ...], name: str) -> NDArray[np.float64]:
@@ -147,8 +164,9 @@ class RobotBody:
                                       f"start a move at t_start_s={t0:.6f} (halt first or start later)")
             self._last_command_s = t0
             start = self._moves[-1].rest_pose if self._moves else self._home
-            r0 = Rotation.from_euler("xyz", start[3:], degrees=True)
-            r1 = Rotation.from_euler("xyz", target[3:], degrees=True)
+            rotation = _rotation()
+            r0 = rotation.from_euler("xyz", start[3:], degrees=True)
+            r1 = rotation.from_euler("xyz", target[3:], degrees=True)
             rotvec = (r0.inv() * r1).as_rotvec()
             dist_mm = float(np.linalg.norm(target[:3] - start[:3]))
             angle_deg = math.degrees(float(np.linalg.norm(rotvec)))
@@ -192,7 +210,7 @@ class RobotBody:
     @staticmethod
     def _interp_pose(mv: _Move, s: NDArray[np.float64]) -> NDArray[np.float64]:
         pos = mv.p0_mm + s[:, None] * mv.dp_mm
-        rot = mv.r0 * Rotation.from_rotvec(s[:, None] * mv.rotvec)
+        rot = mv.r0 * _rotation().from_rotvec(s[:, None] * mv.rotvec)
         return np.concatenate([pos, rot.as_euler("xyz", degrees=True)], axis=1)
 
     def is_moving(self, t_s: float) -> bool:
