@@ -39,9 +39,9 @@ def test_help_and_list_import_no_heavy_library(args: tuple[str, ...]) -> None:
     assert _imported(*args) == {"code": 0, "heavy": []}
 
 
-@pytest.mark.parametrize("args", [("run", "sweep", "--dry-run"), ("certify", "--dry-run")])
-def test_a_dry_run_imports_no_frame_reduction(args: tuple[str, ...]) -> None:
-    """A plan is checked without the frame reduction's compiled kernels: loading the procedures (every one,
-    for ``rig run``) does not import numba (≈ 0.4 CPU-s), which only a recording uses."""
-    imported = _imported(*args)
+def test_a_dry_run_imports_no_frame_reduction() -> None:
+    """A plan is checked without the frame reduction's compiled kernels: loading the procedures (``rig run``
+    loads every one, certify's steps included) does not import numba (≈ 0.4 CPU-s), which only a recording
+    uses."""
+    imported = _imported("run", "sweep", "--dry-run")
     assert imported["code"] == 0 and "numba" not in imported["heavy"], imported
