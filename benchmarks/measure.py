@@ -346,9 +346,13 @@ def run(folder: Path, paths: tuple[Path, Path], calibration: Path, seconds: floa
           f"{DECODER_THREADS} FFmpeg thread(s) per video, as rig measure decodes)")
     print(f"  decode only, OpenCV's default threads (one per core) {cpu_default / video_s:6.3f} = "
           f"{cpu_default / cpu_decode:5.2f} × baseline   (wall {wall_default:.2f} s)")
-    readers: tuple[tuple[str, Callable[[Path], object]], ...] = (
-        ("VideoFile (+ duplicates)", lambda p: sum(1 for _ in VideoFile(p).frames())),
-        ("marker extraction", extract_video))
+    def video_file(path: Path) -> int:
+        return sum(1 for _ in VideoFile(path, decoder_threads=DECODER_THREADS).frames())
+
+    readers: tuple[tuple[str, Callable[[Path], object]], ...] = (  # each decoding as rig measure does
+        ("VideoFile (+ duplicates)", video_file),
+        ("marker extraction",
+         partial(extract_video, options=ExtractOptions(decoder_threads=DECODER_THREADS))))
     for name, reader in readers:
         cpu, wall_x = least(repeat, partial(cpu_both, reader, paths))
         print(f"  {name:<25} {cpu / video_s:6.3f} = {cpu / cpu_decode:5.2f} × baseline   "
