@@ -320,10 +320,15 @@ class Bandlimited:
         from rig.stereo.resample_kernel import rows_dot_columns, rows_transposed
 
         if self.R is None or self.cholesky is None:  # a regular grid: M = K; each row's nonzero squares
-            nonzero = K.rows != 0.0  # summed as scipy.sparse sums a CSR row (np.add.reduceat)
-            ends = np.cumsum(np.count_nonzero(nonzero, axis=1))
-            squares = np.add.reduceat(np.r_[K.rows[nonzero] ** 2, 0.0], np.r_[0, ends[:-1]])
-            return np.where(ends > np.r_[0, ends[:-1]], squares, 0.0)
+            # summed as scipy.sparse sums a CSR row: np.add.reduceat at the non-empty rows' starts only, the
+            # last one to the end (its grouping of the terms, hence its rounding, depends on where it ends)
+            nonzero = K.rows != 0.0
+            counts = np.count_nonzero(nonzero, axis=1)
+            filled = counts > 0
+            squares = np.zeros(len(counts))
+            if filled.any():
+                squares[filled] = np.add.reduceat(K.rows[nonzero] ** 2, (np.cumsum(counts) - counts)[filled])
+            return squares
         # M = K N⁻¹ Sᵀ and SᵀS = N − R, so diag(M Mᵀ) = diag(K Z) − diag(Zᵀ R Z), Z = N⁻¹ Kᵀ (exact for
         # bridged gaps; the cubic prior of a long gap's slots is left out: approximate next to one).
         Z = linalg.cho_solve_banded((self.cholesky, True), rows_transposed(K.rows, K.first, self.n_grid))
