@@ -64,13 +64,7 @@ class ExtractOptions:
     def __post_init__(self) -> None:
         if self.start_s is not None and self.stop_s is not None and not self.start_s < self.stop_s:
             raise ValueError(f"start_s={self.start_s!r}, stop_s={self.stop_s!r}; allowed: start_s < stop_s")
-        if self.mode not in ("track", "detect"):
-            raise ValueError(f"mode={self.mode!r}; allowed: 'track' or 'detect'")
-        if int(self.window_px) != self.window_px or self.window_px < 7:
-            raise ValueError(f"window_px={self.window_px!r}; allowed: an integer ≥ 7")
-        if int(self.redetect_every) != self.redetect_every or self.redetect_every < 1:
-            raise ValueError(f"redetect_every={self.redetect_every!r}; allowed: an integer ≥ 1")
-        self.reduce_options()  # checks the detect options
+        self.reduce_options()  # checks mode, window_px, redetect_every and the detect options
 
     def reduce_options(self) -> ReduceOptions:
         """The frame-reduction part of these options."""
