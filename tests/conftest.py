@@ -108,12 +108,14 @@ WORKERS_PER_CORE = 1.5
 
 
 def pytest_xdist_auto_num_workers(config: pytest.Config) -> int | None:
-    """``-n auto``: ``WORKERS_PER_CORE`` × the cores this process may run on (at least 1); None (xdist's own
-    count) when ``PYTEST_XDIST_AUTO_NUM_WORKERS`` is set."""
+    """``-n auto``: ``WORKERS_PER_CORE`` × the cores this process may use (its affinity, capped by a
+    container's CPU quota: :func:`drivers.cores.usable_cores`); None (xdist's own count) when
+    ``PYTEST_XDIST_AUTO_NUM_WORKERS`` is set."""
     if os.environ.get("PYTEST_XDIST_AUTO_NUM_WORKERS"):
         return None
-    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
-    return max(1, round(WORKERS_PER_CORE * cores))
+    from drivers.cores import usable_cores
+
+    return max(1, round(WORKERS_PER_CORE * usable_cores()))
 
 
 # ----------------------------------------------------------------------------- order (xdist: longest first)

@@ -13,6 +13,7 @@ from camera_mkv import write_mkv
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+import drivers.cores
 from drivers.camera.base import Frame, FrameSource
 from drivers.camera.video_file import (
     DuplicateJudge,
@@ -144,6 +145,7 @@ def test_a_decoder_thread_count_outside_1_to_64_is_refused(tmp_path: Path, threa
 def test_decoders_share_the_cores_of_the_process(monkeypatch: pytest.MonkeyPatch, cores: int, files: int,
                                                  expected: int) -> None:
     monkeypatch.setattr(os, "sched_getaffinity", lambda pid: set(range(cores)), raising=False)
+    monkeypatch.setattr(drivers.cores, "cgroup_cpu_limit", lambda *paths: None)  # the affinity alone
     assert decoder_threads_per_file(files) == expected
     with pytest.raises(ValueError, match="files=0"):
         decoder_threads_per_file(0)

@@ -44,7 +44,6 @@ from __future__ import annotations
 
 import functools
 import math
-import os
 import threading
 from collections import deque
 from collections.abc import Callable, Iterator
@@ -59,6 +58,7 @@ from numpy.typing import NDArray
 from drivers.camera.base import Frame, FrameGap
 from drivers.camera.container_times import ContainerError, read_container_times
 from drivers.camera.seek import frame_times_s, seek_frame
+from drivers.cores import usable_cores
 from drivers.roles import Camera
 
 __all__ = ["DUPLICATE_POLICIES", "MAX_DECODER_THREADS", "FrameTimeReport", "VideoFile", "VideoFileError",
@@ -74,12 +74,12 @@ MAX_DECODER_THREADS = 64
 
 
 def decoder_threads_per_file(files: int) -> int:
-    """FFmpeg threads for each of ``files`` (≥ 1) videos decoded at once: this process's cores shared among
-    them, at least 1 each."""
+    """FFmpeg threads for each of ``files`` (≥ 1) videos decoded at once: the cores this process may use
+    (:func:`drivers.cores.usable_cores`: its affinity, capped by a container's CPU quota) shared among them,
+    at least 1 each."""
     if files < 1:
         raise ValueError(f"files={files!r}; allowed: an integer ≥ 1")
-    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
-    return min(MAX_DECODER_THREADS, max(1, cores // files))
+    return min(MAX_DECODER_THREADS, max(1, usable_cores() // files))
 
 
 class VideoFileError(RuntimeError):

@@ -32,9 +32,10 @@ failing task is retried ``max_retries`` times by Dask, then reported as failed (
 silently dropped.
 
 The engine is ``dask.distributed``: without ``scheduler`` a ``LocalCluster`` of one single-threaded worker
-process per core on 127.0.0.1; with ``scheduler="tcp://HOST:8786"`` the same tasks go to an existing
-cluster (``dask scheduler`` / ``dask worker``, dask-jobqueue, Kubernetes), whose workers must see the same
-paths (a shared file system) and have this package installed.
+process per usable core (a container's CPU quota included) on 127.0.0.1; with
+``scheduler="tcp://HOST:8786"`` the same tasks go to an existing cluster (``dask scheduler`` / ``dask
+worker``, dask-jobqueue, Kubernetes), whose workers must see the same paths (a shared file system) and
+have this package installed.
 """
 
 from __future__ import annotations
@@ -56,6 +57,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from drivers.cores import usable_cores
 from rig.deploy.batch_manifest import BatchManifest, PairSpec, Segment, match_segments
 from rig.record.atomic import atomic_path
 
@@ -309,7 +311,8 @@ def _versions() -> dict[str, str]:
 @contextmanager
 def dask_client(scheduler: str | None, n_workers: int | None) -> Iterator[Any]:
     """A client of the scheduler at ``scheduler``, or of a new LocalCluster (``n_workers`` processes, or one
-    per core, single-threaded, on 127.0.0.1; its dashboard on a free port) that is shut down on exit with its
+    per core this process may use — :func:`drivers.cores.usable_cores`, a container's CPU quota included —
+    single-threaded, on 127.0.0.1; its dashboard on a free port) that is shut down on exit with its
     worker processes (closing a client alone leaves a cluster it was handed running)."""
     from distributed import Client, LocalCluster
 
@@ -317,7 +320,7 @@ def dask_client(scheduler: str | None, n_workers: int | None) -> Iterator[Any]:
         with Client(scheduler, timeout="30s") as client:
             yield client
         return
-    with (LocalCluster(n_workers=n_workers or os.cpu_count() or 1, threads_per_worker=1, processes=True,
+    with (LocalCluster(n_workers=n_workers or usable_cores(), threads_per_worker=1, processes=True,
                        host="127.0.0.1", dashboard_address="127.0.0.1:0") as cluster,
           Client(cluster) as client):
         yield client
