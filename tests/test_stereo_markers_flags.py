@@ -15,6 +15,7 @@ from rig.stereo import (
     detect_markers,
     track_markers,
 )
+from rig.stereo.markers_refine import measure_windows
 
 
 def only(found: np.ndarray) -> np.void:
@@ -140,7 +141,9 @@ def test_any_whole_marker_is_found_once_unflagged_within_noise(  # noqa: PLR0917
     Markers must be detectable at all: a blurred peak at least 8σ above the background (the binarization
     needs 4σ, the weights start at 3σ), and at least 20 px² of the noise-free image above the binarization's
     4σ — the area the detector measures, twice ``min_area_px`` (a small faint disc's geometric area is not:
-    radius 3, contrast 30, noise σ 3 has 21 px² of disc but 9.5 px² above 4σ after the blur).
+    radius 3, contrast 30, noise σ 3 has 21 px² of disc but 9.5 px² above 4σ after the blur). And wide
+    enough across for the pixel grid not to skew them: √(b²/4 + blur²) ≥ 1.1 px for the minor semi-axis b
+    (the domain of the occlusion limits, rig/stereo/markers.py).
     """
     u, v = 64.0 + du, 64.0 + dv
     background = 20.0
@@ -150,11 +153,59 @@ def test_any_whole_marker_is_found_once_unflagged_within_noise(  # noqa: PLR0917
     pixel_sigma = np.sqrt(noise**2 + 1 / 12)
     above_threshold_px2 = int(np.count_nonzero(clean - background >= 4.0 * pixel_sigma))
     assume(clean.max() - background >= 8.0 * pixel_sigma and above_threshold_px2 >= 20)
+    assume(np.hypot(radius * ratio / 2.0, blur) >= 1.1)
     row = only(detect_markers(img, min_area_px=10, min_contrast=10))
     assert not row["flags"] & FLAG_OCCLUDED
     sigma_c = centroid_noise_px(clean, background, (u, v), noise_sigma_dn=pixel_sigma,
                                 floor_dn=3 * pixel_sigma, half_px=int(radius) + 8)
     assert np.hypot(row["u_px"] - u, row["v_px"] - v) < np.sqrt(2) * (5.0 * sigma_c + 0.005)
+
+
+@pytest.mark.parametrize(("radius_px", "ratio", "blur_px", "contrast_dn", "half_px"), [
+    (3.0, 1.0, 2.0, 30.0, 10), (5.0, 1.0, 1.5, 40.0, 12), (8.0, 1.0, 0.8, 60.0, 14),
+    (20.0, 0.6, 1.5, 40.0, 28),
+])
+def test_skewness_noise_is_the_mean_skewness_of_a_whole_marker(
+        radius_px, ratio, blur_px, contrast_dn, half_px):
+    """Noise σ 2 DN, 200 draws (10 sub-pixel centres and angles × 20): the measured skewness of a whole
+    marker over its ``skewness_noise`` averages 0.5–1.5 (measured 0.69, 0.85, 0.99, 1.03 over 400 draws;
+    the former allowance 8σ²/(contrast²·area): 14.9, 7.3, 2.6, 4.3)."""
+    rng = np.random.default_rng(17)
+    ratios = []
+    for _ in range(10):
+        u, v = 40.0 + rng.uniform(0, 1), 40.0 + rng.uniform(0, 1)
+        disc = Disc(u, v, radius_px, radius_px * ratio, rng.uniform(0, 180), contrast_dn)
+        _, clean = render((80, 80), [disc], blur_sigma_px=blur_px, noise_sigma_dn=0.0, return_float=True)
+        for _ in range(20):
+            img = np.clip(np.rint(clean + rng.normal(0.0, 2.0, clean.shape)), 0, 255).astype(np.uint8)
+            m = measure_windows(img, np.array([round(v)]), np.array([round(u)]), half_px, dark=False)
+            assert not m.cramped[0]
+            ratios.append(m.skewness[0] / m.skewness_noise[0])
+    assert 0.5 < np.mean(ratios) < 1.5
+
+
+@pytest.mark.parametrize(("radius_px", "ratio", "blur_px", "contrast_dn", "noise_dn"), [
+    (3.0, 1.0, 2.0, 30.0, 2.0),  # small, faint, blurred: the noise on its wide skirt (the former miss)
+    (3.0, 0.6, 0.64, 200.0, 0.5),  # narrow and sharp, at the domain's edge: the pixel grid's own skewness
+])
+def test_whole_markers_at_the_edge_of_the_domain_are_not_flagged(
+        radius_px, ratio, blur_px, contrast_dn, noise_dn):
+    """1,000 noise draws (20 sub-pixel centres and angles × 50) of the worst shapes measured in the domain
+    of the occlusion limits: none flagged. Their skewness reaches at most 0.15 (first: noise) and 0.48
+    (second: the pixel grid) of the limit in these draws, so a flag would take a tail 7× or 2× beyond them.
+    The former allowance flagged 14 of the first's 1,000 (none of the second's, which guards the domain's
+    edge √(b²/4 + blur²) ≥ 1.1 px: at blur 0.3 px the same marker reaches 1.2× the limit)."""
+    rng = np.random.default_rng(16)
+    flagged = 0
+    for _ in range(20):
+        u, v = 20.0 + rng.uniform(0, 1), 20.0 + rng.uniform(0, 1)
+        disc = Disc(u, v, radius_px, radius_px * ratio, rng.uniform(0, 180), contrast_dn)
+        _, clean = render((40, 40), [disc], blur_sigma_px=blur_px, noise_sigma_dn=0.0, return_float=True)
+        for _ in range(50):
+            img = np.clip(np.rint(clean + rng.normal(0.0, noise_dn, clean.shape)), 0, 255).astype(np.uint8)
+            row = only(detect_markers(img, min_area_px=10, min_contrast=10))
+            flagged += bool(row["flags"] & FLAG_OCCLUDED)
+    assert flagged == 0
 
 
 @pytest.mark.parametrize("shape", [(8, 8), (12, 20), (24, 24)])

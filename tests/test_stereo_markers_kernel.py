@@ -124,7 +124,7 @@ def test_the_support_through_row_masks_is_the_flood_filled_one(seed: int, half: 
     """Windows of up to 64 columns take their support through 64-bit row masks (:func:`_support_bits`):
     the same 8-connected region as the scanline flood fill (:func:`_support`) — noise masks of 7–84 %
     density, so regions of every shape — the same peak, saturation and cramped flags, plateau and moments
-    (summed in another order: equal to 1e-12)."""
+    (summed in another order: equal to 1e-12), and skewness noise."""
     rng = np.random.default_rng(seed)
     w, pw = 2 * half + 1, 2 * half + 3
     scr = markers_kernel.scratch(half)
@@ -147,3 +147,53 @@ def test_the_support_through_row_masks_is_the_flood_filled_one(seed: int, half: 
     assert np.allclose(m_bits, m_fill, rtol=1e-12, atol=1e-9)
     plateau_bits = markers_kernel._plateau_bits(d, half, region, first, last, peak)
     assert plateau_bits == pytest.approx(plateau, rel=1e-12)
+    noise_bits = markers_kernel._skew_noise_bits(region, first, last, half, m_bits)
+    noise_fill = markers_kernel._skew_noise(filled, half, m_fill)
+    assert noise_bits == pytest.approx(noise_fill, rel=1e-9, nan_ok=True)
+
+
+def _third_moments(w: np.ndarray, xs: np.ndarray, ys: np.ndarray) -> np.ndarray:
+    """Central third moments (μ30, μ21, μ12, μ03) of weights ``w`` at (xs, ys), and det(Σ)."""
+    m0 = w.sum()
+    x, y = xs - (w * xs).sum() / m0, ys - (w * ys).sum() / m0
+    det = (w * x * x).sum() / m0 * (w * y * y).sum() / m0 - ((w * x * y).sum() / m0) ** 2
+    return np.array([(w * x**p * y ** (3 - p)).sum() / m0 for p in (3, 2, 1, 0)] + [det])
+
+
+@pytest.mark.parametrize(("radius_px", "blur_px", "half"), [(3.0, 2.0, 10), (6.0, 0.8, 12), (20.0, 1.5, 40)])
+def test_skewness_noise_is_the_first_order_propagation_of_pixel_noise(radius_px, blur_px, half) -> None:
+    """A whole blurred disc's weights on its support (both paths: row bits, and the flood fill's pixels for
+    W > 64): the skewness noise per DN² equals Σ_pixels (∂μ30² + ∂μ03² + 3∂μ21² + 3∂μ12²)/det(Σ)^(3/2), the
+    moments' derivatives by each pixel's weight taken numerically (central differences), to 1e-3: the kernel
+    leaves out the −μ_pq/m0 in each derivative, 0 for a centrally symmetric marker (2e-4 of it here, where
+    the pixel grid makes the disc not quite symmetric)."""
+    w, pw = 2 * half + 1, 2 * half + 3
+    yy, xx = np.mgrid[-half:half + 1, -half:half + 1].astype(float)
+    r = np.hypot(xx - 0.31, yy + 0.17)  # the disc's centre off the pixel grid
+    signal = 40.0 * 0.5 * (1.0 - np.tanh((r - radius_px) / blur_px)) - 6.0  # weights above a floor of 6 DN
+    scr = markers_kernel.scratch(half)
+    d, free, clipped, pixels, stack, m = scr[7], scr[8], scr[9], scr[10], scr[11], scr[12]
+    d[:] = 0.0
+    d.reshape(pw, pw)[1:-1, 1:-1] = signal.astype(np.float32)
+    free[:] = d > 0
+    clipped[:] = False
+    n = markers_kernel._support(d, half, free, clipped, pixels, stack, m)[0]
+    support = np.zeros(pw * pw, dtype=bool)
+    support[pixels[:n]] = True
+    support = support.reshape(pw, pw)[1:-1, 1:-1]
+    weights = d.reshape(pw, pw)[1:-1, 1:-1][support].astype(float)
+    xs, ys = xx[support], yy[support]
+    total, step = 0.0, 1e-3
+    for i in range(len(weights)):
+        up, down = weights.copy(), weights.copy()
+        up[i] += step
+        down[i] -= step
+        dmu = (_third_moments(up, xs, ys)[:4] - _third_moments(down, xs, ys)[:4]) / (2 * step)
+        total += dmu[0] ** 2 + dmu[3] ** 2 + 3.0 * (dmu[1] ** 2 + dmu[2] ** 2)
+    expected = total / _third_moments(weights, xs, ys)[4] ** 1.5
+    assert markers_kernel._skew_noise(pixels[:n], half, m) == pytest.approx(expected, rel=1e-3)
+    if w <= markers_kernel.MASK_BITS:
+        m_bits = np.empty(10)
+        *_, first, last = markers_kernel._support_bits(d, half, clipped, scr[13], scr[14], m_bits)
+        noise_bits = markers_kernel._skew_noise_bits(scr[14], first, last, half, m_bits)
+        assert noise_bits == pytest.approx(expected, rel=1e-3)

@@ -48,12 +48,28 @@ FLAG_LOST = 8  # tracking only: no marker passing the filters in the window (u_p
 # Occlusion tests (defaults). A whole disc or ellipse is centrally symmetric: its skewness (third
 # moments, see markers_refine) is ~0 and its half-contrast outline lies within a few hundredths of a
 # pixel of the fitted ellipse. A marker with a piece hidden is asymmetric and its outline has a chord or
-# a corner. Both tests allow for noise: skewness > MAX_SKEWNESS + SKEW_NOISE_FACTOR·8σ²/(contrast²·area)
-# and outline RMS² > MAX_EDGE_RMS_PX² + (EDGE_NOISE_FACTOR·noise RMS)². Measured on rendered discs
-# (r 2.5–30 px, ellipses to 2:1, blur ≤ 2.5 px, contrast/σ ≥ 7): whole markers reach at most 0.6 of either
-# limit; a disc of r ≥ 8 px with 30 % of its radius cut off by a straight edge exceeds it 2–5×.
+# a corner. Both tests allow for noise: skewness > MAX_SKEWNESS + SKEW_NOISE_FACTOR·skewness_noise and
+# outline RMS² > MAX_EDGE_RMS_PX² + (EDGE_NOISE_FACTOR·noise RMS)².
+# skewness_noise = σ²·Σ_support(f30² + f03² + 3f21² + 3f12²) / (m0²·det(Σ)^(3/2)), the skewness that pixel
+# noise σ gives a whole marker, to first order (markers_kernel._run_skew_terms: f_pq is how far one pixel's
+# weight moves m0·μ_pq; m0 = Σw, Σ the weighted covariance). Every support pixel counts with its full σ,
+# however small its weight: on a small blurred marker the skirt dominates. The former allowance,
+# 8σ²/(contrast²·area), is that sum for a flat disc of full-contrast weights: 5–23× too small on small
+# blurred markers (r 3 px, contrast 30, σ 2, blur 2 px: skewness 14× it on average; 17 of 1,000 whole
+# markers flagged). Skewness / skewness_noise where noise dominates (blur ≥ 0.5 px, contrast/σ ≤ 15,
+# 27,000 rendered draws): mean 0.9, 99.99th percentile 9, largest 13.6 — below 0.6 of a factor 25.
+# The pixel grid skews a sharp marker that is narrow across by itself (unblurred, contrast/σ 100: 0.03 at
+# a minor semi-axis b of 1.5 px, 0.009 at 2 px, 0.001 at 3 px), which no noise allowance covers; hence
+# the domain: r 2.5–30 px, ellipses to 2:1, blur ≤ 2.5 px, contrast/σ 7–400, and √(b²/4 + blur²) ≥ 1.1 px
+# (a disc of r ≥ 2.2 px at any blur; a 2:1 ellipse of r 2.5 px from blur 0.92 px). There, over 180,000
+# rendered draws, whole markers reach at most 0.58 of the skewness limit (the former allowance flagged
+# 182, up to 2.8× its limit); outside it up to 2× (r 3 px 2:1, blur 0.3 px, contrast/σ 400). A disc of
+# r ≥ 8 px, contrast/σ 75, with 30 % of its radius cut off by a straight edge exceeds the limit ≥ 4× (its
+# noise allowance < 10⁻³: MAX_SKEWNESS decides); small faint blurred ones are flagged less often than with
+# the former allowance (r 5 px, contrast 40, blur 1.5, σ 2, 30 % cut: 0 of 40, was 29), being within the
+# noise. The outline limit (outline_check): whole markers at most 0.6 of it, as measured before.
 MAX_SKEWNESS = 0.01
-SKEW_NOISE_FACTOR = 50.0
+SKEW_NOISE_FACTOR = 25.0
 MAX_EDGE_RMS_PX = 0.15
 EDGE_NOISE_FACTOR = 3.0
 

@@ -711,17 +711,22 @@ def _region_pixels(region: np.ndarray, first: int, last: int, half_px: int, pixe
 
 
 @_stage
+def _covariance(m: np.ndarray) -> tuple[float, float, float, float, float]:
+    """Centroid offsets (mx, my) px and the weighted covariance (cxx, cxy, cyy) px² from the raw moments."""
+    mx, my = m[1] / m[0], m[2] / m[0]
+    return mx, my, m[3] / m[0] - mx * mx, m[4] / m[0] - mx * my, m[5] / m[0] - my * my
+
+
+@_stage
 def _moment_shape(m: np.ndarray) -> tuple[float, float, float, float]:
     """Centroid offsets, roundness and skewness from the raw moments (1, x, y, xx, xy, yy, xxx, ...).
 
     skewness = (μ30² + 3μ21² + 3μ12² + μ03²) / det(Σ)^(3/2) from the central moments: Mardia's b1 for a
     round blob, 0 for every centrally symmetric one. Empty windows give NaN (0/0).
     """
-    mx, my = m[1] / m[0], m[2] / m[0]
-    exx, exy, eyy = m[3] / m[0], m[4] / m[0], m[5] / m[0]
+    mx, my, cxx, cxy, cyy = _covariance(m)
     exxx, exxy, exyy, eyyy = m[6] / m[0], m[7] / m[0], m[8] / m[0], m[9] / m[0]
     mx2, my2 = mx * mx, my * my
-    cxx, cxy, cyy = exx - mx2, exy - mx * my, eyy - my2
     det = cxx * cyy - cxy * cxy
     half_trace = 0.5 * (cxx + cyy)
     root = np.sqrt(max(half_trace * half_trace - det, 0.0))
@@ -732,6 +737,92 @@ def _moment_shape(m: np.ndarray) -> tuple[float, float, float, float]:
     c12 = exyy - mx * (cyy + my2) - 2.0 * my * cxy
     skew = (c30 * c30 + c03 * c03 + 3.0 * (c21 * c21 + c12 * c12)) / det**1.5
     return mx, my, roundness, skew
+
+
+@_stage
+def _power_sums(lo: float, hi: float) -> tuple[float, float, float, float, float, float, float]:
+    """Σ x^k over the integers x = lo..hi (lo ≤ hi), k = 0..6: Faulhaber's F_k(hi) − F_k(lo − 1), where
+    F_k(n) = Σ_{x=1..n} x^k as a polynomial (F_k(n) − F_k(n − 1) = n^k for every integer n), in float64
+    (relative error ~1e-16: its divisions are multiplications by reciprocals)."""
+    fh = _faulhaber(hi)
+    fl = _faulhaber(lo - 1.0)
+    return (fh[0] - fl[0], fh[1] - fl[1], fh[2] - fl[2], fh[3] - fl[3], fh[4] - fl[4], fh[5] - fl[5],
+            fh[6] - fl[6])
+
+
+@_stage
+def _faulhaber(n: float) -> tuple[float, float, float, float, float, float, float]:
+    """F_0(n) … F_6(n), F_k(n) = Σ_{x=1..n} x^k (see :func:`_power_sums`)."""
+    a = n * (n + 1.0)
+    b = a * (2.0 * n + 1.0)
+    return (n, 0.5 * a, b * (1.0 / 6.0), 0.25 * a * a, b * (3.0 * a - 1.0) * (1.0 / 30.0),
+            a * a * (2.0 * a - 1.0) * (1.0 / 12.0), b * (3.0 * a * a - 3.0 * a + 1.0) * (1.0 / 42.0))
+
+
+@_stage
+def _run_skew_terms(  # noqa: PLR0917 (numba: no keyword-only arguments)
+        lo: float, hi: float, y: float, mx: float, cxx: float, cxy: float, cyy: float) -> float:
+    """Σ over the pixels x = lo..hi px of one row, y px from the centroid, of f30² + f03² + 3·(f21² + f12²):
+    f_pq = ∂(m0·μ_pq)/∂w, how far a pixel's weight moves a central third moment (the centroid's own shift
+    included: f30 = X³ − 3cxx·X, f21 = X²y − 2cxy·X − cxx·y, X = x − mx), in closed form from the row's
+    power sums of X."""
+    s0, s1, s2, s3, s4, s5, s6 = _power_sums(lo, hi)
+    u = -mx  # Σ X^j = Σ (x + u)^j
+    u2 = u * u
+    u3 = u2 * u
+    t1 = s1 + u * s0
+    t2 = s2 + 2.0 * u * s1 + u2 * s0
+    t3 = s3 + 3.0 * u * s2 + 3.0 * u2 * s1 + u3 * s0
+    t4 = s4 + 4.0 * u * s3 + 6.0 * u2 * s2 + 4.0 * u3 * s1 + u2 * u2 * s0
+    t6 = (s6 + 6.0 * u * s5 + 15.0 * u2 * s4 + 20.0 * u3 * s3 + 15.0 * u2 * u2 * s2 + 6.0 * u2 * u3 * s1
+          + u3 * u3 * s0)
+    y2 = y * y
+    return (t6 + 3.0 * y2 * t4 + 3.0 * y2 * y2 * t2 + y2 * y2 * y2 * s0
+            - 6.0 * cxx * t4 - 6.0 * cyy * y2 * y2 * s0 - 12.0 * cxy * (y * t3 + y * y2 * t1)
+            - 6.0 * (cxx + cyy) * y2 * t2 + (9.0 * cxx * cxx + 12.0 * cxy * cxy + 3.0 * cyy * cyy) * t2
+            + (9.0 * cyy * cyy + 12.0 * cxy * cxy + 3.0 * cxx * cxx) * y2 * s0
+            + 12.0 * cxy * (cxx + cyy) * y * t1)
+
+
+@_stage
+def _skew_noise_bits(region: np.ndarray, first: int, last: int, half_px: int, m: np.ndarray) -> float:
+    """Skewness of the support's weights expected from unit noise (1 DN² on each of its pixels), 1/DN²:
+    Σ_support (f30² + f03² + 3·(f21² + f12²)) / (m0²·det(Σ)^(3/2)) (:func:`_run_skew_terms`), the first-order
+    propagation of independent pixel noise into b1 (:func:`_moment_shape`); run by run of the region's rows
+    ``first..last`` as bits (:func:`_support_bits`)."""
+    mx, my, cxx, cxy, cyy = _covariance(m)
+    total = 0.0
+    for i in range(first, last + 1):
+        bits = region[i]
+        y = float(i - half_px) - my
+        while bits:  # a row's bits hold one run, unless the region has a hole or a bay
+            lo = np.int64(trailing_zeros(bits))
+            length = np.int64(trailing_zeros(~(bits >> np.uint64(lo))))  # W ≤ 63 bits: a 0 above the run
+            total += _run_skew_terms(float(lo - half_px), float(lo + length - 1 - half_px), y, mx, cxx, cxy,
+                                     cyy)
+            bits &= ~(((_ONE << np.uint64(length)) - _ONE) << np.uint64(lo))
+    det = cxx * cyy - cxy * cxy
+    return float(total / (m[0] * m[0] * det * np.sqrt(det)))
+
+
+@_stage
+def _skew_noise(pixels: np.ndarray, half_px: int, m: np.ndarray) -> float:
+    """:func:`_skew_noise_bits` of the support ``pixels`` (flat padded indices, each row's runs in order,
+    as :func:`_support` lists them)."""
+    mx, my, cxx, cxy, cyy = _covariance(m)
+    pw = 2 * half_px + 3
+    total = 0.0
+    start = 0
+    for p in range(len(pixels)):
+        if p + 1 < len(pixels) and pixels[p + 1] == pixels[p] + 1:
+            continue  # the run goes on (the padding column keeps rows apart)
+        q0 = pixels[start]
+        y = float(q0 // pw - 1 - half_px) - my
+        x0 = float(q0 % pw - 1 - half_px)
+        total += _run_skew_terms(x0, x0 + float(p - start), y, mx, cxx, cxy, cyy)
+        start = p + 1
+    det = cxx * cyy - cxy * cxy
+    return float(total / (m[0] * m[0] * det * np.sqrt(det)))
 
 
 @_stage
@@ -779,10 +870,11 @@ def scratch(half_px: int) -> tuple[np.ndarray, ...]:
 @jit_kernel
 def measure_one(  # noqa: PLR0917 (numba: no keyword-only arguments)
         image: np.ndarray, row: int, col: int, half_px: int, dark: bool, scr: tuple[np.ndarray, ...],
-        out: np.ndarray, flags: np.ndarray, n: int, signal: np.ndarray) -> None:
+        out: np.ndarray, flags: np.ndarray, n: int, signal: np.ndarray, noise_above: float) -> None:
     """Measure the window of half size ``half_px`` centred on the integer pixel (row, col) of ``image``
     into column ``n`` of ``out`` and ``flags`` (and ``signal[n]`` when ``signal`` has rows); ``scr``:
-    :func:`scratch` of the same half size. See :func:`measure_range`."""
+    :func:`scratch` of the same half size. The skewness noise is computed only for a skewness above
+    ``noise_above`` (NaN otherwise). See :func:`measure_range`."""
     vals, ok, keep, ring_x, ring_y, raw, valid, d, free, clipped, queue, stack, m = scr[:13]
     masks, region, ri, ci, hist = scr[13:]
     w, pw = 2 * half_px + 1, 2 * half_px + 3
@@ -818,12 +910,16 @@ def measure_one(  # noqa: PLR0917 (numba: no keyword-only arguments)
         plateau = _plateau(d, queue[:n_support], peak_w)
     pixels = queue[:n_support]
     du, dv, roundness, skew = _moment_shape(m)
+    skew_noise = np.nan  # wanted only above noise_above (a skewness below max_skewness is never flagged)
+    if skew > noise_above:
+        skew_noise = (_skew_noise_bits(region, first, last, half_px, m) if w <= MASK_BITS
+                      else _skew_noise(pixels, half_px, m))
     contrast = plateau + float(floor) if m[0] > 0 else np.nan
     area = m[0] / plateau
     out[OUT_U, n], out[OUT_V, n] = col + du, row + dv
     out[OUT_AREA, n], out[OUT_ROUND, n], out[OUT_CONTRAST, n] = area, roundness, contrast
     out[OUT_BACKGROUND, n], out[OUT_SIGMA, n], out[OUT_SKEW, n] = float(np.float32(a)), float(sigma), skew
-    out[OUT_SKEW_NOISE, n] = 8.0 * float(sigma) ** 2 / (contrast**2 * area)
+    out[OUT_SKEW_NOISE, n] = float(sigma) ** 2 * skew_noise
     flags[FLAG_ROW_BORDER, n], flags[FLAG_ROW_SATURATED, n] = not inside, saturated
     flags[FLAG_ROW_CRAMPED, n] = cramped
     if signal.shape[0]:
@@ -840,14 +936,15 @@ def measure_range(  # noqa: PLR0917 (numba: no keyword-only arguments)
     pixel (rows[n], cols[n]), of W = 2·half_px + 1 pixels.
 
     Writes ``out`` (N_OUT, N) float64 (OUT_* rows: centre in image px, area px², roundness, contrast DN,
-    background DN at the centre, σ DN, skewness and its noise allowance; NaN for a window without
-    support), ``flags`` (3, N) bool (FLAG_ROW_*), and when ``signal`` has N rows the background-subtracted
-    signal on the support ((N, W, W) float32, 0 elsewhere) for the outline fit.
+    background DN at the centre, σ DN, skewness and the skewness that the noise σ alone would give the
+    marker (σ² times :func:`_skew_noise_bits`); NaN for a window without support), ``flags`` (3, N)
+    bool (FLAG_ROW_*), and when ``signal`` has N rows the background-subtracted signal on the support
+    ((N, W, W) float32, 0 elsewhere) for the outline fit.
     """
     scr = scratch(half_px)
     _touch(image, rows[lo:hi], cols[lo:hi], half_px, scr[12])
     for n in range(lo, hi):
-        measure_one(image, rows[n], cols[n], half_px, dark, scr, out, flags, n, signal)
+        measure_one(image, rows[n], cols[n], half_px, dark, scr, out, flags, n, signal, -np.inf)
 
 
 @jit_kernel
@@ -866,15 +963,17 @@ def _finish_row(out: np.ndarray, flags: np.ndarray, n: int, limits: np.ndarray, 
 @jit_kernel
 def _measure_retrying(  # noqa: PLR0917 (numba: no keyword-only arguments)
         image: np.ndarray, row: int, col: int, half_px: int, dark: bool, scr: tuple[np.ndarray, ...],
-        ladder: np.ndarray, retries: int, out: np.ndarray, flags: np.ndarray, no_signal: np.ndarray) -> None:
+        ladder: np.ndarray, retries: int, out: np.ndarray, flags: np.ndarray, no_signal: np.ndarray,
+        max_skewness: float) -> None:
     """:func:`measure_one` into column 0 of ``out`` and ``flags``; a window whose marker reaches the ring
     is measured again one step larger on ``ladder`` (ascending half sizes), up to ``retries`` times.
-    ``no_signal``: an empty (0, 1, 1) float32 array (allocated once by the caller)."""
-    measure_one(image, row, col, half_px, dark, scr, out, flags, 0, no_signal)
+    ``no_signal``: an empty (0, 1, 1) float32 array (allocated once by the caller); ``max_skewness``: the
+    skewness noise is computed only above it (where the occlusion test needs it)."""
+    measure_one(image, row, col, half_px, dark, scr, out, flags, 0, no_signal, max_skewness)
     size, tries = half_px, 0
     while flags[FLAG_ROW_CRAMPED, 0] and tries < retries and size < ladder[-1]:
         size = ladder[min(int(np.searchsorted(ladder, size, side="right")), len(ladder) - 1)]
-        measure_one(image, row, col, size, dark, scratch(size), out, flags, 0, no_signal)
+        measure_one(image, row, col, size, dark, scratch(size), out, flags, 0, no_signal, max_skewness)
         tries += 1
 
 
@@ -896,7 +995,7 @@ def measure_rows(  # noqa: PLR0917 (numba: no keyword-only arguments)
             half_px = halves[k]
             scr = scratch(half_px)
         _measure_retrying(image, rows[k], cols[k], half_px, dark, scr, ladder, retries, out, flags,
-                          no_signal)
+                          no_signal, limits[0])
         passed[k] = _finish_row(out, flags, 0, limits, rec[k])
 
 
@@ -932,7 +1031,7 @@ def track_frame(  # noqa: PLR0917 (numba: no keyword-only arguments)
             row.flags = LOST_FLAG
             continue
         _measure_retrying(image, rows[k], cols[k], half_px, dark, scr, ladder, retries, out, flags,
-                          no_signal)
+                          no_signal, limits[0])
         if not _finish_row(out, flags, 0, limits, row):
             row.u_px, row.v_px = np.nan, np.nan
             row.flags |= LOST_FLAG

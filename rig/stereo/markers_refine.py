@@ -54,7 +54,7 @@ class Measured:
     v_ellipse_px: np.ndarray
     edge_rms_px: np.ndarray  # RMS distance of the outline points from that ellipse
     edge_noise_px: np.ndarray  # the part of edge_rms_px that the background noise σ explains
-    skewness_noise: np.ndarray  # expected skewness of a whole disc from noise: 8σ²/(contrast²·area)
+    skewness_noise: np.ndarray  # skewness a whole marker gets from its noise σ (first order; see markers.py)
     border: np.ndarray  # bool: the window reaches outside the image
     saturated: np.ndarray  # bool: a support pixel is clipped (255 bright / 0 dark)
     cramped: np.ndarray  # bool: the support reaches the background ring (the window is too small)
