@@ -21,15 +21,14 @@ from rig.stereo import DLTCamera
 
 
 @pytest.fixture(scope="module")
-def videos(tmp_path_factory: pytest.TempPathFactory) -> dict:
-    folder = tmp_path_factory.mktemp("onsite")
-    world, truth, t_end = mt.calibration_world()
-    left, right = mt.camera_pair(world)
-    left.write_video(folder / "left.avi", 0.0, t_end, fourcc="MJPG")
-    right.write_video(folder / "right.avi", 0.0, t_end, fourcc="MJPG")
-    return {"folder": folder, "truth": truth, "cams": (left, right), "t_end": t_end,
-            "paths": {"left": folder / "left.avi", "right": folder / "right.avi"},
-            "target": mt.write_target(folder / "target.toml", truth)}
+def videos(mjpg_site: dict) -> dict:
+    """The twin's slid-plate pair as Motion-JPEG AVIs: the session's ``mjpg_site`` plate videos (rendered once
+    for the files that read them, tests/conftest.py), its target and truth, and the twin's cameras."""
+    world, _, _ = mt.calibration_world()
+    folder = mjpg_site["folder"]
+    return {"truth": mjpg_site["truth"], "cams": mt.camera_pair(world),
+            "paths": {"left": folder / "cal_left.avi", "right": folder / "cal_right.avi"},
+            "target": mjpg_site["target"]}
 
 
 def test_still_segments_are_the_holds(videos: dict) -> None:
