@@ -210,17 +210,25 @@ QUIET = NoiseModel(read_noise_dn=0.0, shot_noise_dn2_per_dn=0.0)
 DUPS = (36, 47, 80, 95, 101, 130, 150)  # sensor frames delivered twice
 
 
-def _column(tmp_path: Path, crank_mm: float, fourcc: str, noise: NoiseModel | None = QUIET) -> tuple:
+def _column_camera(crank_mm: float, noise: NoiseModel | None = QUIET) -> tuple:
+    """The left camera filming the column (moving from before 0.5 s), delivering ``DUPS`` twice; the
+    indices of its frames from 0.5 to 3.0 s (world) and where in them a frame repeats its predecessor."""
     layout = WorldLayout(initial_scene="sweep_column", crank_radius_mm=crank_mm)
     world = World(VirtualClock(), seed=5, layout=layout)
     world.exciter.set_frequency(-1.0, 5.0)  # moving from before the first frame
     extra = {"noise": noise} if noise is not None else {}
     left, _ = mt.camera_pair(world, left={"duplicated_frames": DUPS, **extra})
+    indices = left.frame_indices_between(0.5, 3.0)
+    sensor = [left.sensor_frame(i) for i in indices]
+    injected = [k for k in range(1, len(sensor)) if sensor[k] == sensor[k - 1]]
+    return left, indices, injected
+
+
+def _column(tmp_path: Path, crank_mm: float, fourcc: str, noise: NoiseModel | None = QUIET) -> tuple:
+    left, indices, injected = _column_camera(crank_mm, noise)
     path = tmp_path / ("q.avi" if fourcc == "MJPG" else "q.mp4")
     n = left.write_video(path, 0.5, 3.0, fourcc=fourcc)
-    first = left.first_frame_index_at_or_after(0.5)
-    sensor = [left.sensor_frame(i) for i in range(first, first + n)]
-    injected = [k for k in range(1, n) if sensor[k] == sensor[k - 1]]
+    assert n == len(indices)
     return left, path, n, injected
 
 
@@ -262,9 +270,8 @@ def test_sensor_noise_tells_every_copy_in_an_intra_coded_video(tmp_path: Path) -
 def test_noise_free_duplicates_with_repeated_time_stamps_are_all_found(tmp_path: Path) -> None:
     """The same slow noise-free scene in a container with the camera's time stamps: every copy is found by
     its repeated stamp, whatever the motion."""
-    cam, _, n, injected = _column(tmp_path, 0.3, "MJPG")
-    first = cam.first_frame_index_at_or_after(0.5)
-    idx = range(first, first + n)
+    cam, idx, injected = _column_camera(0.3)  # the frames only: no video of them but this one
+    first = idx[0]
     write_mkv(tmp_path / "q.mkv", (cam.render(i) for i in idx),
               [cam.frame_timestamp_s(i) - cam.frame_timestamp_s(first) for i in idx])
     video = VideoFile(tmp_path / "q.mkv", fps=60)
