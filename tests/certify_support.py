@@ -88,3 +88,20 @@ def depth_scale(calibration: dict[str, Any], point_mm: Any) -> tuple[float, floa
 
 def read_json(path: Path) -> dict[str, Any]:
     return json.loads(path.read_text(encoding="utf-8"))
+
+
+ROTATION_HZ, ROTATION_RECORD_S = 10.0, 1.5
+
+
+def rotation_run(folder: Path) -> dict[str, Any]:
+    """``rig run rotation`` (``record_s`` = :data:`ROTATION_RECORD_S` s at :data:`ROTATION_HZ` rev/s) on the
+    simulated rig of :func:`write_config` in ``folder``: calibrate, sync, rotation and the report (its
+    certificate issued). {"config": rig.toml, "run_dir": the run folder, "code": rig's exit code}."""
+    from rig.cli import main
+    from rig.record.catalogue import run_folders
+
+    config = write_config(folder)
+    code = main(["run", "rotation", "--config", str(config), "--set", f"record_s={ROTATION_RECORD_S}",
+                 "--set", f"rotation_hz={ROTATION_HZ}"])
+    (run_dir,) = run_folders(folder / "runs")
+    return {"config": config, "run_dir": run_dir, "code": code}

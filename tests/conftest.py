@@ -204,3 +204,13 @@ def mjpg_site(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
     import measure_twin as mt
 
     return built_once(tmp_path_factory, "mjpg_site", mt.mjpg_site)
+
+
+@pytest.fixture(scope="session")
+def rotation_run(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
+    """``tests/certify_support.rotation_run`` (a whole ``rig run rotation`` on the simulated rig), read-only:
+    checked by test_procedures_e2e_plate_rotation, reported on (copies) by test_evidence_io_faults."""
+    import certify_support as cs
+
+    return built_once(tmp_path_factory, "rotation_run", cs.rotation_run)
+

@@ -15,7 +15,6 @@ import textwrap
 from pathlib import Path
 
 import pytest
-from certify_support import write_config
 from fs_faults import fill, half_written, remount_read_only, tmpfs, tree
 
 from reports.build import build_report
@@ -199,17 +198,13 @@ def test_run_into_a_read_only_runs_folder_exits_3_before_any_device(tmp_path: Pa
 
 
 @pytest.fixture(scope="module")
-def real_run(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """A rotation run on the simulated rig (calibrate, sync, rotation, report): its certificate issued."""
-    runs = tmp_path_factory.mktemp("io_runs")
-    # its reports (and the tests' `rig report`s of it) compute the certificate only: [report] no comparison,
-    # no figure (certify_support.write_config) — these tests are about the disk, not what a report draws
-    config = write_config(tmp_path_factory.mktemp("io_config"))
-    # exit 1: a single procedure's certificate is INCOMPLETE (it evaluates only its own criteria)
-    code = main(["run", "rotation", "--config", str(config), "--set", "record_s=1", "--no-dashboard",
-                 "--runs-dir", str(runs)])
-    assert code in (0, 1)
-    (run_dir,) = [p for p in runs.iterdir() if p.is_dir()]  # beside it: the catalogue of runs
+def real_run(rotation_run: dict) -> Path:
+    """A rotation run on the simulated rig (calibrate, sync, rotation, report): its certificate issued. The
+    session's (tests/conftest.py), read-only: the tests report on copies of it. Its reports (and the tests'
+    `rig report`s of its copies) compute the certificate only: [report] no comparison, no figure
+    (certify_support.write_config) — these tests are about the disk, not what a report draws."""
+    run_dir: Path = rotation_run["run_dir"]
+    assert rotation_run["code"] in (0, 1)  # 1: a single procedure's certificate is INCOMPLETE
     assert (run_dir / "certificate.json").is_file()
     return run_dir
 

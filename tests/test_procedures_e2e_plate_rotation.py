@@ -28,10 +28,18 @@ from rig.config.rig_config import load_config
 from rig.record.catalogue import run_folders
 from rig.record.writer import load_run, read_observations
 from rig.run.station import world_layout
-from tests.certify_support import depth_scale, read_json, still_pixel_noise_px, write_config
+from tests.certify_support import (
+    ROTATION_HZ,
+    ROTATION_RECORD_S,
+    depth_scale,
+    read_json,
+    still_pixel_noise_px,
+    write_config,
+)
 
 CLOCK_PPM = 50e-6  # the twin's cameras' clocks are within ±50 ppm of the controller's
-PLATE_HZ, ROTOR_HZ = 3.5, 10.0
+PLATE_HZ = 3.5
+ROTOR_HZ = ROTATION_HZ  # the session's rotation run (certify_support.rotation_run)
 
 
 def _run(tmp_path: Path, procedure: str, *settings: str) -> tuple[Path, Path]:
@@ -41,6 +49,11 @@ def _run(tmp_path: Path, procedure: str, *settings: str) -> tuple[Path, Path]:
         args += ["--set", s]
     code = main(args)
     (run_dir,) = run_folders(tmp_path / "runs")
+    _check_run(code, run_dir, procedure)
+    return config, run_dir
+
+
+def _check_run(code: int, run_dir: Path, procedure: str) -> None:
     run = load_run(run_dir)
     # a single procedure evaluates only its own criteria: its certificate is INCOMPLETE, not a pass
     assert code == 1 and run.stop["outcome"] == "incomplete", run.stop
@@ -51,7 +64,6 @@ def _run(tmp_path: Path, procedure: str, *settings: str) -> tuple[Path, Path]:
     assert (evaluated["status"] == "PASS").all(), evaluated[["id", "value", "status"]]
     assert set(run.steps_completed) >= {"calibrate", "sync", procedure, "report"}
     assert (run_dir / "report.html").is_file() and (run_dir / "certificate.json").is_file()
-    return config, run_dir
 
 
 def _noise(run_dir: Path, centre_mm: tuple[float, float, float]) -> tuple[float, float, float]:
@@ -99,11 +111,13 @@ def test_run_plate_measures_every_markers_frequency_and_amplitude(tmp_path: Path
         pd.DataFrame({"marker": table["marker_id"], "err_hz": f_err, "u_hz": u_f})
 
 
-def test_run_rotation_measures_the_rotor_radius_and_frequency(tmp_path: Path) -> None:
+def test_run_rotation_measures_the_rotor_radius_and_frequency(rotation_run: dict) -> None:
     from reports.motion import rotation_samples, rotation_summary
     from rig.analysis.analyse import analyse
 
-    config, run_dir = _run(tmp_path, "rotation", "record_s=1.5", f"rotation_hz={ROTOR_HZ}")
+    # the session's run (built once: test_evidence_io_faults reports on copies of it), checked here
+    config, run_dir = rotation_run["config"], rotation_run["run_dir"]
+    _check_run(rotation_run["code"], run_dir, "rotation")
     rotor = world_layout(load_config(config)).targets.rotor
     sigma_px, mm_per_px, z_over_b = _noise(run_dir, rotor.centre_mm)
     unit_mm = sigma_px * mm_per_px * z_over_b
@@ -116,7 +130,7 @@ def test_run_rotation_measures_the_rotor_radius_and_frequency(tmp_path: Path) ->
     tracks = analyse(run_dir).tracks
     samples = rotation_samples(tracks[tracks["segment"] == "rotation"], truth)
     summary = rotation_summary(samples, truth)
-    assert summary["n_samples"] >= 0.9 * 1.5 * 60, summary
+    assert summary["n_samples"] >= 0.9 * ROTATION_RECORD_S * 60, summary
     assert abs(summary["radius_error_mm"]) <= 20 * unit_mm, (summary, unit_mm)
     assert abs(samples["axial_mm"].mean()) <= 20 * unit_mm  # in the rotor's plane
     clock_hz = ROTOR_HZ * CLOCK_PPM
