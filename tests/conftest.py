@@ -5,8 +5,9 @@ exactly; a developer's run explores new examples each time and keeps failures in
 ``RIG_TEST_LOAD=1`` (``make test-load``) runs the suite under CPU load: a busy loop on every core.
 
 Under pytest-xdist (``make test``: ``-n auto --dist loadfile``) each test file runs whole on one worker, the
-costliest files first (``file_costs.tsv``, recorded by ``make test-times``), and the twin's calibrated sites
-that several files read are built once per session for all workers (``built_once``).
+costliest files first (``file_costs.tsv``, recorded by ``make test-times``), and what several files read (the
+twin's calibrated sites, a rotation run, the synthetic run's report) is built once per session for all
+workers (``built_once``).
 """
 
 from __future__ import annotations
@@ -20,10 +21,13 @@ import sys
 from collections import Counter
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import pytest
 from hypothesis import HealthCheck, settings
+
+if TYPE_CHECKING:
+    from reports.build import ReportResult
 
 settings.register_profile(
     "ci", derandomize=True, deadline=None, suppress_health_check=[HealthCheck.too_slow], print_blob=True
@@ -214,3 +218,11 @@ def rotation_run(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
 
     return built_once(tmp_path_factory, "rotation_run", cs.rotation_run)
 
+
+@pytest.fixture(scope="session")
+def synth_report(tmp_path_factory: pytest.TempPathFactory) -> ReportResult:
+    """``tests/reports_synth.built_report`` (the synthetic run's first report, figures included), read-only:
+    test_reports_build works on a copy of its run folder, test_reports_html_chromium renders its page."""
+    import reports_synth as synth
+
+    return built_once(tmp_path_factory, "synth_report", synth.built_report)

@@ -12,10 +12,13 @@ import functools
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import pandas as pd
+
+if TYPE_CHECKING:
+    from reports.build import ReportResult
 
 FS_HZ = 60.0
 SWEEP_T0_S = 100.0
@@ -286,3 +289,27 @@ def fake_analyse(run_dir: object, *, sync: str) -> FakeAnalysis:
     if sync not in SWEEP_COEFFS:
         raise ValueError(f"sync must be one of {sorted(SWEEP_COEFFS)}, got {sync!r}")
     return FakeAnalysis(make_tracks(sync))
+
+
+RUN_NAME = "20261121-231500_certify_ab12cd34"
+
+
+def built_report(folder: Path) -> ReportResult:
+    """The synthetic run ``folder/RUN_NAME`` and its first report, issued (the tables, the figures, the page
+    and the certificate of the fake analysis): :func:`reports.build.build_report`'s result."""
+    from reports.build import build_report
+
+    return build_report(write_run(folder / RUN_NAME), analysis=fake_analyse)
+
+
+def moved(result: ReportResult, run_dir: Path) -> ReportResult:
+    """``result`` (what a report wrote) for a copy of its run folder at ``run_dir``."""
+    import dataclasses
+
+    def move(path: Path) -> Path:
+        return run_dir / path.relative_to(result.run_dir)
+
+    return dataclasses.replace(result, run_dir=run_dir, report_html=move(result.report_html),
+                               certificate_json=move(result.certificate_json),
+                               tables={k: move(v) for k, v in result.tables.items()},
+                               figures={k: move(v) for k, v in result.figures.items()})

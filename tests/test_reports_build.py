@@ -5,6 +5,7 @@ from __future__ import annotations
 import contextlib
 import json
 import re
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -20,9 +21,12 @@ NO_FIGURES = Scope(figures=False)  # the figures' own tests draw them
 
 
 @pytest.fixture(scope="module")
-def built(tmp_path_factory):
-    run_dir = synth.write_run(tmp_path_factory.mktemp("runs") / "20261121-231500_certify_ab12cd34")
-    return build_report(run_dir, analysis=synth.fake_analyse)
+def built(tmp_path_factory, synth_report):
+    """The synthetic run's first report (the session's, tests/conftest.py), on this module's copy of its run
+    folder: the tests here write revisions into it."""
+    run_dir = tmp_path_factory.mktemp("runs") / synth.RUN_NAME
+    shutil.copytree(synth_report.run_dir, run_dir)
+    return synth.moved(synth_report, run_dir)
 
 
 def test_outputs_exist(built) -> None:

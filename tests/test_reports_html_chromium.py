@@ -69,10 +69,9 @@ def _screenshot(chromium: str, html: Path, out_dir: Path) -> tuple[np.ndarray, s
 
 
 @pytest.mark.timeout(1200)
-def test_report_renders_with_the_verdict_on_top(chromium: str, tmp_path: Path) -> None:
-    run = synth.write_run(tmp_path / "run")
-    res = build_report(run, analysis=synth.fake_analyse)
-    image, log = _screenshot(chromium, res.report_html, tmp_path)
+def test_report_renders_with_the_verdict_on_top(chromium: str, synth_report, tmp_path: Path) -> None:
+    # the synthetic run's full report (figures included), built once per session (tests/conftest.py)
+    image, log = _screenshot(chromium, synth_report.report_html, tmp_path)
     assert image.shape[:2] == (2000, 1280)
     page_errors = [ln for ln in log.splitlines() if any(e in ln for e in PAGE_ERRORS)]
     assert page_errors == []
