@@ -17,8 +17,12 @@ for that length of record; two lengths (``--seconds 5 20``) also give the margin
 second of video costs) and the fixed part. Instructions are not CPU seconds: the decoder's SIMD code does
 more per instruction than Python does, so the CPU ratio runs higher (benchmarks/measure.py). Under Valgrind
 the code is what the CPU it emulates gets (no AVX-512: FFmpeg's and numba's dispatch choose AVX2 paths;
-numba compiles for it into ``DIR/numba-valgrind`` — about 30 min under Valgrind, once). Each process takes
-minutes (≈ 35× its native time); the three run at once on ``--jobs`` cores.
+numba compiles for it into ``DIR/numba-valgrind`` — about 30 min under Valgrind, once). The children run
+with ``OPENBLAS_NUM_THREADS=1``: OpenBLAS's idle worker threads spin, and under Valgrind's
+one-thread-at-a-time scheduling their spinning counts as long as the other threads take — the same 20-s
+``rig measure`` counted 56.9 and 71.3 × 10⁹ with its default threads (alone, and beside four other runs),
+48.1 with one. Each process takes minutes (≈ 35× its native time); the three run at once on ``--jobs``
+cores.
 
 Run: ``.venv/bin/python benchmarks/measure_instructions.py --keep DIR [--seconds 5 20] [--jobs 2]``.
 """
@@ -70,8 +74,9 @@ def instructions(kind: str, seconds: float, folder: Path) -> int:
     """Instructions executed by a ``kind`` process (cachegrind's ``I refs``, all threads)."""
     cmd = ["valgrind", "--tool=cachegrind", "--cache-sim=no", "--cachegrind-out-file=/dev/null",
            sys.executable, __file__, "--child", kind, "--keep", str(folder), "--seconds", f"{seconds:g}"]
-    env_cache = {"NUMBA_CACHE_DIR": str(folder / "numba-valgrind")}  # kernels built for Valgrind's CPU
-    done = subprocess.run(cmd, capture_output=True, text=True, env={**os.environ, **env_cache}, check=False)
+    env = {**os.environ, "NUMBA_CACHE_DIR": str(folder / "numba-valgrind"),  # built for Valgrind's CPU
+           "OPENBLAS_NUM_THREADS": "1"}  # idle BLAS threads spin: counted, by how long the others take
+    done = subprocess.run(cmd, capture_output=True, text=True, env=env, check=False)
     found = re.search(r"I\s+refs:\s+([\d,]+)", done.stderr)
     if done.returncode != 0 or not found:
         raise RuntimeError(f"{kind} ({seconds:g} s) under valgrind failed (exit {done.returncode}):\n"
