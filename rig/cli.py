@@ -560,9 +560,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", required=True, metavar="DIR", help="the batch's output folder (rerun to resume)")
     p.add_argument("--scheduler", metavar="tcp://HOST:8786",
                    help="an existing Dask scheduler (default: a LocalCluster on this machine)")
-    p.add_argument("--workers", type=int, metavar="N",
-                   help="LocalCluster worker processes (default: the cores this process may use, a "
-                        "container's CPU quota included)")
+    p.add_argument("--workers", type=int, metavar="N", help="LocalCluster worker processes (default: the "
+                   "cores this process may use, a container's CPU quota included)")
     p = sub.add_parser("runs", help="the catalogue of runs: list, show one, a setup's trend",
                        description="List the run folders (from an SQLite index synced with the folders "
                                    "first), show one run's certificate, or a setup's criteria over time.")
