@@ -4,7 +4,6 @@ tmp_path, laid out as the kernel mounts them: v2 unified, v2 under ``unified/`` 
 
 from __future__ import annotations
 
-import math
 import os
 from pathlib import Path
 
@@ -67,7 +66,6 @@ def test_usable_cores_are_the_affinity_capped_by_the_quota_rounded_up(tmp_path: 
     affinity = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
     usable = cores.usable_cores(tmp_path / "proc_cgroup", tmp_path / "cg")
     assert usable == (affinity if expected_cap is None else min(affinity, expected_cap))
-    assert usable >= 1 and (expected_cap is None or usable == math.ceil(usable))
 
 
 def test_decoders_share_a_containers_quota_not_its_hosts_cores(monkeypatch: pytest.MonkeyPatch) -> None:
