@@ -61,13 +61,15 @@ def child(kind: str, folder: Path, seconds: float) -> None:
                                     extract=bench.ExtractOptions(stop_s=length_s))
         bench.measure_once(own, paths, folder / "calibration.json", opts)
 
-    run_measure(WARM_S)
-    if kind == "decode":
-        with ThreadPoolExecutor(2) as pool:
-            list(pool.map(lambda p: bench.decode_until(p, stop_s=seconds), paths))
-    elif kind == "measure":
-        run_measure(seconds)
-    shutil.rmtree(own)
+    try:
+        run_measure(WARM_S)
+        if kind == "decode":
+            with ThreadPoolExecutor(2) as pool:
+                list(pool.map(lambda p: bench.decode_until(p, stop_s=seconds), paths))
+        elif kind == "measure":
+            run_measure(seconds)
+    finally:
+        shutil.rmtree(own)
 
 
 def instructions(kind: str, seconds: float, folder: Path) -> int:
