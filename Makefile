@@ -3,6 +3,16 @@
 PYTHON ?= $(shell command -v python3.11 || command -v python3)
 VENV := .venv
 STAMP := $(VENV)/.installed
+# the numba kernels' on-disk cache, rebuilt after the install and whenever a module that mentions numba
+# changes (numba recompiles an edited kernel on its first call: 35.7 CPU-s in the first `rig measure` after
+# a kernel edit, paid again by each pytest worker); unchanged kernels load from the cache in seconds
+KERNELS := $(VENV)/.kernels
+KERNEL_SOURCES := $(shell grep -rl --include='*.py' numba rig drivers)
+# the project's bytecode, brought up to date whenever a module changes (below: compileall)
+BYTECODE := $(VENV)/.bytecode
+BUILT := $(BYTECODE) $(KERNELS)  # what every command below needs
+PACKAGES := rig drivers procedures reports tests benchmarks
+SOURCES := $(shell find $(PACKAGES) -name '*.py')
 # pytest-xdist: 1.5 workers per core (tests/conftest.py's pytest_xdist_auto_num_workers: a third of the
 # suite's worker time is waiting, which another worker's CPU fills; 3 workers on CI's 2 cores), each test
 # file whole on one worker (module fixtures built once), in tests/conftest.py's order (the costliest first)
@@ -13,38 +23,44 @@ TESTS ?=
 
 .PHONY: certify test test-load test-lab test-times lint bench browser
 
-# The install ends with the project's bytecode (compileall), as pip writes it for every package it installs:
+# After the install, the project's bytecode (compileall), as pip writes it for every package it installs:
 # where PYTHONDONTWRITEBYTECODE is set (as on this workplace's machines) each process would otherwise compile
 # every project module it imports (0.2–0.3 CPU-s of a dry run's 1.9; test_cli_start + test_cli_logging, which
 # start `rig` process after process: 17.6–18.1 → 16.4–16.7 CPU-s). A stale .pyc is never used: Python checks
-# the source's time stamp.
+# the source's time stamp; compileall rewrites only the changed modules'.
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(VENV)/bin/python -m pip install --quiet --upgrade pip
 	$(VENV)/bin/python -m pip install --quiet -e '.[test]'
-	$(VENV)/bin/python -m rig.warm_kernels  # numba's on-disk cache: a first run does not compile
-	$(VENV)/bin/python -m compileall -q rig drivers procedures reports tests benchmarks
 	touch $(STAMP)
 
-certify: $(STAMP)
+$(BYTECODE): $(STAMP) $(SOURCES)
+	$(VENV)/bin/python -m compileall -q $(PACKAGES)
+	touch $(BYTECODE)
+
+$(KERNELS): $(STAMP) $(KERNEL_SOURCES)
+	$(VENV)/bin/python -m rig.warm_kernels  # numba's on-disk cache: a first run does not compile
+	touch $(KERNELS)
+
+certify: $(BUILT)
 	$(VENV)/bin/rig certify
 
-test: $(STAMP) browser
+test: $(BUILT) browser
 	$(VENV)/bin/ruff check .
 	$(VENV)/bin/mypy  # every package ([tool.mypy]: strict for rig.stereo, rig.config, rig.record, drivers)
 	$(VENV)/bin/python -m pytest -q $(PYTEST_PARALLEL) $(TESTS)
 
 # the same suite with a busy loop on every core (tests/conftest.py): timing must not depend on an idle machine
-test-load: $(STAMP) browser
+test-load: $(BUILT) browser
 	RIG_TEST_LOAD=1 $(VENV)/bin/python -m pytest -q $(PYTEST_PARALLEL) $(TESTS)
 
 # the cases that need the machine to themselves (the lab's full sweep: tests marked quiet_machine), one at a time
-test-lab: $(STAMP)
+test-lab: $(BUILT)
 	RIG_TEST_QUIET=1 $(VENV)/bin/python -m pytest -q -m quiet_machine tests/
 
 # the suite once with per-test CPU recorded (tests/conftest.py, RIG_TEST_TIMES), summed per file into
 # tests/file_costs.tsv: the order in which the xdist workers take the files (costliest first)
-test-times: $(STAMP) browser
+test-times: $(BUILT) browser
 	rm -f .test-times.tsv
 	RIG_TEST_TIMES=.test-times.tsv $(VENV)/bin/python -m pytest -q $(PYTEST_PARALLEL) $(TESTS)
 	{ printf '# file\tcpu_s\twall_s (make test-times: per-test CPU incl. children, summed per file)\n'; \
@@ -52,7 +68,7 @@ test-times: $(STAMP) browser
 	    END {for (f in c) printf "%s\t%.1f\t%.1f\n", f, c[f], w[f]}' .test-times.tsv | sort -k2,2nr; \
 	} > tests/file_costs.tsv
 
-bench: $(STAMP)
+bench: $(BUILT)
 	for b in benchmarks/*.py; do case $$b in benchmarks/fuzz_*) continue;; esac; \
 		$(VENV)/bin/python $$b || exit 1; done  # fuzz_*.py run once, through benchmarks/fuzz.py
 
