@@ -9,7 +9,7 @@ PACKAGES := rig drivers procedures reports tests benchmarks
 SOURCES := $(shell find $(PACKAGES) -name '*.py')
 # the numba kernels' on-disk cache, brought up to date after the install and whenever a module of rig/ or
 # drivers/ changes (numba recompiles an edited kernel on its first call: 35.7 CPU-s in the first `rig measure`
-# after a kernel edit, paid again by each pytest worker); unchanged kernels load from the cache (0.3 CPU-s)
+# after a kernel edit, paid again by each pytest worker); unchanged kernels: 1.3 CPU-s, imports included
 KERNELS := $(VENV)/.kernels
 KERNEL_SOURCES := $(filter rig/% drivers/%,$(SOURCES))
 BUILT := $(BYTECODE) $(KERNELS)  # what every command below needs
