@@ -16,10 +16,9 @@ per move and ``calibration_position`` per position.
 
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
-import pandas as pd
 
 from procedures._common import (
     arm_marker_positions,
@@ -36,12 +35,15 @@ from procedures.params.calibrate import DESCRIPTION, NAME, Parameters  # noqa: F
 from rig.config.rig_config import RigConfig
 from rig.config.targets import CalibrationPlateTarget
 from rig.deploy.choices import DISTORTION_MODELS
-from rig.deploy.plate_grid import GridError, moving_points, order_grid
 from rig.record.events import CalibrationPositionEvent
 from rig.run.acquire import SETTLED_PX, Acquirer, ReduceOptions, mean_positions, settled_frames
 from rig.run.plan import ArmMoves, Plan
 from rig.run.procedure import Context, ParameterError
-from rig.stereo import calibrate_dlt
+
+# pandas, the plate's grid (OpenCV, SciPy) and the DLT (SciPy) are imported where they are used: a dry run
+# loads this module without them (tests/test_cli_start.py)
+if TYPE_CHECKING:
+    import pandas as pd
 
 STILL_ATTEMPTS = 3  # still recordings tried per plate position while a camera has too few frames
 
@@ -62,6 +64,8 @@ def _control_points(positions: list[dict[str, Any]], camera: str, plate: Calibra
     a position has fewer than ``min_frames`` frames with markers — none at all too, when other positions have
     some (frames dropped: its markers' means would be dropped, the static references then look moved and
     the grid of another position is fitted to the wrong points, "found 39 plate markers")."""
+    from rig.deploy.plate_grid import GridError, moving_points, order_grid
+
     counts = [int(pos["observations"][camera]["frame_index"].nunique()) for pos in positions]
     for i, (pos, n_frames) in enumerate(zip(positions, counts, strict=True)):
         if n_frames < min_frames and any(counts):  # (none anywhere: no marker in view: the grid error)
@@ -127,6 +131,8 @@ def plan(params: Parameters, config: RigConfig) -> Plan:
 
 def calibrate_cameras(ctx: Context, params: Parameters) -> dict[str, Any]:
     """Acquire the slid plate and fit every camera; return the ``calibration.json`` content."""
+    from rig.stereo.dlt import calibrate_dlt
+
     plate = required(ctx.config.targets.calibration_plate, "targets.calibration_plate")
     arm = ctx.arm()
     slides, _ = slides_of(params, plate)

@@ -25,12 +25,10 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
-import pandas as pd
 
-from drivers.camera.video_file import find_gaps
 from drivers.exciter.sweep import FrequencySample
 from procedures._common import (
     amplitude_of,
@@ -51,9 +49,12 @@ from rig.record.events import RotationEvent
 from rig.run.acquire import Acquirer, Recording, ReduceOptions
 from rig.run.plan import Plan, PlanStep, Vibration
 from rig.run.procedure import Context
-from rig.stereo import DLTCamera, TimingError
-from rig.stereo.errors import NoCommonMotionError, NonUniformSamplingError, TooFewSamplesError
-from rig.stereo.timing import estimate_offset
+from rig.stereo.errors import NoCommonMotionError, NonUniformSamplingError, TimingError, TooFewSamplesError
+
+# pandas, OpenCV (the video files' gaps) and the stereo core's estimators are imported where they are used: a
+# dry run loads this module without them (tests/test_cli_start.py)
+if TYPE_CHECKING:
+    import pandas as pd
 
 
 def _static_tracks(obs: pd.DataFrame, n_frames: int, still_px: float = 1.5) -> np.ndarray:
@@ -115,6 +116,8 @@ def frame_loss(timestamps_s: np.ndarray, fps: float, duration_s: float) -> tuple
     ``duration_s`` from its frames' stamps (s, camera clock; a gap is an interval longer than 1.5 nominal
     frame periods; at the ends: fewer frames than the recording's ``duration_s`` × ``fps`` − 1 — a stream
     that skipped ahead past the stop, or started late)."""
+    from drivers.camera.video_file import find_gaps
+
     stamps = np.unique(np.asarray(timestamps_s, dtype=float))
     gaps = find_gaps(stamps, 1.0 / fps)
     inside = sum(gap["missing_frames"] for gap in gaps)
@@ -148,6 +151,9 @@ def lost_frames_error(rec: Recording[Any], fps: float, cause: TimingError) -> Lo
 def estimate_timing(calibration: dict[str, Any], rec: Recording[Any], camera_events: list[dict[str, Any]],
                     *, params: Parameters, rotor: RotorTarget, fps: float) -> dict[str, Any]:
     """timing.json content from the rotor recording (joint method; the rotor method for comparison)."""
+    from rig.stereo.dlt import DLTCamera
+    from rig.stereo.timing import estimate_offset
+
     names = list(calibration["cameras"])[:2]
     ref, other = names
     cams = {n: DLTCamera.from_dict(calibration["cameras"][n]) for n in names}

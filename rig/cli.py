@@ -114,16 +114,17 @@ def load_procedure(name_or_path: str) -> types.ModuleType:
 
 # ---------------------------------------------------------------------------- commands
 def _run_procedure(module: types.ModuleType, args: argparse.Namespace) -> int:
-    from rig.dashboard.live_run import run_state
-    from rig.dashboard.terminal import TerminalProgress
     from rig.run.procedure import parse_set
-    from rig.run.runner import Runner
-    from rig.run.station import open_station
 
     config = load_config(args.config)
     overrides = parse_set(args.set or [])
-    if args.dry_run:
+    if args.dry_run:  # before the runner's modules: a dry run does without pandas (tests/test_cli_start.py)
         return _dry_run(module, config, overrides, resume=args.resume)
+    from rig.dashboard.live_run import run_state
+    from rig.dashboard.terminal import TerminalProgress
+    from rig.run.runner import Runner
+    from rig.run.station import open_station
+
     live = _live_dashboard(module, config, args)
     state = live.state if live else run_state(module, config)
     terminal = TerminalProgress(state)

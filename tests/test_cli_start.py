@@ -1,6 +1,6 @@
-"""``rig --help`` and ``rig list`` (the procedures' parameters) start without the heavy libraries: checked on
-``sys.modules`` of a fresh interpreter (deterministic; the start times themselves are in
-benchmarks/cli_start.py)."""
+"""``rig --help`` and ``rig list`` (the procedures' parameters) start without the heavy libraries, and a dry
+run (or a refused one) without any but numpy: checked on ``sys.modules`` of a fresh interpreter
+(deterministic; the start times themselves are in benchmarks/cli_start.py)."""
 
 from __future__ import annotations
 
@@ -22,8 +22,12 @@ with contextlib.redirect_stdout(io.StringIO()):
         code = main(sys.argv[1:])
     except SystemExit as exc:
         code = exc.code
-print(json.dumps({"code": code, "heavy": sorted(m for m in HEAVY if m in sys.modules)}))
+print(json.dumps({"code": code, "heavy": sorted(m for m in HEAVY if m in sys.modules),
+                  "stereo": sorted(m for m in sys.modules if m.startswith("rig.stereo"))}))
 """.replace("HEAVY", repr(HEAVY))
+
+
+NUMPY_ONLY_STEREO = ["rig.stereo", "rig.stereo.errors"]  # the package and its exceptions: no SciPy, no OpenCV
 
 
 def _imported(*args: str) -> dict:
@@ -36,12 +40,14 @@ def _imported(*args: str) -> dict:
                                   ("measure", "--help"), ("runs", "--help"), ("list", "--help"), ("list",),
                                   ()])
 def test_help_and_list_import_no_heavy_library(args: tuple[str, ...]) -> None:
-    assert _imported(*args) == {"code": 0, "heavy": []}
+    assert _imported(*args) == {"code": 0, "heavy": [], "stereo": []}
 
 
-def test_a_dry_run_imports_no_frame_reduction() -> None:
-    """A plan is checked without the frame reduction's compiled kernels: loading the procedures (``rig run``
-    loads every one, certify's steps included) does not import numba (≈ 0.4 CPU-s), which only a recording
-    uses."""
-    imported = _imported("run", "sweep", "--dry-run")
-    assert imported["code"] == 0 and "numba" not in imported["heavy"], imported
+@pytest.mark.parametrize(("args", "code"), [(("certify", "--dry-run"), 0),
+                                            (("run", "sweep", "--dry-run", "--set", "max_hz=50"), 4)])
+def test_a_dry_run_imports_numpy_only(args: tuple[str, ...], code: int) -> None:
+    """A plan is printed and checked (or refused) with numpy alone: loading the procedures (``rig run`` loads
+    every one, certify's steps included) imports neither the stereo core (SciPy, OpenCV; its exceptions
+    only) nor pandas/pyarrow nor numba (≈ 1 CPU-s of imports in all), which only a recording and its analysis
+    use."""
+    assert _imported(*args) == {"code": code, "heavy": ["numpy"], "stereo": NUMPY_ONLY_STEREO}

@@ -24,6 +24,7 @@ import numpy as np
 import pandas as pd
 
 from rig.analysis.errors import AnalysisError
+from rig.record.fiducial_rows import ROW_COLUMNS, ROWS_DIR
 from rig.stereo.errors import StereoError
 from rig.stereo.fiducial import DriveEdges, FiducialClock, RowSamples, fit_fiducial_clock, square_wave_edges
 from rig.stereo.timing import TimingResult
@@ -31,8 +32,6 @@ from rig.stereo.timing import TimingResult
 __all__ = ["OWN_FIDUCIAL_PRIOR_S", "ROWS_DIR", "ROW_COLUMNS", "CameraDating", "FiducialStart", "camera_clock",
            "clock_row", "own_camera_dating", "segment_clock"]
 
-ROW_COLUMNS = ("frame_index", "timestamp_s", "row_px", "brightness_dn")
-ROWS_DIR = "fiducial"  # run folder: fiducial/<camera>/<segment>.<n>.parquet (rig.run.fiducial)
 METHOD = "fiducial"
 OWN_FIDUCIAL_PRIOR_S = 2e-3  # another camera's fiducial edges told apart within ± this of the model's date
 

@@ -54,22 +54,23 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, Generic, TypeVar, overload
 
 import numpy as np
-import pandas as pd
 
 from drivers.camera.base import ClockMapping
 from drivers.roles import Camera
 from rig.analysis.reduce_options import ReduceOptions
 from rig.record.events import CameraEvent
-from rig.record.observations import ObservationWriter
 from rig.run.fiducial import FiducialRecording
 from rig.run.frame_tap import FRAMES
 from rig.run.procedure import Context
 from rig.run.progress import Processing
-from rig.stereo import FLAG_LOST
-from rig.stereo.fiducial import row_profile
 
+# pandas, pyarrow and the stereo core are imported where a recording uses them: a dry run loads this module
+# (through the procedures) without them (tests/test_cli_start.py)
 if TYPE_CHECKING:
+    import pandas as pd
+
     from rig.analysis.frame_reduction import MarkerReducer
+    from rig.record.observations import ObservationWriter
 
 __all__ = ["Acquirer", "CameraStalledError", "Recording", "ReduceOptions"]
 
@@ -98,6 +99,8 @@ class Recording(Generic[T]):
 
 
 def _rows_frame(parts: list[tuple[int, float, np.ndarray, np.ndarray]]) -> pd.DataFrame:
+    import pandas as pd
+
     if not parts:
         cols = {"frame_index": np.empty(0, np.int64), "timestamp_s": np.empty(0)}
         cols.update({k: np.empty(0) for k in _FIELDS})
@@ -307,6 +310,11 @@ class _Reader:
         self.thread = threading.Thread(target=self._run, name=f"acquire-{camera.name}", daemon=True)
 
     def _run(self) -> None:
+        # in the thread, yet no delay of its first frames: Acquirer() loaded the markers with the reduction,
+        # and rig.stereo.fiducial then takes ≈ 2 ms (its SciPy part loaded by the reduction too)
+        from rig.stereo.fiducial import row_profile
+        from rig.stereo.markers import FLAG_LOST
+
         try:
             for frame in self.camera.frames():
                 if self.cancel.is_set():

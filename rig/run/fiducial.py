@@ -14,22 +14,25 @@ the reason) and the start-event method remains. After the
 recording, :meth:`FiducialRecording.finish` checks that the generator still runs the fiducial's
 frequency with its output off (else the edges the controller predicts are wrong: action ``invalid``) and
 writes the LED's rows of every camera to ``fiducial/<camera>/<segment>.<n>.parquet`` (atomically;
-columns :data:`rig.analysis.fiducial.ROW_COLUMNS`), named in the ``fiducial`` event (action ``rows``).
+columns :data:`rig.record.fiducial_rows.ROW_COLUMNS`), named in the ``fiducial`` event (action ``rows``).
 """
 
 from __future__ import annotations
 
 import re
+from typing import TYPE_CHECKING
 
 import numpy as np
-import pandas as pd
 
 from drivers.exciter.generator import ScpiGenerator
 from drivers.exciter.shaker import Shaker
-from rig.analysis.fiducial import ROW_COLUMNS, ROWS_DIR
 from rig.config.fiducial import FiducialConfig
 from rig.record.atomic import atomic_path
+from rig.record.fiducial_rows import ROW_COLUMNS, ROWS_DIR
 from rig.run.procedure import Context
+
+if TYPE_CHECKING:
+    import pandas as pd
 
 __all__ = ["BRACKET_TARGET_S", "SYNC_BUDGET_S", "SYNC_TRIES", "FiducialRecording"]
 
@@ -140,6 +143,8 @@ def _safe(segment: str) -> str:
 
 
 def _rows_frame(parts: list[tuple[int, float, np.ndarray, np.ndarray]]) -> pd.DataFrame:
+    import pandas as pd  # here: a dry run loads this module without pandas (tests/test_cli_start.py)
+
     if not parts:
         return pd.DataFrame({c: pd.Series(dtype=float) for c in ROW_COLUMNS})
     return pd.DataFrame({
