@@ -646,7 +646,7 @@ def _main(argv: list[str] | None) -> int:
         print(f"rig: I/O fault: {_one_line(exc)}", file=sys.stderr)
         return EXIT_FAULT
     except Exception as exc:
-        from rig.record.reader import RecordError  # here, not at the top: it imports pandas
+        from rig.record.reader import RecordError  # here, not at the top: it imports numpy
 
         if not isinstance(exc, RecordError):
             raise

@@ -51,3 +51,12 @@ def test_a_dry_run_imports_numpy_only(args: tuple[str, ...], code: int) -> None:
     only) nor pandas/pyarrow nor numba (≈ 1 CPU-s of imports in all), which only a recording and its analysis
     use."""
     assert _imported(*args) == {"code": code, "heavy": ["numpy"], "stereo": NUMPY_ONLY_STEREO}
+
+
+def test_a_run_refused_before_connecting_imports_numpy_only(tmp_path: Path) -> None:
+    """The runner and its record writer load without pandas/pyarrow (≈ 0.3 CPU-s), which the observations
+    need only once a recording writes them: a plan the runner refuses is refused with numpy alone."""
+    imported = _imported("run", "calibrate", "--no-dashboard", "--runs-dir", str(tmp_path / "runs"),
+                         "--set", "slide_positions_mm=[0.0, 300.0]")
+    assert imported == {"code": 4, "heavy": ["numpy"], "stereo": NUMPY_ONLY_STEREO}
+    assert not (tmp_path / "runs").exists()  # refused before its run folder

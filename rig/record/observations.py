@@ -30,12 +30,15 @@ import time
 import warnings
 from collections.abc import Mapping
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
-import pandas as pd
-import pyarrow as pa
-import pyarrow.parquet as pq
+
+# pandas and pyarrow are imported where rows are written or read: the runner (through the record writer)
+# loads this module without them, so a run refused before it records does without (tests/test_cli_start.py)
+if TYPE_CHECKING:
+    import pandas as pd
+    import pyarrow as pa
 
 OBSERVATIONS_DIR = "observations"
 OBSERVATION_COLUMNS: dict[str, str] = {
@@ -129,6 +132,8 @@ class ObservationWriter:
             self.flush()
 
     def _table(self) -> pa.Table:
+        import pyarrow as pa
+
         arrays, names = [], []
         ordered = list(OBSERVATION_COLUMNS) + sorted(c for c in self._columns if c not in OBSERVATION_COLUMNS)
         for name in ordered:
@@ -146,6 +151,8 @@ class ObservationWriter:
 
     def flush(self) -> Path | None:
         """Write the buffered rows as one new part file (atomic rename); return its path or None."""
+        import pyarrow.parquet as pq
+
         self._last_flush = time.monotonic()
         if not self._buffered_rows:
             return None
@@ -178,14 +185,16 @@ class ObservationWriter:
 
 
 def _as_columns(rows: pd.DataFrame | Mapping[str, Any] | np.ndarray) -> dict[str, np.ndarray]:
-    if isinstance(rows, pd.DataFrame):
-        return {str(c): rows[c].to_numpy() for c in rows.columns}
     if isinstance(rows, np.ndarray):
         if rows.dtype.names is None:
             raise TypeError("observation rows as an array must be a structured array with named fields")
         return {name: rows[name] for name in rows.dtype.names}
     if isinstance(rows, Mapping):
         return {str(k): np.atleast_1d(np.asarray(v)) for k, v in rows.items()}
+    import pandas as pd  # last: a DataFrame is neither an array nor a Mapping
+
+    if isinstance(rows, pd.DataFrame):
+        return {str(c): rows[c].to_numpy() for c in rows.columns}
     raise TypeError("observation rows must be a DataFrame, mapping or structured array, "
                     f"not {type(rows).__name__}")
 
@@ -218,6 +227,10 @@ def read_observations(run_dir: str | os.PathLike[str], camera: str) -> pd.DataFr
     cannot be read is skipped with a :class:`RuntimeWarning` naming it. An empty frame with the
     standard columns is returned when there is nothing.
     """
+    import pandas as pd
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
     directory = Path(run_dir) / OBSERVATIONS_DIR / camera
     parts = sorted((int(m.group(1)), p) for p in directory.glob("part-*.parquet")
                    if (m := _PART_RE.match(p.name))) if directory.is_dir() else []

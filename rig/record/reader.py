@@ -17,11 +17,12 @@ import os
 import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
-
-import pandas as pd
+from typing import TYPE_CHECKING, Any
 
 from rig.record.observations import observation_cameras, read_observations
+
+if TYPE_CHECKING:  # imported by load_run: the runner loads this module (through the writer) without pandas
+    import pandas as pd
 
 RECORD_NAME = "record.jsonl"
 _META_COLUMNS = ["seq", "time_s", "wall_utc", "session", "step"]
@@ -162,6 +163,8 @@ def _superseded(steps: list[dict[str, Any]]) -> set[tuple[str | None, int]]:
 
 def load_run(run_dir: str | os.PathLike[str], *, include_superseded: bool = False) -> Run:
     """Read the run folder ``run_dir`` into a :class:`Run` (see the module docstring for tolerance)."""
+    import pandas as pd
+
     run_dir = Path(run_dir)
     parsed = parse_record(run_dir / RECORD_NAME)
     if parsed.truncated_last_line:
@@ -212,4 +215,6 @@ def load_run(run_dir: str | os.PathLike[str], *, include_superseded: bool = Fals
 
 
 def _frame(docs: list[dict[str, Any]], columns: list[str]) -> pd.DataFrame:
+    import pandas as pd
+
     return pd.DataFrame([{c: d.get(c) for c in columns} for d in docs], columns=columns)
