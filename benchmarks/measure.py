@@ -57,6 +57,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 # the code measured: this tree, or another one's export (--interleave runs workers on a base tree)
 TREE = Path(os.environ.get("RIG_BENCH_TREE", ROOT))
+PACKAGES = ("rig", "drivers", "reports", "benchmarks")  # what a worker imports from its tree
 sys.path.insert(0, str(TREE))
 sys.path.insert(0, str(TREE / "tests"))
 
@@ -174,6 +175,9 @@ def interleave(base: Path, folder: Path, seconds: float, pairs: int, long_s: flo
     """Runs :func:`worker` in fresh processes alternately on ``base`` (an exported tree) and this tree and
     prints the medians: the load changes within minutes, so each figure is compared with its neighbours'."""
     trees = {"base": base.resolve(), "branch": ROOT}
+    for tree in trees.values():  # both byte-compiled alike: an exported tree has no .pyc, and where
+        # PYTHONDONTWRITEBYTECODE is set each of its workers would compile every module it imports
+        subprocess.run([sys.executable, "-m", "compileall", "-q", *PACKAGES], cwd=tree, check=True)
     results: dict[str, list[dict[str, Any]]] = {k: [] for k in trees}
     loads = [os.getloadavg()[0]]
     if pairs == 0:  # print the last interleaved runs again
