@@ -3,8 +3,11 @@
 Used by :mod:`rig.stereo.markers_refine` when the ellipse centre or the outline check is asked for.
 Edge points are where the background-subtracted signal ``d`` (DN) crosses a level (half the marker's
 contrast), interpolated linearly between pixel centres; coordinates are window px (column x, row y,
-the window's top-left pixel at (0, 0)). The ellipse is ``cv2.fitEllipseDirect`` per window; the RMS
-distance of the points from it is a few hundredths of a pixel for a whole disc.
+the window's top-left pixel at (0, 0)). Only the outer outline counts: a pixel inside the marker that
+noise (or the support's noise floor) puts below the level is a hole, not outline — at contrast/σ 7 a
+disc of r 16 px has a few, each adding four crossings up to a radius away from the ellipse. The ellipse
+is ``cv2.fitEllipseDirect`` per window; the RMS distance of the points from it is a few hundredths of a
+pixel for a whole disc.
 """
 
 from __future__ import annotations
@@ -19,10 +22,25 @@ def _nonzero(mask: np.ndarray) -> tuple[np.ndarray, ...]:
     return np.unravel_index(np.flatnonzero(mask), mask.shape)
 
 
+def outside(below: np.ndarray) -> np.ndarray:
+    """The pixels of ``below`` (K, H, W) bool 4-connected to their window's edge (the holes left out).
+
+    One flood fill over the windows stacked in a column, each framed by rows and columns that count as
+    below: the frames join every window's outside into one region, and a hole stays apart from it."""
+    k, h, w = below.shape
+    tiled = np.ones((k * (h + 1) + 1, w + 2), dtype=np.uint8)
+    windows = tiled[1:].reshape(k, h + 1, w + 2)[:, :h, 1:-1]  # a view into the stack
+    windows[...] = below
+    cv2.floodFill(tiled, None, (0, 0), 2, flags=4)
+    reached: np.ndarray = windows == 2
+    return reached
+
+
 def edge_points(d: np.ndarray, level: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Sub-pixel crossings of ``d`` (K, W, W) through ``level`` (K,): (window index, x, y) in window px."""
+    """Sub-pixel crossings of ``d`` (K, W, W) through ``level`` (K,) between the outside (below the level,
+    connected to the window's edge) and the marker: (window index, x, y) in window px, and the step (DN)."""
     a = d - level[:, None, None]
-    below = a < 0
+    below = outside(a < 0)
     kh, ih, jh = _nonzero(below[:, :, :-1] != below[:, :, 1:])
     a0, a1 = a[kh, ih, jh], a[kh, ih, jh + 1]
     kv, iv, jv = _nonzero(below[:, :-1, :] != below[:, 1:, :])
