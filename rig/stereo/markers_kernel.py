@@ -50,6 +50,11 @@ OUTLIER_SPREADS = 4.0  # ring pixels farther than this many spreads from the med
 
 NOISE_FLOOR_K = 3.0  # support and weight threshold, in units of the window's background noise σ
 PLATEAU_LEVEL = 0.85  # contrast = mean signal of the support pixels above this fraction of the peak
+# A contrast below this many ring σ: the ring lies on the marker's blurred edge, not on background (its
+# plane absorbs the edge, σ tens of DN, and the support shrinks off the ring: the window is too small
+# without being cramped; r 18–24 px, blur ≥ 1.9 px in a 41 px window: measured c/σ 3–6.5, centre up to
+# 14 px off). Whole markers in the domain of rig.stereo.markers have contrast/σ ≥ 7.
+MIN_RING_CONTRAST = 5.0
 
 # rows of the float output of measure_range (one column per window)
 OUT_U, OUT_V, OUT_AREA, OUT_ROUND, OUT_CONTRAST = range(5)
@@ -966,12 +971,14 @@ def _measure_retrying(  # noqa: PLR0917 (numba: no keyword-only arguments)
         ladder: np.ndarray, retries: int, out: np.ndarray, flags: np.ndarray, no_signal: np.ndarray,
         max_skewness: float) -> None:
     """:func:`measure_one` into column 0 of ``out`` and ``flags``; a window whose marker reaches the ring
-    is measured again one step larger on ``ladder`` (ascending half sizes), up to ``retries`` times.
+    (cramped) or whose contrast is below MIN_RING_CONTRAST ring σ (the ring on the marker's edge) is
+    measured again one step larger on ``ladder`` (ascending half sizes), up to ``retries`` times.
     ``no_signal``: an empty (0, 1, 1) float32 array (allocated once by the caller); ``max_skewness``: the
     skewness noise is computed only above it (where the occlusion test needs it)."""
     measure_one(image, row, col, half_px, dark, scr, out, flags, 0, no_signal, max_skewness)
     size, tries = half_px, 0
-    while flags[FLAG_ROW_CRAMPED, 0] and tries < retries and size < ladder[-1]:
+    while ((flags[FLAG_ROW_CRAMPED, 0] or out[OUT_CONTRAST, 0] < MIN_RING_CONTRAST * out[OUT_SIGMA, 0])
+           and tries < retries and size < ladder[-1]):
         size = ladder[min(int(np.searchsorted(ladder, size, side="right")), len(ladder) - 1)]
         measure_one(image, row, col, size, dark, scratch(size), out, flags, 0, no_signal, max_skewness)
         tries += 1
