@@ -26,6 +26,7 @@ from reports.measurement import write_measurement_report
 from rig.cli import main
 from rig.deploy.measure import MeasureError, MeasureOptions, measure_videos
 from rig.deploy.series import SeriesError, reference_tracks
+from rig.deploy.video_markers import ExtractOptions
 from rig.record.writer import RunRecord
 
 PairOf = Callable[[str, str], tuple[Path, Path]]  # (fourcc, extension) → (left, right) videos
@@ -107,6 +108,7 @@ def test_calibrate_then_measure_matches_the_twin(site: dict, tmp_path: Path, fou
     html = (out / "report.html").read_text()
     assert "data:image/png;base64," in html and "Summary per track" in html
     assert (out / "figures" / "spectrum.png").is_file()
+    assert not any("tracking window" in n for n in json.loads((out / "measure.json").read_text())["notes"])
     # displacement over time against the truth, on the world clock: within the noise and scale floors
     disp = pd.read_csv(out / "tables" / "displacement.csv")
     assert np.allclose(disp["controller_time_s"] - disp["time_s"], clock["offset_s"])
@@ -239,3 +241,22 @@ def test_rotor_turning_from_the_first_frame_is_one_track_with_its_radius(site: d
     assert abs(row["amplitude_mm"] - radius) <= tol_mm
     assert abs(row["frequency_hz"] - 10.0) <= 4 * row["frequency_std_hz"] + abs(left.clock_ppm) * 1e-5
     assert res.peaks["frequency_hz"].iloc[0] == pytest.approx(row["frequency_hz"])
+
+
+def test_markers_too_large_for_the_tracking_window_are_noted_and_logged(
+        site: dict, tmp_path: Path, measurement_pair: PairOf, caplog: pytest.LogCaptureFixture) -> None:
+    """The twin's markers (≈ 12 px across as measured) in a 15 px window: each camera's note names the size
+    and a window that fits; the measurement still runs (the note says what the bias can be)."""
+    left, right = mt.camera_pair(mt.measurement_world())
+    timing = tmp_path / "timing.json"
+    timing.write_text(json.dumps(mt.truth_timing(left, right, 0.0, 0.15)))
+    paths = measurement_pair("mp4v", "mp4")
+    with caplog.at_level("WARNING", logger="rig.deploy.measure"):
+        res = measure_videos({"left": paths[0], "right": paths[1]}, site["calibration"], tmp_path / "out",
+                             timing=timing, options=MeasureOptions(window_s=WINDOW,
+                                                                   extract=ExtractOptions(window_px=15)))
+    notes = [n for n in res.notes if "tracking window of 15 px" in n]
+    assert [n.split(":")[0] for n in notes] == ["camera left", "camera right"]
+    assert all("--window-px 21 or more" in n for n in notes)  # 12 + 8 px, odd
+    assert sum("tracking window of 15 px" in r.getMessage() for r in caplog.records) == 2
+

@@ -32,6 +32,7 @@ A truncated or corrupt video does not stop the measurement: the frames read are 
 from __future__ import annotations
 
 import json
+import logging
 import math
 import time
 from concurrent.futures import ThreadPoolExecutor
@@ -55,12 +56,14 @@ from rig.deploy.choices import DEFAULT_CLOCK_AGREEMENT_S, MEASURE_SYNC
 from rig.deploy.container_prior import OffsetWindow, offset_window
 from rig.deploy.csv_table import write_csv
 from rig.deploy.series import SeriesError, reference_tracks, stabilised_displacement, summarise
-from rig.deploy.video_markers import ExtractOptions, VideoObservations, extract_video
+from rig.deploy.video_markers import ExtractOptions, VideoObservations, extract_video, window_note
 from rig.deploy.video_timing import VideoTimingError, estimate_video_timing, rotor_timing, tracked
 from rig.record.atomic import atomic_path, write_json
 from rig.record.out_guard import check_out_folder
 from rig.stereo.dlt import DLTCamera
 from rig.stereo.errors import StereoError
+
+log = logging.getLogger(__name__)
 
 __all__ = ["MEASURE_RESULTS", "MEASURE_SYNC", "MeasureError", "MeasureOptions", "MeasureResult",
            "measure_videos"]
@@ -329,6 +332,11 @@ def _measure(job: _Job, vos: dict[str, VideoObservations], notes: list[str], pro
     timing, calibration = job.timing, job.calibration
     reports = {n: vo.report.to_dict() for n, vo in vos.items()}
     obs = {n: _observations(vo) for n, vo in vos.items()}
+    if opts.extract.mode == "track":
+        for n, o in obs.items():
+            if (note := window_note(o, opts.extract.window_px, n)) is not None:
+                notes.append(note)
+                log.warning(note)
     files: dict[str, Path] = {}
     (out / "observations").mkdir(exist_ok=True)
     for n, o in obs.items():

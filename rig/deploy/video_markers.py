@@ -17,6 +17,7 @@ seen stays inspectable, and the analysis leaves them out. Columns (contracts.md,
 
 from __future__ import annotations
 
+import math
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -30,7 +31,7 @@ from drivers.camera.video_file import FrameTimeReport, VideoFile, VideoTruncated
 from rig.analysis.frame_reduction import MarkerReducer, ReduceOptions
 from rig.stereo import MARKER_DTYPE
 
-__all__ = ["ExtractOptions", "VideoObservations", "extract_video"]
+__all__ = ["ExtractOptions", "VideoObservations", "extract_video", "window_note"]
 
 _FIELDS = ("u_px", "v_px", "area_px", "roundness", "contrast")
 
@@ -140,6 +141,30 @@ def extract_video(path: str | Path, camera: str | None = None,
         height_px=video.height_px, fps=video.fps, error=error,
         timings_s={"total": total, "extract": t_extract, "decode": total - t_extract,
                    "frames": float(video.report.frames_read)})
+
+
+WINDOW_MARGIN_PX = 8.0  # background around a marker in its tracking window (ExtractOptions.window_px)
+
+
+def window_note(obs: pd.DataFrame, window_px: int, camera: str) -> str | None:
+    """A note when ``camera``'s markers are too large for the tracking window ``window_px`` (px): their major
+    axis (from ``area_px`` and ``roundness``, 95th percentile of the rows measured) + ``WINDOW_MARGIN_PX``
+    exceeds it. Such a marker is measured again in windows two ladder steps larger; one that still fills
+    its window is measured from its cut-off support, its centre biased and unflagged (rendered markers of
+    r 25–30 px in a 41 px window: up to 0.86 px; rig.stereo.markers.track_markers). None when they fit."""
+    area, roundness = obs["area_px"].to_numpy(float), obs["roundness"].to_numpy(float)
+    measured = np.isfinite(area) & np.isfinite(roundness) & (area > 0) & (roundness > 0)
+    if not measured.any():
+        return None
+    major_px = float(np.percentile(2.0 * np.sqrt(area[measured] / (np.pi * roundness[measured])), 95))
+    if major_px + WINDOW_MARGIN_PX <= window_px:
+        return None
+    return (f"camera {camera}: markers up to {major_px:.0f} px across (95th percentile of the major axis) do "
+            f"not fit the tracking window of {window_px} px, which needs their size + "
+            f"{WINDOW_MARGIN_PX:g} px + twice the largest motion per frame: a marker still filling a window "
+            f"after two larger retries is measured from its cut-off part, its centre biased by up to ≈ 1 px "
+            f"and not flagged; give --window-px {math.ceil(major_px + WINDOW_MARGIN_PX) | 1} or more (plus "
+            f"twice the motion per frame)")
 
 
 def associate(uv_prev: np.ndarray, uv_next: np.ndarray, gate_px: float) -> np.ndarray:
