@@ -22,6 +22,7 @@ import argparse
 import importlib
 import importlib.util
 import logging
+import os
 import pkgutil
 import signal
 import sys
@@ -32,6 +33,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any, NoReturn
 
 # only light modules here (tests/test_cli_start.py): the heavy ones are imported by the commands that use them
+from drivers.cores import single_threaded_blas_by_default
 from rig.cli_logging import configure_logging
 from rig.config.schema import ConfigError
 from rig.run.exit_codes import EXIT_ABORTED, EXIT_BAD_INPUT, EXIT_FAULT, STOP_SIGNALS, Interrupted
@@ -610,6 +612,8 @@ def main(argv: list[str] | None = None) -> int:
     As the process's command (``argv`` None) the outcome is final when this returns: stop signals are then
     ignored, so a second Ctrl-C arriving while the process exits cannot turn exit 2 into a death by
     SIGINT. An in-process caller (``argv`` given) gets its own handlers back."""
+    if argv is None:
+        single_threaded_blas_by_default(os.environ)
     in_main = threading.current_thread() is threading.main_thread()
     old = {sig: signal.signal(sig, _interrupted) for sig in STOP_SIGNALS if in_main}
     try:

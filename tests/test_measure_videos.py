@@ -19,11 +19,13 @@ import numpy as np
 import pandas as pd
 import pytest
 from camera_mkv import write_mkv
+from threadpoolctl import threadpool_info, threadpool_limits
 
 from drivers.sim.clock import VirtualClock
 from drivers.sim.targets import ReferenceMarkers
 from reports.measurement import write_measurement_report
 from rig.cli import main
+from rig.deploy import measure as measure_module
 from rig.deploy.measure import MeasureError, MeasureOptions, measure_videos
 from rig.deploy.series import SeriesError, reference_tracks
 from rig.deploy.video_markers import ExtractOptions
@@ -260,3 +262,27 @@ def test_markers_too_large_for_the_tracking_window_are_noted_and_logged(
     assert all("--window-px 21 or more" in n for n in notes)  # 12 + 8 px, odd
     assert sum("tracking window of 15 px" in r.getMessage() for r in caplog.records) == 2
 
+
+
+def test_the_analysis_runs_on_one_blas_thread_and_restores_the_callers_setting(
+        site: dict, tmp_path: Path, measurement_pair: PairOf, monkeypatch: pytest.MonkeyPatch) -> None:
+    """The 3-D tracks' many small solves on one BLAS thread (more only spin), whatever the caller had set
+    (here 2, on any machine), and the caller's setting back afterwards."""
+    left, right = mt.camera_pair(mt.measurement_world())
+    timing = tmp_path / "timing.json"
+    timing.write_text(json.dumps(mt.truth_timing(left, right, 0.0, 0.15)))
+    paths = measurement_pair("mp4v", "mp4")
+    seen: list[list[int]] = []
+    triangulate = measure_module.triangulate_tracks
+
+    def observed(*args: object, **kwargs: object) -> pd.DataFrame:
+        seen.append([pool["num_threads"] for pool in threadpool_info() if pool["user_api"] == "blas"])
+        return triangulate(*args, **kwargs)
+
+    monkeypatch.setattr(measure_module, "triangulate_tracks", observed)
+    with threadpool_limits(limits=2, user_api="blas"):
+        measure_videos({"left": paths[0], "right": paths[1]}, site["calibration"], tmp_path / "out",
+                       timing=timing, options=MeasureOptions(window_s=WINDOW))
+        after = [pool["num_threads"] for pool in threadpool_info() if pool["user_api"] == "blas"]
+    assert len(seen) == 1 and seen[0] and set(seen[0]) == {1}
+    assert after and set(after) == {2}

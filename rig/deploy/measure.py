@@ -44,6 +44,7 @@ import pandas as pd
 
 from drivers.camera.container_times import ContainerError, ContainerTimes, read_container_times
 from drivers.camera.video_file import VideoFile, decoder_threads_per_file
+from drivers.cores import one_blas_thread
 from rig.analysis.analyse import load_cameras
 from rig.analysis.errors import AnalysisError
 from rig.analysis.sync_tracks import (
@@ -299,7 +300,8 @@ def measure_videos(videos: dict[str, str | Path], calibration: str | Path, out_d
         if vo.error:
             problems.append(f"camera {n}: {vo.error}")
     try:
-        return _measure(job, vos, notes, problems, stamps)
+        with one_blas_thread():  # its many small solves: BLAS's other threads would only spin
+            return _measure(job, vos, notes, problems, stamps)
     except MeasureError as exc:
         if not problems:
             raise
