@@ -9,22 +9,16 @@ none), in every directory from the process's own cgroup (``/proc/self/cgroup``) 
 (a parent's limit binds its children; inside a container the hierarchy's root is usually the container's
 own cgroup). A quota of Q µs of CPU per period of P µs allows ⌈Q / P⌉ cores, rounded up as the JVM and dask
 do (a 1.5-CPU container runs 2 threads, each throttled a little). Linux only: elsewhere there is no quota.
-
-:func:`one_blas_thread` and :func:`single_threaded_blas_by_default`: the linear algebra on one thread (a
-BLAS started with a thread per core spins the others after every call, through the many small solves of
-our analyses: see there).
 """
 
 from __future__ import annotations
 
 import math
 import os
-from collections.abc import Callable, Iterator, MutableMapping
-from contextlib import contextmanager
+from collections.abc import Callable
 from pathlib import Path
 
-__all__ = ["BLAS_THREAD_VARIABLES", "cgroup_cpu_limit", "one_blas_thread",
-           "single_threaded_blas_by_default", "usable_cores"]
+__all__ = ["cgroup_cpu_limit", "usable_cores"]
 
 PROC_CGROUP = Path("/proc/self/cgroup")
 CGROUP_ROOT = Path("/sys/fs/cgroup")
@@ -97,33 +91,3 @@ def _v1_limit(directory: Path) -> float | None:
 
 def _cores(quota_us: int, period_us: int) -> float | None:
     return quota_us / period_us if quota_us > 0 and period_us > 0 else None
-
-
-@contextmanager
-def one_blas_thread() -> Iterator[None]:
-    """numpy's and scipy's BLAS libraries (OpenBLAS, MKL, BLIS) on one thread inside, the caller's setting
-    restored after. For the analyses' many small solves (3-D tracks, trajectories, calibration), where a
-    BLAS started with a thread per core only spins its other threads: measured on 2 cores, 0.11 CPU-s of
-    the 0.36 of `rig measure`'s 3-D tracks (20-s 1080p pair), with the same wall clock and the same bytes.
-    Process-wide while inside (threadpoolctl); a library first loaded inside is not limited, so
-    scipy.linalg, whose OpenBLAS is scipy's own, is imported first."""
-    import scipy.linalg  # noqa: F401  (its BLAS loaded now, so that the limit reaches it)
-    from threadpoolctl import threadpool_limits
-
-    with threadpool_limits(limits=1, user_api="blas"):
-        yield
-
-
-# what OpenBLAS (numpy's and scipy's wheels), MKL and BLIS read, once, when they are loaded
-BLAS_THREAD_VARIABLES = ("OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "BLIS_NUM_THREADS")
-
-
-def single_threaded_blas_by_default(environ: MutableMapping[str, str]) -> None:
-    """One BLAS thread for every BLAS library the process loads later, unless ``environ`` (the process's
-    ``os.environ``) already sets its variable: set before numpy is imported, by the ``rig`` command. Its
-    worker threads spin after each call (measured on 2 cores: importing numpy and scipy.linalg costs 0.33
-    CPU-s with two threads against 0.13 with one; `rig report` of a certification run 0.25–0.3 CPU-s more
-    besides its analysis), and none of our work has a matrix large enough to gain from them. OpenMP
-    (numba, OpenCV) is left alone."""
-    for name in BLAS_THREAD_VARIABLES:
-        environ.setdefault(name, "1")

@@ -31,7 +31,6 @@ from typing import Any, Protocol
 import numpy as np
 import pandas as pd
 
-from drivers.cores import one_blas_thread
 from reports import band_phase, html, step_phase, summaries
 from reports.certificate import acceptance_from_config, build_certificate, evaluate
 from reports.errors import AnalysisFailedError, ReportError
@@ -41,6 +40,7 @@ from reports.scope import Scope
 from reports.tables import ReportTables, compute_tables, controller_clock, measured_values
 from rig.record.atomic import atomic_path, fsync_dir, write_json, write_text
 from rig.record.folder import RunFolder
+from rig.stereo.blas import one_blas_thread
 
 DEFAULT_SYNC = "trajectory"
 CERTIFICATE_NAME = "certificate.json"

@@ -28,15 +28,15 @@ import signal
 import sys
 import threading
 import types
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, MutableMapping, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, NoReturn
 
-# only light modules here (tests/test_cli_start.py): the heavy ones are imported by the commands that use them
-from drivers.cores import single_threaded_blas_by_default
 from rig.cli_logging import configure_logging
 from rig.config.schema import ConfigError
 from rig.run.exit_codes import EXIT_ABORTED, EXIT_BAD_INPUT, EXIT_FAULT, STOP_SIGNALS, Interrupted
+
+# only light modules here (tests/test_cli_start.py): the heavy ones are imported by the commands that use them
 
 if TYPE_CHECKING:
     from rig.config.rig_config import RigConfig
@@ -601,6 +601,18 @@ def build_parser() -> argparse.ArgumentParser:
 
 def _interrupted(signum: int, frame: object) -> None:
     raise Interrupted(signal.Signals(signum).name)
+
+
+# what OpenBLAS (numpy's and scipy's wheels), MKL and BLIS read, once, when they are loaded
+BLAS_THREAD_VARIABLES = ("OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "BLIS_NUM_THREADS")
+
+
+def single_threaded_blas_by_default(environ: MutableMapping[str, str]) -> None:
+    """One BLAS thread for every BLAS library the process loads later, unless ``environ`` (the process's
+    ``os.environ``) already sets its variable: its idle threads only spin through our small solves
+    (:mod:`rig.stereo.blas`). Called by :func:`main` as the process's command, before numpy is imported."""
+    for name in BLAS_THREAD_VARIABLES:
+        environ.setdefault(name, "1")
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -44,7 +44,6 @@ import pandas as pd
 
 from drivers.camera.container_times import ContainerError, ContainerTimes, read_container_times
 from drivers.camera.video_file import VideoFile, decoder_threads_per_file
-from drivers.cores import one_blas_thread
 from rig.analysis.analyse import load_cameras
 from rig.analysis.errors import AnalysisError
 from rig.analysis.sync_tracks import (
@@ -61,6 +60,7 @@ from rig.deploy.video_markers import ExtractOptions, VideoObservations, extract_
 from rig.deploy.video_timing import VideoTimingError, estimate_video_timing, rotor_timing, tracked
 from rig.record.atomic import atomic_path, write_json
 from rig.record.out_guard import check_out_folder
+from rig.stereo.blas import one_blas_thread
 from rig.stereo.dlt import DLTCamera
 from rig.stereo.errors import StereoError
 
