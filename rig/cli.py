@@ -32,11 +32,10 @@ from collections.abc import Callable, MutableMapping, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, NoReturn
 
+# only light modules here (tests/test_cli_start.py): the heavy ones are imported by the commands that use them
 from rig.cli_logging import configure_logging
 from rig.config.schema import ConfigError
 from rig.run.exit_codes import EXIT_ABORTED, EXIT_BAD_INPUT, EXIT_FAULT, STOP_SIGNALS, Interrupted
-
-# only light modules here (tests/test_cli_start.py): the heavy ones are imported by the commands that use them
 
 if TYPE_CHECKING:
     from rig.config.rig_config import RigConfig
