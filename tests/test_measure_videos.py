@@ -263,7 +263,6 @@ def test_markers_too_large_for_the_tracking_window_are_noted_and_logged(
     assert sum("tracking window of 15 px" in r.getMessage() for r in caplog.records) == 2
 
 
-
 def test_the_analysis_runs_on_one_blas_thread_and_restores_the_callers_setting(
         site: dict, tmp_path: Path, measurement_pair: PairOf, monkeypatch: pytest.MonkeyPatch) -> None:
     """The 3-D tracks' many small solves on one BLAS thread (more only spin), whatever the caller had set
