@@ -184,6 +184,7 @@ def _check_writable(run_dir: Path) -> None:
         os.fsync(probe.fileno())  # a filesystem that allocates late (ext4) allocates here
 
 
+@one_blas_thread()  # the analyses' and tables' many small solves: more BLAS threads only spin
 def build_report(
     run_dir: str | Path,
     *,
@@ -219,29 +220,28 @@ def build_report(
     An ``OSError`` while writing (full disk, read-only folder) propagates; no output is left half-written.
     A folder that takes no new file (read-only) raises before the analysis, not after it.
     """
-    with one_blas_thread():  # the analyses' and tables' many small solves: more threads only spin
-        run = load_record(run_dir)
-        _check_writable(Path(run_dir))
-        acceptance = acceptance_from_config(run.rig)
-        scope = scope or _recorded_scope(run.rig)
-        if no_figures_why:
-            scope = dataclasses.replace(scope, figures=False, figures_why=no_figures_why)
-        primary = sync or _configured_sync(run.rig)
-        analyses = _analyse_all(run.folder, [primary, *[m for m in scope.comparison if m != primary]],
-                                analysis or _default_analyse(), checkpoint or _no_checkpoint)
-        t = _tables(run, analyses, acceptance)
-        revision = _next_revision(run.run_dir, primary)  # None: this report issues the certificate
-        notes = (analyses.notes + _notes(run, t, in_run=in_run) + scope.notes()
-                 + ([revision.note] if revision else []))
-        report = _certify(run, t, analyses, acceptance, notes, scope=scope, in_run=in_run)
-        cert = report.certificate
-        if revision is None:
-            written = _write_outputs(run.run_dir, report, before_certificate=checkpoint)
-            return ReportResult(run.run_dir, cert["result"], cert, notes=notes, **written.fields())
-        changes = certificate_changes(revision.issued, cert, revision=revision.number, sync=primary)
-        written = _write_revision(run.run_dir, revision, report, changes)
-        return ReportResult(run.run_dir, cert["result"], cert, notes=notes, changes=changes,
-                            revision=revision.folder(run.run_dir), **written.fields())
+    run = load_record(run_dir)
+    _check_writable(Path(run_dir))
+    acceptance = acceptance_from_config(run.rig)
+    scope = scope or _recorded_scope(run.rig)
+    if no_figures_why:
+        scope = dataclasses.replace(scope, figures=False, figures_why=no_figures_why)
+    primary = sync or _configured_sync(run.rig)
+    analyses = _analyse_all(run.folder, [primary, *[m for m in scope.comparison if m != primary]],
+                            analysis or _default_analyse(), checkpoint or _no_checkpoint)
+    t = _tables(run, analyses, acceptance)
+    revision = _next_revision(run.run_dir, primary)  # None: this report issues the certificate
+    notes = (analyses.notes + _notes(run, t, in_run=in_run) + scope.notes()
+             + ([revision.note] if revision else []))
+    report = _certify(run, t, analyses, acceptance, notes, scope=scope, in_run=in_run)
+    cert = report.certificate
+    if revision is None:
+        written = _write_outputs(run.run_dir, report, before_certificate=checkpoint)
+        return ReportResult(run.run_dir, cert["result"], cert, notes=notes, **written.fields())
+    changes = certificate_changes(revision.issued, cert, revision=revision.number, sync=primary)
+    written = _write_revision(run.run_dir, revision, report, changes)
+    return ReportResult(run.run_dir, cert["result"], cert, notes=notes, changes=changes,
+                        revision=revision.folder(run.run_dir), **written.fields())
 
 
 def _recorded_scope(rig: dict[str, Any]) -> Scope:

@@ -300,8 +300,7 @@ def measure_videos(videos: dict[str, str | Path], calibration: str | Path, out_d
         if vo.error:
             problems.append(f"camera {n}: {vo.error}")
     try:
-        with one_blas_thread():  # its many small solves: BLAS's other threads would only spin
-            return _measure(job, vos, notes, problems, stamps)
+        return _measure(job, vos, notes, problems, stamps)
     except MeasureError as exc:
         if not problems:
             raise
@@ -327,6 +326,7 @@ class _Job:
     opts: MeasureOptions
 
 
+@one_blas_thread()  # the analysis' many small solves: BLAS's other threads would only spin
 def _measure(job: _Job, vos: dict[str, VideoObservations], notes: list[str], problems: list[str],
              stamps: list[tuple[str, float, float]]) -> MeasureResult:
     """Observations → timing → 3-D tracks → displacement → tables, report and measure.json."""
@@ -358,20 +358,7 @@ def _measure(job: _Job, vos: dict[str, VideoObservations], notes: list[str], pro
                           reference=reference, notes=notes)
     files["timing"] = write_json(out / "timing.json", timing_dict)
     stamps.append(_stamp("timing"))
-    try:
-        # a lone fast marker the 2-D tracking splits (a rotor) is one track (rig.deploy.video_timing.tracked)
-        prepared = {n: prepare_observations(tracked(o), timing_dict, n) for n, o in obs.items()}
-        pairs, more = pair_all(prepared, cameras, reference, gate_px=opts.gate_px)
-        notes += more
-        tracks = triangulate_tracks(prepared, cameras, timing_dict, reference=reference,
-                                    sync="trajectory" if opts.sync == "rotor" else opts.sync,
-                                    pairs=pairs)
-    except (AnalysisError, StereoError) as exc:
-        raise MeasureError(f"3-D tracks: {exc}") from exc
-    notes += tracks.attrs.get("notes", [])
-    if tracks.empty:
-        raise MeasureError("no marker track could be paired between the two videos; check that the "
-                           "calibration belongs to these cameras and the timing (--timing/--estimate-timing)")
+    tracks = _tracks_3d(obs, cameras, timing_dict, reference=reference, opts=opts, notes=notes)
     stamps.append(_stamp("tracks_3d"))
     clock = None
     if record is not None:
@@ -411,3 +398,24 @@ def _measure(job: _Job, vos: dict[str, VideoObservations], notes: list[str], pro
             "clock": "reference video PTS, s", "controller_clock": clock}
     files["measure"] = write_json(out / "measure.json", meta, default=str)
     return result
+
+
+def _tracks_3d(obs: dict[str, pd.DataFrame], cameras: dict[str, DLTCamera], timing: dict[str, Any], *,
+               reference: str, opts: MeasureOptions, notes: list[str]) -> pd.DataFrame:
+    """The cameras' observations tracked in 2-D, paired and triangulated with ``timing`` (the 3-D tracks;
+    the steps' notes appended to ``notes``); :class:`MeasureError` when that fails or pairs no track."""
+    try:
+        # a lone fast marker the 2-D tracking splits (a rotor) is one track (rig.deploy.video_timing.tracked)
+        prepared = {n: prepare_observations(tracked(o), timing, n) for n, o in obs.items()}
+        pairs, more = pair_all(prepared, cameras, reference, gate_px=opts.gate_px)
+        notes += more
+        tracks = triangulate_tracks(prepared, cameras, timing, reference=reference,
+                                    sync="trajectory" if opts.sync == "rotor" else opts.sync,
+                                    pairs=pairs)
+    except (AnalysisError, StereoError) as exc:
+        raise MeasureError(f"3-D tracks: {exc}") from exc
+    notes += tracks.attrs.get("notes", [])
+    if tracks.empty:
+        raise MeasureError("no marker track could be paired between the two videos; check that the "
+                           "calibration belongs to these cameras and the timing (--timing/--estimate-timing)")
+    return tracks
