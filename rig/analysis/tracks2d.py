@@ -20,6 +20,10 @@ position, within a gate:
   observations get track id −1 and are not used (they carry no new information and would repeat an instant);
 - tracks with fewer than ``min_length`` observations get −1 (spurious detections).
 
+The usual frame — each track's last position or constant-velocity extrapolation has its one detection
+within the gate, one to one — is tracked by compiled code (:mod:`rig.analysis.tracks2d_kernel`, the same
+labels); the others as above.
+
 Units: pixels, seconds. Track ids are integers ≥ 0, unique within the frame given (over all segments).
 """
 
@@ -276,12 +280,22 @@ class _LiveTracks:
         return self.ids[assigned]
 
 
+    def arrays(self) -> tuple[np.ndarray, ...]:
+        """The arrays :func:`rig.analysis.tracks2d_kernel.easy_frames` changes in place."""
+        return (self.ids, self.recent_slots, self.recent_px, self.known, self.last, self.prev, self.s_last,
+                self.s_prev)
+
+
 def _track_group(obs: pd.DataFrame, gate: float, max_gap: int, min_length: int,
-                 acquire_gate: float) -> tuple[np.ndarray, int]:
-    """Labels (local ids ≥ 0 or −1) for one segment's observations, and the number of ids used."""
+                 acquire_gate: float, *, compiled: bool = True) -> tuple[np.ndarray, int]:
+    """Labels (local ids ≥ 0 or −1) for one segment's observations, and the number of ids used.
+    ``compiled``: the usual frames by :func:`rig.analysis.tracks2d_kernel.easy_frames` (the same labels;
+    False: every frame by :class:`_LiveTracks`, which the tests compare it with)."""
+    from rig.analysis.tracks2d_kernel import easy_frames  # numba: loaded by the first tracking
+
     frame = obs["frame_index"].to_numpy(np.int64)
     stamp = obs["timestamp_s"].to_numpy(float)
-    uv = obs[["u_px", "v_px"]].to_numpy(float)
+    uv = np.ascontiguousarray(obs[["u_px", "v_px"]].to_numpy(float))
     order = np.lexsort((np.arange(len(frame)), frame))
     frames, starts = np.unique(frame[order], return_index=True)
     bounds = np.append(starts, len(order))
@@ -291,9 +305,16 @@ def _track_group(obs: pd.DataFrame, gate: float, max_gap: int, min_length: int,
     labels = np.full(len(frame), NOT_TRACKED, dtype=np.int64)
     live = _LiveTracks()
     prev_stamp = -np.inf
-    for k in range(len(frames)):
+    k = 0
+    while k < len(frames):
+        if compiled:
+            k, prev_stamp = easy_frames(k, prev_stamp, order, bounds, uv, frame_stamps, period, gate, max_gap,
+                                        live.arrays(), labels)
+            if k == len(frames):
+                break
         rows = order[bounds[k]:bounds[k + 1]]
         now = frame_stamps[k]
+        k += 1
         if now <= prev_stamp:  # duplicated frame (same time stamp again) or a stamp going backwards
             continue
         prev_stamp = now
