@@ -54,8 +54,6 @@ MAX_LINE_TIME_ERROR_NS = 5e3
 # bound on the LED's rise time (s): an LED rises in ns–µs; 1 ms would be a wrong configuration
 MAX_RISE_TIME_S = 1e-3
 _F = NDArray[np.float64]
-# the coarse offset search evaluates this many row levels (offsets × rows) per mean_levels call at most
-_GRID_CHUNK_VALUES = 1 << 20
 
 
 @dataclass(frozen=True)
@@ -234,36 +232,24 @@ def _affine(level: _F, brightness: _F) -> tuple[float, float, _F]:
 def _grid_offset_s(rows: RowSamples, edges: DriveEdges, grid: _F, rise_time_s: float) -> float | None:
     """Grid offset of the best affine fit of the rows (None when no offset lights any row part-way).
 
-    The rows' levels at many offsets come from one :func:`mean_levels` call (the values of a call per
-    offset, element for element); each offset's residual sum of squares in closed form on centred values
-    (:func:`_centred_sse`), and only the offsets within its rounding of the least are fitted again by
-    :func:`_affine` (lstsq), which chooses among them: the offset a lstsq at every node would choose."""
+    Every offset's residual sum of squares comes from one compiled pass over the rows
+    (:func:`rig.stereo.fiducial_kernel.grid_sse`, on :func:`mean_levels`' levels, in closed form on centred
+    values), and only the offsets within its rounding of the least are fitted again by :func:`_affine`
+    (lstsq), which chooses among them: the offset a lstsq at every node would choose."""
+    from rig.stereo.fiducial_kernel import grid_sse  # numba: loaded by the first search
+
     b = rows.brightness_dn
-    per_chunk = max(1, _GRID_CHUNK_VALUES // max(b.size, 1))
-    levels, sse = [], []
-    for i0 in range(0, grid.size, per_chunk):
-        starts = grid[i0 : i0 + per_chunk, None] + rows.start_s[None, :]
-        level = mean_levels(starts.ravel(), rows.exposure_s, edges, rise_time_s).reshape(starts.shape)
-        levels.append(level)
-        sse.append(_centred_sse(level, b))
-    all_sse = np.concatenate(sse)
+    order = np.argsort(rows.start_s, kind="stable")
+    state = np.concatenate([[edges.initial_level], edges.initial_level + np.cumsum(edges.signs)])
+    all_sse = grid_sse(rows.start_s[order], b[order], float(rows.exposure_s), edges.times_s, edges.signs,
+                       state, float(rise_time_s), np.ascontiguousarray(grid, dtype=float))
     if not np.isfinite(all_sse).any():
         return None
     slack = 1e-6 * float(np.min(all_sse)) + 1e-9 * float(np.sum((b - b.mean()) ** 2))
     near = np.nonzero(all_sse <= np.min(all_sse) + slack)[0]
-    level_of = np.concatenate(levels)
-    exact = [float(np.sum(_affine(level_of[i], b)[2] ** 2)) for i in near]
+    exact = [float(np.sum(_affine(mean_levels(grid[i] + rows.start_s, rows.exposure_s, edges, rise_time_s),
+                                  b)[2] ** 2)) for i in near]
     return float(grid[near[int(np.argmin(exact))]])
-
-
-def _centred_sse(level: _F, brightness: _F) -> _F:
-    """Residual sum of squares (DN²) of brightness ≈ b_off + gain·level for each row of ``level`` (offsets ×
-    rows), inf where the level is constant (no row lit part-way): centred sums, stable to rounding."""
-    lit = np.ptp(level, axis=1) > 0
-    lc = level - level.mean(axis=1, keepdims=True)
-    bc = brightness - brightness.mean()
-    gain = np.einsum("ij,j->i", lc, bc) / np.where(lit, np.einsum("ij,ij->i", lc, lc), 1.0)
-    return np.where(lit, np.sum((bc - gain[:, None] * lc) ** 2, axis=1), np.inf)
 
 
 def _coarse_offset_s(rows: RowSamples, edges: DriveEdges, prior_offset_s: float, half_width_s: float,
