@@ -279,7 +279,6 @@ class _LiveTracks:
         self.s_prev = np.concatenate([self.s_prev, np.full(count, s_now - 1.0)])
         return self.ids[assigned]
 
-
     def arrays(self) -> tuple[np.ndarray, ...]:
         """The arrays :func:`rig.analysis.tracks2d_kernel.easy_frames` changes in place."""
         return (self.ids, self.recent_slots, self.recent_px, self.known, self.last, self.prev, self.s_last,
