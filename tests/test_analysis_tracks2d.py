@@ -181,19 +181,21 @@ def _scene(draw: Callable[[st.SearchStrategy[Any]], Any]) -> pd.DataFrame:
     rng = np.random.default_rng(draw(st.integers(0, 2**32 - 1)))
     n_frames, n_markers = draw(st.integers(4, 90)), draw(st.integers(1, 6))
     spacing_px = draw(st.sampled_from([14.0, 40.0, 220.0]))  # close markers: two candidates in a gate
+    missed = draw(st.sampled_from([0.0, 0.02, 0.2]))  # the share of a marker's detections missed
+    frequency_hz = rng.uniform(3.0, 23.0, n_markers)
     slots = np.cumsum(rng.choice([1, 1, 1, 1, 1, 1, 2, 3, 8], size=n_frames))  # drops between frames
     rows = []
     for f, slot in enumerate(slots):
         t = slot / 60.0
         for m in range(n_markers):
-            if rng.random() < draw(st.sampled_from([0.0, 0.02, 0.2])):
-                continue  # missed in this frame
+            if rng.random() < missed:
+                continue
             base = np.array([150.0 + spacing_px * m, 300.0 + 15.0 * m])
             kind = m % 4
             if kind == 1:
                 base += rng.uniform(-3, 3) * slot * np.array([1.0, 0.3])
             elif kind == 2:
-                base += 30.0 * np.sin(2 * np.pi * (3.0 + 4.0 * m) * t) * np.array([1.0, 0.5])
+                base += 30.0 * np.sin(2 * np.pi * frequency_hz[m] * t) * np.array([1.0, 0.5])
             elif kind == 3:
                 base += 60.0 * np.array([np.cos(2 * np.pi * 10.0 * t), np.sin(2 * np.pi * 10.0 * t)])
             rows.append((f, t, *(base + rng.normal(0.0, 0.3, 2))))
