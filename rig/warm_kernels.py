@@ -17,6 +17,7 @@ from drivers.camera import change_kernel
 from rig.analysis.frame_reduction import ReduceOptions, warm_up
 from rig.analysis.tracks2d import tracks_2d
 from rig.stereo import detect_markers
+from rig.stereo.fiducial import DriveEdges, mean_levels
 from rig.stereo.fiducial_kernel import grid_sse
 from rig.stereo.resample import bandlimited
 
@@ -25,7 +26,7 @@ def warm_all() -> float:
     """Load or compile every kernel (markers: detection and tracking, and the joining of row bands a
     detection on several threads uses; video: the change map and a duplicate candidate's region kernels;
     the band-limited reconstruction's kernel rows; 2-D tracking's usual frames; the timing fiducial's
-    offset search).
+    levels and offset search).
 
     Returns the CPU seconds spent."""
     start_s = time.process_time()
@@ -43,8 +44,9 @@ def warm_all() -> float:
     change_kernel.region_changes((image,) * 4, rows, cols, pairs)
     t_s = np.arange(80) / 60.0 + 0.002 * np.sin(np.arange(80))  # jittered instants: the sparse solve's rows
     bandlimited(t_s, np.sin(t_s), t_s[10:20] + 0.004, noise_gain=True)  # and the noise gain's kernels
-    rows_s, edges_s = np.arange(4) * 1e-3, np.array([1e-3, 2e-3])  # the fiducial's offset search
-    grid_sse(rows_s, rows_s, 1e-4, edges_s, np.array([1.0, -1.0]), np.array([0.0, 1.0, 0.0]), 1e-5, rows_s)
+    rows_s, edges = np.arange(4) * 1e-3, DriveEdges(np.array([1e-3, 2e-3]), np.array([True, False]))
+    mean_levels(rows_s, 1e-4, edges, 1e-5)  # the fiducial's levels and offset search
+    grid_sse(rows_s, rows_s, 1e-4, edges.times_s, edges.signs, edges.states, 1e-5, rows_s)
     steps = np.arange(6.0)  # two markers over six frames: tracks start, then the compiled frames carry them
     tracks_2d(pd.DataFrame({"frame_index": np.repeat(steps, 2), "timestamp_s": np.repeat(steps / 60.0, 2),
                             "u_px": np.tile([100.0, 400.0], 6) + np.repeat(steps, 2), "v_px": 200.0}))

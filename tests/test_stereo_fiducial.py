@@ -41,6 +41,28 @@ def brute_levels(start_s: np.ndarray, exposure_s: float, edges: DriveEdges, rise
     return level.mean(axis=1)
 
 
+def numpy_levels(start_s: np.ndarray, exposure_s: float, edges: DriveEdges, rise_s: float) -> np.ndarray:
+    """The mean levels in numpy, as rig.stereo.fiducial computed them before its compiled walk along the
+    edges (the same operations in the same order: the reference its kernel must equal to the bit)."""
+    def ramp_integral(x: np.ndarray) -> np.ndarray:
+        if rise_s <= 0:
+            return np.maximum(x, 0.0)
+        rising = np.clip(x, 0.0, rise_s)
+        return np.where(x <= 0, 0.0, np.where(x < rise_s, 0.5 * rising * rising / rise_s, x - 0.5 * rise_s))
+
+    e, sign = edges.times_s, edges.signs
+    lo = np.searchsorted(e, start_s - rise_s, side="left")  # edges before lo are complete
+    hi = np.searchsorted(e, start_s + exposure_s, side="left")  # edges from hi on have not begun
+    level = edges.states[lo].astype(float)
+    span = hi - lo
+    for j in range(int(span.max()) if span.size else 0):
+        sel = np.nonzero(span > j)[0]
+        k = lo[sel] + j
+        x_end, x_start = start_s[sel] + exposure_s - e[k], start_s[sel] - e[k]
+        level[sel] += sign[k] * (ramp_integral(x_end) - ramp_integral(x_start)) / exposure_s
+    return level
+
+
 @settings(max_examples=40, deadline=None)
 @given(first=st.floats(0.0, 0.01), period=st.floats(2e-3, 0.05), rise=st.floats(0.0, 2e-4),
        exposure=st.floats(2e-5, 2e-3), starts=st.lists(st.floats(-0.01, 0.1), min_size=1, max_size=30))
@@ -190,12 +212,13 @@ def test_the_coarse_search_picks_the_node_a_lstsq_per_node_picks_refitting_only_
 @settings(max_examples=60, deadline=None)
 @given(st.integers(0, 2**32 - 1), st.sampled_from([0.0, 1e-6, 1e-5, 2e-4, 1e-3]),
        st.sampled_from([1e-4, EXPOSURE_S, 2e-3]), st.booleans())
-def test_the_compiled_levels_are_mean_levels_and_the_residual_sums_those_of_a_centred_fit(
+def test_the_compiled_levels_are_the_numpy_forms_and_the_residual_sums_those_of_a_centred_fit(
         seed: int, rise_s: float, exposure_s: float, rising_first: bool) -> None:
-    """fiducial_kernel: each row's level is mean_levels' to the bit, at any offset (rows before, between and
-    after the edges, ramps inside and across exposures); each offset's residual sum of squares is the
-    centred closed form's to 1e-9 (its sums run in another order)."""
-    from rig.stereo.fiducial_kernel import _levels, grid_sse
+    """fiducial_kernel: each row's level is the numpy form's to the bit, at any offset (rows before, between
+    and after the edges, ramps inside and across exposures), through mean_levels too (rows in any order);
+    each offset's residual sum of squares is the centred closed form's to 1e-9 (its sums run in another
+    order)."""
+    from rig.stereo.fiducial_kernel import grid_sse, levels
 
     rng = np.random.default_rng(seed)
     start = np.sort(rng.uniform(0.0, 0.5, int(rng.integers(2, 400))))
@@ -204,13 +227,15 @@ def test_the_compiled_levels_are_mean_levels_and_the_residual_sums_those_of_a_ce
     edges = DriveEdges(times, rising)
     offsets = rng.uniform(-0.1, 0.1, 7)
     b = rng.normal(100.0, 20.0, start.size)
-    state = np.concatenate([[edges.initial_level], edges.initial_level + np.cumsum(edges.signs)])
-    got = grid_sse(start, b, exposure_s, edges.times_s, edges.signs, state, rise_s, offsets)
+    got = grid_sse(start, b, exposure_s, edges.times_s, edges.signs, edges.states, rise_s, offsets)
     level = np.empty(start.size)
+    shuffled = rng.permutation(start.size)
     for offset, sse in zip(offsets, got, strict=True):
-        expected = mean_levels(offset + start, exposure_s, edges, rise_s)
-        _levels(start, offset, exposure_s, edges.times_s, edges.signs, state, rise_s, level)
+        expected = numpy_levels(offset + start, exposure_s, edges, rise_s)
+        levels(start, offset, exposure_s, edges.times_s, edges.signs, edges.states, rise_s, level)
         np.testing.assert_array_equal(level, expected)
+        np.testing.assert_array_equal(mean_levels((offset + start)[shuffled], exposure_s, edges, rise_s),
+                                      expected[shuffled])
         if not np.ptp(expected) > 0:
             assert sse == np.inf
             continue
@@ -220,11 +245,11 @@ def test_the_compiled_levels_are_mean_levels_and_the_residual_sums_those_of_a_ce
 
 
 def test_the_ramp_integral_of_a_subnormal_rise_time_is_exact_and_silent() -> None:
-    # np.where evaluates both branches: the quadratic of times far past a subnormal rise overflowed (a
-    # RuntimeWarning in make test's random examples), although its values were never selected
-    from rig.stereo.fiducial import _ramp_integral
+    # the numpy form's np.where evaluated both branches: the quadratic of times far past a subnormal rise
+    # overflowed (a RuntimeWarning in make test's random examples); the compiled form takes one branch
+    from rig.stereo.fiducial_kernel import ramp_integral
 
     x = np.array([-1.0, 0.0, 1e-330, 1.0, 1e300])
     with warnings.catch_warnings():
         warnings.simplefilter("error")
-        assert np.array_equal(_ramp_integral(x, 5e-324), [0.0, 0.0, 0.0, 1.0, 1e300])
+        assert np.array_equal([ramp_integral(v, 5e-324) for v in x], [0.0, 0.0, 0.0, 1.0, 1e300])

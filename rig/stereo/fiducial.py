@@ -91,6 +91,11 @@ class DriveEdges:
         """Level before the first edge: off when it rises, on when it falls."""
         return 0.0 if bool(self.rising[0]) else 1.0
 
+    @property
+    def states(self) -> _F:
+        """The level after the first k edges, k = 0 … number of edges (a step model: each edge complete)."""
+        return np.concatenate([[self.initial_level], self.initial_level + np.cumsum(self.signs)])
+
     def repeat_s(self) -> float:
         """The shortest shift that could map the pattern onto itself: the smallest gap between two edges of
         the same sense (inf with fewer than two of a sense)."""
@@ -177,34 +182,24 @@ class FiducialClock:
         return math.hypot(self.u_offset_s, self.u_rate * (camera_time_s - self.t_ref_s))
 
 
-def _ramp_integral(x: _F, rise_s: float) -> _F:
-    """∫_{-∞}^{x} clip(u/rise, 0, 1) du (s): the light of one rising edge at 0 accumulated up to x."""
-    if rise_s <= 0:
-        return np.maximum(x, 0.0)
-    rising = np.clip(x, 0.0, rise_s)  # the quadratic only where it applies: no overflow where it does not
-    return np.where(x <= 0, 0.0, np.where(x < rise_s, 0.5 * rising * rising / rise_s, x - 0.5 * rise_s))
-
-
 def mean_levels(window_start_s: ArrayLike, exposure_s: float, edges: DriveEdges, rise_time_s: float) -> _F:
-    """Mean LED level (0..1) over each window [s, s + exposure_s] of controller time (ramp model).
+    """Mean LED level (0..1) over each window [s, s + exposure_s] of controller time (ramp model), for
+    finite window starts ``window_start_s`` (s, 1-D, any order).
 
     Edges that finished rising before a window count fully (the running on/off state), the few that fall
-    inside it (or ramp into it) partially; O(n log m) for n windows and m edges.
+    inside it (or ramp into it) partially; the windows in order of their start walk along the edges, compiled
+    (:func:`rig.stereo.fiducial_kernel.levels`): O(n log n + m) for n windows and m edges.
     """
+    from rig.stereo.fiducial_kernel import levels  # numba: loaded by the first fit
+
     s = np.asarray(window_start_s, dtype=float)
-    e, sign = edges.times_s, edges.signs
-    state = np.concatenate([[edges.initial_level], edges.initial_level + np.cumsum(sign)])
-    lo = np.searchsorted(e, s - rise_time_s, side="left")  # edges before lo are complete
-    hi = np.searchsorted(e, s + exposure_s, side="left")  # edges from hi on have not begun
-    level = state[lo].astype(float)
-    span = hi - lo
-    for j in range(int(span.max()) if span.size else 0):
-        sel = np.nonzero(span > j)[0]
-        k = lo[sel] + j
-        x_end, x_start = s[sel] + exposure_s - e[k], s[sel] - e[k]
-        part = (_ramp_integral(x_end, rise_time_s) - _ramp_integral(x_start, rise_time_s)) / exposure_s
-        level[sel] += sign[k] * part
-    return level
+    order = np.argsort(s, kind="stable")
+    in_order = np.empty(s.size)
+    levels(np.ascontiguousarray(s[order]), 0.0, float(exposure_s), edges.times_s, edges.signs, edges.states,
+           float(rise_time_s), in_order)
+    out = np.empty(s.size)
+    out[order] = in_order
+    return out
 
 
 def row_profile(gray: ArrayLike, region: tuple[int, int, int, int]) -> tuple[NDArray[np.int64], _F]:
@@ -233,16 +228,15 @@ def _grid_offset_s(rows: RowSamples, edges: DriveEdges, grid: _F, rise_time_s: f
     """Grid offset of the best affine fit of the rows (None when no offset lights any row part-way).
 
     Every offset's residual sum of squares comes from one compiled pass over the rows
-    (:func:`rig.stereo.fiducial_kernel.grid_sse`, on :func:`mean_levels`' levels, in closed form on centred
-    values), and only the offsets within its rounding of the least are fitted again by :func:`_affine`
+    (:func:`rig.stereo.fiducial_kernel.grid_sse`, on the levels of :func:`mean_levels`, in closed form on
+    centred values), and only the offsets within its rounding of the least are fitted again by :func:`_affine`
     (lstsq), which chooses among them: the offset a lstsq at every node would choose."""
     from rig.stereo.fiducial_kernel import grid_sse  # numba: loaded by the first search
 
     b = rows.brightness_dn
     order = np.argsort(rows.start_s, kind="stable")
-    state = np.concatenate([[edges.initial_level], edges.initial_level + np.cumsum(edges.signs)])
     all_sse = grid_sse(rows.start_s[order], b[order], float(rows.exposure_s), edges.times_s, edges.signs,
-                       state, float(rise_time_s), np.ascontiguousarray(grid, dtype=float))
+                       edges.states, float(rise_time_s), np.ascontiguousarray(grid, dtype=float))
     if not np.isfinite(all_sse).any():
         return None
     slack = 1e-6 * float(np.min(all_sse)) + 1e-9 * float(np.sum((b - b.mean()) ** 2))
