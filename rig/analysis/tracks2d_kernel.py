@@ -116,7 +116,8 @@ def easy_frames(  # noqa: PLR0917 (numba: no keyword-only arguments)
             continue
         s_now = now / period
         for t in range(n_tracks):
-            if not s_now - s_last[t] <= max_gap + 1.5:
+            gaps[t] = s_now - s_last[t]
+            if not gaps[t] <= max_gap + 1.5:
                 return k, prev_stamp  # a track ends
         rows = order[bounds[k]:bounds[k + 1]]
         if n_tracks == 0 or rows.shape[0] != n_tracks:
@@ -124,8 +125,6 @@ def easy_frames(  # noqa: PLR0917 (numba: no keyword-only arguments)
         for j in range(n_tracks):
             det[j, 0], det[j, 1] = uv[rows[j], 0], uv[rows[j], 1]
         simple_costs(det, s_now, last, prev, s_last, s_prev, cost)
-        for t in range(n_tracks):
-            gaps[t] = s_now - s_last[t]
         if not assign_one_to_one(cost, gaps, gate, assigned):
             return k, prev_stamp
         prev_stamp = now
