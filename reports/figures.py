@@ -1,7 +1,7 @@
 """Report figures (matplotlib, Agg backend, no display). Each ``fig_*`` returns a Figure or None (no data).
 
-:func:`save_png` writes with fixed metadata (no software/date stamp), so the same tables give
-byte-identical PNG files.
+:func:`save_png` and :func:`save_svg` write with fixed metadata (no software/date stamp), so the same tables
+give byte-identical files.
 """
 
 from __future__ import annotations
@@ -63,6 +63,16 @@ def save_png(fig: Figure, path: Path) -> None:
     :func:`rig.record.atomic.atomic_path`)."""
     with atomic_path(path) as tmp:
         fig.savefig(tmp, dpi=DPI, format="png", metadata={"Software": None})
+
+
+def save_svg(fig: Figure, path: Path) -> None:
+    """Write ``fig`` as SVG, text drawn as paths (it looks the same whatever fonts the reader has), without
+    date or creator stamp and with fixed element ids, so identical figures give identical bytes
+    (atomically). A line figure of thousands of points draws in about a third of the CPU time of its PNG
+    (no rasterising, no compression) and is smaller."""
+    svg_style: dict[RcKeyType, Any] = {"svg.fonttype": "path", "svg.hashsalt": STYLE["svg.hashsalt"]}
+    with plt.rc_context(svg_style), atomic_path(path) as tmp:
+        fig.savefig(tmp, format="svg", metadata={"Date": None, "Creator": None})
 
 
 def _method_color(method: str, primary: str) -> str:

@@ -1,4 +1,5 @@
-"""The self-contained ``report.html``: summary first, then the sections; figures embedded as base64 PNG.
+"""The self-contained ``report.html``: summary first, then the sections; figures embedded as base64 images
+(PNG; SVG in ``rig measure``'s report).
 
 No external assets (no fonts, scripts or stylesheets from the network): the page opens offline and can
 be mailed as one file.
@@ -117,13 +118,14 @@ def _vertical(values: dict[str, Any]) -> str:
     return table(frame, text_cols=("quantity",))
 
 
-def figure(pngs: dict[str, bytes], name: str, caption: str) -> str:
-    """The PNG ``pngs[name]`` embedded as base64 with its caption; empty when there is no such figure."""
-    if name not in pngs:
+def figure(images: dict[str, bytes], name: str, caption: str, media_type: str = "image/png") -> str:
+    """The image ``images[name]`` (a file of ``media_type``: PNG, or ``image/svg+xml``) embedded as base64
+    with its caption; empty when there is no such figure."""
+    if name not in images:
         return ""
-    data = base64.b64encode(pngs[name]).decode("ascii")
+    data = base64.b64encode(images[name]).decode("ascii")
     return (
-        f'<figure><img alt="{html.escape(caption)}" src="data:image/png;base64,{data}">'
+        f'<figure><img alt="{html.escape(caption)}" src="data:{media_type};base64,{data}">'
         f"<figcaption>{html.escape(caption)}</figcaption></figure>"
     )
 

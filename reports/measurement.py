@@ -1,4 +1,4 @@
-"""``report.html`` and ``figures/*.png`` of a ``rig measure`` folder, from the files the measurement wrote.
+"""``report.html`` and ``figures/*.svg`` of a ``rig measure`` folder, from the files the measurement wrote.
 
 The measurement (:mod:`rig.deploy.measure`) writes its tables, ``frames.json``, ``timing.json`` and
 ``measure.json``; this renders them with the certification report's page, stylesheet and figure style
@@ -110,19 +110,19 @@ def load_measurement(out_dir: str | Path) -> Measurement:
 
 
 def write_measurement_report(out_dir: str | Path) -> dict[str, Path]:
-    """Write ``figures/<name>.png`` and ``report.html`` into the measurement folder ``out_dir`` (each file
+    """Write ``figures/<name>.svg`` and ``report.html`` into the measurement folder ``out_dir`` (each file
     atomically); return {``figure_<name>``: path, ``report``: path}."""
     m = load_measurement(out_dir)
     figures_dir = m.out_dir / "figures"
     figures_dir.mkdir(exist_ok=True)
     files: dict[str, Path] = {}
-    pngs: dict[str, bytes] = {}
+    svgs: dict[str, bytes] = {}
     for name, fig in (("displacement", fig_displacement(m)), ("spectrum", fig_spectrum(m))):
-        if fig is not None:
-            files[f"figure_{name}"] = figures_dir / f"{name}.png"
-            figures.save_png(fig, files[f"figure_{name}"])
-            pngs[name] = files[f"figure_{name}"].read_bytes()
-    files["report"] = write_text(m.out_dir / "report.html", render(m, pngs))
+        if fig is not None:  # vector figures: sharp at any zoom, and a third of a PNG's drawing time
+            files[f"figure_{name}"] = figures_dir / f"{name}.svg"
+            figures.save_svg(fig, files[f"figure_{name}"])
+            svgs[name] = files[f"figure_{name}"].read_bytes()
+    files["report"] = write_text(m.out_dir / "report.html", render(m, svgs))
     return files
 
 
@@ -173,9 +173,9 @@ def _legend_above(ax: Axes) -> None:
 
 
 # ---------------------------------------------------------------------------------------------------- page
-def render(m: Measurement, pngs: dict[str, bytes]) -> str:
-    """The whole page as a string (deterministic for the same folder)."""
-    shown = "".join(figure(pngs, name, caption) for name, caption in CAPTIONS.items())
+def render(m: Measurement, svgs: dict[str, bytes]) -> str:
+    """The whole page as a string (deterministic for the same folder); ``svgs``: the figures' SVG files."""
+    shown = "".join(figure(svgs, name, caption, "image/svg+xml") for name, caption in CAPTIONS.items())
     parts = [_header(m), _problems_section(m), _summary_section(m), _peaks_section(m),
              f"<section><h2>Displacement and spectrum</h2>{shown}</section>" if shown else "",
              _frames_section(m), _timing_section(m), _notes_section(m)]

@@ -108,8 +108,8 @@ def test_calibrate_then_measure_matches_the_twin(site: dict, tmp_path: Path, fou
     for name in ("displacement", "spectra", "tracks_3d"):
         assert (out / "tables" / f"{name}.csv").stat().st_size > 0
     html = (out / "report.html").read_text()
-    assert "data:image/png;base64," in html and "Summary per track" in html
-    assert (out / "figures" / "spectrum.png").is_file()
+    assert "data:image/svg+xml;base64," in html and "Summary per track" in html
+    assert (out / "figures" / "spectrum.svg").is_file()
     assert not any("tracking window" in n for n in json.loads((out / "measure.json").read_text())["notes"])
     # displacement over time against the truth, on the world clock: within the noise and scale floors
     disp = pd.read_csv(out / "tables" / "displacement.csv")

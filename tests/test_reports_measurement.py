@@ -62,11 +62,11 @@ def _write_folder(out: Path, *, problems: tuple[str, ...] = (), n_duplicates: in
 def test_the_report_shows_the_folder_with_the_certification_reports_stylesheet(tmp_path: Path) -> None:
     out = _write_folder(tmp_path / "out")
     files = write_measurement_report(out)
-    assert files == {"figure_displacement": out / "figures" / "displacement.png",
-                     "figure_spectrum": out / "figures" / "spectrum.png", "report": out / "report.html"}
+    assert files == {"figure_displacement": out / "figures" / "displacement.svg",
+                     "figure_spectrum": out / "figures" / "spectrum.svg", "report": out / "report.html"}
     page = (out / "report.html").read_text()
     assert f"<style>{CSS}</style>" in page  # one stylesheet for every report
-    assert page.count("data:image/png;base64,") == 2
+    assert page.count("data:image/svg+xml;base64,") == 2
     for text in ("Summary per track", "Significant tones per target track",
                  "Duplicated frames and their evidence", html.escape(EVIDENCE),
                  "reference markers (auto): tracks [0]", "left = left.mkv"):
@@ -80,7 +80,7 @@ def test_the_report_is_deterministic(tmp_path: Path) -> None:
     a, b = _write_folder(tmp_path / "a"), _write_folder(tmp_path / "b")
     write_measurement_report(a)
     write_measurement_report(b)
-    for name in ("report.html", "figures/displacement.png", "figures/spectrum.png"):
+    for name in ("report.html", "figures/displacement.svg", "figures/spectrum.svg"):
         assert (a / name).read_bytes() == (b / name).read_bytes(), name
 
 

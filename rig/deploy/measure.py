@@ -21,7 +21,7 @@ frames
 6. ``DIR``: ``tables/*.csv`` (units in column names), ``timing.json``, ``frames.json``, ``measure.json``
    (inputs, frame reports, notes); with a run record (``--record``), the controller's clock too
    (:mod:`rig.deploy.video_clock`, ``clock.json``, ``controller_time_s`` columns). The report
-   (``figures/*.png``, ``report.html``) is rendered from this folder by :mod:`reports.measurement`, which
+   (``figures/*.svg``, ``report.html``) is rendered from this folder by :mod:`reports.measurement`, which
    the command (:mod:`rig.cli_measure`) calls after the measurement.
 
 Times in the outputs are seconds on the reference video's clock (its presentation time stamps).
