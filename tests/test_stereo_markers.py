@@ -302,13 +302,15 @@ def test_windows_grow_when_the_marker_reaches_the_ring():
     assert full["area_px"][0] == pytest.approx(np.pi * 40.0**2, rel=0.03)
 
 
-def test_tracking_retries_a_window_whose_ring_lies_on_the_marker_edge():
+@pytest.mark.parametrize("outline_check", [False, True])
+def test_tracking_retries_a_window_whose_ring_lies_on_the_marker_edge(outline_check):
     """r 20 px, blur 2 px, window_px 41: the ring (19–20 px out) lies on the blurred edge, its plane takes
     the edge for background (σ ≈ 34 DN: contrast 3.3 σ) and the support shrinks off the ring. The window
-    is retried larger, so the centroid is within noise (it was 3.3 px off)."""
+    is retried larger, so the centroid is within noise (it was 3.3 px off), in the compiled path and in the
+    outline-fitting one (which retried only cramped windows, not this one: 3.3 px off, unflagged)."""
     u, v = 64.3, 63.6
     img, clean = render((128, 128), [Disc(u, v, 20.0)], blur_sigma_px=2.0, seed=15, return_float=True)
-    tracked = track_markers(img, np.array([[u, v - 0.4]]), window_px=41)
+    tracked = track_markers(img, np.array([[u, v - 0.4]]), window_px=41, outline_check=outline_check)
     sigma_c = centroid_noise_px(clean, BACKGROUND_DN, (u, v), noise_sigma_dn=PIXEL_SIGMA_DN,
                                 floor_dn=3.0 * PIXEL_SIGMA_DN, half_px=28)
     assert np.hypot(tracked["u_px"][0] - u, tracked["v_px"][0] - v) < np.sqrt(2) * (5.0 * sigma_c + 0.005)

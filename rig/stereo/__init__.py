@@ -42,6 +42,7 @@ if TYPE_CHECKING:
     )
     from rig.stereo.markers import (
         FLAG_BORDER,
+        FLAG_CRAMPED,
         FLAG_LOST,
         FLAG_OCCLUDED,
         FLAG_SATURATED,
@@ -67,6 +68,7 @@ if TYPE_CHECKING:
 
 __all__ = [
     "FLAG_BORDER",
+    "FLAG_CRAMPED",
     "FLAG_LOST",
     "FLAG_OCCLUDED",
     "FLAG_SATURATED",
@@ -158,6 +160,7 @@ _SUBMODULE = {
     "TimingError": "errors",
     "TooFewSamplesError": "errors",
     "FLAG_BORDER": "markers",
+    "FLAG_CRAMPED": "markers",
     "FLAG_LOST": "markers",
     "FLAG_OCCLUDED": "markers",
     "FLAG_SATURATED": "markers",
