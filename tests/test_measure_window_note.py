@@ -1,6 +1,5 @@
 """`rig measure` says when its markers do not fit the tracking window (rig.deploy.video_markers.window_note):
-a marker that still fills its window after the retries is measured from its cut-off part and flagged
-FLAG_CRAMPED; the note counts those rows."""
+a marker that still fills its window after the retries is measured from its cut-off part, unflagged."""
 
 from __future__ import annotations
 
@@ -14,13 +13,10 @@ import pytest
 from marker_images import Disc, render
 
 from rig.deploy.video_markers import WINDOW_MARGIN_PX, ExtractOptions, extract_video, window_note
-from rig.stereo import FLAG_CRAMPED
 
 
-def _rows(area_px: float, roundness: float, count: int = 20, cramped: int = 0) -> pd.DataFrame:
-    flags = np.where(np.arange(count) < cramped, FLAG_CRAMPED, 0).astype(np.uint8)
-    return pd.DataFrame({"area_px": np.full(count, area_px), "roundness": np.full(count, roundness),
-                         "flags": flags})
+def _rows(area_px: float, roundness: float, count: int = 20) -> pd.DataFrame:
+    return pd.DataFrame({"area_px": np.full(count, area_px), "roundness": np.full(count, roundness)})
 
 
 @pytest.mark.parametrize(("a_px", "b_px", "fits"), [(16.0, 16.0, True), (16.6, 16.6, False),
@@ -36,14 +32,6 @@ def test_the_note_names_the_camera_the_size_and_an_odd_window_that_fits() -> Non
     note = window_note(_rows(math.pi * 20.0**2, 1.0), 41, "right")
     assert note is not None and note.startswith("camera right: markers up to 40 px across")
     assert "--window-px 49 or more" in note  # 40 + 8 = 48, rounded up to odd (track_markers' windows)
-
-
-def test_rows_flagged_cramped_are_noted_and_counted_even_when_the_size_fits() -> None:
-    """A marker can fill its window when the prediction is off, though its size fits: the flag decides."""
-    note = window_note(_rows(math.pi * 14.0**2, 1.0, cramped=3), 41, "left")
-    assert note is not None and "3 of 20 measured rows still filled a window" in note
-    assert "--window-px 43 or more" in note  # at least one size up
-    assert "0 of 20 measured rows" in str(window_note(_rows(math.pi * 20.0**2, 1.0), 41, "left"))
 
 
 def test_no_measured_row_gives_no_note() -> None:

@@ -29,7 +29,7 @@ from scipy.optimize import linear_sum_assignment
 
 from drivers.camera.video_file import FrameTimeReport, VideoFile, VideoTruncatedError
 from rig.analysis.frame_reduction import MarkerReducer, ReduceOptions
-from rig.stereo import FLAG_CRAMPED, MARKER_DTYPE
+from rig.stereo import MARKER_DTYPE
 
 __all__ = ["ExtractOptions", "VideoObservations", "extract_video", "window_note"]
 
@@ -149,25 +149,22 @@ WINDOW_MARGIN_PX = 8.0  # background around a marker in its tracking window (Ext
 def window_note(obs: pd.DataFrame, window_px: int, camera: str) -> str | None:
     """A note when ``camera``'s markers are too large for the tracking window ``window_px`` (px): their major
     axis (from ``area_px`` and ``roundness``, 95th percentile of the rows measured) + ``WINDOW_MARGIN_PX``
-    exceeds it, or rows carry FLAG_CRAMPED. Such a marker is measured again in windows two ladder steps
-    larger; one that still fills its window is measured from its cut-off support, its centre biased (rendered
-    markers of r 25–30 px in a 41 px window: up to 0.86 px; rig.stereo.markers.track_markers) and flagged
-    FLAG_CRAMPED. None when they fit."""
+    exceeds it. Such a marker is measured again in windows two ladder steps larger; one that still fills
+    its window is measured from its cut-off support, its centre biased and unflagged (rendered markers of
+    r 25–30 px in a 41 px window: up to 0.86 px; rig.stereo.markers.track_markers). None when they fit."""
     area, roundness = obs["area_px"].to_numpy(float), obs["roundness"].to_numpy(float)
     measured = np.isfinite(area) & np.isfinite(roundness) & (area > 0) & (roundness > 0)
     if not measured.any():
         return None
-    cramped = int(np.count_nonzero(obs["flags"].to_numpy() & FLAG_CRAMPED)) if "flags" in obs else 0
     major_px = float(np.percentile(2.0 * np.sqrt(area[measured] / (np.pi * roundness[measured])), 95))
-    if major_px + WINDOW_MARGIN_PX <= window_px and not cramped:
+    if major_px + WINDOW_MARGIN_PX <= window_px:
         return None
-    fitting_px = math.ceil(max(major_px + WINDOW_MARGIN_PX, window_px + 1)) | 1  # odd, at least a step up
-    return (f"camera {camera}: markers up to {major_px:.0f} px across (95th percentile of the major axis) in "
-            f"a tracking window of {window_px} px, which needs their size + "
-            f"{WINDOW_MARGIN_PX:g} px + twice the largest motion per frame: {cramped} of "
-            f"{int(measured.sum())} measured rows still filled a window after two larger retries (flags & "
-            f"{FLAG_CRAMPED}: centres from a cut-off part, biased by up to ≈ 1 px); give --window-px "
-            f"{fitting_px} or more (plus twice the motion per frame)")
+    return (f"camera {camera}: markers up to {major_px:.0f} px across (95th percentile of the major axis) do "
+            f"not fit the tracking window of {window_px} px, which needs their size + "
+            f"{WINDOW_MARGIN_PX:g} px + twice the largest motion per frame: a marker still filling a window "
+            f"after two larger retries is measured from its cut-off part, its centre biased by up to ≈ 1 px "
+            f"and not flagged; give --window-px {math.ceil(major_px + WINDOW_MARGIN_PX) | 1} or more (plus "
+            f"twice the motion per frame)")
 
 
 def associate(uv_prev: np.ndarray, uv_next: np.ndarray, gate_px: float) -> np.ndarray:

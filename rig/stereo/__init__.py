@@ -42,7 +42,6 @@ if TYPE_CHECKING:
     )
     from rig.stereo.markers import (
         FLAG_BORDER,
-        FLAG_CRAMPED,
         FLAG_LOST,
         FLAG_OCCLUDED,
         FLAG_SATURATED,
@@ -68,7 +67,6 @@ if TYPE_CHECKING:
 
 __all__ = [
     "FLAG_BORDER",
-    "FLAG_CRAMPED",
     "FLAG_LOST",
     "FLAG_OCCLUDED",
     "FLAG_SATURATED",
@@ -160,7 +158,6 @@ _SUBMODULE = {
     "TimingError": "errors",
     "TooFewSamplesError": "errors",
     "FLAG_BORDER": "markers",
-    "FLAG_CRAMPED": "markers",
     "FLAG_LOST": "markers",
     "FLAG_OCCLUDED": "markers",
     "FLAG_SATURATED": "markers",

@@ -44,10 +44,6 @@ FLAG_BORDER = 1  # the measuring window reaches outside the image: the centre ma
 FLAG_OCCLUDED = 2  # partly hidden: the blob is not centrally symmetric, or its outline is not an ellipse
 FLAG_SATURATED = 4  # a marker pixel is clipped (255 for bright markers, 0 for dark ones)
 FLAG_LOST = 8  # tracking only: no marker passing the filters in the window (u_px, v_px are NaN)
-# the marker filled its measuring window even in the larger retries (its support reaches the background
-# ring, or the ring lies on its blurred edge): the centre comes from a cut-off part and may be biased by up
-# to ≈ 1 px (rendered r 25–30 px markers in a 41 px tracking window: 0.86 px); give a larger window_px
-FLAG_CRAMPED = 16
 
 # Occlusion tests (defaults). A whole disc or ellipse is centrally symmetric: its skewness (third
 # moments, see markers_refine) is ~0 and its half-contrast outline lies within a few hundredths of a
@@ -189,7 +185,11 @@ def _retry_cramped(gray: np.ndarray, rows: np.ndarray, cols: np.ndarray, sizes: 
     """Measure the windows of ``result`` that are too small for their marker again, one ladder step larger:
     the marker reaches the ring, or the ring lies on its edge (markers_kernel.MIN_RING_CONTRAST)."""
     if retries > 0 and len(rows):
-        again = np.nonzero(_too_small(result) & (sizes < _HALF_LADDER[-1]))[0]
+        from rig.stereo.markers_kernel import MIN_RING_CONTRAST  # loaded by the measurement already
+
+        with np.errstate(invalid="ignore"):  # NaN contrast (no marker): not too small
+            small = result.cramped | (result.contrast < MIN_RING_CONTRAST * result.sigma)
+        again = np.nonzero(small & (sizes < _HALF_LADDER[-1]))[0]
         if len(again):
             bigger = _HALF_LADDER[np.minimum(np.searchsorted(_HALF_LADDER, sizes[again], side="right"),
                                              len(_HALF_LADDER) - 1)]
@@ -228,20 +228,10 @@ def _rows_from(m: Measured, centre: str, max_edge_rms_px: float, max_skewness: f
     if fitted:
         edge_limit2 = max_edge_rms_px**2 + (EDGE_NOISE_FACTOR * m.edge_noise_px) ** 2
         occluded |= m.edge_rms_px**2 > edge_limit2
-    # bits 0, 1, 2, 4 in one call: FLAG_BORDER, FLAG_OCCLUDED, FLAG_SATURATED, FLAG_CRAMPED
-    out["flags"] = np.packbits(np.stack([m.border, occluded, m.saturated, np.zeros_like(m.border),
-                                         _too_small(m)], axis=1), axis=1, bitorder="little")[:, 0]
+    # bits 0, 1, 2 in one call: FLAG_BORDER, FLAG_OCCLUDED, FLAG_SATURATED
+    out["flags"] = np.packbits(np.stack([m.border, occluded, m.saturated], axis=1), axis=1,
+                               bitorder="little")[:, 0]
     return out
-
-
-def _too_small(m: Measured) -> np.ndarray:
-    """The windows too small for their marker (bool): the support reaches the ring, or the ring lies on the
-    marker's blurred edge (markers_kernel.MIN_RING_CONTRAST; a NaN contrast, no marker, is not)."""
-    from rig.stereo.markers_kernel import MIN_RING_CONTRAST  # loaded by the measurement already
-
-    with np.errstate(invalid="ignore"):
-        small: np.ndarray = m.cramped | (m.contrast < MIN_RING_CONTRAST * m.sigma)
-    return small
 
 
 def _rows_passed(m: Measured, centre: str, max_edge_rms_px: float, max_skewness: float, *, fitted: bool,
@@ -257,8 +247,7 @@ def _rows_passed(m: Measured, centre: str, max_edge_rms_px: float, max_skewness:
     rec = np.empty(len(m.u_px), dtype=MARKER_DTYPE)
     passed = np.empty(len(m.u_px), dtype=bool)
     finish_rows((m.u_px, m.v_px), (m.area_px, m.roundness, m.contrast), (m.skewness, m.skewness_noise),
-                (m.border, m.saturated, _too_small(m)), np.array([max_skewness, SKEW_NOISE_FACTOR, *limits]),
-                rec, passed)
+                (m.border, m.saturated), np.array([max_skewness, SKEW_NOISE_FACTOR, *limits]), rec, passed)
     return rec, passed
 
 
@@ -641,6 +630,7 @@ def track_rows(gray: np.ndarray, pred: np.ndarray, opt: TrackOptions) -> np.ndar
         measured = Measured.empty()
     else:
         measured = measure_windows(gray, rows, cols, opt.half_px, dark=opt.dark, fit_ellipse=opt.fit)
+    # too small for its marker — cramped, or the ring on its blurred edge (low contrast): larger, as compiled
     measured = _retry_cramped(gray, rows, cols, np.full(len(rows), opt.half_px), measured, dark=opt.dark,
                               fit_ellipse=opt.fit, retries=2)
     rec, passed = _rows_passed(measured, opt.centre, opt.max_edge_rms_px, opt.max_skewness, fitted=opt.fit,

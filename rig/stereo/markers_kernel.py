@@ -63,7 +63,6 @@ N_OUT = 9
 # rows of the bool output
 FLAG_ROW_BORDER, FLAG_ROW_SATURATED, FLAG_ROW_CRAMPED = range(3)
 LOST_FLAG = np.uint8(8)  # markers.FLAG_LOST (the kernel does not import rig.stereo.markers)
-CRAMPED_BIT = 4  # markers.FLAG_CRAMPED = 1 << CRAMPED_BIT
 
 
 def jit_kernel(fn: _F, inline: Literal["never", "always"] = "never") -> _F:
@@ -954,14 +953,6 @@ def measure_range(  # noqa: PLR0917 (numba: no keyword-only arguments)
 
 
 @jit_kernel
-def _too_small(out: np.ndarray, flags: np.ndarray, n: int) -> bool:
-    """Whether window ``n`` is too small for its marker: the support reaches the background ring (cramped),
-    or the ring lies on the marker's blurred edge (contrast below MIN_RING_CONTRAST ring σ; a NaN contrast,
-    no marker, is not)."""
-    return bool(flags[FLAG_ROW_CRAMPED, n] or out[OUT_CONTRAST, n] < MIN_RING_CONTRAST * out[OUT_SIGMA, n])
-
-
-@jit_kernel
 def _finish_row(out: np.ndarray, flags: np.ndarray, n: int, limits: np.ndarray, row: Any) -> bool:
     """Output row ``row`` (markers.MARKER_DTYPE) from column ``n`` of ``out`` and ``flags``; whether it
     passes the filters. ``limits`` as in :func:`finish_rows`."""
@@ -969,8 +960,7 @@ def _finish_row(out: np.ndarray, flags: np.ndarray, n: int, limits: np.ndarray, 
     row.area_px, row.roundness, row.contrast = out[OUT_AREA, n], out[OUT_ROUND, n], out[OUT_CONTRAST, n]
     occluded = out[OUT_SKEW, n] > limits[0] + limits[1] * out[OUT_SKEW_NOISE, n]
     row.flags = (np.uint8(flags[FLAG_ROW_BORDER, n]) | np.uint8(occluded) << 1
-                 | np.uint8(flags[FLAG_ROW_SATURATED, n]) << 2
-                 | np.uint8(_too_small(out, flags, n)) << CRAMPED_BIT)  # still, after the retries
+                 | np.uint8(flags[FLAG_ROW_SATURATED, n]) << 2)
     return bool(np.isfinite(row.u_px + row.v_px) and limits[2] <= row.area_px <= limits[3]
                 and row.roundness >= limits[4] and row.contrast >= limits[5])
 
@@ -987,7 +977,8 @@ def _measure_retrying(  # noqa: PLR0917 (numba: no keyword-only arguments)
     skewness noise is computed only above it (where the occlusion test needs it)."""
     measure_one(image, row, col, half_px, dark, scr, out, flags, 0, no_signal, max_skewness)
     size, tries = half_px, 0
-    while _too_small(out, flags, 0) and tries < retries and size < ladder[-1]:
+    while ((flags[FLAG_ROW_CRAMPED, 0] or out[OUT_CONTRAST, 0] < MIN_RING_CONTRAST * out[OUT_SIGMA, 0])
+           and tries < retries and size < ladder[-1]):
         size = ladder[min(int(np.searchsorted(ladder, size, side="right")), len(ladder) - 1)]
         measure_one(image, row, col, size, dark, scratch(size), out, flags, 0, no_signal, max_skewness)
         tries += 1
@@ -1056,16 +1047,15 @@ def track_frame(  # noqa: PLR0917 (numba: no keyword-only arguments)
 @jit_kernel
 def finish_rows(  # noqa: PLR0917 (numba: no keyword-only arguments)
         uv: tuple[np.ndarray, np.ndarray], shape: tuple[np.ndarray, np.ndarray, np.ndarray],
-        skew: tuple[np.ndarray, np.ndarray], bits: tuple[np.ndarray, np.ndarray, np.ndarray],
-        limits: np.ndarray, rec: np.ndarray, passed: np.ndarray) -> bool:
+        skew: tuple[np.ndarray, np.ndarray], bits: tuple[np.ndarray, np.ndarray], limits: np.ndarray,
+        rec: np.ndarray, passed: np.ndarray) -> bool:
     """Output rows (markers.MARKER_DTYPE ``rec``) of measurements without an outline fit, and the filters.
 
     uv: (u_px, v_px); shape: (area_px, roundness, contrast); skew: (skewness, its noise allowance);
-    bits: (border, saturated, too small for the window after the retries) bool — arrays of N. ``limits``:
-    max_skewness, skewness noise factor, min_area_px, max_area_px, min_roundness, min_contrast. Flags: bit 0
-    border, bit 1 occluded (skewness above max_skewness + factor·noise), bit 2 saturated, bit 4 cramped.
-    ``passed[n]``: a finite centre and area, roundness and contrast within the limits. Returns whether all
-    passed.
+    bits: (border, saturated) bool — arrays of N. ``limits``: max_skewness, skewness noise factor,
+    min_area_px, max_area_px, min_roundness, min_contrast. Flags: bit 0 border, bit 1 occluded (skewness
+    above max_skewness + factor·noise), bit 2 saturated. ``passed[n]``: a finite centre and area, roundness
+    and contrast within the limits. Returns whether all passed.
     """
     all_passed = True
     for n in range(len(rec)):
@@ -1073,8 +1063,7 @@ def finish_rows(  # noqa: PLR0917 (numba: no keyword-only arguments)
         row.u_px, row.v_px = uv[0][n], uv[1][n]
         row.area_px, row.roundness, row.contrast = shape[0][n], shape[1][n], shape[2][n]
         occluded = skew[0][n] > limits[0] + limits[1] * skew[1][n]
-        row.flags = (np.uint8(bits[0][n]) | np.uint8(occluded) << 1 | np.uint8(bits[1][n]) << 2
-                     | np.uint8(bits[2][n]) << CRAMPED_BIT)
+        row.flags = np.uint8(bits[0][n]) | np.uint8(occluded) << 1 | np.uint8(bits[1][n]) << 2
         ok = (np.isfinite(row.u_px + row.v_px) and limits[2] <= row.area_px <= limits[3]
               and row.roundness >= limits[4] and row.contrast >= limits[5])
         passed[n] = ok
