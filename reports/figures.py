@@ -68,8 +68,9 @@ def save_png(fig: Figure, path: Path) -> None:
 def save_svg(fig: Figure, path: Path) -> None:
     """Write ``fig`` as SVG, text drawn as paths (it looks the same whatever fonts the reader has), without
     date or creator stamp and with fixed element ids, so identical figures give identical bytes
-    (atomically). A line figure of thousands of points draws in about a third of the CPU time of its PNG
-    (no rasterising, no compression) and is smaller."""
+    (atomically). A line figure of thousands of points draws in less than half the CPU time of its PNG (no
+    rasterising, no compression: ``rig measure``'s two figures of a 20-s pair 0.07 against 0.16 s) and is
+    smaller."""
     svg_style: dict[RcKeyType, Any] = {"svg.fonttype": "path", "svg.hashsalt": STYLE["svg.hashsalt"]}
     with plt.rc_context(svg_style), atomic_path(path) as tmp:
         fig.savefig(tmp, format="svg", metadata={"Date": None, "Creator": None})

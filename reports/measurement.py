@@ -118,7 +118,7 @@ def write_measurement_report(out_dir: str | Path) -> dict[str, Path]:
     files: dict[str, Path] = {}
     svgs: dict[str, bytes] = {}
     for name, fig in (("displacement", fig_displacement(m)), ("spectrum", fig_spectrum(m))):
-        if fig is not None:  # vector figures: sharp at any zoom, and a third of a PNG's drawing time
+        if fig is not None:  # vector figures: sharp at any zoom, in less than half a PNG's drawing time
             files[f"figure_{name}"] = figures_dir / f"{name}.svg"
             figures.save_svg(fig, files[f"figure_{name}"])
             svgs[name] = files[f"figure_{name}"].read_bytes()

@@ -89,8 +89,8 @@ def _sampled_kernel(image64: np.ndarray, prev32: np.ndarray, sampled32: np.ndarr
     Four half-size values at once in a 64-bit word (16-bit lanes: sums of 4 pixels ≤ 1020 never carry
     into the next lane): a sampled block row reads one word from each of two image rows. Each row pair's
     words are first all reduced in order into ``halves`` (the odd words' values are not used): contiguous
-    reads, which the compiler vectorises without gathers and the prefetcher follows — on a frame fresh
-    from the decoder, 2.4× faster than reading every other word."""
+    reads, which the compiler vectorises without gathers and the prefetcher follows — than reading every
+    other word, 2.4× faster on a 1080p frame not in the cache, 5 % on one fresh from the decoder."""
     lanes, one, eight, sixteen = _LANES, np.uint64(1), np.uint64(8), np.uint64(16)
     rounding, offset = np.uint64(0x0002000200020002), np.uint64(0x0100010001000100)
     low9, low16 = np.uint64(0x1FF), np.uint64(0xFFFF)
